@@ -1,0 +1,95 @@
+"""The catalogue of instrument coefficients and rig/instrument effects (effects.md).
+
+These ids are the shared vocabulary of the simulator, the estimators, the
+diagnosis and the warehouse: never rename them.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .constants import G_STANDARD
+
+TESTS = ("tumble", "centrifuge", "tilt_rotation", "sine_centrifuge")
+
+
+@dataclass(frozen=True)
+class Coefficient:
+    name: str
+    unit: str              # SI unit ("out" stands for the run's output_unit)
+    display_unit: str
+    display_factor: float  # display = SI / display_factor
+
+
+#: Instrument-model coefficients (effects.md, "Instrument model"), plus theta0 of the tumble.
+COEFFICIENTS: dict[str, Coefficient] = {c.name: c for c in [
+    Coefficient("K0", "m/s2", "ug", 1e-6 * G_STANDARD),
+    Coefficient("K1", "out/(m/s2)", "out/g", 1.0 / G_STANDARD),
+    Coefficient("Kp", "rad", "urad", 1e-6),
+    Coefficient("Ko", "rad", "urad", 1e-6),
+    Coefficient("K2", "s2/m", "ug/g2", 1e-6 / G_STANDARD),
+    Coefficient("Koq", "s2/m", "ug/g2", 1e-6 / G_STANDARD),
+    Coefficient("Kip", "s2/m", "ug/g2", 1e-6 / G_STANDARD),
+    Coefficient("Kio", "s2/m", "ug/g2", 1e-6 / G_STANDARD),
+    Coefficient("Kpo", "s2/m", "ug/g2", 1e-6 / G_STANDARD),
+    Coefficient("Kpp", "s2/m", "ug/g2", 1e-6 / G_STANDARD),
+    Coefficient("Koo", "s2/m", "ug/g2", 1e-6 / G_STANDARD),
+    Coefficient("K3", "s4/m2", "ug/g3", 1e-6 / G_STANDARD ** 2),
+    Coefficient("K0T", "m/s2/degC", "ug/degC", 1e-6 * G_STANDARD),
+    Coefficient("K1T", "1/degC", "ppm/degC", 1e-6),
+    Coefficient("theta0", "rad", "deg", 3.141592653589793 / 180.0),
+]}
+
+#: The second-order coefficients, used where code must loop over them.
+SECOND_ORDER = ("K2", "Koq", "Kip", "Kio", "Kpo", "Kpp", "Koo")
+
+
+@dataclass(frozen=True)
+class Effect:
+    id: str
+    tests: tuple[str, ...]
+    parameter: str
+    unit: str
+    definition: str
+    coefficient: str | None = None  # the instrument-model coefficient it is, if any
+
+
+EFFECTS: dict[str, Effect] = {e.id: e for e in [
+    Effect("earth_rate", ("centrifuge", "sine_centrifuge"), "scale", "1",
+           "the Omega_e*sin(latitude) part of omega_z; 1 means the physical size"),
+    Effect("ia_tilt", ("centrifuge", "sine_centrifuge"), "lambda", "rad",
+           "first plane axis tilted out of the table plane by lambda, positive towards up"),
+    Effect("mass_centre_offset", ("centrifuge", "sine_centrifuge"), "r", "m",
+           "effective mass centre r from the turning centre along the first plane axis"),
+    Effect("mount_angle_error", ("centrifuge",), "dphi", "rad",
+           "true mount angle is phi + dphi, same for both polarities"),
+    Effect("arm_stretch", ("centrifuge", "sine_centrifuge"), "kappa", "s2",
+           "turning centre sits at R*(1 + kappa*omega_z^2)"),
+    Effect("rate_scale_error", ("centrifuge", "sine_centrifuge"), "epsilon", "1",
+           "true rate is (1 + epsilon) times the logged table_rate_rad_s"),
+    Effect("spindle_tilt", ("sine_centrifuge",), "beta", "rad",
+           "table plane tilted by beta: gravity adds g*sin(beta)*cos(alpha) along the inward radial"),
+    Effect("sensor_lag", ("sine_centrifuge",), "tau", "s",
+           "output follows the input through a first-order lag with time constant tau"),
+    Effect("initial_misalignment", ("tumble",), "theta0", "rad",
+           "true head angle is theta + theta0"),
+    Effect("fixture_thermal_tilt", ("tilt_rotation",), "c", "rad/degC",
+           "IA tilts out of the table plane by c*(T - T_ref), positive towards the normal axis"),
+    Effect("base_tilt_drift", ("tilt_rotation",), "dgamma_dt", "rad/s",
+           "the tilt gamma grows linearly in time from the run start"),
+    Effect("tilt_tide", ("tilt_rotation",), "amplitude", "rad",
+           "gamma gains A*sin(2*pi*t/44712 s)"),
+    Effect("bias_temperature", TESTS, "K0T", "m/s2/degC", "as in the instrument model", "K0T"),
+    Effect("scale_temperature", TESTS, "K1T", "1/degC", "as in the instrument model", "K1T"),
+    Effect("bias_drift", TESTS, "d", "m/s2/s", "K0 grows by d*t, t = time_s"),
+    Effect("odd_quadratic", ("centrifuge", "sine_centrifuge"), "Koq", "s2/m",
+           "instrument term, when the baseline model omits it", "Koq"),
+    Effect("cubic", ("centrifuge", "sine_centrifuge"), "K3", "s4/m2",
+           "instrument term, when the baseline model omits it", "K3"),
+    Effect("cross_coupling", ("centrifuge", "sine_centrifuge"), "Kip", "s2/m",
+           "instrument term, when the baseline model omits it", "Kip"),
+]}
+
+
+def effects_for(test: str) -> list[str]:
+    """Effect ids that apply to a test kind (effects.md, column 'tests')."""
+    return [e.id for e in EFFECTS.values() if test in e.tests]

@@ -1,0 +1,73 @@
+"""The instrument model, IEEE 1293 form in SI units (effects.md, "Instrument model").
+
+    A = K0 + a_i + K2 a_i^2 + K3 a_i^3 + Koq a_i|a_i| + Kp a_p + Ko a_o
+          + Kip a_i a_p + Kio a_i a_o + Kpo a_p a_o + Kpp a_p^2 + Koo a_o^2
+    E = K1 * A
+
+with temperature K0(T) = K0 + K0T (T - T_ref), K1(T) = K1 (1 + K1T (T - T_ref))
+and bias drift K0 + d t (effect ``bias_drift``).  a_* in m/s^2, E in output_unit.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+from ..constants import T_REF_C
+
+#: Coefficient names of the model with their default (ideal instrument) values.
+DEFAULTS = {"K0": 0.0, "K1": 1.0, "K2": 0.0, "K3": 0.0, "Koq": 0.0, "Kp": 0.0, "Ko": 0.0,
+            "Kip": 0.0, "Kio": 0.0, "Kpo": 0.0, "Kpp": 0.0, "Koo": 0.0, "K0T": 0.0, "K1T": 0.0}
+
+
+def indicated_acceleration(coeffs: Mapping[str, float], f: np.ndarray,
+                           temp_c: np.ndarray | None = None,
+                           time_s: np.ndarray | None = None,
+                           bias_drift: float = 0.0) -> np.ndarray:
+    """A (m/s^2) of the instrument model for specific force f[..., (IA, PA, OA)] in m/s^2.
+
+    Temperature enters only the bias here (K0T); the scale-factor temperature
+    term belongs to K1(T) and is applied by :func:`output`.
+    """
+    c = {**DEFAULTS, **{k: float(v) for k, v in coeffs.items() if k in DEFAULTS}}
+    ai, ap, ao = f[..., 0], f[..., 1], f[..., 2]
+    A = (c["K0"] + ai + c["K2"] * ai**2 + c["K3"] * ai**3 + c["Koq"] * ai * np.abs(ai)
+         + c["Kp"] * ap + c["Ko"] * ao + c["Kip"] * ai * ap + c["Kio"] * ai * ao
+         + c["Kpo"] * ap * ao + c["Kpp"] * ap**2 + c["Koo"] * ao**2)
+    if temp_c is not None and c["K0T"] != 0.0:
+        A = A + c["K0T"] * (np.asarray(temp_c, float) - T_REF_C)
+    if time_s is not None and bias_drift != 0.0:
+        A = A + bias_drift * np.asarray(time_s, float)
+    return A
+
+
+def scale_factor(coeffs: Mapping[str, float], temp_c: np.ndarray | None = None) -> np.ndarray | float:
+    """K1(T) = K1 (1 + K1T (T - T_ref)), output_unit per m/s^2."""
+    K1 = float(coeffs.get("K1", 1.0))
+    K1T = float(coeffs.get("K1T", 0.0))
+    if temp_c is None or K1T == 0.0:
+        return K1
+    return K1 * (1.0 + K1T * (np.asarray(temp_c, float) - T_REF_C))
+
+
+def output(coeffs: Mapping[str, float], f: np.ndarray, temp_c=None, time_s=None,
+           bias_drift: float = 0.0) -> np.ndarray:
+    """E = K1(T) * A, in the run's output_unit."""
+    return scale_factor(coeffs, temp_c) * indicated_acceleration(coeffs, f, temp_c, time_s, bias_drift)
+
+
+def first_order_lag(x: np.ndarray, time_s: np.ndarray, tau: float) -> np.ndarray:
+    """Output of a first-order lag tau*y' = x - y (effect ``sensor_lag``), exact for x
+    linear between samples (first-order hold); y(t0) = x(t0)."""
+    x = np.asarray(x, float)
+    if tau <= 0.0 or x.size == 0:
+        return x.copy()
+    t = np.asarray(time_s, float)
+    y = np.empty_like(x)
+    y[0] = x[0]
+    for n in range(1, x.size):
+        dt = t[n] - t[n - 1]
+        a = np.exp(-dt / tau) if dt > 0 else 1.0
+        s = (x[n] - x[n - 1]) / dt if dt > 0 else 0.0
+        y[n] = a * y[n - 1] + (1.0 - a) * x[n - 1] + s * (dt - tau * (1.0 - a))
+    return y

@@ -1,0 +1,215 @@
+"""Rig kinematics: the specific force each instrument axis senses on each rig,
+nominal (drop-format.md) and with the rig effects of effects.md.
+
+This is *the* forward model of accelcal: the simulator, the estimators and the
+diagnosis all call it.  Inputs are a run's typed metadata (``meta``, as parsed
+from the drop) and its columns (``data``: a DataFrame or mapping of arrays named
+as in drop-format.md).  ``effects`` maps effect ids (effects.md) to their
+parameter; an effect that is absent is not there.  The drop format's nominal
+input includes the earth rate: pass ``NOMINAL`` (``{"earth_rate": 1.0}``) for it.
+
+Frames. For the centrifuges, (e1, e2) are the first and second plane axes, "up"
+the vertical axis direction, u the unit vector from the instrument towards the
+spindle (angle phi from e1 towards e2).  A point at p (from the spindle, in the
+table plane) on a table turning at omega_z about the vertical has acceleration
+omega_z' z x p - omega_z^2 p; the specific force is that minus gravity, i.e.
+plus g on "up".
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+from ..constants import M2_PERIOD_S, OMEGA_EARTH, T_REF_C
+from .axes import parse_plane, parse_signed_axis, plane_handedness
+from .instrument import first_order_lag, output
+
+#: The drop format's nominal input: everything nominal, earth rate included.
+NOMINAL: dict[str, float] = {"earth_rate": 1.0}
+
+#: Effects that are instrument coefficients (effects.md): effect id -> coefficient name.
+INSTRUMENT_EFFECTS = {"odd_quadratic": "Koq", "cubic": "K3", "cross_coupling": "Kip",
+                      "bias_temperature": "K0T", "scale_temperature": "K1T"}
+
+
+def _col(data, name, n=None, default=0.0) -> np.ndarray:
+    try:
+        v = data[name]
+    except (KeyError, IndexError):
+        return np.full(n if n is not None else 0, default, float)
+    return np.asarray(v, dtype=float)
+
+
+def _n(data) -> int:
+    for k in ("time_s", "output"):
+        try:
+            return len(data[k])
+        except (KeyError, TypeError):
+            pass
+    return len(next(iter(data.values())))
+
+
+def rotation_sign(meta: Mapping) -> int:
+    """s = +1 for a ccw table, -1 for cw (drop-format.md)."""
+    sense = str(meta.get("rotation_sense", "ccw")).strip().lower()
+    if sense not in ("ccw", "cw"):
+        raise ValueError(f"rotation_sense {sense!r} is not ccw or cw")
+    return 1 if sense == "ccw" else -1
+
+
+def omega_z(meta: Mapping, rate: np.ndarray, effects: Mapping[str, float] | None = None) -> np.ndarray:
+    """Inertial rate about the vertical, rad/s: omega_z = s (1+eps) omega + scale * Omega_e sin(lat)
+    (drop-format.md; effects ``rate_scale_error`` eps and ``earth_rate`` scale)."""
+    effects = effects or {}
+    eps = float(effects.get("rate_scale_error", 0.0))
+    scale = float(effects.get("earth_rate", 0.0))
+    lat = np.radians(float(meta["site_latitude_deg"]))
+    return rotation_sign(meta) * (1.0 + eps) * np.asarray(rate, float) + scale * OMEGA_EARTH * np.sin(lat)
+
+
+def sine_rate_derivative(meta: Mapping, time_s: np.ndarray, effects: Mapping[str, float] | None = None) -> np.ndarray:
+    """d(omega_z)/dt, rad/s^2, of the sinusoidal drive omega = Omega sin(2 pi f t) (paper 002),
+    signed like omega_z and scaled by (1 + eps) of ``rate_scale_error``."""
+    effects = effects or {}
+    eps = float(effects.get("rate_scale_error", 0.0))
+    Om = float(meta["rate_amplitude_rad_s"])
+    f = float(meta["rate_frequency_hz"])
+    t = np.asarray(time_s, float)
+    return rotation_sign(meta) * (1.0 + eps) * Om * 2 * np.pi * f * np.cos(2 * np.pi * f * t)
+
+
+def centrifuge_specific_force(meta: Mapping, data, effects: Mapping[str, float] | None = None, *,
+                              radius_m: float | None = None,
+                              rate_derivative: np.ndarray | None = None) -> np.ndarray:
+    """Specific force (n, 3) on (IA, PA, OA), m/s^2, for ``centrifuge`` and ``sine_centrifuge`` runs.
+
+    radius_m: distance spindle -> fixture turning centre (default ``arm_radius_m``).
+    rate_derivative: d(omega_z)/dt per row; default 0 for ``centrifuge`` and the drive's
+    derivative (:func:`sine_rate_derivative`) for ``sine_centrifuge``.
+    Effects: earth_rate, rate_scale_error, mount_angle_error, mass_centre_offset,
+    arm_stretch, ia_tilt, spindle_tilt (effects.md definitions and signs).
+    """
+    effects = effects or {}
+    n = _n(data)
+    g = float(meta["g_local_m_s2"])
+    e1, e2 = parse_plane(meta["mount_plane"])
+    v, vs = parse_signed_axis(meta["vertical_axis"])
+    h = plane_handedness(meta["mount_plane"], meta["vertical_axis"])
+    R0 = float(meta["arm_radius_m"]) if radius_m is None else float(radius_m)
+    phi = np.radians(float(meta["mount_angle_deg"])) + float(effects.get("mount_angle_error", 0.0))
+    r = float(effects.get("mass_centre_offset", 0.0))
+    kappa = float(effects.get("arm_stretch", 0.0))
+    lam = float(effects.get("ia_tilt", 0.0))
+    beta = float(effects.get("spindle_tilt", 0.0))
+
+    wz = omega_z(meta, _col(data, "table_rate_rad_s", n), effects)
+    if rate_derivative is None:
+        if str(meta.get("test")) == "sine_centrifuge" and "rate_amplitude_rad_s" in meta:
+            rate_derivative = sine_rate_derivative(meta, _col(data, "time_s", n), effects)
+        else:
+            rate_derivative = np.zeros(n)
+    wdot = np.asarray(rate_derivative, float)
+
+    R = R0 * (1.0 + kappa * wz**2)
+    ux, uy = np.cos(phi), np.sin(phi)
+    # position of the effective mass centre from the spindle, in (e1, e2) coordinates
+    p1 = -R * ux + r
+    p2 = -R * uy
+    f1 = -wz**2 * p1 + wdot * h * (-p2)
+    f2 = -wz**2 * p2 + wdot * h * p1
+    fup = np.full(n, g * np.cos(beta))
+    if beta != 0.0:
+        alpha = np.radians(np.nan_to_num(_col(data, "table_angle_deg", n)))
+        gr = g * np.sin(beta) * np.cos(alpha)
+        f1 = f1 + gr * ux
+        f2 = f2 + gr * uy
+    if lam != 0.0:
+        f1, fup = f1 * np.cos(lam) + fup * np.sin(lam), fup * np.cos(lam) - f1 * np.sin(lam)
+    F = np.zeros((n, 3))
+    F[:, e1] = f1
+    F[:, e2] = f2
+    F[:, v] = vs * fup
+    return F
+
+
+def tumble_specific_force(meta: Mapping, data, effects: Mapping[str, float] | None = None) -> np.ndarray:
+    """Specific force (n, 3) for a ``tumble`` run: cos_axis senses g cos(theta + theta0),
+    sin_axis g sin(theta + theta0), head_axis 0 (drop-format.md; paper 003; effect
+    ``initial_misalignment`` theta0 in rad)."""
+    effects = effects or {}
+    n = _n(data)
+    g = float(meta["g_local_m_s2"])
+    th = np.radians(_col(data, "angle_deg", n)) + float(effects.get("initial_misalignment", 0.0))
+    c, cs = parse_signed_axis(meta["cos_axis"])
+    s, ss = parse_signed_axis(meta["sin_axis"])
+    F = np.zeros((n, 3))
+    F[:, c] = cs * g * np.cos(th)
+    F[:, s] = ss * g * np.sin(th)
+    return F
+
+
+def tilt_rotation_specific_force(meta: Mapping, data, effects: Mapping[str, float] | None = None) -> np.ndarray:
+    """Specific force (n, 3) for a ``tilt_rotation`` run (paper 001; drop-format.md):
+    sin_axis g sin(gamma) sin(theta), cos_axis g sin(gamma) cos(theta), normal_axis g cos(gamma).
+    Effects: base_tilt_drift (gamma += dgamma/dt * t), tilt_tide (gamma += A sin(2 pi t / M2)),
+    fixture_thermal_tilt (IA tilts towards the normal axis by c (T - T_ref)); t = time_s."""
+    effects = effects or {}
+    n = _n(data)
+    g = float(meta["g_local_m_s2"])
+    t = _col(data, "time_s", n)
+    gamma = (np.radians(float(meta["tilt_deg"])) + float(effects.get("base_tilt_drift", 0.0)) * t
+             + float(effects.get("tilt_tide", 0.0)) * np.sin(2 * np.pi * t / M2_PERIOD_S))
+    th = np.radians(_col(data, "rotation_deg", n))
+    si, ss = parse_signed_axis(meta["sin_axis"])
+    ci, cs = parse_signed_axis(meta["cos_axis"])
+    ni, ns = parse_signed_axis(meta["normal_axis"])
+    F = np.zeros((n, 3))
+    F[:, si] = ss * g * np.sin(gamma) * np.sin(th)
+    F[:, ci] = cs * g * np.sin(gamma) * np.cos(th)
+    F[:, ni] = ns * g * np.cos(gamma)
+    c = float(effects.get("fixture_thermal_tilt", 0.0))
+    if c != 0.0 and ni != 0:
+        delta = c * (_col(data, "temp_c", n, np.nan) - T_REF_C)
+        delta = np.nan_to_num(delta)
+        a_ia = F[:, 0].copy()
+        a_n = ns * F[:, ni]                       # along the signed normal direction
+        F[:, 0] = a_ia * np.cos(delta) + a_n * np.sin(delta)
+        F[:, ni] = ns * (a_n * np.cos(delta) - a_ia * np.sin(delta))
+    return F
+
+
+def specific_force(test: str, meta: Mapping, data, effects: Mapping[str, float] | None = None,
+                   **kw) -> np.ndarray:
+    """Dispatch on the test kind; returns (n, 3) specific force on (IA, PA, OA), m/s^2."""
+    if test in ("centrifuge", "sine_centrifuge"):
+        return centrifuge_specific_force(meta, data, effects, **kw)
+    if test == "tumble":
+        return tumble_specific_force(meta, data, effects)
+    if test == "tilt_rotation":
+        return tilt_rotation_specific_force(meta, data, effects)
+    raise ValueError(f"unknown test kind {test!r}")
+
+
+def rig_output(test: str, meta: Mapping, data, coeffs: Mapping[str, float],
+               effects: Mapping[str, float] | None = None, **kw) -> np.ndarray:
+    """Noise-free instrument output E (output_unit) of a run: rig kinematics + effects +
+    instrument model (+ ``sensor_lag``, ``bias_drift``).  Instrument-term effects
+    (odd_quadratic, cubic, cross_coupling, bias_temperature, scale_temperature) add to
+    the corresponding coefficient."""
+    effects = dict(effects or {})
+    c = dict(coeffs)
+    for eid, name in INSTRUMENT_EFFECTS.items():
+        if eid in effects:
+            c[name] = float(c.get(name, 0.0)) + float(effects[eid])
+    F = specific_force(test, meta, data, effects, **kw)
+    n = F.shape[0]
+    temp = _col(data, "temp_c", n, np.nan) if ("temp_c" in getattr(data, "keys", lambda: [])()) else None
+    if temp is not None:
+        temp = np.where(np.isfinite(temp), temp, T_REF_C)
+    t = _col(data, "time_s", n)
+    E = output(c, F, temp, t, float(effects.get("bias_drift", 0.0)))
+    tau = float(effects.get("sensor_lag", 0.0))
+    if tau > 0.0:
+        E = first_order_lag(E, t, tau)
+    return E
