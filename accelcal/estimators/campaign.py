@@ -1,15 +1,354 @@
-"""process_campaign: all the science of one campaign (stub until the estimators land)."""
+"""process_campaign: all the science of one campaign, as plain functions.
+
+Order of work (paper 000 §2–3, paper 003, paper 001, paper 002):
+tumble (K0, K1, K2, theta0) -> test radii (static eq 4–6 and iterative eq 7, orders
+1–3, g ranges) with their adequacy -> mount-pair fits (eq 9) -> combination (eq 2/3)
+-> alignment (§2.2, eq 8) -> GUM budgets with a Monte Carlo check (§3.2, JCGM 101);
+thermal runs (paper 001) and sinusoidal-centrifuge campaigns (paper 002) likewise.
+"""
 from __future__ import annotations
 
-from ..results import CampaignResult
+import math
+from collections import defaultdict
+from collections.abc import Mapping
 
+import numpy as np
+
+from ..constants import G_STANDARD
+from ..physics.axes import parse_plane, parse_signed_axis
+from ..results import AdequacyResult, BudgetTerm, CampaignResult, CoefficientResult, RadiusResult
+from . import uncertainty as unc
+from .crosscoupling import (CROSS, SQUARE, combine_second_order, delta_c2, fit_mount_pair,
+                            pair_key, pair_label)
+from .radius import (PairData, g_levels, ia_polarity, test_radius_iterative, test_radius_static)
+
+#: g ranges of the radius table, in g (paper 000 Table 2), plus the full range.
+RADIUS_RANGES = (7.0, 14.0, 25.0)
+RADIUS_ORDERS = (1, 2, 3)
+SECOND_ORDER_UNIT = "s2/m"
+
+
+def _meta(run) -> Mapping:
+    return run.meta
+
+
+def _out_unit(meta: Mapping) -> str:
+    return f"{meta.get('output_unit', 'out')}/(m/s2)"
+
+
+# ------------------------------------------------------------------ tumble
+
+def _process_tumble(runs, res: CampaignResult) -> dict | None:
+    """Fit every tumble run (paper 003); return the K0, K1 (and u) used downstream."""
+    from .tumble import fit_tumble, tumble_coefficients, two_position
+    fits = []
+    for run in runs:
+        try:
+            fit = fit_tumble(run.meta, run.data)
+        except Exception as exc:  # a fit that cannot run is a flag, not a crash
+            res.flags.append(f"tumble {run.meta.get('run_id')}: fit failed: {exc}")
+            continue
+        fits.append((run, fit))
+        tp = {}
+        try:
+            tp = two_position(run.meta, run.data)
+        except Exception as exc:
+            tp = {"error": str(exc)}
+        res.extras.setdefault("tumble", []).append({
+            "run_id": run.meta.get("run_id"), "values": fit.values, "std": fit.std_uncertainties,
+            "residual_rms": fit.residual_rms, "dof": fit.dof, "lack_of_fit": fit.lack_of_fit,
+            "two_position": tp, "note": fit.note})
+    if not fits:
+        return None
+    # inverse-variance mean over the tumble runs of the campaign
+    keys = ("K0", "K1", "K2", "theta0")
+    comb = {}
+    for k in keys:
+        v = np.array([f.values[k] for _, f in fits])
+        u = np.array([f.std_uncertainties[k] for _, f in fits])
+        w = 1 / np.maximum(u, 1e-300) ** 2
+        comb[k] = (float(np.sum(w * v) / np.sum(w)), float(1 / math.sqrt(np.sum(w))))
+    run0, fit0 = fits[0]
+    rig = str(run0.meta.get("rig_id", ""))
+    if len(fits) == 1:
+        res.coefficients += tumble_coefficients(fit0, rig)
+    else:
+        units = {"K0": "m/s2", "K1": _out_unit(run0.meta), "K2": SECOND_ORDER_UNIT, "theta0": "rad"}
+        for k in keys:
+            res.coefficients.append(CoefficientResult(
+                k, comb[k][0], comb[k][1], units[k], "tumble_lm", rig,
+                note=f"inverse-variance mean of {len(fits)} tumble runs"))
+    return {"K0": comb["K0"][0], "u_K0": comb["K0"][1], "K1": comb["K1"][0], "u_K1": comb["K1"][1],
+            "K2": comb["K2"][0], "u_K2": comb["K2"][1]}
+
+
+# ------------------------------------------------------------------ centrifuge
+
+def _centrifuge_rig(runs, tumble: dict | None, res: CampaignResult) -> None:
+    """Radius, adequacy, mount pairs, combination and budgets for the runs of one rig."""
+    rig = str(runs[0].meta.get("rig_id", ""))
+    by_key = defaultdict(dict)
+    for run in runs:
+        plane, phi = pair_key(run.meta)
+        pol = 1 if float(run.meta["mount_angle_deg"]) % 360.0 < 180.0 else -1
+        by_key[(plane, phi)][pol] = run       # newest revision wins upstream
+    ia_key = next((k for k, v in by_key.items() if 1 in v and -1 in v and ia_polarity(v[1].meta) is not None), None)
+    if ia_key is None:
+        res.flags.append(f"{rig}: no IA mount pair (phi = 0/180 deg): test radius and K2 cannot be determined")
+        return
+    run_p, run_m = by_key[ia_key][1], by_key[ia_key][-1]
+    if ia_polarity(run_p.meta) < 0:
+        run_p, run_m = run_m, run_p
+    if tumble is None:
+        res.flags.append(f"{rig}: no tumble run in the campaign: K1, K0 taken from the centrifuge at the "
+                         "nominal arm radius; the radius is then not independent")
+        pair0 = PairData.from_runs([(run_p.meta, run_p.data, 1), (run_m.meta, run_m.data, -1)], 1.0)
+        R0 = float(run_p.meta["arm_radius_m"])
+        a = np.where(pair0.table["pol"] > 0, 1, -1) * pair0.table["omega_z"].to_numpy() ** 2 * R0
+        f, _ = pair0.fit(a, 3, subtract_a=False)
+        K1 = 0.5 * (f.value("b+") + f.value("b-"))
+        tumble = {"K0": 0.5 * (f.value("K0+") + f.value("K0-")) / K1, "u_K0": 0.0, "K1": K1,
+                  "u_K1": 0.0, "K2": 0.0, "u_K2": 0.0}
+    K0, K1, uK0, uK1 = tumble["K0"], tumble["K1"], tumble["u_K0"], tumble["u_K1"]
+
+    # --- static back-calculation (eq 4-6)
+    static = {}
+    for run in (run_p, run_m):
+        try:
+            s = test_radius_static(run.meta, run.data, K0, K1, uK0, uK1)
+            static[s.polarity] = s
+            res.radii.append(RadiusResult(rig, s.polarity, "static", None, 1.0, s.radius_m, s.std_uncertainty_m,
+                                          note=f"eq 6; printed-form u = {s.std_uncertainty_printed_m:.3e} m"))
+        except Exception as exc:
+            res.flags.append(f"{rig}: static radius of {run.meta.get('run_id')} failed: {exc}")
+    arm = float(run_p.meta["arm_radius_m"])
+    R0p = static["+"].radius_m if "+" in static else arm
+    R0m = static["-"].radius_m if "-" in static else arm
+    res.alignment.append({"kind": "lambda_c", "rig_id": rig,
+                          **{f"lambda_c{p}": s.lambda_c_rad for p, s in static.items()},
+                          **{f"u_lambda_c{p}": s.u_lambda_c_rad for p, s in static.items()}})
+    res.extras.setdefault("static_radius", {})[rig] = {
+        p: {"radius_m": s.radius_m, "u_gum_m": s.std_uncertainty_m, "u_printed_m": s.std_uncertainty_printed_m,
+            "lambda_c_rad": s.lambda_c_rad, "omega_g": s.omega_g, "a_g": s.a_g, "budget": s.budget}
+        for p, s in static.items()}
+
+    # --- iterative regression (eq 7) for orders and g ranges, each with its adequacy
+    pair = PairData.from_runs([(run_p.meta, run_p.data, 1), (run_m.meta, run_m.data, -1)], K1)
+    levels = g_levels(pair, R0p, R0m)
+    top = max(levels) if levels else None
+    ranges = [r for r in RADIUS_RANGES if levels and r < top * 0.98 and sum(lv <= r * 1.02 for lv in levels) >= 4]
+    ranges.append(None)
+    fits = {}
+    label = f"radius {ia_key[0]} {ia_key[1]:g}/{ia_key[1] + 180:g}"
+    for order in RADIUS_ORDERS:
+        for gr in ranges:
+            it = test_radius_iterative(pair, R0p, R0m, order, gr, uK1 / abs(K1))
+            fits[(order, gr)] = it
+            gmax = top if gr is None else gr
+            for pol, R, u in (("+", it.R_plus, it.u_plus), ("-", it.R_minus, it.u_minus)):
+                res.radii.append(RadiusResult(rig, pol, "iterative", order, gmax, R, u))
+            f = it.fit
+            res.adequacy.append(AdequacyResult(rig, label, order, gmax, f.f_statistic, f.p_value, f.dof_lof,
+                                               f.dof_pe, f.trend_p, f.sweep_p, f.runs_p, f.adequate))
+    chosen = next((o for o in RADIUS_ORDERS if fits[(o, None)].fit.adequate), None)
+    if chosen is None:
+        chosen = RADIUS_ORDERS[-1]
+        res.flags.append(f"{rig}: no radius model order is adequate over the full range (lack-of-fit or "
+                         f"residual checks fail); order {chosen} used and flagged")
+    for a in res.adequacy:
+        if a.fit == label and a.rig_id == rig and a.model_order == chosen and a.g_max == top:
+            a.chosen = True
+    best = fits[(chosen, None)]
+    Rp, Rm = best.R_plus, best.R_minus
+
+    # --- mount pairs (eq 9) and their combination (eq 2/3)
+    pairs = []
+    for key, runs_k in sorted(by_key.items()):
+        if 1 not in runs_k or -1 not in runs_k:
+            res.flags.append(f"{rig}: mount {key[0]} {key[1]:g} has one polarity only; not used")
+            continue
+        a, b = runs_k[1], runs_k[-1]
+        pf = fit_mount_pair((a.meta, a.data), (b.meta, b.data), K1, Rp, Rm)
+        pairs.append(pf)
+        f = pf.fit
+        for order, fo in pf.fits.items():
+            res.adequacy.append(AdequacyResult(rig, f"eq9 {pair_label(pf)}", order, top, fo.f_statistic,
+                                               fo.p_value, fo.dof_lof, fo.dof_pe, fo.trend_p, fo.sweep_p,
+                                               fo.runs_p, fo.adequate, chosen=(order == pf.order)))
+        if not pf.adequate:
+            res.flags.append(f"{rig}: eq 9 fit of {pair_label(pf)} is not adequate at any order; used and flagged")
+    # first pass without type-B terms to get the K's for eq 8, then with them
+    comb0 = combine_second_order(pairs)
+    u_dc2 = {}
+    for pf in pairs:
+        g = pf.geometry
+        d1 = delta_c2(comb0.values, pf.plane, math.radians(pf.phi0_deg), g.dphi1)
+        d2 = delta_c2(comb0.values, pf.plane, math.radians(pf.phi0_deg + 180), g.dphi2)
+        half = max(abs(d1), abs(d2))
+        u_dc2[pair_label(pf)] = unc.uniform_u(half)
+        res.alignment.append({"kind": "mount", "rig_id": rig, "pair": pair_label(pf), **g.as_dict(),
+                              "dc2_1": d1, "dc2_2": d2, "u_dc2_typeB": u_dc2[pair_label(pf)],
+                              "c2": pf.c2, "u_c2": pf.u_c2, "order": pf.order})
+    comb = combine_second_order(pairs, u_dc2)
+    res.extras.setdefault("pairs", {})[rig] = [
+        {"pair": pair_label(p), "runs": list(p.run_ids), "order": p.order, "adequate": p.adequate,
+         "c2": p.c2, "u_c2": p.u_c2, "d": p.d, "u_d": p.u_d, "c3": p.c3, "u_c3": p.u_c3,
+         "noise_s0": p.fit.extra.get("noise_s0"), "noise_k": p.fit.extra.get("noise_k"),
+         "dwells": p.dwells[["run_id", "pol", "a", "mean_output", "n", "time_mid", "sweep", "std_resid"]]
+         .to_dict(orient="list")} for p in pairs]
+    res.extras.setdefault("combination", {})[rig] = comb.design
+
+    for name, value in comb.values.items():
+        sens = comb.sensitivities[name]
+        names, vals, us, dists, types, cs = [], [], [], [], [], []
+        for lab, s in sens.items():
+            p = next(p for p in pairs if pair_label(p) == lab)
+            names += [f"c2({lab})", f"dc2({lab})"]
+            vals += [p.c2, 0.0]
+            us += [p.u_c2, u_dc2.get(lab, 0.0)]
+            dists += ["normal", "uniform"]
+            types += ["A", "B"]
+            cs += [s, s]
+        keep = [i for i, u in enumerate(us) if u > 0]
+        names = [names[i] for i in keep]
+        vals = [vals[i] for i in keep]
+        us = [us[i] for i in keep]
+        dists = [dists[i] for i in keep]
+        types = [types[i] for i in keep]
+        cs = np.array([cs[i] for i in keep])
+
+        def lin(*x, _c=cs):
+            return sum(ci * xi for ci, xi in zip(_c, x))
+
+        gb = unc.gum_budget(lin, names, vals, us, dists, types, name, sensitivities=cs)
+        check = unc.validate_gum_with_mc(lin, names, vals, us, dists, n=50_000, seed=12345, sensitivities=cs)
+        res.budget += gb.terms
+        res.coefficients.append(CoefficientResult(
+            name, float(value), float(gb.u_c), SECOND_ORDER_UNIT, "centrifuge_eq9", rig,
+            note=(f"eq 2/3 over {len(sens)} mount pair(s); GUM u with type-B eq 8 terms; "
+                  f"JCGM 101 MC u = {check['mc'].std:.3e}, validated={check['validated']}")))
+        res.extras.setdefault("mc_check", {})[f"{rig}:{name}"] = {
+            "gum_u": gb.u_c, "mc_u": check["mc"].std, "mc_low": check["mc"].low, "mc_high": check["mc"].high,
+            "validated": check["validated"], "delta": check["delta"]}
+    # eq 10 as printed vs GUM, for Kip from the 45 deg pair
+    kip_pair = next((p for p in pairs if {parse_plane(p.plane)[0], parse_plane(p.plane)[1]} == {0, 1}
+                     and abs(p.phi0_deg - 45) < 1e-6), None)
+    kpp_pair = next((p for p in pairs if {parse_plane(p.plane)[0], parse_plane(p.plane)[1]} == {0, 1}
+                     and abs(p.phi0_deg - 90) < 1e-6), None)
+    if kip_pair is not None and "Kip" in comb.values:
+        ku = unc.kip_uncertainty(kip_pair.u_c2, u_dc2.get(pair_label(kip_pair), 0.0), comb.std.get("K2", 0.0),
+                                 kpp_pair.u_c2 if kpp_pair else 0.0,
+                                 u_dc2.get(pair_label(kpp_pair), 0.0) if kpp_pair else 0.0)
+        res.extras.setdefault("eq10", {})[rig] = {"printed": ku["printed"], "gum": ku["gum"],
+                                                  "differ": ku["differ"], "ratio": ku["ratio"]}
+        if ku["differ"]:
+            res.flags.append(f"{rig}: u(Kip) by eq 10 as printed is {ku['printed']:.3e}, by the GUM "
+                             f"{ku['gum']:.3e} s2/m (the printed factor 2 on u(c2) should be 4); GUM stored")
+
+    # --- odd quadratic and cubic from the IA pair (eq 9), per-polarity bias and scale
+    ia = next(p for p in pairs if pair_key(run_p.meta) == (p.plane, p.phi0_deg))
+    res.coefficients.append(CoefficientResult("Koq", ia.d, ia.u_d, SECOND_ORDER_UNIT, "centrifuge_eq9", rig,
+                                              note="odd quadratic of the IA pair (eq 9)"))
+    if ia.c3 is not None:
+        res.coefficients.append(CoefficientResult("K3", ia.c3, ia.u_c3, "s4/m2", "centrifuge_eq9", rig,
+                                                  note="cubic of the IA pair (eq 9), order-3 model chosen"))
+    f = ia.fit
+    res.extras.setdefault("polarity_terms", {})[rig] = {
+        k: {"value": f.value(k), "u": f.std_error(k)} for k in ("K0+", "K0-", "b+", "b-")}
+
+    # --- radii corrected for the instrument terms: the geometric distance of the mass centre
+    vert, vsign = parse_signed_axis(run_p.meta["vertical_axis"])
+    g = float(run_p.meta["g_local_m_s2"])
+    cross = CROSS.get(frozenset((0, vert)))
+    Kiv = comb.values.get(cross, 0.0) if cross else 0.0
+    uKiv = comb.std.get(cross, 0.0) if cross else 0.0
+    scale = 1.0 + Kiv * vsign * g
+    for pol, R, u in (("+", Rp, best.u_plus), ("-", Rm, best.u_minus)):
+        Rc = R / scale
+        uc = math.hypot(u, R * g * uKiv)
+        res.radii.append(RadiusResult(rig, pol, "iterative_corrected", chosen, top, Rc, uc,
+                                      note=f"eq 7 radius / (1 + {cross}·a_vertical): cross-coupling with gravity removed"))
+    K2c = comb.values.get("K2", tumble["K2"])
+    for pol, s in static.items():
+        # sensed along IA (signed): A = a (1 + Kiv a_v) + K2 a^2 + Koq a|a| + K3 a^3; solve for a
+        A = float(np.mean(s.a_g)) - s.lambda_c_rad * g
+        a = A
+        for _ in range(50):
+            a = (A - K2c * a * a - ia.d * a * abs(a) - (ia.c3 or 0.0) * a**3) / scale
+        Rc = s.radius_m * a / A
+        res.radii.append(RadiusResult(rig, pol, "static_corrected", None, 1.0, Rc,
+                                      math.hypot(s.std_uncertainty_m, s.radius_m * g * uKiv),
+                                      note="eq 6 radius with K2, Koq, K3 and the cross-coupling with gravity removed"))
+
+
+# ------------------------------------------------------------------ entry point
 
 def process_campaign(runs) -> CampaignResult:
-    """Run every estimator that applies to the runs of one campaign (docs/design.md)."""
+    """Run every estimator that applies to the runs of one campaign (docs/design.md).
+    runs: RunFile-like objects with .meta, .data, .sha256 (newest revision of each run_id)."""
     first = runs[0]
-    return CampaignResult(
+    res = CampaignResult(
         campaign=str(first.meta["campaign"]), unit_serial=str(first.meta["unit_serial"]),
         unit_model=str(first.meta.get("unit_model", "")),
         tests=sorted({str(r.meta["test"]) for r in runs}),
         rig_ids=sorted({str(r.meta["rig_id"]) for r in runs}),
-        input_sha256=sorted(r.sha256 for r in runs))
+        input_sha256=sorted(r.sha256 for r in runs),
+        parameters={"radius_orders": list(RADIUS_ORDERS), "radius_ranges_g": list(RADIUS_RANGES),
+                    "adequacy_alpha": 0.01, "coverage_factor": 2.0})
+    by_test = defaultdict(list)
+    for r in sorted(runs, key=lambda r: str(r.meta.get("run_id"))):
+        by_test[str(r.meta["test"])].append(r)
+    tumble = _process_tumble(by_test["tumble"], res) if by_test.get("tumble") else None
+    if by_test.get("centrifuge"):
+        by_rig = defaultdict(list)
+        for r in by_test["centrifuge"]:
+            by_rig[str(r.meta["rig_id"])].append(r)
+        for rig_runs in by_rig.values():
+            try:
+                _centrifuge_rig(rig_runs, tumble, res)
+            except Exception as exc:  # never lose the rest of the campaign
+                res.flags.append(f"centrifuge {rig_runs[0].meta.get('rig_id')}: processing failed: "
+                                 f"{type(exc).__name__}: {exc}")
+    if by_test.get("tilt_rotation"):
+        _thermal(by_test["tilt_rotation"], res)
+    if by_test.get("sine_centrifuge"):
+        _sine(by_test["sine_centrifuge"], res)
+    return res
+
+
+def _thermal(runs, res: CampaignResult) -> None:
+    try:
+        from .thermal import process_thermal_run
+    except ImportError as exc:
+        res.flags.append(f"thermal method unavailable: {exc}")
+        return
+    for run in runs:
+        try:
+            coeffs, extras = process_thermal_run(run.meta, run.data, str(run.meta.get("rig_id", "")))
+        except Exception as exc:
+            res.flags.append(f"tilt_rotation {run.meta.get('run_id')}: {type(exc).__name__}: {exc}")
+            continue
+        res.coefficients += coeffs
+        res.extras.setdefault("thermal", {})[str(run.meta.get("run_id"))] = extras
+
+
+def _sine(runs, res: CampaignResult) -> None:
+    try:
+        from .sinusoidal import process_sine_campaign
+    except ImportError as exc:
+        res.flags.append(f"sinusoidal method unavailable: {exc}")
+        return
+    by_rig = defaultdict(list)
+    for r in runs:
+        by_rig[str(r.meta.get("rig_id", ""))].append(r)
+    for rig, rr in by_rig.items():
+        try:
+            coeffs, extras = process_sine_campaign([(r.meta, r.data) for r in rr], rig)
+        except Exception as exc:
+            res.flags.append(f"sine_centrifuge {rig}: {type(exc).__name__}: {exc}")
+            continue
+        res.coefficients += coeffs
+        res.extras.setdefault("sine", {})[rig] = extras
+
+
+__all__ = ["process_campaign", "G_STANDARD", "SQUARE", "BudgetTerm"]

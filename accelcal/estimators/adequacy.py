@@ -1,0 +1,165 @@
+"""Model adequacy of a regression on replicated readings (IEEE 836 practice, quoted by
+paper 000 §2.1.3: "every fit must pass a model adequacy test").
+
+The regressions of the centrifuge (radius eq 7, cross-coupling eq 9) are fitted to
+dwell means with weights n_j / sigma_j^2, sigma_j^2 from the reading-noise model.
+The readings within a dwell are replicates, so the residual sum of squares splits
+into *pure error* (scatter inside dwells) and *lack of fit* (dwell means off the
+model):
+
+    SS_PE  = sum_j sum_i (y_ij - ybar_j)^2 / sigma_j^2            dof N - m
+    SS_LOF = sum_j n_j (ybar_j - yhat_j)^2 / sigma_j^2            dof m - p
+    F      = (SS_LOF / (m - p)) / (SS_PE / (N - m))  ~  F(m - p, N - m) under H0
+
+plus three residual checks on the standardised dwell residuals in time order:
+a trend in time (t test of the slope), an up-versus-down sweep difference
+(paired t test at matched levels) and the Wald–Wolfowitz run of signs.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+#: Significance level of the lack-of-fit test; the residual checks share ALPHA (Bonferroni).
+ALPHA = 0.01
+
+
+@dataclass
+class DwellFit:
+    """Weighted least-squares fit to dwell means, with its adequacy statistics."""
+    names: list[str]
+    beta: np.ndarray
+    cov: np.ndarray                 # scaled by the residual mean square s2
+    s2: float                       # (SS_LOF + SS_PE) / (N - p); ~1 for an adequate model
+    yhat: np.ndarray
+    std_resid: np.ndarray           # (ybar - yhat) sqrt(W)
+    ss_lof: float
+    ss_pe: float
+    dof_lof: int
+    dof_pe: int
+    f_statistic: float
+    p_value: float
+    trend_p: float = 1.0
+    sweep_p: float = 1.0
+    runs_p: float = 1.0
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def adequate(self) -> bool:
+        return bool(self.p_value >= ALPHA and min(self.trend_p, self.sweep_p, self.runs_p) >= ALPHA / 3)
+
+    def std_error(self, name: str) -> float:
+        i = self.names.index(name)
+        return float(np.sqrt(self.cov[i, i]))
+
+    def value(self, name: str) -> float:
+        return float(self.beta[self.names.index(name)])
+
+
+def lack_of_fit(ybar: np.ndarray, yhat: np.ndarray, n: np.ndarray, ss_within: np.ndarray,
+                sigma2: np.ndarray, n_params: int, dof_pe: int | None = None) -> tuple[float, float, float, float, int, int]:
+    """Weighted lack-of-fit F test (module docstring).  ybar, yhat: dwell means and model
+    values; n: readings per dwell; ss_within: sum of squares inside each dwell (same units
+    as y^2); sigma2: reading variance of each dwell from the noise model.
+    Returns (F, p, SS_LOF, SS_PE, dof_lof, dof_pe)."""
+    W = n / sigma2
+    ss_lof = float(np.sum(W * (ybar - yhat) ** 2))
+    ss_pe = float(np.sum(ss_within / sigma2))
+    dof_lof = int(len(ybar) - n_params)
+    dof_pe = int(np.sum(n - 1)) if dof_pe is None else int(dof_pe)
+    if dof_lof <= 0 or dof_pe <= 0 or ss_pe <= 0:
+        return float("nan"), float("nan"), ss_lof, ss_pe, dof_lof, dof_pe
+    F = (ss_lof / dof_lof) / (ss_pe / dof_pe)
+    return float(F), float(stats.f.sf(F, dof_lof, dof_pe)), ss_lof, ss_pe, dof_lof, dof_pe
+
+
+def trend_test(t: np.ndarray, r: np.ndarray) -> float:
+    """Two-sided p of a linear trend of standardised residuals r against time t."""
+    if len(r) < 4 or np.ptp(t) == 0:
+        return 1.0
+    res = stats.linregress(t, r)
+    return float(res.pvalue)
+
+
+def sweep_test(level: np.ndarray, sweep: np.ndarray, r: np.ndarray) -> float:
+    """Two-sided p of a mean up-minus-down difference of standardised residuals at
+    matched levels (paired t test); 1.0 when fewer than 3 matched levels."""
+    up = {round(float(a), 3): x for a, s, x in zip(level, sweep, r) if s == "up"}
+    down = {round(float(a), 3): x for a, s, x in zip(level, sweep, r) if s == "down"}
+    # match each down level to the nearest up level within 2 %
+    d = []
+    ups = np.array(sorted(up))
+    for a, x in down.items():
+        if ups.size == 0:
+            break
+        k = int(np.argmin(np.abs(ups - a)))
+        if abs(ups[k] - a) <= 0.02 * max(abs(a), 1e-12):
+            d.append(up[float(ups[k])] - x)
+    d = np.asarray(d)
+    if d.size < 3 or np.std(d, ddof=1) == 0:
+        return 1.0
+    return float(stats.ttest_1samp(d, 0.0).pvalue)
+
+
+def runs_test(r: np.ndarray) -> float:
+    """Wald–Wolfowitz runs test on the signs of residuals in time order (two-sided p,
+    normal approximation); too few runs means structure left in the residuals."""
+    s = np.sign(r[r != 0])
+    n1, n2 = int(np.sum(s > 0)), int(np.sum(s < 0))
+    if n1 == 0 or n2 == 0 or n1 + n2 < 6:
+        return 1.0
+    runs = 1 + int(np.sum(s[1:] != s[:-1]))
+    n = n1 + n2
+    mu = 2.0 * n1 * n2 / n + 1.0
+    var = 2.0 * n1 * n2 * (2.0 * n1 * n2 - n) / (n**2 * (n - 1))
+    if var <= 0:
+        return 1.0
+    z = (runs - mu) / np.sqrt(var)
+    return float(2 * stats.norm.sf(abs(z)))
+
+
+def weighted_dwell_fit(X: np.ndarray, names: list[str], ybar: np.ndarray, n: np.ndarray,
+                       ss_within: np.ndarray, sigma2: np.ndarray, *, time: np.ndarray | None = None,
+                       level: np.ndarray | None = None, sweep: np.ndarray | None = None,
+                       moving: np.ndarray | None = None, group: np.ndarray | None = None,
+                       dof_pe_rows: np.ndarray | None = None) -> DwellFit:
+    """Weighted least squares of dwell means ybar on the regressors X (rows = dwells),
+    weights n/sigma2, with the lack-of-fit test and the residual checks.
+    group: optional id per row; the residual checks run per group (e.g. per polarity) and
+    the smallest p is kept (Bonferroni-adjusted by the number of groups).
+    dof_pe_rows: pure-error dof of each row when a row merges several dwells."""
+    X = np.asarray(X, float)
+    W = n / sigma2
+    sw = np.sqrt(W)
+    Xw = X * sw[:, None]
+    beta, *_ = np.linalg.lstsq(Xw, ybar * sw, rcond=None)
+    yhat = X @ beta
+    F, p, ss_lof, ss_pe, dof_lof, dof_pe = lack_of_fit(
+        ybar, yhat, n, ss_within, sigma2, X.shape[1],
+        None if dof_pe_rows is None else int(np.sum(dof_pe_rows)))
+    N = int(np.sum(n))
+    s2 = (ss_lof + ss_pe) / max(N - X.shape[1], 1)
+    XtWX_inv = np.linalg.pinv(Xw.T @ Xw)
+    cov = XtWX_inv * s2
+    r = (ybar - yhat) * sw
+    fit = DwellFit(names=list(names), beta=beta, cov=cov, s2=float(s2), yhat=yhat, std_resid=r,
+                   ss_lof=ss_lof, ss_pe=ss_pe, dof_lof=dof_lof, dof_pe=dof_pe, f_statistic=F, p_value=p)
+    if time is not None:
+        mv = np.ones(len(r), bool) if moving is None else np.asarray(moving, bool)
+        grp = np.zeros(len(r), int) if group is None else np.asarray(group)
+        tp, sp, rp = [], [], []
+        for gid in np.unique(grp):
+            k = mv & (grp == gid)
+            order = np.argsort(np.asarray(time)[k])
+            rr = r[k][order]
+            tp.append(trend_test(np.asarray(time)[k][order], rr))
+            rp.append(runs_test(rr))
+            if level is not None and sweep is not None:
+                sp.append(sweep_test(np.asarray(level)[k], np.asarray(sweep)[k], r[k]))
+        m = len(tp)
+        fit.trend_p = min(1.0, min(tp) * m) if tp else 1.0
+        fit.runs_p = min(1.0, min(rp) * m) if rp else 1.0
+        fit.sweep_p = min(1.0, min(sp) * m) if sp else 1.0
+    return fit

@@ -1,0 +1,114 @@
+"""Dwell statistics of a stepped-rate centrifuge run (drop-format.md, `centrifuge`).
+
+A centrifuge run is a sequence of dwells (`step`): rest dwells at two or more
+table azimuths, then dwells at rising and falling constant rates.  Each row is
+the DAQ's mean over a reading window, so the rows of one dwell are replicated
+readings: their scatter is the *pure error* of the lack-of-fit test.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+import pandas as pd
+
+from ..physics.rigs import omega_z
+
+
+def dwell_table(meta: Mapping, data: pd.DataFrame, effects: Mapping[str, float] | None = None) -> pd.DataFrame:
+    """One row per dwell: step, n, mean_output, ss_within (sum of squares about the dwell
+    mean, output_unit^2), var_output (sample variance), rate (mean logged rate, rad/s),
+    omega_z (inertial vertical rate, rad/s, earth rate included unless effects say
+    otherwise), time_mid (s), rest (bool), azimuth_deg (rest only), sweep ('rest', 'up',
+    'down'), first_line (file line of the dwell's first reading)."""
+    eff = {"earth_rate": 1.0} if effects is None else effects
+    d = data
+    g = d.groupby("step", sort=True)
+    out = pd.DataFrame({
+        "n": g["output"].size(),
+        "mean_output": g["output"].mean(),
+        "ss_within": g["output"].apply(lambda x: float(((x - x.mean()) ** 2).sum())),
+        "rate": g["table_rate_rad_s"].mean(),
+        "rate_std": g["table_rate_rad_s"].std(ddof=1).fillna(0.0),
+        "time_mid": g["time_s"].mean(),
+        "time_start": g["time_s"].min(),
+    })
+    out["var_output"] = out["ss_within"] / np.maximum(out["n"] - 1, 1)
+    az = g["table_angle_deg"].mean() if "table_angle_deg" in d else np.nan
+    out["azimuth_deg"] = az
+    if "line" in d:
+        out["first_line"] = g["line"].min()
+    out = out.reset_index().sort_values("time_start").reset_index(drop=True)
+    out["rest"] = out["rate"].abs() < 1e-9
+    out["omega_z"] = omega_z(meta, out["rate"].to_numpy(), eff)
+    sweep = np.array(["rest"] * len(out), dtype=object)
+    moving = np.flatnonzero(~out["rest"].to_numpy())
+    if moving.size:
+        peak = moving[np.argmax(out["rate"].to_numpy()[moving])]
+        sweep[moving[moving <= peak]] = "up"
+        sweep[moving[moving > peak]] = "down"
+    out["sweep"] = sweep
+    return out
+
+
+def merge_rest(dw: pd.DataFrame) -> pd.DataFrame:
+    """The dwell table with the rest dwells merged into one group whose mean is the mean
+    of the azimuth means (paper 000 eq 4: averaging over equally spaced azimuths removes
+    the spindle's tilt).  Adds ``dof_pe``: pure-error degrees of freedom of each row
+    (n - 1 for a dwell; readings minus azimuths for the merged rest group, so the spread
+    between azimuths, which is the spindle tilt and not noise, counts in neither term)."""
+    moving = dw[~dw["rest"]].copy()
+    moving["dof_pe"] = moving["n"] - 1
+    rest = dw[dw["rest"]]
+    if rest.empty:
+        return moving.reset_index(drop=True)
+    E0, _, n = rest_mean(rest)
+    row = rest.iloc[[0]].copy()
+    row["n"] = n
+    row["mean_output"] = E0
+    row["ss_within"] = float(rest["ss_within"].sum())
+    row["var_output"] = float(rest["ss_within"].sum() / max(n - len(rest), 1))
+    row["time_mid"] = float(rest["time_mid"].mean())
+    row["dof_pe"] = n - len(rest)
+    row["omega_z"] = float(rest["omega_z"].mean())
+    return pd.concat([row, moving], ignore_index=True)
+
+
+def rest_mean(dw: pd.DataFrame) -> tuple[float, float, int]:
+    """E0 of paper 000 eq 4: the mean of the rest dwells' means over the table azimuths
+    (equal weight per azimuth, which cancels the spindle's tilt), its standard
+    uncertainty (from the spread of the azimuth means when there are >= 3, else from the
+    readings), and the number of readings."""
+    r = dw[dw["rest"]]
+    if r.empty:
+        raise ValueError("run has no rest dwell")
+    by_az = r.groupby(r["azimuth_deg"].fillna(0.0).round(3))
+    means = by_az["mean_output"].mean().to_numpy()
+    E0 = float(means.mean())
+    n = int(r["n"].sum())
+    pooled_var = float(r["ss_within"].sum() / max(n - len(r), 1))
+    u_read = np.sqrt(pooled_var / n)
+    u = u_read
+    if means.size >= 3:
+        u = max(u_read, float(means.std(ddof=1) / np.sqrt(means.size)))
+    return E0, float(u), n
+
+
+def noise_model(level: np.ndarray, var: np.ndarray, n: np.ndarray) -> tuple[float, float]:
+    """Reading-noise model sigma^2(a) = s0^2 + (k a)^2, a the centripetal level (m/s^2):
+    white noise plus rate jitter proportional to the centripetal term.  Fitted to the
+    within-dwell variances by weighted least squares (Var s^2 = 2 sigma^4/(n-1)),
+    iterated twice; returns (s0^2, k^2), both >= 0."""
+    a2 = np.asarray(level, float) ** 2
+    v = np.asarray(var, float)
+    dof = np.maximum(np.asarray(n, float) - 1, 1)
+    X = np.c_[np.ones_like(a2), a2]
+    w = dof / np.maximum(v, 1e-300) ** 2
+    beta = np.array([np.median(v[a2 == a2.min()]) if np.any(a2 == a2.min()) else v.min(), 0.0])
+    for _ in range(3):
+        sw = np.sqrt(w)
+        beta, *_ = np.linalg.lstsq(X * sw[:, None], v * sw, rcond=None)
+        beta = np.maximum(beta, [max(v.min() * 1e-3, 1e-300), 0.0])
+        pred = X @ beta
+        w = dof / pred**2
+    return float(beta[0]), float(beta[1])

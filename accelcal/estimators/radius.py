@@ -1,0 +1,232 @@
+"""Test radius of a centrifuge (paper 000 §2.1).
+
+* :func:`test_radius_static` — static back-calculation, eqs 4–6, with the misprint of
+  eq 5 corrected (a_g = E_a/K1 − K0, not E_a/(K1 − K0)), the earth rate and the total
+  misalignment lambda_c included.
+* :func:`test_radius_iterative` — the iterative regression of eq 7 on both polarities.
+
+Radii are the distances from the spindle axis to the accelerometer's effective mass
+centre for the two IA polarities: '+' (IA towards the spindle, phi = 0) and '-'
+(IA away, phi = 180 deg).  Units: m, rad, m/s^2, rad/s.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from ..constants import G_STANDARD, OMEGA_EARTH
+from ..physics.axes import parse_plane
+from .adequacy import DwellFit, weighted_dwell_fit
+from .dwells import dwell_table, merge_rest, noise_model, rest_mean
+
+
+def ia_polarity(meta: Mapping) -> int | None:
+    """+1 when IA points towards the spindle, -1 when away, None when IA is not radial
+    (drop-format.md: the direction to the spindle makes angle phi with the first plane axis)."""
+    e1, e2 = parse_plane(meta["mount_plane"])
+    phi = float(meta["mount_angle_deg"]) % 360.0
+    c = {0.0: 1, 180.0: -1}
+    s = {90.0: 1, 270.0: -1}
+    if e1 == 0 and phi in c:
+        return c[phi]
+    if e2 == 0 and phi in s:
+        return s[phi]
+    return None
+
+
+@dataclass
+class StaticRadius:
+    polarity: str
+    radius_m: float
+    std_uncertainty_m: float          # GUM, K0 cancelling exactly (correlations kept)
+    std_uncertainty_printed_m: float  # the form printed under eq 6 (a_g and lambda_c independent)
+    lambda_c_rad: float
+    u_lambda_c_rad: float
+    omega_g: list[float]
+    a_g: list[float]
+    budget: list[dict] = field(default_factory=list)
+
+
+def test_radius_static(meta: Mapping, data: pd.DataFrame, K0: float, K1: float,
+                       u_K0: float = 0.0, u_K1: float = 0.0, level_g: float = 1.0) -> StaticRadius:
+    """Static back-calculation of the test radius (paper 000 eqs 4–6).
+
+    lambda_c = (E0/K1 − K0)/g                                   (eq 4)
+    a_g      = E_a/K1 − K0                                       (eq 5, corrected)
+    R_g      = s (a_g − lambda_c g) / (omega_z^2 cos lambda_c)   (eq 6)
+
+    E0: mean rest output over the table azimuths; E_a: mean output of each dwell whose
+    centripetal level is nearest ``level_g`` (all such dwells, up and down sweeps, are
+    averaged); omega_z^2 = omega^2 ± 2 omega Omega_e sin(Phi) + ... is the inertial rate
+    about the vertical (eq 6's denominator, exact for either rotation sense); s = ±1 the
+    IA polarity.  K0 in m/s^2, K1 in output_unit per m/s^2 from the tumble.
+
+    Uncertainty: since a_g − lambda_c g = (E_a − E0)/K1, K0 cancels; the GUM budget takes
+    E_a, E0, K1 and omega as inputs.  The form printed under eq 6 treats a_g and lambda_c
+    as independent (counting u(K0) twice) and is returned for comparison.
+    """
+    s = ia_polarity(meta)
+    if s is None:
+        raise ValueError(f"run {meta.get('run_id')} is not an IA-radial mount")
+    g = float(meta["g_local_m_s2"])
+    dw = dwell_table(meta, data)
+    E0, uE0, _ = rest_mean(dw)
+    lam = (E0 / K1 - K0) / g
+    u_lam = np.sqrt(u_K0**2 + (uE0 / K1) ** 2 + (E0 / K1**2 * u_K1) ** 2) / g
+    mv = dw[~dw["rest"]].copy()
+    lvl = np.abs(mv["mean_output"] - E0) / abs(K1) / g
+    k = np.abs(lvl - level_g)
+    ref = mv[k <= k.min() + 0.05]
+    Ea = ref["mean_output"].to_numpy()
+    uEa = np.sqrt(ref["var_output"].to_numpy() / ref["n"].to_numpy())
+    wz = ref["omega_z"].to_numpy()
+    w = ref["rate"].to_numpy()
+    uw = ref["rate_std"].to_numpy() / np.sqrt(ref["n"].to_numpy())
+    a_g = Ea / K1 - K0
+    Rk = s * (a_g - lam * g) / (wz**2 * np.cos(lam))
+    R = float(Rk.mean())
+    m = len(Rk)
+    # GUM: R = mean_k s (E_a,k − E0) / (K1 omega_z,k^2 cos lam)
+    dR_dEa = s / (K1 * wz**2 * np.cos(lam)) / m
+    dR_dE0 = -float(np.sum(s / (K1 * wz**2 * np.cos(lam)))) / m
+    dR_dK1 = -R / K1
+    dR_dw = -2.0 * Rk / wz * np.sign(wz) * np.sign(w) / m   # d(omega_z)/d(omega) = s_rot
+    terms = [("E_a", float(np.sqrt(np.sum((dR_dEa * uEa) ** 2)))),
+             ("E0", abs(dR_dE0) * uE0), ("K1", abs(dR_dK1) * u_K1),
+             ("omega", float(np.sqrt(np.sum((dR_dw * uw) ** 2))))]
+    u = float(np.sqrt(sum(t[1] ** 2 for t in terms)))
+    # the printed form, per reference dwell then averaged (as independent dwells)
+    u_ag = np.sqrt(u_K0**2 + (uEa / K1) ** 2 + (Ea / K1**2 * u_K1) ** 2)
+    u_pr_k = np.sqrt(u_ag**2 + (g * u_lam) ** 2 + (2 * Rk * w * uw) ** 2) / w**2
+    u_pr = float(np.sqrt(np.mean(u_pr_k**2)))
+    budget = [{"quantity": q, "contribution_m": c} for q, c in terms]
+    return StaticRadius("+" if s > 0 else "-", R, u, u_pr, float(lam), float(u_lam),
+                        [float(x) for x in w], [float(x) for x in a_g], budget)
+
+
+# ---------------------------------------------------------------- iterative (eq 7)
+
+MODEL_TERMS = {1: [], 2: ["K2", "Koq"], 3: ["K2", "Koq", "K3"]}
+
+
+def polarity_design(a: np.ndarray, pol: np.ndarray, order: int, odd_quadratic: bool = True,
+                    names: tuple[str, str, str] = ("c2", "d", "c3")) -> tuple[np.ndarray, list[str]]:
+    """Regressors of eq 7 / eq 9 on signed inputs a (m/s^2) of the two polarities pol = ±1:
+    K0+, K0-, b+ a+, b- a-, then c2 a^2, d a|a| (the polarity-odd quadratic, eq 9's Koq
+    term), c3 a^3 by order.  Each polarity's terms are zero for the other's readings."""
+    p = (pol > 0).astype(float)
+    m = 1.0 - p
+    cols = [p, m, a * p, a * m]
+    nm = ["K0+", "K0-", "b+", "b-"]
+    if order >= 2:
+        cols.append(a**2)
+        nm.append(names[0])
+        if odd_quadratic:
+            cols.append(a * np.abs(a))
+            nm.append(names[1])
+    if order >= 3:
+        cols.append(a**3)
+        nm.append(names[2])
+    return np.column_stack(cols), nm
+
+
+@dataclass
+class PairData:
+    """Dwell data of a mount pair, stacked: one row per dwell group (rest merged per run)."""
+    table: pd.DataFrame           # columns: n, mean_output, ss_within, dof_pe, omega_z, time_mid, sweep, pol, rest
+    K1: float
+
+    @classmethod
+    def from_runs(cls, runs: list[tuple[Mapping, pd.DataFrame, int]], K1: float) -> "PairData":
+        rows = []
+        for meta, data, pol in runs:
+            t = merge_rest(dwell_table(meta, data))
+            t["pol"] = pol
+            t["run_id"] = str(meta.get("run_id", ""))
+            rows.append(t)
+        return cls(pd.concat(rows, ignore_index=True), K1)
+
+    def fit(self, a: np.ndarray, order: int, subtract_a: bool, g_max_ms2: float | None = None,
+            odd_quadratic: bool = True) -> tuple[DwellFit, np.ndarray]:
+        """Weighted fit of y = E/K1 (− a when subtract_a) on the eq 7/9 regressors, dwell
+        groups with |a| <= g_max only; noise model fitted on the groups used."""
+        T = self.table
+        keep = np.ones(len(T), bool) if g_max_ms2 is None else (np.abs(a) <= g_max_ms2 * 1.02)
+        T = T[keep]
+        a = a[keep]
+        y = T["mean_output"].to_numpy() / self.K1 - (a if subtract_a else 0.0)
+        ssw = T["ss_within"].to_numpy() / self.K1**2
+        n = T["n"].to_numpy().astype(float)
+        var = ssw / np.maximum(T["dof_pe"].to_numpy(), 1)
+        s0, k2 = noise_model(np.abs(a), var, T["dof_pe"].to_numpy() + 1)
+        sigma2 = s0 + k2 * a**2
+        X, names = polarity_design(a, T["pol"].to_numpy(), order, odd_quadratic)
+        fit = weighted_dwell_fit(X, names, y, n, ssw, sigma2, time=T["time_mid"].to_numpy(),
+                                 level=np.abs(a), sweep=T["sweep"].to_numpy(),
+                                 moving=~T["rest"].to_numpy(), group=T["pol"].to_numpy(),
+                                 dof_pe_rows=T["dof_pe"].to_numpy())
+        fit.extra.update(noise_s0=float(np.sqrt(s0)), noise_k=float(np.sqrt(k2)), n_groups=int(len(T)))
+        return fit, keep
+
+
+@dataclass
+class IterativeRadius:
+    order: int
+    g_max: float | None              # g (standard), None = full range
+    R_plus: float
+    R_minus: float
+    u_plus: float
+    u_minus: float
+    iterations: int
+    fit: DwellFit
+
+
+def test_radius_iterative(pair: PairData, R0_plus: float, R0_minus: float, order: int,
+                          g_max: float | None = None, u_K1_rel: float = 0.0,
+                          tol: float = 1e-11, max_iter: int = 30) -> IterativeRadius:
+    """Iterative regression of paper 000 eq 7 on both IA polarities.
+
+    a_i± = ±omega_z^2 R± from the current radii; fit
+    E/K1 − a_i = K0± + c± a_i± + [K2 a_i^2 + Koq a_i|a_i|]_(order>=2) + [K3 a_i^3]_(order 3)
+    (the odd quadratic is included from order 2: it is separable because both polarities
+    are measured, paper 000 §3.1); rescale R± <- R± (1 + c±) and repeat until |c±| < tol.
+    R± = R0± prod(1 + c±_k).  u(R±) = R± sqrt(u(c±)^2 + (u(K1)/K1)^2): the radius scales
+    as 1/K1 of the tumble.
+    """
+    T = pair.table
+    pol = T["pol"].to_numpy()
+    w2 = T["omega_z"].to_numpy() ** 2
+    Rp, Rm = float(R0_plus), float(R0_minus)
+    gm = None if g_max is None else g_max * G_STANDARD
+    it = 0
+    for it in range(1, max_iter + 1):
+        a = np.where(pol > 0, w2 * Rp, -w2 * Rm)
+        # the g range is judged on the starting radii so the dwell set does not change
+        if it == 1:
+            a_sel = a.copy()
+        keep = np.ones(len(T), bool) if gm is None else (np.abs(a_sel) <= gm * 1.02)
+        sub = PairData(T[keep].reset_index(drop=True), pair.K1)
+        fit, _ = sub.fit(a[keep], order, subtract_a=True)
+        cp, cm = fit.value("b+"), fit.value("b-")
+        Rp *= 1.0 + cp
+        Rm *= 1.0 + cm
+        if max(abs(cp), abs(cm)) < tol:
+            break
+    up = Rp * np.hypot(fit.std_error("b+"), u_K1_rel)
+    um = Rm * np.hypot(fit.std_error("b-"), u_K1_rel)
+    return IterativeRadius(order, g_max, Rp, Rm, float(up), float(um), it, fit)
+
+
+def g_levels(pair: PairData, R_plus: float, R_minus: float) -> list[float]:
+    """The distinct centripetal levels of the pair's dwells, in g (standard), rounded."""
+    T = pair.table[~pair.table["rest"]]
+    a = T["omega_z"].to_numpy() ** 2 * np.where(T["pol"].to_numpy() > 0, R_plus, R_minus)
+    return sorted({round(float(x) / G_STANDARD, 1) for x in a})
+
+
+def earth_rate_term(meta: Mapping) -> float:
+    """Omega_e sin(latitude), rad/s: the vertical earth rate that eq 6 includes."""
+    return OMEGA_EARTH * np.sin(np.radians(float(meta["site_latitude_deg"])))
