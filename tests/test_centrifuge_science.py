@@ -236,3 +236,12 @@ def test_sample_adequacy_choice_is_recorded(result_20):
 def test_sample_eq10_printed_differs_from_gum(result_20):
     e = next(iter(result_20.extras["eq10"].values()))
     assert e["differ"] and e["gum"] > e["printed"]
+
+
+def test_sample_tumble_K2_corrected_and_Kio(result_20):
+    """The tumble alone measures K2 − Koo; with the centrifuge Koo added it must meet the
+    truth, and the IA-OA cross term the tumble separates must meet Kio's truth."""
+    k2 = _coef(result_20, "K2", "tumble_lm")
+    assert abs(k2.value - TRUTH_20["K2"]) <= 2 * k2.std_uncertainty
+    kio = _coef(result_20, "Kio", "tumble_lm")
+    assert abs(kio.value - TRUTH_20["Kio"]) <= 2 * kio.std_uncertainty

@@ -40,7 +40,7 @@ def _out_unit(meta: Mapping) -> str:
 
 def _process_tumble(runs, res: CampaignResult) -> dict | None:
     """Fit every tumble run (paper 003); return the K0, K1 (and u) used downstream."""
-    from .tumble import fit_tumble, tumble_coefficients, two_position
+    from .tumble import fit_tumble, separable_extra_terms, tumble_coefficients, two_position
     fits = []
     for run in runs:
         try:
@@ -48,6 +48,23 @@ def _process_tumble(runs, res: CampaignResult) -> dict | None:
         except Exception as exc:  # a fit that cannot run is a flag, not a crash
             res.flags.append(f"tumble {run.meta.get('run_id')}: fit failed: {exc}")
             continue
+        lof = fit.lack_of_fit
+        if lof and lof["p"] < 0.01:
+            # model adequacy: add the IA cross term with the other in-plane axis (separable
+            # from theta0 in one tumble, paper 003) and keep it if it cures the misfit
+            cross = tuple(k for k in separable_extra_terms(run.meta) if k in ("Kio", "Kip"))
+            try:
+                fit2 = fit_tumble(run.meta, run.data, cross)
+            except Exception:
+                fit2 = None
+            if fit2 is not None and fit2.lack_of_fit and fit2.lack_of_fit["p"] > lof["p"]:
+                res.extras.setdefault("tumble_model_choice", []).append({
+                    "run_id": run.meta.get("run_id"), "basic_lof_p": lof["p"], "extended_terms": list(cross),
+                    "extended_lof_p": fit2.lack_of_fit["p"]})
+                fit = fit2
+            if fit.lack_of_fit and fit.lack_of_fit["p"] < 0.01:
+                res.flags.append(f"tumble {run.meta.get('run_id')}: model inadequate (lack-of-fit "
+                                 f"p = {fit.lack_of_fit['p']:.2g}); used and flagged")
         fits.append((run, fit))
         tp = {}
         try:
@@ -309,11 +326,33 @@ def process_campaign(runs) -> CampaignResult:
             except Exception as exc:  # never lose the rest of the campaign
                 res.flags.append(f"centrifuge {rig_runs[0].meta.get('rig_id')}: processing failed: "
                                  f"{type(exc).__name__}: {exc}")
+    if tumble is not None:
+        _correct_tumble_K2(by_test["tumble"][0].meta, res)
     if by_test.get("tilt_rotation"):
         _thermal(by_test["tilt_rotation"], res)
     if by_test.get("sine_centrifuge"):
         _sine(by_test["sine_centrifuge"], res)
     return res
+
+
+def _correct_tumble_K2(meta: Mapping, res: CampaignResult) -> None:
+    """One tumble measures K2 − K_ss, K_ss the square term of the other in-plane axis
+    (Koo when OA turns in the vertical plane): K_ss g^2 sin^2 = K_ss g^2 − K_ss g^2 cos^2
+    (paper 003 model with effects.md terms).  Add the centrifuge's K_ss when there is one."""
+    axes = {parse_signed_axis(meta[k])[0] for k in ("cos_axis", "sin_axis")} - {0}
+    if len(axes) != 1:
+        return
+    other = SQUARE[axes.pop()]
+    cen = next((c for c in res.coefficients if c.name == other and c.method == "centrifuge_eq9"), None)
+    for c in res.coefficients:
+        if c.name == "K2" and c.method == "tumble_lm":
+            if cen is None:
+                c.note = f"measures K2 − {other} (aliased in one tumble; no centrifuge {other} to correct it)"
+            else:
+                c.value += cen.value
+                c.std_uncertainty = math.hypot(c.std_uncertainty, cen.std_uncertainty)
+                c.note = (f"one tumble measures K2 − {other}; {other} = {cen.value:.3e} s2/m from the "
+                          "centrifuge added")
 
 
 def _thermal(runs, res: CampaignResult) -> None:

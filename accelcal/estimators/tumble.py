@@ -1,0 +1,385 @@
+"""Gravity (dividing-head tumble) calibration with an initial misalignment angle (paper 003).
+
+A dividing head turns the accelerometer about a horizontal axis in the gravity
+field (drop-format.md, ``test: tumble``).  With IA on ``cos_axis = +IA`` and OA on
+``sin_axis = +OA`` the specific force at head angle theta is (paper 003)
+
+    a_i = g cos(theta + theta0),   a_o = g sin(theta + theta0)
+
+and the instrument model (effects.md) reduces to
+
+    E = K1 (K0 + a_i + K2 a_i^2)                                  (paper 003, model)
+
+with E in the run's ``output_unit``, K0 in m/s^2, K1 in output_unit per m/s^2,
+K2 in s^2/m and theta0 in rad.  Other axis assignments (``-IA``, IA on the
+``sin_axis``) only change the phase and sign of a_i; the prediction always comes
+from the one forward model, :func:`accelcal.physics.rigs.rig_output`, with
+theta0 passed as the ``initial_misalignment`` effect.
+
+**Aliasing (paper 003, note; effects.md).**  In a single tumble an OA (or, more
+generally, the other in-plane axis) cross-axis sensitivity Ko cannot be told apart
+from theta0: K1 (g cos psi + Ko g sin psi) = K1 sqrt(1 + Ko^2) g cos(psi - atan Ko),
+so with +IA/+OA the fit returns theta0 - atan(Ko) (and K1 sqrt(1 + Ko^2)), up to a
+K2-sized residual.  :func:`fit_tumble` does **not** estimate Ko; its theta0 is
+"misalignment + cross-axis term" and must be reported as such.  Likewise the
+quadratic term of the other in-plane axis aliases: Koo g^2 sin^2 psi = Koo g^2 -
+Koo g^2 cos^2 psi, so the fitted K2 is K2 - Koo and the fitted K0 is K0 + Koo g^2.
+The IA x OA cross term Kio (g^2 sin(2 psi)/2) and the cubic K3 are separable and
+may be added with ``extra_terms``; without them they show up as lack of fit (and,
+on a symmetric set of head angles, do not bias K0, K2, theta0; K3 scales K1 by
+1 + 3 K3 g^2 / 4).  K3 and the odd quadratic Koq are nearly aliased: a_i |a_i| =
+g^2 (8/(3 pi) cos psi + 8/(15 pi) cos 3 psi - ...), so a K3-only fit returns about
+K3 + 32 Koq / (15 pi g); only the weak cos 5 psi and higher harmonics separate them.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+from scipy.optimize import least_squares
+from scipy.stats import f as f_dist
+
+from ..physics.axes import parse_signed_axis
+from ..physics.rigs import rig_output, tumble_specific_force
+from ..results import CoefficientResult
+
+#: Parameters of the tumble fit, in order (effects.md names; theta0 = ``initial_misalignment``).
+PARAMS = ("K0", "K1", "K2", "theta0")
+
+_ALIAS_NOTE = ("theta0 aliases with an OA cross-axis sensitivity Ko in a single tumble "
+               "(paper 003): the value is theta0 - atan(Ko) for +IA/+OA")
+
+
+@dataclass
+class TumbleFit:
+    """Result of :func:`fit_tumble` (paper 003, LM fit of K0, K1, K2, theta0).
+
+    values:      dict K0 (m/s^2), K1 (output_unit per m/s^2), K2 (s^2/m), theta0 (rad)
+    std_uncertainties: dict, same keys and units: sqrt(diag(cov))
+    cov:         (p, p) covariance in param_names order (PARAMS + extras), cov = s^2 (J^T J)^-1 with
+                 s^2 = sum(r^2)/dof, J the Jacobian of the predicted output at the
+                 solution (central differences of the forward model)
+    corr:        (p, p) correlation matrix
+    extras:      names of the extra instrument terms fitted (``extra_terms``), also in values
+    lack_of_fit: dict F, p, dof_lof = P - p, dof_pe = n - P, s_pure_error (output_unit):
+                 lack-of-fit F test of the position means against the within-position
+                 (pure-error) scatter; None without replicates
+    cov_positions: covariance from the scatter of the position means instead of the
+                 readings, [sum_k n_k rbar_k^2 / (P - p)] (J^T J)^-1: valid when errors are
+                 common to a dwell (head-angle error, unmodelled terms); None if P <= p
+    residuals:   output - prediction, output_unit, one per reading
+    residual_rms: sqrt(mean(r^2)), output_unit;  s: sqrt(sum(r^2)/dof), output_unit
+    n, dof:      readings used and n - p (p = 4 + number of extras)
+    position_means: DataFrame per head position: position, angle_deg, n, mean_output,
+                 std_output, sem_output, predicted, mean_residual (output_unit)
+    ia_phase_deg: head angle at which IA nominally points up (0 for +IA on cos_axis)
+    """
+    values: dict[str, float]
+    std_uncertainties: dict[str, float]
+    cov: np.ndarray
+    corr: np.ndarray
+    residuals: np.ndarray
+    residual_rms: float
+    s: float
+    n: int
+    dof: int
+    position_means: pd.DataFrame
+    output_unit: str
+    g_local_m_s2: float
+    ia_phase_deg: float
+    success: bool
+    message: str
+    nfev: int
+    start: dict[str, float] = field(default_factory=dict)
+    note: str = _ALIAS_NOTE
+    extras: tuple[str, ...] = ()
+    lack_of_fit: dict | None = None
+    cov_positions: np.ndarray | None = None
+    param_names: tuple[str, ...] = PARAMS
+
+    @property
+    def coeffs(self) -> dict[str, float]:
+        """Instrument coefficients for :func:`accelcal.physics.rig_output` (K0, K1, K2, extras)."""
+        return {k: self.values[k] for k in ("K0", "K1", "K2", *self.extras)}
+
+    @property
+    def effects(self) -> dict[str, float]:
+        """Rig effects for :func:`accelcal.physics.rig_output` (initial_misalignment)."""
+        return {"initial_misalignment": self.values["theta0"]}
+
+    def __getitem__(self, name: str) -> float:
+        return self.values[name]
+
+
+def _ia_phase_deg(meta: Mapping) -> float:
+    """Head angle (deg) at which IA nominally points up; raises if IA lies on the head axis."""
+    for key, base in (("cos_axis", 0.0), ("sin_axis", 90.0)):
+        ax, sign = parse_signed_axis(meta[key])
+        if ax == 0:
+            return (base + (0.0 if sign > 0 else 180.0)) % 360.0
+    raise ValueError(f"tumble run has IA on the head axis ({meta.get('head_axis')!r}): "
+                     "IA never turns in the vertical plane, K0/K1/K2 cannot be calibrated")
+
+
+def _clean(data) -> pd.DataFrame:
+    df = pd.DataFrame({k: np.asarray(data[k]) for k in ("angle_deg", "output")})
+    for k in ("time_s", "position", "temp_c"):
+        try:
+            df[k] = np.asarray(data[k])
+        except (KeyError, IndexError):
+            pass
+    df = df[np.isfinite(df["output"].astype(float)) & np.isfinite(df["angle_deg"].astype(float))]
+    if "position" not in df:
+        df["position"] = pd.factorize(df["angle_deg"].round(9))[0]
+    return df.reset_index(drop=True)
+
+
+def _predict(meta: Mapping, df: pd.DataFrame, p: np.ndarray, extras: tuple[str, ...] = ()) -> np.ndarray:
+    """E (output_unit) of the forward model for p = (K0, K1, K2, theta0, *extras).
+
+    Temperature terms are not part of this fit: the forward model sees K0T = K1T = 0,
+    so temp_c has no effect."""
+    K0, K1, K2, th0 = p[:4]
+    coeffs = {"K0": K0, "K1": K1, "K2": K2, **dict(zip(extras, p[4:]))}
+    return rig_output("tumble", meta, df, coeffs, {"initial_misalignment": th0})
+
+
+def separable_extra_terms(meta: Mapping) -> dict[str, str]:
+    """Instrument terms (besides K0, K1, K2) that one tumble can separate from theta0, with
+    their SI unit: K3 (s4/m2), Koq (s2/m) and the cross term of IA with the other in-plane
+    axis (Kio for OA, Kip for PA; s2/m).  Ko/Kp (alias theta0) and Koo/Kpp (alias K2, K0)
+    are not separable; head-axis terms are identically zero."""
+    _ia_phase_deg(meta)
+    other = {parse_signed_axis(meta[k])[0] for k in ("cos_axis", "sin_axis")} - {0}
+    cross = {1: "Kip", 2: "Kio"}[other.pop()]
+    return {"K3": "s4/m2", "Koq": "s2/m", cross: "s2/m"}
+
+
+def _jacobian(meta, df, p, steps, extras=()) -> np.ndarray:
+    """dE/dp by central differences of the forward model (exact for K0, K2, K1 up to
+    rounding since E is linear in each; O(h^2) for theta0 with h = 1e-6 rad)."""
+    J = np.empty((len(df), len(p)))
+    for j, h in enumerate(steps):
+        dp = np.zeros_like(p)
+        dp[j] = h
+        J[:, j] = (_predict(meta, df, p + dp, extras) - _predict(meta, df, p - dp, extras)) / (2 * h)
+    return J
+
+
+def _start(meta: Mapping, df: pd.DataFrame, g: float) -> np.ndarray:
+    """Start values: theta0 = 0 and a linear least-squares fit of E on (1, a_i, a_i^2)
+    with the nominal a_i, i.e. K1 from the amplitude of the data (paper 003 starts
+    from the nominal sensitivity)."""
+    ai = tumble_specific_force(meta, df)[:, 0]
+    A = np.column_stack([np.ones_like(ai), ai, ai**2])
+    b, *_ = np.linalg.lstsq(A, df["output"].to_numpy(float), rcond=None)
+    K1 = b[1] if b[1] != 0 else 1.0
+    return np.array([b[0] / K1, K1, b[2] / K1, 0.0])
+
+
+def position_means(df: pd.DataFrame) -> pd.DataFrame:
+    """Mean, std and standard error of the output at each head position (output_unit)."""
+    grp = df.groupby("position", sort=True)
+    out = pd.DataFrame({
+        "angle_deg": grp["angle_deg"].mean(),
+        "n": grp["output"].size(),
+        "mean_output": grp["output"].mean(),
+        "std_output": grp["output"].std(ddof=1),
+    })
+    out["sem_output"] = out["std_output"] / np.sqrt(out["n"])
+    return out.reset_index()
+
+
+def fit_tumble(meta: Mapping, data, extra_terms: tuple[str, ...] | list[str] = ()) -> TumbleFit:
+    """Levenberg-Marquardt fit of E = K1 (K0 + a_i + K2 a_i^2) with a_i from the head
+    angle + theta0 (paper 003; effects.md instrument model) on every reading of a run.
+
+    meta: typed run metadata (g_local_m_s2, cos_axis, sin_axis, head_axis, output_unit).
+    data: columns angle_deg (deg), output (output_unit), optional position, time_s, temp_c.
+
+    The prediction is :func:`accelcal.physics.rigs.rig_output` with coefficients
+    (K0, K1, K2) and effect ``initial_misalignment`` = theta0.  Start: theta0 = 0, K0, K1,
+    K2 from a linear fit on the nominal input (K1 from the data's amplitude).  Solver:
+    ``scipy.optimize.least_squares(method='lm')`` with the Jacobian by central differences
+    of the forward model.  Covariance: cov = s^2 (J^T J)^-1, s^2 = RSS / (n - p) (p = 4 +
+    extras), J at the solution, computed through the SVD of the column-scaled J (white,
+    equal-variance reading noise assumed).  Errors common to a dwell (head-angle error,
+    unmodelled terms) make it optimistic: ``lack_of_fit`` tests the position means against
+    the within-position scatter, and ``cov_positions`` = [sum_k n_k rbar_k^2 / (P - p)]
+    (J^T J)^-1 is the covariance that rests on the P position means instead.
+
+    theta0 aliases with the OA cross-axis sensitivity Ko (paper 003): Ko is not estimated;
+    see the module docstring (Koo likewise aliases into K2 and K0).  ``extra_terms`` adds
+    separable instrument terms (:func:`separable_extra_terms`: K3, Koq, Kio or Kip) as
+    further fit parameters, started at 0.  Raises ValueError if IA lies on the head axis,
+    an extra term is not separable, or there are fewer than p + 1 readings at p - 1 or
+    more distinct angles.
+    """
+    g = float(meta["g_local_m_s2"])
+    phase = _ia_phase_deg(meta)
+    extras = tuple(extra_terms)
+    allowed = separable_extra_terms(meta)
+    bad = [e for e in extras if e not in allowed]
+    if bad or len(set(extras)) != len(extras):
+        raise ValueError(f"extra_terms {bad or extras} not separable in this tumble; allowed: {sorted(allowed)}")
+    names = PARAMS + extras
+    npar = len(names)
+    df = _clean(data)
+    n_ang = df["angle_deg"].round(6).nunique()
+    if len(df) < npar + 1 or n_ang < npar - 1:
+        raise ValueError(f"tumble fit of {npar} parameters needs >= {npar + 1} readings at >= "
+                         f"{npar - 1} head angles, got {len(df)} readings at {n_ang} angles")
+    y = df["output"].to_numpy(float)
+    p0 = np.r_[_start(meta, df, g), np.zeros(len(extras))]
+    extra_step = {"K3": 1e-4 / g**2, "Koq": 1e-4 / g, "Kio": 1e-4 / g, "Kip": 1e-4 / g}
+
+    def steps(p):
+        return np.array([1e-4 * g, 1e-6 * max(abs(p[1]), 1e-12), 1e-4 / g, 1e-6]
+                        + [extra_step[e] for e in extras])
+
+    def resid(p):
+        return _predict(meta, df, p, extras) - y
+
+    def jac(p):
+        return _jacobian(meta, df, p, steps(p), extras)
+
+    sol = least_squares(resid, p0, jac=jac, method="lm", x_scale="jac",
+                        xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=2000)
+    p = sol.x
+    pred = _predict(meta, df, p, extras)
+    r = y - pred
+    n = len(y)
+    dof = n - npar
+    rss = float(r @ r)
+    s2 = rss / dof if dof > 0 else np.nan
+    J = jac(p)
+    scale = np.sqrt((J**2).sum(axis=0))
+    scale[scale == 0] = 1.0
+    _, sv, Vt = np.linalg.svd(J / scale, full_matrices=False)
+    if sv[-1] <= sv[0] * 1e-13:
+        raise ValueError(f"tumble fit is singular: the head angles do not separate {names}")
+    inv = (Vt.T / sv**2) @ Vt                     # (Js^T Js)^-1
+    cov = s2 * inv / np.outer(scale, scale)
+    sd = np.sqrt(np.diag(cov))
+    corr = cov / np.outer(sd, sd)
+
+    pm = position_means(df)
+    pos = df["position"].to_numpy()
+    pm["predicted"] = pd.Series(pred).groupby(pos).mean().to_numpy()
+    pm["mean_residual"] = pm["mean_output"] - pm["predicted"]
+
+    # Lack of fit: position-mean residuals against the within-position (pure error) scatter.
+    P = len(pm)
+    ss_lof = float((pm["n"] * pm["mean_residual"] ** 2).sum())
+    ss_pe = float(((r - pd.Series(r).groupby(pos).transform("mean").to_numpy()) ** 2).sum())
+    dof_lof, dof_pe = P - npar, n - P
+    lof = None
+    if dof_lof > 0 and dof_pe > 0 and ss_pe > 0:
+        F = (ss_lof / dof_lof) / (ss_pe / dof_pe)
+        lof = {"F": float(F), "p": float(f_dist.sf(F, dof_lof, dof_pe)), "dof_lof": dof_lof,
+               "dof_pe": dof_pe, "s_pure_error": float(np.sqrt(ss_pe / dof_pe))}
+    cov_pos = (ss_lof / dof_lof) * inv / np.outer(scale, scale) if dof_lof > 0 else None
+
+    return TumbleFit(
+        values=dict(zip(names, map(float, p))),
+        std_uncertainties=dict(zip(names, map(float, sd))),
+        cov=cov, corr=corr, residuals=r,
+        residual_rms=float(np.sqrt(rss / n)), s=float(np.sqrt(s2)), n=n, dof=dof,
+        position_means=pm, output_unit=str(meta.get("output_unit", "")), g_local_m_s2=g,
+        ia_phase_deg=phase, success=bool(sol.success), message=str(sol.message),
+        nfev=int(sol.nfev), start=dict(zip(names, map(float, p0))), extras=extras,
+        lack_of_fit=lof, cov_positions=cov_pos, param_names=names)
+
+
+def _mean_at(pm: pd.DataFrame, angle: float, tol: float) -> tuple[float, float, int] | None:
+    d = (pm["angle_deg"] - angle + 180.0) % 360.0 - 180.0
+    sel = pm[np.abs(d) <= tol]
+    if sel.empty:
+        return None
+    w = sel["n"].to_numpy(float)
+    return (float(np.average(sel["mean_output"], weights=w)),
+            float(np.average(sel["angle_deg"], weights=w)), int(w.sum()))
+
+
+def two_position(meta: Mapping, data, angle_tol_deg: float = 1e-3) -> dict:
+    """Two-position (and four-point) closed forms (paper 003), for comparison with the LM fit.
+
+    With E_up, E_down the mean outputs where IA nominally points up and down (head angles
+    0 and 180 deg for cos_axis = +IA; the IA phase is taken from the axis assignment):
+
+        SH = (E_up - E_down) / (2 g)     output_unit per m/s^2   (-> K1)
+        KH = (E_up + E_down) / 2         output_unit             (-> K0 = KH / SH, m/s^2)
+
+    With theta0 and K2 (closed form): E_up/down = K1 (K0 +- g cos theta0 + K2 g^2 cos^2 theta0),
+    so SH = K1 cos theta0 and KH / SH = (K0 + K2 g^2 cos^2 theta0) / cos theta0: the method
+    takes the misalignment for a scale-factor change and K2 g^2 for bias.
+
+    Where the quadrature positions (IA horizontal, E_90 and E_270 at phase +90/+270 deg)
+    exist too, the four-point closed form is exact for the paper 003 model (no Ko):
+
+        K1 cos theta0 = (E_0 - E_180)/(2g),  K1 sin theta0 = (E_270 - E_90)/(2g)
+        K1 K2 g^2 cos(2 theta0) = (E_0 + E_180 - E_90 - E_270)/2
+        K1 (K0 + K2 g^2 / 2) = (E_0 + E_90 + E_180 + E_270)/4
+
+    Returns dict: E_up, E_down (output_unit), SH, KH, K1, K0 (two-position), and when
+    available 'four_point': dict(K0, K1, K2, theta0, E_90, E_270); g_local_m_s2; ia_phase_deg.
+    Raises ValueError if the up/down positions are missing.
+    """
+    g = float(meta["g_local_m_s2"])
+    phase = _ia_phase_deg(meta)
+    df = _clean(data)
+    pm = position_means(df)
+    up, down = _mean_at(pm, phase, angle_tol_deg), _mean_at(pm, phase + 180.0, angle_tol_deg)
+    if up is None or down is None:
+        raise ValueError(f"two-position method needs readings at head angles {phase:g} and "
+                         f"{(phase + 180) % 360:g} deg (IA up and down)")
+    Eu, Ed = up[0], down[0]
+    SH = (Eu - Ed) / (2 * g)
+    KH = (Eu + Ed) / 2
+    out = {"E_up": Eu, "E_down": Ed, "SH": SH, "KH": KH, "K1": SH, "K0": KH / SH,
+           "g_local_m_s2": g, "ia_phase_deg": phase, "output_unit": str(meta.get("output_unit", "")),
+           "four_point": None}
+    q90, q270 = _mean_at(pm, phase + 90.0, angle_tol_deg), _mean_at(pm, phase + 270.0, angle_tol_deg)
+    if q90 is not None and q270 is not None:
+        E90, E270 = q90[0], q270[0]
+        c = (Eu - Ed) / (2 * g)            # K1 cos theta0
+        s = (E270 - E90) / (2 * g)         # K1 sin theta0
+        K1 = float(np.hypot(c, s))
+        th0 = float(np.arctan2(s, c))
+        K2 = (Eu + Ed - E90 - E270) / (2 * K1 * g**2 * np.cos(2 * th0))
+        K0 = (Eu + Ed + E90 + E270) / (4 * K1) - K2 * g**2 / 2
+        out["four_point"] = {"K0": float(K0), "K1": K1, "K2": float(K2), "theta0": th0,
+                             "E_90": E90, "E_270": E270}
+    return out
+
+
+def tumble_coefficients(fit: TumbleFit, rig_id: str, covariance: str = "readings") -> list[CoefficientResult]:
+    """CoefficientResults (method 'tumble_lm') for K0 (m/s2), K1 (<output_unit>/(m/s2)),
+    K2 (s2/m), theta0 (rad) and any fitted extra terms of a :class:`TumbleFit`.
+
+    covariance: 'readings' (default): std uncertainties from fit.cov = s^2 (J^T J)^-1, dof n - p;
+    'positions': from fit.cov_positions (scatter of the position means), dof P - p.
+    A significant lack of fit (p < 0.01) is written into every note."""
+    if covariance == "readings":
+        sd, dof = fit.std_uncertainties, float(fit.dof)
+    elif covariance == "positions":
+        if fit.cov_positions is None:
+            raise ValueError("no position-based covariance: too few head positions")
+        sd = dict(zip(fit.param_names, np.sqrt(np.diag(fit.cov_positions)).tolist()))
+        dof = float(fit.lack_of_fit["dof_lof"]) if fit.lack_of_fit else float(len(fit.position_means) - len(fit.param_names))
+    else:
+        raise ValueError(f"covariance {covariance!r} is not 'readings' or 'positions'")
+    units = {"K0": "m/s2", "K1": f"{fit.output_unit or 'out'}/(m/s2)", "K2": "s2/m", "theta0": "rad",
+             "K3": "s4/m2", "Koq": "s2/m", "Kio": "s2/m", "Kip": "s2/m"}
+    notes = {"theta0": _ALIAS_NOTE, "K2": "a single tumble gives K2 - Koo (Koo aliases)"}
+    lof = ""
+    if fit.lack_of_fit and fit.lack_of_fit["p"] < 0.01:
+        lof = f"lack of fit: F = {fit.lack_of_fit['F']:.3g}, p = {fit.lack_of_fit['p']:.2g}"
+    out = []
+    for k in fit.param_names:
+        note = "; ".join(x for x in (notes.get(k, ""), f"covariance from {covariance}", lof) if x)
+        out.append(CoefficientResult(name=k, value=fit.values[k], std_uncertainty=float(sd[k]),
+                                     unit=units[k], method="tumble_lm", rig_id=rig_id, dof=dof, note=note))
+    return out
