@@ -1,0 +1,683 @@
+"""Temperature coefficients from a tilted multi-position rotation in a thermal chamber (paper 001).
+
+Paper 001 (Zhang et al., 2021; ``shared/docs/methods.md``): the rotary table's plane is
+tilted by gamma; IA lies in the plane, so at table angle theta_k = 360 deg * k / n the
+instrument senses g sin(gamma) sin(theta_k) on IA (drop-format.md, ``tilt_rotation``).
+At every chamber temperature the n positions give, by least squares on
+{1, sin theta, cos theta},
+
+    E_k = a + b sin(theta_k) + c cos(theta_k)
+    K1(T) = sigma * b / (g sin gamma)            [output_unit per m/s^2]
+    K0(T) = a / K1(T)                              [m/s^2]
+
+(sigma = +-1, the sign of IA in ``sin_axis``; the roles of sin and cos swap when IA is the
+``cos_axis``).  For n = 4: K0 = (E0 + E1 + E2 + E3)/4 / K1 and K1 = (E1 - E3)/(2 g sin gamma).
+The other in-plane term, c, measures the misalignment of the sense axis in the table
+plane (or, equivalently and indistinguishably, a cross-axis sensitivity on the other
+in-plane axis).  Across temperature points the effects.md temperature model
+
+    K0(T) = K0 + K0T (T - 20 degC),     K1(T) = K1 (1 + K1T (T - 20 degC))
+
+is fitted by weighted least squares.  A fixture thermal tilt c_f (rad/degC; effect
+``fixture_thermal_tilt``) is the same at all positions of one temperature: it cancels from
+K1 but enters K0 as g c_f cos(gamma) per degC, so K0T from this method is the instrument's
+bias TC plus g c_f cos(gamma) (paper 001, section 3.2); nothing in one such run separates them.
+A base-tilt change d_gamma leaves K0 alone and scales K1 by (gamma + d_gamma)/gamma.
+
+Units: SI as effects.md (K0 m/s^2, K1 output_unit/(m/s^2), K0T m/s^2/degC, K1T 1/degC);
+temperatures degC; angles in degrees where the drop format gives degrees.  Every function is
+plain (numpy/pandas in, dicts or arrays out); the ``extras`` of :func:`process_thermal_run`
+are JSON-able (non-finite numbers become None).
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from ..constants import MICRO_G, T_REF_C
+from ..physics.axes import parse_signed_axis
+from ..results import CoefficientResult
+
+METHOD = "tilt_rotation_ls"
+METHOD_TWO_POSITION = "tilt_rotation_two_position"
+
+
+# --------------------------------------------------------------------------- helpers
+
+def _f(x) -> float | None:
+    """float, or None for non-finite values (JSON)."""
+    try:
+        v = float(x)
+    except (TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) else None
+
+
+def _jsonable(obj):
+    """Recursively turn numpy scalars/arrays into plain Python; non-finite floats -> None."""
+    if isinstance(obj, Mapping):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return [_jsonable(v) for v in obj.tolist()]
+    if isinstance(obj, (bool, np.bool_)):
+        return bool(obj)
+    if isinstance(obj, (int, np.integer)):
+        return int(obj)
+    if isinstance(obj, (float, np.floating)):
+        return _f(obj)
+    return obj
+
+
+def rig_geometry(meta: Mapping) -> dict[str, Any]:
+    """Geometry of a tilt_rotation run (drop-format.md): which in-plane term carries IA.
+
+    Returns dict: g (m/s^2), gamma_rad, ia_term ('sin' if IA is the ``sin_axis``, 'cos' if
+    it is the ``cos_axis``), ia_sign (+-1), input_amplitude = g sin(gamma) (m/s^2),
+    normal_input = g cos(gamma) (m/s^2).  Raises ValueError when IA is not in the table plane.
+    """
+    g = float(meta["g_local_m_s2"])
+    gamma = math.radians(float(meta["tilt_deg"]))
+    si, ss = parse_signed_axis(meta["sin_axis"])
+    ci, cs = parse_signed_axis(meta["cos_axis"])
+    if si == 0:
+        term, sign = "sin", ss
+    elif ci == 0:
+        term, sign = "cos", cs
+    else:
+        raise ValueError("tilt_rotation: IA is neither the sin_axis nor the cos_axis; "
+                         "paper 001 needs IA in the table plane")
+    if math.sin(gamma) == 0.0:
+        raise ValueError("tilt_rotation: tilt_deg is 0, IA senses no input")
+    return {"g": g, "gamma_rad": gamma, "ia_term": term, "ia_sign": int(sign),
+            "input_amplitude": g * math.sin(gamma), "normal_input": g * math.cos(gamma)}
+
+
+def _ia_direction(theta_deg, ia_term: str, ia_sign: int) -> np.ndarray:
+    """sigma * sin(theta) or sigma * cos(theta): IA input per unit g sin(gamma)."""
+    th = np.radians(np.asarray(theta_deg, float))
+    return ia_sign * (np.sin(th) if ia_term == "sin" else np.cos(th))
+
+
+# --------------------------------------------------------------------------- segmentation
+
+def segment_run(data: pd.DataFrame, positions: int | None = None) -> pd.DataFrame:
+    """Label every reading of a tilt_rotation run with its sweep, temperature point and position.
+
+    A temperature point is a run of consecutive rows with the same ``temp_set_c``; a new
+    sweep (repeat) starts when the set-point turns back against the sweep's direction
+    (for the usual rising sweeps: when it goes back down).  The position index is
+    k = round(theta * n / 360) mod n when n (``positions``) is given, else the rank of the
+    distinct rounded angles.  Returns a copy of ``data`` (sorted by ``time_s``) with the
+    int columns ``sweep``, ``point`` (0-based, run-wide) and ``position``.
+    """
+    d = data.sort_values("time_s", kind="stable").reset_index(drop=True).copy()
+    sp = d["temp_set_c"].to_numpy(float)
+    change = np.r_[True, np.abs(np.diff(sp)) > 1e-9]
+    point = np.cumsum(change) - 1
+    starts = np.flatnonzero(change)
+    sweep_of_point = np.zeros(len(starts), int)
+    sweep, direction = 0, 0
+    for j in range(1, len(starts)):
+        step = sp[starts[j]] - sp[starts[j - 1]]
+        s = 1 if step > 0 else -1
+        if direction != 0 and s != direction:
+            sweep += 1
+            direction = 0
+        else:
+            direction = s
+        sweep_of_point[j] = sweep
+    d["point"] = point.astype(int)
+    d["sweep"] = sweep_of_point[point].astype(int)
+    th = np.mod(d["rotation_deg"].to_numpy(float), 360.0)
+    if positions:
+        d["position"] = (np.rint(th * positions / 360.0).astype(int) % int(positions))
+    else:
+        key = np.round(th, 3)
+        key = np.where(np.isclose(key, 360.0), 0.0, key)
+        d["position"] = pd.factorize(key, sort=True)[0]
+    return d
+
+
+def position_means(labelled: pd.DataFrame) -> pd.DataFrame:
+    """Mean of the readings at every (point, position) of a :func:`segment_run` table.
+
+    Columns: sweep, point, position, theta_deg (circular mean of rotation_deg), time_s,
+    temp_set_c, temp_c (mean of the finite ``temp_c``; NaN when none), output (mean,
+    output_unit), output_sd (sample standard deviation), count.
+    """
+    d = labelled.copy()
+    th = np.radians(d["rotation_deg"].to_numpy(float))
+    d["_c"], d["_s"] = np.cos(th), np.sin(th)
+    g = d.groupby(["point", "position"], sort=True)
+    m = g.agg(sweep=("sweep", "first"), time_s=("time_s", "mean"), temp_set_c=("temp_set_c", "first"),
+              temp_c=("temp_c", "mean"), output=("output", "mean"), output_sd=("output", "std"),
+              count=("output", "size"), _c=("_c", "mean"), _s=("_s", "mean")).reset_index()
+    m["theta_deg"] = np.mod(np.degrees(np.arctan2(m["_s"], m["_c"])), 360.0)
+    return m.drop(columns=["_c", "_s"])
+
+
+# --------------------------------------------------------------------------- one temperature point
+
+def fit_point(theta_deg: Sequence[float], output: Sequence[float], g: float, tilt_deg: float,
+              ia_term: str = "sin", ia_sign: int = 1,
+              sigma_override: float | None = None) -> dict[str, Any]:
+    """K0, K1 of one temperature point by least squares over its n positions (paper 001).
+
+    theta_deg: table angles (deg); output: the mean output at each (output_unit);
+    g: local gravity (m/s^2); tilt_deg: gamma (deg).  Fits E = a + b sin(theta) + c cos(theta)
+    (ordinary LS; n >= 3).  With A = g sin(gamma) and sigma = ia_sign, for ia_term 'sin':
+
+        K1 = sigma b / A   (output_unit/(m/s^2)),   K0 = a / K1   (m/s^2),
+        misalignment = c / b (rad; in-plane misalignment of the sense axis, or a cross-axis
+        sensitivity on the cos axis; the two cannot be told apart here).
+
+    Standard uncertainties come from the residuals, s^2 = RSS / (n - 3), unless
+    ``sigma_override`` (the standard deviation of one position mean, output_unit) is given,
+    or n == 3 (no residual dof: then they are NaN unless overridden).
+    Returns a dict with a, b, c, their covariance, K0, u_K0, K1, u_K1, cos_term (= c, output_unit),
+    u_cos_term, misalignment_rad, u_misalignment_rad, rss, dof, s (residual std), n.
+    """
+    th = np.radians(np.asarray(theta_deg, float))
+    E = np.asarray(output, float)
+    n = E.size
+    if n < 3:
+        raise ValueError(f"fit_point needs at least 3 positions, got {n}")
+    X = np.column_stack([np.ones(n), np.sin(th), np.cos(th)])
+    coef, *_ = np.linalg.lstsq(X, E, rcond=None)
+    resid = E - X @ coef
+    rss = float(resid @ resid)
+    dof = n - 3
+    if sigma_override is not None:
+        s = float(sigma_override)
+    elif dof > 0:
+        s = math.sqrt(rss / dof)
+    else:
+        s = float("nan")
+    cov = s * s * np.linalg.inv(X.T @ X)
+    a, bs, bc = coef
+    # which in-plane coefficient carries IA
+    if ia_term == "sin":
+        ib, io = 1, 2
+    elif ia_term == "cos":
+        ib, io = 2, 1
+    else:
+        raise ValueError(f"ia_term {ia_term!r} is not 'sin' or 'cos'")
+    b, c = coef[ib], coef[io]
+    A = g * math.sin(math.radians(tilt_deg))
+    K1 = ia_sign * b / A
+    K0 = a / K1
+    # gradients for the delta method, parameters (a, bs, bc)
+    gK1 = np.zeros(3)
+    gK1[ib] = ia_sign / A
+    gK0 = np.zeros(3)
+    gK0[0] = 1.0 / K1
+    gK0[ib] = -a / (K1 * K1) * ia_sign / A
+    gm = np.zeros(3)
+    gm[io] = 1.0 / b
+    gm[ib] = -c / (b * b)
+    u = lambda grad: math.sqrt(max(float(grad @ cov @ grad), 0.0)) if math.isfinite(s) else float("nan")  # noqa: E731
+    return {"n": n, "a": float(a), "b_sin": float(bs), "b_cos": float(bc), "cov_abc": cov.tolist(),
+            "K0": float(K0), "u_K0": u(gK0), "K1": float(K1), "u_K1": u(gK1),
+            "cov_K0_K1": float(gK0 @ cov @ gK1) if math.isfinite(s) else float("nan"),
+            "cos_term": float(c), "u_cos_term": math.sqrt(cov[io, io]) if math.isfinite(s) else float("nan"),
+            "misalignment_rad": float(c / b), "u_misalignment_rad": u(gm),
+            "rss": rss, "dof": dof, "s": s}
+
+
+def closed_form_n4(output_0_90_180_270: Sequence[float], g: float, tilt_deg: float,
+                   ia_sign: int = 1) -> dict[str, float]:
+    """Paper 001 closed forms for n = 4 (IA the sin axis): outputs E0..E3 at 0, 90, 180, 270 deg.
+
+    K1 = sigma (E1 - E3) / (2 g sin gamma)  [output_unit/(m/s^2)],
+    K0 = (E0 + E1 + E2 + E3) / 4 / K1       [m/s^2]   (the mean output is K1 K0),
+    cos term (E0 - E2)/2 [output_unit].
+    """
+    E0, E1, E2, E3 = (float(x) for x in output_0_90_180_270)
+    K1 = ia_sign * (E1 - E3) / (2.0 * g * math.sin(math.radians(tilt_deg)))
+    mean = (E0 + E1 + E2 + E3) / 4.0
+    return {"K1": K1, "K0": mean / K1, "mean_output": mean, "cos_term": (E0 - E2) / 2.0}
+
+
+def fit_points(meta: Mapping, data: pd.DataFrame) -> tuple[list[dict], pd.DataFrame]:
+    """Per-temperature-point K0, K1 of a whole run (paper 001).
+
+    Segments the run (:func:`segment_run`), averages each position (:func:`position_means`)
+    and fits each point (:func:`fit_point`).  Each point row carries two uncertainty sets:
+    ``u_K0``/``u_K1`` from its own residuals (n - 3 dof) and ``u_K0_pooled``/``u_K1_pooled``
+    from the residual variance pooled over all points of the run (sum of n - 3 dof), which
+    the temperature fit uses by default (per-point variances on few dof make poor weights).
+    Also: sweep, temp_c (mean of temp_c over the point, degC; temp_set_c if temp_c is
+    missing), temp_set_c, time_s (mean, s), and for n divisible by 4 the closed-form check
+    on the four quadrant positions.  Returns (points, position-means table).
+    """
+    geo = rig_geometry(meta)
+    n_pos = int(meta["positions"]) if meta.get("positions") not in (None, "") else None
+    lab = segment_run(data, n_pos)
+    pm = position_means(lab)
+    points: list[dict] = []
+    for pt, grp in pm.groupby("point", sort=True):
+        grp = grp.sort_values("position")
+        T = grp["temp_c"].to_numpy(float)
+        T_mean = float(np.nanmean(T)) if np.isfinite(T).any() else float(grp["temp_set_c"].iloc[0])
+        row = {"point": int(pt), "sweep": int(grp["sweep"].iloc[0]),
+               "temp_set_c": float(grp["temp_set_c"].iloc[0]), "temp_c": T_mean,
+               "time_s": float(grp["time_s"].mean()), "n_positions": int(len(grp)),
+               "n_readings": int(grp["count"].sum())}
+        if len(grp) >= 3:
+            fit = fit_point(grp["theta_deg"], grp["output"], geo["g"], float(meta["tilt_deg"]),
+                            geo["ia_term"], geo["ia_sign"])
+            row.update({k: v for k, v in fit.items() if k != "cov_abc"})
+            row["_theta"] = grp["theta_deg"].to_numpy(float)
+            row["_E"] = grp["output"].to_numpy(float)
+        # closed-form check on the quadrant positions (0, 90, 180, 270)
+        th = np.mod(grp["theta_deg"].to_numpy(float), 360.0)
+        quad = []
+        for q in (0.0, 90.0, 180.0, 270.0):
+            hit = np.flatnonzero(np.abs((th - q + 180.0) % 360.0 - 180.0) < 1e-3)
+            quad.append(float(grp["output"].to_numpy()[hit[0]]) if hit.size else None)
+        if all(v is not None for v in quad) and geo["ia_term"] == "sin":
+            cf = closed_form_n4(quad, geo["g"], float(meta["tilt_deg"]), geo["ia_sign"])
+            row["closed_form_K0"], row["closed_form_K1"] = cf["K0"], cf["K1"]
+        points.append(row)
+    fitted = [p for p in points if "K1" in p]
+    if fitted:
+        dof_tot = sum(p["dof"] for p in fitted)
+        if dof_tot > 0:
+            s_pool = math.sqrt(sum(p["rss"] for p in fitted) / dof_tot)
+        else:  # n = 3: no residual dof; the within-position scatter of the readings instead
+            sd, cnt = pm["output_sd"].to_numpy(float), pm["count"].to_numpy(float)
+            ok = np.isfinite(sd) & (cnt > 1)
+            s_pool = float(np.sqrt(np.mean(sd[ok] ** 2 / cnt[ok]))) if ok.any() else float("nan")
+            dof_tot = int(np.sum(cnt[ok] - 1))
+        for p in fitted:
+            fp = fit_point(p["_theta"], p["_E"], geo["g"], float(meta["tilt_deg"]), geo["ia_term"],
+                           geo["ia_sign"], sigma_override=s_pool)
+            p["u_K0_pooled"], p["u_K1_pooled"] = fp["u_K0"], fp["u_K1"]
+            p["s_pooled"], p["dof_pooled"] = s_pool, dof_tot
+    for p in points:
+        for k in ("_theta", "_E"):
+            p.pop(k, None)
+    return points, pm
+
+
+# --------------------------------------------------------------------------- temperature model
+
+def _wls_line(x, y, u, birge: bool = True) -> dict[str, Any]:
+    """Weighted LS y = p0 + p1 x with weights 1/u^2.  When ``birge`` and chi2 exceeds its 95th
+    percentile for nu = N - 2 (the scatter is not explained by the per-point uncertainties:
+    base tilt drift, tilt tides, an unmodelled temperature dependence) the covariance is
+    multiplied by chi2/nu (the Birge ratio squared)."""
+    x, y, u = (np.asarray(v, float) for v in (x, y, u))
+    N = x.size
+    w = 1.0 / u**2
+    X = np.column_stack([np.ones(N), x])
+    XtW = X.T * w
+    cov = np.linalg.inv(XtW @ X)
+    p = cov @ (XtW @ y)
+    r = y - X @ p
+    chi2 = float(np.sum(w * r * r))
+    nu = N - 2
+    scale = chi2 / nu if nu > 0 else float("nan")
+    applied = bool(birge and nu > 0 and chi2 > stats.chi2.ppf(0.95, nu))
+    if applied:
+        cov = cov * scale
+    return {"p": p, "cov": cov, "chi2": chi2, "nu": nu, "residuals": r, "birge_applied": applied,
+            "birge_ratio": math.sqrt(scale) if nu > 0 else float("nan")}
+
+
+def fit_temperature_model(temp_c: Sequence[float], K0: Sequence[float], u_K0: Sequence[float],
+                          K1: Sequence[float], u_K1: Sequence[float], t_ref: float = T_REF_C,
+                          birge: bool = True, level: float = 0.95,
+                          dof_u: float | None = None) -> dict[str, Any]:
+    """Fit the effects.md temperature model across temperature points (paper 001).
+
+    temp_c: mean temperature of each point (degC); K0, u_K0: per-point bias and standard
+    uncertainty (m/s^2); K1, u_K1: per-point scale factor (output_unit/(m/s^2)).
+
+    K0(T) = K0 + K0T (T - t_ref)      weighted LS of the per-point K0 on T
+    K1(T) = K1 (1 + K1T (T - t_ref))  weighted LS of K1(T) = p0 + p1 (T - t_ref); K1 = p0,
+                                      K1T = p1 / p0 (1/degC), uncertainty by the delta method
+                                      with the p0-p1 covariance.
+    Weights 1/u^2.  When chi2 is too large for nu = N - 2 (p < 0.05) the covariance of that
+    line is scaled by chi2/nu (``birge``).  Degrees of freedom of the result: N - 2 when scaled
+    or when ``dof_u`` (the dof of the per-point uncertainties) is not given, else dof_u.
+    Intervals: +- t_dof(0.5 + level/2) * u (Student t).  Returns values, standard
+    uncertainties, dof, 95 % intervals, chi2 and Birge ratios.
+    """
+    T = np.asarray(temp_c, float)
+    N = T.size
+    if N < 2:
+        raise ValueError("the temperature model needs at least two temperature points")
+    x = T - t_ref
+    f0 = _wls_line(x, K0, u_K0, birge)
+    f1 = _wls_line(x, K1, u_K1, birge)
+    nu = N - 2
+    p0, p1 = f1["p"]
+    c = f1["cov"]
+    K1T = p1 / p0
+    g = np.array([-p1 / p0**2, 1.0 / p0])
+    u_K1T = math.sqrt(max(float(g @ c @ g), 0.0))
+    out = {"t_ref_c": t_ref, "n_points": N, "level": level,
+           "K0": float(f0["p"][0]), "u_K0": math.sqrt(f0["cov"][0, 0]),
+           "K0T": float(f0["p"][1]), "u_K0T": math.sqrt(f0["cov"][1, 1]),
+           "K1": float(p0), "u_K1": math.sqrt(c[0, 0]),
+           "K1T": float(K1T), "u_K1T": u_K1T,
+           "birge_ratio_K0": f0["birge_ratio"], "birge_ratio_K1": f1["birge_ratio"],
+           "birge_applied_K0": f0["birge_applied"], "birge_applied_K1": f1["birge_applied"],
+           "chi2_K0": f0["chi2"], "chi2_K1": f1["chi2"], "nu": nu}
+    for k, f in (("K0", f0), ("K0T", f0), ("K1", f1), ("K1T", f1)):
+        dof = nu if (f["birge_applied"] or dof_u is None) else float(dof_u)
+        tq = float(stats.t.ppf(0.5 + level / 2.0, dof)) if dof > 0 else float("nan")
+        v, uu = out[k], out["u_" + k]
+        out["dof_" + k] = dof
+        out["t_factor_" + k] = tq
+        out["interval_" + k] = [v - tq * uu, v + tq * uu] if dof > 0 else [float("nan")] * 2
+    return out
+
+
+def _fit_from_points(points: list[dict], pooled: bool = True, birge: bool = True) -> dict[str, Any]:
+    pts = [p for p in points if "K1" in p]
+    uk0 = "u_K0_pooled" if pooled else "u_K0"
+    uk1 = "u_K1_pooled" if pooled else "u_K1"
+    dof_u = pts[0].get("dof_pooled") if pooled else min(p["dof"] for p in pts)
+    return fit_temperature_model([p["temp_c"] for p in pts], [p["K0"] for p in pts], [p[uk0] for p in pts],
+                                 [p["K1"] for p in pts], [p[uk1] for p in pts], birge=birge,
+                                 dof_u=dof_u if dof_u and dof_u > 0 else None)
+
+
+def sweep_repeatability(points: list[dict], pooled: bool = True) -> dict[str, Any]:
+    """The temperature model fitted to each sweep (repeat) alone, and the spread across sweeps.
+
+    Returns per_sweep (list of fits: K0T, K1T, K0, K1 with uncertainties) and, with two or
+    more sweeps, the sample standard deviation across sweeps of each coefficient (the
+    repeatability; paper 001 quotes < 0.4 ug/degC and < 30 ppm/degC), also in display units.
+    """
+    sweeps = sorted({p["sweep"] for p in points if "K1" in p})
+    per = []
+    for s in sweeps:
+        pts = [p for p in points if p["sweep"] == s and "K1" in p]
+        if len({round(p["temp_c"], 6) for p in pts}) < 2:
+            continue
+        f = _fit_from_points(pts, pooled)
+        per.append({"sweep": s, "n_points": len(pts), **{k: f[k] for k in (
+            "K0", "u_K0", "K1", "u_K1", "K0T", "u_K0T", "K1T", "u_K1T")}})
+    out: dict[str, Any] = {"per_sweep": per, "n_sweeps": len(per)}
+    if len(per) >= 2:
+        for k in ("K0", "K1", "K0T", "K1T"):
+            vals = np.array([r[k] for r in per])
+            out["sd_" + k] = float(np.std(vals, ddof=1))
+            out["mean_u_" + k] = float(np.mean([r["u_" + k] for r in per]))
+        out["sd_K0T_ug_per_degC"] = out["sd_K0T"] / MICRO_G
+        out["sd_K1T_ppm_per_degC"] = out["sd_K1T"] * 1e6
+    return out
+
+
+def scale_factor_time_trend(points: list[dict], model: Mapping, pooled: bool = True) -> dict[str, Any]:
+    """Trend in time of the per-point K1 left after the temperature model (paper 001: a base-tilt
+    change d_gamma scales K1 by (gamma + d_gamma)/gamma, so a steady base tilt drift shows as a K1
+    trend in time; with repeated sweeps time and temperature are not collinear).
+
+    Weighted LS of r_j = K1_j / K1(T_j) - 1 on time (h).  Returns slope_ppm_per_h with its standard
+    uncertainty (scaled by the Birge ratio when > 1) and ``significant`` (|slope| > 3 u);
+    a slope s (1/h) means a base tilt rate of about gamma * s / 3600 rad/s.
+    """
+    uk = "u_K1_pooled" if pooled else "u_K1"
+    pts = [p for p in points if "K1" in p]
+    if len(pts) < 3:
+        return {}
+    t_h = np.array([p["time_s"] for p in pts]) / 3600.0
+    T = np.array([p["temp_c"] for p in pts])
+    K1fit = model["K1"] * (1.0 + model["K1T"] * (T - model.get("t_ref_c", T_REF_C)))
+    r = np.array([p["K1"] for p in pts]) / K1fit - 1.0
+    u = np.array([p[uk] for p in pts]) / K1fit
+    if np.ptp(t_h) == 0 or not np.all(np.isfinite(u)) or np.any(u <= 0):
+        return {}
+    f = _wls_line(t_h - t_h.mean(), r, u, birge=True)
+    slope, us = float(f["p"][1]), math.sqrt(f["cov"][1, 1])
+    return {"slope_ppm_per_h": slope * 1e6, "u_slope_ppm_per_h": us * 1e6,
+            "significant": bool(abs(slope) > 3.0 * us), "note": "relative K1 residual vs time"}
+
+
+# --------------------------------------------------------------------------- fixed-point method
+
+def fixed_point_method(meta: Mapping, pm: pd.DataFrame, s_pos: float | None = None) -> dict[str, Any]:
+    """The fixed-point (position-by-position) method on the positions a run holds (paper 001).
+
+    Positions used: '+' where IA senses +g sin(gamma) (theta = 90 deg for sin_axis +IA),
+    '-' where it senses -g sin(gamma) (270 deg) and '0' where it senses 0 (0 and 180 deg).
+    Per temperature point (A = g sin gamma):
+      two-position:  K1 = sigma (E+ - E-) / (2A), K0 = (E+ + E-)/2 / K1;
+      zero input:    K0_zero = mean(E0) / K1 (K1 of the two-position pair);
+      one position:  K1+ = E+ / A and K1- = -E- / A (the traditional single-position scale
+                     factor, bias and fixture tilt included).
+    Each series is fitted with the temperature model (:func:`fit_temperature_model`); the
+    single-position K1T+ and K1T- differ by about 2 (K0T + g c_f cos gamma) / A, which is the
+    fixture deformation the paper warns about.  ``s_pos``: standard deviation of one position
+    mean (output_unit), e.g. the pooled residual of the rotation fits; else from the
+    within-position scatter.  Returns {} when the run holds no +/- pair.
+    """
+    geo = rig_geometry(meta)
+    A = geo["input_amplitude"]
+    dirn = _ia_direction(pm["theta_deg"], geo["ia_term"], geo["ia_sign"])
+    pm = pm.assign(_dir=dirn)
+    if s_pos is None or not math.isfinite(s_pos):
+        sd = pm["output_sd"].to_numpy(float) / np.sqrt(pm["count"].to_numpy(float))
+        s_pos = float(np.sqrt(np.nanmean(sd**2))) if np.isfinite(sd).any() else float("nan")
+    rows = []
+    for pt, grp in pm.groupby("point", sort=True):
+        plus = grp[np.abs(grp["_dir"] - 1.0) < 1e-6]
+        minus = grp[np.abs(grp["_dir"] + 1.0) < 1e-6]
+        zero = grp[np.abs(grp["_dir"]) < 1e-6]
+        if plus.empty or minus.empty:
+            continue
+        Ep, Em = float(plus["output"].mean()), float(minus["output"].mean())
+        K1 = (Ep - Em) / (2.0 * A)
+        K0 = (Ep + Em) / 2.0 / K1
+        u_K1 = s_pos * math.sqrt(1.0 / len(plus) + 1.0 / len(minus)) / (2.0 * A)
+        u_mean = s_pos * math.sqrt(1.0 / len(plus) + 1.0 / len(minus)) / 2.0
+        u_K0 = math.hypot(u_mean / K1, K0 / K1 * u_K1)
+        T = grp["temp_c"].to_numpy(float)
+        row = {"point": int(pt), "sweep": int(grp["sweep"].iloc[0]),
+               "temp_c": float(np.nanmean(T)) if np.isfinite(T).any() else float(grp["temp_set_c"].iloc[0]),
+               "E_plus": Ep, "E_minus": Em, "K1": K1, "u_K1": u_K1, "K0": K0, "u_K0": u_K0,
+               "K1_plus": Ep / A, "K1_minus": -Em / A, "u_K1_single": s_pos / math.sqrt(len(plus)) / A}
+        if not zero.empty:
+            row["E_zero"] = float(zero["output"].mean())
+            row["K0_zero"] = row["E_zero"] / K1
+            row["u_K0_zero"] = math.hypot(s_pos / math.sqrt(len(zero)) / K1, row["K0_zero"] / K1 * u_K1)
+        rows.append(row)
+    if len({round(r["temp_c"], 6) for r in rows}) < 2:
+        return {"points": rows} if rows else {}
+    Ts = [r["temp_c"] for r in rows]
+    out: dict[str, Any] = {"s_position_mean": s_pos, "points": rows}
+    out["two_position"] = fit_temperature_model(Ts, [r["K0"] for r in rows], [r["u_K0"] for r in rows],
+                                                [r["K1"] for r in rows], [r["u_K1"] for r in rows])
+    if all("K0_zero" in r for r in rows):
+        z = fit_temperature_model(Ts, [r["K0_zero"] for r in rows], [r["u_K0_zero"] for r in rows],
+                                  [r["K1"] for r in rows], [r["u_K1"] for r in rows])
+        out["zero_input"] = {k: z[k] for k in ("K0", "u_K0", "K0T", "u_K0T", "interval_K0T")}
+    for name, key in (("single_plus", "K1_plus"), ("single_minus", "K1_minus")):
+        f = fit_temperature_model(Ts, [r["K0"] for r in rows], [r["u_K0"] for r in rows],
+                                  [r[key] for r in rows], [r["u_K1_single"] for r in rows])
+        out[name] = {k: f[k] for k in ("K1", "u_K1", "K1T", "u_K1T", "interval_K1T")}
+    return out
+
+
+# --------------------------------------------------------------------------- compensation
+
+def _model_values(model) -> dict[str, float]:
+    """K0, K1, K0T, K1T from a dict of floats, a fit dict, or a list of CoefficientResult."""
+    if isinstance(model, Mapping):
+        return {k: float(model.get(k, 0.0 if k != "K1" else 1.0)) for k in ("K0", "K1", "K0T", "K1T")}
+    vals = {"K0": 0.0, "K1": 1.0, "K0T": 0.0, "K1T": 0.0}
+    for c in model:
+        if getattr(c, "name", None) in vals:
+            vals[c.name] = float(c.value)
+    return vals
+
+
+def compensate(output, temp_c, model, input_m_s2=0.0, t_ref: float = T_REF_C) -> np.ndarray:
+    """Remove the temperature model from an output series (paper 001, flight-data compensation).
+
+    output: E (output_unit); temp_c: instrument temperature (degC), same length;
+    model: K0 (m/s^2), K1 (output_unit/(m/s^2)), K0T (m/s^2/degC), K1T (1/degC) as a dict or
+    CoefficientResult list; input_m_s2: the known IA input to take out (scalar or series).
+    Returns the residual acceleration (m/s^2):
+
+        r = E / (K1 (1 + K1T (T - t_ref))) - (K0 + K0T (T - t_ref)) - input
+    """
+    m = _model_values(model)
+    dT = np.asarray(temp_c, float) - t_ref
+    E = np.asarray(output, float)
+    return E / (m["K1"] * (1.0 + m["K1T"] * dT)) - (m["K0"] + m["K0T"] * dT) - np.asarray(input_m_s2, float)
+
+
+def temperature_correlation(series, temp_c) -> dict[str, float | None]:
+    """Output-temperature sensitivity of a series (m/s^2) against temperature (degC).
+
+    Least-squares slope of series on temp_c with its standard uncertainty (from residuals),
+    in m/s^2/degC and in ug/degC (1 ug = 1e-6 * 9.80665 m/s^2), and the Pearson
+    correlation r.  Paper 001 reports 47 ug/degC before and 1.7 ug/degC after compensation.
+    """
+    y = np.asarray(series, float)
+    T = np.asarray(temp_c, float)
+    ok = np.isfinite(y) & np.isfinite(T)
+    y, T = y[ok], T[ok]
+    n = y.size
+    if n < 3 or np.ptp(T) == 0:
+        return {"n": int(n), "slope_m_s2_per_degC": None, "u_slope_m_s2_per_degC": None,
+                "slope_ug_per_degC": None, "u_slope_ug_per_degC": None, "r": None}
+    Tc = T - T.mean()
+    sxx = float(Tc @ Tc)
+    slope = float(Tc @ (y - y.mean())) / sxx
+    resid = y - y.mean() - slope * Tc
+    u = math.sqrt(float(resid @ resid) / (n - 2) / sxx)
+    r = float(np.corrcoef(T, y)[0, 1]) if np.std(y) > 0 else 0.0
+    return {"n": int(n), "slope_m_s2_per_degC": slope, "u_slope_m_s2_per_degC": u,
+            "slope_ug_per_degC": slope / MICRO_G, "u_slope_ug_per_degC": u / MICRO_G, "r": r}
+
+
+# --------------------------------------------------------------------------- one run
+
+def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = "", *,
+                        pooled: bool = True) -> tuple[list[CoefficientResult], dict[str, Any]]:
+    """All of paper 001 on one tilt_rotation run: K0, K1, K0T, K1T and the checks.
+
+    meta: typed metadata (g_local_m_s2, tilt_deg, sin_axis, cos_axis, normal_axis, positions,
+    output_unit); data: time_s, temp_set_c, temp_c, rotation_deg, output.
+    Returns (coefficients, extras).  coefficients: K0 (m/s2), K1 (<output_unit>/(m/s2)),
+    K0T (m/s2/degC), K1T (1/degC) at T_ref = 20 degC, method 'tilt_rotation_ls' (or
+    'tilt_rotation_two_position' when the run has fewer than 3 positions).  extras (JSON-able):
+    geometry, per-point table, temperature model (with 95 % intervals), per-sweep repeatability,
+    fixed-point method and its comparison with the rotation method, closed-form check,
+    compensation (output-temperature sensitivity before/after), flags.
+    """
+    geo = rig_geometry(meta)
+    unit = str(meta.get("output_unit", "out"))
+    points, pm = fit_points(meta, data)
+    flags: list[str] = []
+    fitted = [p for p in points if "K1" in p]
+    s_pool = fitted[0]["s_pooled"] if fitted else None
+    fixed = fixed_point_method(meta, pm, s_pool)
+    c_per_urad = geo["normal_input"] * 1e-6  # m/s2/degC per urad/degC of fixture tilt
+    note_k0t = (f"includes any fixture thermal tilt c (effect fixture_thermal_tilt, rad/degC), which enters "
+                f"K0T as g*c*cos(gamma) = {c_per_urad:.4g} m/s2/degC per urad/degC here; this method "
+                "cannot separate it from the instrument's bias TC (paper 001 sec. 3.2)")
+    note_k0 = ("apparent bias at 20 degC: includes g*cos(gamma) times any normal-axis cross-axis "
+               "sensitivity or tilt of IA out of the table plane")
+    if len({round(p["temp_c"], 6) for p in fitted}) >= 2:
+        model = _fit_from_points(fitted, pooled)
+        method = METHOD
+    elif fixed.get("two_position"):
+        model = fixed["two_position"]
+        method = METHOD_TWO_POSITION
+        flags.append("fewer than 3 positions per point: coefficients from the two-position method")
+    else:
+        raise ValueError("tilt_rotation run has neither >= 2 temperature points with >= 3 positions "
+                         "nor a +/- position pair at 2 or more temperatures")
+    dof = {k: model["dof_" + k] for k in ("K0", "K1", "K0T", "K1T")}
+    coeffs = [
+        CoefficientResult("K0", model["K0"], model["u_K0"], "m/s2", method, rig_id, dof["K0"], note_k0),
+        CoefficientResult("K1", model["K1"], model["u_K1"], f"{unit}/(m/s2)", method, rig_id, dof["K1"]),
+        CoefficientResult("K0T", model["K0T"], model["u_K0T"], "m/s2/degC", method, rig_id, dof["K0T"], note_k0t),
+        CoefficientResult("K1T", model["K1T"], model["u_K1T"], "1/degC", method, rig_id, dof["K1T"],
+                          "fixture thermal tilt cancels from K1 (paper 001 eq 12); a base-tilt change "
+                          "d_gamma scales K1 by (gamma + d_gamma)/gamma"),
+    ]
+    for k in ("K0", "K1"):
+        b = model.get("birge_ratio_" + k)
+        if model.get("birge_applied_" + k):
+            flags.append(f"{k}(T) scatters {b:.1f} times its per-point uncertainty across temperature "
+                         "points (base tilt drift, tilt tides or an unmodelled temperature dependence?)")
+
+    extras: dict[str, Any] = {"geometry": geo, "temperature_model": model}
+    extras["temperature_model_display"] = {
+        "K0T_ug_per_degC": model["K0T"] / MICRO_G, "u_K0T_ug_per_degC": model["u_K0T"] / MICRO_G,
+        "K1T_ppm_per_degC": model["K1T"] * 1e6, "u_K1T_ppm_per_degC": model["u_K1T"] * 1e6,
+        "fixture_tilt_K0T_per_urad_per_degC": c_per_urad}
+    extras["points"] = points
+    if fitted:
+        extras["misalignment_rad_mean"] = float(np.mean([p["misalignment_rad"] for p in fitted]))
+        K1s = np.array([p["K1"] for p in fitted])
+        Kfit = model["K1"] * (1 + model["K1T"] * (np.array([p["temp_c"] for p in fitted]) - T_REF_C))
+        extras["scale_factor_scatter_ppm"] = float(np.std(K1s / Kfit - 1.0, ddof=1) * 1e6) if len(K1s) > 2 else None
+        extras["scale_factor_time_trend"] = scale_factor_time_trend(fitted, model)
+        tr = extras["scale_factor_time_trend"]
+        if tr.get("significant"):
+            flags.append(f"K1 drifts with time at {tr['slope_ppm_per_h']:.3g} +- {tr['u_slope_ppm_per_h']:.2g} "
+                         "ppm/h beyond the temperature model: base tilt drift (effect base_tilt_drift) "
+                         "or instrument drift?")
+        cf = [p for p in fitted if "closed_form_K1" in p]
+        if cf:
+            extras["closed_form_check"] = {
+                "n_points": len(cf),
+                "max_rel_diff_K1": max(abs(p["closed_form_K1"] / p["K1"] - 1.0) for p in cf),
+                "max_abs_diff_K0_m_s2": max(abs(p["closed_form_K0"] - p["K0"]) for p in cf),
+                "note": "closed forms on the 0/90/180/270 positions; equal to LS when n = 4"}
+    extras["repeatability"] = sweep_repeatability(fitted, pooled) if fitted else {}
+    if fixed:
+        extras["fixed_point"] = fixed
+        if method == METHOD and "two_position" in fixed:
+            fp = fixed["two_position"]
+            comp = {}
+            for k in ("K0T", "K1T"):
+                d = fp[k] - model[k]
+                comp[k] = {"rotation": model[k], "two_position": fp[k], "difference": d,
+                           "u_rotation": model["u_" + k], "u_two_position": fp["u_" + k]}
+            for side in ("single_plus", "single_minus"):
+                if side in fixed:
+                    comp["K1T_" + side] = {"value": fixed[side]["K1T"], "u": fixed[side]["u_K1T"],
+                                           "difference": fixed[side]["K1T"] - model["K1T"]}
+            if "zero_input" in fixed:
+                comp["K0T_zero_input"] = {"value": fixed["zero_input"]["K0T"], "u": fixed["zero_input"]["u_K0T"],
+                                          "difference": fixed["zero_input"]["K0T"] - model["K0T"]}
+            comp["note"] = ("single-position K1T+ and K1T- take (K0T + g c cos gamma)/(g sin gamma) for a "
+                            "scale-factor change with opposite signs (paper 001 Table 3); the rotation method "
+                            "and the +/- pair cancel it")
+            extras["method_comparison"] = comp
+    # compensation on the run itself: the nominal IA input taken out, temperature-free
+    # calibration (K0, K1 at 20 degC) before, the full model after
+    d = data.sort_values("time_s", kind="stable")
+    T = d["temp_c"].to_numpy(float)
+    if np.isfinite(T).any():
+        T = np.where(np.isfinite(T), T, d["temp_set_c"].to_numpy(float))
+        mis = extras.get("misalignment_rad_mean", 0.0)
+        th = np.radians(d["rotation_deg"].to_numpy(float))
+        trig_ia = np.sin(th) if geo["ia_term"] == "sin" else np.cos(th)
+        trig_o = np.cos(th) if geo["ia_term"] == "sin" else np.sin(th)
+        inp = geo["input_amplitude"] * (geo["ia_sign"] * trig_ia + geo["ia_sign"] * mis * trig_o)
+        E = d["output"].to_numpy(float)
+        before = compensate(E, T, {"K0": model["K0"], "K1": model["K1"]}, inp)
+        after = compensate(E, T, model, inp)
+        extras["compensation"] = {"series": "run readings minus nominal IA input (m/s2)",
+                                  "before": temperature_correlation(before, T),
+                                  "after": temperature_correlation(after, T)}
+    extras["flags"] = flags
+    return coeffs, _jsonable(extras)
