@@ -42,6 +42,9 @@ def _col(data, name, n=None, default=0.0) -> np.ndarray:
 
 
 def _n(data) -> int:
+    """Number of rows of a DataFrame or of a mapping of equal-length arrays."""
+    if hasattr(data, "shape") and hasattr(data, "columns"):
+        return int(data.shape[0])
     for k in ("time_s", "output"):
         try:
             return len(data[k])
