@@ -1,0 +1,565 @@
+"""Semantic validation of parsed runs with great-expectations 1.x (drop-format.md).
+
+The parser (:mod:`accelcal.schemas.dropformat`) checks structure; this module
+checks what needs the numbers, per test kind, with one Expectation Suite per
+(test kind, table):
+
+* ``<test>.rows`` on the runs' data (all runs of a kind in one batch) plus
+  derived columns: column presence and types; finite values ("NaN or infinite
+  numbers in ``output``"); time strictly increasing ("time that goes
+  backwards"); ``table_rate_rad_s`` >= 0 for ``centrifuge``; plausible
+  temperatures; angles in range; and the header's claims against the data
+  (``sample_period_s``; tumble ``angle_deg`` constant per ``position``;
+  centrifuge rest dwells at >= 2 equally spaced azimuths, azimuth present at
+  rest, a step near 1 g; tilt_rotation ``positions`` equally spaced angles per
+  temperature point; sine_centrifuge ``rate_amplitude_rad_s``/``rate_frequency_hz``).
+  Run-level quantities sit on the run's first row (NaN elsewhere, which GE skips).
+* ``<test>.meta`` on the metadata, one row per run: keys present, well typed,
+  values in their sets and plausible ranges.
+
+GE's unexpected row indices are mapped back to (file, ``line``); each failed
+expectation of a run gives one :class:`Refusal` naming the first offending
+line, the rule (``meta["rule"]`` of the expectation) and a detail. Rule ids:
+
+``missing-column``, ``column-type``, ``output-not-finite``, ``not-finite``,
+``time-not-increasing``, ``negative-rate``, ``temp-out-of-range``,
+``angle-out-of-range``, ``sample-period``, ``angle-inconsistent``,
+``angle-missing-at-rest``, ``rest-dwells``, ``no-1g-step``,
+``positions-mismatch``, ``sine-amplitude``, ``sine-frequency``,
+``missing-key``, ``unknown-format``, ``unknown-test``, ``bad-value``,
+``bad-axis``, ``metadata-range``.
+
+Data Docs (HTML) of each call go to ``docs_dir/<drop_name>/index.html``.
+"""
+from __future__ import annotations
+
+import os
+import re
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .dropformat import (COLUMNS, FLOAT_KEYS, FORMAT, INT_COLUMNS, INT_KEYS, NULLABLE_COLUMNS,
+                         OUTPUT_UNITS, REQUIRED_KEYS, ROTATION_SENSES, Refusal,
+                         RunFile)
+from ..effects import TESTS
+
+os.environ.setdefault("GX_ANALYTICS_ENABLED", "False")
+
+__all__ = ["Refusal", "ValidationReport", "validate_runs", "validate_report", "build_suites",
+           "TEMP_RANGE_C", "ANGLE_TOL_DEG"]
+
+#: Plausible temperatures, degC.
+TEMP_RANGE_C = (-60.0, 150.0)
+#: Angle tolerance for "the same angle", degrees.
+ANGLE_TOL_DEG = 0.5
+#: Relative tolerance of the sample period.
+PERIOD_RTOL = 0.01
+#: A table turning slower than this (rad/s) is at rest.
+REST_RATE = 1e-3
+#: Largest |omega^2 R / g - 1| of the step "near 1 g".
+ONE_G_RTOL = 0.15
+#: sine: fitted rate amplitude / rate_amplitude_rad_s within 1 +- this.
+SINE_AMP_RTOL = 0.1
+#: sine: rms residual of the rate fit at rate_frequency_hz, relative to the amplitude.
+SINE_RESID_MAX = 0.1
+_BIG = 1e300
+_ISO_OFFSET = r"^\d{4}-?\d{2}-?\d{2}[T ]\d{2}(:?\d{2}(:?\d{2}(\.\d+)?)?)?(Z|[+-]\d{2}(:?\d{2})?)$"
+_SIGNED_AXIS = r"^\s*[+-]?\s*(IA|PA|OA)\s*$"
+_PLANE = r"^\s*(IA|PA|OA)\s*-\s*(IA|PA|OA)\s*$"
+
+
+@dataclass
+class ValidationReport:
+    """Result of :func:`validate_report`: refusals per run path (empty list = accepted)."""
+
+    refusals: dict[str, list[Refusal]]
+    seconds: float
+    seconds_per_kind: dict[str, float] = field(default_factory=dict)
+    docs_index: Path | None = None
+
+    @property
+    def accepted(self) -> list[str]:
+        return [p for p, r in self.refusals.items() if not r]
+
+
+# --------------------------------------------------------------------------------------
+# suites
+
+
+def _E(cls_name: str, rule: str, what: str, **kw):
+    import great_expectations.expectations as gxe
+    return getattr(gxe, cls_name)(meta={"rule": rule, "what": what}, **kw)
+
+
+def build_suites(test: str) -> dict[str, list]:
+    """The expectations of ``<test>.rows`` and ``<test>.meta`` (not yet in a suite)."""
+    cols = COLUMNS[test]
+    rows: list = [_E("ExpectTableColumnsToMatchSet", "missing-column",
+                     f"the columns of a {test} run", column_set=list(cols), exact_match=False)]
+    for c in cols:
+        rows.append(_E("ExpectColumnValuesToBeInTypeList", "column-type",
+                       f"{c} must be {'int64' if c in INT_COLUMNS else 'float64'}", column=c,
+                       type_list=["int64"] if c in INT_COLUMNS else ["float64"]))
+    rows.append(_E("ExpectColumnValuesToNotBeNull", "output-not-finite", "output must not be NaN",
+                   column="output"))
+    rows.append(_E("ExpectColumnValuesToBeBetween", "output-not-finite", "output must be finite",
+                   column="output", min_value=-_BIG, max_value=_BIG))
+    rows.append(_E("ExpectColumnValuesToBeBetween", "not-finite",
+                   "NaN or infinite value (count of such cells in the row)",
+                   column="nonfinite_cells", max_value=0))
+    rows.append(_E("ExpectColumnValuesToBeBetween", "time-not-increasing",
+                   "time_s must increase strictly (goes back or repeats here)",
+                   column="d_time_s", min_value=0.0, strict_min=True))
+    rows.append(_E("ExpectColumnValuesToBeBetween", "sample-period",
+                   "rows closer in time than sample_period_s",
+                   column="dt_over_period", min_value=1.0 - PERIOD_RTOL))
+    rows.append(_E("ExpectColumnValuesToBeBetween", "sample-period",
+                   "median time step within a dwell differs from sample_period_s",
+                   column="period_error", min_value=0.0, max_value=PERIOD_RTOL))
+    for c in ("temp_c", "temp_set_c"):
+        if c in cols:
+            rows.append(_E("ExpectColumnValuesToBeBetween", "temp-out-of-range",
+                           f"{c} outside {TEMP_RANGE_C[0]:g}..{TEMP_RANGE_C[1]:g} degC",
+                           column=c, min_value=TEMP_RANGE_C[0], max_value=TEMP_RANGE_C[1]))
+    for c in ("angle_deg", "rotation_deg") + (("table_angle_deg",) if test == "centrifuge" else ()):
+        if c in cols:
+            rows.append(_E("ExpectColumnValuesToBeBetween", "angle-out-of-range",
+                           f"{c} outside -360..360 deg", column=c, min_value=-360.0, max_value=360.0))
+    for c in ("position", "step"):
+        if c in cols:
+            rows.append(_E("ExpectColumnValuesToBeBetween", "bad-value", f"{c} must be >= 0",
+                           column=c, min_value=0))
+    if test == "tumble":
+        rows.append(_E("ExpectColumnValuesToBeBetween", "angle-inconsistent",
+                       f"angle_deg differs by more than {ANGLE_TOL_DEG} deg from the other rows "
+                       "of its position", column="angle_dev_deg", max_value=ANGLE_TOL_DEG))
+    if test == "centrifuge":
+        rows.append(_E("ExpectColumnValuesToBeBetween", "negative-rate",
+                       "table_rate_rad_s must be >= 0 in a centrifuge run",
+                       column="table_rate_rad_s", min_value=0.0))
+        rows.append(_E("ExpectColumnValuesToNotBeNull", "angle-missing-at-rest",
+                       "table_angle_deg must be given while the table is at rest",
+                       column="table_angle_deg", row_condition=_at_rest()))
+        rows.append(_E("ExpectColumnValuesToBeBetween", "rest-dwells",
+                       "the run must start with rest dwells at >= 2 equally spaced azimuths "
+                       "(worst azimuth spacing error, deg)",
+                       column="rest_dwell_error_deg", min_value=0.0, max_value=ANGLE_TOL_DEG))
+        rows.append(_E("ExpectColumnValuesToBeBetween", "no-1g-step",
+                       "no dwell rate near 1 g (min |omega^2 R / g - 1|)",
+                       column="one_g_error", min_value=0.0, max_value=ONE_G_RTOL))
+    if test == "tilt_rotation":
+        rows.append(_E("ExpectColumnValuesToBeBetween", "positions-mismatch",
+                       "rotation_deg is not one of the 360*k/positions angles (off by, deg)",
+                       column="rotation_grid_dev_deg", max_value=ANGLE_TOL_DEG))
+        rows.append(_E("ExpectColumnValuesToBeBetween", "positions-mismatch",
+                       "number of distinct rotation angles at this temperature point minus positions",
+                       column="positions_error", min_value=0, max_value=0))
+    if test == "sine_centrifuge":
+        rows.append(_E("ExpectColumnValuesToBeBetween", "sine-amplitude",
+                       "fitted |rate| amplitude / rate_amplitude_rad_s",
+                       column="rate_amplitude_ratio", min_value=1 - SINE_AMP_RTOL,
+                       max_value=1 + SINE_AMP_RTOL))
+        rows.append(_E("ExpectColumnValuesToBeBetween", "sine-frequency",
+                       "rms residual of a sine fit at rate_frequency_hz / amplitude",
+                       column="rate_fit_residual", min_value=0.0, max_value=SINE_RESID_MAX))
+
+    keys = REQUIRED_KEYS[test]
+    meta: list = [
+        _E("ExpectColumnValuesToBeBetween", "missing-key", "required keys missing (count)",
+           column="missing_keys", max_value=0),
+        _E("ExpectColumnValuesToBeBetween", "bad-value",
+           "keys whose value is not of their type (count)", column="badly_typed_keys", max_value=0),
+    ]
+    meta.append(_E("ExpectColumnValuesToBeInSet", "unknown-format", f"format must be {FORMAT}",
+                   column="format", value_set=[FORMAT]))
+    meta.append(_E("ExpectColumnValuesToBeInSet", "unknown-test", f"test must be {test}",
+                   column="test", value_set=[test]))
+    meta.append(_E("ExpectColumnValuesToBeInSet", "bad-value", "output_unit not allowed",
+                   column="output_unit", value_set=list(OUTPUT_UNITS)))
+    meta.append(_E("ExpectColumnValuesToMatchRegex", "bad-value",
+                   "started_at must be ISO 8601 with a UTC offset", column="started_at",
+                   regex=_ISO_OFFSET))
+    ranges = {
+        "site_latitude_deg": (-90, 90), "g_local_m_s2": (9.7, 9.9), "sample_period_s": (1e-6, 3600),
+        "arm_radius_m": (1e-3, 20), "mount_angle_deg": (-360, 360), "reading_window_s": (1e-6, 3600),
+        "tilt_deg": (0, 90), "positions": (1, 100000), "rate_amplitude_rad_s": (1e-6, 1000),
+        "rate_frequency_hz": (1e-6, 1000),
+    }
+    for k, (lo, hi) in ranges.items():
+        if k in keys:
+            meta.append(_E("ExpectColumnValuesToBeBetween", "metadata-range",
+                           f"{k} outside plausible range {lo:g}..{hi:g}", column=k,
+                           min_value=lo, max_value=hi))
+    meta.append(_E("ExpectColumnValuesToBeBetween", "metadata-range",
+                   "ambient_temp_c outside plausible range", column="ambient_temp_c",
+                   min_value=TEMP_RANGE_C[0], max_value=TEMP_RANGE_C[1]))
+    for k in ("head_axis", "cos_axis", "sin_axis", "normal_axis", "vertical_axis"):
+        if k in keys:
+            meta.append(_E("ExpectColumnValuesToMatchRegex", "bad-axis", f"{k} must be a signed axis",
+                           column=k, regex=_SIGNED_AXIS))
+    if "mount_plane" in keys:
+        meta.append(_E("ExpectColumnValuesToMatchRegex", "bad-axis", "mount_plane must be like IA-PA",
+                       column="mount_plane", regex=_PLANE))
+    if "rotation_sense" in keys:
+        meta.append(_E("ExpectColumnValuesToBeInSet", "bad-value", "rotation_sense must be ccw or cw",
+                       column="rotation_sense", value_set=list(ROTATION_SENSES)))
+    return {"rows": rows, "meta": meta}
+
+
+def _at_rest():
+    from great_expectations.expectations.row_conditions import Column
+    rate = Column("table_rate_rad_s")
+    return (rate < REST_RATE) & (rate > -REST_RATE)
+
+
+# --------------------------------------------------------------------------------------
+# derived columns (the header's claims made checkable row by row)
+
+
+def _first_only(n: int, value: float) -> np.ndarray:
+    out = np.full(n, np.nan)
+    if n:
+        out[0] = value
+    return out
+
+
+def _dwell_keys(test: str, d: pd.DataFrame) -> np.ndarray:
+    """Consecutive rows of one dwell share a key (the DAQ logs at sample_period within it)."""
+    if test == "tumble":
+        k = d["position"].to_numpy(np.float64)
+    elif test == "centrifuge":
+        k = d["step"].to_numpy(np.float64)
+    elif test == "tilt_rotation":
+        k = d["temp_set_c"].to_numpy(np.float64) * 1e4 + d["rotation_deg"].to_numpy(np.float64)
+    else:
+        k = np.zeros(len(d))
+    return k
+
+
+def _segments(values: np.ndarray) -> np.ndarray:
+    """Index of the run of equal consecutive values each row belongs to."""
+    if len(values) == 0:
+        return np.zeros(0, np.int64)
+    change = np.r_[False, values[1:] != values[:-1]]
+    return np.cumsum(change)
+
+
+def _derive(test: str, run: RunFile) -> pd.DataFrame:
+    """The run's columns plus the derived columns the ``<test>.rows`` suite checks."""
+    d = run.data.reset_index(drop=True)
+    cols = [c for c in COLUMNS[test] if c in d.columns]
+    out = d[cols].copy()
+    n = len(d)
+    meta = run.meta
+    nullable = NULLABLE_COLUMNS[test]
+    bad = np.zeros(n, np.int64)
+    for c in cols:
+        if c == "output" or c in INT_COLUMNS:
+            continue
+        v = d[c].to_numpy(np.float64)
+        bad += np.isinf(v) if c in nullable else ~np.isfinite(v)
+    out["nonfinite_cells"] = bad
+    with np.errstate(all="ignore"):
+        t = d["time_s"].to_numpy(np.float64) if "time_s" in d else np.full(n, np.nan)
+        dt = np.r_[np.nan, np.diff(t)] if n else np.zeros(0)
+        out["d_time_s"] = dt
+        period = float(meta.get("sample_period_s", np.nan) or np.nan)
+        # only forward steps here; a step back is time-not-increasing's alone
+        out["dt_over_period"] = np.where(dt > 0, dt / period, np.nan) if period > 0 else np.nan
+        try:
+            keys = _dwell_keys(test, d)
+            same = np.r_[False, keys[1:] == keys[:-1]] & np.isfinite(dt) & (dt > 0)
+            within = dt[same]
+            perr = abs(float(np.median(within)) / period - 1.0) if within.size and period > 0 else np.nan
+        except KeyError:
+            perr = np.nan
+        out["period_error"] = _first_only(n, perr)
+
+        if test == "tumble" and {"position", "angle_deg"} <= set(d.columns):
+            med = d.groupby("position")["angle_deg"].transform("median").to_numpy(np.float64)
+            out["angle_dev_deg"] = np.abs(d["angle_deg"].to_numpy(np.float64) - med)
+        if test == "centrifuge" and {"step", "table_rate_rad_s", "table_angle_deg"} <= set(d.columns):
+            out["rest_dwell_error_deg"] = _first_only(n, _rest_dwell_error(d))
+            out["one_g_error"] = _one_g(d, meta, n)
+        if test == "tilt_rotation" and {"temp_set_c", "rotation_deg"} <= set(d.columns):
+            npos = int(meta.get("positions", 0) or 0)
+            rot = d["rotation_deg"].to_numpy(np.float64)
+            if npos >= 1:
+                step = 360.0 / npos
+                r = np.mod(rot, step)
+                out["rotation_grid_dev_deg"] = np.minimum(r, step - r)
+            else:
+                out["rotation_grid_dev_deg"] = np.nan
+            seg = _segments(d["temp_set_c"].to_numpy(np.float64))
+            rk = np.round(np.mod(rot, 360.0) / ANGLE_TOL_DEG)
+            distinct = pd.Series(rk).groupby(seg).transform("nunique").to_numpy(np.float64)
+            first = np.r_[True, seg[1:] != seg[:-1]] if n else np.zeros(0, bool)
+            out["positions_error"] = np.where(first, distinct - npos, np.nan)
+        if test == "sine_centrifuge" and "table_rate_rad_s" in d.columns:
+            ratio, resid = _sine_fit(t, d["table_rate_rad_s"].to_numpy(np.float64), meta)
+            out["rate_amplitude_ratio"] = _first_only(n, ratio)
+            out["rate_fit_residual"] = _first_only(n, resid)
+    return out
+
+
+def _rest_dwell_error(d: pd.DataFrame) -> float:
+    """Worst spacing error (deg) of the leading rest dwells' azimuths; 999 if < 2 of them."""
+    rate = d["table_rate_rad_s"].to_numpy(np.float64)
+    step = d["step"].to_numpy()
+    ang = d["table_angle_deg"].to_numpy(np.float64)
+    seg = _segments(step)
+    az = []
+    for s in range(int(seg[-1]) + 1 if len(seg) else 0):
+        m = seg == s
+        if not np.all(np.abs(rate[m]) < REST_RATE):
+            break
+        a = ang[m]
+        a = a[np.isfinite(a)]
+        if a.size == 0:
+            return 999.0
+        az.append(float(np.median(np.mod(a, 360.0))))
+    az = sorted(set(round(a, 6) for a in az))
+    if len(az) < 2:
+        return 999.0
+    gaps = np.diff(np.r_[az, az[0] + 360.0])
+    return float(np.max(np.abs(gaps - 360.0 / len(az))))
+
+
+def _one_g(d: pd.DataFrame, meta: dict, n: int) -> np.ndarray:
+    """min over turning dwells of |omega^2 R / g - 1|, placed on the first turning row."""
+    rate = d["table_rate_rad_s"].to_numpy(np.float64)
+    R = float(meta.get("arm_radius_m", np.nan))
+    g = float(meta.get("g_local_m_s2", np.nan))
+    turning = rate >= REST_RATE
+    out = np.full(n, np.nan)
+    if not turning.any() or not (R > 0 and g > 0):
+        out[0] = 999.0 if n else np.nan
+        return out
+    means = pd.Series(rate[turning]).groupby(d["step"].to_numpy()[turning]).mean().to_numpy()
+    err = np.abs(means ** 2 * R / g - 1.0)
+    out[int(np.flatnonzero(turning)[0])] = float(np.nanmin(err)) if np.isfinite(err).any() else 999.0
+    return out
+
+
+def _sine_fit(t: np.ndarray, rate: np.ndarray, meta: dict) -> tuple[float, float]:
+    """Least-squares a*sin + b*cos + c at rate_frequency_hz: (amplitude/Omega, rms resid/Omega)."""
+    Om = float(meta.get("rate_amplitude_rad_s", np.nan))
+    f = float(meta.get("rate_frequency_hz", np.nan))
+    ok = np.isfinite(t) & np.isfinite(rate)
+    if ok.sum() < 4 or not (Om > 0 and f > 0):
+        return np.nan, np.nan
+    w = 2 * np.pi * f * t[ok]
+    A = np.column_stack([np.sin(w), np.cos(w), np.ones_like(w)])
+    try:
+        coef, *_ = np.linalg.lstsq(A, rate[ok], rcond=None)
+    except np.linalg.LinAlgError:
+        return np.nan, np.nan
+    resid = rate[ok] - A @ coef
+    rel_resid = float(np.sqrt(np.mean(resid ** 2)) / Om)
+    if rel_resid <= SINE_RESID_MAX:
+        amp = float(np.hypot(coef[0], coef[1]))
+    else:  # wrong frequency: the fit says nothing about the amplitude; use the rms instead
+        amp = float(np.sqrt(2.0) * np.std(rate[ok]))
+    return amp / Om, rel_resid
+
+
+def _meta_table(test: str, runs: list[RunFile]) -> tuple[pd.DataFrame, list[dict[str, str]]]:
+    """One row per run: the typed metadata, plus counts of missing and badly typed keys;
+    and per run the names behind those counts (for the refusal's detail)."""
+    keys = list(REQUIRED_KEYS[test]) + ["ambient_temp_c"]
+    recs, why = [], []
+    for r in runs:
+        rec = {k: r.meta.get(k) for k in keys}
+        missing = [k for k in REQUIRED_KEYS[test] if r.meta.get(k) in (None, "")]
+        badtype = [k for k in keys if k in r.meta and (
+            (k in FLOAT_KEYS and (isinstance(r.meta[k], bool) or not isinstance(r.meta[k], (float, int))))
+            or (k in INT_KEYS and (isinstance(r.meta[k], bool) or not isinstance(r.meta[k], int)))
+            or (k not in FLOAT_KEYS and k not in INT_KEYS and not isinstance(r.meta[k], str)))]
+        rec["missing_keys"] = len(missing)
+        rec["badly_typed_keys"] = len(badtype)
+        for k in badtype:
+            rec[k] = None  # keep the range checks from choking on a wrong kind
+        recs.append(rec)
+        why.append({"missing_keys": ", ".join(missing), "badly_typed_keys": ", ".join(badtype)})
+    df = pd.DataFrame.from_records(recs, columns=keys + ["missing_keys", "badly_typed_keys"])
+    for k in keys:
+        if k in FLOAT_KEYS or k in INT_KEYS:
+            df[k] = pd.to_numeric(df[k], errors="coerce").astype("float64")
+        else:
+            df[k] = df[k].astype(object)
+    return df, why
+
+
+# --------------------------------------------------------------------------------------
+# running the suites
+
+
+
+def _new_context(docs_root: Path | None):
+    import great_expectations as gx
+    from great_expectations.data_context.types.base import ProgressBarsConfig
+    ctx = gx.get_context(mode="ephemeral")
+    ctx.variables.progress_bars = ProgressBarsConfig(globally=False, metric_calculations=False)
+    if docs_root is not None:
+        ctx.add_data_docs_site(site_name="accelcal", site_config={
+            "class_name": "SiteBuilder",
+            "store_backend": {"class_name": "TupleFilesystemStoreBackend",
+                              "base_directory": str(docs_root)},
+            "site_index_builder": {"class_name": "DefaultSiteIndexBuilder"},
+        })
+    return ctx
+
+
+def _fmt(v) -> str:
+    if isinstance(v, (float, np.floating)):
+        return f"{float(v):.6g}"
+    return repr(v) if isinstance(v, str) else str(v)
+
+
+def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
+                    drop_name: str = "drop") -> ValidationReport:
+    """Validate parsed runs with the GE suites; one ephemeral GE context per call, one batch
+    per (test kind, table). Writes Data Docs to ``docs_dir/<drop_name>/`` when docs_dir is given.
+    """
+    t0 = time.perf_counter()
+    refusals: dict[str, list[Refusal]] = {r.path: [] for r in runs}
+    by_kind: dict[str, list[RunFile]] = {}
+    for r in runs:
+        test = str(r.meta.get("test", ""))
+        if test not in TESTS:
+            refusals[r.path].append(Refusal(r.path, r.meta_lines.get("test"), "unknown-test",
+                                            f"test {test!r} is not one of {', '.join(TESTS)}"))
+            continue
+        by_kind.setdefault(test, []).append(r)
+    if not by_kind:
+        return ValidationReport(refusals, time.perf_counter() - t0)
+
+    docs_root = None
+    if docs_dir is not None:
+        docs_root = Path(docs_dir) / re.sub(r"[^A-Za-z0-9._-]+", "_", drop_name or "drop")
+        docs_root.mkdir(parents=True, exist_ok=True)
+    import great_expectations as gx
+    from great_expectations.core.run_identifier import RunIdentifier
+    from great_expectations.data_context.types.resource_identifiers import (
+        ExpectationSuiteIdentifier, ValidationResultIdentifier)
+    ctx = _new_context(docs_root)
+    ds = ctx.data_sources.add_pandas("accelcal")
+    run_identifier = RunIdentifier(run_name=drop_name or "drop")
+    per_kind: dict[str, float] = {}
+    stored = False
+    for test, kind_runs in by_kind.items():
+        tk = time.perf_counter()
+        complete = []
+        for r in kind_runs:
+            miss = [c for c in list(COLUMNS[test]) + ["line"] if c not in r.data.columns]
+            if miss:
+                refusals[r.path].append(Refusal(r.path, r.header_line, "missing-column",
+                                                f"columns missing: {', '.join(miss)}"))
+            else:
+                complete.append(r)
+        kind_runs = complete
+        if not kind_runs:
+            continue
+        parts, run_ix, lines = [], [], []
+        derived = []
+        for r in kind_runs:
+            try:
+                derived.append((r, _derive(test, r)))
+            except Exception as e:  # a bug or data beyond the checks: refuse, don't stop the drop
+                refusals[r.path].append(Refusal(r.path, None, "validation-error",
+                                                f"{type(e).__name__}: {e}"[:300]))
+        kind_runs = [r for r, _ in derived]
+        if not kind_runs:
+            continue
+        for i, (r, d) in enumerate(derived):
+            parts.append(d)
+            run_ix.append(np.full(len(d), i))
+            lines.append(r.data["line"].to_numpy() if "line" in r.data else np.full(len(d), -1))
+        rows = pd.concat(parts, ignore_index=True)
+        run_ix_a = np.concatenate(run_ix)
+        line_a = np.concatenate(lines)
+        meta_df, meta_why = _meta_table(test, kind_runs)
+        suites = build_suites(test)
+        tables = {"rows": rows, "meta": meta_df}
+        for table, df in tables.items():
+            name = f"{test}.{table}"
+            suite = ctx.suites.add(gx.ExpectationSuite(name=name, expectations=suites[table]))
+            bd = ds.add_dataframe_asset(name).add_batch_definition_whole_dataframe("all")
+            batch = bd.get_batch(batch_parameters={"dataframe": df})
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                res = batch.validate(suite, result_format={"result_format": "COMPLETE"})
+            if docs_root is not None:
+                key = ValidationResultIdentifier(ExpectationSuiteIdentifier(name=name),
+                                                 run_identifier, batch.id)
+                ctx.validation_results_store.set(key, res)
+                stored = True
+            for er in res.results:
+                if er.success:
+                    continue
+                cfg = er.expectation_config
+                rule = cfg.meta.get("rule", "validation")
+                what = cfg.meta.get("what", cfg.type)
+                col = cfg.kwargs.get("column")
+                idx = er.result.get("unexpected_index_list") if er.result else None
+                if er.exception_info and er.exception_info.get("raised_exception"):
+                    idx = None
+                if not idx:  # whole-table failure (column missing, wrong type, error)
+                    msg = what
+                    if er.result and "observed_value" in er.result:
+                        msg += f" (observed {_fmt(er.result['observed_value'])})"
+                    if er.exception_info and er.exception_info.get("raised_exception"):
+                        msg += f" ({str(er.exception_info.get('exception_message'))[:120]})"
+                    for r in kind_runs:
+                        ln = r.meta_lines.get(col) if table == "meta" else r.header_line
+                        refusals[r.path].append(Refusal(r.path, ln, rule, msg))
+                    continue
+                idx = np.asarray(sorted(int(i) for i in idx))
+                if table == "meta":
+                    for i in idx:
+                        r = kind_runs[i]
+                        if col in meta_why[i]:
+                            names = meta_why[i][col]
+                            ln = r.meta_lines.get(names.split(", ")[0]) if names else None
+                            detail = f"{what}: {names}"
+                        else:
+                            ln = r.meta_lines.get(col)
+                            detail = f"{what}: {col} = {_fmt(r.meta.get(col, df[col].iloc[i]))}"
+                        refusals[r.path].append(Refusal(r.path, ln, rule, detail))
+                    continue
+                ri = run_ix_a[idx]
+                for i in np.unique(ri):
+                    sel = idx[ri == i]
+                    k = int(sel[0])
+                    r = kind_runs[int(i)]
+                    ln = int(line_a[k])
+                    more = f" ({len(sel)} rows, first here)" if len(sel) > 1 else ""
+                    shown = [c for c in (col, "time_s") if c and c in df.columns]
+                    if col == "nonfinite_cells":
+                        shown = [c for c in COLUMNS[test] if c not in INT_COLUMNS
+                                 and not np.isfinite(df[c].iloc[k])
+                                 and not (np.isnan(df[c].iloc[k]) and c in NULLABLE_COLUMNS[test])]
+                    vals = ", ".join(f"{c} = {_fmt(df[c].iloc[k])}" for c in dict.fromkeys(shown))
+                    refusals[r.path].append(Refusal(r.path, ln if ln > 0 else None, rule,
+                                                    f"{what}: {vals}{more}"))
+        per_kind[test] = time.perf_counter() - tk
+    index = None
+    if docs_root is not None and stored:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            ctx.build_data_docs(site_names=["accelcal"])
+        index = docs_root / "index.html"
+    for p in refusals:
+        refusals[p].sort(key=lambda x: (x.line is None, x.line or 0, x.rule))
+    return ValidationReport(refusals, time.perf_counter() - t0, per_kind, index)
+
+
+def validate_runs(runs: list[RunFile], docs_dir: Path | None = None,
+                  drop_name: str = "drop") -> dict[str, list[Refusal]]:
+    """Refusals per run path (empty list: the run passed every suite). See validate_report."""
+    return validate_report(runs, docs_dir, drop_name).refusals

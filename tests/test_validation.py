@@ -1,0 +1,146 @@
+"""GE validation tests (drop-format.md, "What the pipeline must refuse" and the per-test claims)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from accelcal.schemas.dropformat import DropFormatError, discover, read_run
+from accelcal.schemas.suites import Refusal, validate_report, validate_runs
+
+EXAMPLES = Path("/work/shared/examples")
+BAD = EXAMPLES / "drop-bad"
+GOOD_DROPS = ["drop-2026-11-18-thermal", "drop-2026-11-19-sine", "drop-2026-11-20", "drop-2026-11-21"]
+
+
+def _lines(p: Path) -> list[str]:
+    return p.read_text().split("\n")
+
+
+def _data_start(lines: list[str]) -> int:
+    """0-based index of the first data row."""
+    return next(i for i, s in enumerate(lines) if s.strip() and not s.startswith("#")) + 1
+
+
+@pytest.fixture(scope="module")
+def good_runs():
+    return {d: [read_run(p) for p in discover(EXAMPLES / d)] for d in GOOD_DROPS}
+
+
+def test_good_drops_fully_accepted(good_runs, tmp_path):
+    for drop, runs in good_runs.items():
+        rep = validate_report(runs, tmp_path if drop == "drop-2026-11-20" else None, drop)
+        assert set(rep.refusals) == {r.path for r in runs}
+        bad = [str(x) for v in rep.refusals.values() for x in v]
+        assert bad == [], bad
+    index = tmp_path / "drop-2026-11-20" / "index.html"
+    assert index.exists() and rep.seconds > 0
+    assert list((tmp_path / "drop-2026-11-20").rglob("validations/**/*.html"))
+
+
+def test_drop_bad_validation_refusals():
+    runs = []
+    for p in discover(BAD):
+        try:
+            runs.append(read_run(p))
+        except DropFormatError:
+            pass
+    assert sorted(Path(r.path).name for r in runs) == ["nan-output.csv", "ok-small.csv", "time-backwards.csv"]
+    res = validate_runs(runs, None, "drop-bad")
+    by_name = {Path(p).name: v for p, v in res.items()}
+    assert by_name["ok-small.csv"] == []
+    # independent: the line whose output field is not a number
+    ls = _lines(BAD / "nan-output.csv")
+    nan_line = next(i + 1 for i, s in enumerate(ls) if s and not s.startswith("#")
+                    and s.split(",")[3].strip().lower() in ("nan", "inf", "-inf"))
+    assert [(r.rule, r.line) for r in by_name["nan-output.csv"]] == [("output-not-finite", nan_line)]
+    # independent: the first line whose time is less than the previous row's
+    ls = _lines(BAD / "time-backwards.csv")
+    start = _data_start(ls)
+    t = [(i + 1, float(s.split(",")[0])) for i, s in enumerate(ls) if i >= start and s.strip()]
+    back = next(ln for (ln, x), (_, prev) in zip(t[1:], t[:-1]) if x <= prev)
+    assert [(r.rule, r.line) for r in by_name["time-backwards.csv"]] == [("time-not-increasing", back)]
+    for v in by_name.values():
+        for r in v:
+            assert isinstance(r, Refusal) and r.rule and r.detail
+            assert str(r) == f"{r.path}:{r.line}: {r.rule}: {r.detail}"
+
+
+# ---- synthetic variants, all validated in one batch (tests mapping back to file + line) ----
+
+def _edit_cell(text: str, row: int, col: int, value: str) -> tuple[str, int]:
+    """Set data row ``row`` (0-based), column ``col``; return the text and that line number."""
+    ls = text.split("\n")
+    i = _data_start(ls) + row
+    f = ls[i].split(",")
+    f[col] = value
+    ls[i] = ",".join(f)
+    return "\n".join(ls), i + 1
+
+
+def _variants():
+    cen = (EXAMPLES / "drop-2026-11-20/centrifuge/LXJ100-20261120-0004.csv").read_text()
+    tum = (EXAMPLES / "drop-2026-11-20/DH1-20261120-0001.csv").read_text()
+    tilt = (EXAMPLES / "drop-2026-11-18-thermal/TT1-20261118-0001.csv").read_text()
+    sine = (EXAMPLES / "drop-2026-11-19-sine/DC1-20261119-0001.csv").read_text()
+    v = {}  # name -> (text, expected [(rule, line or None)])
+    t, ln = _edit_cell(cen, 100, 2, "-0.5")
+    v["negative-rate"] = (t, [("negative-rate", ln)])
+    t, ln = _edit_cell(cen, 50, 4, "inf")
+    v["inf-output"] = (t, [("output-not-finite", ln)])
+    t, ln = _edit_cell(cen, 60, 5, "260.0")
+    v["hot"] = (t, [("temp-out-of-range", ln)])
+    t, ln = _edit_cell(cen, 9, 3, "")
+    v["no-azimuth-at-rest"] = (t, [("angle-missing-at-rest", ln)])
+    rest = _data_start(cen.split("\n")) + 1
+    t = cen
+    for row in range(8, 16):  # second rest dwell at 100 deg instead of 90
+        t, _ = _edit_cell(t, row, 3, "100")
+    v["rest-uneven"] = (t, [("rest-dwells", rest)])
+    t = cen.replace("# arm_radius_m: 0.7102845", "# arm_radius_m: 0.3")
+    v["no-1g"] = (t, [("no-1g-step", None)])
+    t, ln = _edit_cell(tum, 25, 2, "30.9")
+    v["tumble-angle"] = (t, [("angle-inconsistent", ln)])
+    t = tum.replace("# sample_period_s: 1.0", "# sample_period_s: 0.5")
+    v["tumble-period"] = (t, [("sample-period", _data_start(t.split("\n")) + 1)])
+    t = tilt.replace("# positions: 12", "# positions: 10")
+    v["tilt-positions"] = (t, [("positions-mismatch", None)])
+    t = sine.replace("# rate_amplitude_rad_s: 12.566370614359172", "# rate_amplitude_rad_s: 15.0")
+    v["sine-amp"] = (t, [("sine-amplitude", _data_start(t.split("\n")) + 1)])
+    t = sine.replace("# rate_frequency_hz: 1.0", "# rate_frequency_hz: 1.5")
+    v["sine-freq"] = (t, [("sine-frequency", _data_start(t.split("\n")) + 1)])
+    t = tum.replace("# g_local_m_s2: 9.80122", "# g_local_m_s2: 98.0122")
+    gl = next(i + 1 for i, s in enumerate(t.split("\n")) if s.startswith("# g_local"))
+    v["tumble-g"] = (t, [("metadata-range", gl)])
+    v["clean-centrifuge"] = (cen, [])
+    return v
+
+
+@pytest.fixture(scope="module")
+def variant_results(tmp_path_factory):
+    d = tmp_path_factory.mktemp("variants")
+    runs, expect = [], {}
+    for name, (text, exp) in _variants().items():
+        p = d / f"{name}.csv"
+        p.write_text(text)
+        runs.append(read_run(p))
+        expect[str(p)] = exp
+    return validate_runs(runs, None, "variants"), expect
+
+
+@pytest.mark.parametrize("name", sorted(_variants()))
+def test_variant_refused_with_rule_and_line(variant_results, name):
+    res, expect = variant_results
+    path = next(p for p in res if Path(p).stem == name)
+    got = [(r.rule, r.line) for r in res[path]]
+    for rule, line in expect[path]:
+        hits = [g for g in got if g[0] == rule]
+        assert hits, (name, [str(r) for r in res[path]])
+        if line is not None:
+            assert (rule, line) in hits, (name, [str(r) for r in res[path]])
+    if not expect[path]:
+        assert got == []
+    else:  # nothing unrelated refused
+        assert {g[0] for g in got} == {rule for rule, _ in expect[path]}, [str(r) for r in res[path]]
+    for r in res[path]:
+        assert r.rule and r.detail and r.path == path
