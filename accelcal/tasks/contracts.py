@@ -1,0 +1,55 @@
+"""The parser team's API (accelcal.schemas), resolved by name at call time.
+
+The contract (docs/design.md): ``read_run``, ``discover``, ``DropFormatError``,
+``RunFile`` (schemas.dropformat), ``validate_runs`` (GE suites, Data Docs),
+``write_run_parquet`` / ``read_run_parquet`` (Parquet).  Looking the names up
+in every schemas module keeps the pipeline independent of which module
+finally hosts each function.
+"""
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+_MODULES = ("accelcal.schemas", "accelcal.schemas.dropformat", "accelcal.schemas.suites",
+            "accelcal.schemas.tables")
+_OVERRIDES: dict[str, Any] = {}   # tests may substitute an implementation here
+
+
+def resolve(name: str) -> Any:
+    if name in _OVERRIDES:
+        return _OVERRIDES[name]
+    errors = []
+    for mod in _MODULES:
+        try:
+            m = importlib.import_module(mod)
+        except ImportError as e:
+            errors.append(f"{mod}: {e}")
+            continue
+        if hasattr(m, name):
+            return getattr(m, name)
+    raise ImportError(f"accelcal.schemas provides no {name!r} ({'; '.join(errors) or 'not found'})")
+
+
+def read_run(path):
+    return resolve("read_run")(path)
+
+
+def discover(drop_dir):
+    return resolve("discover")(drop_dir)
+
+
+def validate_runs(runs, docs_dir, drop_name):
+    return resolve("validate_runs")(runs, docs_dir, drop_name)
+
+
+def write_run_parquet(run, root):
+    return resolve("write_run_parquet")(run, root)
+
+
+def read_run_parquet(path):
+    return resolve("read_run_parquet")(path)
+
+
+def drop_format_error() -> type[BaseException]:
+    return resolve("DropFormatError")

@@ -1,0 +1,117 @@
+"""Step 1: ingest a drop -- discover, hash, parse, write Parquet.  Plain functions.
+
+The raw files are only read.  Files already in the warehouse (same bytes at the
+same path) are not parsed again: their stored record stands.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..warehouse.db import Refusal, RunRecord
+from ..warehouse.lineage import validator_version
+from . import contracts, progress
+
+_SNIFF_KEYS = ("run_id", "test", "unit_serial", "unit_model", "campaign", "rig_id", "started_at")
+
+
+@dataclass
+class DropIngest:
+    drop_name: str
+    drop_path: str
+    keys: list[tuple[str, str]] = field(default_factory=list)       # (sha256, source_path), all files
+    records: list[RunRecord] = field(default_factory=list)          # files not yet in the warehouse
+    parsed: dict[str, Any] = field(default_factory=dict)            # source_path -> RunFile
+    errors: list[str] = field(default_factory=list)                 # unexpected failures (not recorded)
+    known: int = 0
+    docs: str | None = None
+
+
+def sniff_meta(raw: bytes) -> dict[str, str]:
+    """Best-effort metadata of a refused file (so the operator sees which run it was)."""
+    out: dict[str, str] = {}
+    text = raw[:65536].decode("utf-8", errors="replace")
+    for line in text.splitlines():
+        s = line.strip()
+        if not s:
+            continue
+        if not s.startswith("#"):
+            break
+        key, sep, value = s[1:].partition(":")
+        key = key.strip()
+        if sep and key in _SNIFF_KEYS and key not in out and value.strip():
+            out[key] = value.strip()[:200]
+    return out
+
+
+def _relative(path: Path, root: Path) -> str:
+    try:
+        return os.path.relpath(path, root)
+    except ValueError:
+        return str(path)
+
+
+def ingest_drop(drop_dir: str, parquet_root: str, warehouse_root: str,
+                known: dict[tuple[str, str], str] | None = None) -> DropIngest:
+    """Discover, hash, parse and write Parquet for the files of one drop.
+
+    ``known`` maps files already recorded to the validator version of their
+    latest verdict; those checked by the current version are skipped.
+    """
+    known = known or {}
+    vv = validator_version()
+    drop = Path(drop_dir).resolve()
+    out = DropIngest(drop_name=drop.name, drop_path=str(drop))
+    paths = contracts.discover(drop)
+    progress.stage("ingest", len(paths))
+    DropFormatError = contracts.drop_format_error()
+    for p in paths:
+        src = str(Path(p).resolve())
+        try:
+            raw = Path(src).read_bytes()
+        except OSError as e:
+            out.errors.append(f"{src}: cannot read: {e.strerror}")
+            progress.advance("ingest")
+            continue
+        sha = hashlib.sha256(raw).hexdigest()
+        out.keys.append((sha, src))
+        if known.get((sha, src)) == vv:
+            out.known += 1
+            progress.advance("ingest", note=Path(src).name)
+            continue
+        base = dict(sha256=sha, source_path=src, drop_name=out.drop_name,
+                    drop_path=out.drop_path, size_bytes=len(raw), validator_version=vv)
+        try:
+            run = contracts.read_run(src)
+        except DropFormatError as e:
+            meta = sniff_meta(raw)
+            out.records.append(RunRecord(
+                **base, status="refused",
+                refusals=[Refusal(rule=e.rule, detail=e.detail, line=e.line, path=e.path)],
+                **{k: meta.get(k) for k in _SNIFF_KEYS}))
+            progress.advance("ingest", note=Path(src).name)
+            continue
+        except Exception as e:  # a parser bug: report, do not record a verdict
+            out.keys.pop()
+            out.errors.append(f"{src}: parser failed: {type(e).__name__}: {e}")
+            progress.advance("ingest")
+            continue
+        if run.sha256 != sha:   # the file changed under our feet
+            out.keys.pop()
+            out.errors.append(f"{src}: changed while being read; not ingested")
+            progress.advance("ingest")
+            continue
+        pq = contracts.write_run_parquet(run, parquet_root)
+        m = run.meta
+        out.records.append(RunRecord(
+            **base, status="accepted", run_id=str(m["run_id"]), test=str(m["test"]),
+            unit_serial=str(m["unit_serial"]), unit_model=str(m.get("unit_model", "")),
+            campaign=str(m["campaign"]), rig_id=str(m.get("rig_id", "")),
+            started_at=str(run.meta_raw.get("started_at", m.get("started_at", ""))),
+            n_rows=int(len(run.data)), parquet_path=_relative(Path(pq), Path(warehouse_root))))
+        out.parsed[src] = run
+        progress.advance("ingest", note=Path(src).name)
+    return out

@@ -1,0 +1,43 @@
+"""Steps 3-7: load a campaign's runs back from Parquet and hand them to the science.
+
+The science itself (accelcal.estimators.campaign.process_campaign) is Prefect-free.
+"""
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+from typing import Any
+
+from . import contracts
+
+
+def load_campaign_runs(warehouse_root: str, inputs: list[dict[str, Any]]) -> list:
+    """RunFiles of the campaign's current runs, from Parquet (so results trace to bytes).
+
+    Falls back to the raw file when its Parquet copy is gone, if its bytes still
+    hash to the recorded sha256.
+    """
+    runs = []
+    for i in inputs:
+        pq = Path(warehouse_root) / i["parquet_path"] if i.get("parquet_path") else None
+        if pq is not None and pq.exists():
+            run = contracts.read_run_parquet(pq)
+        else:
+            src = Path(i["source_path"])
+            if not src.exists() or hashlib.sha256(src.read_bytes()).hexdigest() != i["sha256"]:
+                raise FileNotFoundError(
+                    f"run {i['run_id']} ({i['sha256'][:12]}): neither its Parquet copy {pq} "
+                    f"nor unchanged raw bytes at {src} are available")
+            run = contracts.read_run(src)
+        if run.sha256 != i["sha256"]:
+            raise ValueError(f"Parquet copy {pq} holds {run.sha256[:12]}, "
+                             f"the warehouse expects {i['sha256'][:12]}")
+        runs.append(run)
+    return runs
+
+
+def run_science(runs: list, parameters: dict[str, Any] | None = None):
+    from ..estimators.campaign import process_campaign
+    if parameters:
+        return process_campaign(runs, **parameters)
+    return process_campaign(runs)

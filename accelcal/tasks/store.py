@@ -1,0 +1,32 @@
+"""Step 8: write to the warehouse (plain functions over accelcal.warehouse)."""
+from __future__ import annotations
+
+from typing import Any
+
+from ..warehouse.db import Warehouse
+from . import progress
+from .ingest import DropIngest
+
+
+def known_keys(wh: Warehouse, drop_dir: str) -> dict[tuple[str, str], str]:
+    """(sha256, source_path) -> validator version of the latest verdict, for this drop's files."""
+    from pathlib import Path
+    prefix = str(Path(drop_dir).resolve()).rstrip("/") + "/"
+    return wh.latest_verdicts(prefix)
+
+
+def record_drop(wh: Warehouse, ing: DropIngest, flow_run_id: str | None) -> list[dict[str, Any]]:
+    """Record the drop's new files in one transaction; return every file's stored record."""
+    wh.record_runs(ing.records, flow_run_id=flow_run_id)
+    progress.advance("record", note=ing.drop_name)
+    return wh.stored_runs(ing.keys)
+
+
+def store_campaign(wh: Warehouse, result, *, result_id: str, inputs: list[dict[str, Any]],
+                   code_version: str, parameters: dict[str, Any],
+                   flow_run_id: str | None) -> str:
+    status = wh.store_result(result, result_id=result_id, inputs=inputs,
+                             code_version=code_version, parameters=parameters,
+                             flow_run_id=flow_run_id)
+    progress.advance("store", note=result.campaign)
+    return status

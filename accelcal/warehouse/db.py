@@ -1,0 +1,507 @@
+"""The DuckDB warehouse: schema, the write lock, transactional idempotent writes.
+
+Plain Python, no Prefect.  One writer at a time: every write session holds an
+exclusive ``fcntl.flock`` on ``<db>.lock`` (re-entrant within a process).  Each
+drop's run records and each campaign result with its lineage go in ONE
+transaction, so a process killed at any moment leaves the warehouse as it was
+before that transaction; running again completes the work exactly once.
+
+duckdb 2.0: always fetch a result before the next statement.
+"""
+from __future__ import annotations
+
+import contextlib
+import errno
+import fcntl
+import os
+import threading
+import time
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import duckdb
+
+from .lineage import canonical_json
+
+SCHEMA_VERSION = "1"
+
+Checkpoint = Callable[[str], None] | None
+
+
+class WarehouseError(RuntimeError):
+    """The warehouse cannot be used (one-line message for the CLI)."""
+
+
+class WarehouseBusy(WarehouseError):
+    """Another process holds the warehouse lock."""
+
+
+# --------------------------------------------------------------------- lock --
+
+_held_lock = threading.RLock()
+_held: dict[str, list] = {}      # realpath of lock file -> [fd, depth]
+
+
+def lock_path_for(db_path: str | Path) -> Path:
+    return Path(str(db_path) + ".lock")
+
+
+def _holder_pid(lock_path: Path) -> str:
+    try:
+        txt = lock_path.read_text().strip()
+        return txt or "unknown"
+    except OSError:
+        return "unknown"
+
+
+@contextlib.contextmanager
+def warehouse_lock(db_path: str | Path, timeout: float = 60.0,
+                   poll: float = 0.1) -> Iterator[None]:
+    """Exclusive OS lock on ``<db>.lock``; waits up to ``timeout`` seconds.
+
+    Re-entrant within one process.  Raises :class:`WarehouseBusy` naming the
+    holder's pid when the wait times out.
+    """
+    lp = lock_path_for(db_path)
+    key = os.path.realpath(lp)
+    with _held_lock:
+        if key in _held:
+            _held[key][1] += 1
+            reentered = True
+        else:
+            reentered = False
+    if reentered:
+        try:
+            yield
+        finally:
+            with _held_lock:
+                _held[key][1] -= 1
+        return
+
+    try:
+        lp.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(lp, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as e:
+        raise WarehouseError(f"cannot use warehouse {db_path}: {lp}: {e.strerror}") from None
+    deadline = time.monotonic() + max(0.0, timeout)
+    try:
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except OSError as e:
+                if e.errno not in (errno.EAGAIN, errno.EACCES, errno.EWOULDBLOCK):
+                    raise
+                if time.monotonic() >= deadline:
+                    raise WarehouseBusy(
+                        f"warehouse {db_path} is in use by pid {_holder_pid(lp)} "
+                        f"(waited {timeout:g} s; see {lp})") from None
+                time.sleep(poll)
+    except BaseException:
+        os.close(fd)
+        raise
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+    with _held_lock:
+        _held[key] = [fd, 1]
+    try:
+        yield
+    finally:
+        with _held_lock:
+            del _held[key]
+        try:
+            os.ftruncate(fd, 0)
+        finally:
+            fcntl.flock(fd, fcntl.LOCK_UN)
+            os.close(fd)
+
+
+def holds_lock(db_path: str | Path) -> bool:
+    with _held_lock:
+        return os.path.realpath(lock_path_for(db_path)) in _held
+
+
+# ---------------------------------------------------------------- records --
+
+@dataclass
+class Refusal:
+    """A broken rule (mirrors schemas' Refusal; line may be None)."""
+    rule: str
+    detail: str = ""
+    line: int | None = None
+    path: str = ""
+
+    def __str__(self) -> str:
+        where = f"{self.path}:{self.line}" if self.line is not None else f"{self.path}"
+        return f"{where}: {self.rule}: {self.detail}" if self.detail else f"{where}: {self.rule}"
+
+
+@dataclass
+class RunRecord:
+    """What the warehouse keeps about one ingested file."""
+    sha256: str
+    source_path: str
+    drop_name: str
+    drop_path: str
+    size_bytes: int
+    status: str                           # 'accepted' | 'refused'
+    run_id: str | None = None
+    test: str | None = None
+    unit_serial: str | None = None
+    unit_model: str | None = None
+    campaign: str | None = None
+    rig_id: str | None = None
+    started_at: str | None = None
+    n_rows: int | None = None
+    parquet_path: str | None = None       # relative to the warehouse folder
+    refusals: list[Refusal] = field(default_factory=list)
+    validator_version: str = ""           # parser + suites version that gave the verdict
+    revision: int | None = None           # filled by the warehouse
+    new: bool = False                     # filled by the warehouse: file row added
+    rechecked: bool = False               # filled by the warehouse: new verdict on a known file
+    new_content: bool = False             # filled by the warehouse: bytes never seen before
+
+    @property
+    def reason(self) -> str | None:
+        if self.status == "accepted":
+            return None
+        return "; ".join(str(r) for r in self.refusals) or "refused"
+
+
+def _transaction(con) -> contextlib.AbstractContextManager:
+    @contextlib.contextmanager
+    def tx():
+        con.execute("BEGIN TRANSACTION")
+        try:
+            yield con
+        except BaseException:
+            try:
+                con.execute("ROLLBACK")
+            except Exception:
+                pass
+            raise
+        con.execute("COMMIT")
+    return tx()
+
+
+def _cp(checkpoint: Checkpoint, step: str) -> None:
+    if checkpoint is not None:
+        checkpoint(step)
+
+
+# -------------------------------------------------------------- warehouse --
+
+class Warehouse:
+    """A DuckDB warehouse file plus its Parquet store and Data Docs, side by side.
+
+    ``lab.duckdb`` -> ``lab-parquet/`` (run data), ``lab-datadocs/<drop>/`` (GE docs),
+    ``lab.duckdb.lock`` (writer lock).
+    """
+
+    def __init__(self, path: str | Path, lock_timeout: float = 60.0):
+        self.path = Path(path).expanduser().resolve()
+        self.root = self.path.parent
+        self.parquet_root = self.root / f"{self.path.stem}-parquet"
+        self.docs_root = self.root / f"{self.path.stem}-datadocs"
+        self.lock_timeout = lock_timeout
+        self._schema_ok = False
+
+    def __repr__(self) -> str:
+        return f"Warehouse({str(self.path)!r})"
+
+    # -- connections -------------------------------------------------------
+
+    def lock(self, timeout: float | None = None):
+        return warehouse_lock(self.path, self.lock_timeout if timeout is None else timeout)
+
+    @contextlib.contextmanager
+    def connect(self, read_only: bool = False) -> Iterator[duckdb.DuckDBPyConnection]:
+        """A connection; write connections hold the lock and see the schema applied."""
+        if read_only:
+            if not self.path.exists():
+                raise WarehouseError(f"warehouse {self.path} does not exist")
+            con = self._open(read_only=True)
+            try:
+                yield con
+            finally:
+                con.close()
+            return
+        with self.lock():
+            try:
+                self.root.mkdir(parents=True, exist_ok=True)
+            except OSError as e:
+                raise WarehouseError(f"cannot create {self.root}: {e.strerror}") from None
+            con = self._open(read_only=False)
+            try:
+                if not self._schema_ok:
+                    self._apply_schema(con)
+                yield con
+            finally:
+                con.close()
+
+    def _open(self, read_only: bool) -> duckdb.DuckDBPyConnection:
+        """Open the DuckDB file; while another process has it open (DuckDB's own file
+        lock, e.g. a reader), retry until ``lock_timeout``."""
+        deadline = time.monotonic() + max(0.0, self.lock_timeout)
+        while True:
+            try:
+                return duckdb.connect(str(self.path), read_only=read_only)
+            except duckdb.IOException as e:
+                msg = str(e).splitlines()[0]
+                if "lock" not in msg.lower():
+                    raise WarehouseError(f"cannot open warehouse {self.path}: {msg}") from None
+                if time.monotonic() >= deadline:
+                    raise WarehouseBusy(f"warehouse {self.path} is in use: {msg}") from None
+                time.sleep(0.1)
+            except duckdb.Error as e:
+                raise WarehouseError(
+                    f"cannot open warehouse {self.path}: {str(e).splitlines()[0]}") from None
+
+    def _apply_schema(self, con) -> None:
+        sql = resources.files("accelcal.warehouse").joinpath("schema.sql").read_text()
+        have = con.execute(
+            "SELECT count(*) FROM information_schema.tables WHERE table_name = 'schema_info'"
+        ).fetchall()[0][0]
+        if have:
+            row = con.execute(
+                "SELECT value FROM schema_info WHERE key = 'schema_version'").fetchall()
+            if row and row[0][0] != SCHEMA_VERSION:
+                raise WarehouseError(
+                    f"warehouse {self.path} has schema version {row[0][0]}, "
+                    f"this accelcal writes {SCHEMA_VERSION}")
+        with _transaction(con):
+            con.execute(sql)
+            con.execute("INSERT INTO schema_info VALUES ('schema_version', ?) "
+                        "ON CONFLICT DO NOTHING", [SCHEMA_VERSION])
+        self._schema_ok = True
+
+    def init(self) -> None:
+        with self.connect():
+            pass
+
+    # -- runs ----------------------------------------------------------------
+
+    def record_runs(self, records: list[RunRecord], flow_run_id: str | None = None,
+                    checkpoint: Checkpoint = None) -> list[RunRecord]:
+        """Record the files of one drop in ONE transaction; idempotent.
+
+        ``run_files`` key (sha256, source_path): a file already recorded adds no
+        file row.  Its revision is 1 + the highest of its run_id, unless these
+        exact bytes already have one.  A verdict (status, reason) is added per
+        (file, validator_version) once.  Fills ``revision`` and ``new`` (file row
+        added) of each record.
+        """
+        with self.connect() as con, _transaction(con):
+            batch_rev: dict[tuple[str, str], int] = {}
+            batch_max: dict[str, int] = {}
+            for i, rec in enumerate(records):
+                exists = con.execute(
+                    "SELECT revision FROM run_files WHERE sha256 = ? AND source_path = ?",
+                    [rec.sha256, rec.source_path]).fetchall()
+                if exists:
+                    rec.revision, rec.new = exists[0][0], False
+                else:
+                    rec.new_content = not con.execute(
+                        "SELECT count(*) FROM run_files WHERE sha256 = ?",
+                        [rec.sha256]).fetchall()[0][0]
+                    if rec.run_id is not None:
+                        key = (rec.run_id, rec.sha256)
+                        if key in batch_rev:
+                            rec.revision = batch_rev[key]
+                        else:
+                            same = con.execute(
+                                "SELECT max(revision) FROM run_files WHERE run_id = ? AND sha256 = ?",
+                                [rec.run_id, rec.sha256]).fetchall()[0][0]
+                            if same is not None:
+                                rec.revision = same
+                            else:
+                                top = con.execute(
+                                    "SELECT coalesce(max(revision), 0) FROM run_files WHERE run_id = ?",
+                                    [rec.run_id]).fetchall()[0][0]
+                                rec.revision = max(top, batch_max.get(rec.run_id, 0)) + 1
+                            batch_rev[key] = rec.revision
+                        batch_max[rec.run_id] = max(batch_max.get(rec.run_id, 0), rec.revision)
+                    con.execute(
+                        """INSERT INTO run_files (sha256, source_path, drop_name, drop_path, run_id,
+                               revision, test, unit_serial, unit_model, campaign, rig_id, started_at,
+                               size_bytes, ingested_at, flow_run_id)
+                           VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, now(), ?)""",
+                        [rec.sha256, rec.source_path, rec.drop_name, rec.drop_path, rec.run_id,
+                         rec.revision, rec.test, rec.unit_serial, rec.unit_model, rec.campaign,
+                         rec.rig_id, rec.started_at, rec.size_bytes, flow_run_id]).fetchall()
+                    rec.new = True
+                have = con.execute(
+                    "SELECT count(*) FROM run_verdicts WHERE sha256 = ? AND source_path = ? "
+                    "AND validator_version = ?",
+                    [rec.sha256, rec.source_path, rec.validator_version]).fetchall()[0][0]
+                if not have:
+                    con.execute(
+                        """INSERT INTO run_verdicts VALUES
+                           (?, ?, ?, nextval('verdict_seq'), ?, ?, ?, ?, now(), ?)""",
+                        [rec.sha256, rec.source_path, rec.validator_version, rec.status,
+                         rec.reason, rec.n_rows, rec.parquet_path, flow_run_id]).fetchall()
+                    for j, rf in enumerate(rec.refusals):
+                        con.execute("INSERT INTO refusals VALUES (?, ?, ?, ?, ?, ?, ?)",
+                                    [rec.sha256, rec.source_path, rec.validator_version, j,
+                                     rf.line, rf.rule, rf.detail]).fetchall()
+                    rec.rechecked = not rec.new
+                _cp(checkpoint, f"run:{i}")
+        return records
+
+    def latest_verdicts(self, source_prefix: str) -> dict[tuple[str, str], str]:
+        """(sha256, source_path) -> validator_version of its latest verdict, below a folder."""
+        with self.connect() as con:
+            rows = con.execute(
+                "SELECT sha256, source_path, validator_version FROM runs "
+                "WHERE starts_with(source_path, ?)", [source_prefix]).fetchall()
+        return {(a, b): c for a, b, c in rows}
+
+    def stored_runs(self, keys: list[tuple[str, str]]) -> list[dict[str, Any]]:
+        """Run records by (sha256, source_path), as stored (status/reason of first sight)."""
+        if not keys:
+            return []
+        with self.connect() as con:
+            con.execute("CREATE TEMP TABLE IF NOT EXISTS _keys (sha256 VARCHAR, source_path VARCHAR)")
+            con.execute("DELETE FROM _keys")
+            con.executemany("INSERT INTO _keys VALUES (?, ?)", [list(k) for k in keys])
+            cur = con.execute(
+                """SELECT r.* FROM runs r JOIN _keys k USING (sha256, source_path)
+                   ORDER BY r.source_path""")
+            cols = [d[0] for d in cur.description]
+            return [dict(zip(cols, row)) for row in cur.fetchall()]
+
+    def campaign_inputs(self, campaign: str) -> list[dict[str, Any]]:
+        """The runs a campaign is computed from: newest accepted revision per run_id."""
+        with self.connect() as con:
+            cur = con.execute(
+                """SELECT run_id, revision, sha256, test, rig_id, source_path, parquet_path
+                   FROM current_runs WHERE campaign = ? ORDER BY run_id""", [campaign])
+            cols = [d[0] for d in cur.description]
+            return [dict(zip(cols, row)) for row in cur.fetchall()]
+
+    # -- results -------------------------------------------------------------
+
+    def current_result_id(self, campaign: str) -> str | None:
+        with self.connect() as con:
+            row = con.execute(
+                "SELECT result_id FROM result_activations WHERE campaign = ? "
+                "ORDER BY seq DESC LIMIT 1", [campaign]).fetchall()
+        return row[0][0] if row else None
+
+    def store_result(self, result, *, result_id: str, inputs: list[dict[str, Any]],
+                     code_version: str, parameters: dict[str, Any],
+                     flow_run_id: str | None, checkpoint: Checkpoint = None) -> str:
+        """Store one CampaignResult with its lineage in ONE transaction.
+
+        Returns 'unchanged' (already current: nothing written), 'new' (result
+        inserted and made current) or 'reactivated' (an earlier identical
+        result made current again).
+        """
+        params_json = canonical_json(parameters)
+        campaign = result.campaign
+        with self.connect() as con, _transaction(con):
+            cur = con.execute(
+                "SELECT result_id FROM result_activations WHERE campaign = ? "
+                "ORDER BY seq DESC LIMIT 1", [campaign]).fetchall()
+            if cur and cur[0][0] == result_id:
+                return "unchanged"
+            exists = con.execute("SELECT count(*) FROM results WHERE result_id = ?",
+                                 [result_id]).fetchall()[0][0]
+            if not exists:
+                self._insert_result(con, result, result_id, inputs, code_version,
+                                    params_json, flow_run_id, checkpoint)
+            _cp(checkpoint, "activate")
+            con.execute(
+                "INSERT INTO result_activations VALUES (nextval('activation_seq'), ?, ?, now(), ?)",
+                [campaign, result_id, flow_run_id]).fetchall()
+            _cp(checkpoint, "commit")
+        return "reactivated" if exists else "new"
+
+    @staticmethod
+    def _insert_result(con, result, result_id, inputs, code_version, params_json,
+                       flow_run_id, checkpoint) -> None:
+        camp = result.campaign
+        con.execute(
+            """INSERT INTO results (result_id, campaign, unit_serial, unit_model, tests, rig_ids,
+                   computed_at, flow_run_id, code_version, parameters, science_parameters,
+                   input_sha256, extras)
+               VALUES (?, ?, ?, ?, ?, ?, now(), ?, ?, ?, ?, ?, ?)""",
+            [result_id, camp, result.unit_serial, result.unit_model,
+             canonical_json(list(result.tests)), canonical_json(list(result.rig_ids)),
+             flow_run_id, code_version, params_json, canonical_json(result.parameters),
+             canonical_json(sorted(i["sha256"] for i in inputs)),
+             canonical_json(result.extras)]).fetchall()
+        _cp(checkpoint, "results")
+        con.executemany(
+            "INSERT INTO lineage VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            [[result_id, i["sha256"], i.get("run_id"), i.get("revision"), i.get("source_path"),
+              i.get("parquet_path"), flow_run_id, code_version, params_json]
+             for i in sorted(inputs, key=lambda i: i["sha256"])])
+        _cp(checkpoint, "lineage")
+        rows = [[result_id, k, result.unit_serial, camp, c.name, _f(c.value),
+                 _f(c.std_uncertainty), c.unit, c.method, c.rig_id, _f(c.dof), c.note]
+                for k, c in enumerate(result.coefficients)]
+        if rows:
+            con.executemany("INSERT INTO coefficient_history VALUES "
+                            "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", rows)
+        _cp(checkpoint, "coefficients")
+        rows = [[result_id, k, camp, r.rig_id, r.polarity, r.method, r.model_order,
+                 _f(r.g_max), _f(r.radius_m), _f(r.std_uncertainty_m), r.note]
+                for k, r in enumerate(result.radii)]
+        if rows:
+            con.executemany("INSERT INTO radius_history VALUES "
+                            "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", rows)
+        _cp(checkpoint, "radii")
+        rows = [[result_id, k, camp, a.rig_id, a.fit, a.model_order, _f(a.g_max),
+                 _f(a.f_statistic), _f(a.p_value), a.dof_lack_of_fit, a.dof_pure_error,
+                 _f(a.trend_p), _f(a.sweep_p), _f(a.runs_p), bool(a.adequate), bool(a.chosen),
+                 a.note]
+                for k, a in enumerate(result.adequacy)]
+        if rows:
+            con.executemany("INSERT INTO adequacy_history VALUES "
+                            "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", rows)
+        rows = [[result_id, k, camp, b.coefficient, b.quantity, _f(b.value),
+                 _f(b.std_uncertainty), _f(b.sensitivity), _f(b.contribution), b.type,
+                 b.distribution]
+                for k, b in enumerate(result.budget)]
+        if rows:
+            con.executemany("INSERT INTO budget_history VALUES "
+                            "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", rows)
+        rows = [[result_id, k, camp, canonical_json(a)] for k, a in enumerate(result.alignment)]
+        if rows:
+            con.executemany("INSERT INTO alignment_history VALUES (?, ?, ?, ?)", rows)
+        rows = [[result_id, k, camp, str(f)] for k, f in enumerate(result.flags)]
+        if rows:
+            con.executemany("INSERT INTO flag_history VALUES (?, ?, ?, ?)", rows)
+        _cp(checkpoint, "details")
+
+    # -- reading ---------------------------------------------------------------
+
+    def query(self, sql: str, params: list | None = None) -> list[dict[str, Any]]:
+        """Read-only helper (opens read-only; fails if a writer is active)."""
+        con = self._open(read_only=True)
+        try:
+            cur = con.execute(sql, params or [])
+            cols = [d[0] for d in cur.description]
+            return [dict(zip(cols, r)) for r in cur.fetchall()]
+        finally:
+            con.close()
+
+    def counts(self) -> dict[str, int]:
+        """Row counts of every base table (for idempotency checks)."""
+        tables = ["run_files", "run_verdicts", "refusals", "results", "result_activations", "lineage",
+                  "coefficient_history", "radius_history", "adequacy_history",
+                  "budget_history", "alignment_history", "flag_history"]
+        with self.connect() as con:
+            return {t: con.execute(f"SELECT count(*) FROM {t}").fetchall()[0][0] for t in tables}
+
+
+def _f(x) -> float | None:
+    if x is None:
+        return None
+    try:
+        return float(x)
+    except (TypeError, ValueError):
+        return None

@@ -1,0 +1,254 @@
+"""Warehouse: schema, idempotency, revisions, transactions (exception and SIGKILL), lock, as-of.
+
+No Prefect, no parser: hand-made records and results.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from accelcal.results import CampaignResult, CoefficientResult, RadiusResult
+from accelcal.warehouse import (RunRecord, Warehouse, WarehouseBusy, result_id, trace,
+                                verify_lineage, warehouse_lock)
+from accelcal.warehouse.db import Refusal
+
+CV = "test+src.0"
+PARAMS = {"science": {}}
+
+
+def rec(sha, path, run_id="R-1", status="accepted", campaign="C/1", **kw) -> RunRecord:
+    return RunRecord(sha256=sha, source_path=path, drop_name="d", drop_path="/d", size_bytes=10,
+                     status=status, run_id=run_id, test="tumble", unit_serial="SN-1",
+                     campaign=campaign, rig_id="DH-1", parquet_path=f"pq/{sha}.parquet",
+                     validator_version=kw.pop("vv", "val.1"),
+                     refusals=[Refusal("bad-thing", "detail", 3, path)] if status == "refused" else [],
+                     **kw)
+
+
+def result(campaign="C/1", shas=("a" * 64,), k2=3.9e-7) -> CampaignResult:
+    return CampaignResult(
+        campaign=campaign, unit_serial="SN-1", unit_model="QA", tests=["tumble"], rig_ids=["DH-1"],
+        input_sha256=list(shas),
+        coefficients=[CoefficientResult("K0", 4e-4, 1e-6, "m/s2", "tumble_lm", "DH-1"),
+                      CoefficientResult("K2", k2, 1e-9, "s2/m", "tumble_lm", "DH-1")],
+        radii=[RadiusResult("LXJ", "+", "static", None, 1.0, 0.7147, 3e-7)],
+        flags=["a flag"], extras={"x": [1, 2]}, parameters={"orders": [1, 2, 3]})
+
+
+def inputs_for(wh: Warehouse, campaign="C/1"):
+    return wh.campaign_inputs(campaign)
+
+
+def store(wh, res, checkpoint=None):
+    inputs = inputs_for(wh, res.campaign)
+    rid = result_id(res.campaign, [i["sha256"] for i in inputs], CV, PARAMS)
+    return rid, wh.store_result(res, result_id=rid, inputs=inputs, code_version=CV,
+                                parameters=PARAMS, flow_run_id="flow-1", checkpoint=checkpoint)
+
+
+@pytest.fixture
+def wh(tmp_path) -> Warehouse:
+    w = Warehouse(tmp_path / "lab.duckdb", lock_timeout=5)
+    w.init()
+    return w
+
+
+def test_schema_is_idempotent_and_has_the_issue_tables(wh):
+    wh.init()
+    Warehouse(wh.path).init()
+    with wh.connect() as con:
+        names = {r[0] for r in con.execute(
+            "SELECT table_name FROM information_schema.tables").fetchall()}
+    for t in ("runs", "coefficients", "radii", "lineage", "results", "result_history",
+              "coefficient_history", "radius_history", "adequacy", "uncertainty_budget",
+              "alignment", "flags", "current_runs"):
+        assert t in names, t
+    cols = [r["column_name"] for r in wh.query("DESCRIBE runs")]
+    assert cols[:10] == ["run_id", "revision", "sha256", "source_path", "test", "unit_serial",
+                         "campaign", "status", "reason", "ingested_at"]
+
+
+def test_record_runs_idempotent_and_revisions(wh):
+    a, b, c = "a" * 64, "b" * 64, "c" * 64
+    out = wh.record_runs([rec(a, "/d/x.csv"), rec(b, "/d/y.csv", run_id="R-2")])
+    assert [r.revision for r in out] == [1, 1] and all(r.new for r in out)
+    before = wh.counts()
+    again = wh.record_runs([rec(a, "/d/x.csv"), rec(b, "/d/y.csv", run_id="R-2")])
+    assert not any(r.new for r in again) and wh.counts() == before
+    # same bytes at another path: same revision; other bytes, same run_id: revision 2
+    out = wh.record_runs([rec(a, "/e/x.csv"), rec(c, "/e/x2.csv")])
+    assert [r.revision for r in out] == [1, 2]
+    cur = {r["run_id"]: (r["revision"], r["sha256"]) for r in wh.campaign_inputs("C/1")}
+    assert cur == {"R-1": (2, c), "R-2": (1, b)}
+    # both revisions kept
+    revs = wh.query("SELECT DISTINCT revision, sha256 FROM runs WHERE run_id = 'R-1' ORDER BY 1")
+    assert [(r["revision"], r["sha256"]) for r in revs] == [(1, a), (2, c)]
+
+
+def test_refused_newest_revision_falls_back_to_newest_accepted(wh):
+    a, b = "a" * 64, "b" * 64
+    wh.record_runs([rec(a, "/d/ok.csv"), rec(b, "/d/trunc.csv", status="refused")])
+    runs = wh.query("SELECT revision, status, reason FROM runs ORDER BY revision")
+    assert [(r["revision"], r["status"]) for r in runs] == [(1, "accepted"), (2, "refused")]
+    assert "/d/trunc.csv:3: bad-thing: detail" == runs[1]["reason"]
+    assert [i["sha256"] for i in wh.campaign_inputs("C/1")] == [a]
+
+
+def test_new_validator_version_adds_a_verdict_not_a_file(wh):
+    a = "a" * 64
+    wh.record_runs([rec(a, "/d/x.csv", status="refused")])
+    assert wh.campaign_inputs("C/1") == []
+    out = wh.record_runs([rec(a, "/d/x.csv", vv="val.2")])
+    assert out[0].rechecked and not out[0].new
+    c = wh.counts()
+    assert c["run_files"] == 1 and c["run_verdicts"] == 2
+    assert wh.query("SELECT status FROM runs")[0]["status"] == "accepted"
+    assert len(wh.campaign_inputs("C/1")) == 1
+
+
+def test_store_result_idempotent_with_lineage(wh):
+    a = "a" * 64
+    wh.record_runs([rec(a, "/d/x.csv")])
+    rid, status = store(wh, result())
+    assert status == "new"
+    before = wh.counts()
+    assert store(wh, result())[1] == "unchanged"
+    assert wh.counts() == before
+    coefs = wh.query("SELECT name, result_id FROM coefficients")
+    assert {c["name"] for c in coefs} == {"K0", "K2"} and {c["result_id"] for c in coefs} == {rid}
+    with wh.connect() as con:
+        assert [t["sha256"] for t in trace(con, rid)] == [a]
+        assert verify_lineage(con) == []
+    lin = wh.query("SELECT * FROM lineage")
+    assert lin[0]["flow_run_id"] == "flow-1" and lin[0]["code_version"] == CV
+    assert wh.query("SELECT flag FROM flags")[0]["flag"] == "a flag"
+    assert wh.query("SELECT radius_m FROM radii")[0]["radius_m"] == pytest.approx(0.7147)
+
+
+def test_superseded_results_stay_queryable_as_of(wh):
+    a, b = "a" * 64, "b" * 64
+    wh.record_runs([rec(a, "/d/x.csv")])
+    rid1, _ = store(wh, result(k2=1e-7))
+    t_between = wh.query("SELECT now() AS t")[0]["t"]
+    time.sleep(0.01)
+    wh.record_runs([rec(b, "/d/x2.csv")])        # revision 2 of R-1
+    rid2, status = store(wh, result(shas=(b,), k2=2e-7))
+    assert status == "new" and rid1 != rid2
+    assert wh.query("SELECT value FROM coefficients WHERE name = 'K2'")[0]["value"] == 2e-7
+    old = wh.query("SELECT value FROM coefficients_as_of(?) WHERE name = 'K2'", [t_between])
+    assert [r["value"] for r in old] == [1e-7]
+    hist = {r["result_id"]: r for r in wh.query("SELECT * FROM result_history")}
+    assert hist[rid1]["superseded_by"] == rid2 and not hist[rid1]["is_current"]
+    assert hist[rid2]["is_current"]
+    assert wh.query("SELECT count(*) AS n FROM coefficient_history")[0]["n"] == 4
+
+
+def test_earlier_identical_result_is_reactivated_not_duplicated(wh):
+    a = "a" * 64
+    wh.record_runs([rec(a, "/d/x.csv")])
+    res = result()
+    inputs = wh.campaign_inputs("C/1")
+    kw = dict(inputs=inputs, parameters=PARAMS, flow_run_id="f")
+    wh.store_result(res, result_id="r1", code_version="v1", **kw)
+    wh.store_result(res, result_id="r2", code_version="v2", **kw)
+    assert wh.store_result(res, result_id="r1", code_version="v1", **kw) == "reactivated"
+    assert wh.query("SELECT result_id FROM results_current")[0]["result_id"] == "r1"
+    assert wh.counts()["results"] == 2 and wh.counts()["result_activations"] == 3
+
+
+@pytest.mark.parametrize("step", ["results", "lineage", "coefficients", "radii", "details",
+                                  "activate", "commit"])
+def test_exception_between_statements_leaves_warehouse_as_before(wh, step):
+    wh.record_runs([rec("a" * 64, "/d/x.csv")])
+    before = wh.counts()
+
+    def boom(s):
+        if s == step:
+            raise RuntimeError("injected")
+    with pytest.raises(RuntimeError, match="injected"):
+        store(wh, result(), checkpoint=boom)
+    assert wh.counts() == before
+    assert wh.query("SELECT count(*) AS n FROM coefficients")[0]["n"] == 0
+    assert store(wh, result())[1] == "new"
+
+
+_KILL_SCRIPT = textwrap.dedent("""
+    import os, signal, sys
+    sys.path.insert(0, {tests!r})
+    from test_warehouse import Warehouse, rec, result, store
+    wh = Warehouse({db!r})
+    step = {step!r}
+    def kill(s):
+        if s == step:
+            os.kill(os.getpid(), signal.SIGKILL)
+    if step.startswith("run:"):
+        wh.record_runs([rec("c" * 64, "/d/z.csv"), rec("d" * 64, "/d/w.csv")], checkpoint=kill)
+    else:
+        store(wh, result(), checkpoint=kill)
+""")
+
+
+@pytest.mark.parametrize("step", ["lineage", "details", "commit", "run:0"])
+def test_sigkill_mid_write_leaves_warehouse_as_before(wh, step):
+    wh.record_runs([rec("a" * 64, "/d/x.csv")])
+    before = wh.counts()
+    script = _KILL_SCRIPT.format(tests=str(Path(__file__).parent), db=str(wh.path), step=step)
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=60)
+    assert proc.returncode == -signal.SIGKILL, proc.stderr
+    after = Warehouse(wh.path)
+    assert after.counts() == before
+    # ... and running again completes the work exactly once
+    if step.startswith("run:"):
+        after.record_runs([rec("c" * 64, "/d/z.csv"), rec("d" * 64, "/d/w.csv")])
+        assert after.counts()["run_files"] == before["run_files"] + 2
+    else:
+        assert store(after, result())[1] == "new"
+        assert store(after, result())[1] == "unchanged"
+        assert after.counts()["results"] == before["results"] + 1
+
+
+def test_second_writer_waits_then_fails_naming_the_pid(tmp_path):
+    db = tmp_path / "lab.duckdb"
+    holder = subprocess.Popen(
+        [sys.executable, "-c",
+         "import sys, time; from accelcal.warehouse import warehouse_lock\n"
+         f"with warehouse_lock({str(db)!r}):\n"
+         "    print('locked', flush=True); time.sleep(30)"],
+        stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        t0 = time.monotonic()
+        with pytest.raises(WarehouseBusy) as e:
+            with warehouse_lock(db, timeout=0.5):
+                pass
+        assert time.monotonic() - t0 >= 0.4
+        assert f"warehouse {db} is in use by pid {holder.pid}" in str(e.value)
+        with pytest.raises(WarehouseBusy):
+            Warehouse(db, lock_timeout=0.2).init()
+    finally:
+        holder.kill()
+        holder.wait()
+    with warehouse_lock(db, timeout=5):       # released when the holder dies
+        pass
+
+
+def test_lock_is_reentrant_in_process(tmp_path):
+    db = tmp_path / "lab.duckdb"
+    with warehouse_lock(db, timeout=0.1):
+        with warehouse_lock(db, timeout=0.1):
+            Warehouse(db, lock_timeout=0.1).init()
+
+
+def test_result_id_is_deterministic():
+    r1 = result_id("C", ["b", "a"], "v", {"x": 1, "y": [1, 2]})
+    assert r1 == result_id("C", ["a", "b", "a"], "v", {"y": [1, 2], "x": 1})
+    assert r1 != result_id("C", ["a", "b"], "v2", {"x": 1, "y": [1, 2]})
+    assert r1 != result_id("C", ["a"], "v", {"x": 1, "y": [1, 2]})
