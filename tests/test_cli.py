@@ -34,11 +34,11 @@ def test_subcommand_registry_is_open():
 
 def test_demo_runs_on_the_shipped_drops(tmp_path, capsys):
     drops = cli.demo_drops()
-    assert {d.name for d in drops} == {"drop-2026-11-20", "drop-bad"}
+    assert {d.name for d in drops} == {"drop-demo", "drop-bad"}
     rc = cli.main(["demo", "--dir", str(tmp_path / "demo"), "--engine", "local", "-q"])
     out = capsys.readouterr().out
     assert rc == 0
-    assert "µg/g²" in out and "U (k=2)" in out and "SNJ-1-03/2026-11-20" in out
+    assert "µg/g²" in out and "U (k=2)" in out and "SNJ-1-03/demo" in out
     assert "refused drop-bad/nan-output.csv" in out
     wh = Warehouse(tmp_path / "demo" / "lab.duckdb")
     st = {r["status"]: r["n"] for r in wh.query("SELECT status, count(*) AS n FROM runs GROUP BY 1")}
