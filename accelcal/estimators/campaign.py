@@ -286,6 +286,21 @@ def _centrifuge_rig(runs, tumble: dict | None, res: CampaignResult) -> None:
         res.radii.append(RadiusResult(rig, pol, "iterative_corrected", chosen, top, Rc, uc,
                                       note=f"eq 7 radius / (1 + {cross}·a_vertical): cross-coupling with gravity removed"))
     K2c = comb.values.get("K2", tumble["K2"])
+    # The paper's radii (eq 6 and eq 7) are effective radii: the instrument's own terms at
+    # the reference acceleration leak into them.  Paper 000 §2.1.1 bounds that by the
+    # nonlinearity envelope; we state it as a type-B (uniform) term: half-width R |K_iv| g
+    # for eq 7 (the cross-coupling with gravity, which no order of eq 7 can absorb) and
+    # R (|K2| + |Koq|) |a_g| + R |K_iv| g for eq 6 (which models no nonlinearity at all).
+    for r in res.radii:
+        if r.rig_id != rig or r.method not in ("static", "iterative"):
+            continue
+        half = r.radius_m * abs(Kiv) * g
+        if r.method == "static":
+            half += r.radius_m * (abs(K2c) + abs(ia.d)) * g
+        uB = unc.uniform_u(half)
+        r.std_uncertainty_m = math.hypot(r.std_uncertainty_m, uB)
+        r.note = (r.note + "; " if r.note else "") + (
+            f"includes type-B {uB:.2e} m (uniform) for instrument terms the method leaves in the radius")
     for pol, s in static.items():
         # sensed along IA (signed): A = a (1 + Kiv a_v) + K2 a^2 + Koq a|a| + K3 a^3; solve for a
         A = float(np.mean(s.a_g)) - s.lambda_c_rad * g
