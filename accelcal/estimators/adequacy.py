@@ -163,3 +163,27 @@ def weighted_dwell_fit(X: np.ndarray, names: list[str], ybar: np.ndarray, n: np.
         fit.runs_p = min(1.0, min(rp) * m) if rp else 1.0
         fit.sweep_p = min(1.0, min(sp) * m) if sp else 1.0
     return fit
+
+
+def choose_order(fits: dict[int, DwellFit], added: dict[int, list[str]]) -> tuple[int, bool]:
+    """The lowest adequate model order whose next order adds nothing significant.
+
+    fits: order -> fit; added: order -> names of the parameters that order adds to the one
+    below.  An order is chosen when its fit is adequate (lack of fit and residual checks,
+    :attr:`DwellFit.adequate`) *and* no parameter added by the next order differs from zero
+    at ALPHA (two-sided t test with the next fit's residual dof).  The second condition is
+    the direct test of the missing term: a 6-sigma cubic must not be left out because the
+    lack-of-fit test, which spreads its power over all dwells, happened to pass.
+    Returns (order, adequate); when no order qualifies, the highest order and False."""
+    orders = sorted(fits)
+    for i, o in enumerate(orders):
+        if not fits[o].adequate:
+            continue
+        if i + 1 < len(orders):
+            nxt = fits[orders[i + 1]]
+            dof = max(nxt.dof_lof + nxt.dof_pe, 1)
+            tcrit = stats.t.ppf(1 - ALPHA / 2, dof)
+            if any(abs(nxt.value(n)) > tcrit * nxt.std_error(n) for n in added.get(orders[i + 1], [])):
+                continue
+        return o, True
+    return orders[-1], bool(fits[orders[-1]].adequate)

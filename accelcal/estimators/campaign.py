@@ -18,6 +18,7 @@ from ..constants import G_STANDARD
 from ..physics.axes import parse_plane, parse_signed_axis
 from ..results import AdequacyResult, BudgetTerm, CampaignResult, CoefficientResult, RadiusResult
 from . import uncertainty as unc
+from .adequacy import choose_order
 from .crosscoupling import (CROSS, SQUARE, combine_second_order, delta_c2, fit_mount_pair,
                             pair_key, pair_label)
 from .radius import (PairData, g_levels, ia_polarity, test_radius_iterative, test_radius_static)
@@ -26,6 +27,9 @@ from .radius import (PairData, g_levels, ia_polarity, test_radius_iterative, tes
 RADIUS_RANGES = (7.0, 14.0, 25.0)
 RADIUS_ORDERS = (1, 2, 3)
 SECOND_ORDER_UNIT = "s2/m"
+#: Fixture mount-angle tolerance (rad) behind the type-B eq 8 term: an angle error common
+#: to both polarities does not cancel.  1 arc-minute; a lab with a better fixture sets its own.
+MOUNT_ANGLE_TOLERANCE_RAD = math.radians(1.0 / 60.0)
 
 
 def _meta(run) -> Mapping:
@@ -167,9 +171,9 @@ def _centrifuge_rig(runs, tumble: dict | None, res: CampaignResult) -> None:
             f = it.fit
             res.adequacy.append(AdequacyResult(rig, label, order, gmax, f.f_statistic, f.p_value, f.dof_lof,
                                                f.dof_pe, f.trend_p, f.sweep_p, f.runs_p, f.adequate))
-    chosen = next((o for o in RADIUS_ORDERS if fits[(o, None)].fit.adequate), None)
-    if chosen is None:
-        chosen = RADIUS_ORDERS[-1]
+    chosen, ok = choose_order({o: fits[(o, None)].fit for o in RADIUS_ORDERS},
+                              {2: ["c2", "d"], 3: ["c3"]})
+    if not ok:
         res.flags.append(f"{rig}: no radius model order is adequate over the full range (lack-of-fit or "
                          f"residual checks fail); order {chosen} used and flagged")
     for a in res.adequacy:
@@ -201,10 +205,16 @@ def _centrifuge_rig(runs, tumble: dict | None, res: CampaignResult) -> None:
         g = pf.geometry
         d1 = delta_c2(comb0.values, pf.plane, math.radians(pf.phi0_deg), g.dphi1)
         d2 = delta_c2(comb0.values, pf.plane, math.radians(pf.phi0_deg + 180), g.dphi2)
-        half = max(abs(d1), abs(d2))
+        # The two polarities' angle errors from the mass-centre offset are opposite, so
+        # their eq 8 errors cancel in the pair's common c2 to first order; what is left is
+        # (d1 + d2)/2, plus eq 8 for an unknown mount-angle error common to both polarities
+        # (fixture tolerance).  Type B, uniform.  The paper's bound max|d| is kept for reference.
+        tol = delta_c2(comb0.values, pf.plane, math.radians(pf.phi0_deg), MOUNT_ANGLE_TOLERANCE_RAD)
+        half = abs(d1 + d2) / 2 + abs(tol)
         u_dc2[pair_label(pf)] = unc.uniform_u(half)
         res.alignment.append({"kind": "mount", "rig_id": rig, "pair": pair_label(pf), **g.as_dict(),
                               "dc2_1": d1, "dc2_2": d2, "u_dc2_typeB": u_dc2[pair_label(pf)],
+                              "dc2_paper_bound": max(abs(d1), abs(d2)), "dc2_tolerance": tol,
                               "c2": pf.c2, "u_c2": pf.u_c2, "order": pf.order})
     comb = combine_second_order(pairs, u_dc2)
     res.extras.setdefault("pairs", {})[rig] = [
@@ -326,7 +336,8 @@ def process_campaign(runs) -> CampaignResult:
         rig_ids=sorted({str(r.meta["rig_id"]) for r in runs}),
         input_sha256=sorted(r.sha256 for r in runs),
         parameters={"radius_orders": list(RADIUS_ORDERS), "radius_ranges_g": list(RADIUS_RANGES),
-                    "adequacy_alpha": 0.01, "coverage_factor": 2.0})
+                    "adequacy_alpha": 0.01, "coverage_factor": 2.0,
+                    "mount_angle_tolerance_rad": MOUNT_ANGLE_TOLERANCE_RAD})
     by_test = defaultdict(list)
     for r in sorted(runs, key=lambda r: str(r.meta.get("run_id"))):
         by_test[str(r.meta["test"])].append(r)
@@ -343,6 +354,7 @@ def process_campaign(runs) -> CampaignResult:
                                  f"{type(exc).__name__}: {exc}")
     if tumble is not None:
         _correct_tumble_K2(by_test["tumble"][0].meta, res)
+        _correct_tumble_K1(by_test["tumble"][0].meta, res)
     if by_test.get("tilt_rotation"):
         _thermal(by_test["tilt_rotation"], res)
     if by_test.get("sine_centrifuge"):
@@ -368,6 +380,34 @@ def _correct_tumble_K2(meta: Mapping, res: CampaignResult) -> None:
                 c.std_uncertainty = math.hypot(c.std_uncertainty, cen.std_uncertainty)
                 c.note = (f"one tumble measures K2 − {other}; {other} = {cen.value:.3e} s2/m from the "
                           "centrifuge added")
+
+
+def _correct_tumble_K1(meta: Mapping, res: CampaignResult) -> None:
+    """The tumble's K1 fits the cos(psi) fundamental of the IA input, which Koq a|a| and
+    K3 a^3 also feed: cos|cos| has fundamental 8/(3 pi), cos^3 has 3/4, so
+    K1_fitted = K1 (1 + Koq g 8/(3 pi) + K3 g^2 3/4).  With the centrifuge's Koq and K3
+    the tumble K1 is corrected (and its u widened by theirs); the geometric (*_corrected)
+    radii, which scale as 1/K1, follow.  Without them K1 stays as fitted, said in the note."""
+    g = float(meta["g_local_m_s2"])
+    koq = next((c for c in res.coefficients if c.name == "Koq" and c.method == "centrifuge_eq9"), None)
+    k3 = next((c for c in res.coefficients if c.name == "K3" and c.method == "centrifuge_eq9"), None)
+    k1 = next((c for c in res.coefficients if c.name == "K1" and c.method == "tumble_lm"), None)
+    if k1 is None:
+        return
+    if koq is None:
+        k1.note = (k1.note + "; " if k1.note else "") + "includes Koq g 8/(3 pi) + K3 g^2 3/4 (no centrifuge values to remove it)"
+        return
+    a, b = g * 8 / (3 * math.pi), 0.75 * g * g
+    delta = koq.value * a + (k3.value * b if k3 else 0.0)
+    u_delta = math.hypot(koq.std_uncertainty * a, (k3.std_uncertainty * b) if k3 else 0.0)
+    k1.value /= 1.0 + delta
+    k1.std_uncertainty = math.hypot(k1.std_uncertainty, abs(k1.value) * u_delta)
+    k1.note = (k1.note + "; " if k1.note else "") + (
+        f"corrected for Koq and K3 from the centrifuge: fitted K1 = K1 (1 + {delta:.3e})")
+    for r in res.radii:
+        if r.method.endswith("_corrected"):
+            r.radius_m *= 1.0 + delta
+            r.std_uncertainty_m = math.hypot(r.std_uncertainty_m, r.radius_m * u_delta)
 
 
 def _thermal(runs, res: CampaignResult) -> None:

@@ -32,7 +32,7 @@ import numpy as np
 import pandas as pd
 
 from ..physics.axes import AXES, parse_plane
-from .adequacy import DwellFit
+from .adequacy import DwellFit, choose_order
 from .radius import PairData
 
 SQUARE = {0: "K2", 1: "Kpp", 2: "Koo"}
@@ -131,8 +131,8 @@ def fit_mount_pair(run_a: tuple[Mapping, pd.DataFrame], run_b: tuple[Mapping, pd
     """Fit eq 9 (module docstring) to a mount pair; run_a at phi0 < 180 deg, run_b at
     phi0 + 180 deg.  The signed input of each polarity is a = ±omega_z^2 rho± with rho±
     from the test radii (mass-centre geometry); the lowest adequate order is chosen
-    (order 2: c2 and d; order 3: + c3); if none is adequate the highest is used and the
-    fit is marked inadequate."""
+    by :func:`adequacy.choose_order` (order 2: c2 and d; order 3: + c3); if none is
+    adequate the highest is used and the fit is marked inadequate."""
     (ma, da), (mb, db) = run_a, run_b
     plane, phi0 = pair_key(ma)
     geo = alignment(R_plus, R_minus, plane, phi0)
@@ -143,14 +143,14 @@ def fit_mount_pair(run_a: tuple[Mapping, pd.DataFrame], run_b: tuple[Mapping, pd
     fits = {}
     for order in orders:
         fits[order], _ = pair.fit(a, order, subtract_a=False)
-    chosen = next((o for o in orders if fits[o].adequate), orders[-1])
+    chosen, adequate = choose_order(fits, {3: ["c3"]})
     f = fits[chosen]
     has_c3 = "c3" in f.names
     T = T.assign(a=a, std_resid=f.std_resid, fitted=f.yhat)
     return PairFit(plane, phi0, (str(ma.get("run_id")), str(mb.get("run_id"))), chosen, f, fits,
                    f.value("c2"), f.std_error("c2"), f.value("d"), f.std_error("d"),
                    f.value("c3") if has_c3 else None, f.std_error("c3") if has_c3 else None,
-                   f.adequate, geo, T)
+                   adequate, geo, T)
 
 
 @dataclass
