@@ -29,7 +29,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DROP = ROOT.parent / "shared" / "examples" / "drop-2026-11-20"
 if not DEFAULT_DROP.is_dir():
-    DEFAULT_DROP = ROOT / "accelcal" / "demo_data" / "drop-2026-11-20"
+    DEFAULT_DROP = ROOT / "accelcal" / "demo_data" / "drop-demo"
 
 
 # ------------------------------------------------------------------ children --

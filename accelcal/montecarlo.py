@@ -1,0 +1,549 @@
+"""Monte Carlo validity study of the estimators (issue 3): ``accelcal montecarlo SCENARIO --n 200``.
+
+For i = 0 .. n-1 the scenario is simulated in memory with seed ``seed + i``
+(:func:`accelcal.simulate.simulate_campaign`), every run is wrapped as a RunFile-like
+object (``meta``, ``data``, ``sha256`` of its content) and the whole campaign goes through
+:func:`accelcal.estimators.campaign.process_campaign`.  Every coefficient the science
+returns, keyed by (name, method, rig_id), is compared with its truth:
+
+* bias = mean estimate - truth, and bias / (sd / sqrt(n)) (a z score: |z| > 3 is a real bias);
+* the empirical sd against the stated standard uncertainty (sd / u_rms, u_rms = sqrt(mean u^2));
+* coverage of the intervals estimate +- 1.96 u (target 95 % +- 3 %, issue 3), with the
+  binomial sampling half-width 1.96 sqrt(0.95 * 0.05 / n) and a Wilson interval;
+* var / CRB for the coefficients whose Cramer-Rao bound is computed (see below).
+
+Truth mapping (what each reported coefficient estimates; :func:`truth_table`)
+-------------------------------------------------------------------------------
+The instrument coefficients of the scenario (``[unit.coefficients]``) plus the
+instrument-term effects (odd_quadratic -> Koq, cubic -> K3, cross_coupling -> Kip,
+bias_temperature -> K0T, scale_temperature -> K1T) that apply to the test of that rig.
+
+* ``centrifuge_eq9`` (K2, Kpp, Koo, Kip, Kio, Kpo, Koq, K3): the instrument values.
+* ``sine_ls`` (K0, K1, Kp, Ko and all second/third-order terms): the instrument values
+  (K0 is shared by the three attitudes, K1 at the run temperature -- no temp_c column).
+* ``tumble_lm`` (cos_axis = +-IA, sin_axis s with sign ss, cos sign cs, temperature T of
+  the tumble test): K0 -> K0(T) + K_ss g^2 (the sin axis' square term Koo/Kpp is
+  g^2 sin^2 = g^2 - g^2 cos^2: it shifts the bias and is taken from K2);
+  K1 -> K1 (1 + K1T (T - 20)); K2 -> K2 when the campaign's centrifuge K_ss was added
+  (process_campaign._correct_tumble_K2), else K2 - K_ss (the note says which);
+  theta0 -> initial_misalignment - cs ss K_s (K_s = Ko/Kp of the sin axis aliases the
+  misalignment in one tumble); Kio/Kip (cross term) -> the instrument value.
+  Not compared when IA is not the cos axis.
+* ``tilt_rotation_ls`` (tilt gamma, normal axis n with sign ns, cos axis c): K0 -> the
+  apparent bias at 20 degC, K0 + ns K_n g cos(gamma) + K_nn g^2 cos^2(gamma)
+  + (K2 + K_cc) g^2 sin^2(gamma) / 2; K1 -> K1; K0T -> K0T + g c cos(gamma), c the
+  ``fixture_thermal_tilt`` (rad/degC; paper 001 sec. 3.2: the method cannot separate them);
+  K1T -> K1T.
+* anything else (other methods, theta0 with IA on the sin axis, ...): truth undefined,
+  reported without bias/coverage.
+
+Cramer-Rao bound (:func:`cramer_rao`)
+--------------------------------------
+For the data a method uses, F = J^T Sigma^-1 J with J the Jacobian of the forward model
+(:func:`accelcal.physics.rigs.rig_output`, central differences; the instrument coefficients
+enter linearly or bilinearly, so their columns are exact) at the truth, evaluated at the
+readings of one simulated campaign (logged rates, recorded temperatures: the simulator
+makes the output from those, so they are exactly known regressors).  Sigma is diagonal,
+the simulator's noise per reading: var = (K1(T) white)^2 + (dE/d omega * omega/2 * jitter)^2
+(true omega^2 = logged omega^2 (1 + delta), delta ~ N(0, rate_jitter_rel) per reading or
+sample; the logged-rate noise does not reach the output given the logged rate; bias random
+walk and sensor lag are not modelled in Sigma -- they are zero in the shipped scenarios).
+CRB(k) = [F^+]_kk for every parameter that is estimable (e_k in the row space of the
+column-scaled J; aliased parameters get no bound).  The parameter vector per method:
+
+* ``centrifuge_eq9``: K2, K3, Koq, Kp, Ko, Kip, Kio, Kpo, Kpp, Koo (one instrument, shared
+  by all mounts) + per run a free bias and a free scale of the IA input (eq 9's K0+-, 1+c+-:
+  they absorb radius, ia_tilt, K0, Ko g); K1 and K0 known (the tumble gives K1 to 2e-8).
+  The estimator fits c2, d, c3 per mount pair and combines them, and adds type-B terms for
+  a mount-angle error the simulation does not have: var/CRB > 1 measures that price.
+* ``tilt_rotation_ls``: K0, K1, K0T (apparent: its column is identical to the fixture
+  tilt's up to a constant), K1T and the cross-axis term of the cos axis (Kp/Ko).
+* ``sine_ls``: the 12 coefficients of the effects.md model and the tool errors the
+  estimator identifies (spindle_tilt, mass_centre_offset, rate_scale_error, sensor_lag;
+  the last by a forward difference at tau = 0).
+The bound is for an unbiased estimator of the *full physical model*, so it is a lower
+bound also for estimators with more nuisance parameters than it has.
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import hashlib
+import json
+import math
+import time
+from collections import defaultdict
+from collections.abc import Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .constants import T_REF_C
+from .physics.axes import parse_signed_axis
+from .physics.rigs import INSTRUMENT_EFFECTS, rig_output, specific_force
+
+#: coverage target of issue 3 (95 % +- 3 %) and the coverage factor of the intervals
+TARGET, TARGET_TOL, K_COVER = 0.95, 0.03, 1.96
+
+#: the coefficients whose var/CRB the issue asks for, per method
+MAIN = {"centrifuge_eq9": ("K2", "Kip", "Kpp", "Koq", "K3"),
+        "tilt_rotation_ls": ("K0T", "K1T"),
+        "sine_ls": ("K2", "Kip")}
+
+_AXIS_CROSS = {1: "Kp", 2: "Ko"}          # cross-axis sensitivity of PA, OA
+_AXIS_SQUARE = {0: "K2", 1: "Kpp", 2: "Koo"}
+_ALL_COEFFS = ("K0", "K1", "K2", "K3", "Koq", "Kp", "Ko", "Kip", "Kio", "Kpo", "Kpp", "Koo", "K0T", "K1T")
+#: typical sizes, used as central-difference steps (exact for the linear coefficients)
+_STEP = {"K0": 1e-4, "K1": None, "K2": 1e-7, "K3": 1e-9, "Koq": 1e-7, "Kp": 1e-5, "Ko": 1e-5,
+         "Kip": 1e-7, "Kio": 1e-7, "Kpo": 1e-7, "Kpp": 1e-7, "Koo": 1e-7, "K0T": 1e-6, "K1T": 1e-5,
+         "initial_misalignment": 1e-6, "spindle_tilt": 1e-6, "mass_centre_offset": 1e-5,
+         "rate_scale_error": 1e-7, "sensor_lag": 1e-6}
+SINE_TOOL_ERRORS = ("spindle_tilt", "mass_centre_offset", "rate_scale_error", "sensor_lag")
+
+
+# ---------------------------------------------------------------- runs and scenarios
+
+@dataclass
+class SimRunFile:
+    """A simulated run as process_campaign sees a parsed file: meta, data, sha256."""
+    meta: dict
+    data: Any
+    sha256: str
+
+    @classmethod
+    def from_simrun(cls, run) -> "SimRunFile":
+        h = hashlib.sha256()
+        h.update(json.dumps(run.meta, sort_keys=True, default=str).encode())
+        h.update(",".join(map(str, run.data.columns)).encode())
+        h.update(np.ascontiguousarray(run.data.to_numpy(dtype=float)).tobytes())
+        return cls(meta=run.meta, data=run.data, sha256=h.hexdigest())
+
+
+def _scenario(scenario):
+    from .simulate import Scenario, load_scenario
+    return scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+
+
+#: the "noise-free" campaign has every noise scaled by this (exactly zero noise makes
+#: residual-scaled weights singular): its estimate shows the estimator's bias at no noise
+QUIET = 1e-2
+
+
+def _noise_free(sc):
+    sc2 = copy.deepcopy(sc)
+    sc2.noise = {k: QUIET * v for k, v in sc2.noise.items()}
+    for t in sc2.tests:
+        t["noise"] = {k: QUIET * v for k, v in t.get("noise", {}).items()}
+    return sc2
+
+
+def _campaign(sc, seed: int):
+    from .estimators.campaign import process_campaign
+    from .simulate import simulate_campaign
+    runs = simulate_campaign(sc, seed)
+    return process_campaign([SimRunFile.from_simrun(r) for r in runs])
+
+
+def _one(args) -> list[tuple[str, str, str, float, float, str]] | str:
+    """Worker: one campaign -> [(name, method, rig, value, u, note)], or an error string."""
+    import warnings
+    sc, seed = args
+    try:
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")
+            res = _campaign(sc, seed)
+    except Exception as exc:  # a crash is a finding, not the end of the study
+        return f"seed {seed}: {type(exc).__name__}: {exc}"
+    return [(c.name, c.method, c.rig_id, float(c.value), float(c.std_uncertainty), c.note)
+            for c in res.coefficients]
+
+
+# ---------------------------------------------------------------- truth
+
+def _coeffs_for(sc, test: Mapping) -> dict[str, float]:
+    """Instrument coefficients seen by the runs of one test (instrument-term effects added)."""
+    from .effects import EFFECTS
+    c = {k: 0.0 for k in _ALL_COEFFS}
+    c["K1"] = 1.0
+    c.update(sc.coefficients)
+    eff = {**sc.effects, **test.get("effects", {})}
+    for eid, name in INSTRUMENT_EFFECTS.items():
+        if eid in eff and test["kind"] in EFFECTS[eid].tests:
+            c[name] += float(eff[eid])
+    return c
+
+
+def _effects_for(sc, test: Mapping) -> dict[str, float]:
+    from .effects import EFFECTS
+    eff = {**sc.effects, **test.get("effects", {})}
+    return {k: float(v) for k, v in eff.items() if test["kind"] in EFFECTS[k].tests}
+
+
+def truth_table(scenario, notes: Mapping[tuple[str, str, str], str] | None = None
+                ) -> dict[tuple[str, str, str], tuple[float, str]]:
+    """(name, method, rig_id) -> (truth, how it was mapped).  ``notes``: the coefficient
+    notes of one processed campaign (the tumble K2 says whether the centrifuge corrected it).
+    See the module docstring for each mapping."""
+    sc = _scenario(scenario)
+    notes = notes or {}
+    g = float(sc.site["g_local_m_s2"])
+    out: dict[tuple[str, str, str], tuple[float, str]] = {}
+    for t in sc.tests:
+        kind, rig = t["kind"], str(t["rig_id"])
+        c = _coeffs_for(sc, t)
+        eff = _effects_for(sc, t)
+        if kind in ("centrifuge", "sine_centrifuge"):
+            method = "centrifuge_eq9" if kind == "centrifuge" else "sine_ls"
+            names = (("K2", "Kpp", "Koo", "Kip", "Kio", "Kpo", "Koq", "K3") if kind == "centrifuge"
+                     else ("K0", "K1", "Kp", "Ko", "K2", "K3", "Koq", "Kip", "Kio", "Kpo", "Kpp", "Koo"))
+            for k in names:
+                out[(k, method, rig)] = (c[k], "instrument value")
+        elif kind == "tumble":
+            head = t["heads"][0]
+            ci, cs = parse_signed_axis(head["cos_axis"])
+            si, ss = parse_signed_axis(head["sin_axis"])
+            if ci != 0:
+                continue
+            dT = float(t.get("temp_c", 23.0)) - T_REF_C
+            Kss, Ks = c[_AXIS_SQUARE[si]], c[_AXIS_CROSS[si]]
+            sq, cr = _AXIS_SQUARE[si], _AXIS_CROSS[si]
+            out[("K0", "tumble_lm", rig)] = (c["K0"] + c["K0T"] * dT + Kss * g * g,
+                                             f"K0(T) + {sq} g^2 (apparent bias of a tumble)")
+            out[("K1", "tumble_lm", rig)] = (c["K1"] * (1 + c["K1T"] * dT), "K1(T)")
+            corrected = "from the centrifuge added" in notes.get(("K2", "tumble_lm", rig), "")
+            out[("K2", "tumble_lm", rig)] = ((c["K2"], "K2 (centrifuge " + sq + " added)") if corrected
+                                             else (c["K2"] - Kss, f"K2 - {sq} (aliased in one tumble)"))
+            out[("theta0", "tumble_lm", rig)] = (eff.get("initial_misalignment", 0.0) - cs * ss * Ks,
+                                                 f"initial_misalignment - {cr} (aliased)")
+            cross = {1: "Kip", 2: "Kio"}[si]
+            out[(cross, "tumble_lm", rig)] = (c[cross], "instrument value")
+        elif kind == "tilt_rotation":
+            gam = math.radians(float(t["tilt_deg"]))
+            ni, ns = parse_signed_axis(t.get("normal_axis", "+OA"))
+            ci, _ = parse_signed_axis(t.get("cos_axis", "+PA"))
+            if ni == 0 or ci == 0:
+                continue
+            K0app = (c["K0"] + ns * c[_AXIS_CROSS[ni]] * g * math.cos(gam)
+                     + c[_AXIS_SQUARE[ni]] * (g * math.cos(gam)) ** 2
+                     + (c["K2"] + c[_AXIS_SQUARE[ci]]) * (g * math.sin(gam)) ** 2 / 2)
+            cf = eff.get("fixture_thermal_tilt", 0.0)
+            out[("K0", "tilt_rotation_ls", rig)] = (K0app, "apparent bias at 20 degC (normal-axis terms)")
+            out[("K1", "tilt_rotation_ls", rig)] = (c["K1"], "K1 at 20 degC")
+            out[("K0T", "tilt_rotation_ls", rig)] = (c["K0T"] + g * cf * math.cos(gam),
+                                                     "K0T + g c cos(gamma) (fixture thermal tilt)")
+            out[("K1T", "tilt_rotation_ls", rig)] = (c["K1T"], "instrument value")
+    return out
+
+
+# ---------------------------------------------------------------- Cramer-Rao bound
+
+def _reading_variance(kind: str, meta, data, coeffs, effects, noise) -> np.ndarray:
+    """Variance of each reading's output (output_unit^2), the simulator's noise model."""
+    from .physics import scale_factor
+    temp = np.asarray(data["temp_c"], float) if "temp_c" in data.columns else None
+    K1 = np.broadcast_to(np.asarray(scale_factor(coeffs, temp), float), (len(data),))
+    var = (K1 * float(noise.get("white_m_s2", 0.0))) ** 2
+    jit = float(noise.get("rate_jitter_rel", 0.0))
+    if jit > 0 and "table_rate_rad_s" in data.columns:
+        w = np.asarray(data["table_rate_rad_s"], float)
+        h = 1e-6 * np.maximum(np.abs(w), 1e-3)
+        up, dn = data.copy(), data.copy()
+        up["table_rate_rad_s"] = w + h
+        dn["table_rate_rad_s"] = w - h
+        dEdw = (rig_output(kind, meta, up, coeffs, effects) - rig_output(kind, meta, dn, coeffs, effects)) / (2 * h)
+        var = var + (dEdw * w / 2 * jit) ** 2
+    return var
+
+
+def _column(kind, meta, data, coeffs, effects, name) -> np.ndarray:
+    """d E / d name at the truth (central differences; forward for sensor_lag >= 0)."""
+    if name in _ALL_COEFFS:
+        h = _STEP[name] or 1e-3 * abs(coeffs["K1"])
+        up, dn = dict(coeffs), dict(coeffs)
+        up[name] += h
+        dn[name] -= h
+        return (rig_output(kind, meta, data, up, effects) - rig_output(kind, meta, data, dn, effects)) / (2 * h)
+    h = _STEP[name]
+    up, dn = dict(effects), dict(effects)
+    v = float(effects.get(name, 0.0))
+    up[name] = v + h
+    if name == "sensor_lag" and v < h:
+        return (rig_output(kind, meta, data, coeffs, up) - rig_output(kind, meta, data, coeffs, effects)) / h
+    dn[name] = v - h
+    return (rig_output(kind, meta, data, coeffs, up) - rig_output(kind, meta, data, coeffs, dn)) / (2 * h)
+
+
+def _bound(J: np.ndarray, names: Sequence[str], rtol: float = 1e-10) -> dict[str, float | None]:
+    """diag(F^+) for the estimable parameters of the whitened Jacobian J (None if aliased)."""
+    scale = np.linalg.norm(J, axis=0)
+    scale[scale == 0] = 1.0
+    _, s, Vt = np.linalg.svd(J / scale, full_matrices=False)
+    keep = s > rtol * s[0]
+    V, sk = Vt[keep].T, s[keep]
+    Vnull = Vt[~keep].T
+    cov_s = (V / sk**2) @ V.T
+    out = {}
+    for i, n in enumerate(names):
+        if Vnull.size and np.linalg.norm(Vnull[i]) > 1e-3:
+            out[n] = None
+        else:
+            out[n] = float(cov_s[i, i] / scale[i] ** 2)
+    return out
+
+
+def cramer_rao(scenario, seed: int | None = None) -> dict[tuple[str, str, str], float | None]:
+    """(name, method, rig_id) -> CRB variance (SI units squared), or None when the
+    coefficient is aliased in the model.  The model is in the module docstring."""
+    from .simulate import simulate_campaign
+    sc = _scenario(scenario)
+    runs = simulate_campaign(sc, sc.seed if seed is None else seed)
+    by_rig: dict[tuple[str, str], list] = defaultdict(list)
+    for r in runs:
+        by_rig[(str(r.meta["test"]), str(r.meta["rig_id"]))].append(r)
+    tests = {(t["kind"], str(t["rig_id"])): t for t in sc.tests}
+    out: dict[tuple[str, str, str], float | None] = {}
+    for (kind, rig), rr in by_rig.items():
+        t = tests[(kind, rig)]
+        coeffs = _coeffs_for(sc, t)
+        if kind == "centrifuge":
+            method = "centrifuge_eq9"
+            glob = ["K2", "K3", "Koq", "Kp", "Ko", "Kip", "Kio", "Kpo", "Kpp", "Koo"]
+        elif kind == "tilt_rotation":
+            method = "tilt_rotation_ls"
+            ci, _ = parse_signed_axis(t.get("cos_axis", "+PA"))
+            glob = ["K0", "K1", "K0T", "K1T"] + ([_AXIS_CROSS[ci]] if ci else [])
+        elif kind == "sine_centrifuge":
+            method = "sine_ls"
+            glob = ["K0", "K1", "Kp", "Ko", "K2", "K3", "Koq", "Kip", "Kio", "Kpo", "Kpp", "Koo",
+                    *SINE_TOOL_ERRORS]
+        else:
+            continue
+        nloc = 2 if kind == "centrifuge" else 0
+        names = glob + [f"{p}[{i}]" for i in range(len(rr)) for p in ("bias", "scale")][: nloc * len(rr)]
+        blocks = []
+        for i, r in enumerate(rr):
+            eff = dict(r.truth["effects"])
+            data = r.data
+            cols = np.zeros((len(data), len(names)))
+            for j, p in enumerate(glob):
+                cols[:, j] = _column(kind, r.meta, data, coeffs, eff, p)
+            if nloc:
+                from .physics import scale_factor
+                temp = np.asarray(data["temp_c"], float)
+                K1 = scale_factor(coeffs, temp)
+                F = specific_force(kind, r.meta, data, eff)
+                cols[:, len(glob) + 2 * i] = K1
+                cols[:, len(glob) + 2 * i + 1] = K1 * F[:, 0]
+            var = _reading_variance(kind, r.meta, data, coeffs, eff, r.truth["noise"])
+            blocks.append(cols / np.sqrt(var)[:, None])
+        bound = _bound(np.vstack(blocks), names)
+        for p in glob:
+            if p in _ALL_COEFFS:
+                out[(p, method, rig)] = bound[p]
+    return out
+
+
+# ---------------------------------------------------------------- the study
+
+@dataclass
+class CoefficientStats:
+    name: str
+    method: str
+    rig_id: str
+    n: int
+    truth: float | None
+    truth_note: str
+    mean: float
+    sd: float
+    u_rms: float
+    u_mean: float
+    bias: float | None = None
+    bias_z: float | None = None              # bias / (sd / sqrt(n))
+    sd_over_u: float | None = None
+    coverage: float | None = None            # fraction with |x - truth| <= 1.96 u
+    coverage_wilson: tuple[float, float] | None = None
+    z_sd: float | None = None                # sd of (x - truth) / u
+    noise_free: float | None = None          # estimate from the campaign with noise x 0.01 (QUIET)
+    crb_sd: float | None = None
+    var_over_crb: float | None = None
+    main: bool = False
+    status: str = ""                         # ok | UNDER | OVER | (blank: no truth)
+
+
+@dataclass
+class StudyResult:
+    scenario: str
+    n: int
+    seed: int
+    workers: int
+    seconds: float
+    seconds_per_campaign: float
+    failures: list[str] = field(default_factory=list)
+    coefficients: list[CoefficientStats] = field(default_factory=list)
+    band: float = 0.0                        # binomial 95 % half-width of the coverage at n
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def get(self, name: str, method: str | None = None) -> CoefficientStats:
+        for c in self.coefficients:
+            if c.name == name and (method is None or c.method == method):
+                return c
+        raise KeyError((name, method))
+
+    def to_markdown(self) -> str:
+        return study_markdown(self)
+
+
+def _wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    if n == 0:
+        return (0.0, 1.0)
+    p = k / n
+    d = 1 + z * z / n
+    c = (p + z * z / (2 * n)) / d
+    h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
+    return (max(0.0, c - h), min(1.0, c + h))
+
+
+def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: bool = True,
+              noise_free: bool = True, progress=None) -> StudyResult:
+    """Simulate ``n`` campaigns of ``scenario`` (path, shipped name, dict or Scenario) with
+    seeds seed .. seed+n-1, process each, and summarise every coefficient against its
+    truth (module docstring).  ``workers`` > 1 uses a process pool."""
+    sc = _scenario(scenario)
+    t0 = time.perf_counter()
+    jobs = [(sc, seed + i) for i in range(n)]
+    if workers > 1:
+        with ProcessPoolExecutor(max_workers=workers) as ex:
+            results = list(ex.map(_one, jobs, chunksize=max(1, n // (8 * workers))))
+    else:
+        results = []
+        for j in jobs:
+            results.append(_one(j))
+            if progress:
+                progress(len(results), n)
+    seconds = time.perf_counter() - t0
+    failures = [r for r in results if isinstance(r, str)]
+    ok = [r for r in results if not isinstance(r, str)]
+    vals: dict[tuple[str, str, str], list[tuple[float, float]]] = defaultdict(list)
+    notes: dict[tuple[str, str, str], str] = {}
+    for rows in ok:
+        for name, method, rig, v, u, note in rows:
+            vals[(name, method, rig)].append((v, u))
+            notes.setdefault((name, method, rig), note)
+    truth = truth_table(sc, notes)
+    nf: dict[tuple[str, str, str], float] = {}
+    if noise_free:
+        rows = _one((_noise_free(sc), sc.seed if sc.seed is not None else seed))
+        if not isinstance(rows, str):
+            nf = {(a, b, c): v for a, b, c, v, _, _ in rows}
+    bounds = cramer_rao(sc, seed) if crb else {}
+    stats = []
+    for key, vu in vals.items():
+        name, method, rig = key
+        x = np.array([a for a, _ in vu])
+        u = np.array([b for _, b in vu])
+        m = len(x)
+        sd = float(np.std(x, ddof=1)) if m > 1 else float("nan")
+        u_rms = float(np.sqrt(np.mean(u**2)))
+        tv, tnote = truth.get(key, (None, "no truth defined for this coefficient/method"))
+        cs = CoefficientStats(name, method, rig, m, tv, tnote, float(np.mean(x)), sd, u_rms,
+                              float(np.mean(u)), noise_free=nf.get(key),
+                              main=name in MAIN.get(method, ()))
+        cs.sd_over_u = sd / u_rms if u_rms > 0 else None
+        if tv is not None:
+            cs.bias = cs.mean - tv
+            cs.bias_z = cs.bias / (sd / math.sqrt(m)) if m > 1 and sd > 0 else None
+            inside = np.abs(x - tv) <= K_COVER * u
+            cs.coverage = float(np.mean(inside))
+            cs.coverage_wilson = _wilson(int(inside.sum()), m)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                z = (x - tv) / u
+            z = z[np.isfinite(z)]
+            cs.z_sd = float(np.std(z, ddof=1)) if z.size > 1 else None
+            cs.status = "ok" if abs(cs.coverage - TARGET) <= TARGET_TOL else (
+                "UNDER" if cs.coverage < TARGET else "OVER")
+        b = bounds.get(key)
+        if b is not None and b > 0:
+            cs.crb_sd = math.sqrt(b)
+            cs.var_over_crb = sd**2 / b if m > 1 else None
+        stats.append(cs)
+    order = {"tumble_lm": 0, "centrifuge_eq9": 1, "tilt_rotation_ls": 2, "sine_ls": 3}
+    from .effects import COEFFICIENTS
+    cnames = list(COEFFICIENTS)
+    stats.sort(key=lambda s: (order.get(s.method, 9), s.rig_id,
+                              cnames.index(s.name) if s.name in cnames else 99, s.name))
+    return StudyResult(scenario=sc.name, n=n, seed=seed, workers=workers, seconds=seconds,
+                       seconds_per_campaign=seconds * max(workers, 1) / max(n, 1), failures=failures,
+                       coefficients=stats, band=K_COVER * math.sqrt(TARGET * (1 - TARGET) / max(n, 1)))
+
+
+# ---------------------------------------------------------------- output
+
+def _g(x, d=3) -> str:
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "—"
+    return f"{x:.{d}g}"
+
+
+def study_markdown(res: StudyResult) -> str:
+    """The study as a markdown table (SI units, effects.md)."""
+    lines = [f"### Monte Carlo study: `{res.scenario}`, n = {res.n} campaigns (seeds {res.seed}.."
+             f"{res.seed + res.n - 1})", "",
+             f"{res.seconds:.0f} s on {res.workers} worker(s), {res.seconds_per_campaign:.2f} s of CPU per "
+             f"campaign; {len(res.failures)} failed campaign(s). Coverage of x ± 1.96·u, target "
+             f"95 % ± 3 %; binomial half-width at this n: ±{100 * res.band:.1f} %. "
+             "bias z = bias/(sd/√n). var/CRB for the data the method uses (module docstring). "
+             "SI units.", "",
+             "| coefficient | method | n | truth | mean | bias | bias z | sd | rms u | sd/u | coverage "
+             "(Wilson 95 %) | var/CRB | |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for c in res.coefficients:
+        cov = "—" if c.coverage is None else (
+            f"{100 * c.coverage:.1f} % ({100 * c.coverage_wilson[0]:.0f}–{100 * c.coverage_wilson[1]:.0f})")
+        crb = _g(c.var_over_crb, 3) if c.var_over_crb is not None else "—"
+        name = f"**{c.name}**" if c.main else c.name
+        lines.append(f"| {name} | {c.method} | {c.n} | {_g(c.truth, 4)} | {_g(c.mean, 5)} | {_g(c.bias, 2)} | "
+                     f"{_g(c.bias_z, 2)} | {_g(c.sd, 3)} | {_g(c.u_rms, 3)} | {_g(c.sd_over_u, 3)} | {cov} | "
+                     f"{crb} | {c.status} |")
+    lines += ["", "Truth mapping: " + "; ".join(
+        sorted({f"{c.name} ({c.method}): {c.truth_note}" for c in res.coefficients
+                if c.truth_note != "instrument value"}))]
+    if res.failures:
+        lines += ["", "Failures: " + "; ".join(res.failures[:5])]
+    return "\n".join(lines) + "\n"
+
+
+def _run(args: argparse.Namespace) -> int:
+    res = run_study(args.scenario, n=args.n, seed=args.seed, workers=args.workers)
+    text = json.dumps(res.to_dict(), indent=1, default=str) if args.json else res.to_markdown()
+    if args.out:
+        with open(args.out, "w", encoding="utf-8") as fh:
+            fh.write(text)
+    else:
+        print(text)
+    return 0
+
+
+def register_cli(subparsers) -> argparse.ArgumentParser:
+    """Add ``montecarlo SCENARIO [--n 200] [--seed S] [--workers W] [--json] [--out FILE]``."""
+    p = subparsers.add_parser("montecarlo", help="Monte Carlo validity study of the estimators",
+                              description="Simulate N campaigns of a scenario, process each and report "
+                              "bias, sd against the stated u, coverage of the 95 % intervals and "
+                              "var/CRB per coefficient. A bare name means a shipped scenario.")
+    p.add_argument("scenario", help="scenario TOML file (or the name of a shipped scenario)")
+    p.add_argument("--n", type=int, default=200, help="number of campaigns (default 200)")
+    p.add_argument("--seed", type=int, default=0, help="first seed (campaign i uses seed + i)")
+    p.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    p.add_argument("--json", action="store_true", help="write JSON instead of markdown")
+    p.add_argument("--out", default=None, help="write to this file instead of stdout")
+    p.set_defaults(func=_run)
+    return p
+
+
+register = register_cli
+
+__all__ = ["run_study", "StudyResult", "CoefficientStats", "truth_table", "cramer_rao", "register_cli",
+           "study_markdown", "SimRunFile", "MAIN"]
