@@ -112,6 +112,7 @@ def pipeline_body(drops: list[str], warehouse: str, *, lock_timeout: float = 60.
         for k, ing in enumerate(ingests):        # 2 validate (one GE run + Data Docs per drop)
             t0 = time.perf_counter()
             ingests[k] = steps.validate_drop(ing, str(wh.docs_root))
+            ingests[k].parsed.clear()   # the science re-reads from Parquet: keep memory bounded
             tick("validate", t0)
         progress.stage("record", len(ingests))
         for ing in ingests:                      # record each drop's files in one transaction
@@ -260,16 +261,13 @@ def _quiet_libraries() -> None:
 
 
 def _task_runner(name: str):
-    if name == "thread":
-        return None
-    if name == "dask":
-        try:
-            from prefect_dask import DaskTaskRunner
-        except ImportError:
-            raise PipelineError("--task-runner dask needs the 'dask' extra: "
-                                "pip install 'accelcal[dask]'") from None
-        return DaskTaskRunner()
-    raise PipelineError(f"unknown task runner {name!r} (choose from {', '.join(TASK_RUNNERS)})")
+    """'thread' (Prefect's default), 'dask' (a local Dask cluster) or a Dask scheduler
+    address tcp://HOST:PORT (accelcal.ops.runners)."""
+    from ..ops.runners import RunnerError, task_runner_for
+    try:
+        return task_runner_for(name)
+    except RunnerError as e:
+        raise PipelineError(str(e)) from None
 
 
 def run_pipeline(drops: list[str], warehouse: str | Path, *, engine: str = "prefect",

@@ -273,6 +273,10 @@ class Warehouse:
                     f"this accelcal writes {SCHEMA_VERSION}")
         with _transaction(con):
             con.execute(sql)
+            # operations views (fleet, history, rig comparison): read history tables only
+            views = resources.files("accelcal.warehouse").joinpath("views.sql")
+            if views.is_file():
+                con.execute(views.read_text())
             con.execute("INSERT INTO schema_info VALUES ('schema_version', ?) "
                         "ON CONFLICT DO NOTHING", [SCHEMA_VERSION])
         self._schema_ok = True

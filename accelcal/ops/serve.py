@@ -1,0 +1,279 @@
+"""Scheduled processing of a watched folder: ``accelcal serve --watch DIR``.
+
+What is a drop here
+    Every immediate sub-folder of DIR is a drop (drop-format.md: "a folder that
+    a DAQ station fills").  If DIR itself directly holds ``*.csv`` files, DIR
+    is treated as one drop instead.
+
+When is a drop processed
+    A *pass* looks at every drop.  A drop is handed to the pipeline when it has
+    new or changed ``*.csv`` files and all its files are *settled*: no
+    ``*.part`` file in it, and every ``*.csv`` has the same (size, mtime) as at
+    the previous look (or was last modified more than ``settle`` seconds ago).
+    A file still being written therefore holds its drop back to the next pass
+    (the pipeline works per drop; computing a campaign from half its runs would
+    only add a result superseded minutes later).  Each file is processed once:
+    the pass remembers the (size, mtime) it processed, and the pipeline itself
+    skips bytes it already holds (same sha256 at the same path).
+
+    Pass state is kept in ``<warehouse stem>-watch.json`` next to the warehouse
+    (flow runs execute in subprocesses, so it must live on disk); it is written
+    atomically and may be deleted at any time (the next pass then re-hashes
+    files, adding nothing to the warehouse).
+
+How passes are triggered
+    ``serve()`` builds the Prefect deployment ``accelcal-watch/<name>`` of
+    :data:`watch_flow` and serves it from this process (``flow.serve``): a
+    cron schedule (``--cron``) and, with ``--poll S``, a file-watch thread that
+    looks at DIR every S seconds (stat only) and asks the server for a flow
+    run of the deployment (``run_deployment``) when *.csv files appeared or
+    changed.  Schedules need a real Prefect server (its scheduler service):
+    set ``PREFECT_API_URL`` (see accelcal/warehouse/README.md, "Scheduled
+    processing").  Without it Prefect starts an ephemeral server that never
+    fires schedules; ``serve`` then warns and relies on ``--poll``.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger("accelcal.serve")
+
+FLOW_NAME = "accelcal-watch"
+DEFAULT_DEPLOYMENT = "accelcal-watch"
+DEFAULT_SETTLE_S = 30.0
+
+
+# ------------------------------------------------------------------ scanning --
+
+def find_drops(watch_dir: str | Path) -> list[Path]:
+    root = Path(watch_dir).expanduser().resolve()
+    if not root.is_dir():
+        return []
+    if any(p.suffix.lower() == ".csv" and p.is_file() for p in root.iterdir()):
+        return [root]
+    return sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith("."))
+
+
+def snapshot(drop: Path) -> tuple[dict[str, list[int]], list[str]]:
+    """({csv path: [size, mtime_ns]}, [partial files]) of one drop, by stat only."""
+    files: dict[str, list[int]] = {}
+    partial: list[str] = []
+    for p in drop.rglob("*"):
+        name = p.name.lower()
+        try:
+            if not p.is_file():
+                continue
+            if name.endswith(".part"):
+                partial.append(str(p))
+            elif p.suffix.lower() == ".csv":
+                st = p.stat()
+                files[str(p)] = [st.st_size, st.st_mtime_ns]
+        except OSError:        # vanished between listing and stat: look again next pass
+            partial.append(str(p))
+    return files, sorted(partial)
+
+
+def state_path_for(warehouse: str | Path) -> Path:
+    w = Path(warehouse).expanduser().resolve()
+    return w.parent / f"{w.stem}-watch.json"
+
+
+def load_state(path: Path) -> dict[str, Any]:
+    try:
+        st = json.loads(path.read_text())
+        if isinstance(st, dict):
+            st.setdefault("seen", {})
+            st.setdefault("processed", {})
+            st.setdefault("passes", [])
+            return st
+    except (OSError, ValueError):
+        pass
+    return {"seen": {}, "processed": {}, "passes": []}
+
+
+def save_state(path: Path, st: dict[str, Any]) -> None:
+    st["passes"] = st["passes"][-50:]
+    tmp = path.with_name(path.name + f".tmp{os.getpid()}")
+    tmp.write_text(json.dumps(st, indent=1, default=str))
+    os.replace(tmp, path)
+
+
+@dataclass
+class PassPlan:
+    ready: list[str] = field(default_factory=list)              # drops to process now
+    waiting: dict[str, str] = field(default_factory=dict)       # drop -> reason
+    unchanged: list[str] = field(default_factory=list)          # drops with nothing new
+    files: dict[str, dict[str, list[int]]] = field(default_factory=dict)
+
+
+def plan_pass(watch_dir: str | Path, st: dict[str, Any], settle: float = DEFAULT_SETTLE_S,
+              now: float | None = None) -> PassPlan:
+    """Decide which drops are ready; updates st['seen'] (the look) in place."""
+    now = time.time() if now is None else now
+    plan = PassPlan()
+    seen_all: dict[str, list[int]] = {}
+    for drop in find_drops(watch_dir):
+        files, partial = snapshot(drop)
+        plan.files[str(drop)] = files
+        new = {p: sig for p, sig in files.items() if st["processed"].get(p) != sig}
+        if not new:
+            if partial:
+                plan.waiting[str(drop)] = f"partial file {Path(partial[0]).name}"
+            else:
+                plan.unchanged.append(str(drop))
+            seen_all.update(files)
+            continue
+        if partial:
+            plan.waiting[str(drop)] = f"partial file {Path(partial[0]).name} still being written"
+        else:
+            growing = [p for p, sig in new.items()
+                       if st["seen"].get(p) != sig and (now - sig[1] / 1e9) < settle]
+            if growing:
+                why = ("first look, looking again next pass" if growing[0] not in st["seen"]
+                       else "size/mtime changed since the last look")
+                plan.waiting[str(drop)] = f"{Path(growing[0]).name}: {why}"
+            else:
+                plan.ready.append(str(drop))
+        seen_all.update(files)
+    st["seen"] = seen_all
+    return plan
+
+
+def watch_pass(watch_dir: str, warehouse: str, settle: float = DEFAULT_SETTLE_S,
+               engine: str = "local", lock_timeout: float = 600.0,
+               task_runner: str = "thread") -> dict[str, Any]:
+    """One pass: plan, run the pipeline on ready drops, remember what was processed."""
+    from ..flows.pipeline import run_pipeline
+    from ..warehouse.db import warehouse_lock
+    sp = state_path_for(warehouse)
+    sp.parent.mkdir(parents=True, exist_ok=True)
+    t0 = time.time()
+    # The state file is guarded by the warehouse lock: one pass at a time.
+    with warehouse_lock(Path(warehouse).expanduser().resolve(), timeout=lock_timeout):
+        st = load_state(sp)
+        plan = plan_pass(watch_dir, st, settle=settle)
+        out: dict[str, Any] = {"started": t0, "ready": plan.ready, "waiting": plan.waiting,
+                               "unchanged": len(plan.unchanged), "summary": None, "error": None}
+        if plan.ready:
+            try:
+                summary = run_pipeline(plan.ready, warehouse, engine=engine,
+                                       lock_timeout=lock_timeout, task_runner=task_runner)
+                out["summary"] = {
+                    "flow_run_id": summary.get("flow_run_id"),
+                    "drops": [{k: d[k] for k in ("drop", "files", "accepted", "refused", "new")}
+                              for d in summary["drops"]],
+                    "campaigns": [{k: c.get(k) for k in ("campaign", "status", "n_runs")}
+                                  for c in summary["campaigns"]]}
+                for d in plan.ready:
+                    for p, sig in plan.files[d].items():
+                        st["processed"][p] = sig
+            except Exception as e:   # leave the drops unprocessed: the next pass retries
+                out["error"] = f"{type(e).__name__}: {e}"
+                log.error("pass failed: %s", out["error"])
+        out["seconds"] = round(time.time() - t0, 3)
+        st["passes"].append(out)
+        save_state(sp, st)
+    return out
+
+
+# ------------------------------------------------------------------- prefect --
+
+def _make_flow():
+    from prefect import flow
+
+    @flow(name=FLOW_NAME, persist_result=False, validate_parameters=False, log_prints=True)
+    def accelcal_watch(watch_dir: str, warehouse: str, settle: float = DEFAULT_SETTLE_S,
+                       lock_timeout: float = 600.0, task_runner: str = "thread") -> dict:
+        """Process the settled new drops of watch_dir into the warehouse (one pass)."""
+        from ..flows.pipeline import quiet_prefect
+        quiet_prefect(os.environ.get("PREFECT_LOGGING_LEVEL", "WARNING"))
+        out = watch_pass(watch_dir, warehouse, settle=settle, engine="prefect",
+                         lock_timeout=lock_timeout, task_runner=task_runner)
+        print(f"accelcal-watch: ready={len(out['ready'])} waiting={len(out['waiting'])} "
+              f"error={out['error']}")
+        return out
+
+    return accelcal_watch
+
+
+try:                       # module-level so the runner can load it by module path
+    watch_flow = _make_flow()
+except ImportError:        # pragma: no cover - prefect missing
+    watch_flow = None
+
+
+def _changed_since(watch_dir: str, last: dict[str, list[int]]) -> tuple[bool, dict]:
+    now: dict[str, list[int]] = {}
+    for d in find_drops(watch_dir):
+        files, partial = snapshot(d)
+        now.update(files)
+        for p in partial:
+            now[p] = [-1, -1]
+    return now != last, now
+
+
+def _poll_loop(deployment: str, watch_dir: str, every: float, stop: threading.Event,
+               settle: float) -> None:
+    """Trigger a flow run of the deployment when files appear or change (stat only)."""
+    from prefect.deployments import run_deployment
+    last: dict[str, list[int]] = {}
+    pending = False
+    while not stop.wait(every):
+        try:
+            changed, now = _changed_since(watch_dir, last)
+            if changed:
+                last = now
+                pending = True           # wait for one quiet look before triggering
+                continue
+            if pending:
+                pending = False
+                # the quiet look above is the settle check: a file unchanged for one
+                # poll interval counts as settled in this pass
+                run_deployment(deployment, timeout=0, as_subflow=False,
+                               parameters={"settle": min(settle, every)},
+                               tags=["accelcal", "file-watch"])
+                log.info("file-watch: triggered %s", deployment)
+        except Exception as e:          # the server may be restarting: keep watching
+            log.warning("file-watch: %s: %s", type(e).__name__, e)
+
+
+def serve(watch_dir: str, warehouse: str, *, cron: str | None = None,
+          poll: float | None = None, settle: float = DEFAULT_SETTLE_S,
+          name: str = DEFAULT_DEPLOYMENT, lock_timeout: float = 600.0,
+          task_runner: str = "thread", limit: int | None = 1) -> None:
+    """Serve the watch flow as a deployment from this process until interrupted."""
+    from prefect.settings import PREFECT_API_URL
+    if watch_flow is None:
+        raise RuntimeError("prefect is not installed")
+    watch = str(Path(watch_dir).expanduser().resolve())
+    wh = str(Path(warehouse).expanduser().resolve())
+    if not Path(watch).is_dir():
+        raise FileNotFoundError(f"watch folder {watch} does not exist")
+    if cron and not PREFECT_API_URL.value():
+        log.warning("no PREFECT_API_URL: an ephemeral Prefect server does not run schedules; "
+                    "the cron %r will not fire (start `prefect server start` and set "
+                    "PREFECT_API_URL); file watching (--poll) still works", cron)
+    params = {"watch_dir": watch, "warehouse": wh, "settle": settle,
+              "lock_timeout": lock_timeout, "task_runner": task_runner}
+    stop = threading.Event()
+    poller = None
+    if poll:
+        poller = threading.Thread(target=_poll_loop, name="accelcal-file-watch",
+                                  args=(f"{FLOW_NAME}/{name}", watch, float(poll), stop, settle),
+                                  daemon=True)
+        poller.start()
+    from prefect.flows import EntrypointType
+    try:
+        watch_flow.serve(name=name, cron=cron, parameters=params, limit=limit,
+                         description=f"accelcal: process settled drops of {watch} into {wh}",
+                         tags=["accelcal"], pause_on_shutdown=False,
+                         entrypoint_type=EntrypointType.MODULE_PATH)
+    finally:
+        stop.set()

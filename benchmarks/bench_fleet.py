@@ -1,0 +1,214 @@
+#!/usr/bin/env python
+"""Fleet benchmark (issue 5): many simulated campaigns through the pipeline.
+
+    python benchmarks/bench_fleet.py --campaigns 20 100 [--per-drop 50] [--engine local]
+                                     [--task-runner thread|dask] [--out bench-out/fleet]
+
+For each size N (a fresh child process, so peak memory is per size):
+  1. simulate N campaigns with accelcal.simulate (scenario snj103-lxj100: one tumble +
+     10 centrifuge runs each), units SNF-0000.. of two models, written as drops of
+     --per-drop campaigns;
+  2. run the pipeline on all drops (one call), timing every step (summary['timings']);
+  3. apply views.sql and time the history / change / fleet / rig views;
+  4. the bare-numpy floor: read every file's data with numpy and do one least-squares
+     fit per run (dwell means + polynomial in the table rate for a centrifuge run,
+     harmonics of the head angle for a tumble run) -- the least any pipeline must do.
+Prints a markdown table; raw numbers to <out>/bench-fleet.json.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def simulate_fleet(n: int, out: Path, per_drop: int, seed0: int = 1000) -> tuple[list[Path], int]:
+    from accelcal.simulate import SCENARIO_DIR, load_scenario, simulate_campaign, write_drop
+    sc = load_scenario(SCENARIO_DIR / "snj103-lxj100.toml")
+    drops: list[Path] = []
+    n_runs = 0
+    for k in range(n):
+        runs = simulate_campaign(sc, seed=seed0 + k)
+        serial = f"SNF-{k // 4:04d}"                       # 4 calibrations per unit
+        model = "QA-2000" if (k // 4) % 2 == 0 else "QA-3000"
+        for r in runs:
+            r.meta["run_id"] = f"{r.meta['run_id']}-{k:05d}"
+            r.meta["unit_serial"] = serial
+            r.meta["unit_model"] = model
+            r.meta["campaign"] = f"{serial}/cal-{k % 4}"
+            r.meta["started_at"] = f"202{k % 4 + 2}-0{(k % 9) + 1}-1{k % 10}T09:00:00+08:00"
+        drop = out / f"drop-{k // per_drop:04d}"
+        if not drops or drops[-1] != drop:
+            drops.append(drop)
+        write_drop(runs, drop)
+        n_runs += len(runs)
+    return drops, n_runs
+
+
+def numpy_floor(files: list[Path]) -> dict:
+    """Read + one LS fit per run with bare numpy (the floor)."""
+    import numpy as np
+    t0 = time.perf_counter()
+    t_read = 0.0
+    for f in files:
+        ta = time.perf_counter()
+        with open(f, "rb") as fh:
+            lines = fh.read().decode().splitlines()
+        k = next(i for i, l in enumerate(lines) if not l.startswith("#"))
+        header = lines[k].split(",")
+        arr = np.array([[float(c) if c else np.nan for c in l.split(",")]
+                        for l in lines[k + 1:] if l], dtype=float)
+        t_read += time.perf_counter() - ta
+        col = {h: i for i, h in enumerate(header)}
+        y = arr[:, col["output"]]
+        if "table_rate_rad_s" in col:
+            step = arr[:, col["step"]].astype(int)
+            w = arr[:, col["table_rate_rad_s"]]
+            cnt = np.bincount(step)
+            ok = cnt > 0
+            ym = (np.bincount(step, y) / np.maximum(cnt, 1))[ok]
+            a = (np.bincount(step, w * w) / np.maximum(cnt, 1))[ok] * 0.71
+            good = np.isfinite(ym) & np.isfinite(a)
+            X, ym = np.vander(a[good], 4, increasing=True), ym[good]
+        else:
+            th = np.radians(arr[:, col["angle_deg"]])
+            X = np.column_stack([np.ones_like(th), np.cos(th), np.sin(th), np.cos(2 * th),
+                                 np.sin(2 * th)])
+            good = np.isfinite(y) & np.isfinite(th)
+            X, ym = X[good], y[good]
+        np.linalg.lstsq(X, ym, rcond=None)
+    total = time.perf_counter() - t0
+    return {"seconds": total, "read_seconds": t_read, "runs_per_s": len(files) / total}
+
+
+def child(args) -> dict:
+    n, per_drop, engine, runner, keep = args.n, args.per_drop, args.engine, args.task_runner, args.keep
+    os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")
+    os.environ.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    root = Path(keep) if keep else Path(tempfile.mkdtemp(prefix="bench-fleet-"))
+    root.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    drops, n_runs = simulate_fleet(n, root / "watch", per_drop)
+    t_sim = time.perf_counter() - t0
+    rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    from accelcal.flows.pipeline import run_pipeline
+    from accelcal.ops.fleet import ensure_views
+    wh = root / "lab.duckdb"
+    t0 = time.perf_counter()
+    s = run_pipeline([str(d) for d in drops], wh, engine=engine, task_runner=runner)
+    t_pipe = time.perf_counter() - t0
+    rss_peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    statuses: dict[str, int] = {}
+    for c in s["campaigns"]:
+        statuses[c["status"]] = statuses.get(c["status"], 0) + 1
+    ensure_views(wh)
+    import duckdb
+    con = duckdb.connect(str(wh), read_only=True)
+    queries = {
+        "unit_history (one unit)": "SELECT * FROM unit_history WHERE unit_serial = 'SNF-0001'",
+        "coefficient_changes (all)": "SELECT count(*) FROM coefficient_changes WHERE exceeds_uncertainty",
+        "fleet_stats": "SELECT * FROM fleet_stats",
+        "fleet_outliers": "SELECT * FROM fleet_outliers",
+        "rig_comparison": "SELECT * FROM rig_comparison",
+        "unit_history_as_of(now)": "SELECT count(*) FROM unit_history_as_of(now())",
+    }
+    lat = {}
+    for name, q in queries.items():
+        best = 1e9
+        for _ in range(3):
+            ta = time.perf_counter()
+            con.execute(q).fetchall()
+            best = min(best, time.perf_counter() - ta)
+        lat[name] = best
+    n_coef = con.execute("SELECT count(*) FROM coefficient_history").fetchall()[0][0]
+    n_out = con.execute("SELECT count(*) FROM fleet_outliers").fetchall()[0][0]
+    n_exc = con.execute("SELECT count(*) FROM coefficient_changes WHERE exceeds_uncertainty").fetchall()[0][0]
+    n_chg = con.execute("SELECT count(*) FROM coefficient_changes").fetchall()[0][0]
+    con.close()
+    files = sorted(p for d in drops for p in d.rglob("*.csv"))
+    floor = numpy_floor(files)
+    # idempotent re-run: nothing new
+    t0 = time.perf_counter()
+    s2 = run_pipeline([str(d) for d in drops], wh, engine=engine, task_runner=runner)
+    t_rerun = time.perf_counter() - t0
+    return {"campaigns": n, "runs": n_runs, "drops": len(drops), "engine": engine,
+            "task_runner": runner, "simulate_s": t_sim, "pipeline_s": t_pipe,
+            "runs_per_s": n_runs / t_pipe, "timings": s["timings"], "statuses": statuses,
+            "peak_rss_mb": rss_peak / 1024, "rss_before_pipeline_mb": rss_before / 1024,
+            "query_latency_s": lat, "coefficient_rows": n_coef, "changes": n_chg,
+            "changes_exceeding_U": n_exc, "fleet_outliers": n_out,
+            "numpy_floor": floor, "ratio_pipeline_to_floor": t_pipe / floor["seconds"],
+            "rerun_s": t_rerun,
+            "rerun_statuses": sorted({c["status"] for c in s2["campaigns"]})}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--campaigns", type=int, nargs="+", default=[20, 100])
+    ap.add_argument("--per-drop", type=int, default=50)
+    ap.add_argument("--engine", default="local", choices=("local", "prefect"))
+    ap.add_argument("--task-runner", default="thread", choices=("thread", "dask"))
+    ap.add_argument("--out", default=str(ROOT / "bench-out" / "fleet"))
+    ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--n", type=int, help=argparse.SUPPRESS)
+    ap.add_argument("--keep", default=None, help="keep the simulated drops + warehouse here")
+    args = ap.parse_args(argv)
+    if args.child:
+        print("RESULT " + json.dumps(child(args), default=str))
+        return 0
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    results = []
+    for n in args.campaigns:
+        cmd = [sys.executable, __file__, "--child", "--n", str(n), "--per-drop", str(args.per_drop),
+               "--engine", args.engine, "--task-runner", args.task_runner]
+        p = subprocess.run(cmd, capture_output=True, text=True)
+        line = next((l for l in p.stdout.splitlines() if l.startswith("RESULT ")), None)
+        if p.returncode != 0 or line is None:
+            print(p.stderr[-3000:], file=sys.stderr)
+            return 1
+        r = json.loads(line[7:])
+        results.append(r)
+        print(f"{n} campaigns: {r['runs']} runs in {r['pipeline_s']:.1f} s "
+              f"({r['runs_per_s']:.1f} runs/s), peak RSS {r['peak_rss_mb']:.0f} MB", flush=True)
+    meta = {"python": sys.version.split()[0], "machine": platform.machine(),
+            "cpus": os.cpu_count()}
+    (out / "bench-fleet.json").write_text(json.dumps({"meta": meta, "results": results},
+                                                     indent=1, default=str))
+    print()
+    print("| campaigns | runs | pipeline s | runs/s | peak RSS MB | ingest | validate | record "
+          "| load | science | store | numpy floor s | ratio |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for r in results:
+        t = r["timings"]
+        print(f"| {r['campaigns']} | {r['runs']} | {r['pipeline_s']:.1f} | {r['runs_per_s']:.1f} "
+              f"| {r['peak_rss_mb']:.0f} | " + " | ".join(f"{t.get(k, 0):.1f}" for k in
+                                                      ("ingest", "validate", "record", "load",
+                                                       "science", "store")) +
+              f" | {r['numpy_floor']['seconds']:.2f} | {r['ratio_pipeline_to_floor']:.0f}× |")
+    print()
+    print("| query | " + " | ".join(f"{r['campaigns']} campaigns" for r in results) + " |")
+    print("|---|" + "---|" * len(results))
+    for q in results[0]["query_latency_s"]:
+        print(f"| {q} | " + " | ".join(f"{1e3 * r['query_latency_s'][q]:.1f} ms" for r in results) + " |")
+    if len(results) >= 2:
+        a, b = results[-2], results[-1]
+        per = (b["pipeline_s"] - a["pipeline_s"]) / (b["campaigns"] - a["campaigns"])
+        mem = (b["peak_rss_mb"] - a["peak_rss_mb"]) / (b["campaigns"] - a["campaigns"])
+        print(f"\nmarginal cost {per:.2f} s/campaign, {mem:.2f} MB/campaign -> 2,000 campaigns "
+              f"≈ {(b['pipeline_s'] + per * (2000 - b['campaigns'])) / 60:.0f} min, "
+              f"peak RSS ≈ {b['peak_rss_mb'] + mem * (2000 - b['campaigns']):.0f} MB (linear extrapolation)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
