@@ -44,29 +44,20 @@ def subcommand(name: str) -> Callable[[Registrar], Registrar]:
 
 # ------------------------------------------------------------------- display --
 
-_UNIT_PRETTY = {"ug": "µg", "ug/g2": "µg/g²", "ug/g3": "µg/g³", "urad": "µrad",
-                "ug/degC": "µg/°C", "ppm/degC": "ppm/°C", "deg": "°"}
-
-
 def display_coefficient(c: dict[str, Any]) -> tuple[str, str, str]:
-    """(value, U (k=2), unit) in display units (effects.py COEFFICIENTS)."""
-    from .effects import COEFFICIENTS
+    """(value, U (k=2), unit) in display units (effects.to_display)."""
+    from .effects import COEFFICIENTS, to_display
     name, v, u, unit = c["name"], c["value"], c["std_uncertainty"], c.get("unit") or ""
     if v is None:
         return "—", "—", unit
-    U = None if u is None else 2.0 * u
-    spec = COEFFICIENTS.get(name)
-    if spec is None:
-        return f"{v:.6g}", ("—" if U is None else f"{U:.2g}"), unit
-    if name == "K1":
-        # scale factor: value in <output unit>/g, U relative in ppm
-        out_unit = unit.split("/")[0] if "/" in unit else "out"
-        val = v / spec.display_factor
-        rel = "—" if U is None or v == 0 else f"{U / abs(v) * 1e6:.2g} ppm"
-        return f"{val:.7g}", rel, f"{out_unit}/g"
-    val = v / spec.display_factor
-    Ud = "—" if U is None else f"{U / spec.display_factor:.2g}"
-    return f"{val:.4g}", Ud, _UNIT_PRETTY.get(spec.display_unit, spec.display_unit)
+    val, U, dunit, ppm = to_display(name, v, u, unit)
+    if U is None:
+        Us = "—"
+    else:
+        Us = f"{U:.2g} ppm" if ppm else f"{U:.2g}"
+    if name not in COEFFICIENTS:
+        return f"{val:.6g}", Us, dunit
+    return (f"{val:.7g}" if ppm else f"{val:.4g}"), Us, dunit
 
 
 class RichReporter:

@@ -39,6 +39,30 @@ COEFFICIENTS: dict[str, Coefficient] = {c.name: c for c in [
     Coefficient("theta0", "rad", "deg", 3.141592653589793 / 180.0),
 ]}
 
+#: How display units are printed (effects.md notation -> symbols).
+PRETTY_UNITS = {"ug": "µg", "ug/g2": "µg/g²", "ug/g3": "µg/g³", "urad": "µrad",
+                "ug/degC": "µg/°C", "ppm/degC": "ppm/°C", "deg": "°"}
+
+
+def to_display(name: str, value: float, std_u: float | None, unit: str,
+               k: float = 2.0) -> tuple[float, float | None, str, bool]:
+    """A coefficient in its display unit: (value, U = k u, unit, U_in_ppm).
+
+    K1 is shown in <output unit>/g with U relative, in ppm (U_in_ppm True); a name
+    outside COEFFICIENTS is returned in its own unit.  value and u in SI (effects.md)."""
+    U = None if std_u is None else k * std_u
+    spec = COEFFICIENTS.get(name)
+    if spec is None:
+        return value, U, unit, False
+    val = value / spec.display_factor
+    if name == "K1":
+        out_unit = unit.split("/")[0] if "/" in unit else "out"
+        rel = None if U is None or value == 0 else U / abs(value) * 1e6
+        return val, rel, f"{out_unit}/g", True
+    return (val, None if U is None else U / spec.display_factor,
+            PRETTY_UNITS.get(spec.display_unit, spec.display_unit), False)
+
+
 #: The second-order coefficients, used where code must loop over them.
 SECOND_ORDER = ("K2", "Koq", "Kip", "Kio", "Kpo", "Kpp", "Koo")
 

@@ -26,8 +26,6 @@ from typing import Any
 
 K_COVERAGE = 2.0
 
-_UNIT_PRETTY = {"ug": "µg", "ug/g2": "µg/g²", "ug/g3": "µg/g³", "urad": "µrad",
-                "ug/degC": "µg/°C", "ppm/degC": "ppm/°C", "deg": "°"}
 
 
 class ReportError(RuntimeError):
@@ -113,25 +111,24 @@ def _load(con, campaign: str, result_id: str | None) -> dict[str, Any]:
 
 def display_value(name: str, value: float | None, std_u: float | None,
                   unit: str | None) -> tuple[str, str, str]:
-    """(value, U (k = 2), display unit) for one coefficient."""
-    from ..effects import COEFFICIENTS
+    """(value, U (k = 2), display unit) for one coefficient (effects.to_display); the
+    value is shown to the last significant digit of U."""
+    from ..effects import COEFFICIENTS, to_display
     unit = unit or ""
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return "—", "—", unit
-    U = None if std_u is None or (isinstance(std_u, float) and math.isnan(std_u)) \
-        else K_COVERAGE * std_u
-    spec = COEFFICIENTS.get(name)
-    if spec is None:
-        return f"{value:.6g}", ("—" if U is None else f"{U:.2g}"), unit
-    if name == "K1":
-        out_unit = unit.split("/")[0] if "/" in unit else "out"
-        val = value / spec.display_factor
-        rel = "—" if U is None or value == 0 else f"{U / abs(value) * 1e6:.2g} ppm"
-        return f"{val:.8g}", rel, f"{out_unit}/g"
-    val = value / spec.display_factor
-    Ud = "—" if U is None else f"{U / spec.display_factor:.2g}"
-    digits = _digits_for(val, None if U is None else U / spec.display_factor)
-    return f"{val:.{digits}f}", Ud, _UNIT_PRETTY.get(spec.display_unit, spec.display_unit)
+    if isinstance(std_u, float) and math.isnan(std_u):
+        std_u = None
+    val, U, dunit, ppm = to_display(name, value, std_u, unit, K_COVERAGE)
+    if U is None:
+        Us = "—"
+    else:
+        Us = f"{U:.2g} ppm" if ppm else f"{U:.2g}"
+    if name not in COEFFICIENTS:
+        return f"{val:.6g}", Us, dunit
+    if ppm:
+        return f"{val:.8g}", Us, dunit
+    return f"{val:.{_digits_for(val, U)}f}", Us, dunit
 
 
 def _digits_for(val: float, U: float | None) -> int:

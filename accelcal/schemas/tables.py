@@ -16,14 +16,13 @@ size, header line) and as constant columns ``run_id`` and ``sha256``.
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 from urllib.parse import quote
 
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from ..fileio import atomic_write
 from .dropformat import COLUMNS, INT_COLUMNS, RunFile
 
 #: Key of the JSON run metadata in the Parquet key-value metadata.
@@ -95,19 +94,7 @@ def write_run_parquet(run: RunFile, root: Path) -> Path:
         return target
     target.parent.mkdir(parents=True, exist_ok=True)
     table = run_table(run)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=".tmp", dir=target.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            pq.write_table(table, fh, compression="zstd")
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, target)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+    atomic_write(target, lambda fh: pq.write_table(table, fh, compression="zstd"), "wb", fsync=True)
     return target
 
 

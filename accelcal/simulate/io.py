@@ -4,14 +4,13 @@ Files are written atomically (a temporary file in the same folder, then renamed)
 from __future__ import annotations
 
 import math
-import os
-import tempfile
 from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from ..fileio import atomic_write
 from .engine import COLUMNS, DIGITS, INT_COLUMNS, SimRun
 
 #: metadata keys in the order they are written (then any others, in the dict's order)
@@ -71,17 +70,7 @@ def write_run_file(meta: Mapping, data: pd.DataFrame, path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     text = format_run(meta, data)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+    atomic_write(path, lambda fh: fh.write(text), "w", encoding="utf-8", newline="\n")
     return path
 
 
