@@ -107,6 +107,7 @@ def child(args) -> dict:
     s = run_pipeline([str(d) for d in drops], wh, engine=engine, task_runner=runner)
     t_pipe = time.perf_counter() - t0
     rss_peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    rss_children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss   # Dask workers, ended
     statuses: dict[str, int] = {}
     for c in s["campaigns"]:
         statuses[c["status"]] = statuses.get(c["status"], 0) + 1
@@ -144,6 +145,9 @@ def child(args) -> dict:
             "task_runner": runner, "simulate_s": t_sim, "pipeline_s": t_pipe,
             "runs_per_s": n_runs / t_pipe, "timings": s["timings"], "statuses": statuses,
             "peak_rss_mb": rss_peak / 1024, "rss_before_pipeline_mb": rss_before / 1024,
+            "peak_rss_children_mb": rss_children / 1024,
+            "batch_files": int(os.environ.get("ACCELCAL_BATCH_FILES", 0)) or None,
+            "in_flight": int(os.environ.get("ACCELCAL_IN_FLIGHT", 0)) or None,
             "query_latency_s": lat, "coefficient_rows": n_coef, "changes": n_chg,
             "changes_exceeding_U": n_exc, "fleet_outliers": n_out,
             "numpy_floor": floor, "ratio_pipeline_to_floor": t_pipe / floor["seconds"],
@@ -185,16 +189,25 @@ def main(argv=None) -> int:
     (out / "bench-fleet.json").write_text(json.dumps({"meta": meta, "results": results},
                                                      indent=1, default=str))
     print()
-    print("| campaigns | runs | pipeline s | runs/s | peak RSS MB | ingest | validate | record "
-          "| load | science | store | numpy floor s | ratio |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print(f"engine {args.engine}, task runner {args.task_runner}; step times in s. "
+          "'ingest+validate' and 'load'/'science' are time inside the tasks (summed over "
+          "workers); 'waiting' is the flow process waiting for tasks to finish.")
+    print()
+    print("| campaigns | runs | pipeline s | runs/s | peak RSS MB | ingest+validate | record "
+          "| plan | load | science | store | waiting | numpy floor s | ratio |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in results:
         t = r["timings"]
+        iv = t.get("ingest+validate", 0)
+        wait = 0.0 if args.engine == "local" else \
+            t.get("ingest+validate (wait)", 0) + t.get("science (wait)", 0)
+        rss = max(r["peak_rss_mb"], r.get("peak_rss_children_mb", 0))
         print(f"| {r['campaigns']} | {r['runs']} | {r['pipeline_s']:.1f} | {r['runs_per_s']:.1f} "
-              f"| {r['peak_rss_mb']:.0f} | " + " | ".join(f"{t.get(k, 0):.1f}" for k in
-                                                      ("ingest", "validate", "record", "load",
-                                                       "science", "store")) +
-              f" | {r['numpy_floor']['seconds']:.2f} | {r['ratio_pipeline_to_floor']:.0f}× |")
+              f"| {rss:.0f} | {iv:.1f} | " + " | ".join(f"{t.get(k, 0):.1f}" for k in
+                                                    ("record", "plan", "load", "science",
+                                                     "store")) +
+              f" | {wait:.1f} | {r['numpy_floor']['seconds']:.2f} "
+              f"| {r['ratio_pipeline_to_floor']:.0f}× |")
     print()
     print("| query | " + " | ".join(f"{r['campaigns']} campaigns" for r in results) + " |")
     print("|---|" + "---|" * len(results))

@@ -15,6 +15,7 @@ from __future__ import annotations
 import os
 import time
 import uuid
+from collections import deque
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -53,10 +54,10 @@ class _Done:
 
 def _local_steps() -> SimpleNamespace:
     return SimpleNamespace(
-        known_keys=_store.known_keys, ingest_drop=_ingest.ingest_drop,
-        validate_drop=_validate.validate_drop, record_drop=_store.record_drop,
-        load_campaign_runs=_science.load_campaign_runs,
-        submit_science=lambda runs, params: _Done(_science.run_science, runs, params),
+        known_keys=_store.known_keys,
+        submit_intake=lambda *a: _Done(_validate.intake_batch, *a),
+        record_drop=_store.record_drop,
+        submit_campaign=lambda *a: _Done(_science.load_and_process, *a),
         store_campaign=_store.store_campaign)
 
 
@@ -64,9 +65,10 @@ def _prefect_steps() -> SimpleNamespace:
     from ..tasks import prefect_tasks
     t = prefect_tasks()
     return SimpleNamespace(
-        known_keys=t.known_keys, ingest_drop=t.ingest_drop, validate_drop=t.validate_drop,
-        record_drop=t.record_drop, load_campaign_runs=t.load_campaign_runs,
-        submit_science=lambda runs, params: t.run_science.submit(runs, params),
+        known_keys=t.known_keys,
+        submit_intake=lambda *a: t.intake_batch.submit(*a),
+        record_drop=t.record_drop,
+        submit_campaign=lambda *a: t.load_and_process.submit(*a),
         store_campaign=t.store_campaign)
 
 
@@ -84,107 +86,209 @@ def check_drops(drops: list[str]) -> list[str]:
     return out
 
 
+def _env_int(name: str, default: int) -> int:
+    try:
+        return max(1, int(os.environ.get(name, default)))
+    except ValueError:
+        return default
+
+
+#: Files ingested + validated per task.  A drop of any size is streamed in batches
+#: of this many files, so memory does not grow with the drop.
+BATCH_FILES = 200
+
+
+def batch_files() -> int:
+    return _env_int("ACCELCAL_BATCH_FILES", BATCH_FILES)
+
+
+def in_flight() -> int:
+    """Tasks submitted ahead of the one the flow waits for (feeds several workers; bounds
+    memory to this many batches / campaigns at a time)."""
+    return _env_int("ACCELCAL_IN_FLIGHT", max(4, 2 * (os.cpu_count() or 1)))
+
+
+class _Session:
+    """One warehouse connection for a stretch of small writes (Warehouse.session), closed
+    and reopened every ``hold_s`` seconds so readers in other processes get their turn."""
+
+    def __init__(self, wh: Warehouse, hold_s: float = 2.0):
+        self.wh, self.hold_s, self._cm, self._t = wh, hold_s, None, 0.0
+
+    def touch(self) -> None:
+        if self._cm is not None and time.monotonic() - self._t > self.hold_s:
+            self.close()
+        if self._cm is None:
+            self._cm = self.wh.session()
+            self._cm.__enter__()
+            self._t = time.monotonic()
+
+    def close(self) -> None:
+        if self._cm is not None:
+            cm, self._cm = self._cm, None
+            cm.__exit__(None, None, None)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
 def pipeline_body(drops: list[str], warehouse: str, *, lock_timeout: float = 60.0,
                   parameters: dict[str, Any] | None = None, steps: SimpleNamespace,
                   flow_run_id: str) -> dict[str, Any]:
-    """The composition shared by both engines.  Returns a JSON-able summary."""
+    """The composition shared by both engines.  Returns a JSON-able summary.
+
+    Streams: each drop's files go in batches (ingest + validate as one task, possibly
+    on another worker), each batch's verdicts are recorded in one transaction as soon
+    as it is done, in file order; then each touched campaign is loaded and computed as
+    one task and stored as soon as it is done.  At most ``in_flight()`` batches or
+    campaigns are held at once, so memory is bounded by the batch size, not the drop.
+    Only the flow process writes to the warehouse.
+    """
     parameters = dict(parameters or {})
     timings: dict[str, float] = {}
     _quiet_libraries()
 
-    def tick(name, t0):
-        timings[name] = timings.get(name, 0.0) + time.perf_counter() - t0
+    def tick(name, t0, dt=None):
+        timings[name] = timings.get(name, 0.0) + (time.perf_counter() - t0 if dt is None else dt)
 
     wh = Warehouse(warehouse, lock_timeout=lock_timeout)
     cv = _code_version()
     summary: dict[str, Any] = {"warehouse": str(wh.path), "flow_run_id": flow_run_id,
                                "code_version": cv, "parameters": parameters,
                                "drops": [], "campaigns": [], "timings": timings}
-    with wh.lock():
+    B, W = batch_files(), in_flight()
+    discover = _ingest.contracts.discover
+    with wh.lock(), _Session(wh) as sess:
         wh.init()
         touched: set[str] = set()
-        ingests = []
-        for drop in drops:                       # 1 ingest every drop
+
+        # -- 1-3: ingest + validate in batches (tasks), record each batch (flow process)
+        pending: deque = deque()
+
+        def record_next() -> None:
+            entry, fut = pending.popleft()
             t0 = time.perf_counter()
-            known = steps.known_keys(wh, drop)
-            ingests.append(steps.ingest_drop(drop, str(wh.parquet_root), str(wh.root), known))
-            tick("ingest", t0)
-        for k, ing in enumerate(ingests):        # 2 validate (one GE run + Data Docs per drop)
+            try:
+                ing = fut.result()
+            except Exception as e:   # a bug in a step, not a bad file: report, record nothing
+                entry["errors"].append(f"batch failed: {type(e).__name__}: {e}")
+                tick("ingest+validate (wait)", t0)
+                return
+            tick("ingest+validate (wait)", t0)
+            tick("ingest+validate", 0.0, ing.seconds)
             t0 = time.perf_counter()
-            ingests[k] = steps.validate_drop(ing, str(wh.docs_root))
-            ingests[k].parsed.clear()   # the science re-reads from Parquet: keep memory bounded
-            tick("validate", t0)
-        progress.stage("record", len(ingests))
-        for ing in ingests:                      # record each drop's files in one transaction
-            t0 = time.perf_counter()
+            sess.touch()
             stored = steps.record_drop(wh, ing, flow_run_id)
             tick("record", t0)
-            acc = [r for r in stored if r["status"] == "accepted"]
-            ref = [r for r in stored if r["status"] == "refused"]
-            touched.update(r["campaign"] for r in acc if r["campaign"])
             new_keys = {(r.sha256, r.source_path) for r in ing.records if r.new_content}
-            rechecked = sum(1 for r in ing.records if r.rechecked)
-            summary["drops"].append({
-                "drop": ing.drop_name, "path": ing.drop_path, "files": len(stored),
-                "accepted": len(acc), "refused": len(ref),
-                "new": sum(1 for r in stored if (r["sha256"], r["source_path"]) in new_keys),
-                "refused_files": [{"path": r["source_path"], "reason": r["reason"]} for r in ref],
-                "rechecked": rechecked, "errors": ing.errors, "docs": ing.docs})
+            for r in stored:
+                entry["files"] += 1
+                if r["status"] == "accepted":
+                    entry["accepted"] += 1
+                    if r["campaign"]:
+                        touched.add(r["campaign"])
+                elif r["status"] == "refused":
+                    entry["refused"] += 1
+                    entry["refused_files"].append({"path": r["source_path"], "reason": r["reason"]})
+                entry["new"] += (r["sha256"], r["source_path"]) in new_keys
+            entry["rechecked"] += sum(1 for r in ing.records if r.rechecked)
+            entry["errors"].extend(ing.errors)
+            if ing.docs and entry["docs"] is None:
+                entry["docs"] = ing.docs
 
-        # -- group by campaign; plan what needs computing
+        for drop in drops:
+            t0 = time.perf_counter()
+            sess.touch()
+            known = steps.known_keys(wh, drop)
+            paths = [str(Path(p).resolve()) for p in discover(Path(drop))]
+            tick("discover", t0)
+            entry = {"drop": Path(drop).name, "path": drop, "files": 0, "accepted": 0,
+                     "refused": 0, "new": 0, "refused_files": [], "rechecked": 0,
+                     "errors": [], "docs": None}
+            summary["drops"].append(entry)
+            progress.stage("ingest", len(paths))
+            nb = max(1, -(-len(paths) // B))
+            progress.stage("validate", nb)
+            progress.stage("record", nb)
+            for k in range(nb):
+                batch = paths[k * B:(k + 1) * B]
+                bset = set(batch)
+                kb = {key: v for key, v in known.items() if key[1] in bset}
+                t0 = time.perf_counter()
+                pending.append((entry, steps.submit_intake(
+                    drop, batch, str(wh.parquet_root), str(wh.root), kb, str(wh.docs_root),
+                    None if nb == 1 else k)))
+                tick("ingest+validate (submit)", t0)
+                while len(pending) >= W:
+                    record_next()
+        while pending:
+            record_next()
+        for e in summary["drops"]:
+            e["refused_files"].sort(key=lambda r: r["path"])
+
+        # -- 4: group by campaign; plan what needs computing
         campaigns = sorted(touched)
         progress.stage("science", len(campaigns))
         progress.stage("store", len(campaigns))
-        plans = []
-        for camp in campaigns:
-            t0 = time.perf_counter()
-            inputs = wh.campaign_inputs(camp)
-            rid = _result_id(camp, [i["sha256"] for i in inputs], cv, parameters)
-            entry = {"campaign": camp, "result_id": rid, "n_runs": len(inputs), "status": None,
-                     "error": None}
-            summary["campaigns"].append(entry)
-            if wh.current_result_id(camp) == rid:
-                entry["status"] = "unchanged"
-                progress.advance("science", note=camp)
-                progress.advance("store", note=camp)
-                tick("plan", t0)
-                continue
-            try:
-                runs = steps.load_campaign_runs(str(wh.root), inputs)
-            except Exception as e:
-                entry["status"], entry["error"] = "failed", f"{type(e).__name__}: {e}"
-                progress.advance("science", note=camp)
-                progress.advance("store", note=camp)
-                tick("load", t0)
-                continue
-            tick("load", t0)
-            t0 = time.perf_counter()
-            plans.append((entry, inputs, steps.submit_science(runs, parameters)))
-            tick("science", t0)
+        t0 = time.perf_counter()
+        sess.touch()
+        plans = wh.campaign_plans(campaigns)
+        tick("plan", t0)
 
-        for entry, inputs, fut in plans:
+        # -- 5-8: load + science per campaign (tasks), store each result (flow process)
+        inflight: deque = deque()
+
+        def store_next() -> None:
+            entry, inputs, fut = inflight.popleft()
             t0 = time.perf_counter()
             try:
-                result = fut.result()
+                result, dt = fut.result()
             except Exception as e:
                 entry["status"], entry["error"] = "failed", f"{type(e).__name__}: {e}"
                 progress.advance("science", note=entry["campaign"])
                 progress.advance("store", note=entry["campaign"])
-                tick("science", t0)
-                continue
+                tick("science (wait)", t0)
+                return
+            tick("science (wait)", t0)
+            for k, v in dt.items():
+                tick(k, 0.0, v)
             progress.advance("science", note=entry["campaign"])
-            tick("science", t0)
             t0 = time.perf_counter()
             missing = set(result.input_sha256) - {i["sha256"] for i in inputs}
             if missing:
                 result.flags.append(f"science reported inputs not handed to it: {sorted(missing)}")
+            sess.touch()
             entry["status"] = steps.store_campaign(
                 wh, result, result_id=entry["result_id"], inputs=inputs, code_version=cv,
                 parameters=parameters, flow_run_id=flow_run_id)
             tick("store", t0)
 
+        for camp in campaigns:
+            inputs, current = plans[camp]
+            rid = _result_id(camp, [i["sha256"] for i in inputs], cv, parameters)
+            entry = {"campaign": camp, "result_id": rid, "n_runs": len(inputs), "status": None,
+                     "error": None}
+            summary["campaigns"].append(entry)
+            if current == rid:
+                entry["status"] = "unchanged"
+                progress.advance("science", note=camp)
+                progress.advance("store", note=camp)
+                continue
+            t0 = time.perf_counter()
+            inflight.append((entry, inputs, steps.submit_campaign(str(wh.root), inputs,
+                                                                  parameters)))
+            tick("science (submit)", t0)
+            while len(inflight) >= W:
+                store_next()
+        while inflight:
+            store_next()
+
         # -- what the warehouse now says about these campaigns
         t0 = time.perf_counter()
+        sess.touch()
         _fill_campaigns(wh, summary["campaigns"])
         tick("summary", t0)
     return summary

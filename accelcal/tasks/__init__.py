@@ -27,5 +27,7 @@ def prefect_tasks() -> SimpleNamespace:
         record_drop=wrap(store.record_drop, "record-runs"),
         load_campaign_runs=wrap(science.load_campaign_runs, "load-campaign-runs"),
         run_science=wrap(science.run_science, "process-campaign"),
+        intake_batch=wrap(validate.intake_batch, "ingest-validate-batch"),
+        load_and_process=wrap(science.load_and_process, "load-process-campaign"),
         store_campaign=wrap(store.store_campaign, "store-result"),
     )

@@ -28,6 +28,7 @@ class DropIngest:
     errors: list[str] = field(default_factory=list)                 # unexpected failures (not recorded)
     known: int = 0
     docs: str | None = None
+    seconds: float = 0.0                                            # time spent in the step(s)
 
 
 def sniff_meta(raw: bytes) -> dict[str, str]:
@@ -61,12 +62,19 @@ def ingest_drop(drop_dir: str, parquet_root: str, warehouse_root: str,
     ``known`` maps files already recorded to the validator version of their
     latest verdict; those checked by the current version are skipped.
     """
+    paths = contracts.discover(Path(drop_dir).resolve())
+    progress.stage("ingest", len(paths))
+    return ingest_files(drop_dir, paths, parquet_root, warehouse_root, known)
+
+
+def ingest_files(drop_dir: str, paths: list, parquet_root: str, warehouse_root: str,
+                 known: dict[tuple[str, str], str] | None = None) -> DropIngest:
+    """:func:`ingest_drop` for some of the drop's files (the pipeline streams a drop in
+    batches of these, so memory does not grow with the drop)."""
     known = known or {}
     vv = validator_version()
     drop = Path(drop_dir).resolve()
     out = DropIngest(drop_name=drop.name, drop_path=str(drop))
-    paths = contracts.discover(drop)
-    progress.stage("ingest", len(paths))
     DropFormatError = contracts.drop_format_error()
     for p in paths:
         src = str(Path(p).resolve())

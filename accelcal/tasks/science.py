@@ -5,6 +5,7 @@ The science itself (accelcal.estimators.campaign.process_campaign) is Prefect-fr
 from __future__ import annotations
 
 import hashlib
+import time
 from pathlib import Path
 from typing import Any
 
@@ -41,3 +42,17 @@ def run_science(runs: list, parameters: dict[str, Any] | None = None):
     if parameters:
         return process_campaign(runs, **parameters)
     return process_campaign(runs)
+
+
+def load_and_process(warehouse_root: str, inputs: list[dict[str, Any]],
+                     parameters: dict[str, Any] | None = None):
+    """Load a campaign's runs from Parquet and run the science, on whichever worker runs it
+    (only the run list travels to the worker, not the data).
+
+    Returns (CampaignResult, {"load": s, "science": s}).
+    """
+    t0 = time.perf_counter()
+    runs = load_campaign_runs(warehouse_root, inputs)
+    t1 = time.perf_counter()
+    result = run_science(runs, parameters)
+    return result, {"load": t1 - t0, "science": time.perf_counter() - t1}

@@ -6,6 +6,7 @@ A run with any refusal is marked refused with all its reasons; Data Docs go to
 from __future__ import annotations
 
 import logging
+import re
 from pathlib import Path
 
 from ..warehouse.db import Refusal
@@ -25,12 +26,17 @@ def _follow_quiet_parent() -> None:
         logging.getLogger("great_expectations.data_context.types.base").setLevel(logging.NOTSET)
 
 
-def validate_drop(ing: DropIngest, docs_root: str) -> DropIngest:
-    progress.stage("validate", 1)
+def validate_drop(ing: DropIngest, docs_root: str, part: int | None = None) -> DropIngest:
+    """Validate ``ing.parsed``; Data Docs to ``docs_root/<drop>/`` or, for part k of a
+    drop streamed in batches, ``docs_root/<drop>/part-k/``."""
     runs = list(ing.parsed.values())
     if runs:
         _follow_quiet_parent()
-        verdicts = contracts.validate_runs(runs, docs_root, ing.drop_name)
+        if part is None:
+            verdicts = contracts.validate_runs(runs, docs_root, ing.drop_name)
+        else:
+            verdicts = contracts.validate_runs(runs, str(Path(docs_root) / _safe(ing.drop_name)),
+                                               f"part-{part:04d}")
         by_path = {}
         for k, v in (verdicts or {}).items():
             by_path[str(k)] = v
@@ -47,7 +53,32 @@ def validate_drop(ing: DropIngest, docs_root: str) -> DropIngest:
                 rec.refusals = [Refusal(rule=r.rule, detail=r.detail, line=r.line,
                                         path=str(r.path)) for r in refs]
                 ing.parsed.pop(rec.source_path, None)
-        docs = Path(docs_root) / ing.drop_name
+        docs = Path(docs_root) / (ing.drop_name if part is None else _safe(ing.drop_name))
         ing.docs = str(docs) if docs.exists() else (str(docs_root) if Path(docs_root).exists() else None)
     progress.advance("validate", note=ing.drop_name)
+    return ing
+
+
+def _safe(name: str) -> str:
+    """The folder name the GE suites give a drop's Data Docs (accelcal.schemas.suites)."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", name or "drop")
+
+
+def intake_batch(drop_dir: str, paths: list[str], parquet_root: str, warehouse_root: str,
+                 known: dict[tuple[str, str], str], docs_root: str,
+                 part: int | None) -> DropIngest:
+    """Steps 1-2 on a batch of one drop's files: hash, parse, write Parquet, validate.
+
+    Returns the verdicts without the parsed data (the science re-reads Parquet), so a
+    batch costs memory only while it is processed.  Touches no warehouse table: safe to
+    run on any worker; the flow records the verdicts (one writer).
+    """
+    import time
+
+    from .ingest import ingest_files
+    t0 = time.perf_counter()
+    ing = ingest_files(drop_dir, paths, parquet_root, warehouse_root, known)
+    ing = validate_drop(ing, docs_root, part)
+    ing.parsed.clear()
+    ing.seconds = time.perf_counter() - t0
     return ing

@@ -207,6 +207,7 @@ class Warehouse:
         self.docs_root = self.root / f"{self.path.stem}-datadocs"
         self.lock_timeout = lock_timeout
         self._schema_ok = False
+        self._session: duckdb.DuckDBPyConnection | None = None
 
     def __repr__(self) -> str:
         return f"Warehouse({str(self.path)!r})"
@@ -217,8 +218,32 @@ class Warehouse:
         return warehouse_lock(self.path, self.lock_timeout if timeout is None else timeout)
 
     @contextlib.contextmanager
+    def session(self) -> Iterator[duckdb.DuckDBPyConnection]:
+        """Hold ONE write connection (and the lock) for a stretch of work.
+
+        Inside it every write ``connect()`` of this object reuses that connection
+        instead of opening the file again (18 ms per open on a 20 MB warehouse,
+        growing with the file).  Each method still commits its own transaction,
+        so what a crash leaves is unchanged.  Readers in other processes wait
+        while a session is open: keep sessions to a bounded stretch (the pipeline
+        closes and reopens one every few seconds of work).  Re-entrant.
+        """
+        if self._session is not None:
+            yield self._session
+            return
+        with self.connect() as con:
+            self._session = con
+            try:
+                yield con
+            finally:
+                self._session = None
+
+    @contextlib.contextmanager
     def connect(self, read_only: bool = False) -> Iterator[duckdb.DuckDBPyConnection]:
         """A connection; write connections hold the lock and see the schema applied."""
+        if not read_only and self._session is not None:
+            yield self._session
+            return
         if read_only:
             if not self.path.exists():
                 raise WarehouseError(f"warehouse {self.path} does not exist")
@@ -384,6 +409,26 @@ class Warehouse:
                    FROM current_runs WHERE campaign = ? ORDER BY run_id""", [campaign])
             cols = [d[0] for d in cur.description]
             return [dict(zip(cols, row)) for row in cur.fetchall()]
+
+    def campaign_plans(self, campaigns: list[str]) -> dict[str, tuple[list[dict[str, Any]], str | None]]:
+        """For many campaigns at once: (inputs as :meth:`campaign_inputs`, current result_id)."""
+        out: dict[str, tuple[list[dict[str, Any]], str | None]] = {c: ([], None) for c in campaigns}
+        if not campaigns:
+            return out
+        with self.connect() as con:
+            cur = con.execute(
+                """SELECT campaign, run_id, revision, sha256, test, rig_id, source_path, parquet_path
+                   FROM current_runs WHERE list_contains(?, campaign)
+                   ORDER BY campaign, run_id""", [list(campaigns)])
+            cols = [d[0] for d in cur.description][1:]
+            for row in cur.fetchall():
+                out[row[0]][0].append(dict(zip(cols, row[1:])))
+            for camp, rid in con.execute(
+                    """SELECT campaign, arg_max(result_id, seq) FROM result_activations
+                       WHERE list_contains(?, campaign) GROUP BY campaign""",
+                    [list(campaigns)]).fetchall():
+                out[camp] = (out[camp][0], rid)
+        return out
 
     # -- results -------------------------------------------------------------
 

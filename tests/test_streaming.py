@@ -1,0 +1,96 @@
+"""Streaming (issue 5, Scale): a drop is processed in batches of files and campaigns are
+computed a few at a time, so memory does not grow with the drop, and the warehouse a
+batched run leaves is the one a single-batch run leaves.
+"""
+from __future__ import annotations
+
+import gc
+import shutil
+import weakref
+from pathlib import Path
+
+import pytest
+
+from accelcal.flows.pipeline import run_pipeline
+from accelcal.warehouse import Warehouse
+
+from test_faults import warehouse_contents
+
+
+def test_batched_run_equals_one_batch_run(tmp_path, examples, monkeypatch):
+    drops = [examples / "drop-2026-11-20", examples / "drop-bad", examples / "drop-2026-11-21"]
+    one = tmp_path / "one" / "lab.duckdb"
+    monkeypatch.setenv("ACCELCAL_BATCH_FILES", "100000")
+    s1 = run_pipeline(drops, one, engine="local")
+    many = tmp_path / "many" / "lab.duckdb"
+    monkeypatch.setenv("ACCELCAL_BATCH_FILES", "3")      # 11 files -> 4 batches
+    monkeypatch.setenv("ACCELCAL_IN_FLIGHT", "2")
+    s2 = run_pipeline(drops, many, engine="local")
+    assert warehouse_contents(many) == warehouse_contents(one)
+    strip = ("path", "docs")
+    for a, b in zip(s1["drops"], s2["drops"]):
+        assert {k: v for k, v in a.items() if k not in strip} == \
+               {k: v for k, v in b.items() if k not in strip}
+    assert [c["status"] for c in s1["campaigns"]] == [c["status"] for c in s2["campaigns"]]
+    # each batch of a streamed drop has its own Data Docs under the drop's folder
+    docs = Warehouse(many).docs_root / "drop-2026-11-20"
+    parts = sorted(p.parent.name for p in docs.rglob("index.html"))
+    assert parts == ["part-0000", "part-0001", "part-0002", "part-0003"], parts
+
+
+def _drop_of_copies(src: Path, dst: Path, copies: int) -> Path:
+    """A drop holding ``copies`` copies of a sample drop's files in sub-folders: more files,
+    the same runs (same bytes -> the same run revision, one campaign)."""
+    for k in range(copies):
+        shutil.copytree(src, dst / f"copy-{k:03d}")
+    return dst
+
+
+class _LiveRuns:
+    """Counts parsed runs (RunFile objects from the parser or from Parquet) alive at once."""
+
+    def __init__(self):
+        from accelcal.tasks import contracts
+        self.contracts, self.live, self.peak = contracts, weakref.WeakSet(), 0
+        self.real = {n: contracts.resolve(n) for n in ("read_run", "read_run_parquet")}
+
+    def _wrap(self, name):
+        def f(*a, **kw):
+            run = self.real[name](*a, **kw)
+            gc.collect()      # count runs still reachable, not garbage awaiting the collector
+            self.live.add(run)
+            self.peak = max(self.peak, len(self.live))
+            return run
+        return f
+
+    def __enter__(self):
+        for n in self.real:
+            self.contracts._OVERRIDES[n] = self._wrap(n)
+        return self
+
+    def __exit__(self, *exc):
+        for n in self.real:
+            self.contracts._OVERRIDES.pop(n, None)
+
+
+def test_parsed_runs_alive_at_once_bounded_by_batch_not_drop(tmp_path, examples, monkeypatch):
+    """At most one batch of parsed files (plus a campaign's runs) is in memory at a time,
+    whatever the drop's size; without batching, the whole drop is (the control, so this
+    test can fail).  Peak RSS on the fleet is in benchmarks/bench_fleet.py."""
+    src = examples / "drop-2026-11-20"
+    drop = _drop_of_copies(src, tmp_path / "drop", 8)                  # 88 files
+    monkeypatch.setenv("ACCELCAL_BATCH_FILES", "11")
+    monkeypatch.setenv("ACCELCAL_IN_FLIGHT", "1")
+    gc.collect()
+    with _LiveRuns() as streamed:
+        s = run_pipeline([drop], tmp_path / "a" / "lab.duckdb", engine="local")
+    assert s["drops"][0]["files"] == 88 and s["drops"][0]["accepted"] == 88
+    assert [c["status"] for c in s["campaigns"]] == ["new"]
+    monkeypatch.setenv("ACCELCAL_BATCH_FILES", "100000")
+    gc.collect()
+    with _LiveRuns() as whole:
+        run_pipeline([drop], tmp_path / "b" / "lab.duckdb", engine="local")
+    print(f"\nparsed runs alive at once: {streamed.peak} streamed (batches of 11), "
+          f"{whole.peak} in one batch")
+    assert streamed.peak <= 11 + 1, streamed.peak
+    assert whole.peak >= 88, whole.peak
