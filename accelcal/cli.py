@@ -217,7 +217,7 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
                    help="prefect: steps as Prefect tasks (default); local: same steps "
                         "without Prefect (no server start-up)")
     p.add_argument("--task-runner", default="thread",
-                   help="Prefect task runner for the science: thread, dask (local cluster) or tcp://HOST:PORT (an existing Dask scheduler; needs accelcal[dask])")
+                   help="Prefect task runner for ingest/validate batches and campaign science: thread, dask (local cluster) or tcp://HOST:PORT (an existing Dask scheduler)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.add_argument("--log-level", default="WARNING",

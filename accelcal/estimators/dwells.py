@@ -24,10 +24,11 @@ def dwell_table(meta: Mapping, data: pd.DataFrame, effects: Mapping[str, float] 
     eff = {"earth_rate": 1.0} if effects is None else effects
     d = data
     g = d.groupby("step", sort=True)
+    dev = d["output"] - g["output"].transform("mean")       # about each dwell's own mean
     out = pd.DataFrame({
         "n": g["output"].size(),
         "mean_output": g["output"].mean(),
-        "ss_within": g["output"].apply(lambda x: float(((x - x.mean()) ** 2).sum())),
+        "ss_within": (dev * dev).groupby(d["step"], sort=True).sum(),
         "rate": g["table_rate_rad_s"].mean(),
         "rate_std": g["table_rate_rad_s"].std(ddof=1).fillna(0.0),
         "time_mid": g["time_s"].mean(),

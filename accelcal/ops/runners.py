@@ -26,7 +26,7 @@ def task_runner_for(spec: str | None):
         from prefect_dask import DaskTaskRunner
     except ImportError:
         raise RunnerError("the dask task runner needs prefect-dask: "
-                          "pip install 'accelcal[dask]'") from None
+                          "pip install prefect-dask distributed") from None
     if spec == "dask":
         n = os.environ.get("ACCELCAL_DASK_WORKERS")
         kwargs = {"n_workers": int(n), "threads_per_worker": 1} if n else {}

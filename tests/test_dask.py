@@ -1,0 +1,48 @@
+"""Scale-out (issue 5): the same flow on Dask workers through prefect-dask, unchanged.
+
+A real Dask scheduler with two worker processes is started here (as a lab would run
+one on a cluster), the pipeline is pointed at its address, and the warehouse it leaves
+must equal the one the in-process engine leaves, table by table.  The speed-up is
+measured in benchmarks/bench_fleet.py, not here.
+"""
+from __future__ import annotations
+
+import pytest
+
+from accelcal.flows.pipeline import quiet_prefect, run_pipeline
+from accelcal.ops.runners import RunnerError, task_runner_for
+
+from test_faults import warehouse_contents
+
+quiet_prefect("ERROR")
+
+
+def test_task_runner_specs(monkeypatch):
+    from prefect_dask import DaskTaskRunner
+    assert task_runner_for("thread") is None and task_runner_for(None) is None
+    monkeypatch.setenv("ACCELCAL_DASK_WORKERS", "2")
+    r = task_runner_for("dask")
+    assert isinstance(r, DaskTaskRunner)
+    assert r.cluster_kwargs == {"n_workers": 2, "threads_per_worker": 1}
+    r = task_runner_for("dask://10.0.0.5:8786")
+    assert isinstance(r, DaskTaskRunner) and r.address == "tcp://10.0.0.5:8786"
+    with pytest.raises(RunnerError, match="unknown task runner"):
+        task_runner_for("ray")
+
+
+def test_flow_on_an_existing_dask_scheduler_equals_local_run(tmp_path, examples, monkeypatch):
+    distributed = pytest.importorskip("distributed")
+    drops = [examples / "drop-2026-11-20", examples / "drop-bad", examples / "drop-2026-11-21"]
+    local = tmp_path / "local" / "lab.duckdb"
+    run_pipeline(drops, local, engine="local")
+    monkeypatch.setenv("ACCELCAL_BATCH_FILES", "4")     # several batches, so both workers ingest
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        on_dask = tmp_path / "dask" / "lab.duckdb"
+        s = run_pipeline(drops, on_dask, engine="prefect", task_runner=cluster.scheduler_address)
+        # the tasks really ran on the workers (both of them)
+        seen = client.run(lambda dask_worker: len(dask_worker.data) + dask_worker.state.executed_count)
+    assert all(n > 0 for n in seen.values()), seen
+    assert {c["status"] for c in s["campaigns"]} == {"new"}
+    assert warehouse_contents(on_dask) == warehouse_contents(local)
