@@ -113,7 +113,21 @@ def print_summary(summary: dict[str, Any], console=None) -> None:
             con.print(f"  [yellow]not ingested[/yellow] {e}", soft_wrap=True)
         if d.get("docs"):
             con.print(f"  Data Docs: {d['docs']}", soft_wrap=True)
-    for c in summary["campaigns"]:
+    from .flows.pipeline import SUMMARY_DETAIL_MAX
+    for k, c in enumerate(summary["campaigns"]):
+        if k == SUMMARY_DETAIL_MAX:
+            rest = summary["campaigns"][k:]
+            st: dict[str, int] = {}
+            for x in rest:
+                st[x["status"]] = st.get(x["status"], 0) + 1
+            con.print()
+            con.print(f"... and {len(rest)} more campaigns ("
+                      + ", ".join(f"{n} {s_}" for s_, n in sorted(st.items()))
+                      + "): see the unit_history view or `accelcal report CAMPAIGN`")
+            for x in rest:
+                if x.get("error"):
+                    con.print(f"  [red]failed[/red] {x['campaign']}: {x['error']}", soft_wrap=True)
+            break
         con.print()
         status = c["status"]
         head = f"[bold]{c['campaign']}[/bold] ({c.get('unit_serial') or '?'}): {c['n_runs']} runs, {status}"

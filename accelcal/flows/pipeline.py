@@ -57,8 +57,8 @@ def _local_steps() -> SimpleNamespace:
         known_keys=_store.known_keys,
         submit_intake=lambda *a: _Done(_validate.intake_batch, *a),
         record_drop=_store.record_drop,
-        submit_campaign=lambda *a: _Done(_science.load_and_process, *a),
-        store_campaign=_store.store_campaign)
+        submit_campaigns=lambda *a: _Done(_science.load_and_process, *a),
+        store_campaigns=_store.store_campaigns)
 
 
 def _prefect_steps() -> SimpleNamespace:
@@ -68,8 +68,8 @@ def _prefect_steps() -> SimpleNamespace:
         known_keys=t.known_keys,
         submit_intake=lambda *a: t.intake_batch.submit(*a),
         record_drop=t.record_drop,
-        submit_campaign=lambda *a: t.load_and_process.submit(*a),
-        store_campaign=t.store_campaign)
+        submit_campaigns=lambda *a: t.load_and_process.submit(*a),
+        store_campaigns=t.store_campaigns)
 
 
 def check_drops(drops: list[str]) -> list[str]:
@@ -100,6 +100,14 @@ BATCH_FILES = 200
 
 def batch_files() -> int:
     return _env_int("ACCELCAL_BATCH_FILES", BATCH_FILES)
+
+
+#: Campaigns computed per task (orchestration costs ~0.1 s per Prefect task).
+CAMPAIGNS_PER_TASK = 4
+
+
+def campaigns_per_task() -> int:
+    return _env_int("ACCELCAL_CAMPAIGNS_PER_TASK", CAMPAIGNS_PER_TASK)
 
 
 def in_flight() -> int:
@@ -238,33 +246,52 @@ def pipeline_body(drops: list[str], warehouse: str, *, lock_timeout: float = 60.
         plans = wh.campaign_plans(campaigns)
         tick("plan", t0)
 
-        # -- 5-8: load + science per campaign (tasks), store each result (flow process)
+        # -- 5-8: load + science, a few campaigns per task; store each chunk's results
         inflight: deque = deque()
 
         def store_next() -> None:
-            entry, inputs, fut = inflight.popleft()
+            chunk, fut = inflight.popleft()
             t0 = time.perf_counter()
             try:
-                result, dt = fut.result()
-            except Exception as e:
-                entry["status"], entry["error"] = "failed", f"{type(e).__name__}: {e}"
-                progress.advance("science", note=entry["campaign"])
-                progress.advance("store", note=entry["campaign"])
-                tick("science (wait)", t0)
-                return
+                outcomes = fut.result()
+            except Exception as e:           # the task itself failed: every campaign in it
+                outcomes = [(None, f"{type(e).__name__}: {e}")] * len(chunk)
             tick("science (wait)", t0)
-            for k, v in dt.items():
-                tick(k, 0.0, v)
-            progress.advance("science", note=entry["campaign"])
+            items = []
+            for (entry, inputs), (result, info) in zip(chunk, outcomes):
+                progress.advance("science", note=entry["campaign"])
+                if result is None:
+                    entry["status"], entry["error"] = "failed", info
+                    progress.advance("store", note=entry["campaign"])
+                    continue
+                for k, v in info.items():
+                    tick(k, 0.0, v)
+                missing = set(result.input_sha256) - {i["sha256"] for i in inputs}
+                if missing:
+                    result.flags.append(
+                        f"science reported inputs not handed to it: {sorted(missing)}")
+                items.append((entry, result, inputs))
+            if not items:
+                return
             t0 = time.perf_counter()
-            missing = set(result.input_sha256) - {i["sha256"] for i in inputs}
-            if missing:
-                result.flags.append(f"science reported inputs not handed to it: {sorted(missing)}")
             sess.touch()
-            entry["status"] = steps.store_campaign(
-                wh, result, result_id=entry["result_id"], inputs=inputs, code_version=cv,
+            statuses = steps.store_campaigns(
+                wh, [(r, e["result_id"], i) for e, r, i in items], code_version=cv,
                 parameters=parameters, flow_run_id=flow_run_id)
+            for (entry, _, _), st in zip(items, statuses):
+                entry["status"] = st
             tick("store", t0)
+
+        C = campaigns_per_task()
+        chunk: list = []
+
+        def submit(chunk) -> None:
+            t0 = time.perf_counter()
+            inflight.append((chunk, steps.submit_campaigns(
+                str(wh.root), [inputs for _, inputs in chunk], parameters)))
+            tick("science (submit)", t0)
+            while len(inflight) >= W:
+                store_next()
 
         for camp in campaigns:
             inputs, current = plans[camp]
@@ -277,12 +304,12 @@ def pipeline_body(drops: list[str], warehouse: str, *, lock_timeout: float = 60.
                 progress.advance("science", note=camp)
                 progress.advance("store", note=camp)
                 continue
-            t0 = time.perf_counter()
-            inflight.append((entry, inputs, steps.submit_campaign(str(wh.root), inputs,
-                                                                  parameters)))
-            tick("science (submit)", t0)
-            while len(inflight) >= W:
-                store_next()
+            chunk.append((entry, inputs))
+            if len(chunk) >= C:
+                submit(chunk)
+                chunk = []
+        if chunk:
+            submit(chunk)
         while inflight:
             store_next()
 
@@ -294,18 +321,26 @@ def pipeline_body(drops: list[str], warehouse: str, *, lock_timeout: float = 60.
     return summary
 
 
+#: Campaigns whose coefficients, radii and flags the run summary carries (the CLI prints
+#: them); beyond this only status and result id, so a fleet run's summary stays small.
+#: Everything is in the warehouse (unit_history, accelcal report).
+SUMMARY_DETAIL_MAX = 50
+
+
 def _fill_campaigns(wh: Warehouse, entries: list[dict[str, Any]]) -> None:
     with wh.connect() as con:
-        for e in entries:
-            cur = con.execute(
-                "SELECT result_id, unit_serial FROM results_current WHERE campaign = ?",
-                [e["campaign"]]).fetchall()
-            if not cur:
+        current = dict((c, (rid, serial)) for c, rid, serial in con.execute(
+            "SELECT campaign, result_id, unit_serial FROM results_current "
+            "WHERE list_contains(?, campaign)", [[e["campaign"] for e in entries]]).fetchall())
+        for k, e in enumerate(entries):
+            if e["campaign"] not in current:
                 e.update(unit_serial=None, current_result_id=None, coefficients=[], radii=[],
                          flags=[])
                 continue
-            rid, serial = cur[0]
+            rid, serial = current[e["campaign"]]
             e["current_result_id"], e["unit_serial"] = rid, serial
+            if k >= SUMMARY_DETAIL_MAX:
+                continue
             q = con.execute("SELECT name, value, std_uncertainty, unit, method, rig_id "
                             "FROM coefficients WHERE result_id = ?", [rid])
             cols = [d[0] for d in q.description]

@@ -15,19 +15,15 @@ def prefect_tasks() -> SimpleNamespace:
     from prefect import task
     from prefect.cache_policies import NO_CACHE
 
-    from . import ingest, science, store, validate
+    from . import science, store, validate
 
     def wrap(fn, name, **kw):
         return task(fn, name=name, cache_policy=NO_CACHE, persist_result=False, **kw)
 
     return SimpleNamespace(
         known_keys=wrap(store.known_keys, "known-files"),
-        ingest_drop=wrap(ingest.ingest_drop, "ingest-drop"),
-        validate_drop=wrap(validate.validate_drop, "validate-drop"),
         record_drop=wrap(store.record_drop, "record-runs"),
-        load_campaign_runs=wrap(science.load_campaign_runs, "load-campaign-runs"),
-        run_science=wrap(science.run_science, "process-campaign"),
         intake_batch=wrap(validate.intake_batch, "ingest-validate-batch"),
-        load_and_process=wrap(science.load_and_process, "load-process-campaign"),
-        store_campaign=wrap(store.store_campaign, "store-result"),
+        load_and_process=wrap(science.load_and_process, "load-process-campaigns"),
+        store_campaigns=wrap(store.store_campaigns, "store-results"),
     )

@@ -30,3 +30,12 @@ def store_campaign(wh: Warehouse, result, *, result_id: str, inputs: list[dict[s
                              flow_run_id=flow_run_id)
     progress.advance("store", note=result.campaign)
     return status
+
+
+def store_campaigns(wh: Warehouse, items: list[tuple], *, code_version: str,
+                    parameters: dict[str, Any], flow_run_id: str | None) -> list[str]:
+    """:func:`store_campaign` for several (result, result_id, inputs): one task call, each
+    campaign still its own transaction."""
+    return [store_campaign(wh, result, result_id=rid, inputs=inputs, code_version=code_version,
+                           parameters=parameters, flow_run_id=flow_run_id)
+            for result, rid, inputs in items]
