@@ -46,15 +46,12 @@ def subcommand(name: str) -> Callable[[Registrar], Registrar]:
 
 def display_coefficient(c: dict[str, Any]) -> tuple[str, str, str]:
     """(value, U (k=2), unit) in display units (effects.to_display)."""
-    from .effects import COEFFICIENTS, to_display
+    from .effects import COEFFICIENTS, format_expanded_uncertainty, to_display
     name, v, u, unit = c["name"], c["value"], c["std_uncertainty"], c.get("unit") or ""
     if v is None:
         return "—", "—", unit
     val, U, dunit, ppm = to_display(name, v, u, unit)
-    if U is None:
-        Us = "—"
-    else:
-        Us = f"{U:.2g} ppm" if ppm else f"{U:.2g}"
+    Us = format_expanded_uncertainty(U, ppm)
     if name not in COEFFICIENTS:
         return f"{val:.6g}", Us, dunit
     return (f"{val:.7g}" if ppm else f"{val:.4g}"), Us, dunit

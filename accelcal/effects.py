@@ -63,6 +63,13 @@ def to_display(name: str, value: float, std_u: float | None, unit: str,
             PRETTY_UNITS.get(spec.display_unit, spec.display_unit), False)
 
 
+def format_expanded_uncertainty(U: float | None, ppm: bool) -> str:
+    """U as :func:`to_display` gives it, to 2 significant digits ("—" when unknown)."""
+    if U is None:
+        return "—"
+    return f"{U:.2g} ppm" if ppm else f"{U:.2g}"
+
+
 #: The second-order coefficients, used where code must loop over them.
 SECOND_ORDER = ("K2", "Koq", "Kip", "Kio", "Kpo", "Kpp", "Koo")
 

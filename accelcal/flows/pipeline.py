@@ -20,7 +20,7 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
-from ..tasks import ingest as _ingest
+from ..tasks import contracts as _contracts
 from ..tasks import progress
 from ..tasks import science as _science
 from ..tasks import store as _store
@@ -168,7 +168,6 @@ def pipeline_body(drops: list[str], warehouse: str, *, lock_timeout: float = 60.
                                "code_version": cv, "parameters": parameters,
                                "drops": [], "campaigns": [], "timings": timings}
     B, W = batch_files(), in_flight()
-    discover = _ingest.contracts.discover
     with wh.lock(), _Session(wh) as sess:
         wh.init()
         touched: set[str] = set()
@@ -211,7 +210,7 @@ def pipeline_body(drops: list[str], warehouse: str, *, lock_timeout: float = 60.
             t0 = time.perf_counter()
             sess.touch()
             known = steps.known_keys(wh, drop)
-            paths = [str(Path(p).resolve()) for p in discover(Path(drop))]
+            paths = [str(Path(p).resolve()) for p in _contracts.discover(Path(drop))]
             tick("discover", t0)
             entry = {"drop": Path(drop).name, "path": drop, "files": 0, "accepted": 0,
                      "refused": 0, "new": 0, "refused_files": [], "rechecked": 0,

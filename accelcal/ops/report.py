@@ -113,17 +113,14 @@ def display_value(name: str, value: float | None, std_u: float | None,
                   unit: str | None) -> tuple[str, str, str]:
     """(value, U (k = 2), display unit) for one coefficient (effects.to_display); the
     value is shown to the last significant digit of U."""
-    from ..effects import COEFFICIENTS, to_display
+    from ..effects import COEFFICIENTS, format_expanded_uncertainty, to_display
     unit = unit or ""
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return "—", "—", unit
     if isinstance(std_u, float) and math.isnan(std_u):
         std_u = None
     val, U, dunit, ppm = to_display(name, value, std_u, unit, K_COVERAGE)
-    if U is None:
-        Us = "—"
-    else:
-        Us = f"{U:.2g} ppm" if ppm else f"{U:.2g}"
+    Us = format_expanded_uncertainty(U, ppm)
     if name not in COEFFICIENTS:
         return f"{val:.6g}", Us, dunit
     if ppm:

@@ -421,6 +421,11 @@ def _fmt(v) -> str:
     return repr(v) if isinstance(v, str) else str(v)
 
 
+def docs_folder_name(drop_name: str | None) -> str:
+    """The folder under ``docs_dir`` that holds a drop's Data Docs."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", drop_name or "drop")
+
+
 def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
                     drop_name: str = "drop") -> ValidationReport:
     """Validate parsed runs with the GE suites; one ephemeral GE context per call, one batch
@@ -441,7 +446,7 @@ def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
 
     docs_root = None
     if docs_dir is not None:
-        docs_root = Path(docs_dir) / re.sub(r"[^A-Za-z0-9._-]+", "_", drop_name or "drop")
+        docs_root = Path(docs_dir) / docs_folder_name(drop_name)
         docs_root.mkdir(parents=True, exist_ok=True)
     import great_expectations as gx
     from great_expectations.core.run_identifier import RunIdentifier

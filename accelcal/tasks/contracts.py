@@ -43,6 +43,10 @@ def validate_runs(runs, docs_dir, drop_name):
     return resolve("validate_runs")(runs, docs_dir, drop_name)
 
 
+def docs_folder_name(drop_name):
+    return resolve("docs_folder_name")(drop_name)
+
+
 def write_run_parquet(run, root):
     return resolve("write_run_parquet")(run, root)
 

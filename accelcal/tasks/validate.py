@@ -6,12 +6,12 @@ A run with any refusal is marked refused with all its reasons; Data Docs go to
 from __future__ import annotations
 
 import logging
-import re
+import time
 from pathlib import Path
 
 from ..warehouse.db import Refusal
 from . import contracts, progress
-from .ingest import DropIngest
+from .ingest import DropIngest, ingest_files
 
 
 def _follow_quiet_parent() -> None:
@@ -35,8 +35,9 @@ def validate_drop(ing: DropIngest, docs_root: str, part: int | None = None) -> D
         if part is None:
             verdicts = contracts.validate_runs(runs, docs_root, ing.drop_name)
         else:
-            verdicts = contracts.validate_runs(runs, str(Path(docs_root) / _safe(ing.drop_name)),
-                                               f"part-{part:04d}")
+            verdicts = contracts.validate_runs(
+                runs, str(Path(docs_root) / contracts.docs_folder_name(ing.drop_name)),
+                f"part-{part:04d}")
         by_path = {}
         for k, v in (verdicts or {}).items():
             by_path[str(k)] = v
@@ -53,15 +54,10 @@ def validate_drop(ing: DropIngest, docs_root: str, part: int | None = None) -> D
                 rec.refusals = [Refusal(rule=r.rule, detail=r.detail, line=r.line,
                                         path=str(r.path)) for r in refs]
                 ing.parsed.pop(rec.source_path, None)
-        docs = Path(docs_root) / (ing.drop_name if part is None else _safe(ing.drop_name))
+        docs = Path(docs_root) / contracts.docs_folder_name(ing.drop_name)
         ing.docs = str(docs) if docs.exists() else (str(docs_root) if Path(docs_root).exists() else None)
     progress.advance("validate", note=ing.drop_name)
     return ing
-
-
-def _safe(name: str) -> str:
-    """The folder name the GE suites give a drop's Data Docs (accelcal.schemas.suites)."""
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", name or "drop")
 
 
 def intake_batch(drop_dir: str, paths: list[str], parquet_root: str, warehouse_root: str,
@@ -73,9 +69,6 @@ def intake_batch(drop_dir: str, paths: list[str], parquet_root: str, warehouse_r
     batch costs memory only while it is processed.  Touches no warehouse table: safe to
     run on any worker; the flow records the verdicts (one writer).
     """
-    import time
-
-    from .ingest import ingest_files
     t0 = time.perf_counter()
     ing = ingest_files(drop_dir, paths, parquet_root, warehouse_root, known)
     ing = validate_drop(ing, docs_root, part)

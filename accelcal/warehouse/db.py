@@ -403,15 +403,11 @@ class Warehouse:
 
     def campaign_inputs(self, campaign: str) -> list[dict[str, Any]]:
         """The runs a campaign is computed from: newest accepted revision per run_id."""
-        with self.connect() as con:
-            cur = con.execute(
-                """SELECT run_id, revision, sha256, test, rig_id, source_path, parquet_path
-                   FROM current_runs WHERE campaign = ? ORDER BY run_id""", [campaign])
-            cols = [d[0] for d in cur.description]
-            return [dict(zip(cols, row)) for row in cur.fetchall()]
+        return self.campaign_plans([campaign])[campaign][0]
 
     def campaign_plans(self, campaigns: list[str]) -> dict[str, tuple[list[dict[str, Any]], str | None]]:
-        """For many campaigns at once: (inputs as :meth:`campaign_inputs`, current result_id)."""
+        """For many campaigns at once: (the runs each is computed from -- newest accepted
+        revision per run_id, ordered by run_id -- and its current result_id or None)."""
         out: dict[str, tuple[list[dict[str, Any]], str | None]] = {c: ([], None) for c in campaigns}
         if not campaigns:
             return out
@@ -431,13 +427,6 @@ class Warehouse:
         return out
 
     # -- results -------------------------------------------------------------
-
-    def current_result_id(self, campaign: str) -> str | None:
-        with self.connect() as con:
-            row = con.execute(
-                "SELECT result_id FROM result_activations WHERE campaign = ? "
-                "ORDER BY seq DESC LIMIT 1", [campaign]).fetchall()
-        return row[0][0] if row else None
 
     def store_result(self, result, *, result_id: str, inputs: list[dict[str, Any]],
                      code_version: str, parameters: dict[str, Any],
