@@ -98,7 +98,8 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in [
     Effect("rate_scale_error", ("centrifuge", "sine_centrifuge"), "epsilon", "1",
            "true rate is (1 + epsilon) times the logged table_rate_rad_s"),
     Effect("spindle_tilt", ("sine_centrifuge",), "beta", "rad",
-           "table plane tilted by beta: gravity adds g*sin(beta)*cos(alpha) along the inward radial"),
+           "table plane tilted by beta: gravity adds g*sin(beta)*cos(alpha) along the inward radial "
+           "and g*sin(beta)*sin(alpha) along the ccw direction of motion; vertical g*cos(beta)"),
     Effect("sensor_lag", ("sine_centrifuge",), "tau", "s",
            "output follows the input through a first-order lag with time constant tau"),
     Effect("initial_misalignment", ("tumble",), "theta0", "rad",

@@ -21,6 +21,9 @@ class CoefficientResult:
     rig_id: str = ""
     dof: float | None = None
     note: str = ""
+    #: True for the value the lab adopts (the joint fit through the forward model, one per
+    #: campaign and coefficient); the paper methods are stored beside it as cross-checks.
+    adopted: bool = False
 
 
 @dataclass

@@ -231,10 +231,9 @@ def test_spindle_tilt_radial_and_vertical():
     np.testing.assert_allclose(got[:, [0, 2]], ref[:, [0, 2]], atol=2e-6)
 
 
-@pytest.mark.xfail(strict=True, reason="effects.md defines spindle_tilt by its radial part only; "
-                   "a tilted spindle also puts g sin(beta) sin(alpha) along the direction of motion "
-                   "(here PA), which accelcal.physics omits (reported to the lead)")
 def test_spindle_tilt_tangential_component():
+    """effects.md (complete definition): g sin(beta) sin(alpha) along the ccw direction of
+    motion, here PA for IA-PA at phi = 0 with +OA up."""
     t = np.array([0.05, 0.2, 0.37, 0.5, 0.77])
     ref, got = _spindle_tilt_case(t)
     np.testing.assert_allclose(got[:, 1], ref[:, 1], atol=2e-6)

@@ -91,7 +91,8 @@ def centrifuge_specific_force(meta: Mapping, data, effects: Mapping[str, float] 
     rate_derivative: d(omega_z)/dt per row; default 0 for ``centrifuge`` and the drive's
     derivative (:func:`sine_rate_derivative`) for ``sine_centrifuge``.
     Effects: earth_rate, rate_scale_error, mount_angle_error, mass_centre_offset,
-    arm_stretch, ia_tilt, spindle_tilt (effects.md definitions and signs).
+    arm_stretch, ia_tilt, spindle_tilt (effects.md definitions and signs; spindle_tilt with
+    both its radial and its tangential part).
     """
     effects = effects or {}
     n = _n(data)
@@ -123,10 +124,13 @@ def centrifuge_specific_force(meta: Mapping, data, effects: Mapping[str, float] 
     f2 = -wz**2 * p2 + wdot * h * p1
     fup = np.full(n, g * np.cos(beta))
     if beta != 0.0:
+        # effects.md spindle_tilt: g sin(beta) cos(alpha) along the inward radial u and
+        # g sin(beta) sin(alpha) along the ccw direction of motion h (sin phi e1 - cos phi e2)
         alpha = np.radians(np.nan_to_num(_col(data, "table_angle_deg", n)))
         gr = g * np.sin(beta) * np.cos(alpha)
-        f1 = f1 + gr * ux
-        f2 = f2 + gr * uy
+        gt = g * np.sin(beta) * np.sin(alpha)
+        f1 = f1 + gr * ux + gt * h * uy
+        f2 = f2 + gr * uy - gt * h * ux
     if lam != 0.0:
         f1, fup = f1 * np.cos(lam) + fup * np.sin(lam), fup * np.cos(lam) - f1 * np.sin(lam)
     F = np.zeros((n, 3))
