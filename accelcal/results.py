@@ -87,6 +87,11 @@ class CampaignResult:
     extras: dict[str, Any] = field(default_factory=dict)   # JSON-able: per-pair fits, two-position values...
     flags: list[str] = field(default_factory=list)         # human-readable warnings (inadequate fit, ...)
     parameters: dict[str, Any] = field(default_factory=dict)
+    #: 'complete' when the runs determine the coefficients of their tests with degrees of
+    #: freedom to spare for an adequacy test; 'incomplete' otherwise (stored, visible, but
+    #: kept out of history, En and the fleet views).  The reasons say what is missing.
+    completeness: str = "complete"
+    completeness_reasons: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -359,7 +359,44 @@ def process_campaign(runs) -> CampaignResult:
         _thermal(by_test["tilt_rotation"], res)
     if by_test.get("sine_centrifuge"):
         _sine(by_test["sine_centrifuge"], res)
+    _mark_adopted(res)
+    _assess_completeness(res)
     return res
+
+
+#: Which method's value is adopted when several give the same coefficient (interim rule
+#: until the joint fit of issue 9 provides the adopted values).
+ADOPTION_ORDER = ("joint_ml", "centrifuge_eq9", "sine_ls", "tilt_rotation_ls",
+                  "tilt_rotation_two_position", "tumble_lm")
+
+
+def _mark_adopted(res: CampaignResult) -> None:
+    """One adopted value per (coefficient, rig): the first method of ADOPTION_ORDER."""
+    rank = {m: i for i, m in enumerate(ADOPTION_ORDER)}
+    best: dict[str, CoefficientResult] = {}
+    for c in res.coefficients:
+        b = best.get(c.name)
+        if b is None or rank.get(c.method, 99) < rank.get(b.method, 99):
+            best[c.name] = c
+    for c in res.coefficients:
+        c.adopted = c is best.get(c.name)
+
+
+def _assess_completeness(res: CampaignResult) -> None:
+    """'incomplete' when no coefficient could be determined, or when every tumble fit of a
+    tumble-only campaign has no degrees of freedom left to test the model (interim rule)."""
+    reasons = []
+    if not res.coefficients:
+        reasons.append("no coefficient could be determined from these runs")
+    if res.tests == ["tumble"]:
+        fits = res.extras.get("tumble", [])
+        if fits and all(not f.get("lack_of_fit") for f in fits):
+            reasons.append("every tumble run has as many head positions as fitted parameters: "
+                           "no degrees of freedom to test the model")
+    if any("no IA mount pair" in f for f in res.flags):
+        reasons.append("no IA mount pair: test radius and K2 cannot be determined")
+    res.completeness = "incomplete" if reasons else "complete"
+    res.completeness_reasons = reasons
 
 
 def _correct_tumble_K2(meta: Mapping, res: CampaignResult) -> None:
