@@ -1,0 +1,593 @@
+"""The one fitting core of accelcal: parameters, weighted least squares through a scaled
+SVD, Gauss–Newton with Levenberg–Marquardt damping, lack of fit and the fit result.
+
+Every estimator (the joint campaign fit, the paper methods that keep their own design)
+and the sim-to-real diagnosis solve their least-squares problems here, so that there is
+one definition of a covariance, one rank rule and one lack-of-fit test.
+
+Conventions
+-----------
+A problem is posed *whitened*: the residual vector is ``z = (y - f(p)) / sigma`` and the
+Jacobian is ``J = (df/dp) / sigma`` (rows = observations, columns = parameters), so that
+the weighted sum of squares is ``z @ z`` and the covariance of the estimate under the
+noise model is ``(J^T J)^+`` (JCGM 102 §7 / the usual Gauss–Markov result).
+
+The SVD works on the column-scaled matrix ``J / |J_k|``: scaling makes the rank decision
+independent of the parameters' units (a K3 in s⁴/m² of 1e-10 sits beside a radius in m),
+and it is what makes the solver pass the NIST StRD higher-difficulty problems (Longley,
+Wampler) without the normal equations.
+
+References
+----------
+NIST/SEMATECH, Statistical Reference Datasets (StRD), linear least squares, 1999.
+Draper & Smith, *Applied Regression Analysis*, 3rd ed., §2.1 (lack of fit with pure error).
+Birge, R. T., Phys. Rev. 40, 207 (1932) (the ratio of external to internal consistency).
+JCGM 100:2008 (GUM) §4.2, G.4; JCGM 102:2011 §7 (multivariate measurement models).
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy import stats
+
+#: Relative singular value below which a direction of the column-scaled design counts as
+#: not determined by the data (the rank rule of every fit in accelcal).
+RCOND = 1e-10
+#: Significance level of lack-of-fit tests (model adequacy, IEEE 836 practice).
+ALPHA = 0.01
+
+
+# --------------------------------------------------------------------------- parameters
+
+@dataclass(frozen=True)
+class Parameter:
+    """One fitted (or held) quantity of a model.
+
+    Parameters
+    ----------
+    name : str
+        Unique name in its set, e.g. ``'K2'``, ``'K0[LXJ100-20261120-0002]'``,
+        ``'theta0[DH-1 head PA]'``.
+    key : str
+        What it is in the physics: an instrument coefficient of effects.md (``'K2'``), an
+        effect id (``'mass_centre_offset'``) or a nuisance kind (``'bias'``, ``'radius'``).
+    unit : str
+        SI unit of the value, effects.md notation (``'s2/m'``; ``'out/(m/s2)'`` for K1).
+    scale : float
+        Typical magnitude [unit]: sets difference steps and the "weakly determined" rule.
+    runs : tuple of int or None
+        Indices of the runs (blocks of observations) it acts on; None = every run.
+    group : str
+        Human-readable family for reports: ``'instrument'``, ``'per-run bias'``, ...
+    vary : bool
+        False holds it at ``value``.
+    value : float
+        Start value (or the held value) [unit].
+    """
+    name: str
+    key: str
+    unit: str = ""
+    scale: float = 1.0
+    runs: tuple[int, ...] | None = None
+    group: str = ""
+    vary: bool = True
+    value: float = 0.0
+
+    def acts_on(self, run: int) -> bool:
+        return self.runs is None or run in self.runs
+
+
+class ParameterSet:
+    """An ordered set of :class:`Parameter` with name lookup."""
+
+    def __init__(self, params: Iterable[Parameter] = ()):
+        self._p: list[Parameter] = []
+        self.index: dict[str, int] = {}
+        for p in params:
+            self.add(p)
+
+    def add(self, p: Parameter) -> int:
+        if p.name in self.index:
+            raise ValueError(f"parameter {p.name!r} defined twice")
+        self.index[p.name] = len(self._p)
+        self._p.append(p)
+        return self.index[p.name]
+
+    def __len__(self) -> int:
+        return len(self._p)
+
+    def __iter__(self):
+        return iter(self._p)
+
+    def __getitem__(self, key: int | str) -> Parameter:
+        return self._p[self.index[key]] if isinstance(key, str) else self._p[key]
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.index
+
+    @property
+    def names(self) -> list[str]:
+        return [p.name for p in self._p]
+
+    def values(self) -> np.ndarray:
+        """Start/held values [SI]."""
+        return np.array([p.value for p in self._p], float)
+
+    def free(self) -> np.ndarray:
+        """Boolean mask of the parameters that vary."""
+        return np.array([p.vary for p in self._p], bool)
+
+    def held(self, names: Iterable[str], values: Sequence[float] | None = None) -> "ParameterSet":
+        """A copy with ``names`` held (at ``values`` if given)."""
+        names = list(names)
+        vals = dict(zip(names, values)) if values is not None else {}
+        return ParameterSet(replace(p, vary=False, value=vals.get(p.name, p.value)) if p.name in names else p
+                            for p in self._p)
+
+    def subset(self, names: Iterable[str]) -> "ParameterSet":
+        keep = set(names)
+        return ParameterSet(p for p in self._p if p.name in keep)
+
+
+# --------------------------------------------------------------------------- linear algebra
+
+@dataclass
+class LinearSolution:
+    """Least-squares solution of ``J x ~ z`` (whitened) by the column-scaled SVD.
+
+    Attributes
+    ----------
+    x : ndarray
+        Minimum-norm solution (in the scaled space) mapped back to parameter units.
+    cov : ndarray
+        ``(J^T J)^+`` in parameter units (the covariance when z has unit variance).
+    rank : int
+        Number of singular values above ``rcond * s_max``.
+    singular_values : ndarray
+        Of the column-scaled matrix, descending.
+    estimable : ndarray of bool
+        Per column: the unit vector lies in the row space (its value is determined by the
+        data; the others are only determined in combinations).
+    column_norm : ndarray
+        ``|J_k|``, the scaling used.
+    """
+    x: np.ndarray
+    cov: np.ndarray
+    rank: int
+    singular_values: np.ndarray
+    estimable: np.ndarray
+    column_norm: np.ndarray
+    null_space: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+
+
+def lstsq_svd(J: np.ndarray, z: np.ndarray, rcond: float = RCOND) -> LinearSolution:
+    """Minimum-norm least squares of ``J x = z`` through the SVD of the column-scaled J.
+
+    Parameters
+    ----------
+    J : (n, p) ndarray
+        Whitened design (Jacobian) [whitened output per parameter unit].
+    z : (n,) ndarray
+        Whitened right-hand side (residual).
+    rcond : float
+        Relative singular-value cut (:data:`RCOND`).
+
+    Returns
+    -------
+    LinearSolution
+        Columns that are identically zero get x = 0, zero covariance and
+        ``estimable = False``.
+
+    Notes
+    -----
+    Passes the NIST StRD linear problems (Pontius, Longley, Wampler 1–5) to the certified
+    digits; see ``tests/test_fitting_core.py``.
+    """
+    J = np.asarray(J, float)
+    z = np.asarray(z, float)
+    n, p = J.shape
+    norm = np.sqrt(np.einsum("ij,ij->j", J, J))
+    act = norm > 0
+    if act.any():
+        act &= norm > norm[act].max() * 1e-300
+    x = np.zeros(p)
+    cov = np.zeros((p, p))
+    est = np.zeros(p, bool)
+    if not act.any():
+        return LinearSolution(x, cov, 0, np.zeros(0), est, norm)
+    Js = J[:, act] / norm[act]
+    U, S, Vt = np.linalg.svd(Js, full_matrices=False)
+    keep = S > S[0] * rcond
+    V = Vt[keep].T
+    xs = V @ ((U[:, keep].T @ z) / S[keep])
+    x[act] = xs / norm[act]
+    C = (V / S[keep] ** 2) @ V.T
+    cov[np.ix_(act, act)] = C / np.outer(norm[act], norm[act])
+    Vn = Vt[~keep]
+    if Vn.size:
+        est[act] = np.linalg.norm(Vn, axis=0) < 1e-6
+    else:
+        est[act] = True
+    null = np.zeros((p, Vn.shape[0]))
+    null[act] = Vn.T
+    return LinearSolution(x, cov, int(keep.sum()), S, est, norm, null)
+
+
+def separable_columns(J: np.ndarray, order: Sequence[int], tol: float = 1e-6) -> list[int]:
+    """Greedy choice of columns that add a new direction, in priority order.
+
+    Column k is kept when the part of its unit-scaled column outside the span of the
+    columns kept before it has relative norm above ``tol``: a parameter aliased with
+    higher-priority ones (θ0 and Ko in one tumble, K2 and Koo) is left out instead of
+    making the design singular.
+
+    Parameters
+    ----------
+    J : (n, p) ndarray
+    order : sequence of int
+        Column indices, highest priority first.
+    tol : float
+        Relative norm of the new direction below which a column is aliased.
+
+    Returns
+    -------
+    list of int
+        The kept columns, in the order given.
+    """
+    norm = np.linalg.norm(J, axis=0)
+    Q = np.zeros((J.shape[0], 0))
+    kept = []
+    for k in order:
+        if norm[k] == 0:
+            continue
+        v = J[:, k] / norm[k]
+        r = v - Q @ (Q.T @ v)
+        r = r - Q @ (Q.T @ r)          # second pass: orthogonality to working precision
+        nr = float(np.linalg.norm(r))
+        if nr > tol:
+            Q = np.column_stack([Q, r / nr])
+            kept.append(k)
+    return kept
+
+
+# --------------------------------------------------------------------------- nonlinear
+
+@dataclass
+class GaussNewton:
+    """Outcome of :func:`gauss_newton`: solution, whitened residual and Jacobian at it."""
+    p: np.ndarray
+    z: np.ndarray
+    J: np.ndarray
+    chi2: float
+    iterations: int
+    converged: bool
+    message: str
+
+
+def gauss_newton(residual: Callable[[np.ndarray], np.ndarray],
+                 jacobian: Callable[[np.ndarray], np.ndarray],
+                 p0: np.ndarray, free: np.ndarray | None = None, *, max_iter: int = 30,
+                 rtol: float = 1e-10, rcond: float = RCOND) -> GaussNewton:
+    """Minimise ``|residual(p)|^2`` by Gauss–Newton steps, damped (Levenberg–Marquardt)
+    when a full step does not lower it.
+
+    Parameters
+    ----------
+    residual : callable
+        p -> whitened residual z = (y - f(p)) / sigma, shape (n,).
+    jacobian : callable
+        p -> whitened Jacobian df/dp / sigma, shape (n, len(p)). Columns of held
+        parameters are ignored.
+    p0 : ndarray
+        Start [parameter units].
+    free : ndarray of bool, optional
+        Which parameters vary (default all).
+    max_iter : int
+    rtol : float
+        Stop when the chi-square decreases by less than ``rtol`` relative.
+    rcond : float
+        Rank rule of each step (:func:`lstsq_svd`).
+
+    Returns
+    -------
+    GaussNewton
+        The solution with z and J evaluated at it (J with all columns).
+
+    Notes
+    -----
+    All damping levels of one iteration come from one SVD of the column-scaled
+    Jacobian; the first that lowers chi-square is taken (Marquardt 1963).
+    """
+    p = np.array(p0, float)
+    free = np.ones(p.size, bool) if free is None else np.asarray(free, bool)
+    z = residual(p)
+    chi2 = float(z @ z)
+    J = jacobian(p)
+    mus = (0.0, 1e-12, 1e-9, 1e-6, 1e-4, 1e-2, 1.0)
+    it, converged, msg = 0, False, "max_iter reached"
+    if not np.isfinite(chi2):
+        return GaussNewton(p, z, J, chi2, 0, False, "non-finite residual at the start")
+    for it in range(1, max_iter + 1):
+        Jf = J[:, free]
+        norm = np.linalg.norm(Jf, axis=0)
+        act = norm > 0
+        if not act.any():
+            converged, msg = True, "no free parameter acts"
+            break
+        U, S, Vt = np.linalg.svd(Jf[:, act] / norm[act], full_matrices=False)
+        keep = S > S[0] * rcond
+        U, S, V = U[:, keep], S[keep], Vt[keep].T
+        uz = U.T @ z
+        better = False
+        for mu in mus:
+            d = np.zeros(p.size)
+            step = (V @ (S / (S ** 2 + mu * S[0] ** 2) * uz)) / norm[act]
+            sub = np.zeros(free.sum())
+            sub[act] = step
+            d[free] = sub
+            pn = p + d
+            zn = residual(pn)
+            cn = float(zn @ zn)
+            if np.isfinite(cn) and cn <= chi2:
+                better = True
+                break
+        if not better:
+            converged, msg = True, "no step lowers chi-square (minimum)"
+            break
+        dec = chi2 - cn
+        p, z, chi2 = pn, zn, cn
+        J = jacobian(p)
+        if dec <= rtol * max(chi2, 1e-300):
+            converged, msg = True, "chi-square converged"
+            break
+    return GaussNewton(p, z, J, chi2, it, converged, msg)
+
+
+# --------------------------------------------------------------------------- adequacy
+
+@dataclass(frozen=True)
+class LackOfFit:
+    """Result of :func:`lack_of_fit`.
+
+    status : 'adequate' | 'inadequate' | 'untestable'
+        'untestable' when the model has no spare degrees of freedom (as many parameters
+        as distinct inputs) or there is no independent estimate of the noise.
+    statistic : float or None
+        F (pure error from the data) or chi-square/dof (noise known).
+    p_value : float or None
+    dof_lof, dof_pe : int
+        Lack-of-fit and pure-error degrees of freedom (dof_pe 0 when the noise is known).
+    factor : float
+        Factor to apply to standard uncertainties: sqrt(statistic) when inadequate
+        (Birge ratio), else 1.
+    """
+    status: str
+    statistic: float | None
+    p_value: float | None
+    dof_lof: int
+    dof_pe: int
+    factor: float = 1.0
+    note: str = ""
+
+    @property
+    def adequate(self) -> bool:
+        return self.status == "adequate"
+
+
+def lack_of_fit(chi2_lof: float, dof_lof: int, chi2_pe: float | None = None, dof_pe: int = 0,
+                alpha: float = ALPHA) -> LackOfFit:
+    """Lack-of-fit test of a weighted fit to cell means against the pure error.
+
+    Parameters
+    ----------
+    chi2_lof : float
+        Weighted sum of squares of the cell-mean residuals, ``sum n_j (ybar_j - yhat_j)^2 /
+        sigma_j^2`` (Draper & Smith §2.1 with weights).
+    dof_lof : int
+        Cells minus fitted parameters.
+    chi2_pe : float, optional
+        Weighted pure-error sum of squares, ``sum_j sum_i (y_ij - ybar_j)^2 / sigma_j^2``;
+        None when sigma is known a priori (then chi2_lof ~ chi^2(dof_lof)).
+    dof_pe : int
+        Pure-error degrees of freedom (readings minus cells).
+    alpha : float
+        Significance level.
+
+    Returns
+    -------
+    LackOfFit
+        F = (chi2_lof / dof_lof) / (chi2_pe / dof_pe) ~ F(dof_lof, dof_pe) under the model.
+    """
+    if dof_lof <= 0:
+        return LackOfFit("untestable", None, None, int(dof_lof), int(dof_pe), 1.0,
+                         "no degrees of freedom left to test the model: as many parameters as "
+                         "distinct inputs")
+    if chi2_pe is None or dof_pe <= 0:
+        stat = chi2_lof / dof_lof
+        p = float(stats.chi2.sf(chi2_lof, dof_lof))
+        dpe = 0
+    else:
+        if chi2_pe <= 0:
+            return LackOfFit("untestable", None, None, int(dof_lof), int(dof_pe), 1.0,
+                             "no pure-error scatter")
+        stat = (chi2_lof / dof_lof) / (chi2_pe / dof_pe)
+        p = float(stats.f.sf(stat, dof_lof, dof_pe))
+        dpe = int(dof_pe)
+    bad = p < alpha
+    return LackOfFit("inadequate" if bad else "adequate", float(stat), p, int(dof_lof), dpe,
+                     math.sqrt(stat) if bad and stat > 1 else 1.0)
+
+
+def birge_ratio(values: Sequence[float], u: Sequence[float]) -> tuple[float, float, float, int]:
+    """Weighted mean of independent results and the Birge ratio of their scatter.
+
+    Parameters
+    ----------
+    values, u : sequences
+        Results and their standard uncertainties (same unit).
+
+    Returns
+    -------
+    mean, u_mean, birge, dof
+        ``u_mean`` is the internal uncertainty 1/sqrt(sum w); ``birge`` = sqrt(chi2/(N-1))
+        (Birge 1932); dof = N - 1.
+    """
+    x = np.asarray(values, float)
+    w = 1.0 / np.asarray(u, float) ** 2
+    m = float(np.sum(w * x) / np.sum(w))
+    um = float(1.0 / math.sqrt(np.sum(w)))
+    dof = x.size - 1
+    chi2 = float(np.sum(w * (x - m) ** 2))
+    return m, um, (math.sqrt(chi2 / dof) if dof > 0 else float("nan")), dof
+
+
+def normalised_error(x1: float, U1: float, x2: float, U2: float) -> float:
+    """En = (x1 - x2) / sqrt(U1^2 + U2^2) with expanded uncertainties (ISO 13528 §9.7)."""
+    d = math.sqrt(U1 * U1 + U2 * U2)
+    return (x1 - x2) / d if d > 0 else float("inf") * np.sign(x1 - x2)
+
+
+# --------------------------------------------------------------------------- result
+
+@dataclass
+class FitResult:
+    """A weighted least-squares fit.
+
+    Attributes
+    ----------
+    params : ParameterSet
+    values : ndarray
+        Estimates [parameter units]; held parameters at their held values.
+    cov_noise : ndarray
+        Covariance from the noise model, (J^T J)^+ over the free, estimable parameters.
+    cov : ndarray
+        The covariance reported: cov_noise times ``lof.factor ** 2`` (lack-of-fit scaling).
+    estimable : ndarray of bool
+        Determined by the data (free and in the row space of the design).
+    chi2, dof, n_obs, rank
+        Whitened chi-square at the solution, n_obs - rank, observations, rank.
+    lof : LackOfFit
+    z, J : ndarray
+        Whitened residual and Jacobian at the solution.
+    converged : bool
+    message : str
+    """
+    params: ParameterSet
+    values: np.ndarray
+    cov_noise: np.ndarray
+    cov: np.ndarray
+    estimable: np.ndarray
+    chi2: float
+    dof: int
+    n_obs: int
+    rank: int
+    lof: LackOfFit
+    z: np.ndarray
+    J: np.ndarray
+    converged: bool = True
+    message: str = ""
+
+    @property
+    def names(self) -> list[str]:
+        return self.params.names
+
+    def value(self, name: str) -> float:
+        return float(self.values[self.params.index[name]])
+
+    def std(self, name: str) -> float:
+        i = self.params.index[name]
+        return float(math.sqrt(max(self.cov[i, i], 0.0))) if self.estimable[i] else float("nan")
+
+    def std_noise(self, name: str) -> float:
+        i = self.params.index[name]
+        return float(math.sqrt(max(self.cov_noise[i, i], 0.0))) if self.estimable[i] else float("nan")
+
+    def correlation(self, names: Sequence[str] | None = None) -> tuple[list[str], np.ndarray]:
+        """Correlation matrix of ``names`` (default: every estimable parameter)."""
+        if names is None:
+            names = [n for n, e in zip(self.names, self.estimable) if e]
+        idx = [self.params.index[n] for n in names]
+        C = self.cov[np.ix_(idx, idx)]
+        d = np.sqrt(np.clip(np.diag(C), 0, None))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            R = C / np.outer(d, d)
+        return list(names), R
+
+    @property
+    def birge(self) -> float:
+        """sqrt(chi2 / dof) of the whitened residuals (nan without dof)."""
+        return math.sqrt(self.chi2 / self.dof) if self.dof > 0 else float("nan")
+
+
+def finish_fit(params: ParameterSet, gn: GaussNewton, lof: LackOfFit | None = None,
+               rcond: float = RCOND) -> FitResult:
+    """Covariance and result of a converged problem (:func:`gauss_newton` outcome).
+
+    ``lof`` defaults to the chi-square test of the whitened residuals with dof = n - rank
+    (noise known).  The reported covariance is the noise-model covariance times
+    ``lof.factor ** 2``.
+    """
+    free = params.free()
+    J = gn.J
+    sol = lstsq_svd(J[:, free], np.zeros(J.shape[0]), rcond)
+    p = len(params)
+    cov_n = np.zeros((p, p))
+    idx = np.flatnonzero(free)
+    cov_n[np.ix_(idx, idx)] = sol.cov
+    est = np.zeros(p, bool)
+    est[idx] = sol.estimable
+    n = J.shape[0]
+    dof = n - sol.rank
+    if lof is None:
+        lof = lack_of_fit(gn.chi2, dof)
+    cov = cov_n * lof.factor ** 2
+    return FitResult(params, gn.p, cov_n, cov, est, gn.chi2, dof, n, sol.rank, lof, gn.z, J,
+                     gn.converged, gn.message)
+
+
+def linear_fit(X: np.ndarray, y: np.ndarray, sigma: np.ndarray | float = 1.0,
+               params: ParameterSet | Sequence[str] | None = None, *,
+               residual_scale: bool = True, rcond: float = RCOND) -> FitResult:
+    """Weighted linear least squares ``y = X b`` (a model linear in its parameters).
+
+    Parameters
+    ----------
+    X : (n, p) ndarray
+        Design [output unit per parameter unit].
+    y : (n,) ndarray
+    sigma : ndarray or float
+        Standard deviation of each observation [output unit].
+    params : ParameterSet or list of names, optional
+    residual_scale : bool
+        True (the classical regression covariance, NIST StRD): cov = s^2 (X^T W X)^+ with
+        s^2 = chi2 / (n - rank). False: cov = (X^T W X)^+ (sigma known), and the lack-of-fit
+        factor applies when the chi-square test fails.
+
+    Returns
+    -------
+    FitResult
+    """
+    X = np.asarray(X, float)
+    y = np.asarray(y, float)
+    s = np.broadcast_to(np.asarray(sigma, float), y.shape)
+    if params is None:
+        params = ParameterSet(Parameter(f"b{k}", f"b{k}") for k in range(X.shape[1]))
+    elif not isinstance(params, ParameterSet):
+        params = ParameterSet(Parameter(n, n) for n in params)
+    Jw = X / s[:, None]
+    sol = lstsq_svd(Jw, y / s, rcond)
+    z = (y - X @ sol.x) / s
+    chi2 = float(z @ z)
+    dof = y.size - sol.rank
+    if residual_scale:
+        s2 = chi2 / dof if dof > 0 else float("nan")
+        lof = LackOfFit("untestable" if dof <= 0 else "adequate", s2, None, dof, 0,
+                        math.sqrt(s2) if dof > 0 else 1.0,
+                        "covariance scaled by the residual variance")
+    else:
+        lof = lack_of_fit(chi2, dof)
+    return FitResult(params, sol.x, sol.cov, sol.cov * lof.factor ** 2, sol.estimable, chi2, dof,
+                     y.size, sol.rank, lof, z, Jw)
