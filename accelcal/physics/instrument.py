@@ -41,6 +41,65 @@ def indicated_acceleration(coeffs: Mapping[str, float], f: np.ndarray,
     return A
 
 
+#: The term each additive coefficient multiplies in A (effects.md instrument model), as a
+#: function of the specific force columns (a_i, a_p, a_o) [m/s^2]: dA/dK.
+COEFFICIENT_TERMS = {
+    "K0": lambda ai, ap, ao: np.ones_like(ai),
+    "K2": lambda ai, ap, ao: ai * ai,
+    "K3": lambda ai, ap, ao: ai ** 3,
+    "Koq": lambda ai, ap, ao: ai * np.abs(ai),
+    "Kp": lambda ai, ap, ao: ap,
+    "Ko": lambda ai, ap, ao: ao,
+    "Kip": lambda ai, ap, ao: ai * ap,
+    "Kio": lambda ai, ap, ao: ai * ao,
+    "Kpo": lambda ai, ap, ao: ap * ao,
+    "Kpp": lambda ai, ap, ao: ap * ap,
+    "Koo": lambda ai, ap, ao: ao * ao,
+}
+
+
+def output_derivative(name: str, coeffs: Mapping[str, float], f: np.ndarray,
+                      temp_c: np.ndarray | None = None, time_s: np.ndarray | None = None,
+                      bias_drift: float = 0.0) -> np.ndarray:
+    """dE/dK of :func:`output` for one instrument coefficient, exactly.
+
+    Parameters
+    ----------
+    name : str
+        K0, K1, K2, K3, Koq, Kp, Ko, Kip, Kio, Kpo, Kpp, Koo, K0T or K1T (effects.md).
+    coeffs : mapping
+        The coefficients at which to differentiate [SI].
+    f : (n, 3) ndarray
+        Specific force on (IA, PA, OA) [m/s^2].
+    temp_c, time_s : ndarray, optional
+        As for :func:`output`.
+
+    Returns
+    -------
+    ndarray
+        [output_unit per unit of the coefficient].  E = K1(T) A is linear in every additive
+        coefficient (dE/dK = K1(T) dA/dK), in K0T (K1(T) (T - T_ref)) and bilinear in K1 and
+        K1T; no term of this derivative is approximate.
+    """
+    ai, ap, ao = f[..., 0], f[..., 1], f[..., 2]
+    K1T_ = scale_factor(coeffs, temp_c)
+    if name in COEFFICIENT_TERMS:
+        return K1T_ * COEFFICIENT_TERMS[name](ai, ap, ao)
+    if name == "K0T":
+        if temp_c is None:
+            return np.zeros_like(ai)
+        return K1T_ * (np.asarray(temp_c, float) - T_REF_C)
+    A = indicated_acceleration(coeffs, f, temp_c, time_s, bias_drift)
+    if name == "K1":
+        K1 = float(coeffs.get("K1", 1.0))
+        return (K1T_ / K1) * A if K1 != 0 else A * 0.0
+    if name == "K1T":
+        if temp_c is None:
+            return np.zeros_like(ai)
+        return float(coeffs.get("K1", 1.0)) * (np.asarray(temp_c, float) - T_REF_C) * A
+    raise KeyError(f"{name!r} is not an instrument coefficient")
+
+
 def scale_factor(coeffs: Mapping[str, float], temp_c: np.ndarray | None = None) -> np.ndarray | float:
     """K1(T) = K1 (1 + K1T (T - T_ref)), output_unit per m/s^2."""
     K1 = float(coeffs.get("K1", 1.0))
@@ -63,6 +122,18 @@ def first_order_lag(x: np.ndarray, time_s: np.ndarray, tau: float) -> np.ndarray
     if tau <= 0.0 or x.size == 0:
         return x.copy()
     t = np.asarray(time_s, float)
+    dts = np.diff(t)
+    if x.size > 2 and dts.size and np.all(dts > 0) and np.ptp(dts) <= 1e-9 * dts[0]:
+        # uniform sampling: the same recursion as one linear filter
+        # y[n] = a y[n-1] + b0 x[n] + b1 x[n-1], a = exp(-dt/tau), b0 = 1 - tau (1 - a)/dt
+        from scipy.signal import lfilter
+        dt = float(dts.mean())
+        a = np.exp(-dt / tau)
+        b0 = 1.0 - tau * (1.0 - a) / dt
+        b1 = (1.0 - a) - b0
+        zi = np.array([a * x[0] + b1 * x[0]])          # makes y[0] = x[0] (steady state)
+        y, _ = lfilter([b0, b1], [1.0, -a], x[1:], zi=zi)
+        return np.concatenate([[x[0]], y])
     y = np.empty_like(x)
     y[0] = x[0]
     for n in range(1, x.size):

@@ -22,7 +22,8 @@ from collections.abc import Mapping
 import numpy as np
 
 from ..constants import M2_PERIOD_S, OMEGA_EARTH, T_REF_C
-from .axes import parse_plane, parse_signed_axis, plane_handedness
+from .axes import parse_plane, parse_signed_axis, plane_handedness  # noqa: F401 (re-exported)
+from .geometry import geometry_of
 from .instrument import first_order_lag, output
 
 #: The drop format's nominal input: everything nominal, earth rate included.
@@ -97,11 +98,10 @@ def centrifuge_specific_force(meta: Mapping, data, effects: Mapping[str, float] 
     effects = effects or {}
     n = _n(data)
     g = float(meta["g_local_m_s2"])
-    e1, e2 = parse_plane(meta["mount_plane"])
-    v, vs = parse_signed_axis(meta["vertical_axis"])
-    h = plane_handedness(meta["mount_plane"], meta["vertical_axis"])
-    R0 = float(meta["arm_radius_m"]) if radius_m is None else float(radius_m)
-    phi = np.radians(float(meta["mount_angle_deg"])) + float(effects.get("mount_angle_error", 0.0))
+    geo = geometry_of(meta)
+    e1, e2, v, vs, h = geo.e1, geo.e2, geo.vertical, geo.vertical_sign, geo.handedness
+    R0 = geo.arm_radius_m if radius_m is None else float(radius_m)
+    phi = geo.phi_rad + float(effects.get("mount_angle_error", 0.0))
     r = float(effects.get("mass_centre_offset", 0.0))
     kappa = float(effects.get("arm_stretch", 0.0))
     lam = float(effects.get("ia_tilt", 0.0))
@@ -148,11 +148,10 @@ def tumble_specific_force(meta: Mapping, data, effects: Mapping[str, float] | No
     n = _n(data)
     g = float(meta["g_local_m_s2"])
     th = np.radians(_col(data, "angle_deg", n)) + float(effects.get("initial_misalignment", 0.0))
-    c, cs = parse_signed_axis(meta["cos_axis"])
-    s, ss = parse_signed_axis(meta["sin_axis"])
+    head = geometry_of(meta)
     F = np.zeros((n, 3))
-    F[:, c] = cs * g * np.cos(th)
-    F[:, s] = ss * g * np.sin(th)
+    F[:, head.cos_axis] = head.cos_sign * g * np.cos(th)
+    F[:, head.sin_axis] = head.sin_sign * g * np.sin(th)
     return F
 
 
@@ -165,12 +164,12 @@ def tilt_rotation_specific_force(meta: Mapping, data, effects: Mapping[str, floa
     n = _n(data)
     g = float(meta["g_local_m_s2"])
     t = _col(data, "time_s", n)
-    gamma = (np.radians(float(meta["tilt_deg"])) + float(effects.get("base_tilt_drift", 0.0)) * t
+    tab = geometry_of(meta)
+    gamma = (tab.gamma_rad + float(effects.get("base_tilt_drift", 0.0)) * t
              + float(effects.get("tilt_tide", 0.0)) * np.sin(2 * np.pi * t / M2_PERIOD_S))
     th = np.radians(_col(data, "rotation_deg", n))
-    si, ss = parse_signed_axis(meta["sin_axis"])
-    ci, cs = parse_signed_axis(meta["cos_axis"])
-    ni, ns = parse_signed_axis(meta["normal_axis"])
+    si, ss, ci, cs = tab.sin_axis, tab.sin_sign, tab.cos_axis, tab.cos_sign
+    ni, ns = tab.normal_axis, tab.normal_sign
     F = np.zeros((n, 3))
     F[:, si] = ss * g * np.sin(gamma) * np.sin(th)
     F[:, ci] = cs * g * np.sin(gamma) * np.cos(th)
