@@ -12,6 +12,10 @@ G_STANDARD = 9.80665
 T_REF_C = 20.0
 #: M2 tidal period, s (effects.md, tilt_tide).
 M2_PERIOD_S = 44712.0
+#: Fixture mount-angle tolerance, rad (1 arc-minute): the half-width of the type-B term for a
+#: mount angle the design cannot determine (paper 000 eq 8).  A lab with a better fixture
+#: sets its own; it is stored with every result.
+MOUNT_ANGLE_TOLERANCE_RAD = 2.908882086657216e-04
 
 # Display units: factor that turns an SI value into the display unit.
 MICRO_G = 1e-6 * G_STANDARD          # 1 ug in m/s^2

@@ -51,11 +51,11 @@ def to_display(name: str, value: float, std_u: float | None, unit: str,
     K1 is shown in <output unit>/g with U relative, in ppm (U_in_ppm True); a name
     outside COEFFICIENTS is returned in its own unit.  value and u in SI (effects.md)."""
     U = None if std_u is None else k * std_u
-    spec = COEFFICIENTS.get(name)
+    spec = COEFFICIENTS.get(name.split("[", 1)[0])
     if spec is None:
         return value, U, unit, False
     val = value / spec.display_factor
-    if name == "K1":
+    if spec.name == "K1":
         out_unit = unit.split("/")[0] if "/" in unit else "out"
         rel = None if U is None or value == 0 else U / abs(value) * 1e6
         return val, rel, f"{out_unit}/g", True

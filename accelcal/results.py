@@ -24,6 +24,9 @@ class CoefficientResult:
     #: True for the value the lab adopts (the joint fit through the forward model, one per
     #: campaign and coefficient); the paper methods are stored beside it as cross-checks.
     adopted: bool = False
+    #: k of U = k u for a coverage probability of about 95 %: 2, or Student's t(dof) when the
+    #: uncertainty rests on few degrees of freedom (a lack-of-fit-scaled u, JCGM 100 G.3)
+    coverage_factor: float = 2.0
 
 
 @dataclass

@@ -28,8 +28,8 @@ RADIUS_RANGES = (7.0, 14.0, 25.0)
 RADIUS_ORDERS = (1, 2, 3)
 SECOND_ORDER_UNIT = "s2/m"
 #: Fixture mount-angle tolerance (rad) behind the type-B eq 8 term: an angle error common
-#: to both polarities does not cancel.  1 arc-minute; a lab with a better fixture sets its own.
-MOUNT_ANGLE_TOLERANCE_RAD = math.radians(1.0 / 60.0)
+#: to both polarities does not cancel (constants.MOUNT_ANGLE_TOLERANCE_RAD, 1 arc-minute).
+from ..constants import MOUNT_ANGLE_TOLERANCE_RAD  # noqa: E402
 
 
 def _meta(run) -> Mapping:
@@ -359,19 +359,43 @@ def process_campaign(runs) -> CampaignResult:
         _thermal(by_test["tilt_rotation"], res)
     if by_test.get("sine_centrifuge"):
         _sine(by_test["sine_centrifuge"], res)
+    _joint(runs, res)
     _mark_adopted(res)
     _assess_completeness(res)
     return res
 
 
-#: Which method's value is adopted when several give the same coefficient (interim rule
-#: until the joint fit of issue 9 provides the adopted values).
+def _joint(runs, res: CampaignResult) -> None:
+    """The adopted values: the joint fit of every reading through the forward model
+    (:mod:`accelcal.estimators.joint`), compared with the paper methods' values."""
+    from . import joint
+    try:
+        out = joint.campaign_results(sorted(runs, key=lambda r: str(r.meta.get("run_id"))))
+    except Exception as exc:  # the paper methods' values stay; the failure is a flag
+        res.flags.append(f"joint fit failed ({type(exc).__name__}: {exc}); the paper methods' values are "
+                         "adopted instead")
+        return
+    others = list(res.coefficients)
+    res.coefficients += out["coefficients"]
+    res.radii += out["radii"]
+    res.adequacy += out["adequacy"]
+    res.budget += out["budget"]
+    res.alignment += out["alignment"]
+    res.flags += out["flags"]
+    rows, flags = joint.compare_with_methods(out["coefficients"], others, runs)
+    res.flags += flags
+    res.extras["joint"] = {**out["extras"], "method_comparison": rows}
+    res.parameters["joint_effects"] = out["extras"]["effects"]
+
+
+#: Which method's value is adopted when several give the same coefficient: the joint fit
+#: (issue 9); the paper methods only when the joint fit could not run.
 ADOPTION_ORDER = ("joint_ml", "centrifuge_eq9", "sine_ls", "tilt_rotation_ls",
                   "tilt_rotation_two_position", "tumble_lm")
 
 
 def _mark_adopted(res: CampaignResult) -> None:
-    """One adopted value per (coefficient, rig): the first method of ADOPTION_ORDER."""
+    """One adopted value per coefficient: the first method of ADOPTION_ORDER."""
     rank = {m: i for i, m in enumerate(ADOPTION_ORDER)}
     best: dict[str, CoefficientResult] = {}
     for c in res.coefficients:
@@ -388,7 +412,11 @@ def _assess_completeness(res: CampaignResult) -> None:
     reasons = []
     if not res.coefficients:
         reasons.append("no coefficient could be determined from these runs")
-    if res.tests == ["tumble"]:
+    lof = res.extras.get("joint", {}).get("lack_of_fit", {})
+    if lof.get("status") == "untestable":
+        reasons.append("the runs leave no degrees of freedom to test the model of the joint fit "
+                       "(as many parameters as distinct inputs)")
+    elif not lof and res.tests == ["tumble"]:
         fits = res.extras.get("tumble", [])
         if fits and all(not f.get("lack_of_fit") for f in fits):
             reasons.append("every tumble run has as many head positions as fitted parameters: "

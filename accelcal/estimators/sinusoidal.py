@@ -70,6 +70,7 @@ import pandas as pd
 from scipy.optimize import least_squares
 from scipy.stats import f as f_dist
 
+from ..fitting.data import fitted_drive
 from ..physics import instrument, rigs
 from ..results import CoefficientResult
 
@@ -129,19 +130,6 @@ def _attitude(meta: Mapping) -> str:
         else f"{meta['mount_plane']}@{phi:g}"
 
 
-def _harmonic_fit(t: np.ndarray, w: np.ndarray, f: float, n_harm: int) -> tuple[np.ndarray, np.ndarray]:
-    """Least-squares fit of the logged rate by a constant and n_harm harmonics of f;
-    returns (fitted rate, its analytic time derivative)."""
-    cols, dcols = [np.ones_like(t)], [np.zeros_like(t)]
-    for k in range(1, n_harm + 1):
-        wk = 2 * np.pi * k * f
-        cols += [np.sin(wk * t), np.cos(wk * t)]
-        dcols += [wk * np.cos(wk * t), -wk * np.sin(wk * t)]
-    X, D = np.column_stack(cols), np.column_stack(dcols)
-    b, *_ = np.linalg.lstsq(X, w, rcond=None)
-    return X @ b, D @ b
-
-
 def _five_point(t: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Numerical derivative of the logged rate: 5-point (4th-order) stencils, central inside
     and one-sided at the two first and last samples (uniform sampling assumed)."""
@@ -179,7 +167,7 @@ def prepare_runs(runs: Sequence, rate_source: str = "drive", rate_derivative: st
         t = d["time_s"].to_numpy()
         w = d["table_rate_rad_s"].to_numpy()
         Om, f = float(meta["rate_amplitude_rad_s"]), float(meta["rate_frequency_hz"])
-        fit_w, fit_d = _harmonic_fit(t, w, f, n_harmonics)
+        fit_w, fit_d = fitted_drive(t, w, f, n_harmonics)
         if rate_source == "fitted":
             d["table_rate_rad_s"] = fit_w
         elif rate_source == "drive":

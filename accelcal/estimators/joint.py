@@ -1,0 +1,502 @@
+"""The adopted calibration: one maximum-likelihood fit per campaign through the one forward
+model (issue 9, "one model, one fit").
+
+Every reading of every run of the campaign enters one weighted Gauss–Newton fit of the
+campaign model (:class:`accelcal.fitting.model.CampaignModel`): tumble and centrifuge
+pooled, Koq and K3 shared by all mounts, the mount-angle errors, the turning-centre radius
+and the mass-centre offset as parameters where the design sees them, temperature per
+reading, the sinusoidal drive fitted to its logged rate.  The weights come from a noise
+model fitted to the data of each run (white + rate-proportional, with regressor noise and
+lag-1 autocorrelation; :mod:`accelcal.fitting.data`).
+
+Uncertainty.  u = sqrt(diag((J^T W J)^-1)) at the solution, scaled by the lack-of-fit
+factor sqrt(F) when the model is inadequate (F test of the cell means against the pure
+error, Draper & Smith §2.1), with the lack-of-fit degrees of freedom then carried as the
+coefficient's dof.  A fit with no spare degrees of freedom is *untestable*: it is flagged,
+and its coefficients carry no uncertainty (NaN), because reading noise alone would pretend
+to a precision the data cannot support.  The covariance of all coefficients is kept
+(``extras['joint']['correlation']``).
+
+The paper methods (eqs 4–7 radius, eq 9 per pair, eq 3 combination, 001 point LS, 002)
+are computed beside it by :mod:`accelcal.estimators.campaign` and stored as cross-checks;
+where one disagrees with the adopted value beyond their combined expanded uncertainty
+(|En| > 1) a flag says so.
+
+References: He & Yin 2017 (paper 000), Zhang et al. 2021 (001), Sun, Ren & Wang (002),
+Zhan & Cai (003); JCGM 100:2008 §4.2, G.4; ISO 13528 §9.7 (En).
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from ..constants import MOUNT_ANGLE_TOLERANCE_RAD
+from ..fitting.core import (FitResult, LackOfFit, finish_fit, gauss_newton, lack_of_fit, lstsq_svd,
+                            normalised_error)
+from ..fitting.data import RunCells, drop_duplicate_cells, fit_noise, make_run, pool_missing_noise
+from ..fitting.model import CampaignModel, head_runs, mount_runs
+from ..physics.axes import AXES
+from ..physics.geometry import CentrifugeMount
+from ..results import AdequacyResult, BudgetTerm, CoefficientResult, RadiusResult
+from .adequacy import runs_test, trend_test
+
+METHOD = "joint_ml"
+
+#: Effects the lab's processing models, per test kind (the default model; the diagnosis
+#: uses the same list as its default baseline).
+PROCESSING_EFFECTS: dict[str, tuple[str, ...]] = {
+    "tumble": ("initial_misalignment",),
+    "centrifuge": ("earth_rate", "odd_quadratic", "cubic", "cross_coupling", "mass_centre_offset",
+                   "mount_angle_error"),
+    "sine_centrifuge": ("earth_rate", "odd_quadratic", "cubic", "cross_coupling", "mass_centre_offset",
+                        "spindle_tilt", "sensor_lag"),
+    "tilt_rotation": ("bias_temperature", "scale_temperature"),
+}
+#: Reported coefficients and what an aliased design leaves in them
+NOTES = {
+    "K0T": ("apparent bias TC: includes g c cos(gamma) of any fixture thermal tilt c "
+            "(fixture_thermal_tilt), which the tilt-rotation design cannot separate (paper 001 §3.2)"),
+}
+
+
+def coverage_factor(dof: float, p: float = 0.95) -> float:
+    """k for a coverage probability p from Student's t with ``dof`` degrees of freedom
+    (JCGM 100 G.3); 2 for 30 or more dof (or an infinite/unknown dof)."""
+    if not dof or not math.isfinite(dof) or dof >= 30:
+        return 2.0
+    return float(stats.t.ppf(0.5 + p / 2, dof))
+
+
+def processing_effects(tests: Sequence[str]) -> list[str]:
+    """The union of :data:`PROCESSING_EFFECTS` over the test kinds present."""
+    out: list[str] = []
+    for t in sorted(set(tests)):
+        for e in PROCESSING_EFFECTS.get(t, ()):
+            if e not in out:
+                out.append(e)
+    return out
+
+
+@dataclass
+class JointFit:
+    """A fitted campaign model with what the pipeline stores of it."""
+    model: CampaignModel
+    fit: FitResult
+    held: dict[str, str]
+    iterations: int
+    notes: list[str] = field(default_factory=list)
+    pure_error: dict[str, float] = field(default_factory=dict)
+
+    def value(self, name: str) -> float:
+        return self.fit.value(name)
+
+    def std(self, name: str) -> float:
+        return self.fit.std(name)
+
+
+def _pure_error(model: CampaignModel, p: np.ndarray) -> tuple[float, int]:
+    """Weighted pure-error chi-square and dof: the within-cell scatter of the residuals
+    against each run's noise model (AR(1)-corrected)."""
+    from ..fitting.data import ar1_variance_factor
+    chi, dof = 0.0, 0
+    for j, r in enumerate(model.runs):
+        res = r.y_rows - model.predict_rows(p, j)
+        s2, _ = r.cell_scatter(res)
+        ok = (r.n >= 2) & np.isfinite(s2)
+        if not ok.any() or r.noise is None or not math.isfinite(r.noise.a):
+            continue
+        sig2 = r.noise.reading_variance(r.x[ok]) * ar1_variance_factor(r.n[ok], r.noise.rho)
+        chi += float(np.sum((r.n[ok] - 1) * s2[ok] / sig2))
+        dof += int(np.sum(r.n[ok] - 1))
+    return chi, dof
+
+
+def fit_campaign_model(runs: Sequence[RunCells], effects: Sequence[str], *, shared: Sequence[str] = (),
+                       per_run_bias: bool | None = None, per_run_scale: bool = False,
+                       noise_passes: int = 2, keep: Sequence[str] = ()) -> JointFit:
+    """Fit a campaign model to runs whose cells are built (:func:`prepare`).
+
+    The noise model of each run is first fitted to its outputs, then refitted to the
+    residuals of the fit (``noise_passes`` times), so that regressor noise and the
+    lack of fit of nothing but noise are told apart.
+    """
+    model = CampaignModel(runs, effects, shared=shared, per_run_bias=per_run_bias,
+                          per_run_scale=per_run_scale)
+    p = model.start()
+    held = model.select(p, keep=keep)
+    free = model.params.free()
+    gn = gauss_newton(model.residual, model.jacobian, p, free, max_iter=40)
+    its = gn.iterations
+    for _ in range(noise_passes):
+        for j, r in enumerate(model.runs):
+            fit_noise(r, r.y_rows - model.predict_rows(gn.p, j))
+        pool_missing_noise(model.runs)
+        model.refresh_noise()
+        gn = gauss_newton(model.residual, model.jacobian, gn.p, free, max_iter=40)
+        its += gn.iterations
+    chi_pe, dof_pe = _pure_error(model, gn.p)
+    rank_fit = finish_fit(model.params, gn)          # to get the rank
+    dof_lof = model.N - rank_fit.rank
+    lof = lack_of_fit(gn.chi2, dof_lof, chi_pe if dof_pe > 0 else None, dof_pe)
+    fit = finish_fit(model.params, gn, lof)
+    return JointFit(model, fit, held, its, pure_error={"chi2": chi_pe, "dof": dof_pe})
+
+
+def prepare(runs) -> tuple[list[RunCells], list[str]]:
+    """RunFile-like objects (meta, data, sha256) -> cells with a first noise model."""
+    cells = [make_run(r.meta, r.data, j, getattr(r, "sha256", "")) for j, r in enumerate(runs)]
+    notes = drop_duplicate_cells(cells)
+    for c in cells:
+        fit_noise(c)
+    pool_missing_noise(cells)
+    return cells, notes
+
+
+# ----------------------------------------------------------------------------- results
+
+def _coefficient_unit(name: str, out_unit: str) -> str:
+    from ..fitting.model import COEFFICIENT_UNIT
+    u = COEFFICIENT_UNIT.get(name, "s2/m")
+    return u.replace("out", out_unit) if name == "K1" else u
+
+
+def _alias_note(jf: JointFit, name: str) -> str:
+    """What the design leaves in a coefficient: the held parameters it is aliased with."""
+    parts = []
+    for held, why in jf.held.items():
+        if why.startswith("aliased with") and name in why:
+            parts.append(held)
+    return f"aliased in this design with {', '.join(parts)} (held at 0): the value includes them" if parts else ""
+
+
+def run_consistency(runs, effects: Sequence[str], alpha: float = 0.01) -> tuple[list[dict], list[str]]:
+    """Do runs of one test kind that measure the same coefficients agree?
+
+    Each tumble run is fitted alone (its own K0, K1, K2, theta0) and the K0 and K1 of the
+    runs are compared by their Birge ratio against the reading-noise uncertainty of each
+    run (chi-square with N - 1 dof).  Runs that disagree are flagged, not silently averaged:
+    the joint fit's lack-of-fit test and its sqrt(F) scaling carry the disagreement into
+    the adopted uncertainty.
+
+    Returns
+    -------
+    rows, flags
+        One row per (test, coefficient) compared: values, u, Birge ratio, p, agree.
+    """
+    from ..fitting.core import birge_ratio
+    rows, flags = [], []
+    tumble = [r for r in runs if str(r.meta["test"]) == "tumble"]
+    if len(tumble) < 2:
+        return rows, flags
+    fits = {}
+    for r in tumble:
+        try:
+            cells, _ = prepare([r])
+            fits[str(r.meta["run_id"])] = fit_campaign_model(cells, [e for e in effects
+                                                                       if e == "initial_misalignment"])
+        except Exception as exc:  # one run that cannot be fitted alone is a flag, not a crash
+            flags.append(f"run {r.meta.get('run_id')} cannot be fitted alone: {type(exc).__name__}: {exc}")
+    for name in ("K0", "K1"):
+        vals, us, ids = [], [], []
+        for rid, jf in fits.items():
+            if name in jf.model.params.index and jf.fit.estimable[jf.model.params.index[name]]:
+                vals.append(jf.value(name))
+                us.append(jf.fit.std_noise(name))
+                ids.append(rid)
+        if len(vals) < 2 or not all(u > 0 for u in us):
+            continue
+        m, um, birge, dof = birge_ratio(vals, us)
+        p = float(stats.chi2.sf(birge ** 2 * dof, dof))
+        agree = p >= alpha
+        rows.append({"test": "tumble", "coefficient": name, "runs": ids, "values": vals, "u_readings": us,
+                     "birge_ratio": birge, "p": p, "agree": agree})
+        if not agree:
+            flags.append(f"tumble runs disagree on {name}: " + ", ".join(f"{i} {v:.6g}" for i, v in zip(ids, vals))
+                         + f" (Birge ratio {birge:.3g} against their reading noise, p = {p:.2g}); not averaged "
+                           "silently: the adopted value's uncertainty carries the scatter (lack-of-fit scaling)")
+    return rows, flags
+
+
+def campaign_results(runs, rig_ids: Sequence[str] | None = None, effects: Sequence[str] | None = None
+                     ) -> dict[str, Any]:
+    """The joint fit of one campaign and its results in the pipeline's record types.
+
+    Parameters
+    ----------
+    runs : sequence of RunFile-like (meta, data, sha256)
+        The runs of one campaign (newest revision of each run_id).
+    effects : sequence of str, optional
+        Effects in the model (default :func:`processing_effects` of the tests present).
+
+    Returns
+    -------
+    dict
+        coefficients (list of CoefficientResult, method 'joint_ml', adopted), radii,
+        adequacy, budget, alignment (list of dict), flags (list of str), extras (dict),
+        fit (JointFit).
+    """
+    cells, notes = prepare(runs)
+    tests = sorted({c.test for c in cells})
+    eff = processing_effects(tests) if effects is None else list(effects)
+    jf = fit_campaign_model(cells, eff)
+    jf.notes += notes
+    out = _records(jf, cells)
+    rows, flags = run_consistency(runs, eff)
+    out["flags"] += flags
+    if rows:
+        out["extras"]["run_consistency"] = rows
+    return out
+
+
+def type_b_terms(jf: JointFit, tolerance: float = MOUNT_ANGLE_TOLERANCE_RAD) -> dict[str, list[tuple[str, float, float]]]:
+    """Type-B terms of parameters the design cannot determine but that are physically there.
+
+    A mount angle of a mount whose IA is radial (phi0 = 0/180 deg) changes the fit only at
+    second order, exactly as K2 does (eq 8 at phi0 = 0: dc2 = Kip dphi).  Its effect on
+    every fitted parameter is the bias it would transfer, dtheta = (J^T W J)^-1 J^T W j dphi
+    (j its Jacobian column), with dphi uniform within the fixture tolerance (JCGM 100
+    4.3.7: u = a / sqrt(3)).
+
+    Returns
+    -------
+    dict
+        parameter name -> [(quantity, sensitivity, u_B)].
+    """
+    model, fit = jf.model, jf.fit
+    free = np.flatnonzero(model.params.free() & fit.estimable)
+    out: dict[str, list[tuple[str, float, float]]] = {}
+    uB = tolerance / math.sqrt(3.0)
+    held = []
+    for label, runs in model.unseparable_angles.items():
+        held.append((f"mount angle of {label} (type B, uniform ±{tolerance:.3g} rad: not separable, eq 8)",
+                     model.held_direction(fit.values, "mount_angle_error", runs)))
+    # cross-axis sensitivities the design aliases with the mount angles or theta0: the fit
+    # absorbs them at first order; what leaks at second order (eq 8 through Kip, Kio) is a
+    # type-B term, bounded like the fixture's angle tolerance (the instrument's IA is
+    # referenced to its mounting surface)
+    for name, why in jf.held.items():
+        i = model.params.index[name]
+        if model.roles[i].key in ("Kp", "Ko") and why.startswith("aliased"):
+            held.append((f"{name} (type B, uniform ±{tolerance:.3g} rad: aliased, absorbed at first order)",
+                         model.jacobian(fit.values, [i])[:, 0]))
+    for quantity, col in held:
+        sol = lstsq_svd(fit.J[:, free], col)
+        for c, i in enumerate(free):
+            out.setdefault(model.params[i].name, []).append((quantity, float(sol.x[c]), uB))
+    return out
+
+
+def _records(jf: JointFit, cells: list[RunCells]) -> dict[str, Any]:
+    model, fit = jf.model, jf.fit
+    lof = fit.lof
+    tb = type_b_terms(jf)
+    flags: list[str] = []
+    coefficients: list[CoefficientResult] = []
+    budget: list[BudgetTerm] = []
+    out_unit = str(cells[0].meta.get("output_unit", "out"))
+    rigs = sorted({c.rig_id for c in cells})
+    rig_label = rigs[0] if len(rigs) == 1 else "+".join(rigs)
+    untestable = lof.status == "untestable"
+    dof = lof.dof_lof if lof.status == "inadequate" else (fit.dof if not untestable else 0)
+    k = coverage_factor(dof) if lof.status == "inadequate" else 2.0
+    if untestable:
+        flags.append("joint fit: untestable: the runs leave no degrees of freedom to test the model "
+                     "(as many parameters as distinct inputs); its coefficients carry no uncertainty")
+    elif lof.status == "inadequate":
+        flags.append(f"joint fit: model inadequate (lack-of-fit F = {lof.statistic:.3g}, p = {lof.p_value:.2g}, "
+                     f"{lof.dof_lof}/{lof.dof_pe} dof): uncertainties scaled by sqrt(F) = {lof.factor:.3g}")
+    if not fit.converged:
+        flags.append(f"joint fit did not converge: {fit.message}")
+    flags += [f"joint fit: {n}" for n in jf.notes]
+    rig_of = _dominant_rigs(jf)
+    # instrument coefficients
+    for i, prm in enumerate(model.params):
+        role = model.roles[i]
+        if role.kind != "coef" or not prm.vary or not fit.estimable[i]:
+            continue
+        name = role.key
+        u = fit.std(prm.name)
+        u_noise = fit.std_noise(prm.name)
+        terms_b = tb.get(prm.name, [])
+        u = math.sqrt(u * u + sum((c * ub) ** 2 for _, c, ub in terms_b))
+        if untestable:
+            u = float("nan")
+        note = "; ".join(x for x in ("joint ML fit of every reading through the forward model",
+                                     NOTES.get(name, ""), _alias_note(jf, prm.name)) if x)
+        coefficients.append(CoefficientResult(name, float(fit.values[i]), float(u), _coefficient_unit(name, out_unit),
+                                              METHOD, rig_of.get(prm.name, rig_label), float(dof), note,
+                                              adopted=True, coverage_factor=k))
+        budget.append(BudgetTerm(name, "readings: joint fit through the forward model (noise model per run, "
+                                       "autocorrelation included)", float(fit.values[i]), u_noise, 1.0,
+                                 u_noise, "A", "normal"))
+        if lof.factor > 1:
+            extra = u_noise * math.sqrt(lof.factor ** 2 - 1.0)
+            budget.append(BudgetTerm(name, f"model inadequacy: lack-of-fit scaling sqrt(F) = {lof.factor:.3g}",
+                                     0.0, extra, 1.0, extra, "A", "normal"))
+        for q, c, ub in terms_b:
+            budget.append(BudgetTerm(name, q, 0.0, ub, c, abs(c) * ub, "B", "uniform"))
+    # theta0 per head
+    for i, prm in enumerate(model.params):
+        role = model.roles[i]
+        if role.key != "initial_misalignment" or not prm.vary or not fit.estimable[i]:
+            continue
+        runs_h = [model.runs[j] for j in prm.runs or ()]
+        head = runs_h[0].geometry if runs_h else None
+        label = f"theta0[{AXES[head.head_axis]}]" if head is not None and sum(
+            1 for q in model.params if model.roles[model.params.index[q.name]].key == "initial_misalignment") > 1 \
+            else "theta0"
+        u = float("nan") if untestable else fit.std(prm.name)
+        coefficients.append(CoefficientResult(
+            label, float(fit.values[i]), u, "rad", METHOD, runs_h[0].rig_id if runs_h else rig_label, float(dof),
+            "initial misalignment of this dividing head (never pooled across heads); aliases with the "
+            "cross-axis sensitivity of the other turning axis (paper 003)", adopted=True, coverage_factor=k))
+        budget.append(BudgetTerm(label, "readings: joint fit through the forward model", float(fit.values[i]),
+                                 fit.std_noise(prm.name), 1.0, fit.std_noise(prm.name), "A", "normal"))
+    # geometry: radii, mass-centre offset, mount angles, tool errors
+    radii, alignment = _geometry_records(jf)
+    for prm, why in jf.held.items():
+        if why.startswith("weakly") or why.startswith("aliased"):
+            pass
+    # adequacy record
+    tr, rn = _residual_checks(jf)
+    adequacy = [AdequacyResult(rig_label, "joint campaign fit", 0, None,
+                               float(lof.statistic) if lof.statistic is not None else float("nan"),
+                               float(lof.p_value) if lof.p_value is not None else float("nan"),
+                               int(lof.dof_lof), int(lof.dof_pe), tr, 1.0, rn,
+                               lof.status == "adequate", True,
+                               f"status {lof.status}; {len(model.runs)} runs, {model.N} cells, "
+                               f"{int(model.params.free().sum())} free parameters")]
+    names, R = fit.correlation([model.params[i].name for i in range(len(model.params))
+                                if model.params[i].vary and fit.estimable[i]])
+    extras = {
+        "method": METHOD,
+        "effects": model.effects,
+        "parameters": [{"name": prm.name, "key": prm.key, "unit": prm.unit, "group": prm.group,
+                        "value": float(fit.values[i]),
+                        "u": (fit.std(prm.name) if prm.vary and fit.estimable[i] else None),
+                        "held": jf.held.get(prm.name)} for i, prm in enumerate(model.params)],
+        "correlation": {"names": names, "matrix": np.round(R, 4).tolist()},
+        "lack_of_fit": {"status": lof.status, "F": lof.statistic, "p": lof.p_value, "dof_lof": lof.dof_lof,
+                        "dof_pe": lof.dof_pe, "factor": lof.factor, "note": lof.note},
+        "chi2": fit.chi2, "cells": model.N, "rank": fit.rank, "iterations": jf.iterations,
+        "converged": fit.converged,
+        "noise": {r.run_id: {"a": r.noise.a, "b": r.noise.b, "rho": r.noise.rho, "dof": r.noise.dof,
+                             "source": r.noise.source} for r in model.runs},
+        "notes": jf.notes,
+    }
+    return {"coefficients": coefficients, "radii": radii, "adequacy": adequacy, "budget": budget,
+            "alignment": alignment, "flags": flags, "extras": extras, "fit": jf}
+
+
+def _dominant_rigs(jf: JointFit) -> dict[str, str]:
+    """The rig whose runs carry most of the information on each parameter (the sum of the
+    squared whitened Jacobian column over its rows): the rig a coefficient is calibrated on,
+    for rig comparisons (K1 on the dividing head, the second-order terms on the centrifuge)."""
+    model, J = jf.model, jf.fit.J
+    out = {}
+    rigs = sorted({r.rig_id for r in model.runs})
+    for i, prm in enumerate(model.params):
+        info = {rig: 0.0 for rig in rigs}
+        for j, r in enumerate(model.runs):
+            col = J[model.rows(j), i]
+            info[r.rig_id] += float(col @ col)
+        out[prm.name] = max(info, key=info.get)
+    return out
+
+
+def _residual_checks(jf: JointFit) -> tuple[float, float]:
+    """Trend in time and run of signs of the whitened cell residuals, per run (Bonferroni)."""
+    tp, rp = [], []
+    for j, r in enumerate(jf.model.runs):
+        z = jf.fit.z[jf.model.rows(j)]
+        t = r.attrs.get("time", np.arange(z.size, dtype=float))
+        o = np.argsort(t)
+        tp.append(trend_test(t[o], z[o]))
+        rp.append(runs_test(z[o]))
+    m = max(len(tp), 1)
+    return (min(1.0, min(tp) * m) if tp else 1.0), (min(1.0, min(rp) * m) if rp else 1.0)
+
+
+def _geometry_records(jf: JointFit) -> tuple[list[RadiusResult], list[dict]]:
+    """Polarity radii of the IA mounts (delta method through the model), the turning-centre
+    radius, the mass-centre offset, mount-angle errors and tool errors."""
+    model, fit = jf.model, jf.fit
+    p = fit.values
+    radii: list[RadiusResult] = []
+    alignment: list[dict] = []
+    for (rig, plane, phi), idx in mount_runs(model).items():
+        for j in idx:
+            g = model.runs[j].geometry
+            pol = g.ia_polarity
+            if pol is None or plane.split("-")[0] != "IA":
+                continue
+            rho = model.polarity_radius(p, j)
+            grad = np.zeros(len(p))
+            for i in model.run_params[j]:
+                if not (model.params[i].vary and fit.estimable[i]) or model.roles[i].kind == "coef":
+                    continue
+                h = 1e-3 * model.params[i].scale
+                pp, pm = p.copy(), p.copy()
+                pp[i] += h
+                pm[i] -= h
+                grad[i] = (model.polarity_radius(pp, j) - model.polarity_radius(pm, j)) / (2 * h)
+            u = float(math.sqrt(max(grad @ fit.cov @ grad, 0.0)))
+            radii.append(RadiusResult(rig, "+" if pol > 0 else "-", METHOD, None, None, rho, u,
+                                      note="distance of the effective mass centre from the spindle: turning-centre "
+                                           "radius and mass-centre offset of the joint fit"))
+    geo = {}
+    for i, prm in enumerate(model.params):
+        role = model.roles[i]
+        if role.kind in ("radius",) or (role.kind == "effect" and role.key != "initial_misalignment"):
+            geo[prm.name] = {"value": float(p[i]), "u": fit.std(prm.name) if prm.vary and fit.estimable[i] else None,
+                             "unit": prm.unit, "held": jf.held.get(prm.name)}
+    if geo:
+        alignment.append({"kind": "joint", "method": METHOD, "parameters": geo})
+    return radii, alignment
+
+
+def method_quantity(c: CoefficientResult, adopted: dict[str, CoefficientResult], runs) -> tuple[float, float, str]:
+    """The adopted value of the quantity a paper method's coefficient estimates, its u and
+    how it was formed.  A single tumble measures K0 + K_ss g^2, K_ss the square term of the
+    head's other turning axis (paper 003 model with effects.md terms); everything else the
+    methods report is the instrument coefficient itself."""
+    a = adopted[c.name]
+    if c.method == "tumble_lm" and c.name in ("K0", "K2"):
+        from ..physics.geometry import geometry_of
+        tumble = next((r for r in runs if str(r.meta["test"]) == "tumble"), None)
+        other = geometry_of(tumble.meta).other_axis if tumble is not None else None
+        sq = {1: "Kpp", 2: "Koo"}.get(other)
+        if sq in adopted:
+            k = adopted[sq]
+            if c.name == "K0":
+                g2 = float(tumble.meta["g_local_m_s2"]) ** 2
+                return (a.value + k.value * g2, math.hypot(a.std_uncertainty, k.std_uncertainty * g2),
+                        f"K0 + {sq} g^2")
+            if "aliased in one tumble" in c.note:
+                return a.value - k.value, math.hypot(a.std_uncertainty, k.std_uncertainty), f"K2 - {sq}"
+    return a.value, a.std_uncertainty, c.name
+
+
+def compare_with_methods(adopted: Sequence[CoefficientResult], others: Sequence[CoefficientResult],
+                         runs=()) -> tuple[list[dict], list[str]]:
+    """En of every paper-method value against the adopted value of the same quantity
+    (:func:`method_quantity`; expanded uncertainties, k = 2); |En| > 1 is flagged."""
+    rows, flags = [], []
+    by = {c.name: c for c in adopted}
+    for c in others:
+        a = by.get(c.name)
+        if a is None or c is a or not all(map(math.isfinite, (a.std_uncertainty, c.std_uncertainty))):
+            continue
+        av, au, what = method_quantity(c, by, runs)
+        en = normalised_error(c.value, 2 * c.std_uncertainty, av, 2 * au)
+        rows.append({"coefficient": c.name, "method": c.method, "value": c.value, "u": c.std_uncertainty,
+                     "adopted": av, "adopted_u": au, "quantity": what, "En": en, "differ": abs(en) > 1})
+        if abs(en) > 1:
+            flags.append(f"{c.name}: {c.method} gives {c.value:.6g} {c.unit}, the adopted joint fit "
+                         f"{av:.6g} for {what} (En = {en:+.2f}, beyond their combined expanded uncertainty)")
+    return rows, flags

@@ -1,0 +1,462 @@
+"""Runs as the campaign model sees them: readings grouped into cells of replicates, a noise
+model fitted to the data themselves, and the labels the diagnosis localises a gap along.
+
+A *cell* is a group of readings that repeat the same nominal input: a centrifuge dwell
+(``step``), a tumble head position, a tilt-rotation (set-point, angle) dwell, or, for the
+sinusoidal centrifuge (which has no dwells), one phase of the drive across its periods.
+The model is evaluated at every reading (its own logged rate, angle, temperature) and
+averaged over the cell, so the cell mean of the model is exact; the fit runs on cell
+means, weighted by the variance of each cell mean.
+
+Noise model (per run, from the data; nothing is assumed from any simulator):
+
+* the scatter of the *residuals* (output minus the model at each reading) inside each
+  cell, so that noise in a logged regressor (rate, angle, temperature), which the output
+  does not contain but the model input does, is counted where it acts;
+* variance of one reading sigma^2(x) = a + b x^2, x the centripetal level omega_z^2 R of
+  the reading [m/s^2] (0 for tumble and tilt-rotation runs): white noise plus noise that
+  grows with rate, fitted by maximum likelihood to the cell variances ((n-1) s^2/sigma^2 ~
+  chi^2_{n-1});
+* lag-1 autocorrelation rho of the readings inside cells (AR(1)); the variance of a cell
+  mean of n readings is sigma^2/n * [1 + 2 sum_k (1 - k/n) rho^k], and the cell variance
+  s^2 is corrected for the bias autocorrelation gives it.
+
+Duplicated readings (the same time and output sequence in two runs, e.g. one recording
+filed under two head assignments) are counted once; the runs say so.
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import minimize
+
+from ..physics.geometry import CentrifugeMount, geometry_of
+from ..physics.rigs import omega_z
+
+#: smallest and largest lag-1 autocorrelation the noise model accepts
+RHO_BOUNDS = (-0.5, 0.95)
+#: |rho| sqrt(pairs) below which the lag-1 autocorrelation is not distinguished from 0
+RHO_SIGNIFICANCE = 3.0
+
+
+@dataclass
+class NoiseModel:
+    """sigma^2(x) = a + b x^2 per reading [output_unit^2], x [m/s^2]; lag-1 autocorrelation rho.
+
+    ``dof`` is the pure-error degrees of freedom it rests on; ``source`` says what it was
+    estimated from ('residuals', 'outputs', 'pooled', 'fit residuals')."""
+    a: float
+    b: float = 0.0
+    rho: float = 0.0
+    dof: int = 0
+    source: str = "outputs"
+
+    def reading_variance(self, x: np.ndarray) -> np.ndarray:
+        return self.a + self.b * np.asarray(x, float) ** 2
+
+
+def ar1_mean_factor(n: np.ndarray, rho: float) -> np.ndarray:
+    """Var(mean of n AR(1) readings) / (sigma^2 / n) = 1 + 2 sum_{k=1}^{n-1} (1 - k/n) rho^k."""
+    n = np.asarray(n, float)
+    if rho == 0.0:
+        return np.ones_like(n)
+    out = np.empty_like(n)
+    for val in np.unique(n):
+        k = np.arange(1, int(val))
+        out[n == val] = 1.0 + 2.0 * np.sum((1.0 - k / val) * rho ** k) if k.size else 1.0
+    return out
+
+
+def ar1_variance_factor(n: np.ndarray, rho: float) -> np.ndarray:
+    """E[s^2] / sigma^2 for n AR(1) readings: 1 - 2/(n(n-1)) sum_{k=1}^{n-1} (n-k) rho^k."""
+    n = np.asarray(n, float)
+    if rho == 0.0:
+        return np.ones_like(n)
+    out = np.ones_like(n)
+    for val in np.unique(n):
+        if val < 2:
+            continue
+        k = np.arange(1, int(val))
+        out[n == val] = 1.0 - 2.0 / (val * (val - 1.0)) * np.sum((val - k) * rho ** k)
+    return np.maximum(out, 0.05)
+
+
+@dataclass
+class RunCells:
+    """One run reduced to cells (see the module docstring).
+
+    Attributes
+    ----------
+    index : int
+        Position of the run in its campaign list.
+    meta : dict
+        Typed metadata (drop format).
+    geometry : CentrifugeMount | TumbleHead | TiltTable
+    cols : dict of ndarray
+        The columns the forward model reads, one value per reading (for a sine run the
+        logged rate is replaced by the drive fitted to it, see :func:`fitted_drive`).
+    rate_derivative : ndarray or None
+        d(omega)/dt per reading for sine runs (from the fitted drive), else None.
+    cid : ndarray of int
+        Cell of each reading; readings of dropped (duplicate) cells have cid -1.
+    n : ndarray
+        Readings per cell.
+    y_rows, y : ndarray
+        Output per reading and per cell (mean) [output_unit].
+    x_rows, x : ndarray
+        Centripetal level per reading and per cell [m/s^2] (0 off centrifuges).
+    lines : ndarray
+        File line of each cell's first reading (0 when unknown).
+    attrs : dict of ndarray
+        Labels per cell for localisation: time, time_frac, position, g_level, polarity,
+        sweep, temperature, mount.
+    noise : NoiseModel
+    var_mean : ndarray
+        Variance of each cell mean [output_unit^2].
+    notes : list of str
+    """
+    index: int
+    meta: dict
+    geometry: object
+    cols: dict
+    rate_derivative: np.ndarray | None
+    cid: np.ndarray
+    n: np.ndarray
+    y_rows: np.ndarray
+    y: np.ndarray
+    x_rows: np.ndarray
+    x: np.ndarray
+    lines: np.ndarray
+    attrs: dict = field(default_factory=dict)
+    noise: NoiseModel | None = None
+    var_mean: np.ndarray | None = None
+    sha256: str = ""
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def test(self) -> str:
+        return str(self.meta["test"])
+
+    @property
+    def run_id(self) -> str:
+        return str(self.meta.get("run_id", f"run{self.index}"))
+
+    @property
+    def campaign(self) -> str:
+        return str(self.meta.get("campaign", ""))
+
+    @property
+    def rig_id(self) -> str:
+        return str(self.meta.get("rig_id", ""))
+
+    @property
+    def ncell(self) -> int:
+        return int(self.n.size)
+
+    def cell_mean(self, rows: np.ndarray) -> np.ndarray:
+        """Mean over each cell of a per-reading quantity (rows of dropped cells ignored)."""
+        keep = self.cid >= 0
+        return np.bincount(self.cid[keep], weights=np.asarray(rows, float)[keep],
+                           minlength=self.ncell) / self.n
+
+    def cell_scatter(self, rows: np.ndarray) -> tuple[np.ndarray, float]:
+        """Within-cell sample variance of a per-reading quantity (nan for 1-reading cells)
+        and the pooled lag-1 autocorrelation of its deviations inside cells."""
+        keep = self.cid >= 0
+        r = np.asarray(rows, float)
+        dev = np.zeros_like(r)
+        dev[keep] = r[keep] - self.cell_mean(r)[self.cid[keep]]
+        ss = np.bincount(self.cid[keep], weights=dev[keep] ** 2, minlength=self.ncell)
+        s2 = np.where(self.n >= 2, ss / np.maximum(self.n - 1, 1), np.nan)
+        same = keep[1:] & keep[:-1] & (self.cid[1:] == self.cid[:-1])
+        num = float(np.sum(dev[1:][same] * dev[:-1][same]))
+        den = float(np.sum(dev[keep] ** 2))
+        rho = num / den if den > 0 else 0.0
+        # the deviations from a cell mean are negatively correlated by about -1/n
+        nbar = float(np.mean(self.n[self.n >= 2])) if np.any(self.n >= 2) else 1.0
+        if nbar > 1:
+            rho = rho + 1.0 / nbar
+        # an autocorrelation within its sampling noise (sd ~ 1/sqrt(pairs)) is taken as 0:
+        # a noisy rho would scale the weights of white-noise data by chance
+        pairs = int(np.sum(same))
+        if pairs == 0 or abs(rho) * math.sqrt(pairs) < RHO_SIGNIFICANCE:
+            rho = 0.0
+        return s2, float(np.clip(rho, *RHO_BOUNDS))
+
+
+# ----------------------------------------------------------------------------- building
+
+def _blocks(keys: Sequence[np.ndarray]) -> np.ndarray:
+    """Consecutive readings with equal keys form one block; the block index of each."""
+    n = len(keys[0])
+    change = np.zeros(n, bool)
+    for k in keys:
+        k = np.asarray(k, float)
+        kk = np.where(np.isfinite(k), k, -1e300)
+        change[1:] |= kk[1:] != kk[:-1]
+    return np.cumsum(change)
+
+
+def fitted_drive(t: np.ndarray, logged: np.ndarray, f: float, harmonics: int = 3
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The table rate of a sinusoidal drive as the logged rate measures it, and its derivative.
+
+    The logged ``table_rate_rad_s`` of a disc centrifuge is a measurement with its own
+    noise (an encoder-derived rate).  Squared into omega^2 R that noise would enter the
+    model's input (errors in variables); the drive itself is periodic, so a least-squares
+    fit of a constant and ``harmonics`` harmonics of f to the logged rate recovers it
+    with the noise averaged over the whole run.
+
+    Returns
+    -------
+    rate, rate_derivative : ndarray
+        [rad/s], [rad/s^2] at the times t.
+    """
+    t = np.asarray(t, float)
+    cols, dcols = [np.ones_like(t)], [np.zeros_like(t)]
+    for k in range(1, harmonics + 1):
+        w = 2 * np.pi * k * f
+        cols += [np.sin(w * t), np.cos(w * t)]
+        dcols += [w * np.cos(w * t), -w * np.sin(w * t)]
+    X, D = np.column_stack(cols), np.column_stack(dcols)
+    b, *_ = np.linalg.lstsq(X, np.asarray(logged, float), rcond=None)
+    return X @ b, D @ b
+
+
+def make_run(meta: Mapping, data, index: int = 0, sha256: str = "") -> RunCells:
+    """Cells, levels and labels of one run (typed meta and its columns).
+
+    Parameters
+    ----------
+    meta : mapping
+        Typed metadata of the drop format.
+    data : DataFrame or mapping of arrays
+        The run's columns (drop format), optionally with ``line`` (file line numbers).
+    """
+    meta = dict(meta)
+    test = str(meta["test"])
+    geo = geometry_of(meta)
+    all_names = list(data.columns if hasattr(data, "columns") else data.keys())
+    cols = {c: np.asarray(data[c], float) for c in all_names if c != "line"}
+    nrow = len(cols["output"])
+    t = cols.get("time_s", np.arange(nrow, dtype=float))
+    lines = np.asarray(data["line"], float) if "line" in all_names else np.zeros(nrow)
+    wdot = None
+    if test == "centrifuge":
+        cid = _blocks([cols["step"]])
+    elif test == "tumble":
+        cid = _blocks([cols["position"], cols["angle_deg"]])
+    elif test == "tilt_rotation":
+        cid = _blocks([cols["temp_set_c"], cols["rotation_deg"]])
+    elif test == "sine_centrifuge":
+        f = float(meta["rate_frequency_hz"])
+        rate, wdot, drive_note = drive_rate(meta, t, cols["table_rate_rad_s"])
+        cols["logged_rate_rad_s"] = cols["table_rate_rad_s"]
+        cols["table_rate_rad_s"] = rate
+        cols["table_angle_deg"] = np.nan_to_num(cols.get("table_angle_deg", np.zeros(nrow)))
+        dt = float(np.median(np.diff(t))) if nrow > 1 else 1.0
+        nb = max(int(round(1.0 / (f * dt))), 1)
+        cid = np.floor(((t - t[0]) * f % 1.0) * nb + 0.5).astype(int) % nb
+    else:
+        raise ValueError(f"unknown test kind {test!r}")
+    _, cid = np.unique(cid, return_inverse=True)
+    k = int(cid.max()) + 1 if cid.size else 0
+    n = np.bincount(cid, minlength=k).astype(float)
+    y_rows = cols["output"]
+    y = np.bincount(cid, weights=y_rows, minlength=k) / n
+    first_line = np.full(k, np.inf)
+    np.minimum.at(first_line, cid, lines)
+    x_rows = np.zeros(nrow)
+    if isinstance(geo, CentrifugeMount):
+        x_rows = omega_z(meta, cols["table_rate_rad_s"], {"earth_rate": 1.0}) ** 2 * geo.arm_radius_m
+    run = RunCells(index=index, meta=meta, geometry=geo, cols=cols, rate_derivative=wdot, cid=cid, n=n,
+                   y_rows=y_rows, y=y, x_rows=x_rows, x=np.bincount(cid, weights=x_rows, minlength=k) / n,
+                   lines=np.where(np.isfinite(first_line), first_line, 0).astype(int), sha256=sha256)
+    run.attrs = _labels(run, t)
+    if test == "sine_centrifuge":
+        run.notes.append(drive_note)
+    return run
+
+
+def drive_rate(meta: Mapping, t: np.ndarray, logged: np.ndarray, alpha: float = 0.01,
+               harmonics: int = 3) -> tuple[np.ndarray, np.ndarray | None, str]:
+    """The table rate a sine run's model uses, and its derivative (None = the drive's own).
+
+    The logged rate is a measurement of the drive omega = Omega sin(2 pi f t) (paper 002)
+    with its own noise.  The nominal drive is used unless the logged rate departs from it
+    beyond that noise (F test of a fit of a constant and ``harmonics`` harmonics of f
+    against the nominal drive, at ``alpha``); then the fitted drive is used, since the
+    table did not follow its command.  Using the logged rate itself would square its noise
+    into the centripetal input (errors in variables).
+
+    Returns
+    -------
+    rate [rad/s], rate_derivative [rad/s^2] or None, note
+    """
+    from scipy import stats
+    Om, f = float(meta["rate_amplitude_rad_s"]), float(meta["rate_frequency_hz"])
+    nominal = Om * np.sin(2 * np.pi * f * np.asarray(t, float))
+    fit, dfit = fitted_drive(t, logged, f, harmonics)
+    q = 2 * harmonics + 1
+    rss1 = float(np.sum((logged - fit) ** 2))
+    rss0 = float(np.sum((logged - nominal) ** 2))
+    dof = max(len(t) - q, 1)
+    F = ((rss0 - rss1) / q) / (rss1 / dof) if rss1 > 0 else float("inf")
+    p = float(stats.f.sf(F, q, dof)) if np.isfinite(F) else 0.0
+    if p >= alpha:
+        return nominal, None, (f"logged rate follows the nominal drive within its noise ({math.sqrt(rss1 / dof):.2g} "
+                               f"rad/s, F = {F:.3g}, p = {p:.2g}): the nominal drive is the model's rate")
+    return fit, dfit, (f"logged rate departs from the nominal drive (F = {F:.3g}, p = {p:.2g}): the drive "
+                       f"fitted to it ({harmonics} harmonics) is the model's rate")
+
+
+def _labels(run: RunCells, t: np.ndarray) -> dict:
+    """Per-cell labels: where along which dimension each cell lies (diagnosis localisation)."""
+    meta, geo, k = run.meta, run.geometry, run.ncell
+    attrs: dict[str, np.ndarray] = {}
+    tm = run.cell_mean(t)
+    attrs["time"] = tm
+    attrs["time_frac"] = (tm - tm.min()) / max(float(np.ptp(tm)), 1e-12) if k else tm
+    if "temp_c" in run.cols:
+        T = run.cols["temp_c"]
+        if np.isfinite(T).any():
+            attrs["temperature"] = run.cell_mean(np.nan_to_num(T, nan=float(np.nanmean(T))))
+    if run.test == "tilt_rotation":
+        attrs["temperature"] = run.cell_mean(run.cols["temp_set_c"])
+        attrs["position"] = run.cell_mean(run.cols["rotation_deg"]) % 360.0
+    elif run.test == "tumble":
+        attrs["position"] = run.cell_mean(run.cols["angle_deg"]) % 360.0
+        attrs["mount"] = np.array([geo.label] * k, object)
+    else:
+        g = float(meta["g_local_m_s2"])
+        attrs["g_level"] = run.x / g
+        pol = "+" if math.cos(geo.phi_rad) > 1e-6 else ("-" if math.cos(geo.phi_rad) < -1e-6 else "0")
+        attrs["polarity"] = np.array([pol] * k, object)
+        attrs["mount"] = np.array([f"{geo.plane}@{geo.phi_deg:g}"] * k, object)
+        if run.test == "centrifuge":
+            rate = run.cell_mean(run.cols["table_rate_rad_s"])
+            imax = int(np.argmax(rate)) if k else 0
+            order = np.argsort(tm)
+            rank = np.empty(k, int)
+            rank[order] = np.arange(k)
+            attrs["sweep"] = np.where(rate <= 0, "rest", np.where(rank <= rank[imax], "up", "down")).astype(object)
+        else:
+            f = float(meta["rate_frequency_hz"])
+            attrs["position"] = run.cell_mean(((t - t[0]) * f % 1.0) * 360.0)
+    return attrs
+
+
+def drop_duplicate_cells(runs: Sequence[RunCells]) -> list[str]:
+    """Cells whose readings (time and output, to the last digit) already appear in an
+    earlier run are dropped from the later one: the same recording counted twice would
+    halve its uncertainty.  Returns a note per run affected."""
+    seen: dict[str, tuple[str, int]] = {}
+    notes = []
+    for run in runs:
+        t = run.cols.get("time_s", np.arange(run.y_rows.size, dtype=float))
+        dup = []
+        for c in range(run.ncell):
+            rows = np.flatnonzero(run.cid == c)
+            h = hashlib.sha1(np.ascontiguousarray(np.c_[t[rows], run.y_rows[rows]]).tobytes()).hexdigest()
+            if h in seen and seen[h][0] != run.run_id:
+                dup.append((c, seen[h]))
+            else:
+                seen.setdefault(h, (run.run_id, c))
+        if dup:
+            drop = np.array([c for c, _ in dup])
+            keep = np.setdiff1d(np.arange(run.ncell), drop)
+            _restrict(run, keep)
+            others = sorted({o for _, (o, _) in dup})
+            note = (f"{run.run_id}: {len(dup)} of its cells hold readings already in {', '.join(others)} "
+                    "(the same recording); counted once")
+            run.notes.append(note)
+            notes.append(note)
+    return notes
+
+
+def _restrict(run: RunCells, keep: np.ndarray) -> None:
+    """Keep only the cells ``keep`` (renumbered); readings of the others get cid -1."""
+    remap = np.full(run.ncell, -1)
+    remap[keep] = np.arange(keep.size)
+    run.cid = np.where(run.cid >= 0, remap[np.maximum(run.cid, 0)], -1)
+    run.n, run.y, run.x, run.lines = run.n[keep], run.y[keep], run.x[keep], run.lines[keep]
+    run.attrs = {k: v[keep] for k, v in run.attrs.items()}
+    if run.var_mean is not None:
+        run.var_mean = run.var_mean[keep]
+
+
+# ----------------------------------------------------------------------------- noise
+
+def fit_noise(run: RunCells, residual_rows: np.ndarray | None = None, *, use_level: bool | None = None
+              ) -> NoiseModel:
+    """Fit the run's :class:`NoiseModel` to the within-cell scatter of ``residual_rows``
+    (output minus model per reading; default the outputs themselves) and set
+    ``run.var_mean``.
+
+    Parameters
+    ----------
+    use_level : bool, optional
+        Fit the b x^2 term (default: for centrifuge runs, whose noise grows with rate).
+    """
+    rows = run.y_rows if residual_rows is None else residual_rows
+    s2, rho = run.cell_scatter(rows)
+    ok = (run.n >= 2) & np.isfinite(s2)
+    if use_level is None:
+        use_level = isinstance(run.geometry, CentrifugeMount) and float(np.ptp(run.x)) > 0
+    if not ok.any():
+        model = NoiseModel(a=float("nan"), source="none")
+    else:
+        cs = ar1_variance_factor(run.n[ok], rho)
+        S = s2[ok] / cs
+        nu = run.n[ok] - 1.0
+        X = run.x[ok]
+        model = _fit_variance_function(S, nu, X, use_level)
+        model.rho = rho
+        model.dof = int(nu.sum())
+        model.source = "outputs" if residual_rows is None else "residuals"
+    run.noise = model
+    run.var_mean = model.reading_variance(run.x) * ar1_mean_factor(run.n, model.rho) / run.n
+    return model
+
+
+def _fit_variance_function(S: np.ndarray, nu: np.ndarray, X: np.ndarray, use_level: bool) -> NoiseModel:
+    """a + b x^2 by the Gamma likelihood of cell variances S with nu dof each."""
+    pooled = float(np.sum(nu * S) / np.sum(nu))
+    if not use_level or S.size < 3:
+        return NoiseModel(a=max(pooled, 1e-300))
+    base = max(pooled, 1e-300)
+    sx = max(float(np.max(np.abs(X))), 1e-30)
+
+    def var(q):
+        a, b = np.exp(np.clip(q, -50, 50))
+        return base * (a + b * (X / sx) ** 2)
+
+    def nll(q):
+        v = var(q)
+        return float(np.sum(nu * (S / v + np.log(v))))
+
+    best = None
+    for q0 in ([0.0, -12.0], [-3.0, 0.0], [-12.0, 0.0], [-1.0, -1.0]):
+        r = minimize(nll, np.array(q0), method="Nelder-Mead",
+                     options={"xatol": 1e-4, "fatol": 1e-6, "maxiter": 400})
+        if best is None or r.fun < best.fun:
+            best = r
+    a, b = np.exp(np.clip(best.x, -50, 50))
+    return NoiseModel(a=float(base * a), b=float(base * b / sx ** 2))
+
+
+def pool_missing_noise(runs: Sequence[RunCells]) -> None:
+    """Runs without replicates (no noise estimate) take the median reading variance of the
+    runs of the same test kind that have one."""
+    for run in runs:
+        if run.noise is not None and math.isfinite(run.noise.a):
+            continue
+        peers = [r.noise.a for r in runs if r.test == run.test and r.noise is not None
+                 and math.isfinite(r.noise.a)]
+        a = float(np.median(peers)) if peers else float(np.var(run.y_rows)) or 1.0
+        run.noise = NoiseModel(a=a, source="pooled")
+        run.var_mean = run.noise.reading_variance(run.x) / run.n

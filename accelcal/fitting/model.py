@@ -1,0 +1,487 @@
+"""The campaign model: the one forward model (:func:`accelcal.physics.rig_output`) with its
+parameters made free, over every reading of every run of one or more campaigns.
+
+It is what the joint fit (the adopted calibration, :mod:`accelcal.estimators.joint`) and
+the sim-to-real diagnosis (:mod:`accelcal.diagnosis`) both fit.  A model is defined by
+
+* the runs (:class:`accelcal.fitting.data.RunCells`), grouped by campaign (one unit);
+* ``effects``: the effects.md ids the model includes.  Instrument-term effects
+  (``odd_quadratic`` -> Koq, ``cubic`` -> K3, ``cross_coupling`` -> Kip,
+  ``bias_temperature`` -> K0T, ``scale_temperature`` -> K1T) add that coefficient;
+  ``earth_rate`` is held at its physical size (1); ``initial_misalignment`` is theta0
+  per dividing head; ``mount_angle_error`` is one angle per centrifuge mount (both
+  polarities, effects.md) or one shared angle (``shared=("mount_angle_error",)``); every
+  other effect is one parameter shared by the runs it applies to.
+
+Parameters that are always there (they are not catalogue effects):
+
+* the instrument coefficients the tests of a campaign are designed to determine
+  (:data:`DESIGNED`): K0, K1, K2 and, by test, Kp, Ko, Kip, Kio, Kpo, Kpp, Koo (paper 000
+  eq 1 / effects.md), shared by every run of the campaign, so eq 2 mixes them in each
+  centrifuge mount exactly as the instrument does;
+* per ``centrifuge`` run a bias K0[run] (rest offsets: tilt, the vertical axis' cross
+  terms; paper 000 eq 9's K0±);
+* per centrifuge rig the turning-centre radius R[rig] (paper 000 §2.1; the polarity radii
+  follow from R and the mass-centre offset, effects.md ``mass_centre_offset``).
+
+Which of these the data determine is decided from the design (:meth:`CampaignModel.select`):
+in priority order, a parameter whose Jacobian column adds no new direction (theta0 and Ko
+in one tumble, K2 and Koo, K1 and R without a gravity reference) is held and named as
+aliased; an extension term whose design uncertainty exceeds its plausible size is held as
+weakly determined.
+
+Jacobian columns are derivatives of ``rig_output``: exact for the instrument coefficients
+(:func:`accelcal.physics.instrument.output_derivative`, lagged like the output when a
+sensor lag is in the model), central differences of ``rig_output`` for everything else.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..effects import EFFECTS
+from ..physics import instrument
+from ..physics.geometry import CentrifugeMount, TumbleHead
+from ..physics.instrument import first_order_lag
+from ..physics.rigs import INSTRUMENT_EFFECTS, rig_output, rotation_sign, specific_force
+from ..constants import T_REF_C
+from .core import Parameter, ParameterSet, lstsq_svd, separable_columns
+from .data import RunCells
+
+CENTRIFUGES = ("centrifuge", "sine_centrifuge")
+#: coefficient -> the catalogue effect that is it (effects.md)
+COEFFICIENT_EFFECT = {v: k for k, v in INSTRUMENT_EFFECTS.items()}
+
+#: Instrument coefficients each test kind is designed to determine (papers 000-003).
+DESIGNED: dict[str, tuple[str, ...]] = {
+    "tumble": ("K0", "K1", "K2", "Kip", "Kio", "Kp", "Ko", "Kpp", "Koo"),
+    "centrifuge": ("K0", "K1", "K2", "K3", "Koq", "Kp", "Ko", "Kip", "Kio", "Kpo", "Kpp", "Koo"),
+    "sine_centrifuge": ("K0", "K1", "K2", "K3", "Koq", "Kp", "Ko", "Kip", "Kio", "Kpo", "Kpp", "Koo"),
+    "tilt_rotation": ("K0", "K1", "K0T", "K1T", "Kp", "Ko"),
+}
+#: SI unit of each coefficient ('out' stands for the output unit)
+COEFFICIENT_UNIT = {"K0": "m/s2", "K1": "out/(m/s2)", "Kp": "rad", "Ko": "rad", "K3": "s4/m2",
+                    "K0T": "m/s2/degC", "K1T": "1/degC"}
+#: typical size [SI] (difference steps, scaling) and the largest plausible size (a term
+#: whose design uncertainty exceeds it is weakly determined and held)
+TYPICAL = {"K0": 1e-3, "K1": 1.0, "K2": 1e-6, "K3": 1e-9, "Koq": 1e-7, "Kp": 1e-4, "Ko": 1e-4,
+           "Kip": 1e-6, "Kio": 1e-6, "Kpo": 1e-6, "Kpp": 1e-6, "Koo": 1e-6, "K0T": 1e-5, "K1T": 1e-4,
+           "radius": 1.0, "bias": 1e-3}
+PLAUSIBLE = {"K2": 1e-4, "K3": 1e-7, "Koq": 1e-5, "Kp": 0.05, "Ko": 0.05, "Kip": 1e-5, "Kio": 1e-5,
+             "Kpo": 1e-5, "Kpp": 1e-5, "Koo": 1e-5, "K0T": 1e-3, "K1T": 1e-2}
+#: A parameter whose Jacobian column (unit-scaled) has less than this relative norm outside
+#: the span of the parameters before it is aliased: its variance would be inflated 1e6-fold.
+ALIAS_TOL = 1e-3
+#: typical size of each effect's parameter (effects.md units): difference steps
+EFFECT_SCALE = {
+    "earth_rate": 1.0, "ia_tilt": 1e-4, "mass_centre_offset": 1e-3, "mount_angle_error": 1e-3,
+    "arm_stretch": 1e-6, "rate_scale_error": 1e-5, "spindle_tilt": 1e-4, "sensor_lag": 1e-3,
+    "initial_misalignment": 1e-3, "fixture_thermal_tilt": 1e-6, "base_tilt_drift": 1e-9,
+    "tilt_tide": 1e-6, "bias_temperature": 1e-5, "scale_temperature": 1e-5, "bias_drift": 1e-8,
+    "odd_quadratic": 1e-7, "cubic": 1e-9, "cross_coupling": 1e-6,
+}
+#: largest plausible size of each effect (effects.md units)
+EFFECT_PLAUSIBLE = {
+    "earth_rate": 3.0, "ia_tilt": 0.01, "mass_centre_offset": 0.02, "mount_angle_error": 0.02,
+    "arm_stretch": 1e-5, "rate_scale_error": 1e-2, "spindle_tilt": 0.01, "sensor_lag": 0.05,
+    "initial_misalignment": 0.05, "fixture_thermal_tilt": 1e-4, "base_tilt_drift": 1e-7,
+    "tilt_tide": 1e-4, "bias_temperature": 1e-3, "scale_temperature": 1e-3, "bias_drift": 1e-5,
+    "odd_quadratic": 1e-4, "cubic": 1e-7, "cross_coupling": 1e-4,
+}
+#: order in which parameters claim directions of the design (higher first)
+#: Kpo, Kp and Ko come after the mount angles: without a PA-OA mount (or a tumble turning PA
+#: and OA) they only enter linearly in one centripetal component, as an angle error does.
+PRIORITY = ("K1", "K0", "theta0", "K2", "bias", "radius", "K3", "Koq", "Kip", "Kio", "Kpp", "Koo",
+            "K0T", "K1T", "mass_centre_offset", "mount_angle_error", "Kpo", "effect", "Kp", "Ko")
+#: coefficients never held for being weakly determined (the base of every design)
+BASE = ("K0", "K1", "K2", "theta0", "bias", "radius")
+
+
+@dataclass(frozen=True)
+class Role:
+    """How a parameter enters a run: kind 'coef' (instrument coefficient ``key``), 'bias'
+    (the run's own K0), 'radius' (arm radius), 'effect' (effects.md id ``key``)."""
+    kind: str
+    key: str
+
+
+class CampaignModel:
+    """Parameters and predictions of the forward model over cells of runs (module doc).
+
+    Parameters
+    ----------
+    runs : sequence of RunCells
+    effects : sequence of str
+        effects.md ids in the model.
+    shared : sequence of str
+        Effects to fit as one parameter even where their natural scope is narrower
+        (``mount_angle_error``).
+    per_run_bias : bool or None
+        K0 per run for every run (True), for ``centrifuge`` runs only (None, default) or
+        never (False).
+    per_run_scale : bool
+        K1 per run (a heterogeneity check; not for adopted values).
+    """
+
+    def __init__(self, runs: Sequence[RunCells], effects: Sequence[str] = (), *,
+                 shared: Sequence[str] = (), per_run_bias: bool | None = None,
+                 per_run_scale: bool = False):
+        self.runs = list(runs)
+        self.effects = [e for e in dict.fromkeys(effects)]
+        for e in self.effects:
+            if e not in EFFECTS:
+                raise ValueError(f"unknown effect id {e!r} (effects.md ids: {sorted(EFFECTS)})")
+        self.fixed = {"earth_rate": 1.0} if "earth_rate" in self.effects else {}
+        #: mount angles the design cannot separate (IA radial): label -> runs
+        self.unseparable_angles: dict[str, list[int]] = {}
+        self.campaigns = list(dict.fromkeys(r.campaign for r in self.runs))
+        multi = len(self.campaigns) > 1
+        ps = ParameterSet()
+        self.roles: list[Role] = []
+        self.priority: list[int] = []
+
+        def add(name, key, unit, scale, runs_, group, role, prio, value=0.0):
+            ps.add(Parameter(name, key, unit, scale, tuple(runs_), group, True, value))
+            self.roles.append(role)
+            self.priority.append(PRIORITY.index(prio))
+
+        coef_names = {}
+        for c in self.campaigns:
+            idx = [j for j, r in enumerate(self.runs) if r.campaign == c]
+            tests = {self.runs[j].test for j in idx}
+            wanted = [k for k in instrument.DEFAULTS if any(k in DESIGNED[t] for t in tests)
+                      and (k not in COEFFICIENT_EFFECT or COEFFICIENT_EFFECT[k] in self.effects)]
+            bias_runs = {j for j in idx if self._has_bias(self.runs[j], per_run_bias)}
+            for k in wanted:
+                acts = [j for j in idx if not (k == "K0" and j in bias_runs)]
+                if not acts:
+                    continue
+                name = f"{k}[{c}]" if multi else k
+                coef_names[(c, k)] = name
+                unit = COEFFICIENT_UNIT.get(k, "s2/m")
+                add(name, k, unit, TYPICAL[k], acts, "instrument", Role("coef", k), k,
+                    1.0 if k == "K1" else 0.0)
+            for j in sorted(bias_runs):
+                r = self.runs[j]
+                add(f"K0[{r.run_id}]", "K0", "m/s2", TYPICAL["bias"], [j], "per-run bias",
+                    Role("bias", "K0"), "bias")
+            if per_run_scale:
+                for j in idx[1:]:
+                    add(f"dK1[{self.runs[j].run_id}]", "K1", "1", 1e-4, [j], "per-run scale",
+                        Role("scale", "K1"), "effect")
+        # radius per centrifuge rig
+        rigs = {}
+        for j, r in enumerate(self.runs):
+            if r.test in CENTRIFUGES:
+                rigs.setdefault(r.rig_id, []).append(j)
+        for rig, idx in rigs.items():
+            R0 = float(np.median([self.runs[j].geometry.arm_radius_m for j in idx]))
+            add(f"R[{rig}]", "radius", "m", TYPICAL["radius"], idx, "turning-centre radius",
+                Role("radius", "radius"), "radius", R0)
+        # effects
+        for e in self.effects:
+            if e in self.fixed or e in INSTRUMENT_EFFECTS:
+                continue
+            idx = [j for j, r in enumerate(self.runs) if r.test in EFFECTS[e].tests]
+            if not idx:
+                continue
+            prio = e if e in PRIORITY else "effect"
+            for label, group in self._scopes(e, idx, shared):
+                name = f"{e}[{label}]" if label else e
+                if e == "initial_misalignment":
+                    prio = "theta0"
+                add(name, e, EFFECTS[e].unit, EFFECT_SCALE[e], group, f"effect {e}", Role("effect", e), prio)
+        self.params = ps
+        self.coef_names = coef_names
+        self.run_params = [[i for i, p in enumerate(ps) if p.acts_on(j)] for j in range(len(self.runs))]
+        self.offsets = np.concatenate([[0], np.cumsum([r.ncell for r in self.runs])]).astype(int)
+        self.N = int(self.offsets[-1])
+        self.y = np.concatenate([r.y for r in self.runs]) if self.runs else np.zeros(0)
+        self.refresh_noise()
+
+    # ----------------------------------------------------------------- structure
+    @staticmethod
+    def _has_bias(run: RunCells, per_run_bias: bool | None) -> bool:
+        if per_run_bias is None:
+            return run.test == "centrifuge"
+        return bool(per_run_bias)
+
+    def _scopes(self, e: str, idx: list[int], shared: Sequence[str]):
+        """(label, runs) groups of an effect's parameters."""
+        if e == "initial_misalignment":
+            heads: dict[str, list[int]] = {}
+            for j in idx:
+                r = self.runs[j]
+                heads.setdefault(f"{r.campaign}|{r.rig_id} {r.geometry.label}", []).append(j)
+            if len(heads) == 1:
+                return [("", next(iter(heads.values())))]
+            return [(k if len(self.campaigns) > 1 else k.split("|", 1)[1], v) for k, v in heads.items()]
+        if e == "mount_angle_error" and e not in shared:
+            mounts: dict[str, list[int]] = {}
+            radial: dict[str, list[int]] = {}
+            for j in idx:
+                r = self.runs[j]
+                plane, phi = r.geometry.mount_key
+                label = f"{r.rig_id} {plane} {phi:g}/{phi + 180:g}"
+                # IA along the centripetal force senses the angle only at second order, where
+                # it is one with K2 (eq 8 at phi0 = 0: dc2 = Kip dphi): not a parameter of the
+                # fit, but a type-B term of the budget (fixture tolerance)
+                (radial if r.geometry.ia_polarity is not None else mounts).setdefault(label, []).append(j)
+            self.unseparable_angles.update(radial)
+            return list(mounts.items())
+        return [("", idx)]
+
+    def refresh_noise(self) -> None:
+        """Take each run's current ``var_mean`` (after its noise model changed)."""
+        if self.runs and all(r.var_mean is not None for r in self.runs):
+            self.sig = np.sqrt(np.concatenate([r.var_mean for r in self.runs]))
+        else:
+            self.sig = np.ones(self.N)
+
+    def rows(self, j: int) -> slice:
+        return slice(int(self.offsets[j]), int(self.offsets[j + 1]))
+
+    def name(self, campaign: str, coefficient: str) -> str | None:
+        return self.coef_names.get((campaign, coefficient))
+
+    # ----------------------------------------------------------------- evaluation
+    def inputs(self, p: np.ndarray, j: int, extra: Mapping[str, float] | None = None
+               ) -> tuple[dict, dict, dict]:
+        """(coefficients, effects, keyword arguments) of ``rig_output`` for run j."""
+        r = self.runs[j]
+        co: dict[str, float] = {"K1": 1.0}
+        eff: dict[str, float] = {k: v for k, v in self.fixed.items() if r.test in EFFECTS[k].tests}
+        kw: dict = {}
+        for i in self.run_params[j]:
+            role = self.roles[i]
+            v = float(p[i])
+            if role.kind == "coef" or role.kind == "bias":
+                co[role.key] = co.get(role.key, 0.0) + v if role.key != "K1" else v
+            elif role.kind == "scale":
+                co["_dK1"] = v
+            elif role.kind == "radius":
+                kw["radius_m"] = v
+            else:
+                eff[role.key] = eff.get(role.key, 0.0) + v
+        if "_dK1" in co:
+            co["K1"] = co.get("K1", 1.0) * (1.0 + co.pop("_dK1"))
+        for k, v in (extra or {}).items():
+            if r.test not in EFFECTS[k].tests:
+                continue
+            if k in INSTRUMENT_EFFECTS:
+                co[INSTRUMENT_EFFECTS[k]] = co.get(INSTRUMENT_EFFECTS[k], 0.0) + v
+            else:
+                eff[k] = eff.get(k, 0.0) + v
+        if r.rate_derivative is not None:
+            eps = float(eff.get("rate_scale_error", 0.0))
+            kw["rate_derivative"] = rotation_sign(r.meta) * (1.0 + eps) * r.rate_derivative
+        return co, eff, kw
+
+    def predict_rows(self, p: np.ndarray, j: int, extra: Mapping[str, float] | None = None) -> np.ndarray:
+        """The model's output at every reading of run j [output_unit]."""
+        r = self.runs[j]
+        co, eff, kw = self.inputs(p, j, extra)
+        return rig_output(r.test, r.meta, r.cols, co, eff, **kw)
+
+    def predict_run(self, p: np.ndarray, j: int, extra: Mapping[str, float] | None = None) -> np.ndarray:
+        return self.runs[j].cell_mean(self.predict_rows(p, j, extra))
+
+    def predict(self, p: np.ndarray) -> np.ndarray:
+        return np.concatenate([self.predict_run(p, j) for j in range(len(self.runs))])
+
+    def residual(self, p: np.ndarray) -> np.ndarray:
+        """Whitened cell residuals z = (ybar - model) / sigma_mean."""
+        return (self.y - self.predict(p)) / self.sig
+
+    def _temp(self, r: RunCells):
+        if "temp_c" not in r.cols:
+            return None
+        T = r.cols["temp_c"]
+        return np.where(np.isfinite(T), T, T_REF_C)
+
+    def jacobian_run(self, p: np.ndarray, j: int, params: Sequence[int] | None = None) -> np.ndarray:
+        """d(cell-mean model)/dp of run j, not whitened, columns for ``params`` (default all)."""
+        r = self.runs[j]
+        cols = list(range(len(self.params))) if params is None else list(params)
+        J = np.zeros((r.ncell, len(cols)))
+        co, eff, kw = self.inputs(p, j)
+        F = None
+        tau = float(eff.get("sensor_lag", 0.0))
+        t = r.cols.get("time_s")
+        base = None
+        for c, i in enumerate(cols):
+            if i not in self.run_params[j]:
+                continue
+            role = self.roles[i]
+            if role.kind in ("coef", "bias") and role.key in instrument.DEFAULTS:
+                if F is None:
+                    F = specific_force(r.test, r.meta, r.cols, eff, **kw)
+                    temp = self._temp(r)
+                col = instrument.output_derivative(role.key, co, F, temp, t,
+                                                   float(eff.get("bias_drift", 0.0)))
+                if tau > 0:
+                    col = first_order_lag(col, t, tau)
+                J[:, c] = r.cell_mean(np.broadcast_to(col, r.y_rows.shape))
+                continue
+            h = 1e-3 * self.params[i].scale
+            pp, pm = p.copy(), p.copy()
+            pp[i] += h
+            if role.key == "sensor_lag" and p[i] - h < 0:
+                if base is None:
+                    base = self.predict_run(p, j)
+                J[:, c] = (self.predict_run(pp, j) - base) / h
+                continue
+            pm[i] -= h
+            J[:, c] = (self.predict_run(pp, j) - self.predict_run(pm, j)) / (2 * h)
+        return J
+
+    def jacobian(self, p: np.ndarray, params: Sequence[int] | None = None) -> np.ndarray:
+        """Whitened Jacobian over all cells (rows) and ``params`` (default all) columns."""
+        cols = list(range(len(self.params))) if params is None else list(params)
+        J = np.zeros((self.N, len(cols)))
+        for j in range(len(self.runs)):
+            sl = self.rows(j)
+            J[sl] = self.jacobian_run(p, j, cols)
+        return J / self.sig[:, None]
+
+    def signature(self, p: np.ndarray, effect: str, h: float | None = None) -> np.ndarray:
+        """Whitened derivative of the model with respect to an effect *not* in it (a
+        candidate of the diagnosis): central differences of ``rig_output``."""
+        h = h or 1e-3 * EFFECT_SCALE[effect]
+        out = np.zeros(self.N)
+        for j, r in enumerate(self.runs):
+            if r.test not in EFFECTS[effect].tests:
+                continue
+            sl = self.rows(j)
+            if effect == "sensor_lag":
+                out[sl] = (self.predict_run(p, j, {effect: h}) - self.predict_run(p, j)) / h
+            else:
+                out[sl] = (self.predict_run(p, j, {effect: h}) - self.predict_run(p, j, {effect: -h})) / (2 * h)
+        return out / self.sig
+
+    def held_direction(self, p: np.ndarray, effect: str, runs: Sequence[int], h: float | None = None) -> np.ndarray:
+        """Whitened derivative of the model with respect to an effect acting on ``runs`` only,
+        on top of the model's own value (for a parameter the design cannot separate)."""
+        h = h or 1e-3 * EFFECT_SCALE[effect]
+        out = np.zeros(self.N)
+        for j in runs:
+            sl = self.rows(j)
+            out[sl] = (self.predict_run(p, j, {effect: h}) - self.predict_run(p, j, {effect: -h})) / (2 * h)
+        return out / self.sig
+
+    # ----------------------------------------------------------------- start, selection
+    def start(self) -> np.ndarray:
+        """Start values: K1 by regression of each campaign's outputs on the nominal input
+        (the amplitude of the data, paper 003 starts from the nominal sensitivity), K0 and
+        the run biases from the mean residual, radii at the nominal arm radius."""
+        p = self.params.values()
+        for c in self.campaigns:
+            i1 = self.params.index.get(self.name(c, "K1"))
+            num = den = 0.0
+            for j, r in enumerate(self.runs):
+                if r.campaign != c:
+                    continue
+                a = self.predict_run(p, j)
+                a = a - a.mean()
+                num += float(np.sum(a * (r.y - r.y.mean())))
+                den += float(np.sum(a * a))
+            K1 = num / den if den > 0 and num != 0 else 1.0
+            if i1 is not None:
+                p[i1] = K1
+            for j, r in enumerate(self.runs):
+                if r.campaign != c:
+                    continue
+                off = float(np.mean(r.y - self.predict_run(p, j))) / K1
+                for i in self.run_params[j]:
+                    if self.roles[i].kind == "bias":
+                        p[i] = off
+            i0 = self.params.index.get(self.name(c, "K0"))
+            if i0 is not None:
+                offs = [float(np.mean(r.y - self.predict_run(p, j))) / K1 for j, r in enumerate(self.runs)
+                        if r.campaign == c and i0 in self.run_params[j]]
+                p[i0] += float(np.mean(offs)) if offs else 0.0
+        for i, prm in enumerate(self.params):
+            if self.roles[i].key == "K1":
+                self.params._p[i] = replace(prm, scale=max(abs(p[i]), 1e-12))
+        return p
+
+    def select(self, p: np.ndarray, tol: float = ALIAS_TOL, keep: Sequence[str] = ()) -> dict[str, str]:
+        """Hold the parameters the design cannot determine (module docstring); returns
+        {name: reason} of those held.  ``keep`` names are never held for being weak."""
+        n = len(self.params)
+        J = self.jacobian(p)
+        order = sorted(range(n), key=lambda i: (self.priority[i], i))
+        kept = separable_columns(J, order, tol)
+        held: dict[str, str] = {}
+        kept_set = set(kept)
+        for i in range(n):
+            if i not in kept_set:
+                ali = self._aliased_with(J, i, kept)
+                held[self.params[i].name] = ("aliased with " + ", ".join(ali)) if ali else "not excited by these runs"
+        # weakly determined extension terms
+        while True:
+            sol = lstsq_svd(J[:, kept], np.zeros(self.N))
+            u = np.sqrt(np.clip(np.diag(sol.cov), 0, None))
+            worst, ratio = None, 1.0
+            for c, i in enumerate(kept):
+                prm, role = self.params[i], self.roles[i]
+                kind = "theta0" if role.key == "initial_misalignment" else (
+                    role.key if role.kind in ("coef", "bias", "radius") else "effect")
+                if kind in BASE or prm.name in keep:
+                    continue
+                lim = PLAUSIBLE.get(role.key) if role.kind == "coef" else EFFECT_PLAUSIBLE.get(role.key)
+                if lim is None:
+                    continue
+                if u[c] / lim > ratio:
+                    worst, ratio = c, u[c] / lim
+            if worst is None:
+                break
+            i = kept.pop(worst)
+            held[self.params[i].name] = (f"weakly determined: design uncertainty {u[worst]:.2g} "
+                                         f"{self.params[i].unit} exceeds its plausible size")
+        self.params = self.params.held(held)
+        return held
+
+    def _aliased_with(self, J: np.ndarray, i: int, kept: Sequence[int], share: float = 0.05) -> list[str]:
+        """Names of the kept parameters whose columns make up column i."""
+        if not kept or not np.any(J[:, i]):
+            return []
+        sol = lstsq_svd(J[:, list(kept)], J[:, i])
+        contrib = np.abs(sol.x) * np.linalg.norm(J[:, list(kept)], axis=0)
+        tot = contrib.sum()
+        if tot == 0:
+            return []
+        return [self.params[kept[c]].name for c in np.argsort(-contrib) if contrib[c] > share * tot][:4]
+
+    # ----------------------------------------------------------------- derived geometry
+    def polarity_radius(self, p: np.ndarray, j: int) -> float:
+        """Distance [m] of the effective mass centre from the spindle in run j (a centrifuge
+        run): |R u - r e1| for its mount (effects.md mass_centre_offset)."""
+        r = self.runs[j]
+        g = r.geometry
+        co, eff, kw = self.inputs(p, j)
+        R = kw.get("radius_m", g.arm_radius_m)
+        phi = g.phi_rad + float(eff.get("mount_angle_error", 0.0))
+        off = float(eff.get("mass_centre_offset", 0.0))
+        return float(math.hypot(R * math.cos(phi) - off, R * math.sin(phi)))
+
+
+def head_runs(model: CampaignModel) -> dict[str, list[int]]:
+    """Tumble runs grouped by dividing head (rig and axis assignment)."""
+    out: dict[str, list[int]] = {}
+    for j, r in enumerate(model.runs):
+        if isinstance(r.geometry, TumbleHead):
+            out.setdefault(f"{r.rig_id} {r.geometry.label}", []).append(j)
+    return out
+
+
+def mount_runs(model: CampaignModel) -> dict[tuple[str, str, float], list[int]]:
+    """Centrifuge runs grouped by (rig, plane, phi mod 180)."""
+    out: dict[tuple[str, str, float], list[int]] = {}
+    for j, r in enumerate(model.runs):
+        if isinstance(r.geometry, CentrifugeMount):
+            out.setdefault((r.rig_id, *r.geometry.mount_key), []).append(j)
+    return out
