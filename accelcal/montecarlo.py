@@ -90,7 +90,8 @@ TARGET, TARGET_TOL, K_COVER = 0.95, 0.03, 1.96
 #: the coefficients whose var/CRB the issue asks for, per method
 MAIN = {"centrifuge_eq9": ("K2", "Kip", "Kpp", "Koq", "K3"),
         "tilt_rotation_ls": ("K0T", "K1T"),
-        "sine_ls": ("K2", "Kip")}
+        "sine_ls": ("K2", "Kip"),
+        "joint_ml": ("K2", "K3", "Koq", "Kip", "Kio", "Kpo", "Kpp", "Koo", "K0T", "K1T")}
 
 _AXIS_CROSS = {1: "Kp", 2: "Ko"}          # cross-axis sensitivity of PA, OA
 _AXIS_SQUARE = {0: "K2", 1: "Kpp", 2: "Koo"}
@@ -99,7 +100,7 @@ _ALL_COEFFS = ("K0", "K1", "K2", "K3", "Koq", "Kp", "Ko", "Kip", "Kio", "Kpo", "
 _STEP = {"K0": 1e-4, "K1": None, "K2": 1e-7, "K3": 1e-9, "Koq": 1e-7, "Kp": 1e-5, "Ko": 1e-5,
          "Kip": 1e-7, "Kio": 1e-7, "Kpo": 1e-7, "Kpp": 1e-7, "Koo": 1e-7, "K0T": 1e-6, "K1T": 1e-5,
          "initial_misalignment": 1e-6, "spindle_tilt": 1e-6, "mass_centre_offset": 1e-5,
-         "rate_scale_error": 1e-7, "sensor_lag": 1e-6}
+         "rate_scale_error": 1e-7, "sensor_lag": 1e-6, "mount_angle_error": 1e-6}
 SINE_TOOL_ERRORS = ("spindle_tilt", "mass_centre_offset", "rate_scale_error", "sensor_lag")
 
 
@@ -234,6 +235,41 @@ def truth_table(scenario, notes: Mapping[tuple[str, str, str], str] | None = Non
             out[("K0T", "tilt_rotation_ls", rig)] = (c["K0T"] + g * cf * math.cos(gam),
                                                      "K0T + g c cos(gamma) (fixture thermal tilt)")
             out[("K1T", "tilt_rotation_ls", rig)] = (c["K1T"], "instrument value")
+    out.update(_joint_truth(sc, out))
+    return out
+
+
+def _joint_truth(sc, per_method: Mapping) -> dict[tuple[str, str, str], tuple[float, str]]:
+    """Truth of the joint fit (method 'joint_ml', one row per campaign, rig_id the '+'-joined
+    rigs): the instrument values; K0 and K1 at the tumble's temperature when there is a
+    tumble; theta0 as for tumble_lm (Ko aliases with it in one tumble); for a tilt-rotation
+    campaign the apparent K0 and K0T of tilt_rotation_ls (the design aliases them)."""
+    label = "+".join(sorted({str(t["rig_id"]) for t in sc.tests}))
+    kinds = {t["kind"] for t in sc.tests}
+    c = {k: 0.0 for k in _ALL_COEFFS}
+    c["K1"] = 1.0
+    c.update(sc.coefficients)
+    for t in sc.tests:
+        cc = _coeffs_for(sc, t)
+        for k in ("K2", "K3", "Koq", "Kip", "K0T", "K1T"):
+            if cc[k] != c[k]:
+                c[k] = cc[k]
+    out: dict[tuple[str, str, str], tuple[float, str]] = {}
+    for k in ("K2", "K3", "Koq", "Kp", "Ko", "Kip", "Kio", "Kpo", "Kpp", "Koo", "K0", "K1", "K0T", "K1T"):
+        out[(k, "joint_ml", label)] = (c[k], "instrument value")
+    tumble = next((t for t in sc.tests if t["kind"] == "tumble"), None)
+    if tumble is not None:
+        dT = float(tumble.get("temp_c", 23.0)) - T_REF_C
+        out[("K0", "joint_ml", label)] = (c["K0"] + c["K0T"] * dT, "K0(T) at the tumble's temperature")
+        out[("K1", "joint_ml", label)] = (c["K1"] * (1 + c["K1T"] * dT), "K1(T) at the tumble's temperature")
+        rig = str(tumble["rig_id"])
+        if ("theta0", "tumble_lm", rig) in per_method:
+            out[("theta0", "joint_ml", label)] = per_method[("theta0", "tumble_lm", rig)]
+    if kinds == {"tilt_rotation"}:
+        rig = str(sc.tests[0]["rig_id"])
+        for k in ("K0", "K0T"):
+            if (k, "tilt_rotation_ls", rig) in per_method:
+                out[(k, "joint_ml", label)] = per_method[(k, "tilt_rotation_ls", rig)]
     return out
 
 
@@ -254,6 +290,12 @@ def _reading_variance(kind: str, meta, data, coeffs, effects, noise) -> np.ndarr
         dn["table_rate_rad_s"] = w - h
         dEdw = (rig_output(kind, meta, up, coeffs, effects) - rig_output(kind, meta, dn, coeffs, effects)) / (2 * h)
         var = var + (dEdw * w / 2 * jit) ** 2
+    cen = float(noise.get("centripetal_rel", 0.0))
+    if cen > 0 and "table_rate_rad_s" in data.columns:
+        from .physics.rigs import omega_z
+        level = omega_z(meta, np.asarray(data["table_rate_rad_s"], float), {"earth_rate": 1.0}) ** 2 * float(
+            meta["arm_radius_m"])
+        var = var + (K1 * cen * level) ** 2
     return var
 
 
@@ -293,55 +335,142 @@ def _bound(J: np.ndarray, names: Sequence[str], rtol: float = 1e-10) -> dict[str
     return out
 
 
+def _crb_parameters(kind: str, run, j: int, campaign_rigs) -> list[tuple[str, str, object]]:  # noqa: C901
+    """(parameter name, kind, key) of the whole-campaign model that act on run j.
+
+    Instrument coefficients (one instrument, shared by every run); the nuisance parameters
+    the lab does not know, free: a bias per centrifuge run (replacing K0 there), the
+    turning-centre radius per centrifuge rig, the mass-centre offset, one mount-angle error
+    per centrifuge mount (both polarities), theta0 per dividing head, and for the sine
+    centrifuge the tool errors spindle_tilt and sensor_lag."""
+    from .physics.geometry import geometry_of
+    meta = run.meta
+    rig = str(meta["rig_id"])
+    from .fitting.model import DESIGNED
+    out: list[tuple[str, str, object]] = []
+    for k in _ALL_COEFFS:
+        if k not in campaign_rigs:          # the coefficients the campaign's tests determine
+            continue
+        if k == "K0" and kind == "centrifuge":
+            out.append((f"bias[{meta['run_id']}]", "coef", "K0"))
+        else:
+            out.append((k, "coef", k))
+    if kind == "tumble":
+        g = geometry_of(meta)
+        out.append((f"theta0[{rig} {g.label}]", "effect", "initial_misalignment"))
+    if kind in ("centrifuge", "sine_centrifuge"):
+        g = geometry_of(meta)
+        out.append((f"R[{rig}]", "radius", None))
+        out.append((f"r[{rig}]", "effect", "mass_centre_offset"))
+        if kind == "centrifuge" and g.ia_polarity is None:   # IA radial: not separable (type B)
+            plane, phi = g.mount_key
+            out.append((f"dphi[{rig} {plane} {phi:g}]", "effect", "mount_angle_error"))
+        else:
+            out += [(f"spindle_tilt[{rig}]", "effect", "spindle_tilt"), ("sensor_lag", "effect", "sensor_lag")]
+    return out
+
+
+def _crb_column(kind, meta, data, coeffs, effects, what, key, R0) -> np.ndarray:
+    """d E / d parameter at the truth, central differences of rig_output (forward for a
+    sensor lag at 0, where the parameter sits on its bound)."""
+    if what == "coef":
+        return _column(kind, meta, data, coeffs, effects, key)
+    if what == "radius":
+        h = 1e-6 * R0
+        return (rig_output(kind, meta, data, coeffs, effects, radius_m=R0 + h)
+                - rig_output(kind, meta, data, coeffs, effects, radius_m=R0 - h)) / (2 * h)
+    return _column(kind, meta, data, coeffs, effects, key)
+
+
+def _crb_selection(J: np.ndarray, names: Sequence[str]) -> list[int]:
+    """Which parameters the bound treats as free: in the estimator's priority order, those
+    whose column adds a new direction (an aliased combination is counted once), then
+    without the extension terms whose bound exceeds their plausible size (they are held,
+    as the estimator holds them).  accelcal.fitting.model documents the rule."""
+    from .fitting.core import lstsq_svd, separable_columns
+    from .fitting.model import ALIAS_TOL, BASE, EFFECT_PLAUSIBLE, PLAUSIBLE, PRIORITY
+
+    def kind(n):
+        b = n.split("[", 1)[0]
+        return {"bias": "bias", "theta0": "theta0", "R": "radius", "r": "mass_centre_offset",
+                "dphi": "mount_angle_error", "spindle_tilt": "effect", "sensor_lag": "effect"}.get(b, b)
+
+    order = sorted(range(len(names)), key=lambda i: (PRIORITY.index(kind(names[i])), i))
+    kept = separable_columns(J, order, ALIAS_TOL)
+    while True:
+        u = np.sqrt(np.clip(np.diag(lstsq_svd(J[:, kept], np.zeros(J.shape[0])).cov), 0, None))
+        worst, ratio = None, 1.0
+        for c, i in enumerate(kept):
+            k, b = kind(names[i]), names[i].split("[", 1)[0]
+            if k in BASE:
+                continue
+            lim = PLAUSIBLE.get(b) or EFFECT_PLAUSIBLE.get(b)
+            if lim and u[c] / lim > ratio:
+                worst, ratio = c, u[c] / lim
+        if worst is None:
+            return kept
+        kept.pop(worst)
+
+
 def cramer_rao(scenario, seed: int | None = None) -> dict[tuple[str, str, str], float | None]:
-    """(name, method, rig_id) -> CRB variance (SI units squared), or None when the
-    coefficient is aliased in the model.  The model is in the module docstring."""
+    """Whole-campaign Cramer-Rao bound: (name, method, rig_id) -> CRB variance (SI units
+    squared), or None where the coefficient is aliased.
+
+    Computed from the simulator's truth and its noise model (module docstring), over every
+    reading of every run of the scenario's campaign (tumble and centrifuge pooled), with the
+    nuisance parameters of :func:`_crb_parameters` free.  The same bound applies to every
+    method that estimates the same quantity; it is reported for the rows whose truth is the
+    instrument value (and for K0T/K1T of a tilt-rotation campaign)."""
     from .simulate import simulate_campaign
     sc = _scenario(scenario)
     runs = simulate_campaign(sc, sc.seed if seed is None else seed)
-    by_rig: dict[tuple[str, str], list] = defaultdict(list)
-    for r in runs:
-        by_rig[(str(r.meta["test"]), str(r.meta["rig_id"]))].append(r)
     tests = {(t["kind"], str(t["rig_id"])): t for t in sc.tests}
-    out: dict[tuple[str, str, str], float | None] = {}
-    for (kind, rig), rr in by_rig.items():
-        t = tests[(kind, rig)]
+    from .fitting.model import DESIGNED
+    rigs = sorted({str(r.meta["rig_id"]) for r in runs})
+    designed = {k for r in runs for k in DESIGNED[str(r.meta["test"])]}
+    blocks, names = [], {}
+    per_run = []
+    for j, r in enumerate(runs):
+        kind = str(r.meta["test"])
+        t = tests[(kind, str(r.meta["rig_id"]))]
         coeffs = _coeffs_for(sc, t)
-        if kind == "centrifuge":
-            method = "centrifuge_eq9"
-            glob = ["K2", "K3", "Koq", "Kp", "Ko", "Kip", "Kio", "Kpo", "Kpp", "Koo"]
-        elif kind == "tilt_rotation":
-            method = "tilt_rotation_ls"
-            ci, _ = parse_signed_axis(t.get("cos_axis", "+PA"))
-            glob = ["K0", "K1", "K0T", "K1T"] + ([_AXIS_CROSS[ci]] if ci else [])
-        elif kind == "sine_centrifuge":
-            method = "sine_ls"
-            glob = ["K0", "K1", "Kp", "Ko", "K2", "K3", "Koq", "Kip", "Kio", "Kpo", "Kpp", "Koo",
-                    *SINE_TOOL_ERRORS]
-        else:
+        eff = dict(r.truth["effects"])
+        data = r.data.copy()
+        if kind == "sine_centrifuge":           # the expectation of the true rate: the drive
+            f = float(r.meta["rate_frequency_hz"])
+            data["table_rate_rad_s"] = float(r.meta["rate_amplitude_rad_s"]) * np.sin(
+                2 * np.pi * f * data["time_s"].to_numpy(float))
+        plist = _crb_parameters(kind, r, j, designed)
+        R0 = float(r.meta.get("arm_radius_m", 1.0))
+        cols = {}
+        for name, what, key in plist:
+            names.setdefault(name, len(names))
+            cols[name] = _crb_column(kind, r.meta, data, coeffs, eff, what, key, R0)
+        var = _reading_variance(kind, r.meta, data, coeffs, eff, r.truth["noise"])
+        per_run.append((cols, np.sqrt(var)))
+    order = list(names)
+    for cols, sig in per_run:
+        n = len(sig)
+        M = np.zeros((n, len(order)))
+        for name, c in cols.items():
+            M[:, names[name]] = c
+        blocks.append(M / sig[:, None])
+    J = np.vstack(blocks)
+    keep = _crb_selection(J, order)
+    bound = _bound(J[:, keep], [order[i] for i in keep])
+    label = "+".join(rigs)
+    out: dict[tuple[str, str, str], float | None] = {}
+    for k in _ALL_COEFFS:
+        if k in bound:
+            out[(k, "joint_ml", label)] = bound[k]
+    for (kind, rig), t in tests.items():
+        method = {"centrifuge": "centrifuge_eq9", "tilt_rotation": "tilt_rotation_ls",
+                  "sine_centrifuge": "sine_ls"}.get(kind)
+        if method is None:
             continue
-        nloc = 2 if kind == "centrifuge" else 0
-        names = glob + [f"{p}[{i}]" for i in range(len(rr)) for p in ("bias", "scale")][: nloc * len(rr)]
-        blocks = []
-        for i, r in enumerate(rr):
-            eff = dict(r.truth["effects"])
-            data = r.data
-            cols = np.zeros((len(data), len(names)))
-            for j, p in enumerate(glob):
-                cols[:, j] = _column(kind, r.meta, data, coeffs, eff, p)
-            if nloc:
-                from .physics import scale_factor
-                temp = np.asarray(data["temp_c"], float)
-                K1 = scale_factor(coeffs, temp)
-                F = specific_force(kind, r.meta, data, eff)
-                cols[:, len(glob) + 2 * i] = K1
-                cols[:, len(glob) + 2 * i + 1] = K1 * F[:, 0]
-            var = _reading_variance(kind, r.meta, data, coeffs, eff, r.truth["noise"])
-            blocks.append(cols / np.sqrt(var)[:, None])
-        bound = _bound(np.vstack(blocks), names)
-        for p in glob:
-            if p in _ALL_COEFFS:
-                out[(p, method, rig)] = bound[p]
+        for k in _ALL_COEFFS:
+            if k in bound:
+                out[(k, method, rig)] = bound[k]
     return out
 
 
@@ -470,7 +599,7 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
             cs.crb_sd = math.sqrt(b)
             cs.var_over_crb = sd**2 / b if m > 1 else None
         stats.append(cs)
-    order = {"tumble_lm": 0, "centrifuge_eq9": 1, "tilt_rotation_ls": 2, "sine_ls": 3}
+    order = {"joint_ml": -1, "tumble_lm": 0, "centrifuge_eq9": 1, "tilt_rotation_ls": 2, "sine_ls": 3}
     from .effects import COEFFICIENTS
     cnames = list(COEFFICIENTS)
     stats.sort(key=lambda s: (order.get(s.method, 9), s.rig_id,

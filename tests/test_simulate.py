@@ -273,14 +273,20 @@ def _isnum(v):
 
 
 def _dwell_chi2(meta, data, coeffs, effects):
-    """Per-run linear fit E = a + b * A(truth, without K0) on dwell means, weighted by the
-    dwell's own scatter; returns chi2, dof."""
+    """Per-run linear fit E = a + b * A(truth, without K0) on dwell means, weighted by a
+    variance a + b omega^4 fitted to the dwells' scatter (a dwell's own 8-reading scatter
+    would make the chi-square heavy-tailed); returns chi2, dof."""
     from accelcal.physics import indicated_acceleration, specific_force
     F = specific_force(meta["test"], meta, data, effects)
     c = {k: v for k, v in coeffs.items() if k not in ("K0", "K1")}
-    d = data.assign(A=indicated_acceleration(c, F))
-    g = d.groupby("step").agg(E=("output", "mean"), A=("A", "mean"), sd=("output", "std"), n=("output", "size"))
-    w = np.sqrt(g.n.to_numpy()) / g.sd.to_numpy()
+    d = data.assign(A=indicated_acceleration(c, F), w4=data.table_rate_rad_s ** 4)
+    g = d.groupby("step").agg(E=("output", "mean"), A=("A", "mean"), sd=("output", "std"), n=("output", "size"),
+                              w4=("w4", "mean"))
+    s2, w4 = g.sd.to_numpy() ** 2, g.w4.to_numpy()
+    rest = w4 == 0
+    a = float(np.median(s2[rest]))
+    b = max(float(np.median((s2[~rest] - a) / w4[~rest])), 0.0)
+    w = np.sqrt(g.n.to_numpy() / (a + b * w4))
     X = np.c_[np.ones(len(g)), g.A]
     sol = np.linalg.lstsq(X * w[:, None], g.E.to_numpy() * w, rcond=None)[0]
     r = (g.E.to_numpy() - X @ sol) * w

@@ -10,7 +10,10 @@ Noise model (per run, from the run's own random stream):
 - temperature: temp_c = plan temperature + N(0, temp_noise_c); the output is computed from the
   temp_c that is written (the instrument's own sensor), as the physics does;
 - bias random walk: K1(T) * b(t), b a Wiener process with b(t0) = 0, sigma bias_walk_m_s2_rt_s;
-- white noise: K1(T) * N(0, white_m_s2) per row.
+- white noise: K1(T) * N(0, white_m_s2) per row;
+- centripetal noise: K1(T) * N(0, centripetal_rel * omega_z^2 R) per row of a centrifuge or
+  sine run, in every mount (what the lab's centrifuge data show: std/a_c ~ 2e-6 at 0, 45 and
+  90 deg alike).
 """
 from __future__ import annotations
 
@@ -91,8 +94,9 @@ def _started_at(t: dict, k: int) -> str:
     return dt.isoformat()
 
 
-def _finish(kind, meta, phys, coeffs, effects, noise, rng, sc_truth):
-    """Noise-free output from the physics, then bias walk and white noise (output_unit)."""
+def _finish(kind, meta, phys, coeffs, effects, noise, rng, sc_truth, level=None):
+    """Noise-free output from the physics, then bias walk, white noise and (with ``level``,
+    the centripetal level omega_z^2 R of each reading) noise proportional to it (output_unit)."""
     E0 = rig_output(kind, meta, phys, coeffs, effects)
     n = len(E0)
     c = dict(coeffs)
@@ -109,6 +113,8 @@ def _finish(kind, meta, phys, coeffs, effects, noise, rng, sc_truth):
         E = E + K1 * np.concatenate([[0.0], np.cumsum(steps)])
     if noise["white_m_s2"] > 0:
         E = E + K1 * noise["white_m_s2"] * rng.standard_normal(n)
+    if level is not None and noise.get("centripetal_rel", 0.0) > 0:
+        E = E + K1 * noise["centripetal_rel"] * np.abs(level) * rng.standard_normal(n)
     return E, E0
 
 
@@ -152,6 +158,12 @@ def _frame_phys(cols: dict) -> pd.DataFrame:
     self-consistent: the logged time, angles and temperatures are the ones that were used)."""
     return pd.DataFrame({k: (quantize(v, DIGITS[k]) if k in DIGITS and k not in INT_COLUMNS else v)
                          for k, v in cols.items()})
+
+
+def _centripetal(meta: dict, rate: np.ndarray, radius: float) -> np.ndarray:
+    """omega_z^2 R of each reading, m/s^2 (earth rate included)."""
+    from ..physics.rigs import omega_z
+    return omega_z(meta, rate, {"earth_rate": 1.0}) ** 2 * radius
 
 
 def level_rates(levels, g: float, radius: float, latitude_deg: float, sense: str,
@@ -209,7 +221,8 @@ def _centrifuge_run(sc, t, mount, meta, effects, noise, rng):
     cols = {"time_s": time, "step": step, "table_rate_rad_s": logged, "table_angle_deg": angle,
             "temp_c": temp}
     phys = _frame_phys({**cols, "table_rate_rad_s": true_rate})
-    E, E0 = _finish("centrifuge", meta, phys, sc.coefficients, effects, noise, rng, None)
+    E, E0 = _finish("centrifuge", meta, phys, sc.coefficients, effects, noise, rng, None,
+                    level=_centripetal(meta, true_rate, R))
     cols["output"] = E
     return cols, {"noise_free_output": E0, "true_rate_rad_s": true_rate, "g_levels": seq}
 
@@ -270,7 +283,8 @@ def _sine_run(sc, t, att, meta, effects, noise, rng):
                  "vertical_axis": str(att["vertical"]), "rate_amplitude_rad_s": Om, "rate_frequency_hz": f})
     cols = {"time_s": time, "table_rate_rad_s": logged, "table_angle_deg": angle}
     phys = _frame_phys({**cols, "table_rate_rad_s": true_rate})
-    E, E0 = _finish("sine_centrifuge", meta, phys, sc.coefficients, effects, noise, rng, None)
+    E, E0 = _finish("sine_centrifuge", meta, phys, sc.coefficients, effects, noise, rng, None,
+                    level=_centripetal(meta, true_rate, float(t["arm_radius_m"])))
     cols["output"] = E
     return cols, {"noise_free_output": E0, "true_rate_rad_s": true_rate}
 

@@ -36,6 +36,8 @@ key says otherwise (``*_deg``, ``*_c``).  Layout::
                                     # one draw per reading (centrifuge) or per sample (sine)
     rate_log_rel = 1.5e-7           # logged rate = level rate or sine drive times (1 + nu), nu ~ N(0, sigma)
     rate_log_abs = 0.0              # rad/s: plus this absolute logged-rate noise
+    centripetal_rel = 0.0           # output noise proportional to the centripetal level omega_z^2 R,
+                                    # the same in every mount (what real centrifuge data show)
     bias_walk_m_s2_rt_s = 0.0       # bias random walk, m/s^2/sqrt(s): K0 gains a Wiener process
     temp_noise_c = 0.02             # reading-to-reading noise of temp_c, degC
 
@@ -105,6 +107,7 @@ NOISE_DEFAULTS: dict[str, float] = {
     "rate_jitter_rel": 0.0,
     "rate_log_rel": 0.0,
     "rate_log_abs": 0.0,
+    "centripetal_rel": 0.0,
     "bias_walk_m_s2_rt_s": 0.0,
     "temp_noise_c": 0.0,
 }
