@@ -63,15 +63,18 @@ def test_study_linear_case(thermal_study):
     assert abs(k0t.bias_z) < 4
     # efficient linear estimator: var/CRB ~ 1 (n = 100: sampling sd of the ratio ~0.14)
     for name in ("K0T", "K1T"):
-        c = r.get(name, "tilt_rotation_ls")
-        assert c.main and c.var_over_crb is not None
-        assert 0.7 < c.var_over_crb < 1.5, (name, c.var_over_crb)
-        assert 0.85 <= c.coverage <= 1.0
+        for method in ("tilt_rotation_ls", "joint_ml"):
+            c = r.get(name, method)
+            assert c.main and c.var_over_crb is not None
+            assert 0.7 < c.var_over_crb < 1.5, (name, method, c.var_over_crb)
+            assert 0.85 <= c.coverage <= 1.0
+            lo, hi = c.var_over_crb_interval
+            assert lo < c.var_over_crb < hi
 
 
 def test_markdown_and_json(thermal_study):
     md = thermal_study.to_markdown()
-    assert "| **K0T** | tilt_rotation_ls | 100 |" in md
+    assert "| **K0T** | joint_ml | 100 |" in md and "| K0T | tilt_rotation_ls | 100 |" in md
     assert "var/CRB" in md and "n = 100" in md
     d = json.loads(json.dumps(thermal_study.to_dict(), default=str))
     assert d["coefficients"][0]["coverage"] is not None

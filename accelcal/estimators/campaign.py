@@ -398,6 +398,12 @@ def _mark_adopted(res: CampaignResult) -> None:
     """One adopted value per coefficient: the first method of ADOPTION_ORDER."""
     rank = {m: i for i, m in enumerate(ADOPTION_ORDER)}
     best: dict[str, CoefficientResult] = {}
+    if any(c.method == "joint_ml" for c in res.coefficients):
+        # the joint fit ran: its values are the calibration (theta0 per head included);
+        # a paper method's coefficient it does not report is a cross-check only
+        for c in res.coefficients:
+            c.adopted = c.method == "joint_ml"
+        return
     for c in res.coefficients:
         b = best.get(c.name)
         if b is None or rank.get(c.method, 99) < rank.get(b.method, 99):

@@ -32,7 +32,6 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import minimize
 
 from ..physics.geometry import CentrifugeMount, geometry_of
 from ..physics.rigs import omega_z
@@ -423,30 +422,37 @@ def fit_noise(run: RunCells, residual_rows: np.ndarray | None = None, *, use_lev
     return model
 
 
-def _fit_variance_function(S: np.ndarray, nu: np.ndarray, X: np.ndarray, use_level: bool) -> NoiseModel:
-    """a + b x^2 by the Gamma likelihood of cell variances S with nu dof each."""
+def _fit_variance_function(S: np.ndarray, nu: np.ndarray, X: np.ndarray, use_level: bool,
+                           iterations: int = 12) -> NoiseModel:
+    """a + b x^2 by maximum likelihood for cell variances S with nu dof each.
+
+    (nu S / v ~ chi^2_nu: a gamma GLM with identity link), solved by iteratively reweighted
+    least squares (weights nu / v^2, McCullagh & Nelder §8.4) with a > 0, b >= 0."""
     pooled = float(np.sum(nu * S) / np.sum(nu))
-    if not use_level or S.size < 3:
+    if not use_level or S.size < 3 or float(np.ptp(X)) == 0.0:
         return NoiseModel(a=max(pooled, 1e-300))
-    base = max(pooled, 1e-300)
-    sx = max(float(np.max(np.abs(X))), 1e-30)
-
-    def var(q):
-        a, b = np.exp(np.clip(q, -50, 50))
-        return base * (a + b * (X / sx) ** 2)
-
-    def nll(q):
-        v = var(q)
-        return float(np.sum(nu * (S / v + np.log(v))))
-
-    best = None
-    for q0 in ([0.0, -12.0], [-3.0, 0.0], [-12.0, 0.0], [-1.0, -1.0]):
-        r = minimize(nll, np.array(q0), method="Nelder-Mead",
-                     options={"xatol": 1e-4, "fatol": 1e-6, "maxiter": 400})
-        if best is None or r.fun < best.fun:
-            best = r
-    a, b = np.exp(np.clip(best.x, -50, 50))
-    return NoiseModel(a=float(base * a), b=float(base * b / sx ** 2))
+    x2 = np.asarray(X, float) ** 2
+    a, b = pooled, 0.0
+    floor = max(pooled * 1e-8, 1e-300)
+    for _ in range(iterations):
+        v = np.maximum(a + b * x2, floor)
+        w = nu / v ** 2
+        A = np.array([[w.sum(), (w * x2).sum()], [(w * x2).sum(), (w * x2 * x2).sum()]])
+        rhs = np.array([(w * S).sum(), (w * x2 * S).sum()])
+        try:
+            a_new, b_new = np.linalg.solve(A, rhs)
+        except np.linalg.LinAlgError:
+            break
+        if b_new < 0:                          # the boundary: a constant variance
+            a_new, b_new = float((w * S).sum() / w.sum()), 0.0
+        if a_new <= floor:                     # the other boundary: proportional to x^2
+            a_new = floor
+            b_new = max(float((w * x2 * (S - floor)).sum() / (w * x2 * x2).sum()), 0.0)
+        done = abs(a_new - a) <= 1e-10 * abs(a) and abs(b_new - b) <= 1e-10 * max(abs(b), 1e-300)
+        a, b = float(a_new), float(b_new)
+        if done:
+            break
+    return NoiseModel(a=a, b=b)
 
 
 def pool_missing_noise(runs: Sequence[RunCells]) -> None:
