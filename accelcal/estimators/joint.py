@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -132,11 +132,19 @@ def fit_campaign_model(runs: Sequence[RunCells], effects: Sequence[str], *, shar
     free = model.params.free()
     gn = gauss_newton(model.residual, model.jacobian, p, free, max_iter=40)
     its = gn.iterations
-    for _ in range(noise_passes):
+    for k in range(noise_passes):
         for j, r in enumerate(model.runs):
             fit_noise(r, r.y_rows - model.predict_rows(gn.p, j))
         pool_missing_noise(model.runs)
         model.refresh_noise()
+        if k == 0:
+            # what the design determines, judged again at the estimate: terms that act only
+            # through the instrument coefficients (second-order geometry) are 0 at the start
+            held2 = model.select(gn.p, keep=keep)
+            if set(held2) != set(held):
+                held = held2
+                free = model.params.free()
+                gn = replace(gn, p=np.where(free, gn.p, model.params.values()))
         gn = gauss_newton(model.residual, model.jacobian, gn.p, free, max_iter=40)
         its += gn.iterations
     chi_pe, dof_pe = _pure_error(model, gn.p)
@@ -275,19 +283,37 @@ def type_b_terms(jf: JointFit, tolerance: float = MOUNT_ANGLE_TOLERANCE_RAD) -> 
     for label, runs in model.unseparable_angles.items():
         held.append((f"mount angle of {label} (type B, uniform ±{tolerance:.3g} rad: not separable, eq 8)",
                      model.held_direction(fit.values, "mount_angle_error", runs)))
+    # a tilt of IA out of the table plane (effects.md ia_tilt) is a constant g sin(lambda)
+    # at first order (the run biases take it) and a cross-coupling term at second order
+    # (Kip lambda a_i^2 where the vertical axis is PA, -Kio lambda a_i^2 where it is OA)
+    cen = [j for j, r in enumerate(model.runs) if r.test == "centrifuge"]
+    if cen and "ia_tilt" not in model.effects:
+        by_rig: dict[str, list[int]] = {}
+        for j in cen:
+            by_rig.setdefault(model.runs[j].rig_id, []).append(j)
+        for rig, runs in by_rig.items():
+            held.append((f"IA tilt out of the table plane on {rig} (type B, uniform ±{tolerance:.3g} rad: "
+                         "not separable)", model.held_direction(fit.values, "ia_tilt", runs)))
     # cross-axis sensitivities the design aliases with the mount angles or theta0: the fit
     # absorbs them at first order; what leaks at second order (eq 8 through Kip, Kio) is a
     # type-B term, bounded like the fixture's angle tolerance (the instrument's IA is
     # referenced to its mounting surface)
+    absorbers: dict[str, set[str]] = {}
     for name, why in jf.held.items():
         i = model.params.index[name]
-        if model.roles[i].key in ("Kp", "Ko") and why.startswith("aliased"):
-            held.append((f"{name} (type B, uniform ±{tolerance:.3g} rad: aliased, absorbed at first order)",
-                         model.jacobian(fit.values, [i])[:, 0]))
+        if model.roles[i].key in ("Kp", "Ko") and why.startswith("aliased with "):
+            q = f"{name} (type B, uniform ±{tolerance:.3g} rad: aliased, absorbed at first order)"
+            held.append((q, model.jacobian(fit.values, [i])[:, 0]))
+            # the parameters it is aliased with report it as part of their value (their
+            # note says so): what they take of it is their definition, not an error
+            absorbers[q] = {x.strip() for x in why[len("aliased with "):].split(",")}
     for quantity, col in held:
         sol = lstsq_svd(fit.J[:, free], col)
         for c, i in enumerate(free):
-            out.setdefault(model.params[i].name, []).append((quantity, float(sol.x[c]), uB))
+            name = model.params[i].name
+            if name in absorbers.get(quantity, ()):
+                continue
+            out.setdefault(name, []).append((quantity, float(sol.x[c]), uB))
     return out
 
 

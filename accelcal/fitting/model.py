@@ -195,6 +195,8 @@ class CampaignModel:
                     prio = "theta0"
                 add(name, e, EFFECTS[e].unit, EFFECT_SCALE[e], group, f"effect {e}", Role("effect", e), prio)
         self.params = ps
+        #: every candidate parameter, before :meth:`select` held any
+        self.candidates = ps
         self.coef_names = coef_names
         self.run_params = [[i for i, p in enumerate(ps) if p.acts_on(j)] for j in range(len(self.runs))]
         self.offsets = np.concatenate([[0], np.cumsum([r.ncell for r in self.runs])]).astype(int)
@@ -409,8 +411,11 @@ class CampaignModel:
         return p
 
     def select(self, p: np.ndarray, tol: float = ALIAS_TOL, keep: Sequence[str] = ()) -> dict[str, str]:
-        """Hold the parameters the design cannot determine (module docstring); returns
-        {name: reason} of those held.  ``keep`` names are never held for being weak."""
+        """Hold the parameters the design cannot determine at p (module docstring); returns
+        {name: reason} of those held.  ``keep`` names are never held for being weak.  Every
+        candidate is considered afresh (a parameter held at the start, where the instrument
+        coefficients are still 0, may be determined at the estimate)."""
+        self.params = self.candidates
         n = len(self.params)
         J = self.jacobian(p)
         order = sorted(range(n), key=lambda i: (self.priority[i], i))
