@@ -199,6 +199,9 @@ class CampaignModel:
         self.candidates = ps
         self.coef_names = coef_names
         self.run_params = [[i for i, p in enumerate(ps) if p.acts_on(j)] for j in range(len(self.runs))]
+        # per run: how each parameter acting on it enters rig_output, and the fixed effects
+        self._plan = [[(i, self.roles[i].kind, self.roles[i].key) for i in idx] for idx in self.run_params]
+        self._fixed_of = [{k: v for k, v in self.fixed.items() if r.test in EFFECTS[k].tests} for r in self.runs]
         self.offsets = np.concatenate([[0], np.cumsum([r.ncell for r in self.runs])]).astype(int)
         self.N = int(self.offsets[-1])
         self.y = np.concatenate([r.y for r in self.runs]) if self.runs else np.zeros(0)
@@ -255,19 +258,19 @@ class CampaignModel:
         """(coefficients, effects, keyword arguments) of ``rig_output`` for run j."""
         r = self.runs[j]
         co: dict[str, float] = {"K1": 1.0}
-        eff: dict[str, float] = {k: v for k, v in self.fixed.items() if r.test in EFFECTS[k].tests}
+        eff: dict[str, float] = dict(self._fixed_of[j])
         kw: dict = {}
-        for i in self.run_params[j]:
-            role = self.roles[i]
-            v = float(p[i])
-            if role.kind == "coef" or role.kind == "bias":
-                co[role.key] = co.get(role.key, 0.0) + v if role.key != "K1" else v
-            elif role.kind == "scale":
+        pv = p.tolist() if isinstance(p, np.ndarray) else list(p)
+        for i, kind, key in self._plan[j]:
+            v = pv[i]
+            if kind == "coef" or kind == "bias":
+                co[key] = co.get(key, 0.0) + v if key != "K1" else v
+            elif kind == "scale":
                 co["_dK1"] = v
-            elif role.kind == "radius":
+            elif kind == "radius":
                 kw["radius_m"] = v
             else:
-                eff[role.key] = eff.get(role.key, 0.0) + v
+                eff[key] = eff.get(key, 0.0) + v
         if "_dK1" in co:
             co["K1"] = co.get("K1", 1.0) * (1.0 + co.pop("_dK1"))
         for k, v in (extra or {}).items():
