@@ -45,16 +45,9 @@ def subcommand(name: str) -> Callable[[Registrar], Registrar]:
 # ------------------------------------------------------------------- display --
 
 def display_coefficient(c: dict[str, Any]) -> tuple[str, str, str]:
-    """(value, U (k=2), unit) in display units (effects.to_display)."""
-    from .effects import COEFFICIENTS, format_expanded_uncertainty, to_display
-    name, v, u, unit = c["name"], c["value"], c["std_uncertainty"], c.get("unit") or ""
-    if v is None:
-        return "—", "—", unit
-    val, U, dunit, ppm = to_display(name, v, u, unit)
-    Us = format_expanded_uncertainty(U, ppm)
-    if name not in COEFFICIENTS:
-        return f"{val:.6g}", Us, dunit
-    return (f"{val:.7g}" if ppm else f"{val:.4g}"), Us, dunit
+    """(value, U (k=2), unit) in display units, rounded per GUM 7.2.6."""
+    from .effects import display_coefficient as show
+    return show(c["name"], c["value"], c["std_uncertainty"], c.get("unit") or "")
 
 
 class RichReporter:

@@ -111,29 +111,9 @@ def _load(con, campaign: str, result_id: str | None) -> dict[str, Any]:
 
 def display_value(name: str, value: float | None, std_u: float | None,
                   unit: str | None) -> tuple[str, str, str]:
-    """(value, U (k = 2), display unit) for one coefficient (effects.to_display); the
-    value is shown to the last significant digit of U."""
-    from ..effects import COEFFICIENTS, format_expanded_uncertainty, to_display
-    unit = unit or ""
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return "—", "—", unit
-    if isinstance(std_u, float) and math.isnan(std_u):
-        std_u = None
-    val, U, dunit, ppm = to_display(name, value, std_u, unit, K_COVERAGE)
-    Us = format_expanded_uncertainty(U, ppm)
-    if name not in COEFFICIENTS:
-        return f"{val:.6g}", Us, dunit
-    if ppm:
-        return f"{val:.8g}", Us, dunit
-    return f"{val:.{_digits_for(val, U)}f}", Us, dunit
-
-
-def _digits_for(val: float, U: float | None) -> int:
-    """Decimals so the value is shown to the last significant digit of U (2 digits)."""
-    if U is None or U <= 0 or not math.isfinite(U):
-        return 4
-    d = 1 - int(math.floor(math.log10(U)))
-    return max(0, min(12, d))
+    """(value, U (k = 2), display unit) for one coefficient, rounded per GUM 7.2.6."""
+    from ..effects import display_coefficient
+    return display_coefficient(name, value, std_u, unit, K_COVERAGE)
 
 
 def _fmt(x: Any, spec: str = ".4g") -> str:
