@@ -1,7 +1,8 @@
-"""CLI for operations: ``accelcal serve`` and ``accelcal report``.
+"""CLI for operations: ``accelcal serve``, ``report``, ``campaign`` and ``status``.
 
-``register_cli(subparsers)`` (alias ``register``) adds both sub-commands; heavy
-imports happen only when a command runs.
+``register_cli(subparsers)`` (alias ``register``) adds the sub-commands; heavy
+imports happen only when a command runs.  Text that comes from files (campaign labels,
+run ids, reasons) is printed through :func:`accelcal.cli.say`, escaped.
 """
 from __future__ import annotations
 
@@ -50,6 +51,29 @@ def register_cli(sub) -> None:
     r.add_argument("--lock-timeout", type=float, default=60.0, metavar="S")
     r.set_defaults(func=_cmd_report)
 
+    c = sub.add_parser(
+        "campaign", help="list campaigns; exclude or include one (audit-trailed quarantine)",
+        description="Campaigns and what keeps them out of history, En and the fleet views: "
+                    "incomplete (not enough runs), simulated, or excluded by an operator. "
+                    "exclude/include append to an audit trail (who, when, why); nothing is "
+                    "deleted.")
+    csub = c.add_subparsers(dest="action", metavar="ACTION")
+    csub.required = True
+    for name, hlp in (("list", "every campaign's current result and status"),
+                      ("show", "one campaign: status, reasons and its audit trail"),
+                      ("exclude", "keep a campaign out of history, En, fleet and calibration"),
+                      ("include", "undo an exclusion")):
+        q = csub.add_parser(name, help=hlp)
+        if name != "list":
+            q.add_argument("campaign", metavar="CAMPAIGN")
+        if name in ("exclude", "include"):
+            q.add_argument("--why", required=True, metavar="TEXT",
+                           help="the reason, kept in the audit trail")
+            q.add_argument("--by", default=None, help="who decides (default: the login name)")
+            q.add_argument("--lock-timeout", type=float, default=60.0, metavar="S")
+        q.add_argument("--warehouse", "-w", default=_default_warehouse())
+        q.set_defaults(func=_cmd_campaign)
+
 
 register = register_cli
 
@@ -78,6 +102,44 @@ def _cmd_report(args) -> int:
         if type(e).__module__.startswith("duckdb"):
             _fail(f"cannot read warehouse {args.warehouse}: {str(e).splitlines()[0]}")
         raise
+    return 0
+
+
+def _cmd_campaign(args) -> int:
+    from ..cli import _console, say
+    from ..warehouse.db import WarehouseError
+    from .campaigns import campaign_log, campaign_rows, set_campaign
+    from pathlib import Path
+    if not Path(args.warehouse).expanduser().exists():
+        _fail(f"warehouse {args.warehouse} does not exist")
+    con = _console()
+    try:
+        if args.action in ("exclude", "include"):
+            a = set_campaign(args.warehouse, args.campaign, args.action, args.why, args.by,
+                             lock_timeout=args.lock_timeout)
+            say(con, f"{a['campaign']}: {a['action']}d by {a['by']} at "
+                     f"{a['acted_at']:%Y-%m-%d %H:%M:%S %Z} (audit #{a['seq']}): {a['why']}")
+            return 0
+        rows = campaign_rows(args.warehouse, None if args.action == "list" else args.campaign)
+        if args.action == "show" and not rows:
+            _fail(f"no current result for campaign {args.campaign!r}")
+        for r in rows:
+            why = []
+            if r["completeness"] != "complete":
+                why.append("incomplete: " + "; ".join(r["completeness_reasons"]))
+            if r["simulated"]:
+                why.append("simulated")
+            if r["excluded_why"] is not None:
+                why.append(f"excluded by {r['excluded_by']}: {r['excluded_why']}")
+            state = "calibration" if r["in_history"] else "kept out of history"
+            say(con, f"{r['campaign']}  {r['unit_serial']}  result {r['result_id'][:12]}  "
+                     f"{state}" + (f" ({'; '.join(why)})" if why else ""))
+        if args.action == "show":
+            for a in campaign_log(args.warehouse, args.campaign):
+                say(con, f"#{a['seq']} {a['acted_at']:%Y-%m-%d %H:%M:%S %Z} {a['action']} by "
+                         f"{a['acted_by']}: {a['why']}", indent="  ")
+    except WarehouseError as e:
+        _fail(str(e))
     return 0
 
 

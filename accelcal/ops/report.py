@@ -45,7 +45,7 @@ def load_report_data(warehouse: str | Path, campaign: str, result_id: str | None
     """Everything the report shows, as plain Python objects."""
     import duckdb
 
-    from ..warehouse.db import WarehouseError, warehouse_lock
+    from ..warehouse.db import WarehouseError, check_schema_version, warehouse_lock
     path = Path(warehouse).expanduser().resolve()
     if not path.exists():
         raise ReportError(f"warehouse {path} does not exist")
@@ -53,6 +53,7 @@ def load_report_data(warehouse: str | Path, campaign: str, result_id: str | None
         with warehouse_lock(path, timeout=lock_timeout):
             con = duckdb.connect(str(path), read_only=True)
             try:
+                check_schema_version(con, path)
                 return _load(con, campaign, result_id)
             finally:
                 con.close()

@@ -62,7 +62,7 @@ def validate_drop(ing: DropIngest, docs_root: str, part: int | None = None) -> D
 
 def intake_batch(drop_dir: str, paths: list[str], parquet_root: str, warehouse_root: str,
                  known: dict[tuple[str, str], str], docs_root: str,
-                 part: int | None) -> DropIngest:
+                 part: int | None, allow_simulated: bool = False) -> DropIngest:
     """Steps 1-2 on a batch of one drop's files: hash, parse, write Parquet, validate.
 
     Returns the verdicts without the parsed data (the science re-reads Parquet), so a
@@ -70,7 +70,7 @@ def intake_batch(drop_dir: str, paths: list[str], parquet_root: str, warehouse_r
     run on any worker; the flow records the verdicts (one writer).
     """
     t0 = time.perf_counter()
-    ing = ingest_files(drop_dir, paths, parquet_root, warehouse_root, known)
+    ing = ingest_files(drop_dir, paths, parquet_root, warehouse_root, known, allow_simulated)
     ing = validate_drop(ing, docs_root, part)
     ing.parsed.clear()
     ing.seconds = time.perf_counter() - t0
