@@ -38,16 +38,26 @@ def register_cli(sub) -> None:
     p.set_defaults(func=_cmd_serve)
 
     r = sub.add_parser(
-        "report", help="write a self-contained HTML calibration report for a campaign",
-        description="Certificate-style HTML report of a campaign's current (or given) result: "
-                    "coefficients with U (k=2) in display units, adequacy, alignment, plots, "
-                    "lineage.")
-    r.add_argument("campaign", nargs="?", help="campaign label (omit with --all)")
+        "report", help="write the calibration certificate (HTML, and PDF with --pdf) of a campaign",
+        description="Calibration certificate of a campaign's current (or given) result, with what "
+                    "ISO/IEC 17025 7.8.2-7.8.4 asks: certificate number, lab, item, method, dates "
+                    "and conditions from the data, traceability, adopted values with U (k=2), "
+                    "budgets, Monte Carlo check, adequacy and residuals, lineage. Lab facts come "
+                    "from accelcal.toml (--config, else ./accelcal.toml, else beside the "
+                    "warehouse); missing ones are marked placeholders.")
+    r.add_argument("campaign", nargs="?", help="campaign label (omit with --all or --result)")
     r.add_argument("--out", required=True, metavar="DIR", help="output folder")
     r.add_argument("--warehouse", "-w", default=_default_warehouse())
     r.add_argument("--result", default=None, metavar="RESULT_ID",
-                   help="report this (possibly superseded) result instead of the current one")
+                   help="report this (possibly superseded) result; the short id the CLI prints "
+                        "is enough")
     r.add_argument("--all", action="store_true", help="one report per campaign in the warehouse")
+    r.add_argument("--pdf", action="store_true",
+                   help="also print the certificate to PDF with headless chromium")
+    r.add_argument("--config", default=None, metavar="TOML",
+                   help="the lab's accelcal.toml (default: ./accelcal.toml, then beside the "
+                        "warehouse)")
+    r.add_argument("--customer", default=None, help="customer name and address for this certificate")
     r.add_argument("--lock-timeout", type=float, default=60.0, metavar="S")
     r.set_defaults(func=_cmd_report)
 
@@ -88,14 +98,17 @@ def _fail(msg: str):
 
 def _cmd_report(args) -> int:
     from .report import ReportError, build_report, list_campaigns
-    if not args.campaign and not args.all:
-        _fail("give a CAMPAIGN or --all")
+    if not args.campaign and not args.all and not args.result:
+        _fail("give a CAMPAIGN, --result ID or --all")
     try:
         camps = list_campaigns(args.warehouse) if args.all else [args.campaign]
         for c in camps:
             path = build_report(args.warehouse, c, args.out, result_id=args.result,
-                                lock_timeout=args.lock_timeout)
+                                lock_timeout=args.lock_timeout, config=args.config,
+                                pdf=args.pdf, customer=args.customer)
             print(path)
+            if args.pdf:
+                print(path.with_suffix(".pdf"))
     except ReportError as e:
         _fail(str(e))
     except Exception as e:
