@@ -28,16 +28,19 @@ def _follow_quiet_parent() -> None:
 
 def validate_drop(ing: DropIngest, docs_root: str, part: int | None = None) -> DropIngest:
     """Validate ``ing.parsed``; Data Docs to ``docs_root/<drop>/`` or, for part k of a
-    drop streamed in batches, ``docs_root/<drop>/part-k/``."""
+    drop streamed in batches, ``docs_root/<drop>/part-k/`` (listed in ``parts.html``).
+    The Data Docs list the files the parser refused too."""
     runs = list(ing.parsed.values())
-    if runs:
+    parse_refusals = [rf for rec in ing.records if rec.status == "refused" for rf in rec.refusals]
+    if runs or parse_refusals:
         _follow_quiet_parent()
+        folder = contracts.docs_folder_name(ing.drop_name)
         if part is None:
-            verdicts = contracts.validate_runs(runs, docs_root, ing.drop_name)
+            verdicts = contracts.validate_runs(runs, docs_root, ing.drop_name, parse_refusals)
         else:
-            verdicts = contracts.validate_runs(
-                runs, str(Path(docs_root) / contracts.docs_folder_name(ing.drop_name)),
-                f"part-{part:04d}")
+            verdicts = contracts.validate_runs(runs, str(Path(docs_root) / folder),
+                                               f"part-{part:04d}", parse_refusals)
+            contracts.write_drop_index(Path(docs_root) / folder, ing.drop_name)
         by_path = {}
         for k, v in (verdicts or {}).items():
             by_path[str(k)] = v
@@ -54,8 +57,8 @@ def validate_drop(ing: DropIngest, docs_root: str, part: int | None = None) -> D
                 rec.refusals = [Refusal(rule=r.rule, detail=r.detail, line=r.line,
                                         path=str(r.path)) for r in refs]
                 ing.parsed.pop(rec.source_path, None)
-        docs = Path(docs_root) / contracts.docs_folder_name(ing.drop_name)
-        ing.docs = str(docs) if docs.exists() else (str(docs_root) if Path(docs_root).exists() else None)
+        docs = Path(docs_root) / folder / ("index.html" if part is None else "parts.html")
+        ing.docs = str(docs) if docs.exists() else None
     progress.advance("validate", note=ing.drop_name)
     return ing
 
