@@ -61,6 +61,19 @@ def register_cli(sub) -> None:
     r.add_argument("--lock-timeout", type=float, default=60.0, metavar="S")
     r.set_defaults(func=_cmd_report)
 
+    st = sub.add_parser(
+        "status", help="the last passes of `accelcal serve` and what waits",
+        description="What the scheduled processing did and what it waits for: the last passes "
+                    "(drops seen, processed, held back and why, refusals, results), the drops "
+                    "held back at the last pass and the files seen but not processed. Read from "
+                    "<warehouse>-watch.json, so it answers while a pass holds the warehouse.")
+    st.add_argument("--warehouse", "-w", default=_default_warehouse())
+    st.add_argument("--passes", type=int, default=5, metavar="N", help="how many passes (default 5)")
+    st.add_argument("--watch", default=None, metavar="DIR",
+                    help="also look at the watched folder now (records nothing)")
+    st.add_argument("--settle", type=float, default=30.0, metavar="SECONDS")
+    st.set_defaults(func=_cmd_status)
+
     c = sub.add_parser(
         "campaign", help="list campaigns; exclude or include one (audit-trailed quarantine)",
         description="Campaigns and what keeps them out of history, En and the fleet views: "
@@ -118,6 +131,20 @@ def _cmd_report(args) -> int:
     return 0
 
 
+def _cmd_status(args) -> int:
+    from pathlib import Path
+
+    from ..cli import _console, say
+    from .serve import status_lines
+    if not Path(args.warehouse).expanduser().exists():
+        _fail(f"warehouse {args.warehouse} does not exist")
+    con = _console()
+    for line in status_lines(args.warehouse, n=max(1, args.passes), watch_dir=args.watch,
+                             settle=args.settle):
+        say(con, line)
+    return 0
+
+
 def _cmd_campaign(args) -> int:
     from ..cli import _console, say
     from ..warehouse.db import WarehouseError
@@ -169,7 +196,8 @@ def _cmd_serve(args) -> int:
     if args.once:
         import json
 
-        from .serve import watch_pass
+        from .serve import setup_logging, watch_pass
+        setup_logging()
         out = watch_pass(args.watch, args.warehouse, settle=args.settle, engine="local",
                          lock_timeout=args.lock_timeout)
         print(json.dumps(out, indent=1, default=str))
@@ -181,5 +209,6 @@ def _cmd_serve(args) -> int:
         serve(args.watch, args.warehouse, cron=args.cron, poll=args.poll, settle=args.settle,
               name=args.name, lock_timeout=args.lock_timeout, task_runner=args.task_runner)
     except KeyboardInterrupt:
-        print("accelcal serve: stopped", file=sys.stderr)
+        pass
+    print("accelcal serve: stopped", file=sys.stderr)
     return 0
