@@ -99,3 +99,13 @@ def test_old_warehouse_gets_one_line_not_a_traceback(tmp_path, capsys):
         assert cli.main(argv) == 1, argv
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "schema version 1, this accelcal uses 2" in err[0], (argv, err)
+
+
+def test_sql_reads_with_the_client_that_wrote_it(lab, capsys):
+    assert cli.main(["sql", "SELECT count(*) AS n_cal FROM calibration", "--warehouse",
+                     str(lab.path), "--csv"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[0] == "n_cal" and int(out[1]) > 0
+    assert cli.main(["sql", "SELECT nope", "--warehouse", str(lab.path)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "nope" in err[0]
