@@ -137,12 +137,16 @@ def _cmd_report(args) -> int:
     return 0
 
 
-def _cmd_sql(args) -> int:
+def _need_warehouse(path: str) -> None:
+    """Reading commands never create a warehouse: a missing one is a one-line error."""
     from pathlib import Path
+    if not Path(path).expanduser().exists():
+        _fail(f"warehouse {path} does not exist")
 
+
+def _cmd_sql(args) -> int:
     from ..warehouse.db import Warehouse, WarehouseError
-    if not Path(args.warehouse).expanduser().exists():
-        _fail(f"warehouse {args.warehouse} does not exist")
+    _need_warehouse(args.warehouse)
     import duckdb
     try:
         rows = Warehouse(args.warehouse).query(args.query)
@@ -172,12 +176,9 @@ def _cmd_sql(args) -> int:
 
 
 def _cmd_status(args) -> int:
-    from pathlib import Path
-
     from ..cli import _console, say
     from .serve import status_lines
-    if not Path(args.warehouse).expanduser().exists():
-        _fail(f"warehouse {args.warehouse} does not exist")
+    _need_warehouse(args.warehouse)
     con = _console()
     for line in status_lines(args.warehouse, n=max(1, args.passes), watch_dir=args.watch,
                              settle=args.settle):
@@ -189,9 +190,7 @@ def _cmd_campaign(args) -> int:
     from ..cli import _console, say
     from ..warehouse.db import WarehouseError
     from .campaigns import campaign_log, campaign_rows, set_campaign
-    from pathlib import Path
-    if not Path(args.warehouse).expanduser().exists():
-        _fail(f"warehouse {args.warehouse} does not exist")
+    _need_warehouse(args.warehouse)
     con = _console()
     try:
         if args.action in ("exclude", "include"):
