@@ -45,16 +45,9 @@ def subcommand(name: str) -> Callable[[Registrar], Registrar]:
 # ------------------------------------------------------------------- display --
 
 def display_coefficient(c: dict[str, Any]) -> tuple[str, str, str]:
-    """(value, U (k=2), unit) in display units (effects.to_display)."""
-    from .effects import COEFFICIENTS, format_expanded_uncertainty, to_display
-    name, v, u, unit = c["name"], c["value"], c["std_uncertainty"], c.get("unit") or ""
-    if v is None:
-        return "—", "—", unit
-    val, U, dunit, ppm = to_display(name, v, u, unit)
-    Us = format_expanded_uncertainty(U, ppm)
-    if name not in COEFFICIENTS:
-        return f"{val:.6g}", Us, dunit
-    return (f"{val:.7g}" if ppm else f"{val:.4g}"), Us, dunit
+    """(value, U (k=2), unit) in display units, rounded per GUM 7.2.6."""
+    from .effects import display_coefficient as show
+    return show(c["name"], c["value"], c["std_uncertainty"], c.get("unit") or "")
 
 
 class RichReporter:
@@ -89,6 +82,26 @@ def _console(stderr: bool = False):
     return Console(stderr=stderr, highlight=False)
 
 
+def say(con, text: str, tag: str = "", style: str = "", indent: str = "") -> None:
+    """Print one line whose ``text`` may come from a file (a run id, a campaign label, a
+    refusal reason): it is escaped, so it is shown as written and never read as markup.
+    ``tag`` is ours (e.g. "refused") and shown in ``style``."""
+    from rich.markup import escape
+    head = f"[{style}]{escape(tag)}[/{style}] " if tag and style else (f"{escape(tag)} " if tag else "")
+    con.print(indent + head + escape(str(text)), soft_wrap=True)
+
+
+def _cell(x) -> Any:
+    """A table cell taken literally (file-derived text is not markup)."""
+    from rich.text import Text
+    return Text("" if x is None else str(x))
+
+
+#: What a campaign's store status means, for people.
+STATUS_WORDS = {"simulated-not-current": "simulated: stored, NOT current (the unit has a "
+                                         "complete real calibration)"}
+
+
 def print_summary(summary: dict[str, Any], console=None) -> None:
     from rich.table import Table
     con = console or _console()
@@ -98,18 +111,26 @@ def print_summary(summary: dict[str, Any], console=None) -> None:
                    ("refused", "right"), ("new", "right")):
         t.add_column(col, justify=j)
     for d in summary["drops"]:
-        t.add_row(d["drop"], str(d["files"]), str(d["accepted"]),
+        t.add_row(_cell(d["drop"]), str(d["files"]), str(d["accepted"]),
                   f"[red]{d['refused']}[/red]" if d["refused"] else "0", str(d["new"]))
     con.print(t)
     for d in summary["drops"]:
         for r in d["refused_files"]:
             rel = f"{d['drop']}/{os.path.relpath(r['path'], d['path'])}"
             reason = (r["reason"] or "refused").replace(r["path"], rel)
-            con.print(f"  [red]refused[/red] {reason}", soft_wrap=True)
+            say(con, reason, "refused", "red", "  ")
+        held = d.get("simulated_held") or []
+        for r in held[:5]:
+            rel = f"{d['drop']}/{os.path.relpath(r['path'], d['path'])}"
+            say(con, f"{rel}:{r['line']}: simulated: the file carries the simulator's mark; "
+                     "not stored (--allow-simulated stores simulated data apart from real "
+                     "results)", "refused", "red", "  ")
+        if len(held) > 5:
+            say(con, f"... and {len(held) - 5} more simulated files of {d['drop']}", indent="  ")
         for e in d["errors"]:
-            con.print(f"  [yellow]not ingested[/yellow] {e}", soft_wrap=True)
+            say(con, e, "not ingested", "yellow", "  ")
         if d.get("docs"):
-            con.print(f"  Data Docs: {d['docs']}", soft_wrap=True)
+            say(con, f"Data Docs: {d['docs']}", indent="  ")
     from .flows.pipeline import SUMMARY_DETAIL_MAX
     for k, c in enumerate(summary["campaigns"]):
         if k == SUMMARY_DETAIL_MAX:
@@ -123,49 +144,71 @@ def print_summary(summary: dict[str, Any], console=None) -> None:
                       + "): see the unit_history view or `accelcal report CAMPAIGN`")
             for x in rest:
                 if x.get("error"):
-                    con.print(f"  [red]failed[/red] {x['campaign']}: {x['error']}", soft_wrap=True)
+                    say(con, f"{x['campaign']}: {x['error']}", "failed", "red", "  ")
             break
         con.print()
-        status = c["status"]
-        head = f"[bold]{c['campaign']}[/bold] ({c.get('unit_serial') or '?'}): {c['n_runs']} runs, {status}"
+        status = STATUS_WORDS.get(c["status"], c["status"])
+        head = f"{c['campaign']} ({c.get('unit_serial') or '?'}): {c['n_runs']} runs, {status}"
         if c.get("current_result_id"):
             head += f", result {c['current_result_id'][:12]}"
-        con.print(head)
+        say(con, head)
+        if c.get("simulated"):
+            say(con, "computed from simulated data: kept out of history, En and the fleet "
+                     "views", "simulated", "yellow", "  ")
+        if c.get("simulated_left_out"):
+            say(con, f"{c['simulated_left_out']} simulated run(s) with this campaign label "
+                     "were left out (real runs are never mixed with simulated ones)",
+                "simulated", "yellow", "  ")
+        if c.get("completeness") == "incomplete":
+            say(con, "; ".join(c.get("completeness_reasons") or []) + " — visible, but kept "
+                     "out of history, En and the fleet views", "incomplete", "yellow", "  ")
+        if c.get("excluded"):
+            say(con, f"excluded by `accelcal campaign exclude`: {c['excluded']}",
+                "excluded", "yellow", "  ")
         if c.get("error"):
-            con.print(f"  [red]failed[/red]: {c['error']}", soft_wrap=True)
+            say(con, c["error"], "failed", "red", "  ")
         if c.get("coefficients"):
-            t = Table(show_edge=False, box=None, padding=(0, 2))
-            for col, j in (("coef", "left"), ("value", "right"), ("U (k=2)", "right"),
-                           ("unit", "left"), ("method", "left"), ("rig", "left")):
-                t.add_column(col, justify=j)
+            t = Table(show_edge=False, box=None, padding=(0, 1),
+                      caption="* the adopted value" if any(
+                          co.get("adopted") for co in c["coefficients"]) else None,
+                      caption_justify="left")
+            for col, j in (("", "left"), ("coef", "left"), ("value", "right"),
+                           ("U (k=2)", "right"), ("unit", "left"), ("method", "left"),
+                           ("rig", "left")):
+                t.add_column(col, justify=j, no_wrap=col in ("value", "U (k=2)", "unit", "coef"),
+                             overflow="fold")
             for co in c["coefficients"]:
                 v, U, unit = display_coefficient(co)
-                t.add_row(co["name"], v, U, unit, co.get("method") or "", co.get("rig_id") or "")
+                t.add_row("*" if co.get("adopted") else "", _cell(co["name"]), v, U, unit,
+                          _cell(co.get("method")), _cell(co.get("rig_id")))
             con.print(t)
         radii = _radius_rows(c.get("radii") or [])
         if radii:
-            t = Table(show_edge=False, box=None, padding=(0, 2))
-            t.add_column("radius (widest g)", no_wrap=True)
+            t = Table(show_edge=False, box=None, padding=(0, 1))
+            t.add_column("radius (widest g)", overflow="fold")
             t.add_column("R+ / m", justify="right", no_wrap=True)
             t.add_column("U / µm", justify="right", no_wrap=True)
             t.add_column("R− / m", justify="right", no_wrap=True)
             t.add_column("U / µm", justify="right", no_wrap=True)
             for label, plus, minus in radii:
-                t.add_row(label, *(_fmt_radius(plus)), *(_fmt_radius(minus)))
+                t.add_row(_cell(label), *(_fmt_radius(plus)), *(_fmt_radius(minus)))
             con.print(t)
         for f in c.get("flags") or []:
-            con.print(f"  [yellow]flag[/yellow] {f}", soft_wrap=True)
+            say(con, f, "flag", "yellow", "  ")
     con.print()
     tm = summary.get("timings", {})
-    con.print(f"warehouse {wh}  ·  {summary.get('engine', '')} engine  ·  "
-              f"{tm.get('total', 0):.1f} s  ·  flow run {summary['flow_run_id']}", soft_wrap=True)
+    say(con, f"warehouse {wh}  ·  {summary.get('engine', '')} engine  ·  "
+             f"{tm.get('total', 0):.1f} s  ·  flow run {summary['flow_run_id']}")
 
 
 def _fmt_radius(r):
+    """(R / m, U / µm), GUM 7.2.6: U to 2 digits, R to the same decimal."""
+    from .rounding import format_sig, round_gum
     if r is None:
         return "—", "—"
     u = r.get("std_uncertainty_m")
-    return f"{r['radius_m']:.6f}", ("—" if u is None else f"{2e6 * u:.2f}")
+    U = None if u is None else 2 * u
+    return round_gum(r["radius_m"], U).value, format_sig(None if U is None else 1e6 * U)
 
 
 def _radius_rows(radii: list[dict[str, Any]]):
@@ -186,7 +229,8 @@ def _radius_rows(radii: list[dict[str, Any]]):
 
 # ---------------------------------------------------------------- commands --
 
-def _execute(drops: list[str], warehouse: str, args, console) -> int:
+def _execute(drops: list[str], warehouse: str, args, console,
+             allow_simulated: bool = False) -> int:
     from .flows.pipeline import PipelineError, quiet_prefect
     from .warehouse.db import WarehouseError
     quiet_prefect(args.log_level)
@@ -208,7 +252,8 @@ def _execute(drops: list[str], warehouse: str, args, console) -> int:
                 rep.stage("prefect", None)
             summary = run_pipeline(drops, warehouse, engine=args.engine,
                                    lock_timeout=args.lock_timeout,
-                                   task_runner=args.task_runner)
+                                   task_runner=args.task_runner,
+                                   allow_simulated=allow_simulated)
     except (PipelineError, WarehouseError) as e:
         raise CliError(str(e)) from None
     finally:
@@ -244,12 +289,18 @@ def _register_run(sub) -> None:
     p.add_argument("--warehouse", "-w", default=os.environ.get("ACCELCAL_WAREHOUSE", "lab.duckdb"),
                    help="DuckDB warehouse file (default: $ACCELCAL_WAREHOUSE or ./lab.duckdb); "
                         "Parquet and Data Docs go next to it")
+    p.add_argument("--allow-simulated", action="store_true",
+                   help="store files made by `accelcal simulate` (marked '# simulated: true'); "
+                        "without it they are refused. A simulated result is never current for "
+                        "a unit that has a complete real calibration, and never enters history, "
+                        "En or the fleet views")
     _add_run_options(p)
     p.set_defaults(func=_cmd_run)
 
 
 def _cmd_run(args) -> int:
-    return _execute(args.drops, args.warehouse, args, _console())
+    return _execute(args.drops, args.warehouse, args, _console(),
+                    allow_simulated=args.allow_simulated)
 
 
 def demo_drops() -> list[Path]:
@@ -281,8 +332,9 @@ def _cmd_demo(args) -> int:
     drops = [str(d) for d in demo_drops()]
     console = _console()
     if not args.json:
-        console.print(f"demo drops: {', '.join(Path(d).name for d in drops)} -> {out / 'lab.duckdb'}")
-    return _execute(drops, str(out / "lab.duckdb"), args, console)
+        say(console, f"demo drops: {', '.join(Path(d).name for d in drops)} -> {out / 'lab.duckdb'}")
+    # the demo drop is made by the simulator (accelcal/demo_data/README.md)
+    return _execute(drops, str(out / "lab.duckdb"), args, console, allow_simulated=True)
 
 
 # -------------------------------------------------------------------- main --

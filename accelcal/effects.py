@@ -5,6 +5,7 @@ diagnosis and the warehouse: never rename them.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from .constants import G_STANDARD
@@ -63,11 +64,23 @@ def to_display(name: str, value: float, std_u: float | None, unit: str,
             PRETTY_UNITS.get(spec.display_unit, spec.display_unit), False)
 
 
-def format_expanded_uncertainty(U: float | None, ppm: bool) -> str:
-    """U as :func:`to_display` gives it, to 2 significant digits ("—" when unknown)."""
-    if U is None:
-        return "—"
-    return f"{U:.2g} ppm" if ppm else f"{U:.2g}"
+def display_coefficient(name: str, value: float | None, std_u: float | None, unit: str | None,
+                        k: float = 2.0) -> tuple[str, str, str]:
+    """(value, U, display unit) as written for people: GUM 7.2.6 rounding
+    (:func:`accelcal.rounding.round_gum`), U = k u.  K1's U is relative, "x ppm", and its
+    value is rounded to the last digit of the absolute U."""
+    from .rounding import format_sig, round_gum
+    unit = unit or ""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return "—", "—", unit
+    if isinstance(std_u, float) and math.isnan(std_u):
+        std_u = None
+    val, U, dunit, ppm = to_display(name, value, std_u, unit, k)
+    if ppm:
+        U_abs = None if U is None else U * 1e-6 * abs(val)
+        return round_gum(val, U_abs).value, ("—" if U is None else f"{format_sig(U)} ppm"), dunit
+    r = round_gum(val, U)
+    return r.value, r.uncertainty, dunit
 
 
 #: The second-order coefficients, used where code must loop over them.

@@ -104,7 +104,8 @@ def child(args) -> dict:
     from accelcal.ops.fleet import ensure_views
     wh = root / "lab.duckdb"
     t0 = time.perf_counter()
-    s = run_pipeline([str(d) for d in drops], wh, engine=engine, task_runner=runner)
+    s = run_pipeline([str(d) for d in drops], wh, engine=engine, task_runner=runner,
+                     allow_simulated=True)
     t_pipe = time.perf_counter() - t0
     rss_peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     rss_children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss   # Dask workers, ended
@@ -139,7 +140,8 @@ def child(args) -> dict:
     floor = numpy_floor(files)
     # idempotent re-run: nothing new
     t0 = time.perf_counter()
-    s2 = run_pipeline([str(d) for d in drops], wh, engine=engine, task_runner=runner)
+    s2 = run_pipeline([str(d) for d in drops], wh, engine=engine, task_runner=runner,
+                      allow_simulated=True)
     t_rerun = time.perf_counter() - t0
     return {"campaigns": n, "runs": n_runs, "drops": len(drops), "engine": engine,
             "task_runner": runner, "simulate_s": t_sim, "pipeline_s": t_pipe,

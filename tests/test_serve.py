@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from accelcal.ops.serve import load_state, plan_pass
+from accelcal.ops.serve import load_state, plan_pass, status_lines, watch_pass
 
 SERVE_MAIN = ("import sys; from accelcal.ops.cli import register_cli; import argparse; "
               "p = argparse.ArgumentParser(); s = p.add_subparsers(); register_cli(s); "
@@ -52,6 +52,32 @@ def test_plan_pass_waits_for_partial_and_growing_files(tmp_path):
     st["processed"].update(p.files[str(watch / "d1")])
     p = plan_pass(watch, st, settle=0)                 # each file once
     assert p.ready == [] and p.unchanged == [str(watch / "d1")]
+
+
+def test_a_pass_logs_what_it_saw_held_refused_and_computed(tmp_path, examples, caplog):
+    watch = tmp_path / "w"
+    shutil.copytree(examples / "drop-bad", watch / "bad",
+                    ignore=shutil.ignore_patterns("*.part"))
+    (watch / "partial").mkdir()
+    shutil.copy(examples / "drop-2026-11-18-thermal" / "TT1-20261118-0001.csv", watch / "partial")
+    (watch / "partial" / "more.csv.part").write_text("x")
+    wh = tmp_path / "wh" / "lab.duckdb"
+    with caplog.at_level("INFO", logger="accelcal.serve"):
+        out = watch_pass(str(watch), str(wh), settle=0)
+    log = [r.getMessage() for r in caplog.records if r.name == "accelcal.serve"]
+    assert log[0].startswith("pass: 2 drop(s) seen, 1 processed, 1 held back, 0 unchanged; "
+                             "11 file(s) refused, 1 campaign(s) computed")
+    assert "held back partial: partial file more.csv.part still being written" in log
+    assert "processed bad: 12 file(s), 1 accepted, 11 refused, 12 new" in log
+    assert any(x.startswith("refused ") and "bad/nan-output.csv:26: output-not-finite" in x
+               for x in log)
+    assert sum(x.startswith("refused ") for x in log) == 11
+    assert any(x.startswith("result X/1: new, current ") and "incomplete" in x for x in log)
+    assert out["error"] is None
+    st = "\n".join(status_lines(wh, watch_dir=watch, settle=0))
+    assert "last 1 of 1 recorded passes" in st and "held back partial: partial file more.csv.part" in st
+    assert "idle: no process holds the warehouse" in st
+    assert "a pass now would process 0 drop(s)" in st
 
 
 # ------------------------------------------------------------ real Prefect --
@@ -181,6 +207,17 @@ def test_serve_processes_new_drops_once_and_leaves_partial_files(tmp_path, examp
         scheduler_broken = "Can't evaluate bulk DML statement" in server_log
         print(f"\nprefect server up in {t_server:.1f} s; scheduled runs created: {len(auto)}; "
               f"total {time.monotonic() - t_start:.1f} s")
+        # 4: every pass said what it did, in serve's own output
+        text = (tmp_path / "serve.log").read_text()
+        assert "held back drop-1: partial file DH1-20261121-0001.csv.part" in text, text[-3000:]
+        assert "processed drop-1: 2 file(s), 2 accepted, 0 refused, 2 new" in text
+        assert "result SNJ-1-03/2026-11-20: new, current " in text
+        # 5: SIGTERM stops it cleanly
+        serve.send_signal(signal.SIGTERM)
+        serve.wait(timeout=60)
+        text = (tmp_path / "serve.log").read_text()
+        assert serve.returncode == 0 and "accelcal serve: stopped" in text, text[-2000:]
+        assert "never awaited" not in text and "Traceback" not in text, text[-3000:]
     finally:
         _stop(serve)
         _stop(server)

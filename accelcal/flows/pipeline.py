@@ -12,6 +12,7 @@ current is not recomputed.
 """
 from __future__ import annotations
 
+import json
 import os
 import time
 import uuid
@@ -145,7 +146,7 @@ class _Session:
 
 def pipeline_body(drops: list[str], warehouse: str, *, lock_timeout: float = 60.0,
                   parameters: dict[str, Any] | None = None, steps: SimpleNamespace,
-                  flow_run_id: str) -> dict[str, Any]:
+                  flow_run_id: str, allow_simulated: bool = False) -> dict[str, Any]:
     """The composition shared by both engines.  Returns a JSON-able summary.
 
     Streams: each drop's files go in batches (ingest + validate as one task, possibly
@@ -154,6 +155,10 @@ def pipeline_body(drops: list[str], warehouse: str, *, lock_timeout: float = 60.
     one task and stored as soon as it is done.  At most ``in_flight()`` batches or
     campaigns are held at once, so memory is bounded by the batch size, not the drop.
     Only the flow process writes to the warehouse.
+
+    Files carrying the simulator's mark are not taken in unless ``allow_simulated``
+    (each drop's ``simulated_held`` lists them); even then a simulated result is never
+    current for a unit that has a complete real result (Warehouse.store_result).
     """
     parameters = dict(parameters or {})
     timings: dict[str, float] = {}
@@ -203,6 +208,7 @@ def pipeline_body(drops: list[str], warehouse: str, *, lock_timeout: float = 60.
                 entry["new"] += (r["sha256"], r["source_path"]) in new_keys
             entry["rechecked"] += sum(1 for r in ing.records if r.rechecked)
             entry["errors"].extend(ing.errors)
+            entry["simulated_held"].extend(ing.simulated_held)
             if ing.docs and entry["docs"] is None:
                 entry["docs"] = ing.docs
 
@@ -214,7 +220,7 @@ def pipeline_body(drops: list[str], warehouse: str, *, lock_timeout: float = 60.
             tick("discover", t0)
             entry = {"drop": Path(drop).name, "path": drop, "files": 0, "accepted": 0,
                      "refused": 0, "new": 0, "refused_files": [], "rechecked": 0,
-                     "errors": [], "docs": None}
+                     "errors": [], "docs": None, "simulated_held": []}
             summary["drops"].append(entry)
             progress.stage("ingest", len(paths))
             nb = max(1, -(-len(paths) // B))
@@ -227,7 +233,7 @@ def pipeline_body(drops: list[str], warehouse: str, *, lock_timeout: float = 60.
                 t0 = time.perf_counter()
                 pending.append((entry, steps.submit_intake(
                     drop, batch, str(wh.parquet_root), str(wh.root), kb, str(wh.docs_root),
-                    None if nb == 1 else k)))
+                    None if nb == 1 else k, allow_simulated)))
                 tick("ingest+validate (submit)", t0)
                 while len(pending) >= W:
                     record_next()
@@ -235,6 +241,7 @@ def pipeline_body(drops: list[str], warehouse: str, *, lock_timeout: float = 60.
             record_next()
         for e in summary["drops"]:
             e["refused_files"].sort(key=lambda r: r["path"])
+            e["simulated_held"].sort(key=lambda r: r["path"])
 
         # -- 4: group by campaign; plan what needs computing
         campaigns = sorted(touched)
@@ -243,6 +250,7 @@ def pipeline_body(drops: list[str], warehouse: str, *, lock_timeout: float = 60.
         t0 = time.perf_counter()
         sess.touch()
         plans = wh.campaign_plans(campaigns)
+        left_out = wh.simulated_left_out(campaigns)
         tick("plan", t0)
 
         # -- 5-8: load + science, a few campaigns per task; store each chunk's results
@@ -296,7 +304,7 @@ def pipeline_body(drops: list[str], warehouse: str, *, lock_timeout: float = 60.
             inputs, current = plans[camp]
             rid = _result_id(camp, [i["sha256"] for i in inputs], cv, parameters)
             entry = {"campaign": camp, "result_id": rid, "n_runs": len(inputs), "status": None,
-                     "error": None}
+                     "error": None, "simulated_left_out": left_out.get(camp, 0)}
             summary["campaigns"].append(entry)
             if current == rid:
                 entry["status"] = "unchanged"
@@ -328,19 +336,29 @@ SUMMARY_DETAIL_MAX = 50
 
 def _fill_campaigns(wh: Warehouse, entries: list[dict[str, Any]]) -> None:
     with wh.connect() as con:
-        current = dict((c, (rid, serial)) for c, rid, serial in con.execute(
-            "SELECT campaign, result_id, unit_serial FROM results_current "
-            "WHERE list_contains(?, campaign)", [[e["campaign"] for e in entries]]).fetchall())
+        camps = [e["campaign"] for e in entries]
+        current = {c: rest for c, *rest in con.execute(
+            "SELECT campaign, result_id, unit_serial, completeness, completeness_reasons, "
+            "simulated FROM results_current WHERE list_contains(?, campaign)", [camps]).fetchall()}
+        excluded = dict(con.execute(
+            "SELECT campaign, why FROM excluded_campaigns WHERE list_contains(?, campaign)",
+            [camps]).fetchall())
+        serials = dict(con.execute(
+            "SELECT result_id, unit_serial FROM results WHERE list_contains(?, result_id)",
+            [[e["result_id"] for e in entries]]).fetchall())
         for k, e in enumerate(entries):
+            e["excluded"] = excluded.get(e["campaign"])
             if e["campaign"] not in current:
-                e.update(unit_serial=None, current_result_id=None, coefficients=[], radii=[],
-                         flags=[])
+                e.update(unit_serial=serials.get(e["result_id"]), current_result_id=None,
+                         coefficients=[], radii=[], flags=[])
                 continue
-            rid, serial = current[e["campaign"]]
+            rid, serial, completeness, reasons, simulated = current[e["campaign"]]
             e["current_result_id"], e["unit_serial"] = rid, serial
+            e["completeness"], e["simulated"] = completeness, bool(simulated)
+            e["completeness_reasons"] = json.loads(reasons or "[]")
             if k >= SUMMARY_DETAIL_MAX:
                 continue
-            q = con.execute("SELECT name, value, std_uncertainty, unit, method, rig_id "
+            q = con.execute("SELECT name, value, std_uncertainty, unit, method, rig_id, adopted "
                             "FROM coefficients WHERE result_id = ?", [rid])
             cols = [d[0] for d in q.description]
             e["coefficients"] = [dict(zip(cols, r)) for r in q.fetchall()]
@@ -366,11 +384,12 @@ def pipeline_flow():
         @flow(name="accelcal-pipeline", persist_result=False, validate_parameters=False,
               log_prints=False)
         def accelcal_pipeline(drops: list[str], warehouse: str, lock_timeout: float = 60.0,
-                              parameters: dict | None = None) -> dict:
+                              parameters: dict | None = None,
+                              allow_simulated: bool = False) -> dict:
             from prefect.runtime import flow_run
             return pipeline_body(drops, warehouse, lock_timeout=lock_timeout,
                                  parameters=parameters, steps=_prefect_steps(),
-                                 flow_run_id=str(flow_run.id))
+                                 flow_run_id=str(flow_run.id), allow_simulated=allow_simulated)
 
         _FLOW = accelcal_pipeline
     return _FLOW
@@ -410,7 +429,7 @@ def _task_runner(name: str):
 
 def run_pipeline(drops: list[str], warehouse: str | Path, *, engine: str = "prefect",
                  lock_timeout: float = 60.0, parameters: dict[str, Any] | None = None,
-                 task_runner: str = "thread") -> dict[str, Any]:
+                 task_runner: str = "thread", allow_simulated: bool = False) -> dict[str, Any]:
     """Process drops into a warehouse.  Raises PipelineError / WarehouseError when it cannot work."""
     drops = check_drops(list(drops))
     if not drops:
@@ -422,7 +441,8 @@ def run_pipeline(drops: list[str], warehouse: str | Path, *, engine: str = "pref
             raise PipelineError("--task-runner needs the prefect engine")
         summary = pipeline_body(drops, warehouse, lock_timeout=lock_timeout,
                                 parameters=parameters, steps=_local_steps(),
-                                flow_run_id=f"local-{uuid.uuid4()}")
+                                flow_run_id=f"local-{uuid.uuid4()}",
+                                allow_simulated=allow_simulated)
     elif engine == "prefect":
         # Fail fast (before the Prefect server starts) when the warehouse is busy.
         wh = Warehouse(warehouse, lock_timeout=lock_timeout)
@@ -432,7 +452,7 @@ def run_pipeline(drops: list[str], warehouse: str | Path, *, engine: str = "pref
             if runner is not None:
                 fl = fl.with_options(task_runner=runner)
             summary = fl(drops=drops, warehouse=warehouse, lock_timeout=lock_timeout,
-                         parameters=parameters or {})
+                         parameters=parameters or {}, allow_simulated=allow_simulated)
     else:
         raise PipelineError(f"unknown engine {engine!r} (choose from {', '.join(ENGINES)})")
     summary["engine"] = engine

@@ -1,7 +1,8 @@
-"""CLI for operations: ``accelcal serve`` and ``accelcal report``.
+"""CLI for operations: ``accelcal serve``, ``report``, ``campaign`` and ``status``.
 
-``register_cli(subparsers)`` (alias ``register``) adds both sub-commands; heavy
-imports happen only when a command runs.
+``register_cli(subparsers)`` (alias ``register``) adds the sub-commands; heavy
+imports happen only when a command runs.  Text that comes from files (campaign labels,
+run ids, reasons) is printed through :func:`accelcal.cli.say`, escaped.
 """
 from __future__ import annotations
 
@@ -37,18 +38,74 @@ def register_cli(sub) -> None:
     p.set_defaults(func=_cmd_serve)
 
     r = sub.add_parser(
-        "report", help="write a self-contained HTML calibration report for a campaign",
-        description="Certificate-style HTML report of a campaign's current (or given) result: "
-                    "coefficients with U (k=2) in display units, adequacy, alignment, plots, "
-                    "lineage.")
-    r.add_argument("campaign", nargs="?", help="campaign label (omit with --all)")
+        "report", help="write the calibration certificate (HTML, and PDF with --pdf) of a campaign",
+        description="Calibration certificate of a campaign's current (or given) result, with what "
+                    "ISO/IEC 17025 7.8.2-7.8.4 asks: certificate number, lab, item, method, dates "
+                    "and conditions from the data, traceability, adopted values with U (k=2), "
+                    "budgets, Monte Carlo check, adequacy and residuals, lineage. Lab facts come "
+                    "from accelcal.toml (--config, else ./accelcal.toml, else beside the "
+                    "warehouse); missing ones are marked placeholders.")
+    r.add_argument("campaign", nargs="?", help="campaign label (omit with --all or --result)")
     r.add_argument("--out", required=True, metavar="DIR", help="output folder")
     r.add_argument("--warehouse", "-w", default=_default_warehouse())
     r.add_argument("--result", default=None, metavar="RESULT_ID",
-                   help="report this (possibly superseded) result instead of the current one")
+                   help="report this (possibly superseded) result; the short id the CLI prints "
+                        "is enough")
     r.add_argument("--all", action="store_true", help="one report per campaign in the warehouse")
+    r.add_argument("--pdf", action="store_true",
+                   help="also print the certificate to PDF with headless chromium")
+    r.add_argument("--config", default=None, metavar="TOML",
+                   help="the lab's accelcal.toml (default: ./accelcal.toml, then beside the "
+                        "warehouse)")
+    r.add_argument("--customer", default=None, help="customer name and address for this certificate")
     r.add_argument("--lock-timeout", type=float, default=60.0, metavar="S")
     r.set_defaults(func=_cmd_report)
+
+    q = sub.add_parser(
+        "sql", help="run a read-only SQL query on the warehouse (the DuckDB that wrote it)",
+        description="Read-only SQL on the warehouse with the DuckDB Python client accelcal "
+                    "uses (2.x): the duckdb 1.x CLI (e.g. pip's duckdb-cli 1.5) cannot open a "
+                    "file written by DuckDB 2.0. Views: accelcal/warehouse/README.md.")
+    q.add_argument("query", help="SQL, e.g. \"SELECT * FROM calibration\"")
+    q.add_argument("--warehouse", "-w", default=_default_warehouse())
+    q.add_argument("--csv", action="store_true", help="CSV on stdout instead of a table")
+    q.set_defaults(func=_cmd_sql)
+
+    st = sub.add_parser(
+        "status", help="the last passes of `accelcal serve` and what waits",
+        description="What the scheduled processing did and what it waits for: the last passes "
+                    "(drops seen, processed, held back and why, refusals, results), the drops "
+                    "held back at the last pass and the files seen but not processed. Read from "
+                    "<warehouse>-watch.json, so it answers while a pass holds the warehouse.")
+    st.add_argument("--warehouse", "-w", default=_default_warehouse())
+    st.add_argument("--passes", type=int, default=5, metavar="N", help="how many passes (default 5)")
+    st.add_argument("--watch", default=None, metavar="DIR",
+                    help="also look at the watched folder now (records nothing)")
+    st.add_argument("--settle", type=float, default=30.0, metavar="SECONDS")
+    st.set_defaults(func=_cmd_status)
+
+    c = sub.add_parser(
+        "campaign", help="list campaigns; exclude or include one (audit-trailed quarantine)",
+        description="Campaigns and what keeps them out of history, En and the fleet views: "
+                    "incomplete (not enough runs), simulated, or excluded by an operator. "
+                    "exclude/include append to an audit trail (who, when, why); nothing is "
+                    "deleted.")
+    csub = c.add_subparsers(dest="action", metavar="ACTION")
+    csub.required = True
+    for name, hlp in (("list", "every campaign's current result and status"),
+                      ("show", "one campaign: status, reasons and its audit trail"),
+                      ("exclude", "keep a campaign out of history, En, fleet and calibration"),
+                      ("include", "undo an exclusion")):
+        q = csub.add_parser(name, help=hlp)
+        if name != "list":
+            q.add_argument("campaign", metavar="CAMPAIGN")
+        if name in ("exclude", "include"):
+            q.add_argument("--why", required=True, metavar="TEXT",
+                           help="the reason, kept in the audit trail")
+            q.add_argument("--by", default=None, help="who decides (default: the login name)")
+            q.add_argument("--lock-timeout", type=float, default=60.0, metavar="S")
+        q.add_argument("--warehouse", "-w", default=_default_warehouse())
+        q.set_defaults(func=_cmd_campaign)
 
 
 register = register_cli
@@ -64,20 +121,104 @@ def _fail(msg: str):
 
 def _cmd_report(args) -> int:
     from .report import ReportError, build_report, list_campaigns
-    if not args.campaign and not args.all:
-        _fail("give a CAMPAIGN or --all")
+    if not args.campaign and not args.all and not args.result:
+        _fail("give a CAMPAIGN, --result ID or --all")
     try:
         camps = list_campaigns(args.warehouse) if args.all else [args.campaign]
         for c in camps:
             path = build_report(args.warehouse, c, args.out, result_id=args.result,
-                                lock_timeout=args.lock_timeout)
+                                lock_timeout=args.lock_timeout, config=args.config,
+                                pdf=args.pdf, customer=args.customer)
             print(path)
+            if args.pdf:
+                print(path.with_suffix(".pdf"))
     except ReportError as e:
         _fail(str(e))
-    except Exception as e:
-        if type(e).__module__.startswith("duckdb"):
-            _fail(f"cannot read warehouse {args.warehouse}: {str(e).splitlines()[0]}")
-        raise
+    return 0
+
+
+def _need_warehouse(path: str) -> None:
+    """Reading commands never create a warehouse: a missing one is a one-line error."""
+    from pathlib import Path
+    if not Path(path).expanduser().exists():
+        _fail(f"warehouse {path} does not exist")
+
+
+def _cmd_sql(args) -> int:
+    from ..warehouse.db import Warehouse, WarehouseError
+    _need_warehouse(args.warehouse)
+    import duckdb
+    try:
+        rows = Warehouse(args.warehouse).query(args.query)
+    except WarehouseError as e:
+        _fail(str(e))
+    except duckdb.Error as e:
+        _fail(str(e).splitlines()[0])
+    cols = list(rows[0]) if rows else []
+    if args.csv:
+        import csv
+        w = csv.writer(sys.stdout)
+        w.writerow(cols)
+        w.writerows([r[c] for c in cols] for r in rows)
+        return 0
+    from rich.table import Table
+
+    from ..cli import _cell, _console
+    t = Table(show_edge=False)
+    for c in cols:
+        t.add_column(_cell(c), overflow="fold")
+    for r in rows:
+        t.add_row(*(_cell(r[c]) for c in cols))
+    con = _console()
+    con.print(t)
+    con.print(f"{len(rows)} row(s)")
+    return 0
+
+
+def _cmd_status(args) -> int:
+    from ..cli import _console, say
+    from .serve import status_lines
+    _need_warehouse(args.warehouse)
+    con = _console()
+    for line in status_lines(args.warehouse, n=max(1, args.passes), watch_dir=args.watch,
+                             settle=args.settle):
+        say(con, line)
+    return 0
+
+
+def _cmd_campaign(args) -> int:
+    from ..cli import _console, say
+    from ..warehouse.db import WarehouseError
+    from .campaigns import campaign_log, campaign_rows, set_campaign
+    _need_warehouse(args.warehouse)
+    con = _console()
+    try:
+        if args.action in ("exclude", "include"):
+            a = set_campaign(args.warehouse, args.campaign, args.action, args.why, args.by,
+                             lock_timeout=args.lock_timeout)
+            say(con, f"{a['campaign']}: {a['action']}d by {a['by']} at "
+                     f"{a['acted_at']:%Y-%m-%d %H:%M:%S %Z} (audit #{a['seq']}): {a['why']}")
+            return 0
+        rows = campaign_rows(args.warehouse, None if args.action == "list" else args.campaign)
+        if args.action == "show" and not rows:
+            _fail(f"no current result for campaign {args.campaign!r}")
+        for r in rows:
+            why = []
+            if r["completeness"] != "complete":
+                why.append("incomplete: " + "; ".join(r["completeness_reasons"]))
+            if r["simulated"]:
+                why.append("simulated")
+            if r["excluded_why"] is not None:
+                why.append(f"excluded by {r['excluded_by']}: {r['excluded_why']}")
+            state = "calibration" if r["in_history"] else "kept out of history"
+            say(con, f"{r['campaign']}  {r['unit_serial']}  result {r['result_id'][:12]}  "
+                     f"{state}" + (f" ({'; '.join(why)})" if why else ""))
+        if args.action == "show":
+            for a in campaign_log(args.warehouse, args.campaign):
+                say(con, f"#{a['seq']} {a['acted_at']:%Y-%m-%d %H:%M:%S %Z} {a['action']} by "
+                         f"{a['acted_by']}: {a['why']}", indent="  ")
+    except WarehouseError as e:
+        _fail(str(e))
     return 0
 
 
@@ -94,7 +235,8 @@ def _cmd_serve(args) -> int:
     if args.once:
         import json
 
-        from .serve import watch_pass
+        from .serve import setup_logging, watch_pass
+        setup_logging()
         out = watch_pass(args.watch, args.warehouse, settle=args.settle, engine="local",
                          lock_timeout=args.lock_timeout)
         print(json.dumps(out, indent=1, default=str))
@@ -106,5 +248,6 @@ def _cmd_serve(args) -> int:
         serve(args.watch, args.warehouse, cron=args.cron, poll=args.poll, settle=args.settle,
               name=args.name, lock_timeout=args.lock_timeout, task_runner=args.task_runner)
     except KeyboardInterrupt:
-        print("accelcal serve: stopped", file=sys.stderr)
+        pass
+    print("accelcal serve: stopped", file=sys.stderr)
     return 0

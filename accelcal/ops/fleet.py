@@ -10,9 +10,9 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-VIEWS = ("result_dates", "coefficient_versions", "unit_history", "coefficient_changes",
+VIEWS = ("result_dates", "coefficient_versions", "calibration", "unit_history", "coefficient_changes",
          "fleet_latest", "fleet_stats", "fleet_outliers", "rig_comparison", "rig_pairs")
-MACROS = ("unit_history_as_of", "coefficient_changes_as_of", "fleet_latest_as_of",
+MACROS = ("calibration_as_of", "unit_history_as_of", "coefficient_changes_as_of", "fleet_latest_as_of",
           "fleet_stats_as_of", "fleet_outliers_as_of", "rig_comparison_as_of")
 
 

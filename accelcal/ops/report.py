@@ -1,31 +1,83 @@
-"""Calibration report: one self-contained HTML certificate-style page per campaign.
+"""Calibration certificate: one self-contained HTML page (and, with ``pdf=True``, the PDF
+the same headless chromium prints) per campaign result.
 
-``build_report(warehouse, campaign, out_dir)`` reads the campaign's current
-result (or a given, possibly superseded, result_id) from the warehouse and
-writes ``<out_dir>/<campaign with / -> _>.html``: unit, rigs, dates, the
-coefficients with expanded uncertainties (k = 2) in display units
-(accelcal.effects.COEFFICIENTS), the adequacy tests, the alignment analysis,
-the uncertainty budget, flags, residual and radius plots (matplotlib PNG,
-base64-embedded) and the lineage (run ids, revisions, sha256, flow run ids).
+What ISO/IEC 17025:2017 7.8.2 and 7.8.4 ask of a calibration certificate, and where it is:
 
-Nothing is fetched from the network: no scripts, no external CSS or fonts.
-The warehouse is only read (under its writer lock so a running pipeline is
-waited for, never observed half-way).
+===================================================  ===========================================
+title, unique certificate number on every page,      header; ``@page`` margin boxes (PDF)
+page x of y
+lab name and address, location of the activities    section "Certificate", from accelcal.toml
+customer                                             accelcal.toml or ``--customer``
+method used, deviations                              "Method", "Flags and deviations"
+item: description, identification                    "Item calibrated"
+dates of the calibration, date of issue              "Dates and conditions" (run started_at and
+                                                     their last reading), issue date
+environmental conditions                             "Dates and conditions" (temperatures read
+                                                     from the data)
+results with units, U, k, coverage probability       "Results" (adopted values; GUM 7.2.6)
+traceability statement                               "Traceability"
+person authorising                                   "Certificate" (approver from accelcal.toml)
+results relate only to the item                      statement under the results
+===================================================  ===========================================
+
+plus, per adopted coefficient, its uncertainty budget with the combined standard and the
+expanded uncertainty, the Monte Carlo check (JCGM 101) as pass/fail, the adequacy of
+every fit and the residual plots, and annexes with the other methods' values and the
+lineage (every input run's sha256).  Missing lab facts are printed as marked
+placeholders with a DRAFT banner; nothing is invented.  Sections are numbered in the
+order they appear, so there are no gaps.
+
+Nothing is fetched from the network: no scripts, no external CSS or fonts, plots are
+inline PNGs.  The warehouse is only read (under its writer lock, so a running pipeline
+is waited for, never observed half-way).
 """
 from __future__ import annotations
 
-import base64
 import datetime as _dt
+import hashlib
 import html
-import io
 import json
 import math
+import os
 import re
+import shutil
+import subprocess
+import tempfile
 from pathlib import Path
 from typing import Any
 
-K_COVERAGE = 2.0
+from .plots import (K_COVERAGE, radius_plot, residual_plot, series_residual_plot,
+                    sine_residual_plot, thermal_residual_plot)
 
+#: Coverage probability of U = 2u for a normal distribution (EA-4/02 wording).
+COVERAGE_PROBABILITY = "≈ 95 %"
+
+#: What each test kind is, in the certificate's words (../shared/docs/methods.md).
+TEST_METHODS = {
+    "tumble": ("Multi-position tumble in the gravity field on a dividing head",
+               "paper 003 (Zhan & Cai): Levenberg–Marquardt fit of K0, K1, K2 and the head's "
+               "initial misalignment through the forward model, with a lack-of-fit test; "
+               "two-position values for comparison"),
+    "centrifuge": ("Precision centrifuge at stepped constant rates",
+                   "paper 000 (He & Yin, 2017): test radius by static back-calculation "
+                   "(eqs 4–6) and iterative regression (eq 7); second-order and cross-coupling "
+                   "coefficients from the mount pairs (eq 9) combined by weighted least squares "
+                   "(eqs 2–3); alignment analysis (eq 8); GUM budgets with a JCGM 101 Monte Carlo "
+                   "check"),
+    "tilt_rotation": ("Tilted rotary table in a thermal chamber",
+                      "paper 001 (Zhang et al., 2021): least squares of K0 and K1 over the "
+                      "table positions at each temperature point, and a linear temperature model "
+                      "for K0T and K1T (T_ref = 20 °C)"),
+    "sine_centrifuge": ("Disc centrifuge at a sinusoidal rate",
+                        "paper 002 (Sun, Ren & Wang): joint least squares of the instrument "
+                        "model with the rig's tool errors through the forward model, with an "
+                        "aliasing analysis"),
+}
+#: Science parameters that belong to one test kind (others apply to every certificate).
+PARAMETER_TESTS = {"radius_orders": "centrifuge", "radius_ranges_g": "centrifuge",
+                   "mount_angle_tolerance_rad": "centrifuge"}
+
+PLACEHOLDER_CLASS = "placeholder"
 
 
 class ReportError(RuntimeError):
@@ -40,12 +92,11 @@ def _rows(con, sql: str, params: list | None = None) -> list[dict[str, Any]]:
     return [dict(zip(cols, r)) for r in cur.fetchall()]
 
 
-def load_report_data(warehouse: str | Path, campaign: str, result_id: str | None = None,
-                     lock_timeout: float = 60.0) -> dict[str, Any]:
-    """Everything the report shows, as plain Python objects."""
+def _read(warehouse: str | Path, fn, lock_timeout: float = 60.0):
+    """Call fn(con, path) on a read-only connection, under the writer lock."""
     import duckdb
 
-    from ..warehouse.db import WarehouseError, warehouse_lock
+    from ..warehouse.db import WarehouseError, check_schema_version, warehouse_lock
     path = Path(warehouse).expanduser().resolve()
     if not path.exists():
         raise ReportError(f"warehouse {path} does not exist")
@@ -53,7 +104,8 @@ def load_report_data(warehouse: str | Path, campaign: str, result_id: str | None
         with warehouse_lock(path, timeout=lock_timeout):
             con = duckdb.connect(str(path), read_only=True)
             try:
-                return _load(con, campaign, result_id)
+                check_schema_version(con, path)
+                return fn(con, path)
             finally:
                 con.close()
     except WarehouseError as e:
@@ -62,24 +114,65 @@ def load_report_data(warehouse: str | Path, campaign: str, result_id: str | None
         raise ReportError(f"cannot read warehouse {path}: {str(e).splitlines()[0]}") from None
 
 
-def _load(con, campaign: str, result_id: str | None) -> dict[str, Any]:
+def load_report_data(warehouse: str | Path, campaign: str | None, result_id: str | None = None,
+                     lock_timeout: float = 60.0) -> dict[str, Any]:
+    """Everything the certificate shows, as plain Python objects.  ``result_id`` may be
+    the short id the CLI prints (a unique prefix); ``campaign`` may then be omitted."""
+    d = _read(warehouse, lambda con, path: _load(con, campaign, result_id), lock_timeout)
+    d["runs"] = run_conditions(Path(warehouse).expanduser().resolve().parent, d["lineage"])
+    return d
+
+
+def resolve_result(con, campaign: str | None, result_id: str | None) -> tuple[str, str | None]:
+    """(campaign, full result id or None for the current one) from a campaign and/or an id
+    prefix; a one-line ReportError says what does not match."""
+    if result_id is None:
+        if not campaign:
+            raise ReportError("give a CAMPAIGN or --result")
+        return campaign, None
+    rid = result_id.strip().lower()
+    if not re.fullmatch(r"[0-9a-f]{4,64}", rid):
+        raise ReportError(f"result id {result_id!r} is not a (prefix of a) hexadecimal result id")
+    hits = _rows(con, "SELECT result_id, campaign FROM results WHERE starts_with(result_id, ?) "
+                      "ORDER BY result_id LIMIT 6", [rid])
+    if not hits:
+        raise ReportError(f"no result id starts with {rid!r}")
+    if len(hits) > 1:
+        raise ReportError(f"result id {rid!r} is ambiguous: "
+                          + ", ".join(f"{h['result_id'][:16]} ({h['campaign']})" for h in hits[:5]))
+    hit = hits[0]
+    if campaign and hit["campaign"] != campaign:
+        raise ReportError(f"result {hit['result_id'][:12]} is a result of campaign "
+                          f"{hit['campaign']!r}, not {campaign!r}")
+    return hit["campaign"], hit["result_id"]
+
+
+def _load(con, campaign: str | None, result_id: str | None) -> dict[str, Any]:
+    campaign, rid = resolve_result(con, campaign, result_id)
     acts = _rows(con, "SELECT seq, result_id, activated_at, flow_run_id FROM result_activations "
                       "WHERE campaign = ? ORDER BY seq", [campaign])
-    if not acts:
-        known = [r["campaign"] for r in _rows(
-            con, "SELECT DISTINCT campaign FROM results ORDER BY campaign LIMIT 20")]
-        hint = f" (known: {', '.join(known)})" if known else " (the warehouse holds no results)"
-        raise ReportError(f"no result for campaign {campaign!r}{hint}")
-    current = acts[-1]["result_id"]
-    rid = result_id or current
-    res = _rows(con, "SELECT * FROM results WHERE result_id = ? AND campaign = ?", [rid, campaign])
-    if not res:
-        raise ReportError(f"result {rid!r} is not a result of campaign {campaign!r}")
+    cur = _rows(con, "SELECT result_id FROM results_current WHERE campaign = ?", [campaign])
+    current = cur[0]["result_id"] if cur else None
+    if rid is None:
+        if current is None:
+            known = [r["campaign"] for r in _rows(
+                con, "SELECT DISTINCT campaign FROM results_current ORDER BY campaign LIMIT 20")]
+            stored = _rows(con, "SELECT result_id FROM results WHERE campaign = ? "
+                                "ORDER BY computed_at DESC LIMIT 1", [campaign])
+            if stored:
+                raise ReportError(f"campaign {campaign!r} has no current result (simulated data "
+                                  f"for a unit with a real calibration); report it with --result "
+                                  f"{stored[0]['result_id'][:12]}")
+            hint = f" (known: {', '.join(known)})" if known else " (the warehouse holds no results)"
+            raise ReportError(f"no result for campaign {campaign!r}{hint}")
+        rid = current
+    res = _rows(con, "SELECT * FROM results WHERE result_id = ?", [rid])
     r = res[0]
     d: dict[str, Any] = {"campaign": campaign, "result": r, "result_id": rid,
                          "is_current": rid == current, "current_result_id": current,
                          "activations": acts}
-    for key in ("tests", "rig_ids", "science_parameters", "parameters", "extras", "input_sha256"):
+    for key in ("tests", "rig_ids", "science_parameters", "parameters", "extras", "input_sha256",
+                "completeness_reasons"):
         try:
             d[key] = json.loads(r.get(key) or "null")
         except (TypeError, ValueError):
@@ -96,44 +189,75 @@ def _load(con, campaign: str, result_id: str | None) -> dict[str, Any]:
         con, "SELECT flag FROM flag_history WHERE result_id = ? ORDER BY seq", [rid])]
     d["lineage"] = _rows(con, """
         SELECT l.run_id, l.revision, l.sha256, l.source_path, l.parquet_path, l.flow_run_id,
-               l.code_version, f.test, f.rig_id, f.started_at, f.size_bytes
+               l.code_version, f.test, f.rig_id, f.started_at, f.size_bytes, f.simulated
         FROM lineage l
         LEFT JOIN (SELECT sha256, any_value(test) AS test, any_value(rig_id) AS rig_id,
-                          any_value(started_at) AS started_at, any_value(size_bytes) AS size_bytes
+                          any_value(started_at) AS started_at, any_value(size_bytes) AS size_bytes,
+                          bool_or(simulated) AS simulated
                    FROM run_files GROUP BY sha256) f USING (sha256)
         WHERE l.result_id = ? ORDER BY f.started_at, l.run_id""", [rid])
-    starts = [x["started_at"] for x in d["lineage"] if x.get("started_at")]
-    d["first_run"], d["last_run"] = (min(starts), max(starts)) if starts else (None, None)
+    ex = _rows(con, "SELECT why, acted_at, acted_by FROM excluded_campaigns WHERE campaign = ?",
+               [campaign])
+    d["excluded"] = ex[0] if ex else None
+    d["audit"] = _rows(con, "SELECT seq, action, why, acted_at, acted_by FROM campaign_actions "
+                            "WHERE campaign = ? ORDER BY seq", [campaign])
     return d
+
+
+def _parse_time(s: str | None) -> _dt.datetime | None:
+    try:
+        return _dt.datetime.fromisoformat(str(s)) if s else None
+    except ValueError:
+        return None
+
+
+def run_conditions(root: Path, lineage: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per input run, from its Parquet copy: when its data were taken (started_at to the
+    last reading) and the conditions it logged (temperatures, site).  A run whose copy is
+    gone keeps only what the warehouse row says."""
+    import numpy as np
+    import pyarrow.parquet as pq
+
+    from ..schemas.tables import META_KEY
+    out = []
+    for x in lineage:
+        start = _parse_time(x.get("started_at"))
+        row: dict[str, Any] = {"run_id": x.get("run_id"), "test": x.get("test"),
+                               "rig_id": x.get("rig_id"), "start": start, "end": None,
+                               "data": False}
+        pqp = root / x["parquet_path"] if x.get("parquet_path") else None
+        if pqp is not None and pqp.is_file():
+            try:
+                pf = pq.ParquetFile(pqp)
+                meta = json.loads((pf.schema_arrow.metadata or {})[META_KEY]).get("meta", {})
+                names = set(pf.schema_arrow.names)
+                cols = [c for c in ("time_s", "temp_c", "temp_set_c") if c in names]
+                t = pf.read(columns=cols)
+                tmax = float(np.nanmax(t.column("time_s").to_numpy(zero_copy_only=False)))
+                row.update(data=True, g_local=meta.get("g_local_m_s2"),
+                           latitude=meta.get("site_latitude_deg"),
+                           ambient=meta.get("ambient_temp_c"), operator=meta.get("operator"))
+                if start is not None and math.isfinite(tmax):
+                    row["end"] = start + _dt.timedelta(seconds=tmax)
+                for c in ("temp_c", "temp_set_c"):
+                    if c in cols:
+                        v = t.column(c).to_numpy(zero_copy_only=False).astype(float)
+                        v = v[np.isfinite(v)]
+                        if v.size:
+                            row[c] = (float(v.min()), float(v.mean()), float(v.max()))
+            except Exception as e:      # a damaged copy: say so, keep the certificate
+                row["error"] = f"{type(e).__name__}: {e}"[:200]
+        out.append(row)
+    return out
 
 
 # ------------------------------------------------------------------ display --
 
 def display_value(name: str, value: float | None, std_u: float | None,
                   unit: str | None) -> tuple[str, str, str]:
-    """(value, U (k = 2), display unit) for one coefficient (effects.to_display); the
-    value is shown to the last significant digit of U."""
-    from ..effects import COEFFICIENTS, format_expanded_uncertainty, to_display
-    unit = unit or ""
-    if value is None or (isinstance(value, float) and math.isnan(value)):
-        return "—", "—", unit
-    if isinstance(std_u, float) and math.isnan(std_u):
-        std_u = None
-    val, U, dunit, ppm = to_display(name, value, std_u, unit, K_COVERAGE)
-    Us = format_expanded_uncertainty(U, ppm)
-    if name not in COEFFICIENTS:
-        return f"{val:.6g}", Us, dunit
-    if ppm:
-        return f"{val:.8g}", Us, dunit
-    return f"{val:.{_digits_for(val, U)}f}", Us, dunit
-
-
-def _digits_for(val: float, U: float | None) -> int:
-    """Decimals so the value is shown to the last significant digit of U (2 digits)."""
-    if U is None or U <= 0 or not math.isfinite(U):
-        return 4
-    d = 1 - int(math.floor(math.log10(U)))
-    return max(0, min(12, d))
+    """(value, U (k = 2), display unit) for one coefficient, rounded per GUM 7.2.6."""
+    from ..effects import display_coefficient
+    return display_coefficient(name, value, std_u, unit, K_COVERAGE)
 
 
 def _fmt(x: Any, spec: str = ".4g") -> str:
@@ -152,6 +276,11 @@ def _e(x: Any) -> str:
     return html.escape("" if x is None else str(x))
 
 
+def _ph(what: str) -> str:
+    """A marked placeholder for a fact the lab has not configured."""
+    return f"<span class='{PLACEHOLDER_CLASS}'>[{_e(what)}]</span>"
+
+
 def _table(headers: list[str], rows: list[list[Any]], cls: str = "") -> str:
     th = "".join(f"<th>{_e(h)}</th>" for h in headers)
     body = []
@@ -167,183 +296,397 @@ def _table(headers: list[str], rows: list[list[Any]], cls: str = "") -> str:
             f"<tbody>{''.join(body)}</tbody></table>")
 
 
-# ------------------------------------------------------------------- plots --
-
-def _png(fig) -> str:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
-    import matplotlib.pyplot as plt
-    plt.close(fig)
-    return base64.b64encode(buf.getvalue()).decode("ascii")
+def _kv(pairs: list[tuple[str, str]]) -> str:
+    """A key/value table whose values are already HTML."""
+    return "<table class='kv'>" + "".join(
+        f"<tr><th>{_e(k)}</th><td>{v}</td></tr>" for k, v in pairs) + "</table>"
 
 
-def residual_plot(extras: dict[str, Any] | None) -> str | None:
-    """Standardised dwell residuals of the eq 9 fits against centripetal g, one panel per pair."""
-    pairs = [(rig, p) for rig, ps in ((extras or {}).get("pairs") or {}).items() for p in ps
-             if isinstance(p, dict) and isinstance(p.get("dwells"), dict)]
-    if not pairs:
-        return None
-    import matplotlib
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
-
-    from ..constants import G_STANDARD
-    n = len(pairs)
-    ncol = min(3, n)
-    nrow = math.ceil(n / ncol)
-    fig, axes = plt.subplots(nrow, ncol, figsize=(4.2 * ncol, 2.9 * nrow), squeeze=False,
-                             sharey=True)
-    for k, (rig, p) in enumerate(pairs):
-        ax = axes[k // ncol][k % ncol]
-        dw = p["dwells"]
-        a = [(x or 0.0) / G_STANDARD for x in dw.get("a", [])]
-        r = dw.get("std_resid", [])
-        pol = dw.get("pol", [1] * len(a))
-        sweep = dw.get("sweep", ["up"] * len(a))
-        for sgn, colour in ((1, "#1f5fa8"), (-1, "#c0392b")):
-            for sw, marker in (("up", "^"), ("down", "v"), ("rest", "o")):
-                xs = [x for x, s, w, y in zip(a, pol, sweep, r) if s == sgn and w == sw and y is not None]
-                ys = [y for x, s, w, y in zip(a, pol, sweep, r) if s == sgn and w == sw and y is not None]
-                if xs:
-                    ax.scatter(xs, ys, s=14, marker=marker, color=colour, alpha=0.8,
-                               label=f"{'+' if sgn > 0 else '−'} {sw}")
-        for lim in (-3, 3):
-            ax.axhline(lim, color="#888", lw=0.6, ls="--")
-        ax.axhline(0, color="#444", lw=0.6)
-        ax.set_title(f"{rig} {p.get('pair', '')} (order {p.get('order', '?')})", fontsize=9)
-        ax.set_xlabel("input acceleration along IA (signed) / g", fontsize=8)
-        if k % ncol == 0:
-            ax.set_ylabel("standardised residual", fontsize=8)
-        ax.tick_params(labelsize=7)
-    for k in range(n, nrow * ncol):
-        axes[k // ncol][k % ncol].axis("off")
-    h, lab = axes[0][0].get_legend_handles_labels()
-    if h:
-        fig.legend(h, lab, loc="upper center", ncol=6, fontsize=7, frameon=False,
-                   bbox_to_anchor=(0.5, 1.04))
-    fig.tight_layout()
-    return _png(fig)
+def _when(t: _dt.datetime | None) -> str:
+    if t is None:
+        return "—"
+    off = t.strftime("%z")
+    off = f"UTC{off[:3]}:{off[3:]}" if off else "no offset"
+    return f"{t:%Y-%m-%d %H:%M} ({off})"
 
 
-def radius_plot(radii: list[dict[str, Any]]) -> str | None:
-    """Test radius per polarity against the g range of the fit, per method/order, with U (k=2)."""
-    rows = [r for r in radii if r.get("radius_m") is not None]
-    if not rows:
-        return None
-    import matplotlib
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
-    groups: dict[tuple, list[dict[str, Any]]] = {}
-    for r in rows:
-        groups.setdefault((r.get("rig_id"), r.get("polarity")), []).append(r)
-    keys = sorted(groups, key=lambda k: (str(k[0]), str(k[1])))
-    fig, axes = plt.subplots(1, len(keys), figsize=(4.4 * len(keys), 3.2), squeeze=False)
-    for ax, key in zip(axes[0], keys):
-        rs = groups[key]
-        ref = sorted(r["radius_m"] for r in rs)[len(rs) // 2]
-        series: dict[str, list[dict[str, Any]]] = {}
-        for r in rs:
-            lab = f"{r.get('method')}" + (f" o{r['model_order']}" if r.get("model_order") else "")
-            series.setdefault(lab, []).append(r)
-        for i, (lab, ss) in enumerate(sorted(series.items())):
-            ss = sorted(ss, key=lambda r: r.get("g_max") or 0)
-            xs = [(r.get("g_max") or 1.0) + 0.3 * (i - len(series) / 2) for r in ss]   # dodge
-            ys = [1e6 * (r["radius_m"] - ref) for r in ss]
-            es = [K_COVERAGE * 1e6 * (r.get("std_uncertainty_m") or 0.0) for r in ss]
-            ax.errorbar(xs, ys, yerr=es, fmt="o-" if len(ss) > 1 else "s", ms=4, lw=1,
-                        capsize=2, label=lab)
-        ax.set_title(f"{key[0]}  polarity {key[1]}:  R = {ref:.6f} m + Δ", fontsize=9)
-        ax.set_xlabel("upper end of the fit's g range / g  (static: 1 g)", fontsize=8)
-        ax.set_ylabel("Δ test radius / µm  (bars: U, k=2)", fontsize=8)
-        ax.tick_params(labelsize=7)
-        ax.legend(fontsize=6, frameon=False)
-    fig.tight_layout()
-    return _png(fig)
+def _img(b64: str | None, alt: str) -> str:
+    return f"<img alt='{_e(alt)}' src='data:image/png;base64,{b64}'>" if b64 else ""
 
 
-# -------------------------------------------------------------------- html --
+def certificate_number(result_id: str, prefix: str) -> str:
+    """Unique per result: the lab's prefix and the first 12 hex of the result id (the id
+    the CLI prints).  A re-issue of the same result carries the same number."""
+    return f"{prefix}-{result_id[:12].upper()}"
+
+
+# ---------------------------------------------------------------- sections --
+
+def _css_string(s: str) -> str:
+    """A CSS string literal that cannot end the string or the <style> element."""
+    out = s.replace("\\", "\\5C ").replace('"', "\\22 ").replace("<", "\\3C ")
+    return '"' + re.sub(r"[\x00-\x1f]", " ", out) + '"'
+
+
+def _page_css(lab: str, number: str) -> str:
+    """Every printed page carries the lab, the certificate number and 'Page x of y'."""
+    return ("@page{size:A4;margin:20mm 14mm 18mm 14mm;"
+            f"@top-left{{content:{_css_string(lab)};font-size:8pt;color:#444}}"
+            f"@top-right{{content:{_css_string('Certificate No. ' + number)};font-size:8pt;color:#444}}"
+            "@bottom-center{content:\"Page \" counter(page) \" of \" counter(pages);"
+            "font-size:8pt;color:#444}}")
+
 
 _CSS = """
-body{font-family:"DejaVu Sans",Arial,Helvetica,sans-serif;color:#111;margin:28px auto;
-     max-width:1100px;font-size:13px;line-height:1.35}
-h1{font-size:22px;margin:0 0 4px 0} h2{font-size:16px;border-bottom:2px solid #1f3f6e;
-     color:#1f3f6e;margin-top:26px;padding-bottom:2px}
-.sub{color:#555;margin-bottom:14px}
+body{font-family:"DejaVu Sans",Arial,Helvetica,sans-serif;color:#111;margin:24px auto;
+     max-width:1100px;font-size:12px;line-height:1.35}
+@media print{body{margin:0;max-width:none;font-size:10px} h2,h3,.note{break-after:avoid}
+     table,img,.keep{break-inside:avoid}}
+h1{font-size:21px;margin:0 0 2px 0} h2{font-size:15px;border-bottom:2px solid #1f3f6e;
+     color:#1f3f6e;margin-top:22px;padding-bottom:2px} h3{font-size:13px;margin:12px 0 4px 0}
+.sub{color:#444;margin-bottom:10px} .certno{font-size:14px;font-weight:700}
 table{border-collapse:collapse;margin:6px 0 10px 0;width:100%}
 th,td{border:1px solid #bbb;padding:3px 6px;text-align:left;vertical-align:top}
 th{background:#e9eef5;font-weight:600}
 td.nw{white-space:nowrap} td.num{text-align:right;font-variant-numeric:tabular-nums;white-space:nowrap}
 td.ok{color:#176b2c;font-weight:600} td.bad{color:#a61b1b;font-weight:600}
-td.mono,.mono{font-family:"DejaVu Sans Mono",monospace;font-size:11px;word-break:break-all}
-table.kv{width:auto} table.kv th{width:180px}
+td.mono,.mono{font-family:"DejaVu Sans Mono",monospace;font-size:10px;word-break:break-all}
+tr.total td{font-weight:700;background:#f3f5f8}
+table.kv{width:auto;min-width:60%} table.kv th{width:210px}
 .flag{background:#fff4d6;border-left:4px solid #e0a800;padding:4px 8px;margin:4px 0}
-.superseded{background:#fde2e2;border:2px solid #a61b1b;padding:6px 10px;font-weight:600}
+.banner{background:#fde2e2;border:2px solid #a61b1b;padding:6px 10px;font-weight:600;margin:6px 0}
+.draft{background:#fff4d6;border:2px solid #e0a800;padding:6px 10px;font-weight:600;margin:6px 0}
+.placeholder{color:#a61b1b;font-style:italic}
 img{max-width:100%;border:1px solid #ddd}
-.note{color:#555;font-size:12px}
-footer{margin-top:30px;color:#666;font-size:11px;border-top:1px solid #ccc;padding-top:6px}
+.note{color:#444;font-size:11px}
+.sign{margin-top:26px;border-top:1px solid #111;width:280px;padding-top:2px}
+footer{margin-top:24px;color:#555;font-size:10px;border-top:1px solid #ccc;padding-top:6px}
 """
 
 
-def render_html(d: dict[str, Any], plots: bool = True) -> str:
-    r = d["result"]
-    camp = d["campaign"]
-    gen = _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
-    parts: list[str] = []
-    add = parts.append
-    add(f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
-        f"<title>Calibration report {_e(camp)}</title><style>{_CSS}</style></head><body>")
-    add(f"<h1>Calibration report — {_e(r.get('unit_serial'))}</h1>")
-    add(f"<div class='sub'>Campaign <b>{_e(camp)}</b> · result "
-        f"<span class='mono'>{_e(d['result_id'])}</span></div>")
-    if not d["is_current"]:
-        add(f"<div class='superseded'>This result is SUPERSEDED; the current result of the "
-            f"campaign is <span class='mono'>{_e(d['current_result_id'])}</span>.</div>")
+class _Doc:
+    """Numbered sections in order of appearance (no gaps) and lettered annexes."""
 
+    def __init__(self):
+        self.sections: list[tuple[str, str]] = []
+        self.annexes: list[tuple[str, str]] = []
+
+    def section(self, title: str, body: str) -> None:
+        self.sections.append((title, body))
+
+    def annex(self, title: str, body: str) -> None:
+        self.annexes.append((title, body))
+
+    def html(self) -> str:
+        out = [f"<section><h2>{k} {_e(t)}</h2>{b}</section>"
+               for k, (t, b) in enumerate(self.sections, start=1)]
+        out += [f"<section><h2>Annex {chr(ord('A') + k)} {_e(t)}</h2>{b}</section>"
+                for k, (t, b) in enumerate(self.annexes)]
+        return "".join(out)
+
+
+def _adopted(d) -> list[dict[str, Any]]:
+    return [c for c in d["coefficients"] if c.get("adopted")]
+
+
+def _sec_certificate(d, cfg, number, issued, customer) -> str:
+    lab = cfg.name and _e(cfg.name) or _ph("laboratory name: set [lab] name in accelcal.toml")
+    addr = cfg.address and _e(cfg.address) or _ph("address: set [lab] address in accelcal.toml")
+    loc = cfg.location and _e(cfg.location) or _ph("location of the calibration: set [lab] "
+                                                   "location in accelcal.toml")
     rigs = ", ".join(d.get("rig_ids") or []) or "—"
-    tests = ", ".join(d.get("tests") or []) or "—"
-    kv = [("Unit serial", r.get("unit_serial")), ("Unit model", r.get("unit_model")),
-          ("Rigs", rigs), ("Tests", tests),
-          ("Data taken", f"{d.get('first_run') or '—'}  →  {d.get('last_run') or '—'}"),
-          ("Computed", r.get("computed_at")), ("Status", "current" if d["is_current"] else
-                                                  "superseded"),
-          ("Code version", r.get("code_version")), ("Flow run", r.get("flow_run_id")),
-          ("Coverage factor", "k = 2 (expanded uncertainty U = 2u, ≈ 95 %)")]
-    add("<h2>1 Identification</h2><table class='kv'>" + "".join(
-        f"<tr><th>{_e(k)}</th><td>{_e(v)}</td></tr>" for k, v in kv) + "</table>")
+    cust = customer or cfg.customer
+    appr = (_e(cfg.approver) + (f", {_e(cfg.approver_role)}" if cfg.approver_role else "")
+            if cfg.approver else _ph("approver: set [certificate] approver in accelcal.toml"))
+    pairs = [("Certificate number", f"<b>{_e(number)}</b>"),
+             ("Date of issue", _e(issued)),
+             ("Laboratory", lab), ("Address", addr),
+             ("Location of the calibration", f"{loc} (rigs {_e(rigs)})")]
+    if cfg.accreditation:
+        pairs.append(("Accreditation", _e(cfg.accreditation)))
+    pairs += [("Customer", _e(cust) if cust else _ph("customer: not stated (accelcal.toml "
+                                                     "[certificate] customer or --customer)")),
+              ("Authorised by", appr),
+              ("Configuration", _e(cfg.path) if cfg.path else _ph("no accelcal.toml found"))]
+    return (_kv(pairs) + "<p class='note'>The results relate only to the item calibrated. This "
+            "certificate shall not be reproduced except in full without the written approval "
+            "of the laboratory.</p>")
 
-    # coefficients
+
+def _sec_item(d) -> str:
+    r = d["result"]
+    return _kv([("Item", f"accelerometer, model {_e(r.get('unit_model'))}"),
+                ("Serial number", f"<b>{_e(r.get('unit_serial'))}</b>"),
+                ("Campaign", _e(d["campaign"])),
+                ("Condition on receipt", _ph("not recorded in the data drop")),
+                ("Runs", f"{len(d['lineage'])} ({', '.join(sorted({str(x.get('test')) for x in d['lineage']}))})")])
+
+
+def _sec_method(d) -> str:
     rows = []
-    for c in d["coefficients"]:
+    for test in d.get("tests") or []:
+        name, how = TEST_METHODS.get(test, (test, ""))
+        rigs = sorted({str(x.get("rig_id")) for x in d["lineage"] if x.get("test") == test})
+        n = sum(1 for x in d["lineage"] if x.get("test") == test)
+        rows.append([name, ", ".join(rigs), (str(n), "num"), how])
+    out = _table(["test", "rig", "runs", "procedure"], rows)
+    methods = sorted({c.get("method") for c in d["coefficients"] if c.get("method")})
+    adopted = sorted({c.get("method") for c in _adopted(d) if c.get("method")})
+    out += (f"<p class='note'>Methods computed: {_e(', '.join(methods))}; adopted values from: "
+            f"{_e(', '.join(adopted) or 'none')} (the other methods' values are cross-checks, "
+            f"Annex A). Instrument model and coefficient names: IEEE Std 1293 form "
+            f"(effects.md). Data processed by accelcal {_e(d['result'].get('code_version'))}.</p>")
+    params = {k: v for k, v in (d.get("science_parameters") or {}).items()
+              if PARAMETER_TESTS.get(k, None) in (None, *(d.get("tests") or []))}
+    if params:
+        out += ("<p class='note'>Processing parameters: "
+                + _e(", ".join(f"{k} = {json.dumps(v)}" for k, v in sorted(params.items())))
+                + "</p>")
+    return out
+
+
+def _label_date(campaign: str) -> str | None:
+    m = re.search(r"(\d{4}-\d{2}-\d{2})", campaign)
+    return m.group(1) if m else None
+
+
+def _sec_dates(d, issued) -> str:
+    runs = d["runs"]
+    starts = [x["start"] for x in runs if x.get("start")]
+    ends = [x["end"] or x["start"] for x in runs if x.get("start")]
+    first, last = (min(starts), max(ends)) if starts else (None, None)
+    pairs = [("Calibration performed", f"{_e(_when(first))} to {_e(_when(last))}"),
+             ("Date of issue", _e(issued))]
+    out = _kv(pairs)
+    lab_date = _label_date(d["campaign"])
+    if first is not None and lab_date and lab_date != f"{first:%Y-%m-%d}":
+        out += (f"<div class='flag'>The campaign label names {_e(lab_date)}, but the data were "
+                f"taken from {_e(_when(first))} (the runs' started_at); the dates above are the "
+                f"data's.</div>")
+    rows = []
+    for x in runs:
+        tc, ts = x.get("temp_c"), x.get("temp_set_c")
+        rows.append([(x.get("run_id"), "nw"), x.get("test"), (x.get("rig_id"), "nw"),
+                     (_when(x.get("start")), "nw"), (_when(x.get("end")), "nw"),
+                     ("—" if not tc else f"{tc[0]:.2f} / {tc[1]:.2f} / {tc[2]:.2f}", "num"),
+                     ("—" if not ts else f"{ts[0]:.1f} to {ts[2]:.1f}", "num"),
+                     ("not recorded" if x.get("ambient") is None else f"{x['ambient']:.1f}", "num"),
+                     ("—" if x.get("g_local") is None else f"{x['g_local']:.6g}", "num"),
+                     ("—" if x.get("latitude") is None else f"{x['latitude']:.4g}", "num")])
+    out += "<h3>Environmental conditions, from the data</h3>"
+    out += _table(["run", "test", "rig", "first reading", "last reading",
+                   "instrument temperature min / mean / max / °C", "chamber set-points / °C",
+                   "ambient / °C", "g local / m s⁻²", "latitude / °"], rows)
+    missing = [x["run_id"] for x in runs if not x.get("data")]
+    if missing:
+        out += (f"<p class='note'>No Parquet copy of {_e(', '.join(map(str, missing)))}: only "
+                f"its start time is known here.</p>")
+    out += ("<p class='note'>Instrument temperature is the run's <span class='mono'>temp_c</span> "
+            "column (the unit's case sensor); ambient is the optional "
+            "<span class='mono'>ambient_temp_c</span> the DAQ records.</p>")
+    return out
+
+
+def _sec_traceability(d, cfg) -> str:
+    r0 = next((x for x in d["runs"] if x.get("g_local") is not None), None)
+    g = f"{r0['g_local']:.6g} m/s²" if r0 else "the value in the run files"
+    parts = [f"<p>{_e(cfg.traceability)}</p>" if cfg.traceability else
+             f"<p>{_ph('traceability statement: set [traceability] statement in accelcal.toml')}</p>"]
+    rows = []
+    for rig in d.get("rig_ids") or []:
+        t = cfg.rig_traceability.get(rig)
+        rows.append(f"<tr><th>{_e(rig)}</th><td>{_e(t) if t else _ph('reference standards of this rig: set [traceability.rigs] in accelcal.toml')}</td></tr>")
+    parts.append("<table class='kv'>" + "".join(rows) + "</table>")
+    parts.append(f"<p class='note'>Local gravity used by the calculation: g = {_e(g)} (run "
+                 "metadata). The results trace to the bytes of every input run (sha256, Annex B) "
+                 "and to the code version that computed them.</p>")
+    return "".join(parts)
+
+
+def _mc_verdict(d, c) -> tuple[str, str]:
+    """The JCGM 101 check of this coefficient's budget, as a table cell."""
+    m = ((d.get("extras") or {}).get("mc_check") or {}).get(f"{c.get('rig_id') or ''}:{c['name']}")
+    if not isinstance(m, dict):
+        return ("not checked", "nw")
+    return ("PASS", "ok") if m.get("validated") else ("FAIL", "bad")
+
+
+def _coef_rows(d, coefs) -> list[list[Any]]:
+    rows = []
+    for c in coefs:
         v, U, unit = display_value(c["name"], c.get("value"), c.get("std_uncertainty"),
                                    c.get("unit"))
-        rows.append([c["name"], (v, "num"), (U, "num"), (unit, "nw"), c.get("method") or "",
+        rows.append([c["name"], (v, "num"), (U, "num"), ("2", "num"),
+                     (COVERAGE_PROBABILITY, "nw"), (unit, "nw"), c.get("method") or "",
                      (c.get("rig_id") or "", "nw"), (_fmt(c.get("dof"), ".0f"), "num"),
-                     (_fmt(c.get("value"), ".6e"), "num"), c.get("unit") or "",
-                     c.get("note") or ""])
-    add("<h2>2 Calibrated coefficients</h2>")
-    add(_table(["coefficient", "value", "U (k=2)", "display unit", "method", "rig", "dof",
-                "value (SI)", "SI unit", "note"], rows) if rows else
-        "<p>No coefficients.</p>")
-    add("<p class='note'>K1 is shown in output unit per g with its relative expanded "
-        "uncertainty; the other coefficients in the display units of the effects catalogue.</p>")
+                     _mc_verdict(d, c), c.get("note") or ""])
+    return rows
 
-    # radius
-    if d["radii"]:
-        rows = [[(x.get("rig_id"), "nw"), x.get("polarity"), x.get("method"), _fmt(x.get("model_order")),
-                 (_fmt(x.get("g_max"), ".1f"), "num"), (_fmt(x.get("radius_m"), ".6f"), "num"),
-                 (_fmt(None if x.get("std_uncertainty_m") is None
-                       else K_COVERAGE * 1e6 * x["std_uncertainty_m"], ".2f"), "num"),
-                 x.get("note") or ""] for x in d["radii"]]
-        add("<h2>3 Test radius</h2>")
-        add(_table(["rig", "polarity", "method", "order", "g max / g", "radius / m",
-                    "U (k=2) / µm", "note"], rows))
-        if plots:
-            img = radius_plot(d["radii"])
-            if img:
-                add(f"<img alt='radius plot' src='data:image/png;base64,{img}'>")
 
-    # adequacy
-    add("<h2>4 Model adequacy</h2>")
+_COEF_HEAD = ["coefficient", "value", "U (k=2)", "k", "coverage probability", "unit", "method",
+              "rig", "dof", "Monte Carlo check", "note"]
+
+
+def _sec_results(d, plots) -> str:
+    adopted = _adopted(d)
+    out = (_table(_COEF_HEAD, _coef_rows(d, adopted)) if adopted else
+           "<p><b>No adopted value in this result</b>: the values computed are listed in "
+           "Annex A as cross-checks only.</p>")
+    out += ("<p class='note'>The expanded uncertainty U is the combined standard uncertainty "
+            "multiplied by the coverage factor k = 2, which for a normal distribution "
+            "corresponds to a coverage probability of approximately 95 %. Values and U are "
+            "rounded per GUM 7.2.6 (U to two significant digits, the value to the same "
+            "decimal). K1 is given in output unit per g with its relative U in ppm; "
+            "1 µg/g² = 10⁻⁶/g₀, g₀ = 9.80665 m/s².</p>")
+    return out
+
+
+def _sec_radius(d, plots) -> str:
+    from ..rounding import format_sig, round_gum
+    rows = []
+    for x in d["radii"]:
+        u = x.get("std_uncertainty_m")
+        U = None if u is None else K_COVERAGE * u
+        rows.append([(x.get("rig_id"), "nw"), x.get("polarity"), x.get("method"),
+                     _fmt(x.get("model_order")), (_fmt(x.get("g_max"), ".1f"), "num"),
+                     (round_gum(x.get("radius_m"), U).value, "num"),
+                     (format_sig(None if U is None else 1e6 * U), "num"), x.get("note") or ""])
+    out = ("<p class='note'>The centrifuge's test radius, measured with the item (a rig "
+           "parameter, not a result for the item).</p>")
+    out += _table(["rig", "polarity", "method", "order", "g max / g", "radius / m",
+                   "U (k=2) / µm", "note"], rows)
+    if plots:
+        out += _img(radius_plot(d["radii"]), "radius plot")
+    return out
+
+
+def _sec_budgets(d) -> str:
+    budget = d["budget"]
+    out = []
+    for c in _adopted(d):
+        name, u = c["name"], c.get("std_uncertainty")
+        rows = [b for b in budget if b.get("coefficient") == name]
+        unit = c.get("unit") or ""
+        body = []
+        for b in rows:
+            body.append("<tr>" + "".join(f"<td{cls}>{_e(v)}</td>" for cls, v in (
+                ("", b.get("quantity")), (" class='num'", _fmt(b.get("value"), ".4g")),
+                (" class='num'", _fmt(b.get("std_uncertainty"), ".3g")),
+                (" class='num'", _fmt(b.get("sensitivity"), ".3g")),
+                (" class='num'", _fmt(b.get("contribution"), ".3g")),
+                ("", b.get("type")), ("", b.get("distribution")))) + "</tr>")
+        if not rows:
+            body.append("<tr><td colspan='7' class='note'>budget not itemised: no "
+                        "input-quantity breakdown is stored for this coefficient</td></tr>")
+        body.append(f"<tr class='total'><td>combined standard uncertainty u<sub>c</sub></td>"
+                    f"<td></td><td></td><td></td><td class='num'>{_e(_fmt(u, '.3g'))}</td>"
+                    f"<td colspan='2'>{_e(unit)}</td></tr>")
+        _, U_disp, dunit = display_value(name, c.get("value"), u, unit)
+        U_disp = U_disp if U_disp.endswith("ppm") else f"{U_disp} {dunit}"
+        body.append(f"<tr class='total'><td>expanded uncertainty U, k = 2, p {COVERAGE_PROBABILITY}"
+                    f"</td><td></td><td></td><td></td>"
+                    f"<td class='num'>{_e(_fmt(None if u is None else K_COVERAGE * u, '.3g'))}</td>"
+                    f"<td colspan='2'>{_e(unit)} (= {_e(U_disp)})</td></tr>")
+        out.append(f"<div class='keep'><h3>{_e(name)} ({_e(c.get('method'))}, "
+                   f"{_e(c.get('rig_id'))})</h3><table><thead><tr><th>quantity</th><th>value</th>"
+                   f"<th>u</th><th>sensitivity c</th><th>|c|·u</th><th>type</th>"
+                   f"<th>distribution</th></tr></thead><tbody>{''.join(body)}</tbody></table></div>")
+    if not out:
+        return "<p>No adopted value, no budget.</p>"
+    return ("<p class='note'>GUM (JCGM 100) budgets in SI units; u<sub>c</sub> is the stored "
+            "standard uncertainty of the adopted value.</p>" + "".join(out))
+
+
+def _sec_mc(d) -> str:
+    mc = (d.get("extras") or {}).get("mc_check") or {}
+    adopted = {(c.get("rig_id") or "", c["name"]) for c in _adopted(d)}
+    rows = []
+    for key, m in sorted(mc.items()):
+        if not isinstance(m, dict):
+            continue
+        rig, _, name = str(key).rpartition(":")
+        ok = bool(m.get("validated"))
+        rows.append([(key, "nw"), ("yes" if (rig, name) in adopted else "", "nw"),
+                     (_fmt(m.get("gum_u"), ".4g"), "num"), (_fmt(m.get("mc_u"), ".4g"), "num"),
+                     (f"[{_fmt(m.get('mc_low'), '.6g')}, {_fmt(m.get('mc_high'), '.6g')}]", "nw"),
+                     (_fmt(m.get("delta"), ".2g"), "num"),
+                     ("PASS" if ok else "FAIL", "ok" if ok else "bad")])
+    methods = sorted({c.get("method") for c in _adopted(d)})
+    if not rows:
+        return (f"<p>No Monte Carlo check is stored for this result (methods "
+                f"{_e(', '.join(methods) or '—')}): the GUM uncertainty is not validated by "
+                f"JCGM 101 here.</p>")
+    n_fail = sum(1 for r in rows if r[-1][0] == "FAIL")
+    head = (f"<p><b>{len(rows) - n_fail} of {len(rows)} budgets pass</b> the JCGM 101 check "
+            "(GUM interval end points within the numerical tolerance δ of the Monte Carlo "
+            "ones).</p>")
+    if n_fail:
+        head += ("<div class='flag'>A FAIL means the GUM (linearised) interval differs from the "
+                 "Monte Carlo interval by more than δ: the stated U rests on the GUM "
+                 "approximation for that coefficient.</div>")
+    return head + _table(["budget", "adopted", "u (GUM)", "u (Monte Carlo)",
+                          "95 % interval (Monte Carlo)", "δ", "result"], rows)
+
+
+def _fit_statistics(d) -> list[list[Any]]:
+    """Adequacy and term tests stored by each method, one row each (any test kind)."""
+    from scipy import stats
+    ex = d.get("extras") or {}
+    alpha = float((d.get("science_parameters") or {}).get("adequacy_alpha", 0.01))
+    rows = []
+
+    def verdict(p, adequate_when_high=True, yes="adequate", no="NOT adequate"):
+        if p is None:
+            return ("—", "")
+        good = (p >= alpha) if adequate_when_high else (p < alpha)
+        return (yes if good else no, "ok" if good else "bad")
+
+    for t in ex.get("tumble") or []:
+        lof = (t or {}).get("lack_of_fit") or {}
+        if lof:
+            rows.append(["tumble", t.get("run_id"), "lack of fit (pure error of replicates)",
+                         (f"F = {_fmt(lof.get('F'), '.3g')}", "nw"),
+                         (f"{_fmt(lof.get('dof_lof'))} / {_fmt(lof.get('dof_pe'))}", "num"),
+                         (_fmt(lof.get("p"), ".3g"), "num"), verdict(lof.get("p"))])
+        else:
+            rows.append(["tumble", t.get("run_id"), "lack of fit", "not testable",
+                         (_fmt(t.get("dof")), "num"), "—",
+                         ("no replicated positions beyond the parameters", "bad")])
+    for run, t in (ex.get("thermal") or {}).items():
+        m = (t or {}).get("temperature_model") or {}
+        for k in ("K0", "K1"):
+            chi2, nu = m.get(f"chi2_{k}"), m.get("nu")
+            p = float(stats.chi2.sf(chi2, nu)) if chi2 is not None and nu else None
+            rows.append(["thermal", run, f"temperature model of {k} (χ² of the point values)",
+                         (f"χ² = {_fmt(chi2, '.3g')}, Birge {_fmt(m.get(f'birge_ratio_{k}'), '.3g')}", "nw"),
+                         (_fmt(nu), "num"), (_fmt(p, ".3g"), "num"), verdict(p)])
+        tr = (t or {}).get("scale_factor_time_trend") or {}
+        if tr:
+            sig = bool(tr.get("significant"))
+            rows.append(["thermal", run, "K1 drift in time (residual trend)",
+                         (f"{_fmt(tr.get('slope_ppm_per_h'), '.3g')} ± "
+                          f"{_fmt(tr.get('u_slope_ppm_per_h'), '.2g')} ppm/h", "nw"), "—", "—",
+                         ("significant" if sig else "not significant", "bad" if sig else "ok")])
+    for rig, s in (ex.get("sine") or {}).items():
+        s = s or {}
+        tests = [("tool-error terms (joint F test)", (s.get("compensation") or {}).get("f_test_tool_errors")),
+                 ("third-order terms Kppp, Kooo (F test)", (s.get("third_order") or {}).get("f_test")),
+                 ("per-run bias (F test)", s.get("per_run_bias"))]
+        for label, f in tests:
+            if not isinstance(f, dict) or f.get("p_value") is None:
+                continue
+            p = f.get("p_value")
+            rows.append(["sine", rig, label,
+                         (f"F = {_fmt(f.get('F'), '.3g')}", "nw"),
+                         (f"{_fmt(f.get('df1'))} / {_fmt(f.get('df2'))}", "num"),
+                         (_fmt(p, ".3g"), "num"),
+                         verdict(p, yes="not needed (model adequate without)",
+                                 no="significant: model needs them")])
+    return rows
+
+
+def _sec_adequacy(d, plots) -> str:
+    out = []
     if d["adequacy"]:
         rows = []
         for a in d["adequacy"]:
@@ -357,38 +700,47 @@ def render_html(d: dict[str, Any], plots: bool = True) -> str:
                          (_fmt(a.get("runs_p"), ".3g"), "num"),
                          ("adequate" if ok else "NOT adequate", "ok" if ok else "bad"),
                          "✔" if a.get("chosen") else ""])
-        add(_table(["rig", "fit", "order", "g max", "F", "p (lack of fit)", "dof lof/pe",
-                    "trend p", "sweep p", "runs p", "verdict", "chosen"], rows))
-    tum = (d.get("extras") or {}).get("tumble") or []
-    if tum:
-        rows = [[t.get("run_id"), (_fmt((t.get("lack_of_fit") or {}).get("F"), ".3g"), "num"),
-                 (_fmt((t.get("lack_of_fit") or {}).get("p"), ".3g"), "num"),
-                 (_fmt(t.get("dof")), "num"), (_fmt(t.get("residual_rms"), ".3g"), "num"),
-                 t.get("note") or ""] for t in tum if isinstance(t, dict)]
-        add("<p class='note'>Tumble fits (paper 003):</p>")
-        add(_table(["run", "F (lack of fit)", "p", "dof", "residual rms / output unit", "note"],
-                   rows))
-    if not d["adequacy"] and not tum:
-        add("<p>No adequacy tests in this result.</p>")
+        out.append("<h3>Regressions: lack-of-fit F test and residual checks</h3>")
+        out.append(_table(["rig", "fit", "order", "g max", "F", "p (lack of fit)", "dof lof/pe",
+                           "trend p", "sweep p", "runs p", "verdict", "chosen"], rows))
+    stats_rows = _fit_statistics(d)
+    if stats_rows:
+        out.append("<h3>Fit statistics stored by the methods</h3>")
+        out.append(_table(["test", "fit", "check", "statistic", "dof", "p", "verdict"], stats_rows))
+    if not out:
+        out.append("<p>No adequacy test is stored for this result.</p>")
     if plots:
-        img = residual_plot(d.get("extras"))
-        if img:
-            add("<p class='note'>Standardised dwell-mean residuals of the eq 9 fits "
-                "(▲ up-sweep, ▼ down-sweep, ● rest; blue + polarity, red − polarity; "
-                "dashed: ±3).</p>")
-            add(f"<img alt='residual plot' src='data:image/png;base64,{img}'>")
+        ex = d.get("extras")
+        for img, cap in ((residual_plot(ex), "Standardised dwell-mean residuals of the eq 9 fits "
+                          "(▲ up-sweep, ▼ down-sweep, ● rest; blue + polarity, red − polarity; "
+                          "dashed: ±3)."),
+                         (thermal_residual_plot(ex), "Per temperature point: K0 and K1 minus the "
+                          "temperature model, in units of the point's standard uncertainty "
+                          "(dashed: ±3)."),
+                         (sine_residual_plot(ex), "Residual rms of the joint sine fit per run, "
+                          "relative to its pooled σ (the fit stores no residual series)."),
+                         (series_residual_plot(ex), "Residual series stored by the method.")):
+            if img:
+                out.append(f"<div class='keep'><p class='note'>{_e(cap)}</p>"
+                           f"{_img(img, 'residual plot')}</div>")
+        tests = set(d.get("tests") or [])
+        if "tumble" in tests:
+            out.append("<p class='note'>Tumble: no residual series is stored; its lack-of-fit "
+                       "test and residual rms are in the table above.</p>")
+    return "".join(out)
 
-    # alignment
-    add("<h2>5 Alignment analysis</h2>")
+
+def _sec_alignment(d) -> str:
     lam = [a for a in d["alignment"] if a.get("kind") == "lambda_c"]
     mounts = [a for a in d["alignment"] if a.get("kind") == "mount"]
     other = [a for a in d["alignment"] if a.get("kind") not in ("lambda_c", "mount")]
+    out = []
     if lam:
         rows = [[a.get("rig_id"), (_fmt(_mul(a.get("lambda_c+"), 1e6), ".2f"), "num"),
                  (_fmt(_mul(a.get("u_lambda_c+"), 2e6), ".2g"), "num"),
                  (_fmt(_mul(a.get("lambda_c-"), 1e6), ".2f"), "num"),
                  (_fmt(_mul(a.get("u_lambda_c-"), 2e6), ".2g"), "num")] for a in lam]
-        add(_table(["rig", "λc+ / µrad", "U / µrad", "λc− / µrad", "U / µrad"], rows))
+        out.append(_table(["rig", "λc+ / µrad", "U / µrad", "λc− / µrad", "U / µrad"], rows))
     if mounts:
         rows = [[a.get("rig_id"), a.get("pair"), (_fmt(a.get("phi0_deg"), ".0f"), "num"),
                  (_fmt(_mul(a.get("dphi1"), 1e3), ".3f"), "num"),
@@ -398,52 +750,14 @@ def render_html(d: dict[str, Any], plots: bool = True) -> str:
                  (_ug_g2(a.get("dc2_2")), "num"),
                  (_ug_g2(None if a.get("u_dc2_typeB") is None else 2 * a["u_dc2_typeB"]), "num")]
                 for a in mounts]
-        add(_table(["rig", "mount pair", "φ0 / °", "Δφ1 / mrad", "Δφ2 / mrad",
-                    "mass-centre offset r / mm", "c2 / µg/g²", "Δc2(1) / µg/g²",
-                    "Δc2(2) / µg/g²", "U type B (Δc2) / µg/g²"], rows))
-        add("<p class='note'>Δc2 from the mount angle error (paper 000 eq 8), treated as a "
-            "uniform type-B term in the budget.</p>")
+        out.append(_table(["rig", "mount pair", "φ0 / °", "Δφ1 / mrad", "Δφ2 / mrad",
+                           "mass-centre offset r / mm", "c2 / µg/g²", "Δc2(1) / µg/g²",
+                           "Δc2(2) / µg/g²", "U type B (Δc2) / µg/g²"], rows))
+        out.append("<p class='note'>Δc2 from the mount angle error (paper 000 eq 8), treated as "
+                   "a uniform type-B term in the budget.</p>")
     for a in other:
-        add(f"<p class='mono'>{_e(json.dumps(a, default=str))}</p>")
-    if not d["alignment"]:
-        add("<p>No alignment analysis in this result (no centrifuge runs).</p>")
-
-    # budget
-    if d["budget"]:
-        rows = [[b.get("coefficient"), b.get("quantity"), (_fmt(b.get("value"), ".4g"), "num"),
-                 (_fmt(b.get("std_uncertainty"), ".3g"), "num"),
-                 (_fmt(b.get("sensitivity"), ".3g"), "num"),
-                 (_fmt(b.get("contribution"), ".3g"), "num"), b.get("type"),
-                 b.get("distribution")] for b in d["budget"]]
-        add("<h2>6 Uncertainty budgets (GUM, SI units)</h2>")
-        add(_table(["coefficient", "quantity", "value", "u", "sensitivity", "|c|·u", "type",
-                    "distribution"], rows))
-
-    # flags
-    add("<h2>7 Flags</h2>")
-    if d["flags"]:
-        for f in d["flags"]:
-            add(f"<div class='flag'>{_e(f)}</div>")
-    else:
-        add("<p>None.</p>")
-
-    # lineage
-    add("<h2>8 Lineage</h2>")
-    rows = [[(x.get("run_id"), "nw"), _fmt(x.get("revision")), x.get("test"), (x.get("rig_id"), "nw"),
-             (x.get("started_at"), "nw"), (x.get("sha256"), "mono"), (x.get("source_path"), "mono"),
-             (x.get("flow_run_id"), "mono")] for x in d["lineage"]]
-    add(_table(["run id", "rev", "test", "rig", "started", "sha256", "raw file",
-                "ingest flow run"], rows))
-    acts = [[a["seq"], (a["result_id"], "mono"), a["activated_at"], (a.get("flow_run_id"), "mono")]
-            for a in d["activations"]]
-    add("<p class='note'>Result history of this campaign (append-only; the last activation "
-        "is current):</p>")
-    add(_table(["#", "result id", "activated", "flow run"], acts))
-    add(f"<footer>Generated {gen} by accelcal {_e(r.get('code_version'))} from the warehouse; "
-        f"self-contained (no external resources). Parameters: "
-        f"<span class='mono'>{_e(json.dumps(d.get('science_parameters'), sort_keys=True))}</span>"
-        f"</footer></body></html>")
-    return "".join(parts)
+        out.append(f"<p class='mono'>{_e(json.dumps(a, default=str))}</p>")
+    return "".join(out)
 
 
 def _mul(x, f):
@@ -457,30 +771,188 @@ def _ug_g2(x) -> str:
     return f"{x / COEFFICIENTS['K2'].display_factor:.4g}"
 
 
+def _sec_flags(d) -> str:
+    items = [f"<div class='flag'>{_e(f)}</div>" for f in d["flags"]]
+    if d["result"].get("completeness") == "incomplete":
+        items.append("<div class='flag'>Incomplete campaign: "
+                     + _e("; ".join(d.get("completeness_reasons") or [])) + "</div>")
+    return "".join(items) or "<p>None: the method was applied without deviation.</p>"
+
+
+def _annex_other(d) -> str:
+    others = [c for c in d["coefficients"] if not c.get("adopted")]
+    if not others:
+        return "<p>None: every value computed is adopted.</p>"
+    return ("<p class='note'>Values of the same coefficients by the other methods, kept as "
+            "cross-checks; they are not the certified values.</p>"
+            + _table(_COEF_HEAD, _coef_rows(d, others)))
+
+
+def _annex_lineage(d) -> str:
+    rows = [[(x.get("run_id"), "nw"), _fmt(x.get("revision")), x.get("test"),
+             (x.get("rig_id"), "nw"), (x.get("started_at"), "nw"), (x.get("sha256"), "mono"),
+             (x.get("source_path"), "mono"), (x.get("flow_run_id"), "mono")]
+            for x in d["lineage"]]
+    out = _table(["run id", "rev", "test", "rig", "started", "sha256", "raw file",
+                  "ingest flow run"], rows)
+    acts = [[a["seq"], (a["result_id"], "mono"), a["activated_at"], (a.get("flow_run_id"), "mono")]
+            for a in d["activations"]]
+    out += ("<p class='note'>Result history of this campaign (append-only; the last activation "
+            "is current):</p>")
+    out += _table(["#", "result id", "activated", "flow run"], acts)
+    if d.get("audit"):
+        out += "<p class='note'>Quarantine decisions (accelcal campaign exclude|include):</p>"
+        out += _table(["#", "action", "why", "when", "by"],
+                      [[a["seq"], a["action"], a["why"], a["acted_at"], a["acted_by"]]
+                       for a in d["audit"]])
+    out += (f"<p class='note'>Result id <span class='mono'>{_e(d['result_id'])}</span>; code "
+            f"version {_e(d['result'].get('code_version'))}; pipeline parameters "
+            f"<span class='mono'>{_e(json.dumps(d.get('parameters'), sort_keys=True))}</span>.</p>")
+    return out
+
+
+def render_html(d: dict[str, Any], plots: bool = True, config=None,
+                customer: str | None = None, issued: str | None = None) -> str:
+    from ..config import LabConfig
+    cfg = config or LabConfig()
+    r = d["result"]
+    camp = d["campaign"]
+    number = certificate_number(d["result_id"], cfg.number_prefix)
+    issued = issued or _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d")
+    tests = set(d.get("tests") or [])
+    doc = _Doc()
+    doc.section("Certificate", _sec_certificate(d, cfg, number, issued, customer))
+    doc.section("Item calibrated", _sec_item(d))
+    doc.section("Method", _sec_method(d))
+    doc.section("Dates and environmental conditions", _sec_dates(d, issued))
+    doc.section("Traceability", _sec_traceability(d, cfg))
+    doc.section("Results: calibrated coefficients", _sec_results(d, plots))
+    doc.section("Uncertainty budgets", _sec_budgets(d))
+    doc.section("Monte Carlo check of the uncertainty (JCGM 101)", _sec_mc(d))
+    doc.section("Model adequacy and residuals", _sec_adequacy(d, plots))
+    if tests & {"centrifuge", "sine_centrifuge"} and d["radii"]:
+        doc.section("Test radius", _sec_radius(d, plots))
+    if tests & {"centrifuge"} and d["alignment"]:
+        doc.section("Alignment analysis", _sec_alignment(d))
+    doc.section("Flags and deviations from the method", _sec_flags(d))
+    doc.annex("Other methods (cross-checks)", _annex_other(d))
+    doc.annex("Lineage", _annex_lineage(d))
+
+    banners = []
+    if not d["is_current"]:
+        cur = d["current_result_id"]
+        was = any(a["result_id"] == d["result_id"] for a in d["activations"])
+        banners.append("<div class='banner'>This result is "
+                       + ("SUPERSEDED" if was else "NOT CURRENT (it was never made current)")
+                       + (f"; the current result of the campaign is <span class='mono'>{_e(cur)}"
+                          f"</span>" if cur else "; the campaign has no current result") + ".</div>")
+    if r.get("simulated"):
+        banners.append("<div class='banner'>SIMULATED DATA — NOT A CALIBRATION. This result was "
+                       "computed from files made by accelcal simulate.</div>")
+    if r.get("completeness") == "incomplete":
+        banners.append("<div class='banner'>INCOMPLETE CAMPAIGN — not a calibration: "
+                       + _e("; ".join(d.get("completeness_reasons") or [])) + "</div>")
+    if d.get("excluded"):
+        x = d["excluded"]
+        banners.append(f"<div class='banner'>EXCLUDED by {_e(x.get('acted_by'))} on "
+                       f"{_e(x.get('acted_at'))}: {_e(x.get('why'))}</div>")
+    if cfg.missing:
+        banners.append("<div class='draft'>DRAFT — not valid as a certificate: "
+                       + _e(", ".join(cfg.missing)) + " not configured (accelcal.toml).</div>")
+    page = _page_css(cfg.name or "[laboratory not configured]", number)
+    head = (f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
+            f"<title>Calibration certificate {_e(number)} — {_e(camp)}</title>"
+            f"<style>{page}{_CSS}</style></head><body>")
+    title = (f"<h1>Calibration Certificate</h1><div class='certno'>No. {_e(number)}</div>"
+             f"<div class='sub'>{_e(r.get('unit_model'))} serial {_e(r.get('unit_serial'))} · "
+             f"campaign {_e(camp)} · result <span class='mono'>{_e(d['result_id'])}</span></div>")
+    sign = ("<div class='sign'>" + (_e(cfg.approver) if cfg.approver else
+                                     _ph("approver not configured")) + "</div>"
+            "<p class='note'>Signature of the person authorising this certificate.</p>")
+    foot = (f"<footer>Certificate No. {_e(number)} · issued {_e(issued)} by accelcal "
+            f"{_e(r.get('code_version'))} from the warehouse; self-contained (no external "
+            f"resources). End of certificate.</footer></body></html>")
+    return head + title + "".join(banners) + doc.html() + sign + foot
+
+
+# ------------------------------------------------------------------- output --
+
 def report_filename(campaign: str) -> str:
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", campaign).strip("_") + ".html"
+    """A file name for a campaign's report that is safe and one-to-one: labels made of
+    letters, digits, '.', '-' and '/' keep their spelling with '/' as '_'; any other
+    label (with '_', '\\\\', '..', spaces, ...) gets a sanitised name plus '~' and a hash of
+    the exact label, so '../../x' and '..\\\\..\\\\x' never overwrite each other."""
+    plain = (re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9.\-/]*", campaign or "") is not None
+             and ".." not in campaign and "//" not in campaign and not campaign.endswith("/")
+             and len(campaign) <= 150)
+    if plain:
+        return campaign.replace("/", "_") + ".html"
+    safe = re.sub(r"[^A-Za-z0-9.-]+", "_", campaign or "").strip("._")[:80] or "campaign"
+    return f"{safe}~{hashlib.sha256((campaign or '').encode('utf-8')).hexdigest()[:16]}.html"
 
 
-def build_report(warehouse: str | Path, campaign: str, out_dir: str | Path,
-                 result_id: str | None = None, lock_timeout: float = 60.0) -> Path:
-    """Write the campaign's report; returns the HTML path."""
+def find_chromium() -> str | None:
+    env = os.environ.get("ACCELCAL_CHROMIUM")
+    if env:
+        return env
+    for name in ("chromium", "chromium-browser", "google-chrome", "chrome"):
+        p = shutil.which(name)
+        if p:
+            return p
+    return None
+
+
+def render_pdf(html_path: Path, pdf_path: Path, timeout: float = 180.0) -> Path:
+    """Print the HTML to PDF with headless chromium (page size and page numbers from the
+    page's @page rules; chromium's own header and footer off)."""
+    exe = find_chromium()
+    if exe is None:
+        raise ReportError("--pdf needs chromium (Debian: apt-get install chromium; or set "
+                          "ACCELCAL_CHROMIUM to a Chrome/Chromium executable)")
+    with tempfile.TemporaryDirectory(prefix="accelcal-chromium-") as prof:
+        cmd = [exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic",
+               "--no-first-run", "--disable-background-networking", "--disable-component-update",
+               "--disable-sync", f"--user-data-dir={prof}", "--no-pdf-header-footer",
+               f"--print-to-pdf={pdf_path}", Path(html_path).resolve().as_uri()]
+        try:
+            p = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout,
+                               env={**os.environ, "HOME": prof})
+        except subprocess.TimeoutExpired:
+            raise ReportError(f"chromium did not print {html_path} within {timeout:g} s") from None
+    if p.returncode != 0 or not Path(pdf_path).is_file():
+        last = (p.stderr.strip().splitlines() or ["no output"])[-1]
+        raise ReportError(f"chromium could not print {html_path}: {last}")
+    return Path(pdf_path)
+
+
+def build_report(warehouse: str | Path, campaign: str | None, out_dir: str | Path,
+                 result_id: str | None = None, lock_timeout: float = 60.0,
+                 config: str | Path | None = None, pdf: bool = False,
+                 customer: str | None = None) -> Path:
+    """Write the certificate of a campaign's current result (or of ``result_id``, a unique
+    prefix); returns the HTML path (the PDF, with ``pdf``, is beside it)."""
+    from ..config import ConfigError, lab_config
+    try:
+        cfg = lab_config(config, warehouse)
+    except ConfigError as e:
+        raise ReportError(str(e)) from None
     d = load_report_data(warehouse, campaign, result_id=result_id, lock_timeout=lock_timeout)
-    text = render_html(d)
+    text = render_html(d, config=cfg, customer=customer)
     out = Path(out_dir).expanduser()
+    name = report_filename(d["campaign"])
+    if not d["is_current"]:
+        name = name[:-5] + f"@{d['result_id'][:12]}.html"
     try:
         out.mkdir(parents=True, exist_ok=True)
-        path = out / report_filename(campaign)
+        path = out / name
         path.write_text(text, encoding="utf-8")
     except OSError as e:
         raise ReportError(f"cannot write report to {out}: {e.strerror}") from None
+    if pdf:
+        render_pdf(path, path.with_suffix(".pdf"))
     return path
 
 
 def list_campaigns(warehouse: str | Path) -> list[str]:
-    import duckdb
-    con = duckdb.connect(str(Path(warehouse).expanduser().resolve()), read_only=True)
-    try:
-        return [r[0] for r in con.execute(
-            "SELECT DISTINCT campaign FROM result_activations ORDER BY campaign").fetchall()]
-    finally:
-        con.close()
+    return _read(warehouse, lambda con, path: [r[0] for r in con.execute(
+        "SELECT DISTINCT campaign FROM results_current ORDER BY campaign").fetchall()])

@@ -19,7 +19,17 @@ When is a drop processed
     Pass state is kept in ``<warehouse stem>-watch.json`` next to the warehouse
     (flow runs execute in subprocesses, so it must live on disk); it is written
     atomically and may be deleted at any time (the next pass then re-hashes
-    files, adding nothing to the warehouse).
+    files, adding nothing to the warehouse).  It also holds the last 50 pass
+    records (what was seen, processed, held back and why, refused, computed),
+    which ``accelcal status`` shows.  They live there, not in the warehouse,
+    because status must answer while a pass holds the warehouse (DuckDB lets no
+    reader in while the writer has the file open), and they are operations
+    records, not results: nothing in the append-only warehouse depends on them.
+
+What a pass says
+    Every pass logs (logger ``accelcal.serve``, to stderr) one line with the
+    counts, then one line per drop held back (and why), per drop processed, per
+    refused file (file:line: rule) and per campaign result.
 
 How passes are triggered
     ``serve()`` builds the Prefect deployment ``accelcal-watch/<name>`` of
@@ -44,6 +54,20 @@ from pathlib import Path
 from typing import Any
 
 log = logging.getLogger("accelcal.serve")
+#: Refused files named one by one in a pass's log (the rest are counted).
+LOG_REFUSALS_MAX = 20
+
+
+def setup_logging() -> None:
+    """Pass logs to stderr at INFO, in the serve process and in each flow-run subprocess
+    (Prefect's own loggers stay at their level)."""
+    if not any(getattr(h, "_accelcal", False) for h in log.handlers):
+        h = logging.StreamHandler()
+        h.setFormatter(logging.Formatter("%(asctime)s accelcal.serve %(message)s"))
+        h._accelcal = True
+        log.addHandler(h)
+    log.setLevel(logging.INFO)
+    log.propagate = False
 
 FLOW_NAME = "accelcal-watch"
 DEFAULT_DEPLOYMENT = "accelcal-watch"
@@ -146,10 +170,69 @@ def plan_pass(watch_dir: str | Path, st: dict[str, Any], settle: float = DEFAULT
     return plan
 
 
+def _pass_summary(summary: dict[str, Any]) -> dict[str, Any]:
+    """What a pass record keeps of the pipeline's summary: the counts per drop and, apart
+    (bounded: at most LOG_REFUSALS_MAX per drop, the rest counted), the details."""
+    drops = [{k: d[k] for k in ("drop", "files", "accepted", "refused", "new")}
+             for d in summary["drops"]]
+    details = {d["drop"]: {
+        "refused_files": [{"path": r["path"], "reason": r["reason"]}
+                          for r in d["refused_files"][:LOG_REFUSALS_MAX]],
+        "simulated_held": [dict(r) for r in (d.get("simulated_held") or [])[:LOG_REFUSALS_MAX]],
+        "errors": list(d.get("errors") or [])[:LOG_REFUSALS_MAX]} for d in summary["drops"]}
+    camps = [{k: c.get(k) for k in ("campaign", "status", "n_runs", "current_result_id",
+                                     "completeness", "simulated", "error")}
+             for c in summary["campaigns"]]
+    return {"flow_run_id": summary.get("flow_run_id"), "drops": drops, "details": details,
+            "campaigns": camps}
+
+
+def pass_lines(out: dict[str, Any]) -> list[str]:
+    """The log lines of one pass record: counts, then what was held back and why, what
+    was processed, every refusal (file:line: rule: detail) and every result."""
+    summ = out.get("summary") or {}
+    n_seen = len(out.get("ready", [])) + len(out.get("waiting", {})) + int(out.get("unchanged", 0))
+    refused = sum(d.get("refused", 0) for d in summ.get("drops", []))
+    lines = [f"pass: {n_seen} drop(s) seen, {len(out.get('ready', []))} processed, "
+             f"{len(out.get('waiting', {}))} held back, {out.get('unchanged', 0)} unchanged; "
+             f"{refused} file(s) refused, {len(summ.get('campaigns', []))} campaign(s) computed"
+             + (f"; FAILED: {out['error']}" if out.get("error") else "")
+             + f" ({out.get('seconds', 0):.1f} s)"]
+    for drop, why in sorted((out.get("waiting") or {}).items()):
+        lines.append(f"held back {Path(drop).name}: {why}")
+    for d in summ.get("drops", []):
+        det = (summ.get("details") or {}).get(d["drop"]) or {}
+        lines.append(f"processed {d['drop']}: {d['files']} file(s), {d['accepted']} accepted, "
+                     f"{d['refused']} refused, {d['new']} new")
+        for r in det.get("refused_files", []):
+            lines.append(f"refused {r['reason'] or r['path']}")
+        if d["refused"] > len(det.get("refused_files", [])):
+            lines.append(f"... and {d['refused'] - len(det.get('refused_files', []))} more "
+                         f"refused in {d['drop']} (the runs view lists them all)")
+        for r in det.get("simulated_held", []):
+            lines.append(f"refused {r['path']}:{r['line']}: simulated: simulated data are "
+                         "not stored by serve")
+        for e in det.get("errors", []):
+            lines.append(f"not ingested {e}")
+    for c in summ.get("campaigns", []):
+        rid = (c.get("current_result_id") or "")[:12]
+        extra = [x for x in (c.get("completeness") if c.get("completeness") == "incomplete" else None,
+                             "simulated" if c.get("simulated") else None, c.get("error")) if x]
+        lines.append(f"result {c['campaign']}: {c['status']}" + (f", current {rid}" if rid else "")
+                     + (f" ({'; '.join(extra)})" if extra else ""))
+    return lines
+
+
+def log_pass(out: dict[str, Any]) -> None:
+    for line in pass_lines(out):
+        log.info("%s", line)
+
+
 def watch_pass(watch_dir: str, warehouse: str, settle: float = DEFAULT_SETTLE_S,
                engine: str = "local", lock_timeout: float = 600.0,
                task_runner: str = "thread") -> dict[str, Any]:
-    """One pass: plan, run the pipeline on ready drops, remember what was processed."""
+    """One pass: plan, run the pipeline on ready drops, remember what was processed, log
+    what happened (:func:`pass_lines`) and keep the record in the state file."""
     from ..flows.pipeline import run_pipeline
     from ..warehouse.db import warehouse_lock
     sp = state_path_for(warehouse)
@@ -159,27 +242,23 @@ def watch_pass(watch_dir: str, warehouse: str, settle: float = DEFAULT_SETTLE_S,
     with warehouse_lock(Path(warehouse).expanduser().resolve(), timeout=lock_timeout):
         st = load_state(sp)
         plan = plan_pass(watch_dir, st, settle=settle)
-        out: dict[str, Any] = {"started": t0, "ready": plan.ready, "waiting": plan.waiting,
+        out: dict[str, Any] = {"started": t0, "watch": str(Path(watch_dir).expanduser().resolve()),
+                               "ready": plan.ready, "waiting": plan.waiting,
                                "unchanged": len(plan.unchanged), "summary": None, "error": None}
         if plan.ready:
             try:
                 summary = run_pipeline(plan.ready, warehouse, engine=engine,
                                        lock_timeout=lock_timeout, task_runner=task_runner)
-                out["summary"] = {
-                    "flow_run_id": summary.get("flow_run_id"),
-                    "drops": [{k: d[k] for k in ("drop", "files", "accepted", "refused", "new")}
-                              for d in summary["drops"]],
-                    "campaigns": [{k: c.get(k) for k in ("campaign", "status", "n_runs")}
-                                  for c in summary["campaigns"]]}
+                out["summary"] = _pass_summary(summary)
                 for d in plan.ready:
                     for p, sig in plan.files[d].items():
                         st["processed"][p] = sig
             except Exception as e:   # leave the drops unprocessed: the next pass retries
                 out["error"] = f"{type(e).__name__}: {e}"
-                log.error("pass failed: %s", out["error"])
         out["seconds"] = round(time.time() - t0, 3)
         st["passes"].append(out)
         save_state(sp, st)
+    log_pass(out)
     return out
 
 
@@ -188,17 +267,15 @@ def watch_pass(watch_dir: str, warehouse: str, settle: float = DEFAULT_SETTLE_S,
 def _make_flow():
     from prefect import flow
 
-    @flow(name=FLOW_NAME, persist_result=False, validate_parameters=False, log_prints=True)
+    @flow(name=FLOW_NAME, persist_result=False, validate_parameters=False, log_prints=False)
     def accelcal_watch(watch_dir: str, warehouse: str, settle: float = DEFAULT_SETTLE_S,
                        lock_timeout: float = 600.0, task_runner: str = "thread") -> dict:
         """Process the settled new drops of watch_dir into the warehouse (one pass)."""
         from ..flows.pipeline import quiet_prefect
         quiet_prefect(os.environ.get("PREFECT_LOGGING_LEVEL", "WARNING"))
-        out = watch_pass(watch_dir, warehouse, settle=settle, engine="prefect",
-                         lock_timeout=lock_timeout, task_runner=task_runner)
-        print(f"accelcal-watch: ready={len(out['ready'])} waiting={len(out['waiting'])} "
-              f"error={out['error']}")
-        return out
+        setup_logging()
+        return watch_pass(watch_dir, warehouse, settle=settle, engine="prefect",
+                          lock_timeout=lock_timeout, task_runner=task_runner)
 
     return accelcal_watch
 
@@ -244,6 +321,28 @@ def _poll_loop(deployment: str, watch_dir: str, every: float, stop: threading.Ev
             log.warning("file-watch: %s: %s", type(e).__name__, e)
 
 
+def _stop_on_sigterm() -> None:
+    """SIGTERM stops serving cleanly.
+
+    Prefect's runner answers SIGTERM by calling its sync ``stop()`` from inside its
+    running event loop, where the dispatcher hands back the ``astop()`` coroutine
+    unawaited ("coroutine 'Runner.astop' was never awaited") and then exits.  Here the
+    handler schedules ``astop()`` on that loop instead: the runner cancels its loops,
+    ``flow.serve`` returns and ``serve`` returns normally (the CLI prints "stopped").
+    Only the serve process's Runner class is changed, not flow runs.
+    """
+    import asyncio
+
+    from prefect.runner import Runner
+
+    def handle_sigterm(self, *args, **kwargs):
+        log.info("SIGTERM received: stopping")
+        loop = asyncio.get_running_loop()       # the runner's loop, in this (main) thread
+        self._accelcal_stop = loop.create_task(self.astop())
+
+    Runner.handle_sigterm = handle_sigterm
+
+
 def serve(watch_dir: str, warehouse: str, *, cron: str | None = None,
           poll: float | None = None, settle: float = DEFAULT_SETTLE_S,
           name: str = DEFAULT_DEPLOYMENT, lock_timeout: float = 600.0,
@@ -270,6 +369,10 @@ def serve(watch_dir: str, warehouse: str, *, cron: str | None = None,
                                   daemon=True)
         poller.start()
     from prefect.flows import EntrypointType
+    _stop_on_sigterm()
+    setup_logging()
+    log.info("serving %s: watching %s into %s (cron %s, poll %s s)", f"{FLOW_NAME}/{name}",
+             watch, wh, cron or "none", poll or "off")
     try:
         watch_flow.serve(name=name, cron=cron, parameters=params, limit=limit,
                          description=f"accelcal: process settled drops of {watch} into {wh}",
@@ -277,3 +380,61 @@ def serve(watch_dir: str, warehouse: str, *, cron: str | None = None,
                          entrypoint_type=EntrypointType.MODULE_PATH)
     finally:
         stop.set()
+
+
+# -------------------------------------------------------------------- status --
+
+def _holder(warehouse: str | Path) -> str | None:
+    """The pid holding the warehouse's writer lock, when a live process holds it."""
+    from ..warehouse.db import lock_path_for
+    try:
+        txt = lock_path_for(Path(warehouse).expanduser().resolve()).read_text().strip()
+        pid = int(txt)
+        os.kill(pid, 0)
+        return str(pid)
+    except (OSError, ValueError):
+        return None
+
+
+def status_lines(warehouse: str | Path, n: int = 5, watch_dir: str | Path | None = None,
+                 settle: float = DEFAULT_SETTLE_S) -> list[str]:
+    """What ``accelcal status`` prints: who holds the warehouse, the last ``n`` passes
+    (the lines each logged), and what waits: the last pass's held-back drops, the files
+    seen but not yet processed and, with ``watch_dir``, a fresh look (nothing recorded)."""
+    import copy
+    import datetime as dt
+    sp = state_path_for(warehouse)
+    out = [f"warehouse {Path(warehouse).expanduser().resolve()}"]
+    pid = _holder(warehouse)
+    out.append(f"busy: pid {pid} holds the warehouse (a pass or a run is working)" if pid
+               else "idle: no process holds the warehouse")
+    if not sp.exists():
+        out.append(f"no pass recorded ({sp} does not exist): `accelcal serve` has not run here")
+        st = load_state(sp)
+    else:
+        st = load_state(sp)
+        passes = st["passes"][-n:]
+        out.append(f"last {len(passes)} of {len(st['passes'])} recorded passes ({sp}):")
+        for p in passes:
+            when = dt.datetime.fromtimestamp(float(p.get("started", 0))).astimezone()
+            lines = pass_lines(p)
+            out.append(f"  {when:%Y-%m-%d %H:%M:%S %Z} {lines[0]}")
+            out.extend(f"      {x}" for x in lines[1:])
+        if passes:
+            last = passes[-1]
+            waiting = last.get("waiting") or {}
+            out.append("waiting at the last pass: " + ("nothing" if not waiting else ""))
+            out.extend(f"  {Path(d).name}: {why}" for d, why in sorted(waiting.items()))
+    pending: dict[str, int] = {}
+    for p, sig in st.get("seen", {}).items():
+        if st["processed"].get(p) != sig:
+            pending[str(Path(p).parent)] = pending.get(str(Path(p).parent), 0) + 1
+    if pending:
+        out.append("seen but not processed yet:")
+        out.extend(f"  {k}: {v} file(s)" for k, v in sorted(pending.items()))
+    if watch_dir is not None:
+        plan = plan_pass(watch_dir, copy.deepcopy(st), settle=settle)
+        out.append(f"a pass now would process {len(plan.ready)} drop(s)"
+                   + (": " + ", ".join(Path(d).name for d in plan.ready) if plan.ready else ""))
+        out.extend(f"  held back {Path(d).name}: {why}" for d, why in sorted(plan.waiting.items()))
+    return out

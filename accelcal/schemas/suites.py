@@ -29,7 +29,10 @@ line, the rule (``meta["rule"]`` of the expectation) and a detail. Rule ids:
 ``missing-key``, ``unknown-format``, ``unknown-test``, ``bad-value``,
 ``bad-axis``, ``metadata-range``.
 
-Data Docs (HTML) of each call go to ``docs_dir/<drop_name>/index.html``.
+Data Docs (static HTML, offline: :mod:`accelcal.schemas.datadocs`) of each call go to
+``docs_dir/<drop_name>/index.html``: every file with its verdict, the parser's refusals
+passed in as ``parse_refusals`` included, and every expectation with its failures named
+by file and line (the batch carries ``file`` and ``line`` columns).
 """
 from __future__ import annotations
 
@@ -400,18 +403,11 @@ def _meta_table(test: str, runs: list[RunFile]) -> tuple[pd.DataFrame, list[dict
 
 
 
-def _new_context(docs_root: Path | None):
+def _new_context():
     import great_expectations as gx
     from great_expectations.data_context.types.base import ProgressBarsConfig
     ctx = gx.get_context(mode="ephemeral")
     ctx.variables.progress_bars = ProgressBarsConfig(globally=False, metric_calculations=False)
-    if docs_root is not None:
-        ctx.add_data_docs_site(site_name="accelcal", site_config={
-            "class_name": "SiteBuilder",
-            "store_backend": {"class_name": "TupleFilesystemStoreBackend",
-                              "base_directory": str(docs_root)},
-            "site_index_builder": {"class_name": "DefaultSiteIndexBuilder"},
-        })
     return ctx
 
 
@@ -426,12 +422,19 @@ def docs_folder_name(drop_name: str | None) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", drop_name or "drop")
 
 
+#: Columns that name where a row of a batch came from (GE reports them for each failure).
+WHERE_COLUMNS = ["file", "line", "_row"]
+
+
 def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
-                    drop_name: str = "drop") -> ValidationReport:
+                    drop_name: str = "drop",
+                    parse_refusals: list[Refusal] | None = None) -> ValidationReport:
     """Validate parsed runs with the GE suites; one ephemeral GE context per call, one batch
-    per (test kind, table). Writes Data Docs to ``docs_dir/<drop_name>/`` when docs_dir is given.
+    per (test kind, table). Writes Data Docs to ``docs_dir/<drop_name>/`` when docs_dir is
+    given, listing ``parse_refusals`` (files the parser refused) beside the suites' verdicts.
     """
     t0 = time.perf_counter()
+    suite_results: list[tuple[str, dict]] = []
     refusals: dict[str, list[Refusal]] = {r.path: [] for r in runs}
     by_kind: dict[str, list[RunFile]] = {}
     for r in runs:
@@ -441,22 +444,15 @@ def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
                                             f"test {test!r} is not one of {', '.join(TESTS)}"))
             continue
         by_kind.setdefault(test, []).append(r)
+    docs_root = None if docs_dir is None else Path(docs_dir) / docs_folder_name(drop_name)
     if not by_kind:
-        return ValidationReport(refusals, time.perf_counter() - t0)
+        index = _docs(docs_root, drop_name, runs, refusals, parse_refusals, suite_results)
+        return ValidationReport(refusals, time.perf_counter() - t0, {}, index)
 
-    docs_root = None
-    if docs_dir is not None:
-        docs_root = Path(docs_dir) / docs_folder_name(drop_name)
-        docs_root.mkdir(parents=True, exist_ok=True)
     import great_expectations as gx
-    from great_expectations.core.run_identifier import RunIdentifier
-    from great_expectations.data_context.types.resource_identifiers import (
-        ExpectationSuiteIdentifier, ValidationResultIdentifier)
-    ctx = _new_context(docs_root)
+    ctx = _new_context()
     ds = ctx.data_sources.add_pandas("accelcal")
-    run_identifier = RunIdentifier(run_name=drop_name or "drop")
     per_kind: dict[str, float] = {}
-    stored = False
     for test, kind_runs in by_kind.items():
         tk = time.perf_counter()
         complete = []
@@ -488,7 +484,13 @@ def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
         rows = pd.concat(parts, ignore_index=True)
         run_ix_a = np.concatenate(run_ix)
         line_a = np.concatenate(lines)
+        rows["file"] = np.asarray([r.path for r in kind_runs], dtype=object)[run_ix_a]
+        rows["line"] = line_a
+        rows["_row"] = np.arange(len(rows))
         meta_df, meta_why = _meta_table(test, kind_runs)
+        meta_df["file"] = [r.path for r in kind_runs]
+        meta_df["line"] = [min(r.meta_lines.values(), default=1) for r in kind_runs]
+        meta_df["_row"] = np.arange(len(meta_df))
         suites = build_suites(test)
         tables = {"rows": rows, "meta": meta_df}
         for table, df in tables.items():
@@ -498,12 +500,10 @@ def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
             batch = bd.get_batch(batch_parameters={"dataframe": df})
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                res = batch.validate(suite, result_format={"result_format": "COMPLETE"})
+                res = batch.validate(suite, result_format={
+                    "result_format": "COMPLETE", "unexpected_index_column_names": WHERE_COLUMNS})
             if docs_root is not None:
-                key = ValidationResultIdentifier(ExpectationSuiteIdentifier(name=name),
-                                                 run_identifier, batch.id)
-                ctx.validation_results_store.set(key, res)
-                stored = True
+                suite_results.append((name, res.to_json_dict()))
             for er in res.results:
                 if er.success:
                     continue
@@ -512,6 +512,8 @@ def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
                 what = cfg.meta.get("what", cfg.type)
                 col = cfg.kwargs.get("column")
                 idx = er.result.get("unexpected_index_list") if er.result else None
+                if idx and isinstance(idx[0], dict):      # {file, line, _row, value}
+                    idx = [e["_row"] for e in idx]
                 if er.exception_info and er.exception_info.get("raised_exception"):
                     idx = None
                 if not idx:  # whole-table failure (column missing, wrong type, error)
@@ -553,18 +555,35 @@ def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
                     refusals[r.path].append(Refusal(r.path, ln if ln > 0 else None, rule,
                                                     f"{what}: {vals}{more}"))
         per_kind[test] = time.perf_counter() - tk
-    index = None
-    if docs_root is not None and stored:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            ctx.build_data_docs(site_names=["accelcal"])
-        index = docs_root / "index.html"
     for p in refusals:
         refusals[p].sort(key=lambda x: (x.line is None, x.line or 0, x.rule))
+    index = _docs(docs_root, drop_name, runs, refusals, parse_refusals, suite_results)
     return ValidationReport(refusals, time.perf_counter() - t0, per_kind, index)
 
 
+def _docs(docs_root: Path | None, title: str, runs: list[RunFile],
+          refusals: dict[str, list[Refusal]], parse_refusals: list[Refusal] | None,
+          suite_results: list[tuple[str, dict]]) -> Path | None:
+    """Data Docs of this call: the parser's and the suites' verdicts on every file."""
+    if docs_root is None:
+        return None
+    from .datadocs import write_data_docs
+
+    def reason(x):
+        return {"line": x.line, "rule": x.rule, "detail": x.detail}
+    files = [{"path": r.path, "verdict": "refused" if refusals[r.path] else "accepted",
+              "stage": "suites" if refusals[r.path] else "",
+              "reasons": [reason(x) for x in refusals[r.path]]} for r in runs]
+    by_path: dict[str, list[Refusal]] = {}
+    for x in parse_refusals or []:
+        by_path.setdefault(str(x.path), []).append(x)
+    files += [{"path": p, "verdict": "refused", "stage": "parse",
+               "reasons": [reason(x) for x in xs]} for p, xs in by_path.items()]
+    return write_data_docs(docs_root, title, files, suite_results)
+
+
 def validate_runs(runs: list[RunFile], docs_dir: Path | None = None,
-                  drop_name: str = "drop") -> dict[str, list[Refusal]]:
+                  drop_name: str = "drop",
+                  parse_refusals: list[Refusal] | None = None) -> dict[str, list[Refusal]]:
     """Refusals per run path (empty list: the run passed every suite). See validate_report."""
-    return validate_report(runs, docs_dir, drop_name).refusals
+    return validate_report(runs, docs_dir, drop_name, parse_refusals).refusals

@@ -11,10 +11,11 @@ import numpy as np
 import pandas as pd
 
 from ..fileio import atomic_write
+from ..provenance import SIMULATED_KEY
 from .engine import COLUMNS, DIGITS, INT_COLUMNS, SimRun
 
 #: metadata keys in the order they are written (then any others, in the dict's order)
-META_ORDER = ["format", "run_id", "test", "unit_serial", "unit_model", "campaign", "rig_id",
+META_ORDER = ["format", SIMULATED_KEY, "run_id", "test", "unit_serial", "unit_model", "campaign", "rig_id",
               "started_at", "site_latitude_deg", "g_local_m_s2", "output_unit", "sample_period_s"]
 
 
@@ -52,6 +53,7 @@ def format_run(meta: Mapping, data: pd.DataFrame) -> str:
     missing = [c for c in cols if c not in data.columns]
     if missing:
         raise ValueError(f"data lacks columns {missing} for a {test} run")
+    meta = {**meta, SIMULATED_KEY: True}        # whatever the caller passed: simulated
     keys = [k for k in META_ORDER if k in meta] + [k for k in meta if k not in META_ORDER]
     lines = []
     for k in keys:

@@ -12,7 +12,7 @@ import importlib
 from typing import Any
 
 _MODULES = ("accelcal.schemas", "accelcal.schemas.dropformat", "accelcal.schemas.suites",
-            "accelcal.schemas.tables")
+            "accelcal.schemas.tables", "accelcal.schemas.datadocs")
 _OVERRIDES: dict[str, Any] = {}   # tests may substitute an implementation here
 
 
@@ -39,8 +39,12 @@ def discover(drop_dir):
     return resolve("discover")(drop_dir)
 
 
-def validate_runs(runs, docs_dir, drop_name):
-    return resolve("validate_runs")(runs, docs_dir, drop_name)
+def validate_runs(runs, docs_dir, drop_name, parse_refusals=None):
+    return resolve("validate_runs")(runs, docs_dir, drop_name, parse_refusals)
+
+
+def write_drop_index(drop_docs, title):
+    return resolve("write_drop_index")(drop_docs, title)
 
 
 def docs_folder_name(drop_name):

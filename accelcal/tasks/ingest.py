@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from ..provenance import metadata_lines, simulated_line
 from ..warehouse.db import Refusal, RunRecord
 from ..warehouse.lineage import validator_version
 from . import contracts, progress
@@ -27,6 +28,8 @@ class DropIngest:
     parsed: dict[str, Any] = field(default_factory=dict)            # source_path -> RunFile
     errors: list[str] = field(default_factory=list)                 # unexpected failures (not recorded)
     known: int = 0
+    #: simulated files not taken into the warehouse (no --allow-simulated): path, line
+    simulated_held: list[dict[str, Any]] = field(default_factory=list)
     docs: str | None = None
     seconds: float = 0.0                                            # time spent in the step(s)
 
@@ -34,17 +37,9 @@ class DropIngest:
 def sniff_meta(raw: bytes) -> dict[str, str]:
     """Best-effort metadata of a refused file (so the operator sees which run it was)."""
     out: dict[str, str] = {}
-    text = raw[:65536].decode("utf-8", errors="replace")
-    for line in text.splitlines():
-        s = line.strip()
-        if not s:
-            continue
-        if not s.startswith("#"):
-            break
-        key, sep, value = s[1:].partition(":")
-        key = key.strip()
-        if sep and key in _SNIFF_KEYS and key not in out and value.strip():
-            out[key] = value.strip()[:200]
+    for _, key, value in metadata_lines(raw):
+        if key in _SNIFF_KEYS and key not in out and value:
+            out[key] = value[:200]
     return out
 
 
@@ -56,7 +51,8 @@ def _relative(path: Path, root: Path) -> str:
 
 
 def ingest_drop(drop_dir: str, parquet_root: str, warehouse_root: str,
-                known: dict[tuple[str, str], str] | None = None) -> DropIngest:
+                known: dict[tuple[str, str], str] | None = None,
+                allow_simulated: bool = False) -> DropIngest:
     """Discover, hash, parse and write Parquet for the files of one drop.
 
     ``known`` maps files already recorded to the validator version of their
@@ -64,13 +60,18 @@ def ingest_drop(drop_dir: str, parquet_root: str, warehouse_root: str,
     """
     paths = contracts.discover(Path(drop_dir).resolve())
     progress.stage("ingest", len(paths))
-    return ingest_files(drop_dir, paths, parquet_root, warehouse_root, known)
+    return ingest_files(drop_dir, paths, parquet_root, warehouse_root, known, allow_simulated)
 
 
 def ingest_files(drop_dir: str, paths: list, parquet_root: str, warehouse_root: str,
-                 known: dict[tuple[str, str], str] | None = None) -> DropIngest:
+                 known: dict[tuple[str, str], str] | None = None,
+                 allow_simulated: bool = False) -> DropIngest:
     """:func:`ingest_drop` for some of the drop's files (the pipeline streams a drop in
-    batches of these, so memory does not grow with the drop)."""
+    batches of these, so memory does not grow with the drop).
+
+    A file that carries the simulator's mark (accelcal.provenance) is not taken in
+    unless ``allow_simulated``: it is listed in ``simulated_held`` and nothing of it is
+    written (no Parquet, no record), so a later run with the flag still sees it as new."""
     known = known or {}
     vv = validator_version()
     drop = Path(drop_dir).resolve()
@@ -90,8 +91,15 @@ def ingest_files(drop_dir: str, paths: list, parquet_root: str, warehouse_root: 
             out.known += 1
             progress.advance("ingest", note=Path(src).name)
             continue
+        sim_line = simulated_line(raw)
+        if sim_line is not None and not allow_simulated:
+            out.keys.pop()
+            out.simulated_held.append({"path": src, "line": sim_line})
+            progress.advance("ingest", note=Path(src).name)
+            continue
         base = dict(sha256=sha, source_path=src, drop_name=out.drop_name,
-                    drop_path=out.drop_path, size_bytes=len(raw), validator_version=vv)
+                    drop_path=out.drop_path, size_bytes=len(raw), validator_version=vv,
+                    simulated=sim_line is not None)
         try:
             run = contracts.read_run(src)
         except DropFormatError as e:

@@ -25,7 +25,7 @@ import duckdb
 
 from .lineage import canonical_json
 
-SCHEMA_VERSION = "1"
+SCHEMA_VERSION = "2"
 
 Checkpoint = Callable[[str], None] | None
 
@@ -158,6 +158,7 @@ class RunRecord:
     parquet_path: str | None = None       # relative to the warehouse folder
     refusals: list[Refusal] = field(default_factory=list)
     validator_version: str = ""           # parser + suites version that gave the verdict
+    simulated: bool = False               # carries the simulator's mark (accelcal.provenance)
     revision: int | None = None           # filled by the warehouse
     new: bool = False                     # filled by the warehouse: file row added
     rechecked: bool = False               # filled by the warehouse: new verdict on a known file
@@ -189,6 +190,36 @@ def _transaction(con) -> contextlib.AbstractContextManager:
 def _cp(checkpoint: Checkpoint, step: str) -> None:
     if checkpoint is not None:
         checkpoint(step)
+
+
+#: The runs a campaign is computed from (parameter: the list of campaigns): its current
+#: runs, without the simulated ones when the label also has real runs.
+_PLAN_RUNS = """
+    SELECT c.* FROM current_runs c
+    WHERE list_contains(?, c.campaign)
+      AND (NOT c.simulated OR NOT EXISTS (
+           SELECT 1 FROM current_runs r WHERE r.campaign = c.campaign AND NOT r.simulated))"""
+
+
+# ----------------------------------------------------------------- schema --
+
+def check_schema_version(con, path) -> None:
+    """Raise WarehouseError (one line) unless the open warehouse is empty or written with
+    this SCHEMA_VERSION.  Every reader and writer calls it before touching tables, so an
+    old warehouse gets a sentence, never a traceback about a missing column."""
+    have = con.execute("SELECT count(*) FROM information_schema.tables "
+                       "WHERE table_name = 'schema_info'").fetchall()[0][0]
+    if not have:
+        return
+    row = con.execute("SELECT value FROM schema_info WHERE key = 'schema_version'").fetchall()
+    if row and row[0][0] != SCHEMA_VERSION:
+        older = row[0][0] < SCHEMA_VERSION
+        raise WarehouseError(
+            f"warehouse {path} has schema version {row[0][0]}, this accelcal uses "
+            f"{SCHEMA_VERSION}: " + (
+                "process its drops again into a new warehouse (the raw drops are never "
+                "changed; results are recomputed exactly)" if older else
+                "it was written by a newer accelcal; upgrade accelcal to read it"))
 
 
 # -------------------------------------------------------------- warehouse --
@@ -249,6 +280,7 @@ class Warehouse:
                 raise WarehouseError(f"warehouse {self.path} does not exist")
             con = self._open(read_only=True)
             try:
+                check_schema_version(con, self.path)
                 yield con
             finally:
                 con.close()
@@ -286,16 +318,7 @@ class Warehouse:
 
     def _apply_schema(self, con) -> None:
         sql = resources.files("accelcal.warehouse").joinpath("schema.sql").read_text()
-        have = con.execute(
-            "SELECT count(*) FROM information_schema.tables WHERE table_name = 'schema_info'"
-        ).fetchall()[0][0]
-        if have:
-            row = con.execute(
-                "SELECT value FROM schema_info WHERE key = 'schema_version'").fetchall()
-            if row and row[0][0] != SCHEMA_VERSION:
-                raise WarehouseError(
-                    f"warehouse {self.path} has schema version {row[0][0]}, "
-                    f"this accelcal writes {SCHEMA_VERSION}")
+        check_schema_version(con, self.path)
         with _transaction(con):
             con.execute(sql)
             # operations views (fleet, history, rig comparison): read history tables only
@@ -355,11 +378,12 @@ class Warehouse:
                     con.execute(
                         """INSERT INTO run_files (sha256, source_path, drop_name, drop_path, run_id,
                                revision, test, unit_serial, unit_model, campaign, rig_id, started_at,
-                               size_bytes, ingested_at, flow_run_id)
-                           VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, now(), ?)""",
+                               size_bytes, ingested_at, flow_run_id, simulated)
+                           VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, now(), ?, ?)""",
                         [rec.sha256, rec.source_path, rec.drop_name, rec.drop_path, rec.run_id,
                          rec.revision, rec.test, rec.unit_serial, rec.unit_model, rec.campaign,
-                         rec.rig_id, rec.started_at, rec.size_bytes, flow_run_id]).fetchall()
+                         rec.rig_id, rec.started_at, rec.size_bytes, flow_run_id,
+                         bool(rec.simulated)]).fetchall()
                     rec.new = True
                 have = con.execute(
                     "SELECT count(*) FROM run_verdicts WHERE sha256 = ? AND source_path = ? "
@@ -407,15 +431,18 @@ class Warehouse:
 
     def campaign_plans(self, campaigns: list[str]) -> dict[str, tuple[list[dict[str, Any]], str | None]]:
         """For many campaigns at once: (the runs each is computed from -- newest accepted
-        revision per run_id, ordered by run_id -- and its current result_id or None)."""
+        revision per run_id, ordered by run_id -- and its current result_id or None).
+
+        Simulated runs never join real ones: a campaign label that has real runs is
+        computed from its real runs only (:meth:`simulated_left_out` counts the others)."""
         out: dict[str, tuple[list[dict[str, Any]], str | None]] = {c: ([], None) for c in campaigns}
         if not campaigns:
             return out
         with self.connect() as con:
             cur = con.execute(
-                """SELECT campaign, run_id, revision, sha256, test, rig_id, source_path, parquet_path
-                   FROM current_runs WHERE list_contains(?, campaign)
-                   ORDER BY campaign, run_id""", [list(campaigns)])
+                f"""SELECT campaign, run_id, revision, sha256, test, rig_id, source_path,
+                          parquet_path, simulated
+                   FROM ({_PLAN_RUNS}) ORDER BY campaign, run_id""", [list(campaigns)])
             cols = [d[0] for d in cur.description][1:]
             for row in cur.fetchall():
                 out[row[0]][0].append(dict(zip(cols, row[1:])))
@@ -426,6 +453,17 @@ class Warehouse:
                 out[camp] = (out[camp][0], rid)
         return out
 
+    def simulated_left_out(self, campaigns: list[str]) -> dict[str, int]:
+        """Simulated runs under the label (or run id) of a campaign's real runs: not used."""
+        if not campaigns:
+            return {}
+        with self.connect() as con:
+            return dict(con.execute(
+                f"""SELECT campaign, count(DISTINCT run_id) FROM run_revisions
+                    WHERE list_contains(?, campaign) AND simulated AND status = 'accepted'
+                      AND sha256 NOT IN (SELECT sha256 FROM ({_PLAN_RUNS}))
+                    GROUP BY campaign""", [list(campaigns), list(campaigns)]).fetchall())
+
     # -- results -------------------------------------------------------------
 
     def store_result(self, result, *, result_id: str, inputs: list[dict[str, Any]],
@@ -434,11 +472,14 @@ class Warehouse:
         """Store one CampaignResult with its lineage in ONE transaction.
 
         Returns 'unchanged' (already current: nothing written), 'new' (result
-        inserted and made current) or 'reactivated' (an earlier identical
-        result made current again).
+        inserted and made current), 'reactivated' (an earlier identical result made
+        current again) or 'simulated-not-current' (a result computed from simulated
+        runs, stored but not made current because its unit has a complete real
+        result; nothing is written when it is already stored).
         """
         params_json = canonical_json(parameters)
         campaign = result.campaign
+        simulated = any(bool(i.get("simulated")) for i in inputs)
         with self.connect() as con, _transaction(con):
             cur = con.execute(
                 "SELECT result_id FROM result_activations WHERE campaign = ? "
@@ -449,7 +490,11 @@ class Warehouse:
                                  [result_id]).fetchall()[0][0]
             if not exists:
                 self._insert_result(con, result, result_id, inputs, code_version,
-                                    params_json, flow_run_id, checkpoint)
+                                    params_json, flow_run_id, checkpoint, simulated)
+            if simulated and con.execute(
+                    "SELECT count(*) FROM real_units WHERE unit_serial = ?",
+                    [result.unit_serial]).fetchall()[0][0]:
+                return "simulated-not-current"
             _cp(checkpoint, "activate")
             con.execute(
                 "INSERT INTO result_activations VALUES (nextval('activation_seq'), ?, ?, now(), ?)",
@@ -459,18 +504,20 @@ class Warehouse:
 
     @staticmethod
     def _insert_result(con, result, result_id, inputs, code_version, params_json,
-                       flow_run_id, checkpoint) -> None:
+                       flow_run_id, checkpoint, simulated=False) -> None:
         camp = result.campaign
+        completeness = getattr(result, "completeness", "complete") or "complete"
         con.execute(
             """INSERT INTO results (result_id, campaign, unit_serial, unit_model, tests, rig_ids,
                    computed_at, flow_run_id, code_version, parameters, science_parameters,
-                   input_sha256, extras)
-               VALUES (?, ?, ?, ?, ?, ?, now(), ?, ?, ?, ?, ?, ?)""",
+                   input_sha256, extras, simulated, completeness, completeness_reasons)
+               VALUES (?, ?, ?, ?, ?, ?, now(), ?, ?, ?, ?, ?, ?, ?, ?, ?)""",
             [result_id, camp, result.unit_serial, result.unit_model,
              canonical_json(list(result.tests)), canonical_json(list(result.rig_ids)),
              flow_run_id, code_version, params_json, canonical_json(result.parameters),
              canonical_json(sorted(i["sha256"] for i in inputs)),
-             canonical_json(result.extras)]).fetchall()
+             canonical_json(result.extras), bool(simulated), completeness,
+             canonical_json(list(getattr(result, "completeness_reasons", []) or []))]).fetchall()
         _cp(checkpoint, "results")
         con.executemany(
             "INSERT INTO lineage VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
@@ -479,11 +526,12 @@ class Warehouse:
              for i in sorted(inputs, key=lambda i: i["sha256"])])
         _cp(checkpoint, "lineage")
         rows = [[result_id, k, result.unit_serial, camp, c.name, _f(c.value),
-                 _f(c.std_uncertainty), c.unit, c.method, c.rig_id, _f(c.dof), c.note]
+                 _f(c.std_uncertainty), c.unit, c.method, c.rig_id, _f(c.dof), c.note,
+                 bool(getattr(c, "adopted", False))]
                 for k, c in enumerate(result.coefficients)]
         if rows:
             con.executemany("INSERT INTO coefficient_history VALUES "
-                            "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", rows)
+                            "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", rows)
         _cp(checkpoint, "coefficients")
         rows = [[result_id, k, camp, r.rig_id, r.polarity, r.method, r.model_order,
                  _f(r.g_max), _f(r.radius_m), _f(r.std_uncertainty_m), r.note]
@@ -515,12 +563,50 @@ class Warehouse:
             con.executemany("INSERT INTO flag_history VALUES (?, ?, ?, ?)", rows)
         _cp(checkpoint, "details")
 
+    # -- quarantine ------------------------------------------------------------
+
+    def campaign_action(self, campaign: str, action: str, why: str,
+                        by: str | None = None) -> dict[str, Any]:
+        """Append 'exclude' or 'include' for a campaign to the audit trail (campaign_actions).
+
+        Refuses (WarehouseError, one line) an unknown campaign, an empty reason, and an
+        action that would change nothing (excluding an excluded campaign).  Nothing is
+        ever updated or deleted: the latest action is the campaign's state.
+        """
+        if action not in ("exclude", "include"):
+            raise WarehouseError(f"unknown action {action!r}: exclude or include")
+        if not (why or "").strip():
+            raise WarehouseError("give a reason (--why): the audit trail needs one")
+        with self.connect() as con, _transaction(con):
+            known = con.execute(
+                "SELECT (SELECT count(*) FROM results WHERE campaign = ?) + "
+                "(SELECT count(*) FROM run_files WHERE campaign = ?)",
+                [campaign, campaign]).fetchall()[0][0]
+            if not known:
+                raise WarehouseError(f"no campaign {campaign!r} in warehouse {self.path}")
+            last = con.execute(
+                "SELECT action, why, acted_at, acted_by FROM campaign_actions WHERE campaign = ? "
+                "ORDER BY seq DESC LIMIT 1", [campaign]).fetchall()
+            state = last[0][0] if last else "include"
+            if state == action:
+                since = (f" since {last[0][2]:%Y-%m-%d %H:%M} by {last[0][3] or '?'}: {last[0][1]}"
+                         if last else "")
+                raise WarehouseError(f"campaign {campaign!r} is already "
+                                     f"{'excluded' if action == 'exclude' else 'included'}{since}; "
+                                     "nothing recorded")
+            row = con.execute(
+                "INSERT INTO campaign_actions VALUES (nextval('campaign_action_seq'), ?, ?, ?, "
+                "now(), ?) RETURNING seq, acted_at", [campaign, action, why.strip(), by]).fetchall()
+        return {"seq": row[0][0], "acted_at": row[0][1], "campaign": campaign, "action": action,
+                "why": why.strip(), "by": by}
+
     # -- reading ---------------------------------------------------------------
 
     def query(self, sql: str, params: list | None = None) -> list[dict[str, Any]]:
         """Read-only helper (opens read-only; fails if a writer is active)."""
         con = self._open(read_only=True)
         try:
+            check_schema_version(con, self.path)
             cur = con.execute(sql, params or [])
             cols = [d[0] for d in cur.description]
             return [dict(zip(cols, r)) for r in cur.fetchall()]
@@ -531,7 +617,7 @@ class Warehouse:
         """Row counts of every base table (for idempotency checks)."""
         tables = ["run_files", "run_verdicts", "refusals", "results", "result_activations", "lineage",
                   "coefficient_history", "radius_history", "adequacy_history",
-                  "budget_history", "alignment_history", "flag_history"]
+                  "budget_history", "alignment_history", "flag_history", "campaign_actions"]
         with self.connect() as con:
             return {t: con.execute(f"SELECT count(*) FROM {t}").fetchall()[0][0] for t in tables}
 

@@ -9,6 +9,13 @@
 --   * Which result is current for a campaign is an append-only event
 --     (result_activations); the latest activation wins.  As-of queries use the
 --     *_as_of(ts) table macros.
+--   * Simulated data (files carrying the simulator's mark, accelcal.provenance)
+--     are kept apart: a result computed from them is `simulated`, and it is never
+--     current for a unit that has a complete real result.
+--   * Schema version 2 (schema_info): run_files.simulated, results.simulated /
+--     completeness / completeness_reasons, coefficient_history.adopted,
+--     campaign_actions.  A version-1 warehouse is refused with a one-line message
+--     (accelcal.warehouse.db): reprocess its drops into a new warehouse.
 
 CREATE TABLE IF NOT EXISTS schema_info (
     key   VARCHAR PRIMARY KEY,
@@ -36,6 +43,7 @@ CREATE TABLE IF NOT EXISTS run_files (
     size_bytes    BIGINT    NOT NULL,
     ingested_at   TIMESTAMPTZ NOT NULL,
     flow_run_id   VARCHAR,
+    simulated     BOOLEAN   NOT NULL DEFAULT false,   -- the file carries the simulator's mark
     PRIMARY KEY (sha256, source_path)
 );
 
@@ -84,7 +92,11 @@ CREATE TABLE IF NOT EXISTS results (
     parameters     VARCHAR NOT NULL, -- JSON: pipeline parameters (enter result_id)
     science_parameters VARCHAR,      -- JSON: CampaignResult.parameters
     input_sha256   VARCHAR NOT NULL, -- JSON sorted list
-    extras         VARCHAR           -- JSON: CampaignResult.extras
+    extras         VARCHAR,          -- JSON: CampaignResult.extras
+    simulated      BOOLEAN NOT NULL DEFAULT false,  -- computed from simulated runs
+    completeness   VARCHAR NOT NULL DEFAULT 'complete'
+                   CHECK (completeness IN ('complete', 'incomplete')),
+    completeness_reasons VARCHAR     -- JSON list: what the runs could not determine
 );
 
 -- Append-only: "result R became the current result of campaign C".
@@ -123,6 +135,8 @@ CREATE TABLE IF NOT EXISTS coefficient_history (
     rig_id           VARCHAR,
     dof              DOUBLE,
     note             VARCHAR,
+    adopted          BOOLEAN NOT NULL DEFAULT false,  -- the value the lab adopts (one per
+                                                      -- result and coefficient name)
     PRIMARY KEY (result_id, seq)
 );
 
@@ -193,6 +207,19 @@ CREATE TABLE IF NOT EXISTS flag_history (
     PRIMARY KEY (result_id, seq)
 );
 
+-- Append-only audit trail of quarantine decisions: a campaign is excluded from
+-- history, En, the fleet views and the calibration view from its latest
+-- 'exclude' until an 'include' (accelcal campaign exclude|include).
+CREATE SEQUENCE IF NOT EXISTS campaign_action_seq START 1;
+CREATE TABLE IF NOT EXISTS campaign_actions (
+    seq       BIGINT PRIMARY KEY,
+    campaign  VARCHAR NOT NULL,
+    action    VARCHAR NOT NULL CHECK (action IN ('exclude', 'include')),
+    why       VARCHAR NOT NULL CHECK (length(trim(why)) > 0),
+    acted_at  TIMESTAMPTZ NOT NULL,
+    acted_by  VARCHAR
+);
+
 -- ---------------------------------------------------------------- views ----
 
 -- Every file with its latest verdict (the issue's `runs` table).
@@ -200,7 +227,7 @@ CREATE OR REPLACE VIEW runs AS
 SELECT f.run_id, f.revision, f.sha256, f.source_path, f.test, f.unit_serial, f.campaign,
        v.status, v.reason, f.ingested_at, f.drop_name, f.drop_path, f.unit_model, f.rig_id,
        f.started_at, f.size_bytes, v.n_rows, v.parquet_path, v.validator_version,
-       v.checked_at, f.flow_run_id
+       v.checked_at, f.flow_run_id, f.simulated
 FROM run_files f
 JOIN (SELECT * EXCLUDE (rk) FROM (
         SELECT *, row_number() OVER (PARTITION BY sha256, source_path ORDER BY seq DESC) AS rk
@@ -213,14 +240,16 @@ SELECT run_id, revision, sha256,
        any_value(test) AS test, any_value(unit_serial) AS unit_serial,
        any_value(campaign) AS campaign, any_value(rig_id) AS rig_id,
        any_value(status) AS status, any_value(parquet_path) AS parquet_path,
-       min(source_path) AS source_path, min(ingested_at) AS ingested_at
+       min(source_path) AS source_path, min(ingested_at) AS ingested_at,
+       bool_or(simulated) AS simulated
 FROM runs WHERE run_id IS NOT NULL
 GROUP BY run_id, revision, sha256;
 
--- The runs a campaign is computed from: per run_id, its newest accepted revision.
+-- The runs a campaign is computed from: per run_id, its newest accepted revision;
+-- a simulated revision never supersedes a real one.
 CREATE OR REPLACE VIEW current_runs AS
 SELECT * EXCLUDE (rk) FROM (
-    SELECT *, row_number() OVER (PARTITION BY run_id ORDER BY revision DESC) AS rk
+    SELECT *, row_number() OVER (PARTITION BY run_id ORDER BY simulated, revision DESC) AS rk
     FROM run_revisions WHERE status = 'accepted'
 ) WHERE rk = 1;
 
@@ -231,20 +260,39 @@ SELECT a.campaign, a.result_id, a.seq, a.activated_at AS valid_from,
        lead(a.result_id)    OVER (PARTITION BY a.campaign ORDER BY a.seq) AS superseded_by
 FROM result_activations a;
 
--- Results with their status (is_current, superseded_by of the latest activation).
-CREATE OR REPLACE VIEW result_history AS
-SELECT r.*, v.valid_from, v.valid_to, v.superseded_by, (v.valid_to IS NULL) AS is_current
-FROM results r JOIN result_validity v USING (result_id, campaign);
+-- Units that have a complete real calibration stored (current or not): a simulated
+-- result is never current for them.
+CREATE OR REPLACE VIEW real_units AS
+SELECT DISTINCT unit_serial FROM results WHERE NOT simulated AND completeness = 'complete';
 
 CREATE OR REPLACE VIEW results_current AS
 SELECT r.* FROM results r
 JOIN result_validity v USING (result_id, campaign)
-WHERE v.valid_to IS NULL;
+WHERE v.valid_to IS NULL
+  AND NOT (r.simulated AND r.unit_serial IN (SELECT unit_serial FROM real_units));
+
+-- Results with their status (is_current, superseded_by of the latest activation).
+-- A result that was never made current (a simulated one for a unit with a real
+-- calibration) is listed once, with NULL validity.
+CREATE OR REPLACE VIEW result_history AS
+SELECT r.*, v.valid_from, v.valid_to, v.superseded_by,
+       (r.result_id IN (SELECT result_id FROM results_current)) AS is_current
+FROM results r LEFT JOIN result_validity v USING (result_id, campaign);
+
+-- Quarantine as of ts (NULL = now): the campaigns whose latest action is 'exclude'.
+CREATE OR REPLACE MACRO excluded_campaigns_as_of(ts) AS TABLE
+SELECT campaign, why, acted_at, acted_by FROM (
+    SELECT *, row_number() OVER (PARTITION BY campaign ORDER BY seq DESC) AS rk
+    FROM campaign_actions WHERE ts IS NULL OR acted_at <= ts
+) WHERE rk = 1 AND action = 'exclude';
+
+CREATE OR REPLACE VIEW excluded_campaigns AS
+SELECT * FROM excluded_campaigns_as_of(NULL);
 
 CREATE OR REPLACE VIEW coefficients AS
 SELECT h.unit_serial, h.campaign, h.name, h.value, h.std_uncertainty, h.unit, h.method,
-       h.result_id, h.rig_id, h.dof, h.note
-FROM coefficient_history h JOIN results_current USING (result_id)
+       h.result_id, h.rig_id, h.dof, h.note, h.adopted, c.completeness, c.simulated
+FROM coefficient_history h JOIN results_current c USING (result_id)
 ORDER BY h.campaign, h.seq;
 
 CREATE OR REPLACE VIEW radii AS
@@ -272,11 +320,14 @@ ORDER BY h.campaign, h.seq;
 -- As-of queries: the state the warehouse showed at time ts.
 CREATE OR REPLACE MACRO results_as_of(ts) AS TABLE
 SELECT r.* FROM results r JOIN result_validity v USING (result_id, campaign)
-WHERE v.valid_from <= ts AND (v.valid_to IS NULL OR v.valid_to > ts);
+WHERE v.valid_from <= ts AND (v.valid_to IS NULL OR v.valid_to > ts)
+  AND NOT (r.simulated AND r.unit_serial IN (
+      SELECT unit_serial FROM results WHERE NOT simulated AND completeness = 'complete'
+      AND computed_at <= ts));
 
 CREATE OR REPLACE MACRO coefficients_as_of(ts) AS TABLE
 SELECT h.unit_serial, h.campaign, h.name, h.value, h.std_uncertainty, h.unit, h.method,
-       h.result_id
+       h.result_id, h.adopted
 FROM coefficient_history h
 WHERE h.result_id IN (SELECT result_id FROM results_as_of(ts));
 

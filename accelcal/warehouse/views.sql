@@ -10,9 +10,15 @@
 --   * expanded_uncertainty U = 2 u (coverage factor k = 2).
 --   * calibrated_at = started_at of the earliest input run of the result
 --     (from lineage -> run_files), falling back to the result's computed_at.
---   * A "coefficient series" is (unit_serial, name, method): the same quantity
---     measured the same way.  rig_id is kept alongside (a series may move
---     from one centrifuge to another; rig_comparison is the view for that).
+--   * History, En, the fleet views and the rig comparison read `calibration`:
+--     the ADOPTED value of each coefficient (one per result and name, see
+--     CoefficientResult.adopted) of the current results that are complete, real
+--     (not simulated) and not excluded (campaign_actions).  The other methods'
+--     values stay in coefficient_versions / coefficients as cross-checks.
+--   * A "coefficient series" is (unit_serial, name): the calibrations of one
+--     coefficient of one unit, whatever method was adopted (method is a column).
+--     rig_id is kept alongside (a series may move from one centrifuge to
+--     another; rig_comparison is the view for that).
 --   * Every *_as_of(ts) macro shows what the warehouse said at time ts:
 --     superseded results stay queryable, nothing is overwritten.  ts = NULL
 --     means "current" (the plain views are exactly *_as_of(NULL)).
@@ -28,7 +34,8 @@ LEFT JOIN (SELECT sha256, any_value(started_at) AS started_at
            FROM run_files GROUP BY sha256) f USING (sha256)
 GROUP BY l.result_id;
 
--- Every coefficient of every result ever stored, current or superseded.
+-- Every coefficient of every result ever stored, current or superseded, with what
+-- decides whether it is a calibration: adopted, completeness, simulated, excluded.
 CREATE OR REPLACE VIEW coefficient_versions AS
 SELECT h.unit_serial, r.unit_model, h.campaign, h.name, h.method, h.rig_id,
        h.value, h.std_uncertainty, 2.0 * h.std_uncertainty AS expanded_uncertainty,
@@ -36,21 +43,34 @@ SELECT h.unit_serial, r.unit_model, h.campaign, h.name, h.method, h.rig_id,
        coalesce(d.first_run_at, r.computed_at) AS calibrated_at, d.last_run_at,
        h.result_id, r.computed_at,
        (h.result_id IN (SELECT result_id FROM results_current)) AS is_current,
-       h.seq
+       h.seq, h.adopted, r.completeness, r.simulated,
+       (h.campaign IN (SELECT campaign FROM excluded_campaigns)) AS excluded
 FROM coefficient_history h
 JOIN results r USING (result_id)
 LEFT JOIN result_dates d USING (result_id);
+
+-- The calibration as of ts (NULL = now): the adopted coefficients of the results
+-- current at ts that are complete, real and not excluded at ts.
+CREATE OR REPLACE MACRO calibration_as_of(ts) AS TABLE
+SELECT unit_serial, unit_model, name, method, rig_id, campaign, calibrated_at,
+       value, std_uncertainty, expanded_uncertainty, unit, dof, result_id, computed_at, seq
+FROM coefficient_versions
+WHERE adopted AND completeness = 'complete' AND NOT simulated
+  AND CASE WHEN ts IS NULL THEN is_current
+           ELSE result_id IN (SELECT result_id FROM results_as_of(ts)) END
+  AND campaign NOT IN (SELECT campaign FROM excluded_campaigns_as_of(ts));
+
+CREATE OR REPLACE VIEW calibration AS
+SELECT * EXCLUDE (seq) FROM calibration_as_of(NULL);
 
 -- A unit's history of every coefficient across campaigns, as of ts (NULL = now).
 -- calibration_no counts the calibrations of the series, oldest = 1.
 CREATE OR REPLACE MACRO unit_history_as_of(ts) AS TABLE
 SELECT unit_serial, unit_model, name, method, rig_id, campaign, calibrated_at,
        value, std_uncertainty, expanded_uncertainty, unit, dof, result_id, computed_at,
-       row_number() OVER (PARTITION BY unit_serial, name, method
+       row_number() OVER (PARTITION BY unit_serial, name
                           ORDER BY calibrated_at, campaign, rig_id, seq) AS calibration_no
-FROM coefficient_versions
-WHERE CASE WHEN ts IS NULL THEN is_current
-           ELSE result_id IN (SELECT result_id FROM results_as_of(ts)) END;
+FROM calibration_as_of(ts);
 
 CREATE OR REPLACE VIEW unit_history AS
 SELECT * FROM unit_history_as_of(NULL);
@@ -60,7 +80,7 @@ SELECT * FROM unit_history_as_of(NULL);
 -- exceeds_uncertainty: |En| > 1, the change is larger than the combined
 -- expanded uncertainty can explain.
 CREATE OR REPLACE MACRO coefficient_changes_as_of(ts) AS TABLE
-SELECT unit_serial, unit_model, name, method, unit,
+SELECT unit_serial, unit_model, name, method, unit, prev_method,
        prev_campaign, campaign, prev_rig_id, rig_id, (prev_rig_id = rig_id) AS same_rig,
        prev_calibrated_at, calibrated_at,
        prev_value, value, value - prev_value AS change,
@@ -76,23 +96,24 @@ SELECT unit_serial, unit_model, name, method, unit,
 FROM (
     SELECT *,
            lag(campaign)             OVER w AS prev_campaign,
+           lag(method)               OVER w AS prev_method,
            lag(rig_id)               OVER w AS prev_rig_id,
            lag(calibrated_at)        OVER w AS prev_calibrated_at,
            lag(value)                OVER w AS prev_value,
            lag(expanded_uncertainty) OVER w AS prev_expanded_uncertainty,
            lag(result_id)            OVER w AS prev_result_id
     FROM unit_history_as_of(ts)
-    WINDOW w AS (PARTITION BY unit_serial, name, method ORDER BY calibration_no)
+    WINDOW w AS (PARTITION BY unit_serial, name ORDER BY calibration_no)
 )
 WHERE prev_value IS NOT NULL;
 
 CREATE OR REPLACE VIEW coefficient_changes AS
 SELECT * FROM coefficient_changes_as_of(NULL);
 
--- The latest calibration of every (unit, coefficient, method, rig): the fleet's state.
+-- The latest calibration of every (unit, coefficient, rig): the fleet's state.
 CREATE OR REPLACE MACRO fleet_latest_as_of(ts) AS TABLE
 SELECT * EXCLUDE (rk) FROM (
-    SELECT *, row_number() OVER (PARTITION BY unit_serial, name, method, rig_id
+    SELECT *, row_number() OVER (PARTITION BY unit_serial, name, rig_id
                                  ORDER BY calibration_no DESC) AS rk
     FROM unit_history_as_of(ts)
 ) WHERE rk = 1;
@@ -100,7 +121,8 @@ SELECT * EXCLUDE (rk) FROM (
 CREATE OR REPLACE VIEW fleet_latest AS
 SELECT * FROM fleet_latest_as_of(NULL);
 
--- Fleet statistics per unit model and rig (latest calibration of each unit).
+-- Fleet statistics per unit model, rig and adopted method (latest calibration of
+-- each unit).
 -- Classical: mean, sample sd, mean +- 3 sd.  Control limits (used for the
 -- outlier flag) are robust: median +- 3 * 1.4826 * MAD, because a gross
 -- outlier inflates the sd and hides itself (with n units no point can lie
@@ -138,7 +160,7 @@ WHERE s.lcl IS NOT NULL AND s.robust_sd > 0 AND (l.value < s.lcl OR l.value > s.
 CREATE OR REPLACE VIEW fleet_outliers AS
 SELECT * FROM fleet_outliers_as_of(NULL);
 
--- The same unit measured on two or more rigs (e.g. two centrifuges), as in
+-- The same unit's adopted value measured on two or more rigs (e.g. two centrifuges), as in
 -- paper 000 Table 5: reference value = arithmetic mean of the rigs' latest
 -- values, u_ref = sqrt(sum u_i^2) / n (mean of independent results),
 -- En = (x_i - x_ref) / sqrt(U_i^2 + U_ref^2), U = 2u.
@@ -146,11 +168,11 @@ CREATE OR REPLACE MACRO rig_comparison_as_of(ts) AS TABLE
 WITH per_rig AS (
     SELECT * FROM fleet_latest_as_of(ts)
 ), ref AS (
-    SELECT unit_serial, name, method, count(*) AS n_rigs,
+    SELECT unit_serial, name, count(*) AS n_rigs,
            avg(value) AS reference_value,
            sqrt(sum(std_uncertainty ^ 2)) / count(*) AS reference_std_uncertainty
     FROM per_rig
-    GROUP BY unit_serial, name, method
+    GROUP BY unit_serial, name
     HAVING count(DISTINCT rig_id) >= 2
 )
 SELECT p.unit_serial, p.unit_model, p.name, p.method, p.rig_id, p.campaign, p.calibrated_at,
@@ -163,14 +185,14 @@ SELECT p.unit_serial, p.unit_model, p.name, p.method, p.rig_id, p.campaign, p.ca
          / nullif(sqrt(p.expanded_uncertainty ^ 2 + (2.0 * r.reference_std_uncertainty) ^ 2), 0)) > 1
          AS exceeds_uncertainty,
        p.result_id
-FROM per_rig p JOIN ref r USING (unit_serial, name, method);
+FROM per_rig p JOIN ref r USING (unit_serial, name);
 
 CREATE OR REPLACE VIEW rig_comparison AS
 SELECT * FROM rig_comparison_as_of(NULL);
 
 -- Pairwise form for two rigs a < b: En = (x_a - x_b) / sqrt(U_a^2 + U_b^2).
 CREATE OR REPLACE VIEW rig_pairs AS
-SELECT a.unit_serial, a.unit_model, a.name, a.method, a.unit,
+SELECT a.unit_serial, a.unit_model, a.name, a.method AS method_a, b.method AS method_b, a.unit,
        a.rig_id AS rig_a, b.rig_id AS rig_b, a.campaign AS campaign_a, b.campaign AS campaign_b,
        a.value AS value_a, b.value AS value_b,
        a.expanded_uncertainty AS expanded_uncertainty_a,
@@ -183,5 +205,5 @@ SELECT a.unit_serial, a.unit_model, a.name, a.method, a.unit,
          AS exceeds_uncertainty
 FROM fleet_latest a
 JOIN fleet_latest b
-  ON a.unit_serial = b.unit_serial AND a.name = b.name AND a.method = b.method
+  ON a.unit_serial = b.unit_serial AND a.name = b.name
  AND a.rig_id < b.rig_id;

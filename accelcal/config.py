@@ -1,0 +1,115 @@
+"""The lab's own facts for certificates: ``accelcal.toml``.
+
+Looked up in this order (the first that exists wins): the ``--config`` path, then
+``./accelcal.toml`` (the working folder), then ``accelcal.toml`` beside the warehouse.
+Nothing is invented when it is absent: :func:`lab_config` returns ``None`` for every
+missing field and the certificate prints a clearly marked placeholder instead, with a
+"DRAFT" banner.  Example (every key optional)::
+
+    [lab]
+    name = "Inertial Metrology Laboratory"
+    address = "12 Example Road, Wuhan 430074, China"
+    location = "Building 3, centrifuge hall"        # where the calibrations are made
+    accreditation = "CNAS L0000 (ISO/IEC 17025:2017)"
+
+    [certificate]
+    number_prefix = "IML-ACC"         # certificate number = <prefix>-<first 12 of result id>
+    approver = "Dr A. N. Other"       # who authorises certificates (ISO/IEC 17025 7.8.2.1 o)
+    approver_role = "Head of laboratory"
+    customer = "Customer name, address"   # or per certificate: accelcal report --customer
+
+    [traceability]
+    statement = "..."                 # how the results are traceable to the SI
+    [traceability.rigs]               # per rig: its reference standards and their certificates
+    "LXJ-100" = "arm radius by CMM, cert. ...; rate by encoder, cert. ..."
+    "DH-1" = "dividing head angle, cert. ..."
+"""
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+CONFIG_NAME = "accelcal.toml"
+DEFAULT_NUMBER_PREFIX = "ACC"
+
+
+class ConfigError(RuntimeError):
+    """The config file exists but cannot be used (one-line reason)."""
+
+
+@dataclass
+class LabConfig:
+    path: Path | None = None            # the file read, None when there is none
+    name: str | None = None
+    address: str | None = None
+    location: str | None = None
+    accreditation: str | None = None
+    number_prefix: str = DEFAULT_NUMBER_PREFIX
+    approver: str | None = None
+    approver_role: str | None = None
+    customer: str | None = None
+    traceability: str | None = None
+    rig_traceability: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def missing(self) -> list[str]:
+        """What a signed certificate needs and the config does not give."""
+        need = {"[lab] name": self.name, "[lab] address": self.address,
+                "[certificate] approver": self.approver}
+        return [k for k, v in need.items() if not v]
+
+
+def find_config(explicit: str | Path | None = None,
+                warehouse: str | Path | None = None) -> Path | None:
+    """The config file to use: ``explicit`` (must exist), ./accelcal.toml, beside the
+    warehouse; None when there is none."""
+    if explicit is not None:
+        p = Path(explicit).expanduser()
+        if not p.is_file():
+            raise ConfigError(f"config file {p} does not exist")
+        return p
+    candidates = [Path.cwd() / CONFIG_NAME]
+    if warehouse is not None:
+        candidates.append(Path(warehouse).expanduser().resolve().parent / CONFIG_NAME)
+    return next((c for c in candidates if c.is_file()), None)
+
+
+def _str(d: dict[str, Any], key: str, where: str, path: Path) -> str | None:
+    v = d.get(key)
+    if v is None:
+        return None
+    if not isinstance(v, str):
+        raise ConfigError(f"{path}: {where}.{key} must be text")
+    return v.strip() or None
+
+
+def lab_config(explicit: str | Path | None = None,
+               warehouse: str | Path | None = None) -> LabConfig:
+    path = find_config(explicit, warehouse)
+    if path is None:
+        return LabConfig()
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError(f"cannot read config {path}: {e}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"config {path} is not valid TOML: {e}") from None
+    lab, cert, tr = (raw.get(k) or {} for k in ("lab", "certificate", "traceability"))
+    for name, sec in (("lab", lab), ("certificate", cert), ("traceability", tr)):
+        if not isinstance(sec, dict):
+            raise ConfigError(f"{path}: [{name}] must be a table")
+    rigs = tr.get("rigs") or {}
+    if not isinstance(rigs, dict) or not all(isinstance(v, str) for v in rigs.values()):
+        raise ConfigError(f"{path}: [traceability.rigs] must map rig ids to text")
+    return LabConfig(
+        path=path, name=_str(lab, "name", "lab", path), address=_str(lab, "address", "lab", path),
+        location=_str(lab, "location", "lab", path),
+        accreditation=_str(lab, "accreditation", "lab", path),
+        number_prefix=_str(cert, "number_prefix", "certificate", path) or DEFAULT_NUMBER_PREFIX,
+        approver=_str(cert, "approver", "certificate", path),
+        approver_role=_str(cert, "approver_role", "certificate", path),
+        customer=_str(cert, "customer", "certificate", path),
+        traceability=_str(tr, "statement", "traceability", path),
+        rig_traceability={str(k): v.strip() for k, v in rigs.items() if v.strip()})

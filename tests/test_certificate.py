@@ -1,0 +1,179 @@
+"""The certificate holds what ISO/IEC 17025 7.8.2-7.8.4 asks (issue 11), for the three sample
+campaigns (centrifuge + tumble, thermal, sine), in the HTML and in the PDF the same headless
+chromium prints (skipped without chromium; the PDF text check also needs pdftotext)."""
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+
+import pytest
+
+from accelcal import cli
+from accelcal.ops.report import build_report, report_filename
+
+CAMPS = {"centrifuge": "SNJ-1-03/2026-11-20", "thermal": "HUST-M-07/2026-11-18",
+         "sine": "QA-5512/2026-11-19"}
+LAB = {"name": "Inertial Metrology Lab of Example", "address": "12 Example Road, Wuhan",
+       "approver": "Dr A. Approver"}
+CONFIG = f"""
+[lab]
+name = "{LAB['name']}"
+address = "{LAB['address']}"
+location = "Centrifuge hall 3"
+[certificate]
+number_prefix = "IML"
+approver = "{LAB['approver']}"
+approver_role = "Head of laboratory"
+customer = "Example Customer Ltd"
+[traceability]
+statement = "Traceable to the SI through the national standards of length, time and angle."
+[traceability.rigs]
+"LXJ-100" = "arm radius cert. R-1"
+"""
+#: 7.8.2.1 / 7.8.4 elements, as the certificate words them (in every certificate).
+ELEMENTS = ["Calibration Certificate", "Certificate No. IML-", LAB["name"], LAB["address"],
+            "Centrifuge hall 3", "Example Customer Ltd", LAB["approver"], "Head of laboratory",
+            "Item calibrated", "Serial number", "Method", "Calibration performed", "Date of issue",
+            "Environmental conditions", "instrument temperature", "Traceability",
+            "Traceable to the SI", "U (k=2)", "coverage probability", "approximately 95 %",
+            "relate only to the item", "Uncertainty budgets", "combined standard uncertainty",
+            "expanded uncertainty U, k = 2", "Monte Carlo", "Model adequacy",
+            "Other methods", "Lineage", "End of certificate"]
+
+
+@pytest.fixture(scope="module")
+def lab(tmp_path_factory, examples):
+    from accelcal.flows.pipeline import run_pipeline
+    d = tmp_path_factory.mktemp("cert")
+    run_pipeline([str(examples / x) for x in
+                  ("drop-2026-11-20", "drop-2026-11-18-thermal", "drop-2026-11-19-sine")],
+                 d / "lab.duckdb", engine="local")
+    (d / "accelcal.toml").write_text(CONFIG)          # found beside the warehouse
+    return d / "lab.duckdb"
+
+
+@pytest.fixture(scope="module")
+def htmls(lab, tmp_path_factory):
+    out = tmp_path_factory.mktemp("html")
+    return {k: build_report(lab, c, out).read_text() for k, c in CAMPS.items()}
+
+
+def _sections(html: str) -> tuple[list[int], list[str]]:
+    heads = re.findall(r"<h2>([^<]*)</h2>", html)
+    nums = [int(m.group(1)) for h in heads if (m := re.match(r"(\d+) ", h))]
+    annex = [m.group(1) for h in heads if (m := re.match(r"Annex ([A-Z]) ", h))]
+    return nums, annex
+
+
+@pytest.mark.parametrize("kind", sorted(CAMPS))
+def test_html_has_every_element_and_no_section_gap(htmls, kind):
+    html = htmls[kind]
+    for e in ELEMENTS:
+        assert e in html, (kind, e)
+    assert "DRAFT" not in html and "placeholder'>[laboratory" not in html
+    nums, annex = _sections(html)
+    assert nums == list(range(1, len(nums) + 1)) and len(nums) >= 9, nums
+    assert annex == [chr(ord("A") + k) for k in range(len(annex))] and annex
+    assert len(re.findall(r"data:image/png;base64,", html)) >= 1, kind   # residual plot(s)
+    assert not re.search(r"(src|href)\s*=\s*['\"]?(https?:)?//", html) and "<script" not in html
+
+
+def test_thermal_certificate_dates_numbers_and_no_centrifuge_parameters(htmls):
+    html = htmls["thermal"]
+    # the data's dates: started_at to the last reading (17.5 h later), not start -> start
+    assert "2026-11-20 00:00 (UTC+08:00) to 2026-11-20 17:29 (UTC+08:00)" in html
+    assert "The campaign label names 2026-11-18" in html
+    assert re.search(r"<td>K1T</td><td class=\"num\">-119\.987</td><td class=\"num\">0\.030</td>",
+                     html)
+    for word in ("radius", "mount_angle_tolerance", "Alignment", "centrifuge runs"):
+        assert word not in html, word
+    assert "20.15 / 30.30 / 40.46" in html                  # instrument temperature from temp_c
+    assert "budget not itemised" in html
+
+
+def test_sine_certificate_has_its_own_adequacy(htmls):
+    html = htmls["sine"]
+    assert "no centrifuge runs" not in html
+    assert "tool-error terms (joint F test)" in html
+    assert "Residual rms of the joint sine fit per run" in html
+
+
+def test_centrifuge_budget_and_monte_carlo(htmls):
+    html = htmls["centrifuge"]
+    assert html.count("combined standard uncertainty u<sub>c</sub>") == html.count(
+        "expanded uncertainty U, k = 2") >= 10
+    assert "c2(IA-PA 0/180)" in html                         # itemised budget rows
+    assert re.search(r"<b>\d+ of \d+ budgets pass</b>", html)
+    assert "FAIL" in html and "PASS" in html
+
+
+def test_missing_config_gives_marked_placeholders(tmp_path, lab, monkeypatch, examples):
+    import shutil as sh
+    wh = tmp_path / "lab.duckdb"
+    sh.copy(lab, wh)
+    monkeypatch.chdir(tmp_path)
+    html = build_report(wh, CAMPS["thermal"], tmp_path / "out").read_text()
+    assert "DRAFT — not valid as a certificate" in html
+    assert "[laboratory name: set [lab] name in accelcal.toml]" in html
+    assert LAB["name"] not in html
+    # ./accelcal.toml is found before the one beside the warehouse; --config before both
+    (tmp_path / "accelcal.toml").write_text('[lab]\nname = "Here Lab"\n')
+    assert "Here Lab" in build_report(wh, CAMPS["thermal"], tmp_path / "o2").read_text()
+    other = tmp_path / "other.toml"
+    other.write_text('[lab]\nname = "Given Lab"\n')
+    assert "Given Lab" in build_report(wh, CAMPS["thermal"], tmp_path / "o3",
+                                       config=other).read_text()
+
+
+def test_report_by_short_result_id_and_safe_names(lab, tmp_path, capsys):
+    import duckdb
+    with duckdb.connect(str(lab), read_only=True) as con:
+        rid = con.execute("SELECT result_id FROM results_current WHERE campaign = ?",
+                          [CAMPS["sine"]]).fetchall()[0][0]
+    assert cli.main(["report", "--result", rid[:12], "--out", str(tmp_path),
+                     "--warehouse", str(lab)]) == 0
+    assert capsys.readouterr().out.strip().endswith("QA-5512_2026-11-19.html")
+    assert cli.main(["report", CAMPS["thermal"], "--result", rid[:12], "--out", str(tmp_path),
+                     "--warehouse", str(lab)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is a result of campaign 'QA-5512/2026-11-19'" in err[0]
+    names = {report_filename(c) for c in ("../../x", "..\\..\\x", "x", "_x", "a/b", "a_b")}
+    assert len(names) == 6
+    for n in names:
+        assert "/" not in n and "\\" not in n and not n.startswith(".")
+
+
+def _chromium():
+    from accelcal.ops.report import find_chromium
+    return find_chromium()
+
+
+@pytest.mark.skipif(_chromium() is None, reason="chromium not installed (apt-get install chromium)")
+@pytest.mark.parametrize("kind", sorted(CAMPS))
+def test_pdf_has_every_element_page_numbers_and_no_gap(lab, tmp_path, kind):
+    html_path = build_report(lab, CAMPS[kind], tmp_path, pdf=True)
+    pdf = html_path.with_suffix(".pdf")
+    raw = pdf.read_bytes()
+    assert raw.startswith(b"%PDF")
+    n_pages = len(re.findall(rb"/Type\s*/Page[^s]", raw))
+    assert n_pages >= 2
+    if shutil.which("pdftotext") is None:
+        pytest.skip("pdftotext not installed (poppler-utils): PDF text not checked")
+    text = subprocess.run(["pdftotext", "-layout", str(pdf), "-"], capture_output=True,
+                          text=True, check=True).stdout
+    pages = text.split("\f")
+    pages = [p for p in pages if p.strip()]
+    assert len(pages) == n_pages
+    number = re.search(r"Certificate No\. (IML-[0-9A-F]{12})", text).group(1)
+    for i, page in enumerate(pages, start=1):
+        assert f"Page {i} of {n_pages}" in page, (kind, i)
+        assert number in page and LAB["name"] in page, (kind, i)
+    raw_text = subprocess.run(["pdftotext", str(pdf), "-"], capture_output=True, text=True,
+                              check=True).stdout            # reading order: table cells flow
+    flat = re.sub(r"\s+", " ", raw_text)
+    for e in ELEMENTS:
+        assert re.sub(r"\s+", " ", e) in flat, (kind, e)
+    nums = [int(n) for n in re.findall(r"(?m)^\s*(\d{1,2}) [A-Z][a-z]", text)]
+    heads = sorted(set(nums))
+    assert heads == list(range(1, len(heads) + 1)) and len(heads) >= 9, heads
