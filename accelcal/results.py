@@ -72,6 +72,7 @@ class BudgetTerm:
     contribution: float         # |sensitivity| * std_uncertainty
     type: str                   # 'A' or 'B'
     distribution: str           # 'normal', 'uniform', ...
+    method: str = ""            # the method whose coefficient it budgets ('' = a paper method's)
 
 
 @dataclass

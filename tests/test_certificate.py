@@ -84,12 +84,15 @@ def test_thermal_certificate_dates_numbers_and_no_centrifuge_parameters(htmls):
     # the data's dates: started_at to the last reading (17.5 h later), not start -> start
     assert "2026-11-20 00:00 (UTC+08:00) to 2026-11-20 17:29 (UTC+08:00)" in html
     assert "The campaign label names 2026-11-18" in html
+    # the adopted value (joint fit, reading by reading) and the paper method in the annex
+    assert re.search(r"<td>K1T</td><td class=\"num\">-119\.9983</td><td class=\"num\">0\.0026</td>",
+                     html)
     assert re.search(r"<td>K1T</td><td class=\"num\">-119\.987</td><td class=\"num\">0\.030</td>",
                      html)
     for word in ("radius", "mount_angle_tolerance", "Alignment", "centrifuge runs"):
         assert word not in html, word
     assert "20.15 / 30.30 / 40.46" in html                  # instrument temperature from temp_c
-    assert "budget not itemised" in html
+    assert "readings: joint fit through the forward model" in html     # itemised budget
 
 
 def test_sine_certificate_has_its_own_adequacy(htmls):
@@ -103,7 +106,8 @@ def test_centrifuge_budget_and_monte_carlo(htmls):
     html = htmls["centrifuge"]
     assert html.count("combined standard uncertainty u<sub>c</sub>") == html.count(
         "expanded uncertainty U, k = 2") >= 10
-    assert "c2(IA-PA 0/180)" in html                         # itemised budget rows
+    assert "readings: joint fit through the forward model" in html      # itemised budget rows
+    assert "mount angle of LXJ-100 IA-PA 0/180 (type B" in html
     assert re.search(r"<b>\d+ of \d+ budgets pass</b>", html)
     assert "FAIL" in html and "PASS" in html
 

@@ -254,8 +254,8 @@ def _centrifuge_rig(runs, tumble: dict | None, res: CampaignResult) -> None:
             name, float(value), float(gb.u_c), SECOND_ORDER_UNIT, "centrifuge_eq9", rig,
             note=(f"eq 2/3 over {len(sens)} mount pair(s); GUM u with type-B eq 8 terms; "
                   f"JCGM 101 MC u = {check['mc'].std:.3e}, validated={check['validated']}")))
-        res.extras.setdefault("mc_check", {})[f"{rig}:{name}"] = {
-            "gum_u": gb.u_c, "mc_u": check["mc"].std, "mc_low": check["mc"].low, "mc_high": check["mc"].high,
+        res.extras.setdefault("mc_check", {})[f"centrifuge_eq9:{rig}:{name}"] = {
+            "method": "centrifuge_eq9", "rig_id": rig, "coefficient": name, "gum_u": gb.u_c, "mc_u": check["mc"].std, "mc_low": check["mc"].low, "mc_high": check["mc"].high,
             "validated": check["validated"], "delta": check["delta"]}
     # eq 10 as printed vs GUM, for Kip from the 45 deg pair
     kip_pair = next((p for p in pairs if {parse_plane(p.plane)[0], parse_plane(p.plane)[1]} == {0, 1}
@@ -385,6 +385,7 @@ def _joint(runs, res: CampaignResult) -> None:
     rows, flags = joint.compare_with_methods(out["coefficients"], others, runs)
     res.flags += flags
     res.extras["joint"] = {**out["extras"], "method_comparison": rows}
+    res.extras.setdefault("mc_check", {}).update(out["mc_check"])
     res.parameters["joint_effects"] = out["extras"]["effects"]
 
 

@@ -359,13 +359,14 @@ def _records(jf: JointFit, cells: list[RunCells]) -> dict[str, Any]:
                                               adopted=True, coverage_factor=k))
         budget.append(BudgetTerm(name, "readings: joint fit through the forward model (noise model per run, "
                                        "autocorrelation included)", float(fit.values[i]), u_noise, 1.0,
-                                 u_noise, "A", "normal"))
+                                 u_noise, "A", "normal", METHOD))
         if lof.factor > 1:
             extra = u_noise * math.sqrt(lof.factor ** 2 - 1.0)
             budget.append(BudgetTerm(name, f"model inadequacy: lack-of-fit scaling sqrt(F) = {lof.factor:.3g}",
-                                     0.0, extra, 1.0, extra, "A", "normal"))
+                                     0.0, extra, 1.0, extra, "A", "normal", METHOD))
         for q, c, ub in terms_b:
-            budget.append(BudgetTerm(name, q, 0.0, ub, c, abs(c) * ub, "B", "uniform"))
+            budget.append(BudgetTerm(name, q, 0.0, ub, c, abs(c) * ub, "B", "uniform", METHOD))
+    mc_check = _mc_checks(coefficients, budget)
     # theta0 per head
     for i, prm in enumerate(model.params):
         role = model.roles[i]
@@ -382,7 +383,7 @@ def _records(jf: JointFit, cells: list[RunCells]) -> dict[str, Any]:
             "initial misalignment of this dividing head (never pooled across heads); aliases with the "
             "cross-axis sensitivity of the other turning axis (paper 003)", adopted=True, coverage_factor=k))
         budget.append(BudgetTerm(label, "readings: joint fit through the forward model", float(fit.values[i]),
-                                 fit.std_noise(prm.name), 1.0, fit.std_noise(prm.name), "A", "normal"))
+                                 fit.std_noise(prm.name), 1.0, fit.std_noise(prm.name), "A", "normal", METHOD))
     # geometry: radii, mass-centre offset, mount angles, tool errors
     radii, alignment = _geometry_records(jf)
     for prm, why in jf.held.items():
@@ -415,8 +416,29 @@ def _records(jf: JointFit, cells: list[RunCells]) -> dict[str, Any]:
                              "source": r.noise.source} for r in model.runs},
         "notes": jf.notes,
     }
-    return {"coefficients": coefficients, "radii": radii, "adequacy": adequacy, "budget": budget,
+    return {"mc_check": mc_check, "coefficients": coefficients, "radii": radii, "adequacy": adequacy, "budget": budget,
             "alignment": alignment, "flags": flags, "extras": extras, "fit": jf}
+
+
+def _mc_checks(coefficients: Sequence[CoefficientResult], budget: Sequence[BudgetTerm]) -> dict[str, dict]:
+    """JCGM 101 check of each adopted coefficient's budget: its inputs (the readings' type-A
+    term, normal; the type-B terms, uniform) propagated as distributions and the 95 %
+    interval compared with the GUM one (JCGM 101 §8, two significant digits).  The budget is
+    linear, so the propagation is an exact convolution: no sampling noise can fail it."""
+    from .uncertainty import validate_gum_linear
+    out = {}
+    for c in coefficients:
+        terms = [b for b in budget if b.coefficient == c.name and b.method == METHOD and b.std_uncertainty > 0]
+        if not terms or not math.isfinite(c.std_uncertainty):
+            continue
+        chk = validate_gum_linear([b.sensitivity for b in terms], [b.std_uncertainty for b in terms],
+                                  [b.distribution for b in terms])
+        out[f"{METHOD}:{c.rig_id}:{c.name}"] = {
+            "method": METHOD, "rig_id": c.rig_id, "coefficient": c.name, "gum_u": chk["gum_u"],
+            "mc_u": chk["gum_u"], "mc_low": c.value + chk["low"], "mc_high": c.value + chk["high"],
+            "validated": chk["validated"], "delta": chk["delta"],
+            "procedure": "propagation of distributions by numerical convolution (linear budget, JCGM 101 5.4)"}
+    return out
 
 
 def _dominant_rigs(jf: JointFit) -> dict[str, str]:

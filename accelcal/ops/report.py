@@ -254,10 +254,21 @@ def run_conditions(root: Path, lineage: list[dict[str, Any]]) -> list[dict[str, 
 # ------------------------------------------------------------------ display --
 
 def display_value(name: str, value: float | None, std_u: float | None,
-                  unit: str | None) -> tuple[str, str, str]:
-    """(value, U (k = 2), display unit) for one coefficient, rounded per GUM 7.2.6."""
+                  unit: str | None, k: float | None = None) -> tuple[str, str, str]:
+    """(value, U = k u, display unit) for one coefficient, rounded per GUM 7.2.6; k = 2
+    unless the coefficient carries its own coverage factor (few degrees of freedom)."""
     from ..effects import display_coefficient
-    return display_coefficient(name, value, std_u, unit, K_COVERAGE)
+    return display_coefficient(name, value, std_u, unit, k or K_COVERAGE)
+
+
+def _k(c) -> float:
+    k = c.get("coverage_factor")
+    return float(k) if k is not None and math.isfinite(float(k)) else K_COVERAGE
+
+
+def _u_unknown(c) -> bool:
+    u = c.get("std_uncertainty")
+    return u is None or (isinstance(u, float) and math.isnan(u))
 
 
 def _fmt(x: Any, spec: str = ".4g") -> str:
@@ -503,10 +514,21 @@ def _sec_traceability(d, cfg) -> str:
     return "".join(parts)
 
 
+def _mc_entry(d, c) -> dict | None:
+    """The JCGM 101 check stored for this coefficient by the method that computed it."""
+    for key, m in ((d.get("extras") or {}).get("mc_check") or {}).items():
+        if not isinstance(m, dict):
+            continue
+        if (m.get("method") == c.get("method") and m.get("coefficient") == c["name"]
+                and (m.get("rig_id") or "") == (c.get("rig_id") or "")):
+            return m
+    return None
+
+
 def _mc_verdict(d, c) -> tuple[str, str]:
     """The JCGM 101 check of this coefficient's budget, as a table cell."""
-    m = ((d.get("extras") or {}).get("mc_check") or {}).get(f"{c.get('rig_id') or ''}:{c['name']}")
-    if not isinstance(m, dict):
+    m = _mc_entry(d, c)
+    if m is None:
         return ("not checked", "nw")
     return ("PASS", "ok") if m.get("validated") else ("FAIL", "bad")
 
@@ -514,9 +536,12 @@ def _mc_verdict(d, c) -> tuple[str, str]:
 def _coef_rows(d, coefs) -> list[list[Any]]:
     rows = []
     for c in coefs:
+        k = _k(c)
         v, U, unit = display_value(c["name"], c.get("value"), c.get("std_uncertainty"),
-                                   c.get("unit"))
-        rows.append([c["name"], (v, "num"), (U, "num"), ("2", "num"),
+                                   c.get("unit"), k)
+        if _u_unknown(c):
+            U = "not assessable"
+        rows.append([c["name"], (v, "num"), (U, "num"), (f"{k:.3g}", "num"),
                      (COVERAGE_PROBABILITY, "nw"), (unit, "nw"), c.get("method") or "",
                      (c.get("rig_id") or "", "nw"), (_fmt(c.get("dof"), ".0f"), "num"),
                      _mc_verdict(d, c), c.get("note") or ""])
@@ -529,12 +554,19 @@ _COEF_HEAD = ["coefficient", "value", "U (k=2)", "k", "coverage probability", "u
 
 def _sec_results(d, plots) -> str:
     adopted = _adopted(d)
-    out = (_table(_COEF_HEAD, _coef_rows(d, adopted)) if adopted else
+    head = list(_COEF_HEAD)
+    if any(_k(c) != K_COVERAGE for c in adopted):
+        head[2] = "U (k as given)"
+    out = (_table(head, _coef_rows(d, adopted)) if adopted else
            "<p><b>No adopted value in this result</b>: the values computed are listed in "
            "Annex A as cross-checks only.</p>")
     out += ("<p class='note'>The expanded uncertainty U is the combined standard uncertainty "
             "multiplied by the coverage factor k = 2, which for a normal distribution "
-            "corresponds to a coverage probability of approximately 95 %. Values and U are "
+            "corresponds to a coverage probability of approximately 95 %; where the "
+            "uncertainty rests on few degrees of freedom (a model that failed its adequacy "
+            "test, u scaled by its lack of fit) k is Student's t for 95 % on those degrees of "
+            "freedom (JCGM 100 G.3), as given. 'Not assessable': the runs leave no degrees of "
+            "freedom to test the model, and reading noise alone would understate u. Values and U are "
             "rounded per GUM 7.2.6 (U to two significant digits, the value to the same "
             "decimal). K1 is given in output unit per g with its relative U in ppm; "
             "1 µg/g² = 10⁻⁶/g₀, g₀ = 9.80665 m/s².</p>")
@@ -565,7 +597,10 @@ def _sec_budgets(d) -> str:
     out = []
     for c in _adopted(d):
         name, u = c["name"], c.get("std_uncertainty")
-        rows = [b for b in budget if b.get("coefficient") == name]
+        meth = c.get("method") or ""
+        rows = [b for b in budget if b.get("coefficient") == name
+                and ((b.get("method") or "") == meth or (not b.get("method") and meth != "joint_ml"))]
+        k = _k(c)
         unit = c.get("unit") or ""
         body = []
         for b in rows:
@@ -581,11 +616,11 @@ def _sec_budgets(d) -> str:
         body.append(f"<tr class='total'><td>combined standard uncertainty u<sub>c</sub></td>"
                     f"<td></td><td></td><td></td><td class='num'>{_e(_fmt(u, '.3g'))}</td>"
                     f"<td colspan='2'>{_e(unit)}</td></tr>")
-        _, U_disp, dunit = display_value(name, c.get("value"), u, unit)
+        _, U_disp, dunit = display_value(name, c.get("value"), u, unit, k)
         U_disp = U_disp if U_disp.endswith("ppm") else f"{U_disp} {dunit}"
-        body.append(f"<tr class='total'><td>expanded uncertainty U, k = 2, p {COVERAGE_PROBABILITY}"
+        body.append(f"<tr class='total'><td>expanded uncertainty U, k = {k:.3g}, p {COVERAGE_PROBABILITY}"
                     f"</td><td></td><td></td><td></td>"
-                    f"<td class='num'>{_e(_fmt(None if u is None else K_COVERAGE * u, '.3g'))}</td>"
+                    f"<td class='num'>{_e(_fmt(None if u is None else k * u, '.3g'))}</td>"
                     f"<td colspan='2'>{_e(unit)} (= {_e(U_disp)})</td></tr>")
         out.append(f"<div class='keep'><h3>{_e(name)} ({_e(c.get('method'))}, "
                    f"{_e(c.get('rig_id'))})</h3><table><thead><tr><th>quantity</th><th>value</th>"
@@ -599,14 +634,14 @@ def _sec_budgets(d) -> str:
 
 def _sec_mc(d) -> str:
     mc = (d.get("extras") or {}).get("mc_check") or {}
-    adopted = {(c.get("rig_id") or "", c["name"]) for c in _adopted(d)}
+    adopted = {(c.get("method"), c.get("rig_id") or "", c["name"]) for c in _adopted(d)}
     rows = []
     for key, m in sorted(mc.items()):
         if not isinstance(m, dict):
             continue
-        rig, _, name = str(key).rpartition(":")
         ok = bool(m.get("validated"))
-        rows.append([(key, "nw"), ("yes" if (rig, name) in adopted else "", "nw"),
+        mine = (m.get("method"), m.get("rig_id") or "", m.get("coefficient")) in adopted
+        rows.append([(key, "nw"), ("yes" if mine else "", "nw"),
                      (_fmt(m.get("gum_u"), ".4g"), "num"), (_fmt(m.get("mc_u"), ".4g"), "num"),
                      (f"[{_fmt(m.get('mc_low'), '.6g')}, {_fmt(m.get('mc_high'), '.6g')}]", "nw"),
                      (_fmt(m.get("delta"), ".2g"), "num"),

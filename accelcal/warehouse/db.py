@@ -527,11 +527,11 @@ class Warehouse:
         _cp(checkpoint, "lineage")
         rows = [[result_id, k, result.unit_serial, camp, c.name, _f(c.value),
                  _f(c.std_uncertainty), c.unit, c.method, c.rig_id, _f(c.dof), c.note,
-                 bool(getattr(c, "adopted", False))]
+                 bool(getattr(c, "adopted", False)), _f(getattr(c, "coverage_factor", 2.0)) or 2.0]
                 for k, c in enumerate(result.coefficients)]
         if rows:
             con.executemany("INSERT INTO coefficient_history VALUES "
-                            "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", rows)
+                            "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", rows)
         _cp(checkpoint, "coefficients")
         rows = [[result_id, k, camp, r.rig_id, r.polarity, r.method, r.model_order,
                  _f(r.g_max), _f(r.radius_m), _f(r.std_uncertainty_m), r.note]
@@ -550,11 +550,11 @@ class Warehouse:
                             "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", rows)
         rows = [[result_id, k, camp, b.coefficient, b.quantity, _f(b.value),
                  _f(b.std_uncertainty), _f(b.sensitivity), _f(b.contribution), b.type,
-                 b.distribution]
+                 b.distribution, getattr(b, "method", "")]
                 for k, b in enumerate(result.budget)]
         if rows:
             con.executemany("INSERT INTO budget_history VALUES "
-                            "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", rows)
+                            "(?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)", rows)
         rows = [[result_id, k, camp, canonical_json(a)] for k, a in enumerate(result.alignment)]
         if rows:
             con.executemany("INSERT INTO alignment_history VALUES (?, ?, ?, ?)", rows)

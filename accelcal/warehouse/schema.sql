@@ -137,6 +137,7 @@ CREATE TABLE IF NOT EXISTS coefficient_history (
     note             VARCHAR,
     adopted          BOOLEAN NOT NULL DEFAULT false,  -- the value the lab adopts (one per
                                                       -- result and coefficient name)
+    coverage_factor  DOUBLE NOT NULL DEFAULT 2.0,     -- k of U = k u (Student t on few dof)
     PRIMARY KEY (result_id, seq)
 );
 
@@ -188,6 +189,7 @@ CREATE TABLE IF NOT EXISTS budget_history (
     contribution     DOUBLE,
     type             VARCHAR,
     distribution     VARCHAR,
+    method           VARCHAR,          -- the method of the coefficient it budgets
     PRIMARY KEY (result_id, seq)
 );
 
@@ -291,7 +293,7 @@ SELECT * FROM excluded_campaigns_as_of(NULL);
 
 CREATE OR REPLACE VIEW coefficients AS
 SELECT h.unit_serial, h.campaign, h.name, h.value, h.std_uncertainty, h.unit, h.method,
-       h.result_id, h.rig_id, h.dof, h.note, h.adopted, c.completeness, c.simulated
+       h.result_id, h.rig_id, h.dof, h.note, h.adopted, h.coverage_factor, c.completeness, c.simulated
 FROM coefficient_history h JOIN results_current c USING (result_id)
 ORDER BY h.campaign, h.seq;
 

@@ -7,7 +7,8 @@
 -- Conventions
 --   * Values are SI, as stored (effects.md units); display units are the
 --     report's business (accelcal.effects.COEFFICIENTS display_factor).
---   * expanded_uncertainty U = 2 u (coverage factor k = 2).
+--   * expanded_uncertainty U = k u, k the stored coverage factor (2, or Student's t on the
+--     degrees of freedom of a lack-of-fit-scaled u).
 --   * calibrated_at = started_at of the earliest input run of the result
 --     (from lineage -> run_files), falling back to the result's computed_at.
 --   * History, En, the fleet views and the rig comparison read `calibration`:
@@ -38,8 +39,8 @@ GROUP BY l.result_id;
 -- decides whether it is a calibration: adopted, completeness, simulated, excluded.
 CREATE OR REPLACE VIEW coefficient_versions AS
 SELECT h.unit_serial, r.unit_model, h.campaign, h.name, h.method, h.rig_id,
-       h.value, h.std_uncertainty, 2.0 * h.std_uncertainty AS expanded_uncertainty,
-       h.unit, h.dof,
+       h.value, h.std_uncertainty, h.coverage_factor * h.std_uncertainty AS expanded_uncertainty,
+       h.unit, h.dof, h.coverage_factor,
        coalesce(d.first_run_at, r.computed_at) AS calibrated_at, d.last_run_at,
        h.result_id, r.computed_at,
        (h.result_id IN (SELECT result_id FROM results_current)) AS is_current,
