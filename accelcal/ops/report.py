@@ -440,9 +440,24 @@ def _sec_method(d) -> str:
         rigs = sorted({str(x.get("rig_id")) for x in d["lineage"] if x.get("test") == test})
         n = sum(1 for x in d["lineage"] if x.get("test") == test)
         rows.append([name, ", ".join(rigs), (str(n), "num"), how])
-    out = _table(["test", "rig", "runs", "procedure"], rows)
     methods = sorted({c.get("method") for c in d["coefficients"] if c.get("method")})
     adopted = sorted({c.get("method") for c in _adopted(d) if c.get("method")})
+    if "joint_ml" in adopted:
+        jx = (d.get("extras") or {}).get("joint") or {}
+        lof = jx.get("lack_of_fit") or {}
+        rows.insert(0, [("Adopted values: joint fit", "nw"), ", ".join(sorted({str(x.get("rig_id")) for x in d["lineage"]})),
+                        (str(len(d["lineage"])), "num"),
+                        "one maximum-likelihood fit of every reading of every run through the instrument "
+                        "model and rig kinematics (IEEE Std 1293 form, effects.md): instrument coefficients "
+                        "shared by all runs" + (", radius, mass-centre offset, mount angles and per-run biases"
+                                                if {"centrifuge", "sine_centrifuge"} & set(d.get("tests") or [])
+                                                else "") +
+                        ", temperature reading by reading, nuisance parameters where the design determines "
+                        "them; weights from a noise model fitted to "
+                        "the data of each run; model adequacy by a lack-of-fit test against the replicated "
+                        f"readings (status: {lof.get('status', '—')}). The paper methods below are computed "
+                        "beside it as cross-checks (Annex A)."])
+    out = _table(["test", "rig", "runs", "procedure"], rows)
     out += (f"<p class='note'>Methods computed: {_e(', '.join(methods))}; adopted values from: "
             f"{_e(', '.join(adopted) or 'none')} (the other methods' values are cross-checks, "
             f"Annex A). Instrument model and coefficient names: IEEE Std 1293 form "
