@@ -130,7 +130,8 @@ def fit_campaign_model(runs: Sequence[RunCells], effects: Sequence[str], *, shar
     p = model.start()
     held = model.select(p, keep=keep)
     free = model.params.free()
-    gn = gauss_newton(model.residual, model.jacobian, p, free, max_iter=40)
+    lower = model.lower_bounds()
+    gn = gauss_newton(model.residual, model.jacobian, p, free, max_iter=40, lower=lower)
     its = gn.iterations
     for k in range(noise_passes):
         for j, r in enumerate(model.runs):
@@ -145,7 +146,7 @@ def fit_campaign_model(runs: Sequence[RunCells], effects: Sequence[str], *, shar
                 held = held2
                 free = model.params.free()
                 gn = replace(gn, p=np.where(free, gn.p, model.params.values()))
-        gn = gauss_newton(model.residual, model.jacobian, gn.p, free, max_iter=40)
+        gn = gauss_newton(model.residual, model.jacobian, gn.p, free, max_iter=40, lower=lower)
         its += gn.iterations
     chi_pe, dof_pe = _pure_error(model, gn.p)
     rank_fit = finish_fit(model.params, gn)          # to get the rank

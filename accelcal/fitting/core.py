@@ -270,7 +270,8 @@ class GaussNewton:
 def gauss_newton(residual: Callable[[np.ndarray], np.ndarray],
                  jacobian: Callable[[np.ndarray], np.ndarray],
                  p0: np.ndarray, free: np.ndarray | None = None, *, max_iter: int = 30,
-                 rtol: float = 1e-10, rcond: float = RCOND) -> GaussNewton:
+                 rtol: float = 1e-10, rcond: float = RCOND,
+                 lower: np.ndarray | None = None) -> GaussNewton:
     """Minimise ``|residual(p)|^2`` by Gauss–Newton steps, damped (Levenberg–Marquardt)
     when a full step does not lower it.
 
@@ -290,6 +291,9 @@ def gauss_newton(residual: Callable[[np.ndarray], np.ndarray],
         Stop when the chi-square decreases by less than ``rtol`` relative.
     rcond : float
         Rank rule of each step (:func:`lstsq_svd`).
+    lower : ndarray, optional
+        Lower bounds (-inf for none): each trial point is projected onto them (a time
+        constant cannot be negative).
 
     Returns
     -------
@@ -303,6 +307,9 @@ def gauss_newton(residual: Callable[[np.ndarray], np.ndarray],
     """
     p = np.array(p0, float)
     free = np.ones(p.size, bool) if free is None else np.asarray(free, bool)
+    lo = None if lower is None else np.asarray(lower, float)
+    if lo is not None:
+        p = np.maximum(p, lo)
     z = residual(p)
     chi2 = float(z @ z)
     J = jacobian(p)
@@ -328,7 +335,7 @@ def gauss_newton(residual: Callable[[np.ndarray], np.ndarray],
             sub = np.zeros(free.sum())
             sub[act] = step
             d[free] = sub
-            pn = p + d
+            pn = p + d if lo is None else np.maximum(p + d, lo)
             zn = residual(pn)
             cn = float(zn @ zn)
             if np.isfinite(cn) and cn <= chi2:

@@ -281,7 +281,7 @@ def make_run(meta: Mapping, data, index: int = 0, sha256: str = "") -> RunCells:
     return run
 
 
-def drive_rate(meta: Mapping, t: np.ndarray, logged: np.ndarray, alpha: float = 0.01,
+def drive_rate(meta: Mapping, t: np.ndarray, logged: np.ndarray, alpha: float = 1e-6,
                harmonics: int = 3) -> tuple[np.ndarray, np.ndarray | None, str]:
     """The table rate a sine run's model uses, and its derivative (None = the drive's own).
 
@@ -290,7 +290,11 @@ def drive_rate(meta: Mapping, t: np.ndarray, logged: np.ndarray, alpha: float = 
     beyond that noise (F test of a fit of a constant and ``harmonics`` harmonics of f
     against the nominal drive, at ``alpha``); then the fitted drive is used, since the
     table did not follow its command.  Using the logged rate itself would square its noise
-    into the centripetal input (errors in variables).
+    into the centripetal input (errors in variables).  alpha is small (1e-6) because the
+    fitted drive carries its own estimation noise into every cell of the run, and the
+    rate noise of a real table is often proportional to the rate, which the F test's
+    constant variance does not know; a table that does not follow its command by the paper's
+    5e-5 rad/s gives F in the thousands.
 
     Returns
     -------

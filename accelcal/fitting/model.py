@@ -377,6 +377,10 @@ class CampaignModel:
             out[sl] = (self.predict_run(p, j, {effect: h}) - self.predict_run(p, j, {effect: -h})) / (2 * h)
         return out / self.sig
 
+    def lower_bounds(self) -> np.ndarray:
+        """Lower bound of each parameter: 0 for a time constant (sensor_lag), else -inf."""
+        return np.array([0.0 if r.key == "sensor_lag" else -np.inf for r in self.roles])
+
     # ----------------------------------------------------------------- start, selection
     def start(self) -> np.ndarray:
         """Start values: K1 by regression of each campaign's outputs on the nominal input
