@@ -15,7 +15,7 @@ import pytest
 from accelcal.estimators.tumble import fit_tumble, tumble_coefficients, two_position
 from accelcal.physics import rig_output
 
-EXAMPLES = Path("/work/shared/examples")
+from conftest import EXAMPLES  # ../shared/examples relative to the repository root
 G = 9.80122
 # Truth close to the SNJ-1-03 of paper 000 (K2 3.94e-7 s2/m) with a mA output.
 TRUTH = {"K0": 4.0e-4, "K1": 0.1325, "K2": 3.94e-7}
