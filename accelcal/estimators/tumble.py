@@ -38,12 +38,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
-from scipy.optimize import least_squares
-from scipy.stats import f as f_dist
-
+from ..fitting.core import (FitResult, GaussNewton, LackOfFit, Parameter, ParameterSet, finish_fit,
+                            gauss_newton, lstsq_svd)
 from ..physics.axes import parse_signed_axis
+from ..physics.instrument import output_derivative
 from ..physics.rigs import rig_output, tumble_specific_force
 from ..results import CoefficientResult
+from .adequacy import pure_error_test
 
 #: Parameters of the tumble fit, in order (effects.md names; theta0 = ``initial_misalignment``).
 PARAMS = ("K0", "K1", "K2", "theta0")
@@ -98,6 +99,10 @@ class TumbleFit:
     lack_of_fit: dict | None = None
     cov_positions: np.ndarray | None = None
     param_names: tuple[str, ...] = PARAMS
+    #: the core's lack-of-fit test ('adequate' / 'inadequate' / 'untestable')
+    adequacy: LackOfFit | None = None
+    #: the core's fit result (whitened by s; cov scaled by sqrt(F) when inadequate)
+    result: FitResult | None = field(default=None, repr=False)
 
     @property
     def coeffs(self) -> dict[str, float]:
@@ -157,14 +162,42 @@ def separable_extra_terms(meta: Mapping) -> dict[str, str]:
     return {"K3": "s4/m2", "Koq": "s2/m", cross: "s2/m"}
 
 
-def _jacobian(meta, df, p, steps, extras=()) -> np.ndarray:
-    """dE/dp by central differences of the forward model (exact for K0, K2, K1 up to
-    rounding since E is linear in each; O(h^2) for theta0 with h = 1e-6 rad)."""
+def tumble_jacobian(meta: Mapping, df: pd.DataFrame, p: np.ndarray,
+                    extras: tuple[str, ...] = ()) -> np.ndarray:
+    """Design (Jacobian) dE/dp of the tumble model at p = (K0, K1, K2, theta0, *extras).
+
+    Parameters
+    ----------
+    meta : mapping
+        Typed run metadata.
+    df : DataFrame
+        Readings (``angle_deg`` [deg], ...).
+    p : ndarray
+        K0 [m/s2], K1 [output_unit/(m/s2)], K2 [s2/m], theta0 [rad], extras [SI].
+    extras : tuple of str
+        Extra instrument terms (:func:`separable_extra_terms`).
+
+    Returns
+    -------
+    (n, 4 + len(extras)) ndarray
+        [output_unit per parameter unit].  The instrument-coefficient columns are the exact
+        derivatives of the forward model (:func:`accelcal.physics.instrument.output_derivative`
+        at the specific force of :func:`accelcal.physics.rigs.tumble_specific_force`); the
+        theta0 column is the central difference of
+        :func:`accelcal.physics.rigs.rig_output` (h = 1e-6 rad, error O(h^2)).
+    """
+    K0, K1, K2, th0 = p[:4]
+    coeffs = {"K0": K0, "K1": K1, "K2": K2, **dict(zip(extras, p[4:]))}
+    F = tumble_specific_force(meta, df, {"initial_misalignment": th0})
     J = np.empty((len(df), len(p)))
-    for j, h in enumerate(steps):
-        dp = np.zeros_like(p)
-        dp[j] = h
-        J[:, j] = (_predict(meta, df, p + dp, extras) - _predict(meta, df, p - dp, extras)) / (2 * h)
+    for j, name in enumerate(("K0", "K1", "K2")):
+        J[:, j] = output_derivative(name, coeffs, F)
+    for j, name in enumerate(extras, start=4):
+        J[:, j] = output_derivative(name, coeffs, F)
+    h = 1e-6
+    dp = np.zeros_like(p)
+    dp[3] = h
+    J[:, 3] = (_predict(meta, df, p + dp, extras) - _predict(meta, df, p - dp, extras)) / (2 * h)
     return J
 
 
@@ -174,7 +207,7 @@ def _start(meta: Mapping, df: pd.DataFrame, g: float) -> np.ndarray:
     from the nominal sensitivity)."""
     ai = tumble_specific_force(meta, df)[:, 0]
     A = np.column_stack([np.ones_like(ai), ai, ai**2])
-    b, *_ = np.linalg.lstsq(A, df["output"].to_numpy(float), rcond=None)
+    b = lstsq_svd(A, df["output"].to_numpy(float)).x
     K1 = b[1] if b[1] != 0 else 1.0
     return np.array([b[0] / K1, K1, b[2] / K1, 0.0])
 
@@ -193,29 +226,61 @@ def position_means(df: pd.DataFrame) -> pd.DataFrame:
 
 
 def fit_tumble(meta: Mapping, data, extra_terms: tuple[str, ...] | list[str] = ()) -> TumbleFit:
-    """Levenberg-Marquardt fit of E = K1 (K0 + a_i + K2 a_i^2) with a_i from the head
-    angle + theta0 (paper 003; effects.md instrument model) on every reading of a run.
+    """Levenberg-Marquardt fit of the paper 003 tumble model on every reading of a run.
 
-    meta: typed run metadata (g_local_m_s2, cos_axis, sin_axis, head_axis, output_unit).
-    data: columns angle_deg (deg), output (output_unit), optional position, time_s, temp_c.
+    .. math::
 
-    The prediction is :func:`accelcal.physics.rigs.rig_output` with coefficients
-    (K0, K1, K2) and effect ``initial_misalignment`` = theta0.  Start: theta0 = 0, K0, K1,
-    K2 from a linear fit on the nominal input (K1 from the data's amplitude).  Solver:
-    ``scipy.optimize.least_squares(method='lm')`` with the Jacobian by central differences
-    of the forward model.  Covariance: cov = s^2 (J^T J)^-1, s^2 = RSS / (n - p) (p = 4 +
-    extras), J at the solution, computed through the SVD of the column-scaled J (white,
-    equal-variance reading noise assumed).  Errors common to a dwell (head-angle error,
-    unmodelled terms) make it optimistic: ``lack_of_fit`` tests the position means against
-    the within-position scatter, and ``cov_positions`` = [sum_k n_k rbar_k^2 / (P - p)]
-    (J^T J)^-1 is the covariance that rests on the P position means instead.
+        E = K_1 (K_0 + a_i + K_2 a_i^2), \\quad a_i = g \\cos(\\theta + \\theta_0)
 
-    theta0 aliases with the OA cross-axis sensitivity Ko (paper 003): Ko is not estimated;
-    see the module docstring (Koo likewise aliases into K2 and K0).  ``extra_terms`` adds
-    separable instrument terms (:func:`separable_extra_terms`: K3, Koq, Kio or Kip) as
-    further fit parameters, started at 0.  Raises ValueError if IA lies on the head axis,
-    an extra term is not separable, or there are fewer than p + 1 readings at p - 1 or
-    more distinct angles.
+    (Zhan & Cai, paper 003, with a_i from the head angle and the axis assignment; effects.md
+    instrument model).
+
+    Parameters
+    ----------
+    meta : mapping
+        Typed run metadata: ``g_local_m_s2`` [m/s2], ``cos_axis``, ``sin_axis``,
+        ``head_axis``, ``output_unit``.
+    data : DataFrame or mapping
+        ``angle_deg`` [deg], ``output`` [output_unit]; optional ``position``, ``time_s`` [s],
+        ``temp_c`` [degC].
+    extra_terms : sequence of str
+        Separable instrument terms to add (:func:`separable_extra_terms`: K3 [s4/m2], Koq,
+        Kio or Kip [s2/m]), started at 0.
+
+    Returns
+    -------
+    TumbleFit
+        K0 [m/s2], K1 [output_unit/(m/s2)], K2 [s2/m], theta0 [rad] (+ extras) with their
+        covariance.
+
+    Raises
+    ------
+    ValueError
+        IA on the head axis, an extra term that is not separable, fewer than p + 1 readings
+        at p - 1 or more distinct angles, or a singular design.
+
+    Notes
+    -----
+    The prediction is :func:`accelcal.physics.rigs.rig_output` with coefficients (K0, K1,
+    K2, extras) and effect ``initial_misalignment`` = theta0; the design is
+    :func:`tumble_jacobian` (exact coefficient columns, central difference for theta0).
+    Start: theta0 = 0, K0, K1, K2 from a linear fit on the nominal input (paper 003 starts
+    from the nominal sensitivity).  Solver: :func:`accelcal.fitting.core.gauss_newton`
+    (Gauss-Newton with Marquardt damping), unweighted (equal-variance readings).
+    Covariance: s^2 (J^T J)^+ with s^2 = RSS / (n - p) (the core's scaled SVD), multiplied
+    by the lack-of-fit factor F when the core's test of the position means against the
+    within-position scatter (:func:`accelcal.fitting.core.lack_of_fit`) fails; with as many
+    positions as parameters the test is 'untestable' (``adequacy``) and the covariance
+    counts reading noise only.  ``cov_positions`` = [sum_k n_k rbar_k^2 / (P - p)]
+    (J^T J)^+ rests on the P position means instead.
+
+    theta0 aliases with the cross-axis sensitivity of the other turning axis (Ko for
+    +IA/+OA): it is not estimated (module docstring; Koo likewise aliases into K2 and K0).
+
+    References
+    ----------
+    Zhan & Cai, gravity calibration with an initial misalignment angle (paper 003;
+    ``shared/docs/methods.md``).
     """
     g = float(meta["g_local_m_s2"])
     phase = _ia_phase_deg(meta)
@@ -233,54 +298,57 @@ def fit_tumble(meta: Mapping, data, extra_terms: tuple[str, ...] | list[str] = (
                          f"{npar - 1} head angles, got {len(df)} readings at {n_ang} angles")
     y = df["output"].to_numpy(float)
     p0 = np.r_[_start(meta, df, g), np.zeros(len(extras))]
-    extra_step = {"K3": 1e-4 / g**2, "Koq": 1e-4 / g, "Kio": 1e-4 / g, "Kip": 1e-4 / g}
-
-    def steps(p):
-        return np.array([1e-4 * g, 1e-6 * max(abs(p[1]), 1e-12), 1e-4 / g, 1e-6]
-                        + [extra_step[e] for e in extras])
+    units = {"K0": "m/s2", "K1": f"{meta.get('output_unit', 'out')}/(m/s2)", "K2": "s2/m", "theta0": "rad",
+             "K3": "s4/m2"}
+    params = ParameterSet(Parameter(nm, nm, units.get(nm, "s2/m"), value=float(v)) for nm, v in zip(names, p0))
 
     def resid(p):
-        return _predict(meta, df, p, extras) - y
+        return y - _predict(meta, df, p, extras)
 
     def jac(p):
-        return _jacobian(meta, df, p, steps(p), extras)
+        return tumble_jacobian(meta, df, p, extras)
 
-    sol = least_squares(resid, p0, jac=jac, method="lm", x_scale="jac",
-                        xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=2000)
-    p = sol.x
-    pred = _predict(meta, df, p, extras)
-    r = y - pred
+    # Levenberg-Marquardt from the nominal sensitivity (paper 003), unweighted: every reading
+    # has the same variance; the core's Gauss-Newton with Marquardt damping
+    gn = gauss_newton(resid, jac, p0, max_iter=100, rtol=1e-14)
+    p = gn.p
+    r = gn.z
+    pred = y - r
     n = len(y)
     dof = n - npar
     rss = float(r @ r)
     s2 = rss / dof if dof > 0 else np.nan
-    J = jac(p)
-    scale = np.sqrt((J**2).sum(axis=0))
-    scale[scale == 0] = 1.0
-    _, sv, Vt = np.linalg.svd(J / scale, full_matrices=False)
-    if sv[-1] <= sv[0] * 1e-13:
+    sol = lstsq_svd(gn.J, np.zeros(n))
+    if sol.rank < npar:
         raise ValueError(f"tumble fit is singular: the head angles do not separate {names}")
-    inv = (Vt.T / sv**2) @ Vt                     # (Js^T Js)^-1
-    cov = s2 * inv / np.outer(scale, scale)
-    sd = np.sqrt(np.diag(cov))
-    corr = cov / np.outer(sd, sd)
 
     pm = position_means(df)
     pos = df["position"].to_numpy()
     pm["predicted"] = pd.Series(pred).groupby(pos).mean().to_numpy()
     pm["mean_residual"] = pm["mean_output"] - pm["predicted"]
 
-    # Lack of fit: position-mean residuals against the within-position (pure error) scatter.
+    # Lack of fit: position-mean residuals against the within-position (pure error) scatter,
+    # the fitting core's one test
     P = len(pm)
     ss_lof = float((pm["n"] * pm["mean_residual"] ** 2).sum())
     ss_pe = float(((r - pd.Series(r).groupby(pos).transform("mean").to_numpy()) ** 2).sum())
     dof_lof, dof_pe = P - npar, n - P
+    test = pure_error_test(ss_lof, dof_lof, ss_pe, dof_pe)
     lof = None
-    if dof_lof > 0 and dof_pe > 0 and ss_pe > 0:
-        F = (ss_lof / dof_lof) / (ss_pe / dof_pe)
-        lof = {"F": float(F), "p": float(f_dist.sf(F, dof_lof, dof_pe)), "dof_lof": dof_lof,
-               "dof_pe": dof_pe, "s_pure_error": float(np.sqrt(ss_pe / dof_pe))}
-    cov_pos = (ss_lof / dof_lof) * inv / np.outer(scale, scale) if dof_lof > 0 else None
+    if test.status != "untestable":
+        lof = {"F": float(test.statistic), "p": float(test.p_value), "dof_lof": dof_lof,
+               "dof_pe": dof_pe, "s_pure_error": float(np.sqrt(ss_pe / dof_pe)), "status": test.status}
+    # the fit in the core's terms: residuals whitened by s (equal-variance readings), so the
+    # noise-model covariance is s^2 (J^T J)^+; the reported one is scaled by sqrt(F) when
+    # the lack-of-fit test fails (fitting.core.FitResult)
+    w = 1.0 / np.sqrt(s2) if np.isfinite(s2) and s2 > 0 else 1.0
+    result = finish_fit(params, GaussNewton(p, r * w, gn.J * w, rss * w * w, gn.iterations, gn.converged,
+                                            gn.message), test)
+    cov = result.cov if dof > 0 else np.full((npar, npar), np.nan)
+    sd = np.sqrt(np.diag(cov))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(sd, sd)
+    cov_pos = (ss_lof / dof_lof) * sol.cov if dof_lof > 0 else None
 
     return TumbleFit(
         values=dict(zip(names, map(float, p))),
@@ -288,9 +356,9 @@ def fit_tumble(meta: Mapping, data, extra_terms: tuple[str, ...] | list[str] = (
         cov=cov, corr=corr, residuals=r,
         residual_rms=float(np.sqrt(rss / n)), s=float(np.sqrt(s2)), n=n, dof=dof,
         position_means=pm, output_unit=str(meta.get("output_unit", "")), g_local_m_s2=g,
-        ia_phase_deg=phase, success=bool(sol.success), message=str(sol.message),
-        nfev=int(sol.nfev), start=dict(zip(names, map(float, p0))), extras=extras,
-        lack_of_fit=lof, cov_positions=cov_pos, param_names=names)
+        ia_phase_deg=phase, success=bool(gn.converged), message=str(gn.message),
+        nfev=int(gn.iterations), start=dict(zip(names, map(float, p0))), extras=extras,
+        lack_of_fit=lof, cov_positions=cov_pos, param_names=names, adequacy=test, result=result)
 
 
 def _mean_at(pm: pd.DataFrame, angle: float, tol: float) -> tuple[float, float, int] | None:
