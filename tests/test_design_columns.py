@@ -58,3 +58,27 @@ def test_tumble_jacobian_columns_are_derivatives_of_rig_output():
             assert_columns_equal(J[:, j], central("tumble", meta, data, coeffs, eff, name, steps[name]))
         th = central("tumble", meta, data, coeffs, eff, "initial_misalignment", 1e-5, effect=True)
         assert_columns_equal(J[:, 3], th, rtol=1e-6)
+
+
+# ----------------------------------------------------------------- paper 001: tilted rotation
+
+def test_thermal_point_columns_are_derivatives_of_rig_output():
+    from accelcal.estimators.thermal import point_design, temperature_design
+    for sin_axis, cos_axis, normal, cross in (("+IA", "+PA", "+OA", "Kp"), ("-IA", "-OA", "+PA", "Ko"),
+                                               ("+PA", "+IA", "-OA", "Kp")):
+        meta = {"test": "tilt_rotation", "g_local_m_s2": 9.7936, "tilt_deg": 0.45, "sin_axis": sin_axis,
+                "cos_axis": cos_axis, "normal_axis": normal, "positions": 12}
+        th = np.arange(12) * 30.0
+        data = pd.DataFrame({"rotation_deg": th, "time_s": np.zeros(12)})
+        X = point_design(meta, th)
+        c = {"K1": 1.0, "K0": 0.0}
+        # dE/dK0 / K1, dE/dK1 (at K0 = 0), dE/dKx / K1 of the forward model
+        assert_columns_equal(X[:, 0], central("tilt_rotation", meta, data, c, {}, "K0", 1e-4))
+        assert_columns_equal(X[:, 1], central("tilt_rotation", meta, data, c, {}, "K1", 1e-4))
+        assert_columns_equal(X[:, 2], central("tilt_rotation", meta, data, c, {}, cross, 1e-4))
+    # the temperature lines: dE/dK0 and dE/dK0T at K1 = 1
+    T = np.array([20.0, 25.0, 30.0, 35.0, 40.0])
+    data = pd.DataFrame({"rotation_deg": np.zeros(5), "time_s": np.zeros(5), "temp_c": T})
+    Xt = temperature_design(T)
+    assert_columns_equal(Xt[:, 0], central("tilt_rotation", meta, data, {"K1": 1.0}, {}, "K0", 1e-4))
+    assert_columns_equal(Xt[:, 1], central("tilt_rotation", meta, data, {"K1": 1.0}, {}, "K0T", 1e-4))
