@@ -21,7 +21,8 @@ from . import uncertainty as unc
 from .adequacy import choose_order
 from .crosscoupling import (CROSS, SQUARE, combine_second_order, delta_c2, fit_mount_pair,
                             pair_key, pair_label)
-from .radius import (PairData, g_levels, ia_polarity, test_radius_iterative, test_radius_static)
+from .radius import (PairData, g_levels, geometric_static_radius, ia_polarity, test_radius_iterative,
+                     test_radius_static)
 
 #: g ranges of the radius table, in g (paper 000 Table 2), plus the full range.
 RADIUS_RANGES = (7.0, 14.0, 25.0)
@@ -125,8 +126,7 @@ def _centrifuge_rig(runs, tumble: dict | None, res: CampaignResult) -> None:
                          "nominal arm radius; the radius is then not independent")
         pair0 = PairData.from_runs([(run_p.meta, run_p.data, 1), (run_m.meta, run_m.data, -1)], 1.0)
         R0 = float(run_p.meta["arm_radius_m"])
-        a = np.where(pair0.table["pol"] > 0, 1, -1) * pair0.table["omega_z"].to_numpy() ** 2 * R0
-        f, _ = pair0.fit(a, 3, subtract_a=False)
+        f, _ = pair0.fit(pair0.inputs(R0), 3, subtract_a=False)
         K1 = 0.5 * (f.value("b+") + f.value("b-"))
         tumble = {"K0": 0.5 * (f.value("K0+") + f.value("K0-")) / K1, "u_K0": 0.0, "K1": K1,
                   "u_K1": 0.0, "K2": 0.0, "u_K2": 0.0}
@@ -312,12 +312,10 @@ def _centrifuge_rig(runs, tumble: dict | None, res: CampaignResult) -> None:
         r.note = (r.note + "; " if r.note else "") + (
             f"includes type-B {uB:.2e} m (uniform) for instrument terms the method leaves in the radius")
     for pol, s in static.items():
-        # sensed along IA (signed): A = a (1 + Kiv a_v) + K2 a^2 + Koq a|a| + K3 a^3; solve for a
-        A = float(np.mean(s.a_g)) - s.lambda_c_rad * g
-        a = A
-        for _ in range(50):
-            a = (A - K2c * a * a - ia.d * a * abs(a) - (ia.c3 or 0.0) * a**3) / scale
-        Rc = s.radius_m * a / A
+        # the radius at which the forward model, with K2, Koq, K3 and the IA cross term with
+        # gravity, reproduces the measured input of eq 6
+        coeffs = {"K2": K2c, "Koq": ia.d, "K3": ia.c3 or 0.0, **({cross: Kiv} if cross else {})}
+        Rc = geometric_static_radius((run_p if pol == "+" else run_m).meta, s, coeffs)
         res.radii.append(RadiusResult(rig, pol, "static_corrected", None, 1.0, Rc,
                                       math.hypot(s.std_uncertainty_m, s.radius_m * g * uKiv),
                                       note="eq 6 radius with K2, Koq, K3 and the cross-coupling with gravity removed"))

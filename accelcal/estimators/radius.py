@@ -18,23 +18,57 @@ import numpy as np
 import pandas as pd
 
 from ..constants import G_STANDARD, OMEGA_EARTH
-from ..physics.axes import parse_plane
+from ..physics.geometry import geometry_of
+from ..physics.instrument import indicated_acceleration
+from ..physics.rigs import NOMINAL, centrifuge_specific_force
 from .adequacy import DwellFit, weighted_dwell_fit
 from .dwells import dwell_table, merge_rest, noise_model, rest_mean
 
 
 def ia_polarity(meta: Mapping) -> int | None:
     """+1 when IA points towards the spindle, -1 when away, None when IA is not radial
-    (drop-format.md: the direction to the spindle makes angle phi with the first plane axis)."""
-    e1, e2 = parse_plane(meta["mount_plane"])
-    phi = float(meta["mount_angle_deg"]) % 360.0
-    c = {0.0: 1, 180.0: -1}
-    s = {90.0: 1, 270.0: -1}
-    if e1 == 0 and phi in c:
-        return c[phi]
-    if e2 == 0 and phi in s:
-        return s[phi]
-    return None
+    (:attr:`accelcal.physics.geometry.CentrifugeMount.ia_polarity`)."""
+    return geometry_of(meta).ia_polarity
+
+
+def centripetal_unit_input(meta: Mapping, radius_m: float = 1.0, mass_centre_offset: float = 0.0) -> np.ndarray:
+    """Specific force on (IA, PA, OA) [m/s2] per unit (rad/s)^2 of table rate.
+
+    The centripetal part of :func:`accelcal.physics.rigs.centrifuge_specific_force` (rate 1
+    minus rate 0, no earth rate) for a turning centre at ``radius_m`` [m] and the effects.md
+    ``mass_centre_offset`` [m] along the first plane axis; at the defaults, the unit vector
+    towards the spindle in instrument axes.
+    """
+    eff = {"mass_centre_offset": float(mass_centre_offset)}
+    F = centrifuge_specific_force(meta, {"table_rate_rad_s": np.array([1.0, 0.0])}, eff, radius_m=radius_m)
+    return F[0] - F[1]
+
+
+def radial_input_columns(meta: Mapping, rate: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """d a / d R and d a / d r of the signed input a = f . direction.
+
+    Parameters
+    ----------
+    meta : mapping
+        The run's metadata.
+    rate : ndarray
+        Logged table rate of each dwell [rad/s] (the earth rate is added by the forward model).
+    direction : (3,) ndarray
+        Unit vector in instrument axes (the pair's nominal direction to the spindle).
+
+    Returns
+    -------
+    dR, dr : ndarray
+        [m/s2 per m]: the specific force of :func:`accelcal.physics.rigs.centrifuge_specific_force`
+        (earth rate included) along ``direction`` per metre of turning-centre radius and per
+        metre of mass-centre offset.  The centripetal input is linear in both, so
+        a = R dR + r dr exactly.
+    """
+    d = {"table_rate_rad_s": np.asarray(rate, float)}
+    f0 = centrifuge_specific_force(meta, d, NOMINAL, radius_m=0.0) @ direction
+    fR = centrifuge_specific_force(meta, d, NOMINAL, radius_m=1.0) @ direction
+    fr = centrifuge_specific_force(meta, d, {**NOMINAL, "mass_centre_offset": 1.0}, radius_m=0.0) @ direction
+    return fR - f0, fr - f0
 
 
 @dataclass
@@ -48,6 +82,50 @@ class StaticRadius:
     omega_g: list[float]
     a_g: list[float]
     budget: list[dict] = field(default_factory=list)
+
+
+def static_radius_column(meta: Mapping, rate: np.ndarray, lam: float) -> np.ndarray:
+    """d a_IA / d R [m/s2 per m] of dwells at logged rates ``rate`` [rad/s] with IA tilted by
+    ``lam`` [rad] (effects.md ``ia_tilt``): s omega_z^2 cos(lam) of the forward model
+    (:func:`accelcal.physics.rigs.centrifuge_specific_force`, earth rate included), the
+    denominator of paper 000 eq 6."""
+    d = {"table_rate_rad_s": np.asarray(rate, float)}
+    eff = {**NOMINAL, "ia_tilt": float(lam)}
+    return (centrifuge_specific_force(meta, d, eff, radius_m=1.0)[:, 0]
+            - centrifuge_specific_force(meta, d, eff, radius_m=0.0)[:, 0])
+
+
+def geometric_static_radius(meta: Mapping, st: "StaticRadius", coeffs: Mapping[str, float]) -> float:
+    """The radius at which the forward model reproduces the static back-calculation's input.
+
+    Eq 6 takes the rate-dependent part of the indicated acceleration, A_k = (E_a,k - E0)/K1,
+    for the centripetal input; the instrument's own terms (K2 a^2, Koq a|a|, K3 a^3, the IA
+    cross term with gravity on the vertical axis) are in it.  This returns the R' for which
+    mean_k [A(f_k(R')) - A(f_rest)] = mean_k A_k, with f from
+    :func:`accelcal.physics.rigs.centrifuge_specific_force` (IA tilted by lambda_c, earth rate)
+    and A from :func:`accelcal.physics.instrument.indicated_acceleration` with ``coeffs``
+    [SI]; K0 and K1 cancel.  Secant iteration from eq 6's R.
+    """
+    g = float(meta["g_local_m_s2"])
+    eff = {**NOMINAL, "ia_tilt": float(st.lambda_c_rad)}
+    c = {k: v for k, v in coeffs.items() if k not in ("K0", "K1")}
+    rates = np.r_[np.asarray(st.omega_g, float), 0.0]
+    target = float(np.mean(st.a_g)) - st.lambda_c_rad * g
+
+    def h(R):
+        A = indicated_acceleration(c, centrifuge_specific_force(meta, {"table_rate_rad_s": rates}, eff, radius_m=R))
+        return float(np.mean(A[:-1] - A[-1])) - target
+
+    R0, R1 = st.radius_m, st.radius_m * (1.0 + 1e-6)
+    h0, h1 = h(R0), h(R1)
+    for _ in range(50):
+        if h1 == h0:
+            break
+        R0, R1, h0 = R1, R1 - h1 * (R1 - R0) / (h1 - h0), h1
+        h1 = h(R1)
+        if abs(R1 - R0) <= 1e-15 * abs(R1):
+            break
+    return float(R1)
 
 
 def test_radius_static(meta: Mapping, data: pd.DataFrame, K0: float, K1: float,
@@ -86,12 +164,15 @@ def test_radius_static(meta: Mapping, data: pd.DataFrame, K0: float, K1: float,
     w = ref["rate"].to_numpy()
     uw = ref["rate_std"].to_numpy() / np.sqrt(ref["n"].to_numpy())
     a_g = Ea / K1 - K0
-    Rk = s * (a_g - lam * g) / (wz**2 * np.cos(lam))
+    # eq 6's denominator is the regressor of R: d a_IA / d R = s omega_z^2 cos(lambda_c) of the
+    # forward model with IA tilted by lambda_c (effects.md ia_tilt), earth rate included
+    cR = static_radius_column(meta, ref["rate"].to_numpy(), lam)
+    Rk = (a_g - lam * g) / cR
     R = float(Rk.mean())
     m = len(Rk)
-    # GUM: R = mean_k s (E_a,k − E0) / (K1 omega_z,k^2 cos lam)
-    dR_dEa = s / (K1 * wz**2 * np.cos(lam)) / m
-    dR_dE0 = -float(np.sum(s / (K1 * wz**2 * np.cos(lam)))) / m
+    # GUM: R = mean_k (E_a,k − E0) / (K1 c_R,k)
+    dR_dEa = 1.0 / (K1 * cR) / m
+    dR_dE0 = -float(np.sum(1.0 / (K1 * cR))) / m
     dR_dK1 = -R / K1
     dR_dw = -2.0 * Rk / wz * np.sign(wz) * np.sign(w) / m   # d(omega_z)/d(omega) = s_rot
     terms = [("E_a", float(np.sqrt(np.sum((dR_dEa * uEa) ** 2)))),
@@ -135,9 +216,20 @@ def polarity_design(a: np.ndarray, pol: np.ndarray, order: int, odd_quadratic: b
 
 @dataclass
 class PairData:
-    """Dwell data of a mount pair, stacked: one row per dwell group (rest merged per run)."""
-    table: pd.DataFrame           # columns: n, mean_output, ss_within, dof_pe, omega_z, time_mid, sweep, pol, rest
+    """Dwell data of a mount pair, stacked: one row per dwell group (rest merged per run).
+
+    Attributes
+    ----------
+    table : DataFrame
+        n, mean_output, ss_within, dof_pe, rate, omega_z, time_mid, sweep, pol, rest, run_id.
+    K1 : float
+        Scale factor the outputs are divided by [output_unit/(m/s2)].
+    metas : dict
+        Polarity (+1 / -1) -> the run's metadata.
+    """
+    table: pd.DataFrame
     K1: float
+    metas: dict = field(default_factory=dict)
 
     @classmethod
     def from_runs(cls, runs: list[tuple[Mapping, pd.DataFrame, int]], K1: float) -> "PairData":
@@ -147,7 +239,42 @@ class PairData:
             t["pol"] = pol
             t["run_id"] = str(meta.get("run_id", ""))
             rows.append(t)
-        return cls(pd.concat(rows, ignore_index=True), K1)
+        return cls(pd.concat(rows, ignore_index=True), K1, {pol: meta for meta, _, pol in runs})
+
+    def subset(self, keep: np.ndarray) -> "PairData":
+        """The pair restricted to the rows ``keep``."""
+        return PairData(self.table[keep].reset_index(drop=True), self.K1, self.metas)
+
+    @property
+    def direction(self) -> np.ndarray:
+        """Unit vector towards the spindle of the pair's first polarity (phi0 < 180 deg), in
+        instrument axes, from the forward model (:func:`centripetal_unit_input`)."""
+        meta = self.metas[1] if 1 in self.metas else self.metas[-1]
+        u = centripetal_unit_input(meta)
+        return u if 1 in self.metas else -u
+
+    def input_columns(self) -> tuple[np.ndarray, np.ndarray]:
+        """d a / d R and d a / d r of every row (:func:`radial_input_columns`): a is the
+        specific force along :attr:`direction`, positive for the '+' run, negative for '-'."""
+        pol = self.table["pol"].to_numpy()
+        rate = self.table["rate"].to_numpy(float)
+        dR, dr = np.zeros(len(pol)), np.zeros(len(pol))
+        u = self.direction
+        for p, meta in self.metas.items():
+            k = pol == p
+            dR[k], dr[k] = radial_input_columns(meta, rate[k], u)
+        return dR, dr
+
+    def inputs(self, R: float | Mapping[int, float], r: float = 0.0) -> np.ndarray:
+        """Signed input a [m/s2] of eq 7 / eq 9 for every row, from the forward model: a
+        turning centre at R [m] (or one radius per polarity, {+1: R+, -1: R-}) with the
+        mass centre r [m] along the first plane axis (effects.md ``mass_centre_offset``)."""
+        dR, dr = self.input_columns()
+        if isinstance(R, Mapping):
+            pol = self.table["pol"].to_numpy()
+            Rrow = np.where(pol > 0, R.get(1, 0.0), R.get(-1, 0.0))
+            return Rrow * dR + r * dr
+        return float(R) * dR + r * dr
 
     def fit(self, a: np.ndarray, order: int, subtract_a: bool, g_max_ms2: float | None = None,
             odd_quadratic: bool = True) -> tuple[DwellFit, np.ndarray]:
@@ -187,9 +314,10 @@ class IterativeRadius:
 def test_radius_iterative(pair: PairData, R0_plus: float, R0_minus: float, order: int,
                           g_max: float | None = None, u_K1_rel: float = 0.0,
                           tol: float = 1e-11, max_iter: int = 30) -> IterativeRadius:
-    """Iterative regression of paper 000 eq 7 on both IA polarities.
+    """Iterative regression of paper 000 eq 7 on both IA polarities (He & Yin 2017).
 
-    a_i± = ±omega_z^2 R± from the current radii; fit
+    a_i± = R± d a_IA / d R, the IA specific force of the forward model at the current radii
+    (:meth:`PairData.inputs`; ±omega_z^2 R± with the earth rate in omega_z); fit
     E/K1 − a_i = K0± + c± a_i± + [K2 a_i^2 + Koq a_i|a_i|]_(order>=2) + [K3 a_i^3]_(order 3)
     (the odd quadratic is included from order 2: it is separable because both polarities
     are measured, paper 000 §3.1); rescale R± <- R± (1 + c±) and repeat until |c±| < tol.
@@ -198,17 +326,17 @@ def test_radius_iterative(pair: PairData, R0_plus: float, R0_minus: float, order
     """
     T = pair.table
     pol = T["pol"].to_numpy()
-    w2 = T["omega_z"].to_numpy() ** 2
+    dR, _ = pair.input_columns()            # a_i+- = R+- d a_IA / d R of the forward model
     Rp, Rm = float(R0_plus), float(R0_minus)
     gm = None if g_max is None else g_max * G_STANDARD
     it = 0
+    sub = None
     for it in range(1, max_iter + 1):
-        a = np.where(pol > 0, w2 * Rp, -w2 * Rm)
+        a = np.where(pol > 0, Rp, Rm) * dR
         # the g range is judged on the starting radii so the dwell set does not change
         if it == 1:
-            a_sel = a.copy()
-        keep = np.ones(len(T), bool) if gm is None else (np.abs(a_sel) <= gm * 1.02)
-        sub = PairData(T[keep].reset_index(drop=True), pair.K1)
+            keep = np.ones(len(T), bool) if gm is None else (np.abs(a) <= gm * 1.02)
+            sub = pair.subset(keep)
         fit, _ = sub.fit(a[keep], order, subtract_a=True)
         cp, cm = fit.value("b+"), fit.value("b-")
         Rp *= 1.0 + cp
@@ -222,8 +350,7 @@ def test_radius_iterative(pair: PairData, R0_plus: float, R0_minus: float, order
 
 def g_levels(pair: PairData, R_plus: float, R_minus: float) -> list[float]:
     """The distinct centripetal levels of the pair's dwells, in g (standard), rounded."""
-    T = pair.table[~pair.table["rest"]]
-    a = T["omega_z"].to_numpy() ** 2 * np.where(T["pol"].to_numpy() > 0, R_plus, R_minus)
+    a = np.abs(pair.inputs({1: R_plus, -1: R_minus}))[~pair.table["rest"].to_numpy()]
     return sorted({round(float(x) / G_STANDARD, 1) for x in a})
 
 
