@@ -17,12 +17,15 @@ with g.  The coefficient of a^2 is (eq 2, for the plane e1-e2 at nominal angle p
     c2 = K11 cos^2 phi0 + K22 sin^2 phi0 + K12 cos phi0 sin phi0
 
 (:func:`eq2_row`: the derivatives of the instrument model for a unit centripetal input
-from the forward model), K11, K22 the square terms of the plane axes (K2 for IA, Kpp for PA, Koo for OA) and K12
-their cross term (Kip for IA-PA, Kio for IA-OA, Kpo for PA-OA).  All pairs present are
+from the forward model), K11, K22 the square terms of the plane axes (K2 for IA, Kpp for
+PA, Koo for OA) and K12 their cross term (Kip for IA-PA, Kio for IA-OA, Kpo for PA-OA).  All pairs present are
 combined by weighted least squares; with the standard set it reduces to eq 3:
 K2 = c2(IA 0/180), Kpp = c2(IA-PA 90/270), Kip = 2 c2(IA-PA 45/225) − (K2 + Kpp),
 Koo = c2(IA-OA 90/270), Kio = 2 c2(IA-OA 45/225) − (K2 + Koo).
 Units: c2 and the K's in s^2/m, c3 and K3 in s^4/m^2, angles in rad.
+
+Reference: He & Yin 2017, cross-coupling coefficients on a precision centrifuge (paper 000;
+``shared/docs/methods.md``).
 """
 from __future__ import annotations
 
@@ -33,6 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from ..fitting.core import lstsq_svd
 from ..physics.axes import AXES, parse_plane
 from ..physics.geometry import geometry_of
 from ..physics.instrument import output_derivative
@@ -96,7 +100,22 @@ def delta_c2(K: Mapping[str, float], plane: str, phi0_rad: float, dphi_rad: floa
 
 
 def kip_from_45(c2_45: float, K2: float, Kpp: float) -> float:
-    """eq 3: Kip = 2 c2(45 deg) - (K2 + Kpp)."""
+    """Kip from the 45 deg mount (He & Yin 2017, paper 000 eq 3).
+
+    .. math::
+
+        K_{ip} = 2 c_2(45^\\circ) - (K_2 + K_{pp})
+
+    Parameters
+    ----------
+    c2_45, K2, Kpp : float
+        [s2/m].
+
+    Returns
+    -------
+    float
+        Kip [s2/m].
+    """
     return 2.0 * c2_45 - (K2 + Kpp)
 
 
@@ -143,8 +162,30 @@ def mount_geometry(R: float, r: float, phi_rad: float) -> tuple[float, float]:
 
 
 def alignment(R_plus: float, R_minus: float, plane: str, phi0_deg: float) -> Alignment:
-    """R = (R+ + R-)/2, r = (R- − R+)/2 (so that rho(0) = R − r = R+), and for the mount
-    at phi0 and phi0 + 180 deg the true radius and angle error (paper 000 §2.2)."""
+    """Alignment analysis of a mount (He & Yin 2017, paper 000 §2.2).
+
+    .. math::
+
+        R = (R_+ + R_-)/2, \\quad r = (R_- - R_+)/2, \\quad
+        R_{1,2} = \\sqrt{(R \\mp r \\cos\\varphi_0)^2 + (r \\sin\\varphi_0)^2}, \\quad
+        \\Delta\\varphi_{1,2} = \\arctan\\frac{r \\sin\\varphi_0}{R \\mp r \\cos\\varphi_0}
+
+    Parameters
+    ----------
+    R_plus, R_minus : float
+        Test radii of the IA polarities [m].
+    plane : str
+        The mount's plane.
+    phi0_deg : float
+        Nominal mount angle [deg].
+
+    Returns
+    -------
+    Alignment
+        R, r [m] (r along the first plane axis, so that rho(0) = R - r = R+), and for the
+        mount at phi0 and phi0 + 180 deg the distance [m] and angle error [rad] of the mass
+        centre (:func:`mount_geometry`, from the forward model).
+    """
     R = 0.5 * (R_plus + R_minus)
     r = 0.5 * (R_minus - R_plus)
     phi = np.radians(phi0_deg)
@@ -155,6 +196,26 @@ def alignment(R_plus: float, R_minus: float, plane: str, phi0_deg: float) -> Ali
 
 @dataclass
 class PairFit:
+    """Eq 9 fit of one mount pair (:func:`fit_mount_pair`).
+
+    Attributes
+    ----------
+    plane, phi0_deg : str, float
+        The mount [deg].
+    run_ids : (str, str)
+    order : int
+        Chosen model order; ``fits`` holds every order tried, ``fit`` the chosen one.
+    c2, u_c2 : float
+        Coefficient of a^2 [s2/m] (eq 2's combination of the second-order terms).
+    d, u_d : float
+        Polarity-odd quadratic [s2/m] (Koq for the IA pair).
+    c3, u_c3 : float or None
+        Cubic [s4/m2] (K3 for the IA pair), order 3 only.
+    adequate : bool
+    geometry : Alignment
+    dwells : DataFrame
+        Dwell table with the signed input ``a`` [m/s2], residuals and fitted values.
+    """
     plane: str
     phi0_deg: float
     run_ids: tuple[str, str]
@@ -180,7 +241,8 @@ def pair_key(meta: Mapping) -> tuple[str, float]:
 
 
 def fit_mount_pair(run_a: tuple[Mapping, pd.DataFrame], run_b: tuple[Mapping, pd.DataFrame],
-                   K1: float, R_plus: float, R_minus: float, orders=(2, 3)) -> PairFit:
+                   K1: float, R_plus: float, R_minus: float, orders=(2, 3), *,
+                   pair: PairData | None = None) -> PairFit:
     """Fit eq 9 to a mount pair (He & Yin 2017, paper 000 §3.1).
 
     .. math::
@@ -198,6 +260,8 @@ def fit_mount_pair(run_a: tuple[Mapping, pd.DataFrame], run_b: tuple[Mapping, pd
         r = (R- - R+)/2 along the first plane axis.
     orders : tuple of int
         Model orders tried (2: c2 and d; 3: + c3).
+    pair : PairData, optional
+        The pair's dwell data when already built (with the same K1).
 
     Returns
     -------
@@ -215,7 +279,8 @@ def fit_mount_pair(run_a: tuple[Mapping, pd.DataFrame], run_b: tuple[Mapping, pd
     (ma, da), (mb, db) = run_a, run_b
     plane, phi0 = pair_key(ma)
     geo = alignment(R_plus, R_minus, plane, phi0)
-    pair = PairData.from_runs([(ma, da, 1), (mb, db, -1)], K1)
+    if pair is None:
+        pair = PairData.from_runs([(ma, da, 1), (mb, db, -1)], K1)
     T = pair.table
     # eq 9's signed input: the specific force of the forward model along the mount's nominal
     # direction to the spindle, turning centre R and mass centre r from the test radii (the
@@ -245,10 +310,32 @@ class Combination:
 
 
 def combine_second_order(pairs: list[PairFit], u_dc2: Mapping[str, float] | None = None) -> Combination:
-    """Solve c2(pair) = K11 cos^2 + K22 sin^2 + K12 cos sin for the K's present (weighted
-    by 1/(u_A(c2)^2 + u_B(dc2)^2)); coefficients no pair can see are left out.  Returns
-    values, covariance and each coefficient's sensitivity to each pair's c2 (the GUM
-    sensitivity coefficients: e.g. 2 for Kip on c2(45 deg), −1 on K2 and Kpp)."""
+    """The second-order coefficients from every mount pair: eq 2 by weighted least squares
+    (He & Yin 2017, paper 000 eqs 2–3).
+
+    .. math::
+
+        c_2(\\text{pair}) = K_{11} \\cos^2\\varphi_0 + K_{22} \\sin^2\\varphi_0
+            + K_{12} \\cos\\varphi_0 \\sin\\varphi_0
+
+    With the standard set of mounts this is eq 3: Kip = 2 c2(45 deg) - (K2 + Kpp).
+
+    Parameters
+    ----------
+    pairs : list of PairFit
+        The eq 9 fits, c2 [s2/m] with type-A u.
+    u_dc2 : mapping, optional
+        Pair label -> type-B standard uncertainty of c2 from eq 8 [s2/m].
+
+    Returns
+    -------
+    Combination
+        Values [s2/m], covariance, std and each coefficient's sensitivity to each pair's c2
+        (the GUM sensitivity coefficients: 2 for Kip on c2(45 deg), -1 on K2 and Kpp).
+        Weights 1/(u_A(c2)^2 + u_B(dc2)^2); coefficients no pair can see, or that the pairs
+        only determine in combinations, are left out.  The rows are :func:`eq2_row` (the
+        forward model); the solve is :func:`accelcal.fitting.core.lstsq_svd`.
+    """
     u_dc2 = u_dc2 or {}
     rows, y, var, labels = [], [], [], []
     for p in pairs:
@@ -265,13 +352,11 @@ def combine_second_order(pairs: list[PairFit], u_dc2: Mapping[str, float] | None
     names = [UNKNOWNS[j] for j in used]
     w = 1.0 / np.asarray(var)
     Aw = A * np.sqrt(w)[:, None]
-    # keep only identifiable unknowns: those whose unit vector lies in the row space
-    _, sv, Vt = np.linalg.svd(Aw, full_matrices=False)
-    rank = int(np.sum(sv > sv.max() * 1e-9)) if sv.size else 0
-    V = Vt[:rank]
-    ident = [j for j in range(len(names)) if np.linalg.norm(V[:, j]) > 1 - 1e-9]
-    pinv = np.linalg.pinv(Aw)                  # (unknowns x pairs), weighted
-    S = pinv * np.sqrt(w)[None, :]             # d K / d c2
+    # the fitting core's weighted least squares; only identifiable unknowns (unit vector in
+    # the row space of the design) are kept
+    sol = lstsq_svd(Aw, np.asarray(y) * np.sqrt(w))
+    ident = [j for j in range(len(names)) if sol.estimable[j]]
+    S = (sol.cov @ Aw.T) * np.sqrt(w)[None, :]  # d K / d c2: the solution is linear in the c2's
     beta = S @ np.asarray(y)
     cov = S @ np.diag(var) @ S.T
     values = {names[j]: float(beta[j]) for j in ident}
@@ -286,8 +371,10 @@ def combine_second_order(pairs: list[PairFit], u_dc2: Mapping[str, float] | None
 
 
 def pair_label(p: PairFit) -> str:
+    """'IA-PA 45/225': the pair's plane and its two mount angles [deg]."""
     return f"{p.plane} {p.phi0_deg:g}/{p.phi0_deg + 180:g}"
 
 
 def axis_name(i: int) -> str:
+    """'IA', 'PA' or 'OA' of an axis index."""
     return AXES[i]

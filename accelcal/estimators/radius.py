@@ -73,6 +73,21 @@ def radial_input_columns(meta: Mapping, rate: np.ndarray, direction: np.ndarray)
 
 @dataclass
 class StaticRadius:
+    """Result of :func:`test_radius_static` for one IA polarity ('+' or '-').
+
+    Attributes
+    ----------
+    radius_m, std_uncertainty_m : float
+        R [m] and its GUM u (K0 cancelling exactly, correlations kept).
+    std_uncertainty_printed_m : float
+        u by the form printed under eq 6 (a_g and lambda_c independent) [m].
+    lambda_c_rad, u_lambda_c_rad : float
+        Total misalignment of IA to the horizontal (eq 4) [rad].
+    omega_g, a_g : list of float
+        Logged rate [rad/s] and a_g [m/s2] of each reference dwell.
+    budget : list of dict
+        Contribution of each input [m].
+    """
     polarity: str
     radius_m: float
     std_uncertainty_m: float          # GUM, K0 cancelling exactly (correlations kept)
@@ -130,21 +145,41 @@ def geometric_static_radius(meta: Mapping, st: "StaticRadius", coeffs: Mapping[s
 
 def test_radius_static(meta: Mapping, data: pd.DataFrame, K0: float, K1: float,
                        u_K0: float = 0.0, u_K1: float = 0.0, level_g: float = 1.0) -> StaticRadius:
-    """Static back-calculation of the test radius (paper 000 eqs 4–6).
+    """Static back-calculation of the test radius (He & Yin 2017, paper 000 eqs 4–6).
 
-    lambda_c = (E0/K1 − K0)/g                                   (eq 4)
-    a_g      = E_a/K1 − K0                                       (eq 5, corrected)
-    R_g      = s (a_g − lambda_c g) / (omega_z^2 cos lambda_c)   (eq 6)
+    .. math::
 
-    E0: mean rest output over the table azimuths; E_a: mean output of each dwell whose
-    centripetal level is nearest ``level_g`` (all such dwells, up and down sweeps, are
-    averaged); omega_z^2 = omega^2 ± 2 omega Omega_e sin(Phi) + ... is the inertial rate
-    about the vertical (eq 6's denominator, exact for either rotation sense); s = ±1 the
-    IA polarity.  K0 in m/s^2, K1 in output_unit per m/s^2 from the tumble.
+        \\lambda_c = (E_0/K_1 - K_0)/g \\quad (4), \\qquad a_g = E_a/K_1 - K_0 \\quad (5),
+        \\qquad R_g = \\frac{a_g - \\lambda_c g}{s \\, \\omega_z^2 \\cos\\lambda_c} \\quad (6)
 
-    Uncertainty: since a_g − lambda_c g = (E_a − E0)/K1, K0 cancels; the GUM budget takes
-    E_a, E0, K1 and omega as inputs.  The form printed under eq 6 treats a_g and lambda_c
-    as independent (counting u(K0) twice) and is returned for comparison.
+    (eq 5 corrected: the paper prints E_a/(K1 - K0)).
+
+    Parameters
+    ----------
+    meta : mapping
+        Typed metadata of an IA-radial centrifuge run (``g_local_m_s2`` [m/s2]).
+    data : DataFrame
+        The run's readings (``step``, ``table_rate_rad_s`` [rad/s], ``table_angle_deg``
+        [deg], ``output`` [output_unit]).
+    K0, K1 : float
+        Bias [m/s2] and scale factor [output_unit/(m/s2)] from the tumble.
+    u_K0, u_K1 : float
+        Their standard uncertainties.
+    level_g : float
+        Reference level of eq 5 [g]: the dwells nearest it (up and down sweeps) are used.
+
+    Returns
+    -------
+    StaticRadius
+        R [m] with its GUM u (K0 cancels: a_g - lambda_c g = (E_a - E0)/K1; inputs E_a, E0,
+        K1, omega) and the u of the form printed under eq 6 (a_g and lambda_c independent,
+        u(K0) counted twice), lambda_c [rad].
+
+    Notes
+    -----
+    E0 is the mean rest output over the table azimuths (eq 4: the spindle tilt cancels).
+    The denominator s omega_z^2 cos(lambda_c) is the regressor of R of the forward model
+    (:func:`static_radius_column`: earth rate in omega_z, exact for either rotation sense).
     """
     s = ia_polarity(meta)
     if s is None:
@@ -195,9 +230,28 @@ MODEL_TERMS = {1: [], 2: ["K2", "Koq"], 3: ["K2", "Koq", "K3"]}
 
 def polarity_design(a: np.ndarray, pol: np.ndarray, order: int, odd_quadratic: bool = True,
                     names: tuple[str, str, str] = ("c2", "d", "c3")) -> tuple[np.ndarray, list[str]]:
-    """Regressors of eq 7 / eq 9 on signed inputs a (m/s^2) of the two polarities pol = ±1:
-    K0+, K0-, b+ a+, b- a-, then c2 a^2, d a|a| (the polarity-odd quadratic, eq 9's Koq
-    term), c3 a^3 by order.  Each polarity's terms are zero for the other's readings."""
+    """Regressors of eq 7 / eq 9 (He & Yin 2017, paper 000).
+
+    Parameters
+    ----------
+    a : ndarray
+        Signed input of each row [m/s2] (:meth:`PairData.inputs`).
+    pol : ndarray
+        Polarity of each row, +1 / -1.
+    order : int
+        1: K0+-, b+-; 2: + c2 a^2 and d a|a| (the polarity-odd quadratic, eq 9's Koq term);
+        3: + c3 a^3.
+    odd_quadratic : bool
+        Include d a|a| from order 2.
+    names : tuple of str
+        Names of the c2, d, c3 columns.
+
+    Returns
+    -------
+    X, names : ndarray, list of str
+        Columns [1, 1, m/s2, m/s2, (m/s2)^2, (m/s2)^2, (m/s2)^3]; each polarity's own terms
+        are zero for the other's rows.
+    """
     p = (pol > 0).astype(float)
     m = 1.0 - p
     cols = [p, m, a * p, a * m]
@@ -301,6 +355,20 @@ class PairData:
 
 @dataclass
 class IterativeRadius:
+    """Result of :func:`test_radius_iterative`.
+
+    Attributes
+    ----------
+    order : int
+        Model order of eq 7.
+    g_max : float or None
+        Upper end of the g range [g] (None: full range).
+    R_plus, R_minus, u_plus, u_minus : float
+        Radii of the two IA polarities and their standard uncertainties [m].
+    iterations : int
+    fit : DwellFit
+        The last regression, with its adequacy.
+    """
     order: int
     g_max: float | None              # g (standard), None = full range
     R_plus: float
@@ -349,13 +417,36 @@ def test_radius_iterative(pair: PairData, R0_plus: float, R0_minus: float, order
 
 
 def g_levels(pair: PairData, R_plus: float, R_minus: float) -> list[float]:
-    """The distinct centripetal levels of the pair's dwells, in g (standard), rounded."""
+    """The distinct centripetal levels of the pair's dwells.
+
+    Parameters
+    ----------
+    pair : PairData
+    R_plus, R_minus : float
+        Polarity radii [m].
+
+    Returns
+    -------
+    list of float
+        |a| of the moving dwells [g, standard], rounded to 0.1 g.
+    """
     a = np.abs(pair.inputs({1: R_plus, -1: R_minus}))[~pair.table["rest"].to_numpy()]
     return sorted({round(float(x) / G_STANDARD, 1) for x in a})
 
 
 def earth_rate_term(meta: Mapping) -> float:
-    """Omega_e sin(latitude), rad/s: the vertical earth rate that eq 6 includes."""
+    """The vertical earth rate that eq 6 includes.
+
+    Parameters
+    ----------
+    meta : mapping
+        ``site_latitude_deg`` [deg].
+
+    Returns
+    -------
+    float
+        Omega_e sin(latitude) [rad/s].
+    """
     return OMEGA_EARTH * np.sin(np.radians(float(meta["site_latitude_deg"])))
 
 

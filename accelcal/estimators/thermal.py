@@ -47,7 +47,8 @@ from ..fitting.core import lack_of_fit, linear_fit
 from ..physics.geometry import geometry_of
 from ..physics.instrument import indicated_acceleration, output_derivative
 from ..physics.rigs import tilt_rotation_specific_force
-from ..results import CoefficientResult
+from ..results import BudgetTerm, CoefficientResult
+from . import uncertainty as unc
 
 METHOD = "tilt_rotation_ls"
 METHOD_TWO_POSITION = "tilt_rotation_two_position"
@@ -353,11 +354,28 @@ def fit_point(theta_deg: Sequence[float], output: Sequence[float], g: float, til
 
 def closed_form_n4(output_0_90_180_270: Sequence[float], g: float, tilt_deg: float,
                    ia_sign: int = 1) -> dict[str, float]:
-    """Paper 001 closed forms for n = 4 (IA the sin axis): outputs E0..E3 at 0, 90, 180, 270 deg.
+    """Paper 001's closed forms for n = 4 positions, IA the sin axis (Zhang et al. 2021).
 
-    K1 = sigma (E1 - E3) / (2 g sin gamma)  [output_unit/(m/s^2)],
-    K0 = (E0 + E1 + E2 + E3) / 4 / K1       [m/s^2]   (the mean output is K1 K0),
-    cos term (E0 - E2)/2 [output_unit].
+    .. math::
+
+        K_1 = \\sigma \\frac{E_1 - E_3}{2 g \\sin\\gamma}, \\qquad
+        K_0 = \\frac{E_0 + E_1 + E_2 + E_3}{4 K_1}
+
+    Parameters
+    ----------
+    output_0_90_180_270 : sequence of float
+        E0..E3 at 0, 90, 180, 270 deg [output_unit].
+    g : float
+        [m/s2].
+    tilt_deg : float
+        gamma [deg].
+    ia_sign : int
+        sigma, the sign of IA in ``sin_axis``.
+
+    Returns
+    -------
+    dict
+        K1 [output_unit/(m/s2)], K0 [m/s2], mean_output, cos_term (E0 - E2)/2 [output_unit].
     """
     E0, E1, E2, E3 = (float(x) for x in output_0_90_180_270)
     K1 = ia_sign * (E1 - E3) / (2.0 * g * math.sin(math.radians(tilt_deg)))
@@ -452,20 +470,39 @@ def fit_temperature_model(temp_c: Sequence[float], K0: Sequence[float], u_K0: Se
                           K1: Sequence[float], u_K1: Sequence[float], t_ref: float = T_REF_C,
                           birge: bool = True, level: float = 0.95,
                           dof_u: float | None = None) -> dict[str, Any]:
-    """Fit the effects.md temperature model across temperature points (paper 001).
+    """Fit the effects.md temperature model across temperature points (Zhang et al. 2021,
+    paper 001).
 
-    temp_c: mean temperature of each point (degC); K0, u_K0: per-point bias and standard
-    uncertainty (m/s^2); K1, u_K1: per-point scale factor (output_unit/(m/s^2)).
+    .. math::
 
-    K0(T) = K0 + K0T (T - t_ref)      weighted LS of the per-point K0 on T
-    K1(T) = K1 (1 + K1T (T - t_ref))  weighted LS of K1(T) = p0 + p1 (T - t_ref); K1 = p0,
-                                      K1T = p1 / p0 (1/degC), uncertainty by the delta method
-                                      with the p0-p1 covariance.
-    Weights 1/u^2.  When chi2 is too large for nu = N - 2 (p < 0.05) the covariance of that
-    line is scaled by chi2/nu (``birge``).  Degrees of freedom of the result: N - 2 when scaled
-    or when ``dof_u`` (the dof of the per-point uncertainties) is not given, else dof_u.
-    Intervals: +- t_dof(0.5 + level/2) * u (Student t).  Returns values, standard
-    uncertainties, dof, 95 % intervals, chi2 and Birge ratios.
+        K_0(T) = K_0 + K_{0T} (T - T_{ref}), \\qquad
+        K_1(T) = K_1 (1 + K_{1T} (T - T_{ref})) = p_0 + p_1 (T - T_{ref})
+
+    Parameters
+    ----------
+    temp_c : sequence of float
+        Mean temperature of each point [degC].
+    K0, u_K0 : sequence of float
+        Per-point bias and its standard uncertainty [m/s2].
+    K1, u_K1 : sequence of float
+        Per-point scale factor and its standard uncertainty [output_unit/(m/s2)].
+    t_ref : float
+        T_ref [degC].
+    birge : bool
+        When chi2 of a line fails the core's test at 5 % (nu = N - 2), scale that line's
+        covariance by chi2/nu.
+    level : float
+        Coverage probability of the intervals.
+    dof_u : float, optional
+        Degrees of freedom of the per-point uncertainties.
+
+    Returns
+    -------
+    dict
+        K0, u_K0, K0T, u_K0T, K1 (= p0), u_K1, K1T (= p1 / p0, u by the delta method with the
+        p0-p1 covariance), their dof (N - 2 when scaled or when ``dof_u`` is not given,
+        else dof_u), Student-t intervals, chi2 and Birge ratios.  Weighted LS (weights
+        1/u^2) through :func:`accelcal.fitting.core.linear_fit` on :func:`temperature_design`.
     """
     T = np.asarray(temp_c, float)
     N = T.size
@@ -693,14 +730,34 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = "", *,
                         pooled: bool = True) -> tuple[list[CoefficientResult], dict[str, Any]]:
     """All of paper 001 on one tilt_rotation run: K0, K1, K0T, K1T and the checks.
 
-    meta: typed metadata (g_local_m_s2, tilt_deg, sin_axis, cos_axis, normal_axis, positions,
-    output_unit); data: time_s, temp_set_c, temp_c, rotation_deg, output.
-    Returns (coefficients, extras).  coefficients: K0 (m/s2), K1 (<output_unit>/(m/s2)),
-    K0T (m/s2/degC), K1T (1/degC) at T_ref = 20 degC, method 'tilt_rotation_ls' (or
-    'tilt_rotation_two_position' when the run has fewer than 3 positions).  extras (JSON-able):
-    geometry, per-point table, temperature model (with 95 % intervals), per-sweep repeatability,
-    fixed-point method and its comparison with the rotation method, closed-form check,
-    compensation (output-temperature sensitivity before/after), flags.
+    .. math::
+
+        E = K_1(T) (K_0(T) + a_i), \\quad K_0(T) = K_0 + K_{0T}(T - T_{ref}), \\quad
+        K_1(T) = K_1 (1 + K_{1T}(T - T_{ref}))
+
+    (Zhang et al. 2021, paper 001; effects.md temperature model, T_ref = 20 degC).
+
+    Parameters
+    ----------
+    meta : mapping
+        Typed metadata: g_local_m_s2 [m/s2], tilt_deg [deg], sin_axis, cos_axis,
+        normal_axis, positions, output_unit.
+    data : DataFrame
+        time_s [s], temp_set_c [degC], temp_c [degC], rotation_deg [deg], output [output_unit].
+    rig_id : str
+    pooled : bool
+        Weight the temperature lines by the per-point uncertainties from the residual
+        variance pooled over the run (default) instead of each point's own.
+
+    Returns
+    -------
+    (coefficients, extras)
+        K0 [m/s2], K1 [output_unit/(m/s2)], K0T [m/s2/degC], K1T [1/degC], method
+        'tilt_rotation_ls' ('tilt_rotation_two_position' when the run has fewer than 3
+        positions); extras (JSON-able): geometry, per-point table, temperature model (95 %
+        intervals), per-sweep repeatability, fixed-point method and its comparison with the
+        rotation method, closed-form check, compensation (output-temperature sensitivity
+        before/after), flags.  :func:`budget_terms` gives their GUM budgets.
     """
     geo = rig_geometry(meta)
     unit = str(meta.get("output_unit", "out"))
@@ -802,3 +859,37 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = "", *,
                                   "after": temperature_correlation(after, T)}
     extras["flags"] = flags
     return coeffs, _jsonable(extras)
+
+
+def budget_terms(coefficients: Sequence[CoefficientResult], model: Mapping[str, Any]) -> list[BudgetTerm]:
+    """GUM budget lines of paper 001's coefficients (JCGM 100 §4.2: type A from the fit).
+
+    Parameters
+    ----------
+    coefficients : sequence of CoefficientResult
+        K0, K1, K0T, K1T of :func:`process_thermal_run`.
+    model : mapping
+        Its ``extras['temperature_model']`` (:func:`fit_temperature_model`).
+
+    Returns
+    -------
+    list of BudgetTerm
+        Per coefficient the weighted least-squares line over the temperature points with the
+        per-point uncertainties, and, when their scatter exceeds them (Birge rule), the
+        between-point scatter as a second type-A line; the combined u is the coefficient's.
+        The fixture's thermal tilt is not a line: the method cannot tell it from the
+        instrument's bias TC (paper 001 §3.2), which the K0T note says.
+    """
+    out = []
+    for c in coefficients:
+        line = "K0" if c.name in ("K0", "K0T") else "K1"
+        birge = model.get("birge_ratio_" + line)
+        applied = bool(model.get("birge_applied_" + line)) and birge is not None and birge > 1
+        u0 = c.std_uncertainty / birge if applied else c.std_uncertainty
+        terms = [(f"weighted LS of {line}(T) over {model.get('n_points')} temperature points (paper 001), "
+                  "per-point uncertainties", c.value, u0, 1.0, "A", "normal")]
+        if applied:
+            terms.append((f"between-point scatter of {line}(T): Birge ratio {birge:.3g}", 0.0,
+                          u0 * math.sqrt(birge * birge - 1.0), 1.0, "A", "normal"))
+        out += unc.linear_budget(c.name, terms, method=c.method, rig_id=c.rig_id, value=c.value).terms
+    return out

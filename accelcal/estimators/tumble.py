@@ -33,17 +33,21 @@ K3 + 32 Koq / (15 pi g); only the weak cos 5 psi and higher harmonics separate t
 """
 from __future__ import annotations
 
-from collections.abc import Mapping
+import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
-from ..fitting.core import (FitResult, GaussNewton, LackOfFit, Parameter, ParameterSet, finish_fit,
-                            gauss_newton, lstsq_svd)
-from ..physics.axes import parse_signed_axis
+from scipy import stats
+from ..fitting.core import (FitResult, GaussNewton, LackOfFit, Parameter, ParameterSet, birge_ratio,
+                            finish_fit, gauss_newton, lstsq_svd)
+from ..physics.axes import AXES, parse_signed_axis
+from ..physics.geometry import TumbleHead, geometry_of
 from ..physics.instrument import output_derivative
 from ..physics.rigs import rig_output, tumble_specific_force
-from ..results import CoefficientResult
+from ..results import BudgetTerm, CoefficientResult
+from . import uncertainty as unc
 from .adequacy import pure_error_test
 
 #: Parameters of the tumble fit, in order (effects.md names; theta0 = ``initial_misalignment``).
@@ -55,27 +59,41 @@ _ALIAS_NOTE = ("theta0 aliases with an OA cross-axis sensitivity Ko in a single 
 
 @dataclass
 class TumbleFit:
-    """Result of :func:`fit_tumble` (paper 003, LM fit of K0, K1, K2, theta0).
+    """Result of :func:`fit_tumble` (Zhan & Cai, paper 003: LM fit of K0, K1, K2, theta0).
 
-    values:      dict K0 (m/s^2), K1 (output_unit per m/s^2), K2 (s^2/m), theta0 (rad)
-    std_uncertainties: dict, same keys and units: sqrt(diag(cov))
-    cov:         (p, p) covariance in param_names order (PARAMS + extras), cov = s^2 (J^T J)^-1 with
-                 s^2 = sum(r^2)/dof, J the Jacobian of the predicted output at the
-                 solution (central differences of the forward model)
-    corr:        (p, p) correlation matrix
-    extras:      names of the extra instrument terms fitted (``extra_terms``), also in values
-    lack_of_fit: dict F, p, dof_lof = P - p, dof_pe = n - P, s_pure_error (output_unit):
-                 lack-of-fit F test of the position means against the within-position
-                 (pure-error) scatter; None without replicates
-    cov_positions: covariance from the scatter of the position means instead of the
-                 readings, [sum_k n_k rbar_k^2 / (P - p)] (J^T J)^-1: valid when errors are
-                 common to a dwell (head-angle error, unmodelled terms); None if P <= p
-    residuals:   output - prediction, output_unit, one per reading
-    residual_rms: sqrt(mean(r^2)), output_unit;  s: sqrt(sum(r^2)/dof), output_unit
-    n, dof:      readings used and n - p (p = 4 + number of extras)
-    position_means: DataFrame per head position: position, angle_deg, n, mean_output,
-                 std_output, sem_output, predicted, mean_residual (output_unit)
-    ia_phase_deg: head angle at which IA nominally points up (0 for +IA on cos_axis)
+    Attributes
+    ----------
+    values, std_uncertainties : dict
+        K0 [m/s2], K1 [output_unit/(m/s2)], K2 [s2/m], theta0 [rad] and the extra terms;
+        std = sqrt(diag(cov)).
+    cov : (p, p) ndarray
+        Covariance in ``param_names`` order: s^2 (J^T J)^+ (s^2 = RSS / dof, J the design at
+        the solution, :func:`tumble_jacobian`), times F when the lack-of-fit test fails.
+    corr : (p, p) ndarray
+    extras : tuple of str
+        Extra instrument terms fitted (``extra_terms``), also in ``values``.
+    lack_of_fit : dict or None
+        F, p, dof_lof = P - p, dof_pe = n - P, s_pure_error [output_unit], status: the
+        position means against the within-position scatter; None when untestable.
+    adequacy : LackOfFit
+        The core's test ('adequate' / 'inadequate' / 'untestable').
+    result : FitResult
+        The core's result (whitened by s).
+    cov_positions : ndarray or None
+        [sum_k n_k rbar_k^2 / (P - p)] (J^T J)^+: the covariance from the scatter of the
+        position means (valid when errors are common to a dwell: head-angle error,
+        unmodelled terms); None if P <= p.
+    residuals : ndarray
+        Output minus prediction, one per reading [output_unit].
+    residual_rms, s : float
+        sqrt(mean(r^2)) and sqrt(RSS / dof) [output_unit].
+    n, dof : int
+        Readings used and n - p.
+    position_means : DataFrame
+        Per head position: position, angle_deg, n, mean_output, std_output, sem_output,
+        predicted, mean_residual [output_unit].
+    ia_phase_deg : float
+        Head angle at which IA nominally points up [deg] (0 for +IA on cos_axis).
     """
     values: dict[str, float]
     std_uncertainties: dict[str, float]
@@ -152,10 +170,20 @@ def _predict(meta: Mapping, df: pd.DataFrame, p: np.ndarray, extras: tuple[str, 
 
 
 def separable_extra_terms(meta: Mapping) -> dict[str, str]:
-    """Instrument terms (besides K0, K1, K2) that one tumble can separate from theta0, with
-    their SI unit: K3 (s4/m2), Koq (s2/m) and the cross term of IA with the other in-plane
-    axis (Kio for OA, Kip for PA; s2/m).  Ko/Kp (alias theta0) and Koo/Kpp (alias K2, K0)
-    are not separable; head-axis terms are identically zero."""
+    """Instrument terms (besides K0, K1, K2) that one tumble can separate from theta0.
+
+    Parameters
+    ----------
+    meta : mapping
+        The tumble run's metadata.
+
+    Returns
+    -------
+    dict
+        Name -> SI unit: K3 [s4/m2], Koq [s2/m] and the cross term of IA with the other
+        in-plane axis (Kio for OA, Kip for PA) [s2/m].  Ko/Kp (alias theta0) and Koo/Kpp
+        (alias K2, K0) are not separable (paper 003 note); head-axis terms are zero.
+    """
     _ia_phase_deg(meta)
     other = {parse_signed_axis(meta[k])[0] for k in ("cos_axis", "sin_axis")} - {0}
     cross = {1: "Kip", 2: "Kio"}[other.pop()]
@@ -213,7 +241,18 @@ def _start(meta: Mapping, df: pd.DataFrame, g: float) -> np.ndarray:
 
 
 def position_means(df: pd.DataFrame) -> pd.DataFrame:
-    """Mean, std and standard error of the output at each head position (output_unit)."""
+    """Statistics of the output at each head position.
+
+    Parameters
+    ----------
+    df : DataFrame
+        ``position``, ``angle_deg`` [deg], ``output`` [output_unit].
+
+    Returns
+    -------
+    DataFrame
+        position, angle_deg, n, mean_output, std_output, sem_output [output_unit].
+    """
     grp = df.groupby("position", sort=True)
     out = pd.DataFrame({
         "angle_deg": grp["angle_deg"].mean(),
@@ -424,12 +463,23 @@ def two_position(meta: Mapping, data, angle_tol_deg: float = 1e-3) -> dict:
 
 
 def tumble_coefficients(fit: TumbleFit, rig_id: str, covariance: str = "readings") -> list[CoefficientResult]:
-    """CoefficientResults (method 'tumble_lm') for K0 (m/s2), K1 (<output_unit>/(m/s2)),
-    K2 (s2/m), theta0 (rad) and any fitted extra terms of a :class:`TumbleFit`.
+    """Coefficient records (method 'tumble_lm') of one :class:`TumbleFit`.
 
-    covariance: 'readings' (default): std uncertainties from fit.cov = s^2 (J^T J)^-1, dof n - p;
-    'positions': from fit.cov_positions (scatter of the position means), dof P - p.
-    A significant lack of fit (p < 0.01) is written into every note."""
+    Parameters
+    ----------
+    fit : TumbleFit
+    rig_id : str
+    covariance : str
+        'readings' (default): u from fit.cov (s^2 (J^T J)^+, lack-of-fit scaled), dof n - p;
+        'positions': from fit.cov_positions (scatter of the position means), dof P - p.
+
+    Returns
+    -------
+    list of CoefficientResult
+        K0 [m/s2], K1 [output_unit/(m/s2)], K2 [s2/m], theta0 [rad] and the extra terms; a
+        significant lack of fit (p < 0.01) is written into every note.  A campaign's runs go
+        through :func:`pool_runs` and :func:`tumble_records` instead.
+    """
     if covariance == "readings":
         sd, dof = fit.std_uncertainties, float(fit.dof)
     elif covariance == "positions":
@@ -450,4 +500,347 @@ def tumble_coefficients(fit: TumbleFit, rig_id: str, covariance: str = "readings
         note = "; ".join(x for x in (notes.get(k, ""), f"covariance from {covariance}", lof) if x)
         out.append(CoefficientResult(name=k, value=fit.values[k], std_uncertainty=float(sd[k]),
                                      unit=units[k], method="tumble_lm", rig_id=rig_id, dof=dof, note=note))
+    return out
+
+
+# --------------------------------------------------------------------------- a campaign's tumble runs
+
+@dataclass(frozen=True)
+class TumbleRun:
+    """One tumble run fitted by :func:`fit_tumble_run`.
+
+    Attributes
+    ----------
+    run_id, rig_id : str
+    head : TumbleHead
+        The dividing head's axis assignment (physics.geometry).
+    fit : TumbleFit
+    two_position : dict
+        :func:`two_position` (or {'error': ...}).
+    model_choice : dict or None
+        The extended model chosen when the basic one failed its lack-of-fit test.
+    flags : tuple of str
+    """
+    run_id: str
+    rig_id: str
+    head: TumbleHead
+    fit: TumbleFit
+    two_position: dict
+    model_choice: dict | None = None
+    flags: tuple[str, ...] = ()
+
+    @property
+    def group(self) -> str:
+        """Instrument axis on the head axis: the runs of one group measure the same K0, K2 and
+        theta0 (the other turning axis, whose square term aliases into K2, is the same)."""
+        return AXES[self.head.head_axis]
+
+    def u_parts(self, name: str) -> tuple[float, float, float]:
+        """(u, u from the reading noise, lack-of-fit factor) of a fitted parameter."""
+        u = float(self.fit.std_uncertainties[name])
+        res = self.fit.result
+        if res is None:
+            return u, u, 1.0
+        return u, float(res.std_noise(name)), float(res.lof.factor)
+
+
+def fit_tumble_run(meta: Mapping, data, alpha: float = 0.01) -> TumbleRun:
+    """Paper 003 on one run, with its model adequacy.
+
+    Fits K0, K1, K2, theta0 (:func:`fit_tumble`); when that fails its lack-of-fit test the IA
+    cross term with the other in-plane axis (separable from theta0 in one tumble) is added
+    and kept if it improves the fit.  A fit that stays inadequate is used and flagged (its u
+    carries the lack-of-fit factor); one with as many positions as parameters is flagged as
+    untestable.
+
+    Returns
+    -------
+    TumbleRun
+    """
+    run_id = str(meta.get("run_id"))
+    fit = fit_tumble(meta, data)
+    choice, flags = None, []
+    lof = fit.lack_of_fit
+    if lof and lof["p"] < alpha:
+        cross = tuple(k for k in separable_extra_terms(meta) if k in ("Kio", "Kip"))
+        try:
+            fit2 = fit_tumble(meta, data, cross)
+        except Exception:
+            fit2 = None
+        if fit2 is not None and fit2.lack_of_fit and fit2.lack_of_fit["p"] > lof["p"]:
+            choice = {"run_id": run_id, "basic_lof_p": lof["p"], "extended_terms": list(cross),
+                      "extended_lof_p": fit2.lack_of_fit["p"]}
+            fit = fit2
+        if fit.lack_of_fit and fit.lack_of_fit["p"] < alpha:
+            flags.append(f"tumble {run_id}: model inadequate (lack-of-fit p = {fit.lack_of_fit['p']:.2g}); "
+                         f"used and flagged, u scaled by sqrt(F) = {math.sqrt(fit.lack_of_fit['F']):.3g}")
+    if fit.adequacy is not None and fit.adequacy.status == "untestable":
+        flags.append(f"tumble {run_id}: untestable: {len(fit.position_means)} head positions for "
+                     f"{len(fit.param_names)} parameters leave no degrees of freedom to test the model; "
+                     "its u counts reading noise only")
+    try:
+        tp = two_position(meta, data)
+    except Exception as exc:
+        tp = {"error": str(exc)}
+    return TumbleRun(run_id, str(meta.get("rig_id", "")), geometry_of(meta), fit, tp, choice, tuple(flags))
+
+
+@dataclass(frozen=True)
+class Pooled:
+    """A quantity from one or more tumble runs: weighted mean with the Birge ratio applied.
+
+    Attributes
+    ----------
+    name : str
+        Record name (``'K0'``, ``'theta0[PA]'``, ...).
+    key : str
+        The fitted parameter.
+    value, u : float
+        Weighted mean [SI] and its standard uncertainty: 1/sqrt(sum w) times the Birge ratio
+        when that exceeds 1.
+    runs : tuple of TumbleRun
+    birge, p_value : float
+        Birge ratio sqrt(chi2 / (N - 1)) and P(chi2 > observed) (NaN for one run).
+    disagree : bool
+        p < 0.01: the runs disagree beyond their uncertainties.
+    """
+    name: str
+    key: str
+    value: float
+    u: float
+    u_internal: float
+    runs: tuple
+    birge: float = float("nan")
+    p_value: float = float("nan")
+    disagree: bool = False
+
+    @property
+    def weights(self) -> np.ndarray:
+        w = np.array([1.0 / r.u_parts(self.key)[0] ** 2 for r in self.runs])
+        return w / w.sum()
+
+
+def pool(name: str, key: str, runs: Sequence[TumbleRun], alpha: float = 0.01) -> Pooled:
+    """Weighted mean of one fitted parameter over tumble runs, with the Birge ratio.
+
+    .. math::
+
+        \\bar x = \\frac{\\sum w_i x_i}{\\sum w_i}, \\quad w_i = u_i^{-2}, \\quad
+        u(\\bar x) = \\frac{\\max(1, R_B)}{\\sqrt{\\sum w_i}}, \\quad
+        R_B = \\sqrt{\\chi^2 / (N - 1)}
+
+    (Birge 1932; :func:`accelcal.fitting.core.birge_ratio`).
+
+    Parameters
+    ----------
+    name : str
+        Record name.
+    key : str
+        The fitted parameter.
+    runs : sequence of TumbleRun
+    alpha : float
+        The runs disagree when P(chi2 > observed) < alpha.
+
+    Returns
+    -------
+    Pooled
+    """
+    vals = [r.fit.values[key] for r in runs]
+    us = [r.u_parts(key)[0] for r in runs]
+    if len(runs) == 1:
+        return Pooled(name, key, float(vals[0]), float(us[0]), float(us[0]), tuple(runs))
+    if not all(np.isfinite(us)) or min(us) <= 0:
+        return Pooled(name, key, float(np.mean(vals)), float("nan"), float("nan"), tuple(runs))
+    mean, u_int, birge, dof = birge_ratio(vals, us)
+    p = float(stats.chi2.sf(birge ** 2 * dof, dof))
+    return Pooled(name, key, mean, u_int * max(1.0, birge), u_int, tuple(runs), birge, p, p < alpha)
+
+
+def _group_name(key: str, group: str, several: bool) -> str:
+    return f"{key}[{group}]" if several else key
+
+
+def pool_runs(runs: Sequence[TumbleRun]) -> dict[str, Pooled]:
+    """The campaign's tumble quantities: K0 and K1 over every run, K2 and theta0 per head axis
+    (never pooled across heads: a head about another axis measures K2 minus another square
+    term, and its own misalignment), extra terms over the runs that fitted them.
+
+    Returns
+    -------
+    dict
+        record name -> Pooled; names carry the head axis (``theta0[PA]``) when the campaign has
+        several head axes.
+    """
+    groups: dict[str, list[TumbleRun]] = {}
+    for r in runs:
+        groups.setdefault(r.group, []).append(r)
+    several = len(groups) > 1
+    out = {k: pool(k, k, runs) for k in ("K0", "K1")}
+    for g, rr in groups.items():
+        for k in ("K2", "theta0"):
+            out[_group_name(k, g, several)] = pool(_group_name(k, g, several), k, rr)
+    for k in sorted({e for r in runs for e in r.fit.extras}):
+        out[k] = pool(k, k, [r for r in runs if k in r.fit.extras])
+    return out
+
+
+def k1_correction(g: float, koq: tuple[float, float], k3: tuple[float, float] | None) -> tuple[float, float]:
+    """(delta, u(delta)): the tumble's K1 fits the cos(psi) fundamental of the IA input, which
+    Koq a|a| and K3 a^3 also feed (cos|cos| has fundamental 8/(3 pi), cos^3 has 3/4), so
+    K1_fitted = K1 (1 + delta) with delta = Koq g 8/(3 pi) + K3 g^2 3/4 (paper 003 model with
+    the effects.md terms).  Koq [s2/m], K3 [s4/m2] as (value, u); g [m/s2]."""
+    a, b = g * 8 / (3 * math.pi), 0.75 * g * g
+    delta = koq[0] * a + (k3[0] * b if k3 else 0.0)
+    return delta, math.hypot(koq[1] * a, (k3[1] * b) if k3 else 0.0)
+
+
+_UNITS = {"K0": "m/s2", "K2": "s2/m", "theta0": "rad", "K3": "s4/m2", "Koq": "s2/m", "Kio": "s2/m", "Kip": "s2/m"}
+_NOTES = {"theta0": _ALIAS_NOTE, "K2": "a single tumble gives K2 - Koo (Koo aliases)"}
+
+
+def tumble_records(pooled: Mapping[str, Pooled], *, square_terms: Mapping[str, tuple[float, float]] | None = None,
+                   k1: tuple[float, float] | None = None, g: float = 9.80665, out_unit: str = "out",
+                   method: str = "tumble_lm") -> tuple[list[CoefficientResult], list[BudgetTerm]]:
+    """Coefficient records and GUM budgets of the campaign's tumble quantities (paper 003).
+
+    Parameters
+    ----------
+    pooled : mapping
+        :func:`pool_runs`.
+    square_terms : mapping, optional
+        Square term of an axis (Kpp, Koo) -> (value, u) [s2/m] from the centrifuge: a tumble
+        measures K2 minus the square term of its other turning axis, which is added back.
+    k1 : (delta, u_delta), optional
+        :func:`k1_correction`; K1 is divided by 1 + delta.
+    g : float
+        Local gravity [m/s2] (the note of an uncorrected K1).
+    out_unit : str
+        The runs' output unit.
+
+    Returns
+    -------
+    (coefficients, budget)
+        Budgets: one type-A line per run (its fit; split into reading noise and lack-of-fit
+        scaling for a single run), the between-run scatter (Birge ratio) when it exceeds the
+        runs' u, and the centrifuge terms of a correction.  u = the budget's combined u.
+    """
+    square_terms = square_terms or {}
+    coeffs, budget = [], []
+    # K2: a head measures K2 minus the square term of its other turning axis; that is added
+    # back per head, and the heads are pooled only when every one of them is corrected
+    k2_rows = {n: q for n, q in pooled.items() if q.key == "K2"}
+    if len(k2_rows) > 1 and all(_other_square(q.runs[0].head) in square_terms for q in k2_rows.values()):
+        k2_rows = {"K2": pool("K2", "K2", tuple(r for q in k2_rows.values() for r in q.runs))}
+    items = ([(n, q) for n, q in pooled.items() if q.key in ("K0", "K1")] + list(k2_rows.items())
+             + [(n, q) for n, q in pooled.items() if q.key not in ("K0", "K1", "K2")])
+    for name, q in items:
+        terms, note = _fit_terms(q), []
+        value = q.value
+        unit = _UNITS.get(q.key, f"{out_unit}/(m/s2)")
+        if q.key == "K2":
+            adds = {}
+            for r in q.runs:
+                sq = _other_square(r.head)
+                adds[sq] = adds.get(sq, 0.0) + q.weights[q.runs.index(r)]
+            if all(sq in square_terms for sq in adds):
+                for sq, wsum in adds.items():
+                    v, u = square_terms[sq]
+                    value += wsum * v
+                    terms.append((f"{sq} from the centrifuge (a tumble measures K2 - {sq})", v, u, wsum, "A", "normal"))
+                note.append("one tumble measures K2 − " + "/".join(adds) + "; " + ", ".join(
+                    f"{sq} = {square_terms[sq][0]:.3e} s2/m" for sq in adds) + " from the centrifuge added")
+            else:
+                note.append("measures K2 − " + "/".join(adds) + " (aliased in one tumble; no centrifuge "
+                            + "/".join(adds) + " to correct it)")
+        elif q.key == "K1":
+            if k1 is not None:
+                delta, u_delta = k1
+                value = q.value / (1.0 + delta)
+                terms = [(t[0], t[1], t[2], t[3] / (1.0 + delta), t[4], t[5]) for t in terms]
+                terms.append(("Koq g 8/(3 pi) + K3 g^2 3/4 from the centrifuge (in the fitted K1)", delta, u_delta,
+                              -value / (1.0 + delta), "A", "normal"))
+                note.append(f"corrected for Koq and K3 from the centrifuge: fitted K1 = K1 (1 + {delta:.3e})")
+            else:
+                note.append("includes Koq g 8/(3 pi) + K3 g^2 3/4 (no centrifuge values to remove it)")
+        else:
+            if _NOTES.get(q.key):
+                note.insert(0, _NOTES[q.key])
+        if q.key == "theta0" and "[" in name:
+            note.append("initial misalignment of this dividing head (never pooled across heads)")
+        note += _pool_notes(q)
+        gb = unc.linear_budget(name, terms, method=method, rig_id=_rig(q), value=value)
+        u = float(gb.u_c) if math.isfinite(q.u) else float("nan")
+        dof = float(q.runs[0].fit.dof) if len(q.runs) == 1 else None
+        coeffs.append(CoefficientResult(name, float(value), u, unit, method, _rig(q), dof, "; ".join(note)))
+        budget += gb.terms
+    return coeffs, budget
+
+
+def _other_square(head: TumbleHead) -> str:
+    """The square term of the head's other turning axis (Kpp for PA, Koo for OA)."""
+    return {1: "Kpp", 2: "Koo"}.get(head.other_axis, "K2")
+
+
+def _rig(q: Pooled) -> str:
+    rigs = sorted({r.rig_id for r in q.runs})
+    return rigs[0] if len(rigs) == 1 else "+".join(rigs)
+
+
+def _fit_terms(q: Pooled) -> list[tuple]:
+    """Type-A lines of a pooled quantity: per run its fit (reading noise and lack-of-fit scaling
+    apart for one run), and the Birge scatter of several runs."""
+    if len(q.runs) == 1:
+        r = q.runs[0]
+        u, u_noise, factor = r.u_parts(q.key)
+        rows = [(f"readings of {r.run_id}: LM fit (paper 003), s^2 (J'J)^-1", r.fit.values[q.key], u_noise, 1.0,
+                 "A", "normal")]
+        if factor > 1.0:
+            rows.append((f"model inadequacy of {r.run_id}: lack-of-fit scaling sqrt(F) = {factor:.3g}", 0.0,
+                         u_noise * math.sqrt(factor ** 2 - 1.0), 1.0, "A", "normal"))
+        return rows
+    rows = [(f"{r.run_id}: LM fit (paper 003)", r.fit.values[q.key], r.u_parts(q.key)[0], float(w), "A", "normal")
+            for r, w in zip(q.runs, q.weights)]
+    if math.isfinite(q.birge) and q.birge > 1.0:
+        rows.append((f"between-run scatter: Birge ratio {q.birge:.3g} ({len(q.runs)} runs)", 0.0,
+                     q.u_internal * math.sqrt(q.birge ** 2 - 1.0), 1.0, "A", "normal"))
+    return rows
+
+
+def _pool_notes(q: Pooled) -> list[str]:
+    if len(q.runs) == 1:
+        r = q.runs[0]
+        out = ["covariance from readings"]
+        lof = r.fit.lack_of_fit
+        if lof and lof["p"] < 0.01:
+            out.append(f"lack of fit: F = {lof['F']:.3g}, p = {lof['p']:.2g}")
+        if r.fit.adequacy is not None and r.fit.adequacy.status == "untestable":
+            out.append("untestable: as many head positions as parameters, u from reading noise only")
+        return out
+    out = [f"weighted mean of {len(q.runs)} tumble runs"]
+    if math.isfinite(q.birge):
+        out.append(f"Birge ratio {q.birge:.3g} (p = {q.p_value:.2g})"
+                   + ("; u scaled by it" if q.birge > 1 else ""))
+    return out
+
+
+def pooling_flags(pooled: Mapping[str, Pooled]) -> list[str]:
+    """Flags for the pooled quantities whose runs disagree beyond their u.
+
+    Parameters
+    ----------
+    pooled : mapping
+        :func:`pool_runs`.
+
+    Returns
+    -------
+    list of str
+        One flag per quantity with P(chi2) < 0.01, naming each run's value and u and the
+        Birge ratio applied.
+    """
+    out = []
+    for name, q in pooled.items():
+        if q.disagree:
+            vals = ", ".join(f"{r.run_id} {r.fit.values[q.key]:.6g} ± {r.u_parts(q.key)[0]:.2g}" for r in q.runs)
+            out.append(f"tumble runs disagree on {name}: {vals} (Birge ratio {q.birge:.3g}, p = {q.p_value:.2g}); "
+                       f"not averaged silently: weighted mean {q.value:.6g} with u scaled by the Birge ratio")
     return out
