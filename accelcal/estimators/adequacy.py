@@ -32,7 +32,21 @@ __all__ = ["ALPHA", "DwellFit", "choose_order", "lack_of_fit", "pure_error_test"
 
 @dataclass
 class DwellFit:
-    """Weighted least-squares fit to dwell means, with its adequacy statistics."""
+    """Weighted least-squares fit to dwell means, with its adequacy statistics.
+
+    Attributes
+    ----------
+    names, beta, cov : list, ndarray, ndarray
+        Parameters, estimates and covariance (scaled by s2) [y unit per regressor unit].
+    s2 : float
+        (SS_LOF + SS_PE) / (N - p); about 1 for an adequate model.
+    yhat, std_resid : ndarray
+        Fitted dwell means and standardised residuals (ybar - yhat) sqrt(W).
+    ss_lof, ss_pe, dof_lof, dof_pe, f_statistic, p_value
+        The lack-of-fit test (F and p NaN when untestable).
+    trend_p, sweep_p, runs_p : float
+        The residual checks (Bonferroni-adjusted over groups).
+    """
     names: list[str]
     beta: np.ndarray
     cov: np.ndarray                 # scaled by the residual mean square s2
@@ -131,7 +145,20 @@ def _test(ss_lof: float, dof_lof: int, ss_pe: float, dof_pe: int) -> tuple[float
 
 
 def trend_test(t: np.ndarray, r: np.ndarray) -> float:
-    """Two-sided p of a linear trend of standardised residuals r against time t."""
+    """Residual check: a linear trend in time.
+
+    Parameters
+    ----------
+    t : ndarray
+        Time of each residual [s].
+    r : ndarray
+        Standardised residuals [1].
+
+    Returns
+    -------
+    float
+        Two-sided p of the slope (t test); 1.0 with fewer than 4 residuals.
+    """
     if len(r) < 4 or np.ptp(t) == 0:
         return 1.0
     res = stats.linregress(t, r)
@@ -139,8 +166,23 @@ def trend_test(t: np.ndarray, r: np.ndarray) -> float:
 
 
 def sweep_test(level: np.ndarray, sweep: np.ndarray, r: np.ndarray) -> float:
-    """Two-sided p of a mean up-minus-down difference of standardised residuals at
-    matched levels (paired t test); 1.0 when fewer than 3 matched levels."""
+    """Residual check: up- versus down-sweep residuals at matched levels (hysteresis).
+
+    Parameters
+    ----------
+    level : ndarray
+        Input level of each residual [m/s2]; levels within 2 % are matched.
+    sweep : ndarray
+        'up', 'down' or 'rest'.
+    r : ndarray
+        Standardised residuals [1].
+
+    Returns
+    -------
+    float
+        Two-sided p of the mean up-minus-down difference (paired t test); 1.0 with fewer
+        than 3 matched levels.
+    """
     up = {round(float(a), 3): x for a, s, x in zip(level, sweep, r) if s == "up"}
     down = {round(float(a), 3): x for a, s, x in zip(level, sweep, r) if s == "down"}
     # match each down level to the nearest up level within 2 %
@@ -159,8 +201,19 @@ def sweep_test(level: np.ndarray, sweep: np.ndarray, r: np.ndarray) -> float:
 
 
 def runs_test(r: np.ndarray) -> float:
-    """Wald–Wolfowitz runs test on the signs of residuals in time order (two-sided p,
-    normal approximation); too few runs means structure left in the residuals."""
+    """Residual check: Wald–Wolfowitz runs test on the signs of residuals in time order.
+
+    Parameters
+    ----------
+    r : ndarray
+        Residuals in time order.
+
+    Returns
+    -------
+    float
+        Two-sided p (normal approximation); too few runs means structure left in the
+        residuals.  1.0 with fewer than 6 non-zero residuals or one sign only.
+    """
     s = np.sign(r[r != 0])
     n1, n2 = int(np.sum(s > 0)), int(np.sum(s < 0))
     if n1 == 0 or n2 == 0 or n1 + n2 < 6:
@@ -251,13 +304,26 @@ def weighted_dwell_fit(X: np.ndarray, names: list[str], ybar: np.ndarray, n: np.
 def choose_order(fits: dict[int, DwellFit], added: dict[int, list[str]]) -> tuple[int, bool]:
     """The lowest adequate model order whose next order adds nothing significant.
 
-    fits: order -> fit; added: order -> names of the parameters that order adds to the one
-    below.  An order is chosen when its fit is adequate (lack of fit and residual checks,
+    An order is chosen when its fit is adequate (lack of fit and residual checks,
     :attr:`DwellFit.adequate`) *and* no parameter added by the next order differs from zero
     at ALPHA (two-sided t test with the next fit's residual dof).  The second condition is
     the direct test of the missing term: a 6-sigma cubic must not be left out because the
-    lack-of-fit test, which spreads its power over all dwells, happened to pass.
-    Returns (order, adequate); when no order qualifies, the highest order and False."""
+    lack-of-fit test, which spreads its power over all dwells, happened to pass (paper 000
+    §2.1.3: "use 2nd or 3rd order, and every fit must pass a model adequacy test").
+
+    Parameters
+    ----------
+    fits : dict
+        Order -> DwellFit.
+    added : dict
+        Order -> names of the parameters that order adds to the one below.
+
+    Returns
+    -------
+    (int, bool)
+        The order and whether it is adequate; when no order qualifies, the highest order and
+        its adequacy.
+    """
     orders = sorted(fits)
     for i, o in enumerate(orders):
         if not fits[o].adequate:
