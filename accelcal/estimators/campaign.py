@@ -12,9 +12,8 @@ sinusoidal-centrifuge campaigns (paper 002) -> the adopted values of the joint f
 """
 from __future__ import annotations
 
-import math
 from collections import defaultdict
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from ..constants import G_STANDARD, MOUNT_ANGLE_TOLERANCE_RAD

@@ -73,6 +73,7 @@ from scipy.stats import f as f_dist
 from ..fitting.core import FitResult, LackOfFit, Parameter, ParameterSet, gauss_newton, lstsq_svd
 from ..fitting.data import fitted_drive
 from ..physics import instrument, rigs
+from ..physics.geometry import geometry_of
 from ..results import BudgetTerm, CoefficientResult
 from . import uncertainty as unc
 
@@ -123,13 +124,12 @@ class _Run:
 
 
 def _attitude(meta: Mapping) -> str:
-    """'a' / 'b' / 'c' of paper 002 from the axis pointing to the spindle (mount_angle 0/180),
-    else the mount description."""
-    e1, e2 = rigs.parse_plane(meta["mount_plane"])
-    phi = float(meta["mount_angle_deg"]) % 360.0
-    radial = {0.0: e1, 180.0: e1, 90.0: e2, 270.0: e2}.get(phi)
-    return {0: "a", 2: "b", 1: "c"}.get(radial, f"{meta['mount_plane']}@{phi:g}") if radial is not None \
-        else f"{meta['mount_plane']}@{phi:g}"
+    """'a' / 'b' / 'c' of paper 002 from the axis pointing to the spindle (the typed mount's
+    :attr:`~accelcal.physics.geometry.CentrifugeMount.radial_axis`: IA, OA, PA), else the
+    mount description."""
+    g = geometry_of(meta)
+    radial = g.radial_axis
+    return {0: "a", 2: "b", 1: "c"}[radial[0]] if radial is not None else f"{g.plane}@{g.phi_deg:g}"
 
 
 def _five_point(t: np.ndarray, w: np.ndarray) -> np.ndarray:
