@@ -21,7 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
+from scipy import special, stats
 
 from ..fitting.core import ALPHA, FitResult, LackOfFit, linear_fit
 from ..fitting.core import lack_of_fit as core_lack_of_fit
@@ -161,8 +161,23 @@ def trend_test(t: np.ndarray, r: np.ndarray) -> float:
     """
     if len(r) < 4 or np.ptp(t) == 0:
         return 1.0
-    res = stats.linregress(t, r)
-    return float(res.pvalue)
+    # the t test of the least-squares slope (as scipy.stats.linregress, without its overhead,
+    # which was a tenth of the centrifuge method's time)
+    tc = np.asarray(t, float) - np.mean(t)
+    rc = np.asarray(r, float) - np.mean(r)
+    sxx, syy, sxy = float(tc @ tc), float(rc @ rc), float(tc @ rc)
+    if syy == 0.0:
+        return 1.0
+    rho = min(max(sxy / np.sqrt(sxx * syy), -1.0), 1.0)
+    df = len(r) - 2
+    if abs(rho) >= 1.0:
+        return 0.0
+    return _two_sided_t(rho * np.sqrt(df / ((1.0 - rho) * (1.0 + rho))), df)
+
+
+def _two_sided_t(t: float, df: int) -> float:
+    """P(|T| > |t|) for Student's t with df degrees of freedom."""
+    return float(2.0 * special.stdtr(df, -abs(t)))
 
 
 def sweep_test(level: np.ndarray, sweep: np.ndarray, r: np.ndarray) -> float:
@@ -197,7 +212,7 @@ def sweep_test(level: np.ndarray, sweep: np.ndarray, r: np.ndarray) -> float:
     d = np.asarray(d)
     if d.size < 3 or np.std(d, ddof=1) == 0:
         return 1.0
-    return float(stats.ttest_1samp(d, 0.0).pvalue)
+    return _two_sided_t(float(np.mean(d) / (np.std(d, ddof=1) / np.sqrt(d.size))), d.size - 1)
 
 
 def runs_test(r: np.ndarray) -> float:
