@@ -21,10 +21,12 @@ What this module does (all SI, effects.md names and units):
   effects (earth rate) plus the tool errors being identified.  Nothing of the
   rig kinematics is re-implemented here.  The coefficients enter linearly, so
   their Jacobian columns are evaluated exactly through
-  :func:`~accelcal.physics.instrument.indicated_acceleration`; tool-error
-  columns are central differences of the forward model.
-* The fit is a joint nonlinear least squares (``scipy.optimize.least_squares``)
-  over the three attitudes, with K1 shared (one instrument; in attitude (c) IA
+  :func:`~accelcal.physics.instrument.output_derivative`; tool-error
+  columns are central differences of the forward model (both tested against
+  central differences of ``rig_output`` in tests/test_design_columns.py).
+* The fit is a joint nonlinear least squares (the fitting core's
+  :func:`~accelcal.fitting.core.gauss_newton`, linear solves by
+  :func:`~accelcal.fitting.core.lstsq_svd`) over the three attitudes, with K1 shared (one instrument; in attitude (c) IA
   only sees +g, so a per-run K1 there is inseparable from its K0) and K0 shared
   by default (a repeatable bias makes K1 absolute through gravity: the
   constant of (c) minus that of (a) is K1·g; this is also what separates
@@ -557,9 +559,8 @@ NON_NEGATIVE = ("sensor_lag",)
 
 def _solve_nonlinear(params: list[Parameter], prep: list[_Run], x0: np.ndarray, w: np.ndarray):
     """Weighted least squares of the forward model by the core's Gauss-Newton
-    (:func:`accelcal.fitting.core.gauss_newton`), with :data:`NON_NEGATIVE` parameters kept
-    >= 0 (a parameter that leaves its bound is put on it and held, the rest refitted: the
-    active-set solution of the bounded problem)."""
+    (:func:`accelcal.fitting.core.gauss_newton`) with its lower bounds: :data:`NON_NEGATIVE`
+    parameters stay >= 0."""
     def resid(x):
         return np.concatenate([w[i] * (r.y - model_output(r, *_run_values(params, x, i)))
                                for i, r in enumerate(prep)])
@@ -567,17 +568,8 @@ def _solve_nonlinear(params: list[Parameter], prep: list[_Run], x0: np.ndarray, 
     def jac(x):
         return np.vstack([w[i] * _jacobian_run(params, x, r, i) for i, r in enumerate(prep)])
 
-    free = np.ones(len(params), bool)
-    bounded = np.array([p.key in NON_NEGATIVE for p in params])
-    x = np.where(bounded, np.maximum(x0, 0.0), x0)
-    while True:
-        gn = gauss_newton(resid, jac, x, free, max_iter=50)
-        x = gn.p
-        out = bounded & free & (x < 0.0)
-        if not out.any():
-            return gn
-        x = np.where(out, 0.0, x)
-        free &= ~out
+    lower = np.array([0.0 if p.key in NON_NEGATIVE else -np.inf for p in params])
+    return gauss_newton(resid, jac, x0, max_iter=50, lower=lower)
 
 
 def identify_sine_campaign(runs: Sequence, *, tool_errors: Mapping[str, str] | None = None,
