@@ -25,7 +25,7 @@ bias_temperature -> K0T, scale_temperature -> K1T) that apply to the test of tha
   the tumble test): K0 -> K0(T) + K_ss g^2 (the sin axis' square term Koo/Kpp is
   g^2 sin^2 = g^2 - g^2 cos^2: it shifts the bias and is taken from K2);
   K1 -> K1 (1 + K1T (T - 20)); K2 -> K2 when the campaign's centrifuge K_ss was added
-  (process_campaign._correct_tumble_K2), else K2 - K_ss (the note says which);
+  (tumble.tumble_records), else K2 - K_ss (the note says which);
   theta0 -> initial_misalignment - cs ss K_s (K_s = Ko/Kp of the sin axis aliases the
   misalignment in one tumble); Kio/Kip (cross term) -> the instrument value.
   Not compared when IA is not the cos axis.

@@ -72,7 +72,10 @@ class BudgetTerm:
     contribution: float         # |sensitivity| * std_uncertainty
     type: str                   # 'A' or 'B'
     distribution: str           # 'normal', 'uniform', ...
-    method: str = ""            # the method whose coefficient it budgets ('' = a paper method's)
+    #: the method whose coefficient this line belongs to ('' for a line written without one)
+    #: and its rig: several methods give the same coefficient
+    method: str = ""
+    rig_id: str = ""
 
 
 @dataclass

@@ -11,7 +11,9 @@ from accelcal.diagnosis import diagnose, diagnose_paths
 from accelcal.diagnosis.benchmark import _cells, scenario
 from accelcal.diagnosis.core import default_baseline
 
-DROP = Path("/work/shared/examples/drop-2026-11-20")
+from conftest import EXAMPLES  # noqa: E402
+
+DROP = EXAMPLES / "drop-2026-11-20"
 
 
 @pytest.fixture(scope="module")

@@ -12,7 +12,7 @@ import pytest
 from accelcal.schemas.dropformat import (COLUMNS, REQUIRED_KEYS, DropFormatError, RunFile, discover,
                                          read_run)
 
-EXAMPLES = Path("/work/shared/examples")
+from conftest import EXAMPLES  # ../shared/examples relative to the repository root
 BAD = EXAMPLES / "drop-bad"
 GOOD_DROPS = ["drop-2026-11-18-thermal", "drop-2026-11-19-sine", "drop-2026-11-20", "drop-2026-11-21"]
 

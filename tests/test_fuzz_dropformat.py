@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 from accelcal.schemas.dropformat import COLUMNS, DropFormatError, RunFile, read_run
 from accelcal.schemas.suites import Refusal, validate_runs
 
-EXAMPLES = Path("/work/shared/examples")
+from conftest import EXAMPLES  # ../shared/examples relative to the repository root
 
 
 def _head(p: Path, rows: int) -> bytes:

@@ -12,7 +12,7 @@ from accelcal.schemas.dropformat import COLUMNS, discover, read_run
 from accelcal.schemas.tables import (META_KEY, SCHEMAS, parquet_path, read_run_parquet,
                                      write_run_parquet)
 
-EXAMPLES = Path("/work/shared/examples")
+from conftest import EXAMPLES  # ../shared/examples relative to the repository root
 ALL = [p for d in ("drop-2026-11-18-thermal", "drop-2026-11-19-sine", "drop-2026-11-20",
                    "drop-2026-11-21") for p in discover(EXAMPLES / d)] + [EXAMPLES / "drop-bad/nan-output.csv"]
 

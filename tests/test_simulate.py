@@ -12,9 +12,7 @@ import pytest
 from accelcal.simulate import (SCENARIO_DIR, ScenarioError, load_scenario, simulate_campaign,
                                simulate_to_drop, write_drop)
 
-EXAMPLES = Path("/work/shared/examples")
-if not EXAMPLES.exists():
-    EXAMPLES = Path(__file__).resolve().parents[2] / "shared" / "examples"
+from conftest import EXAMPLES  # ../shared/examples relative to the repository root
 OMEGA_E = 7.292115e-5
 G = 9.80122
 LAT = 39.9

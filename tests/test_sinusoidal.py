@@ -17,7 +17,9 @@ import pytest
 from accelcal.estimators import sinusoidal as S
 from accelcal.physics import rigs
 
-SAMPLE = Path("/work/shared/examples/drop-2026-11-19-sine")
+from conftest import EXAMPLES  # noqa: E402  (../shared relative to the repository root)
+
+SAMPLE = EXAMPLES / "drop-2026-11-19-sine"
 TRUTH = {"K2": 3.94e-7, "K3": 1.5e-9, "Koq": 2e-8, "Kip": 7.1e-7, "Kpp": 4.7e-8, "Kio": 2.0e-7,
          "Koo": 3.0e-8}
 

@@ -20,7 +20,9 @@ from accelcal.estimators import thermal as th
 from accelcal.physics import rig_output
 from accelcal.results import CoefficientResult
 
-SAMPLE = Path("/work/shared/examples/drop-2026-11-18-thermal/TT1-20261118-0001.csv")
+from conftest import EXAMPLES  # noqa: E402  (../shared relative to the repository root)
+
+SAMPLE = EXAMPLES / "drop-2026-11-18-thermal" / "TT1-20261118-0001.csv"
 G = 9.7936
 TILT = 0.45
 TRUTH = {"K0": 3.0e-4, "K1": 50.0, "K0T": 2.0e-6, "K1T": -1.2e-4}

@@ -6,6 +6,7 @@ truth and Gaussian noise; nothing here compares with numbers the code printed.
 from __future__ import annotations
 
 import io
+import math
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +16,7 @@ import pytest
 from accelcal.estimators.tumble import fit_tumble, tumble_coefficients, two_position
 from accelcal.physics import rig_output
 
-EXAMPLES = Path("/work/shared/examples")
+from conftest import EXAMPLES  # ../shared/examples relative to the repository root
 G = 9.80122
 # Truth close to the SNJ-1-03 of paper 000 (K2 3.94e-7 s2/m) with a mA output.
 TRUTH = {"K0": 4.0e-4, "K1": 0.1325, "K2": 3.94e-7}
@@ -217,3 +218,94 @@ def test_small_run_fits_without_error():
     # with exactly 4 positions the LM fit is the four-point closed form
     for k in ("K0", "K1", "K2", "theta0"):
         assert fit.values[k] == pytest.approx(tp["four_point"][k], rel=1e-6, abs=1e-12)
+
+
+# ----------------------------------------------------------------- several runs in a campaign
+
+def _runs(specs, rng, extra=None):
+    """Tumble runs (TumbleRun) from (cos_axis, sin_axis, head, K0, theta0, run_id) specs."""
+    from accelcal.estimators.tumble import fit_tumble_run
+    out = []
+    for cos_axis, sin_axis, head, K0, th0, rid in specs:
+        meta = {**tumble_meta(cos_axis, sin_axis, head), "run_id": rid}
+        d = simulate(meta, tumble_data(), {**TRUTH, "K0": K0, **(extra or {})}, th0, 3e-7, rng)
+        out.append(fit_tumble_run(meta, d))
+    return out
+
+
+def test_runs_that_agree_are_pooled_without_a_flag():
+    from accelcal.estimators.tumble import pool_runs, pooling_flags
+    rng = np.random.default_rng(3)
+    runs = _runs([("+IA", "+OA", "PA", 4e-4, 1e-3, "A"), ("+IA", "+OA", "PA", 4e-4, 1e-3, "B")], rng)
+    pooled = pool_runs(runs)
+    k0 = pooled["K0"]
+    u1, u2 = (r.fit.std_uncertainties["K0"] for r in runs)
+    assert k0.u_internal == pytest.approx(1 / math.sqrt(u1 ** -2 + u2 ** -2), rel=1e-12)
+    assert not k0.disagree and not pooling_flags(pooled)
+    assert abs(k0.value - 4e-4) < 3 * k0.u
+    assert "theta0" in pooled and "theta0[PA]" not in pooled            # one head: plain name
+
+
+def test_runs_that_disagree_are_flagged_and_their_u_scaled_by_birge():
+    from accelcal.estimators.tumble import pool_runs, pooling_flags, tumble_records
+    rng = np.random.default_rng(4)
+    runs = _runs([("+IA", "+OA", "PA", 4e-4, 1e-3, "A"), ("+IA", "+OA", "PA", 4.5e-4, 1e-3, "B")], rng)
+    pooled = pool_runs(runs)
+    k0 = pooled["K0"]
+    vals = np.array([r.fit.values["K0"] for r in runs])
+    us = np.array([r.fit.std_uncertainties["K0"] for r in runs])
+    w = us ** -2
+    mean = np.sum(w * vals) / np.sum(w)
+    chi2 = np.sum(w * (vals - mean) ** 2)                               # dof 1
+    assert k0.disagree and k0.birge == pytest.approx(math.sqrt(chi2), rel=1e-9)
+    assert k0.u == pytest.approx(math.sqrt(chi2) / math.sqrt(np.sum(w)), rel=1e-9)
+    flags = pooling_flags(pooled)
+    assert len(flags) == 1 and "disagree on K0" in flags[0] and "A" in flags[0] and "B" in flags[0]
+    coeffs, budget = tumble_records(pooled, out_unit="mA")
+    c = next(c for c in coeffs if c.name == "K0")
+    assert c.std_uncertainty == pytest.approx(k0.u, rel=1e-9) and "Birge" in c.note
+    assert any("Birge" in b.quantity for b in budget if b.coefficient == "K0")
+
+
+def test_theta0_is_never_pooled_across_heads():
+    """Two heads about different axes, with different misalignments: one theta0 row per head."""
+    from accelcal.estimators.tumble import pool_runs, tumble_records
+    rng = np.random.default_rng(5)
+    th_pa, th_oa = np.radians(0.3), np.radians(-0.5)
+    square = {"Koo": 3.0e-8, "Kpp": 4.7e-8}
+    runs = _runs([("+IA", "+OA", "PA", 4e-4, th_pa, "HPA"), ("+IA", "+PA", "OA", 4e-4, th_oa, "HOA")], rng, square)
+    pooled = pool_runs(runs)
+    assert "theta0" not in pooled
+    assert abs(pooled["theta0[PA]"].value - th_pa) < 3 * pooled["theta0[PA]"].u
+    assert abs(pooled["theta0[OA]"].value - th_oa) < 3 * pooled["theta0[OA]"].u
+    assert [r.run_id for r in pooled["theta0[PA]"].runs] == ["HPA"]
+    coeffs, _ = tumble_records(pooled, out_unit="mA")
+    names = [c.name for c in coeffs]
+    assert "theta0[PA]" in names and "theta0[OA]" in names and "theta0" not in names
+    # without centrifuge square terms each head's K2 stays its own quantity (K2 - Koo, K2 - Kpp)
+    assert "K2[PA]" in names and "K2[OA]" in names
+    k2pa, k2oa = (next(c for c in coeffs if c.name == n) for n in ("K2[PA]", "K2[OA]"))
+    assert abs(k2pa.value - (TRUTH["K2"] - square["Koo"])) < 3 * k2pa.std_uncertainty
+    assert abs(k2oa.value - (TRUTH["K2"] - square["Kpp"])) < 3 * k2oa.std_uncertainty
+    # with them, both heads measure K2 and are pooled into one row
+    coeffs, budget = tumble_records(pooled, square_terms={k: (v, 1e-9) for k, v in square.items()}, out_unit="mA")
+    k2 = next(c for c in coeffs if c.name == "K2")
+    assert abs(k2.value - (TRUTH["K2"])) < 3 * k2.std_uncertainty
+    assert {b.quantity.split(" ")[0] for b in budget if b.coefficient == "K2"} >= {"HPA:", "HOA:", "Koo", "Kpp"}
+
+
+def test_real_imucal_heads_untestable_and_disagreeing(examples):
+    """../shared/real/imucal-ferraris: four positions per run (untestable, flagged), theta0 per
+    head equal in size to imucal's misalignment terms, K0 of the two heads flagged."""
+    from accelcal.estimators.campaign import tumble_step
+    from accelcal.schemas.dropformat import discover, read_run as read_drop
+    real = examples.parent / "real" / "imucal-ferraris"
+    if not real.is_dir():
+        pytest.skip("real data not available")
+    runs = [read_drop(p) for p in discover(real) if "EXAMPLE-X" in p.name]
+    step = tumble_step(runs)
+    assert sum("untestable" in f for f in step.flags) == 2
+    assert any("disagree on K0" in f for f in step.flags)
+    # imucal 2.6.0: misalignment x/z -0.00748, x/y -0.01483 rad (README; 5 digits)
+    assert abs(step.pooled["theta0[PA]"].value) == pytest.approx(0.00748, abs=6e-6)
+    assert abs(step.pooled["theta0[OA]"].value) == pytest.approx(0.01483, abs=6e-6)

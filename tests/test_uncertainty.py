@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from accelcal.estimators.uncertainty import (coverage_interval, gum_budget, kip_uncertainty, monte_carlo,
+from accelcal.estimators.uncertainty import (coverage_interval, gum_budget, kip_uncertainty, linear_budget, monte_carlo,
                                              numerical_tolerance, uniform_u, validate_gum_with_mc,
                                              welch_satterthwaite)
 from accelcal.results import BudgetTerm
@@ -120,3 +120,58 @@ def test_kip_gum_factor_4_against_printed_2():
     assert r["mc_std"] == pytest.approx(math.sqrt(109) * 1e-9, rel=0.01)
     same = kip_uncertainty(0.0, 0.0, 1e-9, 2e-9, 2e-9)
     assert same["differ"] is False and same["gum"] == pytest.approx(3e-9)
+
+
+# ----------------------------------------------------------------- JCGM 100:2008 Annex H.1
+
+#: GUM H.1 (end-gauge calibration), the inputs as the annex gives them (SI: m, degC):
+#: name, estimate, standard uncertainty, degrees of freedom, distribution.  d = d_bar + d1 + d2
+#: (H.1.3.2: repeated observations, random and systematic effects of the comparator) and
+#: theta = theta_bar + Delta (H.1.3.3: mean deviation, cyclic variation, arcsine) enter as
+#: their components; every input is uncorrelated with every other (H.1.3).
+GUM_H1 = [
+    ("l_S", 50.000623e-3, 25e-9, 18, "normal"),
+    ("d_bar", 215e-9, 5.8e-9, 24, "normal"),
+    ("d1", 0.0, 3.9e-9, 5, "normal"),
+    ("d2", 0.0, 6.7e-9, 8, "normal"),
+    ("alpha_S", 11.5e-6, 1.2e-6, math.inf, "uniform"),
+    ("theta_bar", -0.1, 0.2, math.inf, "normal"),
+    ("Delta", 0.0, 0.35, math.inf, "arcsine"),
+    ("delta_alpha", 0.0, 0.58e-6, 50, "uniform"),
+    ("delta_theta", 0.0, 0.029, 2, "uniform"),
+]
+
+
+def end_gauge(l_S, d_bar, d1, d2, alpha_S, theta_bar, Delta, delta_alpha, delta_theta):
+    """GUM H.1 eq (H.3): l = l_S + d - l_S (delta_alpha theta + alpha_S delta_theta)."""
+    d = d_bar + d1 + d2
+    theta = theta_bar + Delta
+    return l_S + d - l_S * (delta_alpha * theta + alpha_S * delta_theta)
+
+
+def test_gum_annex_h1_end_gauge_budget():
+    """The budget code on GUM H.1: l = 50.000838 mm, u_c = 32 nm (Table H.1: contributions
+    25 nm (l_S), 9.7 nm (d), 0 (alpha_S, theta: zero sensitivity to first order), 2.9 nm
+    (delta_alpha), 16.6 nm (delta_theta)), nu_eff = 16 (H.1.6: 16.7, truncated), U99 = 93 nm.
+    The published numbers are the truth; nothing here comes from the code."""
+    names, x, u, nu, dist = (list(c) for c in zip(*GUM_H1))
+    res = gum_budget(end_gauge, names, x, u, dist, coefficient="l", dofs=nu, use_t=True, p=0.99)
+    assert res.value == pytest.approx(50.000838e-3, abs=0.5e-9)
+    assert round(res.u_c * 1e9) == 32                                   # nm, as published
+    contrib = {t.quantity: t.contribution * 1e9 for t in res.terms}
+    assert contrib["l_S"] == pytest.approx(25.0, abs=0.05)
+    assert math.sqrt(contrib["d_bar"] ** 2 + contrib["d1"] ** 2 + contrib["d2"] ** 2) == pytest.approx(9.7, abs=0.05)
+    assert contrib["alpha_S"] == pytest.approx(0.0, abs=1e-3) and contrib["theta_bar"] == pytest.approx(0.0, abs=1e-3)
+    assert contrib["delta_alpha"] == pytest.approx(2.9, abs=0.05)
+    assert contrib["delta_theta"] == pytest.approx(16.6, abs=0.1)
+    assert 16 <= res.nu_eff < 17                                         # H.1.6: 16.7 -> 16
+    assert res.U * 1e9 == pytest.approx(93, abs=1.5)                     # t_99(16) u_c = 2.92 x 32 nm
+    # the linear budget the paper methods use, with the annex's sensitivities (Table H.1)
+    lS, theta, alpha_S = 50.000623e-3, -0.1, 11.5e-6
+    terms = [("l_S", lS, 25e-9, 1.0, "A", "normal"), ("d", 215e-9, 9.7e-9, 1.0, "A", "normal"),
+             ("alpha_S", alpha_S, 1.2e-6, 0.0, "B", "uniform"), ("theta", theta, 0.41, 0.0, "A", "normal"),
+             ("delta_alpha", 0.0, 0.58e-6, -lS * theta, "B", "uniform"),
+             ("delta_theta", 0.0, 0.029, -lS * alpha_S, "B", "uniform")]
+    lb = linear_budget("l", terms, method="gum_h1")
+    assert round(lb.u_c * 1e9) == 32
+    assert all(t.method == "gum_h1" for t in lb.terms)

@@ -8,7 +8,7 @@ import pytest
 from accelcal.schemas.dropformat import DropFormatError, discover, read_run
 from accelcal.schemas.suites import Refusal, validate_report, validate_runs
 
-EXAMPLES = Path("/work/shared/examples")
+from conftest import EXAMPLES  # ../shared/examples relative to the repository root
 BAD = EXAMPLES / "drop-bad"
 GOOD_DROPS = ["drop-2026-11-18-thermal", "drop-2026-11-19-sine", "drop-2026-11-20", "drop-2026-11-21"]
 

@@ -11,8 +11,9 @@ model):
     SS_LOF = sum_j n_j (ybar_j - yhat_j)^2 / sigma_j^2            dof m - p
     F      = (SS_LOF / (m - p)) / (SS_PE / (N - m))  ~  F(m - p, N - m) under H0
 
-plus three residual checks on the standardised dwell residuals in time order:
-a trend in time (t test of the slope), an up-versus-down sweep difference
+(the F test is the fitting core's one lack-of-fit test,
+:func:`accelcal.fitting.core.lack_of_fit`), plus three residual checks on the standardised
+dwell residuals in time order: a trend in time (t test of the slope), an up-versus-down sweep difference
 (paired t test at matched levels) and the Wald–Wolfowitz run of signs.
 """
 from __future__ import annotations
@@ -20,15 +21,32 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
+from scipy import special, stats
 
-#: Significance level of the lack-of-fit test; the residual checks share ALPHA (Bonferroni).
-ALPHA = 0.01
+from ..fitting.core import ALPHA, FitResult, LackOfFit, linear_fit
+from ..fitting.core import lack_of_fit as core_lack_of_fit
+
+__all__ = ["ALPHA", "DwellFit", "choose_order", "lack_of_fit", "pure_error_test", "runs_test", "sweep_test", "trend_test",
+           "weighted_dwell_fit"]
 
 
 @dataclass
 class DwellFit:
-    """Weighted least-squares fit to dwell means, with its adequacy statistics."""
+    """Weighted least-squares fit to dwell means, with its adequacy statistics.
+
+    Attributes
+    ----------
+    names, beta, cov : list, ndarray, ndarray
+        Parameters, estimates and covariance (scaled by s2) [y unit per regressor unit].
+    s2 : float
+        (SS_LOF + SS_PE) / (N - p); about 1 for an adequate model.
+    yhat, std_resid : ndarray
+        Fitted dwell means and standardised residuals (ybar - yhat) sqrt(W).
+    ss_lof, ss_pe, dof_lof, dof_pe, f_statistic, p_value
+        The lack-of-fit test (F and p NaN when untestable).
+    trend_p, sweep_p, runs_p : float
+        The residual checks (Bonferroni-adjusted over groups).
+    """
     names: list[str]
     beta: np.ndarray
     cov: np.ndarray                 # scaled by the residual mean square s2
@@ -45,6 +63,8 @@ class DwellFit:
     sweep_p: float = 1.0
     runs_p: float = 1.0
     extra: dict = field(default_factory=dict)
+    #: the fitting core's result of the solve (design, whitened residual, covariance)
+    result: FitResult | None = field(default=None, repr=False)
 
     @property
     def adequate(self) -> bool:
@@ -60,32 +80,124 @@ class DwellFit:
 
 def lack_of_fit(ybar: np.ndarray, yhat: np.ndarray, n: np.ndarray, ss_within: np.ndarray,
                 sigma2: np.ndarray, n_params: int, dof_pe: int | None = None) -> tuple[float, float, float, float, int, int]:
-    """Weighted lack-of-fit F test (module docstring).  ybar, yhat: dwell means and model
-    values; n: readings per dwell; ss_within: sum of squares inside each dwell (same units
-    as y^2); sigma2: reading variance of each dwell from the noise model.
-    Returns (F, p, SS_LOF, SS_PE, dof_lof, dof_pe)."""
+    """Weighted lack-of-fit F test of dwell means (module docstring), through the one test of
+    the fitting core (:func:`accelcal.fitting.core.lack_of_fit`).
+
+    Parameters
+    ----------
+    ybar, yhat : ndarray
+        Dwell means and model values [y unit].
+    n : ndarray
+        Readings per dwell.
+    ss_within : ndarray
+        Sum of squares about each dwell mean [y unit squared].
+    sigma2 : ndarray
+        Reading variance of each dwell from the noise model [y unit squared].
+    n_params : int
+        Fitted parameters.
+    dof_pe : int, optional
+        Pure-error degrees of freedom (default: sum(n - 1)).
+
+    Returns
+    -------
+    tuple
+        (F, p, SS_LOF, SS_PE, dof_lof, dof_pe); F and p are NaN when the test is
+        'untestable' (no lack-of-fit or pure-error degrees of freedom).
+    """
     W = n / sigma2
     ss_lof = float(np.sum(W * (ybar - yhat) ** 2))
     ss_pe = float(np.sum(ss_within / sigma2))
     dof_lof = int(len(ybar) - n_params)
     dof_pe = int(np.sum(n - 1)) if dof_pe is None else int(dof_pe)
-    if dof_lof <= 0 or dof_pe <= 0 or ss_pe <= 0:
-        return float("nan"), float("nan"), ss_lof, ss_pe, dof_lof, dof_pe
-    F = (ss_lof / dof_lof) / (ss_pe / dof_pe)
-    return float(F), float(stats.f.sf(F, dof_lof, dof_pe)), ss_lof, ss_pe, dof_lof, dof_pe
+    t = _test(ss_lof, dof_lof, ss_pe, dof_pe)
+    return t[0], t[1], ss_lof, ss_pe, dof_lof, dof_pe
+
+
+def pure_error_test(ss_lof: float, dof_lof: int, ss_pe: float, dof_pe: int) -> LackOfFit:
+    """The core's lack-of-fit test (:func:`accelcal.fitting.core.lack_of_fit`) against the
+    pure error of replicated readings, at :data:`ALPHA`.
+
+    Parameters
+    ----------
+    ss_lof, ss_pe : float
+        Lack-of-fit and pure-error sums of squares (same weighting).
+    dof_lof, dof_pe : int
+        Their degrees of freedom.
+
+    Returns
+    -------
+    LackOfFit
+        'untestable' when either has no degrees of freedom: without replicates there is no
+        independent estimate of the noise to test against.
+    """
+    if dof_pe <= 0:
+        return LackOfFit("untestable", None, None, int(dof_lof), 0, 1.0,
+                         "no replicated readings: no pure error to test the model against")
+    return core_lack_of_fit(ss_lof, dof_lof, ss_pe, dof_pe, ALPHA)
+
+
+def _test(ss_lof: float, dof_lof: int, ss_pe: float, dof_pe: int) -> tuple[float, float, LackOfFit]:
+    """(F, p, LackOfFit) of :func:`pure_error_test`; NaN F and p when it cannot be made."""
+    lof = pure_error_test(ss_lof, dof_lof, ss_pe, dof_pe)
+    if lof.status == "untestable" or lof.statistic is None:
+        return float("nan"), float("nan"), lof
+    return float(lof.statistic), float(lof.p_value), lof
 
 
 def trend_test(t: np.ndarray, r: np.ndarray) -> float:
-    """Two-sided p of a linear trend of standardised residuals r against time t."""
+    """Residual check: a linear trend in time.
+
+    Parameters
+    ----------
+    t : ndarray
+        Time of each residual [s].
+    r : ndarray
+        Standardised residuals [1].
+
+    Returns
+    -------
+    float
+        Two-sided p of the slope (t test); 1.0 with fewer than 4 residuals.
+    """
     if len(r) < 4 or np.ptp(t) == 0:
         return 1.0
-    res = stats.linregress(t, r)
-    return float(res.pvalue)
+    # the t test of the least-squares slope (as scipy.stats.linregress, without its overhead,
+    # which was a tenth of the centrifuge method's time)
+    tc = np.asarray(t, float) - np.mean(t)
+    rc = np.asarray(r, float) - np.mean(r)
+    sxx, syy, sxy = float(tc @ tc), float(rc @ rc), float(tc @ rc)
+    if syy == 0.0:
+        return 1.0
+    rho = min(max(sxy / np.sqrt(sxx * syy), -1.0), 1.0)
+    df = len(r) - 2
+    if abs(rho) >= 1.0:
+        return 0.0
+    return _two_sided_t(rho * np.sqrt(df / ((1.0 - rho) * (1.0 + rho))), df)
+
+
+def _two_sided_t(t: float, df: int) -> float:
+    """P(|T| > |t|) for Student's t with df degrees of freedom."""
+    return float(2.0 * special.stdtr(df, -abs(t)))
 
 
 def sweep_test(level: np.ndarray, sweep: np.ndarray, r: np.ndarray) -> float:
-    """Two-sided p of a mean up-minus-down difference of standardised residuals at
-    matched levels (paired t test); 1.0 when fewer than 3 matched levels."""
+    """Residual check: up- versus down-sweep residuals at matched levels (hysteresis).
+
+    Parameters
+    ----------
+    level : ndarray
+        Input level of each residual [m/s2]; levels within 2 % are matched.
+    sweep : ndarray
+        'up', 'down' or 'rest'.
+    r : ndarray
+        Standardised residuals [1].
+
+    Returns
+    -------
+    float
+        Two-sided p of the mean up-minus-down difference (paired t test); 1.0 with fewer
+        than 3 matched levels.
+    """
     up = {round(float(a), 3): x for a, s, x in zip(level, sweep, r) if s == "up"}
     down = {round(float(a), 3): x for a, s, x in zip(level, sweep, r) if s == "down"}
     # match each down level to the nearest up level within 2 %
@@ -100,12 +212,23 @@ def sweep_test(level: np.ndarray, sweep: np.ndarray, r: np.ndarray) -> float:
     d = np.asarray(d)
     if d.size < 3 or np.std(d, ddof=1) == 0:
         return 1.0
-    return float(stats.ttest_1samp(d, 0.0).pvalue)
+    return _two_sided_t(float(np.mean(d) / (np.std(d, ddof=1) / np.sqrt(d.size))), d.size - 1)
 
 
 def runs_test(r: np.ndarray) -> float:
-    """Wald–Wolfowitz runs test on the signs of residuals in time order (two-sided p,
-    normal approximation); too few runs means structure left in the residuals."""
+    """Residual check: Wald–Wolfowitz runs test on the signs of residuals in time order.
+
+    Parameters
+    ----------
+    r : ndarray
+        Residuals in time order.
+
+    Returns
+    -------
+    float
+        Two-sided p (normal approximation); too few runs means structure left in the
+        residuals.  1.0 with fewer than 6 non-zero residuals or one sign only.
+    """
     s = np.sign(r[r != 0])
     n1, n2 = int(np.sum(s > 0)), int(np.sum(s < 0))
     if n1 == 0 or n2 == 0 or n1 + n2 < 6:
@@ -125,27 +248,55 @@ def weighted_dwell_fit(X: np.ndarray, names: list[str], ybar: np.ndarray, n: np.
                        level: np.ndarray | None = None, sweep: np.ndarray | None = None,
                        moving: np.ndarray | None = None, group: np.ndarray | None = None,
                        dof_pe_rows: np.ndarray | None = None) -> DwellFit:
-    """Weighted least squares of dwell means ybar on the regressors X (rows = dwells),
-    weights n/sigma2, with the lack-of-fit test and the residual checks.
-    group: optional id per row; the residual checks run per group (e.g. per polarity) and
-    the smallest p is kept (Bonferroni-adjusted by the number of groups).
-    dof_pe_rows: pure-error dof of each row when a row merges several dwells."""
+    """Weighted least squares of dwell means on regressors, with the lack-of-fit test and the
+    residual checks (module docstring).
+
+    The solve is :func:`accelcal.fitting.core.linear_fit` (scaled SVD) with the standard
+    deviation of each dwell mean sqrt(sigma2 / n); the covariance is that fit's noise-model
+    covariance times the residual mean square over the readings,
+    s2 = (SS_LOF + SS_PE) / (N - p).
+
+    Parameters
+    ----------
+    X : (m, p) ndarray
+        Regressors, one row per dwell [y unit per parameter unit].
+    names : list of str
+        Parameter names.
+    ybar : (m,) ndarray
+        Dwell means [y unit].
+    n, ss_within, sigma2 : (m,) ndarray
+        Readings, sum of squares about the mean [y unit squared] and reading variance of the
+        noise model [y unit squared] of each dwell.
+    time, level, sweep, moving : ndarray, optional
+        Per dwell: time [s], level (|a| [m/s2]), 'up'/'down'/'rest', moving flag; the
+        residual checks run when ``time`` is given.
+    group : ndarray, optional
+        Id per row; the residual checks run per group (e.g. per polarity) and the smallest p
+        is kept (Bonferroni-adjusted by the number of groups).
+    dof_pe_rows : ndarray, optional
+        Pure-error dof of each row when a row merges several dwells.
+
+    Returns
+    -------
+    DwellFit
+        With the core's :class:`~accelcal.fitting.core.FitResult` in ``result``.
+    """
     X = np.asarray(X, float)
     W = n / sigma2
     sw = np.sqrt(W)
-    Xw = X * sw[:, None]
-    beta, *_ = np.linalg.lstsq(Xw, ybar * sw, rcond=None)
+    res = linear_fit(X, ybar, 1.0 / sw, list(names), residual_scale=False)
+    beta = res.values
     yhat = X @ beta
     F, p, ss_lof, ss_pe, dof_lof, dof_pe = lack_of_fit(
         ybar, yhat, n, ss_within, sigma2, X.shape[1],
         None if dof_pe_rows is None else int(np.sum(dof_pe_rows)))
     N = int(np.sum(n))
     s2 = (ss_lof + ss_pe) / max(N - X.shape[1], 1)
-    XtWX_inv = np.linalg.pinv(Xw.T @ Xw)
-    cov = XtWX_inv * s2
+    cov = res.cov_noise * s2
     r = (ybar - yhat) * sw
     fit = DwellFit(names=list(names), beta=beta, cov=cov, s2=float(s2), yhat=yhat, std_resid=r,
-                   ss_lof=ss_lof, ss_pe=ss_pe, dof_lof=dof_lof, dof_pe=dof_pe, f_statistic=F, p_value=p)
+                   ss_lof=ss_lof, ss_pe=ss_pe, dof_lof=dof_lof, dof_pe=dof_pe, f_statistic=F, p_value=p,
+                   result=res)
     if time is not None:
         mv = np.ones(len(r), bool) if moving is None else np.asarray(moving, bool)
         grp = np.zeros(len(r), int) if group is None else np.asarray(group)
@@ -168,13 +319,26 @@ def weighted_dwell_fit(X: np.ndarray, names: list[str], ybar: np.ndarray, n: np.
 def choose_order(fits: dict[int, DwellFit], added: dict[int, list[str]]) -> tuple[int, bool]:
     """The lowest adequate model order whose next order adds nothing significant.
 
-    fits: order -> fit; added: order -> names of the parameters that order adds to the one
-    below.  An order is chosen when its fit is adequate (lack of fit and residual checks,
+    An order is chosen when its fit is adequate (lack of fit and residual checks,
     :attr:`DwellFit.adequate`) *and* no parameter added by the next order differs from zero
     at ALPHA (two-sided t test with the next fit's residual dof).  The second condition is
     the direct test of the missing term: a 6-sigma cubic must not be left out because the
-    lack-of-fit test, which spreads its power over all dwells, happened to pass.
-    Returns (order, adequate); when no order qualifies, the highest order and False."""
+    lack-of-fit test, which spreads its power over all dwells, happened to pass (paper 000
+    §2.1.3: "use 2nd or 3rd order, and every fit must pass a model adequacy test").
+
+    Parameters
+    ----------
+    fits : dict
+        Order -> DwellFit.
+    added : dict
+        Order -> names of the parameters that order adds to the one below.
+
+    Returns
+    -------
+    (int, bool)
+        The order and whether it is adequate; when no order qualifies, the highest order and
+        its adequacy.
+    """
     orders = sorted(fits)
     for i, o in enumerate(orders):
         if not fits[o].adequate:

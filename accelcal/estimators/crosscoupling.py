@@ -6,9 +6,9 @@ data-processing model of eq 9, generalised to any mount angle:
 
     E/K1 = K0± + b± a± + c2 a^2 + d a|a| + c3 a^3
 
-with a± = ±omega_z^2 rho± the signed centripetal specific force of each polarity
-(rho± the distance of the effective mass centre from the spindle, from the test
-radii), b± the separate scale factors of the two polarities (paper 000 §2.2: polarity
+with a± the signed specific force of each polarity along the mount's nominal direction to
+the spindle, from the one forward model (turning centre and mass-centre offset from the
+test radii; ±omega_z^2 rho± up to the second-order angle term of eq 8), b± the separate scale factors of the two polarities (paper 000 §2.2: polarity
 asymmetry makes them differ, and would leak into the even terms if they were shared),
 d the polarity-odd quadratic (eq 9's Koq term; the instrument's Koq for the IA pair)
 and c3 the odd cubic (K3 for the IA pair).  Weighted by the reading noise, which grows
@@ -16,49 +16,106 @@ with g.  The coefficient of a^2 is (eq 2, for the plane e1-e2 at nominal angle p
 
     c2 = K11 cos^2 phi0 + K22 sin^2 phi0 + K12 cos phi0 sin phi0
 
-K11, K22 the square terms of the plane axes (K2 for IA, Kpp for PA, Koo for OA) and K12
-their cross term (Kip for IA-PA, Kio for IA-OA, Kpo for PA-OA).  All pairs present are
+(:func:`eq2_row`: the derivatives of the instrument model for a unit centripetal input
+from the forward model), K11, K22 the square terms of the plane axes (K2 for IA, Kpp for
+PA, Koo for OA) and K12 their cross term (Kip for IA-PA, Kio for IA-OA, Kpo for PA-OA).  All pairs present are
 combined by weighted least squares; with the standard set it reduces to eq 3:
 K2 = c2(IA 0/180), Kpp = c2(IA-PA 90/270), Kip = 2 c2(IA-PA 45/225) − (K2 + Kpp),
 Koo = c2(IA-OA 90/270), Kio = 2 c2(IA-OA 45/225) − (K2 + Koo).
 Units: c2 and the K's in s^2/m, c3 and K3 in s^4/m^2, angles in rad.
+
+Reference: He & Yin 2017, cross-coupling coefficients on a precision centrifuge (paper 000;
+``shared/docs/methods.md``).
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 
+from ..fitting.core import lstsq_svd
 from ..physics.axes import AXES, parse_plane
+from ..physics.geometry import geometry_of
+from ..physics.instrument import output_derivative
 from .adequacy import DwellFit, choose_order
-from .radius import PairData
+from .radius import PairData, centripetal_unit_input
 
 SQUARE = {0: "K2", 1: "Kpp", 2: "Koo"}
 CROSS = {frozenset((0, 1)): "Kip", frozenset((0, 2)): "Kio", frozenset((1, 2)): "Kpo"}
 UNKNOWNS = ["K2", "Kpp", "Koo", "Kip", "Kio", "Kpo"]
 
 
-def c2_of_mount(K: Mapping[str, float], plane: str, phi0_rad: float) -> float:
-    """eq 2: c2 = K11 cos^2 phi0 + K22 sin^2 phi0 + K12 cos phi0 sin phi0 (s^2/m)."""
+def mount_meta(plane: str, phi_deg: float, radius_m: float = 1.0) -> dict:
+    """Metadata of a centrifuge mount in plane ``plane`` at mount angle ``phi_deg`` [deg] (the
+    third axis up, ccw table): what the forward model needs to place the instrument."""
     e1, e2 = parse_plane(plane)
-    c, s = np.cos(phi0_rad), np.sin(phi0_rad)
-    return (K.get(SQUARE[e1], 0.0) * c * c + K.get(SQUARE[e2], 0.0) * s * s
-            + K.get(CROSS[frozenset((e1, e2))], 0.0) * c * s)
+    return {"test": "centrifuge", "mount_plane": plane, "mount_angle_deg": float(phi_deg),
+            "vertical_axis": f"+{AXES[3 - e1 - e2]}", "arm_radius_m": float(radius_m),
+            "rotation_sense": "ccw", "site_latitude_deg": 0.0, "g_local_m_s2": 0.0}
+
+
+def eq2_row(plane: str, phi0_rad: float) -> dict[str, float]:
+    """Coefficients of eq 2, c2 = sum_K row[K] K, for the mount at nominal angle phi0.
+
+    Returns
+    -------
+    dict
+        K -> dA/dK of the instrument model (:func:`accelcal.physics.instrument.output_derivative`
+        at K1 = 1) for a unit centripetal input along the direction to the spindle (from the
+        forward model): K11 cos^2 phi0, K22 sin^2 phi0, K12 cos phi0 sin phi0 (paper 000 eq 2),
+        0 for the terms of the vertical axis.
+    """
+    u = centripetal_unit_input(mount_meta(plane, math.degrees(phi0_rad)))[None, :]
+    return {k: float(output_derivative(k, {"K1": 1.0}, u)[0]) for k in UNKNOWNS}
+
+
+def c2_of_mount(K: Mapping[str, float], plane: str, phi0_rad: float) -> float:
+    """eq 2: c2 = K11 cos^2 phi0 + K22 sin^2 phi0 + K12 cos phi0 sin phi0 [s2/m] (He & Yin 2017,
+    paper 000), through :func:`eq2_row`."""
+    row = eq2_row(plane, phi0_rad)
+    return float(sum(row[k] * K.get(k, 0.0) for k in UNKNOWNS))
 
 
 def delta_c2(K: Mapping[str, float], plane: str, phi0_rad: float, dphi_rad: float) -> float:
-    """eq 8, any plane: Delta c2 = [(K22 − K11) sin 2 phi0 + K12 cos 2 phi0] Delta phi0.
-    IA-PA at 45 deg: (Kpp − K2) dphi; at 90 deg: −Kip dphi (s^2/m)."""
-    e1, e2 = parse_plane(plane)
-    K11, K22 = K.get(SQUARE[e1], 0.0), K.get(SQUARE[e2], 0.0)
-    K12 = K.get(CROSS[frozenset((e1, e2))], 0.0)
-    return ((K22 - K11) * np.sin(2 * phi0_rad) + K12 * np.cos(2 * phi0_rad)) * dphi_rad
+    """eq 8, any plane: Delta c2 = [(K22 - K11) sin 2 phi0 + K12 cos 2 phi0] Delta phi0 [s2/m].
+
+    IA-PA at 45 deg: (Kpp - K2) dphi; at 90 deg: -Kip dphi (He & Yin 2017, paper 000 eq 8).
+    Computed as the derivative of eq 2 along the mount angle: with u the unit centripetal
+    input and v = du/dphi (the input of the mount turned by 90 deg), each term of eq 2 is
+    quadratic in the input, so its derivative is exactly [row(u + v) - row(u - v)] / 2.
+    """
+    meta = mount_meta(plane, math.degrees(phi0_rad))
+    u = centripetal_unit_input(meta)
+    v = centripetal_unit_input(mount_meta(plane, math.degrees(phi0_rad) + 90.0))
+    d = 0.0
+    for k in UNKNOWNS:
+        if K.get(k, 0.0):
+            plus = output_derivative(k, {"K1": 1.0}, (u + v)[None, :])[0]
+            minus = output_derivative(k, {"K1": 1.0}, (u - v)[None, :])[0]
+            d += K[k] * (plus - minus) / 2.0
+    return float(d * dphi_rad)
 
 
 def kip_from_45(c2_45: float, K2: float, Kpp: float) -> float:
-    """eq 3: Kip = 2 c2(45 deg) − (K2 + Kpp)."""
+    """Kip from the 45 deg mount (He & Yin 2017, paper 000 eq 3).
+
+    .. math::
+
+        K_{ip} = 2 c_2(45^\\circ) - (K_2 + K_{pp})
+
+    Parameters
+    ----------
+    c2_45, K2, Kpp : float
+        [s2/m].
+
+    Returns
+    -------
+    float
+        Kip [s2/m].
+    """
     return 2.0 * c2_45 - (K2 + Kpp)
 
 
@@ -79,21 +136,56 @@ class Alignment:
 
 
 def mount_geometry(R: float, r: float, phi_rad: float) -> tuple[float, float]:
-    """Distance rho (m) of the effective mass centre from the spindle and the angle error
-    dphi (rad) of the direction to the spindle, for a turning centre at R and a mass
-    centre r along the first plane axis (effects.md ``mass_centre_offset``; paper 000 §2.2:
-    phi = 0 gives rho = R − r, phi = 180 deg rho = R + r)."""
-    ux, uy = np.cos(phi_rad), np.sin(phi_rad)
-    p1, p2 = -R * ux + r, -R * uy
-    rho = float(np.hypot(p1, p2))
-    ang = np.arctan2(-p2, -p1)
-    dphi = float((ang - phi_rad + np.pi) % (2 * np.pi) - np.pi)
+    """Distance and direction error of the effective mass centre (paper 000 §2.2).
+
+    Parameters
+    ----------
+    R : float
+        Spindle to fixture turning centre [m].
+    r : float
+        Mass-centre offset along the first plane axis [m] (effects.md ``mass_centre_offset``).
+    phi_rad : float
+        Nominal mount angle [rad].
+
+    Returns
+    -------
+    rho, dphi : float
+        Distance of the mass centre from the spindle [m] and angle error of the direction to
+        the spindle [rad], from the centripetal input of the forward model
+        (:func:`centripetal_unit_input`): phi = 0 gives rho = R - r, phi = 180 deg R + r.
+    """
+    meta = mount_meta("IA-PA", math.degrees(phi_rad))
+    f = centripetal_unit_input(meta, R, r)
+    rho = float(math.hypot(f[0], f[1]))
+    dphi = float((math.atan2(f[1], f[0]) - phi_rad + math.pi) % (2 * math.pi) - math.pi)
     return rho, dphi
 
 
 def alignment(R_plus: float, R_minus: float, plane: str, phi0_deg: float) -> Alignment:
-    """R = (R+ + R-)/2, r = (R- − R+)/2 (so that rho(0) = R − r = R+), and for the mount
-    at phi0 and phi0 + 180 deg the true radius and angle error (paper 000 §2.2)."""
+    """Alignment analysis of a mount (He & Yin 2017, paper 000 §2.2).
+
+    .. math::
+
+        R = (R_+ + R_-)/2, \\quad r = (R_- - R_+)/2, \\quad
+        R_{1,2} = \\sqrt{(R \\mp r \\cos\\varphi_0)^2 + (r \\sin\\varphi_0)^2}, \\quad
+        \\Delta\\varphi_{1,2} = \\arctan\\frac{r \\sin\\varphi_0}{R \\mp r \\cos\\varphi_0}
+
+    Parameters
+    ----------
+    R_plus, R_minus : float
+        Test radii of the IA polarities [m].
+    plane : str
+        The mount's plane.
+    phi0_deg : float
+        Nominal mount angle [deg].
+
+    Returns
+    -------
+    Alignment
+        R, r [m] (r along the first plane axis, so that rho(0) = R - r = R+), and for the
+        mount at phi0 and phi0 + 180 deg the distance [m] and angle error [rad] of the mass
+        centre (:func:`mount_geometry`, from the forward model).
+    """
     R = 0.5 * (R_plus + R_minus)
     r = 0.5 * (R_minus - R_plus)
     phi = np.radians(phi0_deg)
@@ -104,6 +196,26 @@ def alignment(R_plus: float, R_minus: float, plane: str, phi0_deg: float) -> Ali
 
 @dataclass
 class PairFit:
+    """Eq 9 fit of one mount pair (:func:`fit_mount_pair`).
+
+    Attributes
+    ----------
+    plane, phi0_deg : str, float
+        The mount [deg].
+    run_ids : (str, str)
+    order : int
+        Chosen model order; ``fits`` holds every order tried, ``fit`` the chosen one.
+    c2, u_c2 : float
+        Coefficient of a^2 [s2/m] (eq 2's combination of the second-order terms).
+    d, u_d : float
+        Polarity-odd quadratic [s2/m] (Koq for the IA pair).
+    c3, u_c3 : float or None
+        Cubic [s4/m2] (K3 for the IA pair), order 3 only.
+    adequate : bool
+    geometry : Alignment
+    dwells : DataFrame
+        Dwell table with the signed input ``a`` [m/s2], residuals and fitted values.
+    """
     plane: str
     phi0_deg: float
     run_ids: tuple[str, str]
@@ -122,24 +234,58 @@ class PairFit:
 
 
 def pair_key(meta: Mapping) -> tuple[str, float]:
-    """(mount_plane, phi mod 180) — the two polarities of one mount share the key."""
-    return str(meta["mount_plane"]).replace(" ", ""), float(meta["mount_angle_deg"]) % 180.0
+    """(mount plane, phi mod 180 [deg]) of the run's typed geometry
+    (:attr:`accelcal.physics.geometry.CentrifugeMount.mount_key`): the two polarities of one
+    mount share the key."""
+    return geometry_of(meta).mount_key
 
 
 def fit_mount_pair(run_a: tuple[Mapping, pd.DataFrame], run_b: tuple[Mapping, pd.DataFrame],
-                   K1: float, R_plus: float, R_minus: float, orders=(2, 3)) -> PairFit:
-    """Fit eq 9 (module docstring) to a mount pair; run_a at phi0 < 180 deg, run_b at
-    phi0 + 180 deg.  The signed input of each polarity is a = ±omega_z^2 rho± with rho±
-    from the test radii (mass-centre geometry); the lowest adequate order is chosen
-    by :func:`adequacy.choose_order` (order 2: c2 and d; order 3: + c3); if none is
-    adequate the highest is used and the fit is marked inadequate."""
+                   K1: float, R_plus: float, R_minus: float, orders=(2, 3), *,
+                   pair: PairData | None = None) -> PairFit:
+    """Fit eq 9 to a mount pair (He & Yin 2017, paper 000 §3.1).
+
+    .. math::
+
+        E/K_1 = K_{0\\pm} + b_\\pm a_\\pm + c_2 a^2 + d\\, a |a| + c_3 a^3
+
+    Parameters
+    ----------
+    run_a, run_b : (meta, data)
+        The runs at phi0 < 180 deg and phi0 + 180 deg.
+    K1 : float
+        Scale factor [output_unit/(m/s2)] from the tumble.
+    R_plus, R_minus : float
+        Test radii of the IA pair [m]: turning centre R = (R+ + R-)/2, mass-centre offset
+        r = (R- - R+)/2 along the first plane axis.
+    orders : tuple of int
+        Model orders tried (2: c2 and d; 3: + c3).
+    pair : PairData, optional
+        The pair's dwell data when already built (with the same K1).
+
+    Returns
+    -------
+    PairFit
+        c2 [s2/m], d [s2/m] (Koq for the IA pair), c3 [s4/m2] with their standard
+        uncertainties, the alignment geometry and the dwell table.
+
+    Notes
+    -----
+    The signed input a [m/s2] of each dwell is the specific force of the forward model
+    (:meth:`accelcal.estimators.radius.PairData.inputs`) along the mount's nominal direction
+    to the spindle; the lowest adequate order is chosen by :func:`adequacy.choose_order`;
+    if none is adequate the highest is used and the fit is marked inadequate.
+    """
     (ma, da), (mb, db) = run_a, run_b
     plane, phi0 = pair_key(ma)
     geo = alignment(R_plus, R_minus, plane, phi0)
-    pair = PairData.from_runs([(ma, da, 1), (mb, db, -1)], K1)
+    if pair is None:
+        pair = PairData.from_runs([(ma, da, 1), (mb, db, -1)], K1)
     T = pair.table
-    rho = np.where(T["pol"].to_numpy() > 0, geo.R1, geo.R2)
-    a = np.where(T["pol"].to_numpy() > 0, 1.0, -1.0) * T["omega_z"].to_numpy() ** 2 * rho
+    # eq 9's signed input: the specific force of the forward model along the mount's nominal
+    # direction to the spindle, turning centre R and mass centre r from the test radii (the
+    # second-order difference to omega_z^2 rho, an angle error, is eq 8's type-B term)
+    a = pair.inputs(geo.R, geo.r)
     fits = {}
     for order in orders:
         fits[order], _ = pair.fit(a, order, subtract_a=False)
@@ -164,19 +310,36 @@ class Combination:
 
 
 def combine_second_order(pairs: list[PairFit], u_dc2: Mapping[str, float] | None = None) -> Combination:
-    """Solve c2(pair) = K11 cos^2 + K22 sin^2 + K12 cos sin for the K's present (weighted
-    by 1/(u_A(c2)^2 + u_B(dc2)^2)); coefficients no pair can see are left out.  Returns
-    values, covariance and each coefficient's sensitivity to each pair's c2 (the GUM
-    sensitivity coefficients: e.g. 2 for Kip on c2(45 deg), −1 on K2 and Kpp)."""
+    """The second-order coefficients from every mount pair: eq 2 by weighted least squares
+    (He & Yin 2017, paper 000 eqs 2–3).
+
+    .. math::
+
+        c_2(\\text{pair}) = K_{11} \\cos^2\\varphi_0 + K_{22} \\sin^2\\varphi_0
+            + K_{12} \\cos\\varphi_0 \\sin\\varphi_0
+
+    With the standard set of mounts this is eq 3: Kip = 2 c2(45 deg) - (K2 + Kpp).
+
+    Parameters
+    ----------
+    pairs : list of PairFit
+        The eq 9 fits, c2 [s2/m] with type-A u.
+    u_dc2 : mapping, optional
+        Pair label -> type-B standard uncertainty of c2 from eq 8 [s2/m].
+
+    Returns
+    -------
+    Combination
+        Values [s2/m], covariance, std and each coefficient's sensitivity to each pair's c2
+        (the GUM sensitivity coefficients: 2 for Kip on c2(45 deg), -1 on K2 and Kpp).
+        Weights 1/(u_A(c2)^2 + u_B(dc2)^2); coefficients no pair can see, or that the pairs
+        only determine in combinations, are left out.  The rows are :func:`eq2_row` (the
+        forward model); the solve is :func:`accelcal.fitting.core.lstsq_svd`.
+    """
     u_dc2 = u_dc2 or {}
     rows, y, var, labels = [], [], [], []
     for p in pairs:
-        e1, e2 = parse_plane(p.plane)
-        phi = np.radians(p.phi0_deg)
-        row = dict.fromkeys(UNKNOWNS, 0.0)
-        row[SQUARE[e1]] += np.cos(phi) ** 2
-        row[SQUARE[e2]] += np.sin(phi) ** 2
-        row[CROSS[frozenset((e1, e2))]] += np.cos(phi) * np.sin(phi)
+        row = eq2_row(p.plane, math.radians(p.phi0_deg))
         lab = f"{p.plane} {p.phi0_deg:g}/{p.phi0_deg + 180:g}"
         rows.append([row[k] for k in UNKNOWNS])
         y.append(p.c2)
@@ -189,13 +352,11 @@ def combine_second_order(pairs: list[PairFit], u_dc2: Mapping[str, float] | None
     names = [UNKNOWNS[j] for j in used]
     w = 1.0 / np.asarray(var)
     Aw = A * np.sqrt(w)[:, None]
-    # keep only identifiable unknowns: those whose unit vector lies in the row space
-    _, sv, Vt = np.linalg.svd(Aw, full_matrices=False)
-    rank = int(np.sum(sv > sv.max() * 1e-9)) if sv.size else 0
-    V = Vt[:rank]
-    ident = [j for j in range(len(names)) if np.linalg.norm(V[:, j]) > 1 - 1e-9]
-    pinv = np.linalg.pinv(Aw)                  # (unknowns x pairs), weighted
-    S = pinv * np.sqrt(w)[None, :]             # d K / d c2
+    # the fitting core's weighted least squares; only identifiable unknowns (unit vector in
+    # the row space of the design) are kept
+    sol = lstsq_svd(Aw, np.asarray(y) * np.sqrt(w))
+    ident = [j for j in range(len(names)) if sol.estimable[j]]
+    S = (sol.cov @ Aw.T) * np.sqrt(w)[None, :]  # d K / d c2: the solution is linear in the c2's
     beta = S @ np.asarray(y)
     cov = S @ np.diag(var) @ S.T
     values = {names[j]: float(beta[j]) for j in ident}
@@ -210,8 +371,10 @@ def combine_second_order(pairs: list[PairFit], u_dc2: Mapping[str, float] | None
 
 
 def pair_label(p: PairFit) -> str:
+    """'IA-PA 45/225': the pair's plane and its two mount angles [deg]."""
     return f"{p.plane} {p.phi0_deg:g}/{p.phi0_deg + 180:g}"
 
 
 def axis_name(i: int) -> str:
+    """'IA', 'PA' or 'OA' of an axis index."""
     return AXES[i]

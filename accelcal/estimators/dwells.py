@@ -12,15 +12,31 @@ from collections.abc import Mapping
 import numpy as np
 import pandas as pd
 
+from ..fitting.core import lstsq_svd
 from ..physics.rigs import omega_z
 
 
 def dwell_table(meta: Mapping, data: pd.DataFrame, effects: Mapping[str, float] | None = None) -> pd.DataFrame:
-    """One row per dwell: step, n, mean_output, ss_within (sum of squares about the dwell
-    mean, output_unit^2), var_output (sample variance), rate (mean logged rate, rad/s),
-    omega_z (inertial vertical rate, rad/s, earth rate included unless effects say
-    otherwise), time_mid (s), rest (bool), azimuth_deg (rest only), sweep ('rest', 'up',
-    'down'), first_line (file line of the dwell's first reading)."""
+    """Dwell statistics of a stepped-rate centrifuge run.
+
+    Parameters
+    ----------
+    meta : mapping
+        Typed run metadata.
+    data : DataFrame
+        ``step``, ``output`` [output_unit], ``table_rate_rad_s`` [rad/s], ``time_s`` [s],
+        ``table_angle_deg`` [deg], optional ``line``.
+    effects : mapping, optional
+        Effects for omega_z (default: the earth rate, drop-format.md).
+
+    Returns
+    -------
+    DataFrame
+        One row per dwell: step, n, mean_output [output_unit], ss_within (sum of squares
+        about the dwell mean) [output_unit^2], var_output (sample variance), rate (mean logged
+        rate) [rad/s], omega_z (:func:`accelcal.physics.rigs.omega_z`) [rad/s], time_mid [s],
+        rest (bool), azimuth_deg [deg] (rest only), sweep ('rest', 'up', 'down'), first_line.
+    """
     eff = {"earth_rate": 1.0} if effects is None else effects
     d = data
     g = d.groupby("step", sort=True)
@@ -53,11 +69,22 @@ def dwell_table(meta: Mapping, data: pd.DataFrame, effects: Mapping[str, float] 
 
 
 def merge_rest(dw: pd.DataFrame) -> pd.DataFrame:
-    """The dwell table with the rest dwells merged into one group whose mean is the mean
-    of the azimuth means (paper 000 eq 4: averaging over equally spaced azimuths removes
-    the spindle's tilt).  Adds ``dof_pe``: pure-error degrees of freedom of each row
-    (n - 1 for a dwell; readings minus azimuths for the merged rest group, so the spread
-    between azimuths, which is the spindle tilt and not noise, counts in neither term)."""
+    """The dwell table with the rest dwells merged into one group.
+
+    Parameters
+    ----------
+    dw : DataFrame
+        :func:`dwell_table`.
+
+    Returns
+    -------
+    DataFrame
+        The rest group's mean is the mean of the azimuth means (He & Yin 2017, paper 000
+        eq 4: averaging over equally spaced azimuths removes the spindle's tilt).  Adds
+        ``dof_pe``: pure-error degrees of freedom of each row (n - 1 for a dwell; readings
+        minus azimuths for the merged rest group, so the spread between azimuths, which is
+        the spindle tilt and not noise, counts in neither term).
+    """
     moving = dw[~dw["rest"]].copy()
     moving["dof_pe"] = moving["n"] - 1
     rest = dw[dw["rest"]]
@@ -76,10 +103,25 @@ def merge_rest(dw: pd.DataFrame) -> pd.DataFrame:
 
 
 def rest_mean(dw: pd.DataFrame) -> tuple[float, float, int]:
-    """E0 of paper 000 eq 4: the mean of the rest dwells' means over the table azimuths
-    (equal weight per azimuth, which cancels the spindle's tilt), its standard
-    uncertainty (from the spread of the azimuth means when there are >= 3, else from the
-    readings), and the number of readings."""
+    """E0 of He & Yin 2017 (paper 000) eq 4: the rest output over the table azimuths.
+
+    Parameters
+    ----------
+    dw : DataFrame
+        :func:`dwell_table`.
+
+    Returns
+    -------
+    (E0, u(E0), n) : (float, float, int)
+        The mean of the rest dwells' means over the azimuths [output_unit] (equal weight per
+        azimuth, which cancels the spindle's tilt), its standard uncertainty (from the spread
+        of the azimuth means when there are >= 3, else from the readings) and the readings.
+
+    Raises
+    ------
+    ValueError
+        The run has no rest dwell.
+    """
     r = dw[dw["rest"]]
     if r.empty:
         raise ValueError("run has no rest dwell")
@@ -96,10 +138,28 @@ def rest_mean(dw: pd.DataFrame) -> tuple[float, float, int]:
 
 
 def noise_model(level: np.ndarray, var: np.ndarray, n: np.ndarray) -> tuple[float, float]:
-    """Reading-noise model sigma^2(a) = s0^2 + (k a)^2, a the centripetal level (m/s^2):
-    white noise plus rate jitter proportional to the centripetal term.  Fitted to the
-    within-dwell variances by weighted least squares (Var s^2 = 2 sigma^4/(n-1)),
-    iterated twice; returns (s0^2, k^2), both >= 0."""
+    """Reading-noise model of a centrifuge run: white noise plus rate jitter.
+
+    .. math::
+
+        \\sigma^2(a) = s_0^2 + (k a)^2
+
+    Parameters
+    ----------
+    level : ndarray
+        Centripetal level a of each dwell [m/s2].
+    var : ndarray
+        Within-dwell variance [y unit squared].
+    n : ndarray
+        Readings per dwell.
+
+    Returns
+    -------
+    (s0^2, k^2) : (float, float)
+        Both >= 0 [y unit^2, (y unit / (m/s2))^2], fitted to the within-dwell variances by
+        weighted least squares (Var s^2 = 2 sigma^4/(n-1); the fitting core's solver),
+        reweighted three times.
+    """
     a2 = np.asarray(level, float) ** 2
     v = np.asarray(var, float)
     dof = np.maximum(np.asarray(n, float) - 1, 1)
@@ -108,7 +168,7 @@ def noise_model(level: np.ndarray, var: np.ndarray, n: np.ndarray) -> tuple[floa
     beta = np.array([np.median(v[a2 == a2.min()]) if np.any(a2 == a2.min()) else v.min(), 0.0])
     for _ in range(3):
         sw = np.sqrt(w)
-        beta, *_ = np.linalg.lstsq(X * sw[:, None], v * sw, rcond=None)
+        beta = lstsq_svd(X * sw[:, None], v * sw).x
         beta = np.maximum(beta, [max(v.min() * 1e-3, 1e-300), 0.0])
         pred = X @ beta
         w = dof / pred**2

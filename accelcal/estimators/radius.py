@@ -18,27 +18,76 @@ import numpy as np
 import pandas as pd
 
 from ..constants import G_STANDARD, OMEGA_EARTH
-from ..physics.axes import parse_plane
+from ..physics.geometry import geometry_of
+from ..physics.instrument import indicated_acceleration
+from ..physics.rigs import NOMINAL, centrifuge_specific_force
 from .adequacy import DwellFit, weighted_dwell_fit
 from .dwells import dwell_table, merge_rest, noise_model, rest_mean
 
 
 def ia_polarity(meta: Mapping) -> int | None:
     """+1 when IA points towards the spindle, -1 when away, None when IA is not radial
-    (drop-format.md: the direction to the spindle makes angle phi with the first plane axis)."""
-    e1, e2 = parse_plane(meta["mount_plane"])
-    phi = float(meta["mount_angle_deg"]) % 360.0
-    c = {0.0: 1, 180.0: -1}
-    s = {90.0: 1, 270.0: -1}
-    if e1 == 0 and phi in c:
-        return c[phi]
-    if e2 == 0 and phi in s:
-        return s[phi]
-    return None
+    (:attr:`accelcal.physics.geometry.CentrifugeMount.ia_polarity`)."""
+    return geometry_of(meta).ia_polarity
+
+
+def centripetal_unit_input(meta: Mapping, radius_m: float = 1.0, mass_centre_offset: float = 0.0) -> np.ndarray:
+    """Specific force on (IA, PA, OA) [m/s2] per unit (rad/s)^2 of table rate.
+
+    The centripetal part of :func:`accelcal.physics.rigs.centrifuge_specific_force` (rate 1
+    minus rate 0, no earth rate) for a turning centre at ``radius_m`` [m] and the effects.md
+    ``mass_centre_offset`` [m] along the first plane axis; at the defaults, the unit vector
+    towards the spindle in instrument axes.
+    """
+    eff = {"mass_centre_offset": float(mass_centre_offset)}
+    F = centrifuge_specific_force(meta, {"table_rate_rad_s": np.array([1.0, 0.0])}, eff, radius_m=radius_m)
+    return F[0] - F[1]
+
+
+def radial_input_columns(meta: Mapping, rate: np.ndarray, direction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """d a / d R and d a / d r of the signed input a = f . direction.
+
+    Parameters
+    ----------
+    meta : mapping
+        The run's metadata.
+    rate : ndarray
+        Logged table rate of each dwell [rad/s] (the earth rate is added by the forward model).
+    direction : (3,) ndarray
+        Unit vector in instrument axes (the pair's nominal direction to the spindle).
+
+    Returns
+    -------
+    dR, dr : ndarray
+        [m/s2 per m]: the specific force of :func:`accelcal.physics.rigs.centrifuge_specific_force`
+        (earth rate included) along ``direction`` per metre of turning-centre radius and per
+        metre of mass-centre offset.  The centripetal input is linear in both, so
+        a = R dR + r dr exactly.
+    """
+    d = {"table_rate_rad_s": np.asarray(rate, float)}
+    f0 = centrifuge_specific_force(meta, d, NOMINAL, radius_m=0.0) @ direction
+    fR = centrifuge_specific_force(meta, d, NOMINAL, radius_m=1.0) @ direction
+    fr = centrifuge_specific_force(meta, d, {**NOMINAL, "mass_centre_offset": 1.0}, radius_m=0.0) @ direction
+    return fR - f0, fr - f0
 
 
 @dataclass
 class StaticRadius:
+    """Result of :func:`test_radius_static` for one IA polarity ('+' or '-').
+
+    Attributes
+    ----------
+    radius_m, std_uncertainty_m : float
+        R [m] and its GUM u (K0 cancelling exactly, correlations kept).
+    std_uncertainty_printed_m : float
+        u by the form printed under eq 6 (a_g and lambda_c independent) [m].
+    lambda_c_rad, u_lambda_c_rad : float
+        Total misalignment of IA to the horizontal (eq 4) [rad].
+    omega_g, a_g : list of float
+        Logged rate [rad/s] and a_g [m/s2] of each reference dwell.
+    budget : list of dict
+        Contribution of each input [m].
+    """
     polarity: str
     radius_m: float
     std_uncertainty_m: float          # GUM, K0 cancelling exactly (correlations kept)
@@ -50,23 +99,87 @@ class StaticRadius:
     budget: list[dict] = field(default_factory=list)
 
 
+def static_radius_column(meta: Mapping, rate: np.ndarray, lam: float) -> np.ndarray:
+    """d a_IA / d R [m/s2 per m] of dwells at logged rates ``rate`` [rad/s] with IA tilted by
+    ``lam`` [rad] (effects.md ``ia_tilt``): s omega_z^2 cos(lam) of the forward model
+    (:func:`accelcal.physics.rigs.centrifuge_specific_force`, earth rate included), the
+    denominator of paper 000 eq 6."""
+    d = {"table_rate_rad_s": np.asarray(rate, float)}
+    eff = {**NOMINAL, "ia_tilt": float(lam)}
+    return (centrifuge_specific_force(meta, d, eff, radius_m=1.0)[:, 0]
+            - centrifuge_specific_force(meta, d, eff, radius_m=0.0)[:, 0])
+
+
+def geometric_static_radius(meta: Mapping, st: "StaticRadius", coeffs: Mapping[str, float]) -> float:
+    """The radius at which the forward model reproduces the static back-calculation's input.
+
+    Eq 6 takes the rate-dependent part of the indicated acceleration, A_k = (E_a,k - E0)/K1,
+    for the centripetal input; the instrument's own terms (K2 a^2, Koq a|a|, K3 a^3, the IA
+    cross term with gravity on the vertical axis) are in it.  This returns the R' for which
+    mean_k [A(f_k(R')) - A(f_rest)] = mean_k A_k, with f from
+    :func:`accelcal.physics.rigs.centrifuge_specific_force` (IA tilted by lambda_c, earth rate)
+    and A from :func:`accelcal.physics.instrument.indicated_acceleration` with ``coeffs``
+    [SI]; K0 and K1 cancel.  Secant iteration from eq 6's R.
+    """
+    g = float(meta["g_local_m_s2"])
+    eff = {**NOMINAL, "ia_tilt": float(st.lambda_c_rad)}
+    c = {k: v for k, v in coeffs.items() if k not in ("K0", "K1")}
+    rates = np.r_[np.asarray(st.omega_g, float), 0.0]
+    target = float(np.mean(st.a_g)) - st.lambda_c_rad * g
+
+    def h(R):
+        A = indicated_acceleration(c, centrifuge_specific_force(meta, {"table_rate_rad_s": rates}, eff, radius_m=R))
+        return float(np.mean(A[:-1] - A[-1])) - target
+
+    R0, R1 = st.radius_m, st.radius_m * (1.0 + 1e-6)
+    h0, h1 = h(R0), h(R1)
+    for _ in range(50):
+        if h1 == h0:
+            break
+        R0, R1, h0 = R1, R1 - h1 * (R1 - R0) / (h1 - h0), h1
+        h1 = h(R1)
+        if abs(R1 - R0) <= 1e-15 * abs(R1):
+            break
+    return float(R1)
+
+
 def test_radius_static(meta: Mapping, data: pd.DataFrame, K0: float, K1: float,
                        u_K0: float = 0.0, u_K1: float = 0.0, level_g: float = 1.0) -> StaticRadius:
-    """Static back-calculation of the test radius (paper 000 eqs 4–6).
+    """Static back-calculation of the test radius (He & Yin 2017, paper 000 eqs 4–6).
 
-    lambda_c = (E0/K1 − K0)/g                                   (eq 4)
-    a_g      = E_a/K1 − K0                                       (eq 5, corrected)
-    R_g      = s (a_g − lambda_c g) / (omega_z^2 cos lambda_c)   (eq 6)
+    .. math::
 
-    E0: mean rest output over the table azimuths; E_a: mean output of each dwell whose
-    centripetal level is nearest ``level_g`` (all such dwells, up and down sweeps, are
-    averaged); omega_z^2 = omega^2 ± 2 omega Omega_e sin(Phi) + ... is the inertial rate
-    about the vertical (eq 6's denominator, exact for either rotation sense); s = ±1 the
-    IA polarity.  K0 in m/s^2, K1 in output_unit per m/s^2 from the tumble.
+        \\lambda_c = (E_0/K_1 - K_0)/g \\quad (4), \\qquad a_g = E_a/K_1 - K_0 \\quad (5),
+        \\qquad R_g = \\frac{a_g - \\lambda_c g}{s \\, \\omega_z^2 \\cos\\lambda_c} \\quad (6)
 
-    Uncertainty: since a_g − lambda_c g = (E_a − E0)/K1, K0 cancels; the GUM budget takes
-    E_a, E0, K1 and omega as inputs.  The form printed under eq 6 treats a_g and lambda_c
-    as independent (counting u(K0) twice) and is returned for comparison.
+    (eq 5 corrected: the paper prints E_a/(K1 - K0)).
+
+    Parameters
+    ----------
+    meta : mapping
+        Typed metadata of an IA-radial centrifuge run (``g_local_m_s2`` [m/s2]).
+    data : DataFrame
+        The run's readings (``step``, ``table_rate_rad_s`` [rad/s], ``table_angle_deg``
+        [deg], ``output`` [output_unit]).
+    K0, K1 : float
+        Bias [m/s2] and scale factor [output_unit/(m/s2)] from the tumble.
+    u_K0, u_K1 : float
+        Their standard uncertainties.
+    level_g : float
+        Reference level of eq 5 [g]: the dwells nearest it (up and down sweeps) are used.
+
+    Returns
+    -------
+    StaticRadius
+        R [m] with its GUM u (K0 cancels: a_g - lambda_c g = (E_a - E0)/K1; inputs E_a, E0,
+        K1, omega) and the u of the form printed under eq 6 (a_g and lambda_c independent,
+        u(K0) counted twice), lambda_c [rad].
+
+    Notes
+    -----
+    E0 is the mean rest output over the table azimuths (eq 4: the spindle tilt cancels).
+    The denominator s omega_z^2 cos(lambda_c) is the regressor of R of the forward model
+    (:func:`static_radius_column`: earth rate in omega_z, exact for either rotation sense).
     """
     s = ia_polarity(meta)
     if s is None:
@@ -86,12 +199,15 @@ def test_radius_static(meta: Mapping, data: pd.DataFrame, K0: float, K1: float,
     w = ref["rate"].to_numpy()
     uw = ref["rate_std"].to_numpy() / np.sqrt(ref["n"].to_numpy())
     a_g = Ea / K1 - K0
-    Rk = s * (a_g - lam * g) / (wz**2 * np.cos(lam))
+    # eq 6's denominator is the regressor of R: d a_IA / d R = s omega_z^2 cos(lambda_c) of the
+    # forward model with IA tilted by lambda_c (effects.md ia_tilt), earth rate included
+    cR = static_radius_column(meta, ref["rate"].to_numpy(), lam)
+    Rk = (a_g - lam * g) / cR
     R = float(Rk.mean())
     m = len(Rk)
-    # GUM: R = mean_k s (E_a,k − E0) / (K1 omega_z,k^2 cos lam)
-    dR_dEa = s / (K1 * wz**2 * np.cos(lam)) / m
-    dR_dE0 = -float(np.sum(s / (K1 * wz**2 * np.cos(lam)))) / m
+    # GUM: R = mean_k (E_a,k − E0) / (K1 c_R,k)
+    dR_dEa = 1.0 / (K1 * cR) / m
+    dR_dE0 = -float(np.sum(1.0 / (K1 * cR))) / m
     dR_dK1 = -R / K1
     dR_dw = -2.0 * Rk / wz * np.sign(wz) * np.sign(w) / m   # d(omega_z)/d(omega) = s_rot
     terms = [("E_a", float(np.sqrt(np.sum((dR_dEa * uEa) ** 2)))),
@@ -114,9 +230,28 @@ MODEL_TERMS = {1: [], 2: ["K2", "Koq"], 3: ["K2", "Koq", "K3"]}
 
 def polarity_design(a: np.ndarray, pol: np.ndarray, order: int, odd_quadratic: bool = True,
                     names: tuple[str, str, str] = ("c2", "d", "c3")) -> tuple[np.ndarray, list[str]]:
-    """Regressors of eq 7 / eq 9 on signed inputs a (m/s^2) of the two polarities pol = ±1:
-    K0+, K0-, b+ a+, b- a-, then c2 a^2, d a|a| (the polarity-odd quadratic, eq 9's Koq
-    term), c3 a^3 by order.  Each polarity's terms are zero for the other's readings."""
+    """Regressors of eq 7 / eq 9 (He & Yin 2017, paper 000).
+
+    Parameters
+    ----------
+    a : ndarray
+        Signed input of each row [m/s2] (:meth:`PairData.inputs`).
+    pol : ndarray
+        Polarity of each row, +1 / -1.
+    order : int
+        1: K0+-, b+-; 2: + c2 a^2 and d a|a| (the polarity-odd quadratic, eq 9's Koq term);
+        3: + c3 a^3.
+    odd_quadratic : bool
+        Include d a|a| from order 2.
+    names : tuple of str
+        Names of the c2, d, c3 columns.
+
+    Returns
+    -------
+    X, names : ndarray, list of str
+        Columns [1, 1, m/s2, m/s2, (m/s2)^2, (m/s2)^2, (m/s2)^3]; each polarity's own terms
+        are zero for the other's rows.
+    """
     p = (pol > 0).astype(float)
     m = 1.0 - p
     cols = [p, m, a * p, a * m]
@@ -135,9 +270,20 @@ def polarity_design(a: np.ndarray, pol: np.ndarray, order: int, odd_quadratic: b
 
 @dataclass
 class PairData:
-    """Dwell data of a mount pair, stacked: one row per dwell group (rest merged per run)."""
-    table: pd.DataFrame           # columns: n, mean_output, ss_within, dof_pe, omega_z, time_mid, sweep, pol, rest
+    """Dwell data of a mount pair, stacked: one row per dwell group (rest merged per run).
+
+    Attributes
+    ----------
+    table : DataFrame
+        n, mean_output, ss_within, dof_pe, rate, omega_z, time_mid, sweep, pol, rest, run_id.
+    K1 : float
+        Scale factor the outputs are divided by [output_unit/(m/s2)].
+    metas : dict
+        Polarity (+1 / -1) -> the run's metadata.
+    """
+    table: pd.DataFrame
     K1: float
+    metas: dict = field(default_factory=dict)
 
     @classmethod
     def from_runs(cls, runs: list[tuple[Mapping, pd.DataFrame, int]], K1: float) -> "PairData":
@@ -147,7 +293,42 @@ class PairData:
             t["pol"] = pol
             t["run_id"] = str(meta.get("run_id", ""))
             rows.append(t)
-        return cls(pd.concat(rows, ignore_index=True), K1)
+        return cls(pd.concat(rows, ignore_index=True), K1, {pol: meta for meta, _, pol in runs})
+
+    def subset(self, keep: np.ndarray) -> "PairData":
+        """The pair restricted to the rows ``keep``."""
+        return PairData(self.table[keep].reset_index(drop=True), self.K1, self.metas)
+
+    @property
+    def direction(self) -> np.ndarray:
+        """Unit vector towards the spindle of the pair's first polarity (phi0 < 180 deg), in
+        instrument axes, from the forward model (:func:`centripetal_unit_input`)."""
+        meta = self.metas[1] if 1 in self.metas else self.metas[-1]
+        u = centripetal_unit_input(meta)
+        return u if 1 in self.metas else -u
+
+    def input_columns(self) -> tuple[np.ndarray, np.ndarray]:
+        """d a / d R and d a / d r of every row (:func:`radial_input_columns`): a is the
+        specific force along :attr:`direction`, positive for the '+' run, negative for '-'."""
+        pol = self.table["pol"].to_numpy()
+        rate = self.table["rate"].to_numpy(float)
+        dR, dr = np.zeros(len(pol)), np.zeros(len(pol))
+        u = self.direction
+        for p, meta in self.metas.items():
+            k = pol == p
+            dR[k], dr[k] = radial_input_columns(meta, rate[k], u)
+        return dR, dr
+
+    def inputs(self, R: float | Mapping[int, float], r: float = 0.0) -> np.ndarray:
+        """Signed input a [m/s2] of eq 7 / eq 9 for every row, from the forward model: a
+        turning centre at R [m] (or one radius per polarity, {+1: R+, -1: R-}) with the
+        mass centre r [m] along the first plane axis (effects.md ``mass_centre_offset``)."""
+        dR, dr = self.input_columns()
+        if isinstance(R, Mapping):
+            pol = self.table["pol"].to_numpy()
+            Rrow = np.where(pol > 0, R.get(1, 0.0), R.get(-1, 0.0))
+            return Rrow * dR + r * dr
+        return float(R) * dR + r * dr
 
     def fit(self, a: np.ndarray, order: int, subtract_a: bool, g_max_ms2: float | None = None,
             odd_quadratic: bool = True) -> tuple[DwellFit, np.ndarray]:
@@ -174,6 +355,20 @@ class PairData:
 
 @dataclass
 class IterativeRadius:
+    """Result of :func:`test_radius_iterative`.
+
+    Attributes
+    ----------
+    order : int
+        Model order of eq 7.
+    g_max : float or None
+        Upper end of the g range [g] (None: full range).
+    R_plus, R_minus, u_plus, u_minus : float
+        Radii of the two IA polarities and their standard uncertainties [m].
+    iterations : int
+    fit : DwellFit
+        The last regression, with its adequacy.
+    """
     order: int
     g_max: float | None              # g (standard), None = full range
     R_plus: float
@@ -187,9 +382,10 @@ class IterativeRadius:
 def test_radius_iterative(pair: PairData, R0_plus: float, R0_minus: float, order: int,
                           g_max: float | None = None, u_K1_rel: float = 0.0,
                           tol: float = 1e-11, max_iter: int = 30) -> IterativeRadius:
-    """Iterative regression of paper 000 eq 7 on both IA polarities.
+    """Iterative regression of paper 000 eq 7 on both IA polarities (He & Yin 2017).
 
-    a_i± = ±omega_z^2 R± from the current radii; fit
+    a_i± = R± d a_IA / d R, the IA specific force of the forward model at the current radii
+    (:meth:`PairData.inputs`; ±omega_z^2 R± with the earth rate in omega_z); fit
     E/K1 − a_i = K0± + c± a_i± + [K2 a_i^2 + Koq a_i|a_i|]_(order>=2) + [K3 a_i^3]_(order 3)
     (the odd quadratic is included from order 2: it is separable because both polarities
     are measured, paper 000 §3.1); rescale R± <- R± (1 + c±) and repeat until |c±| < tol.
@@ -198,17 +394,17 @@ def test_radius_iterative(pair: PairData, R0_plus: float, R0_minus: float, order
     """
     T = pair.table
     pol = T["pol"].to_numpy()
-    w2 = T["omega_z"].to_numpy() ** 2
+    dR, _ = pair.input_columns()            # a_i+- = R+- d a_IA / d R of the forward model
     Rp, Rm = float(R0_plus), float(R0_minus)
     gm = None if g_max is None else g_max * G_STANDARD
     it = 0
+    sub = None
     for it in range(1, max_iter + 1):
-        a = np.where(pol > 0, w2 * Rp, -w2 * Rm)
+        a = np.where(pol > 0, Rp, Rm) * dR
         # the g range is judged on the starting radii so the dwell set does not change
         if it == 1:
-            a_sel = a.copy()
-        keep = np.ones(len(T), bool) if gm is None else (np.abs(a_sel) <= gm * 1.02)
-        sub = PairData(T[keep].reset_index(drop=True), pair.K1)
+            keep = np.ones(len(T), bool) if gm is None else (np.abs(a) <= gm * 1.02)
+            sub = pair.subset(keep)
         fit, _ = sub.fit(a[keep], order, subtract_a=True)
         cp, cm = fit.value("b+"), fit.value("b-")
         Rp *= 1.0 + cp
@@ -221,14 +417,36 @@ def test_radius_iterative(pair: PairData, R0_plus: float, R0_minus: float, order
 
 
 def g_levels(pair: PairData, R_plus: float, R_minus: float) -> list[float]:
-    """The distinct centripetal levels of the pair's dwells, in g (standard), rounded."""
-    T = pair.table[~pair.table["rest"]]
-    a = T["omega_z"].to_numpy() ** 2 * np.where(T["pol"].to_numpy() > 0, R_plus, R_minus)
+    """The distinct centripetal levels of the pair's dwells.
+
+    Parameters
+    ----------
+    pair : PairData
+    R_plus, R_minus : float
+        Polarity radii [m].
+
+    Returns
+    -------
+    list of float
+        |a| of the moving dwells [g, standard], rounded to 0.1 g.
+    """
+    a = np.abs(pair.inputs({1: R_plus, -1: R_minus}))[~pair.table["rest"].to_numpy()]
     return sorted({round(float(x) / G_STANDARD, 1) for x in a})
 
 
 def earth_rate_term(meta: Mapping) -> float:
-    """Omega_e sin(latitude), rad/s: the vertical earth rate that eq 6 includes."""
+    """The vertical earth rate that eq 6 includes.
+
+    Parameters
+    ----------
+    meta : mapping
+        ``site_latitude_deg`` [deg].
+
+    Returns
+    -------
+    float
+        Omega_e sin(latitude) [rad/s].
+    """
     return OMEGA_EARTH * np.sin(np.radians(float(meta["site_latitude_deg"])))
 
 

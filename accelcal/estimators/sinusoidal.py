@@ -21,10 +21,12 @@ What this module does (all SI, effects.md names and units):
   effects (earth rate) plus the tool errors being identified.  Nothing of the
   rig kinematics is re-implemented here.  The coefficients enter linearly, so
   their Jacobian columns are evaluated exactly through
-  :func:`~accelcal.physics.instrument.indicated_acceleration`; tool-error
-  columns are central differences of the forward model.
-* The fit is a joint nonlinear least squares (``scipy.optimize.least_squares``)
-  over the three attitudes, with K1 shared (one instrument; in attitude (c) IA
+  :func:`~accelcal.physics.instrument.output_derivative`; tool-error
+  columns are central differences of the forward model (both tested against
+  central differences of ``rig_output`` in tests/test_design_columns.py).
+* The fit is a joint nonlinear least squares (the fitting core's
+  :func:`~accelcal.fitting.core.gauss_newton`, linear solves by
+  :func:`~accelcal.fitting.core.lstsq_svd`) over the three attitudes, with K1 shared (one instrument; in attitude (c) IA
   only sees +g, so a per-run K1 there is inseparable from its K0) and K0 shared
   by default (a repeatable bias makes K1 absolute through gravity: the
   constant of (c) minus that of (a) is K1·g; this is also what separates
@@ -61,18 +63,21 @@ motion departs from the command) or ``'logged'`` (raw logged rate);
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 import pandas as pd
-from scipy.optimize import least_squares
 from scipy.stats import f as f_dist
 
+from ..fitting.core import FitResult, LackOfFit, Parameter, ParameterSet, gauss_newton, lstsq_svd
 from ..fitting.data import fitted_drive
 from ..physics import instrument, rigs
-from ..results import CoefficientResult
+from ..physics.geometry import geometry_of
+from ..results import BudgetTerm, CoefficientResult
+from . import uncertainty as unc
 
 TEST = "sine_centrifuge"
 
@@ -112,7 +117,7 @@ def _scale(name: str) -> float:
 @dataclass
 class _Run:
     meta: dict
-    data: pd.DataFrame          # columns as the forward model reads them (rate per rate_source)
+    data: dict                  # column -> array, as the forward model reads them (rate per rate_source)
     y: np.ndarray               # output, output_unit
     t: np.ndarray
     wdot: np.ndarray | None     # unsigned d(omega)/dt of the chosen source; None = physics default
@@ -121,13 +126,12 @@ class _Run:
 
 
 def _attitude(meta: Mapping) -> str:
-    """'a' / 'b' / 'c' of paper 002 from the axis pointing to the spindle (mount_angle 0/180),
-    else the mount description."""
-    e1, e2 = rigs.parse_plane(meta["mount_plane"])
-    phi = float(meta["mount_angle_deg"]) % 360.0
-    radial = {0.0: e1, 180.0: e1, 90.0: e2, 270.0: e2}.get(phi)
-    return {0: "a", 2: "b", 1: "c"}.get(radial, f"{meta['mount_plane']}@{phi:g}") if radial is not None \
-        else f"{meta['mount_plane']}@{phi:g}"
+    """'a' / 'b' / 'c' of paper 002 from the axis pointing to the spindle (the typed mount's
+    :attr:`~accelcal.physics.geometry.CentrifugeMount.radial_axis`: IA, OA, PA), else the
+    mount description."""
+    g = geometry_of(meta)
+    radial = g.radial_axis
+    return {0: "a", 2: "b", 1: "c"}[radial[0]] if radial is not None else f"{g.plane}@{g.phi_deg:g}"
 
 
 def _five_point(t: np.ndarray, w: np.ndarray) -> np.ndarray:
@@ -149,11 +153,26 @@ def _five_point(t: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 def prepare_runs(runs: Sequence, rate_source: str = "drive", rate_derivative: str | None = None,
                  n_harmonics: int = 3) -> list[_Run]:
-    """Turn ``(meta, data)`` pairs (or RunFile-like objects with .meta/.data) into fit inputs.
+    """Turn runs into fit inputs (paper 002).
 
-    rate_source: 'fitted' | 'drive' | 'logged' (centripetal rate, see module doc).
-    rate_derivative: None (the source's own: analytic derivative of the fit, or the drive's
-    analytic derivative for 'drive'/'logged'), 'drive', 'fitted' or 'numeric'.
+    Parameters
+    ----------
+    runs : sequence
+        ``(meta, data)`` pairs or RunFile-like objects with .meta/.data (time_s [s],
+        table_rate_rad_s [rad/s], table_angle_deg [deg], output [output_unit]).
+    rate_source : str
+        Centripetal rate: 'drive' (Omega sin(2 pi f t)), 'fitted' (harmonic fit of the
+        logged rate) or 'logged' (module doc).
+    rate_derivative : str, optional
+        None (the source's own: the fit's analytic derivative, or the drive's for
+        'drive'/'logged'), 'drive', 'fitted' or 'numeric' (5-point stencil).
+    n_harmonics : int
+        Harmonics of f in the fitted rate.
+
+    Returns
+    -------
+    list
+        One prepared run each (plain arrays, attitude a/b/c).
     """
     out = []
     for i, r in enumerate(runs):
@@ -182,49 +201,53 @@ def prepare_runs(runs: Sequence, rate_source: str = "drive", rate_derivative: st
         elif deriv not in ("drive", "fitted"):
             raise ValueError(f"rate_derivative {rate_derivative!r}")
         d["table_angle_deg"] = np.nan_to_num(d["table_angle_deg"].to_numpy())
-        out.append(_Run(meta=meta, data=d, y=d["output"].to_numpy(), t=t, wdot=wdot,
+        # plain arrays for the forward model (a DataFrame column lookup per evaluation was a
+        # fifth of this method's time)
+        cols = {k: d[k].to_numpy() for k in d.columns}
+        out.append(_Run(meta=meta, data=cols, y=cols["output"], t=t, wdot=wdot,
                         label=str(meta.get("run_id", f"run{i}")), attitude=_attitude(meta)))
     return out
 
 
 # --------------------------------------------------------------------------- parameters
 
-@dataclass(frozen=True)
-class Param:
-    name: str                 # display name, e.g. 'K2', 'K0[DC1-...-0001]', 'ia_tilt[...]'
-    key: str                  # coefficient name or effect id
-    kind: str                 # 'coef' | 'extra' | 'tool'
-    run: int | None           # None = shared by every run
-    scale: float
+def _param(name: str, key: str, kind: str, run: int | None, scale: float) -> Parameter:
+    """A parameter of this fit in the core's terms: ``group`` is its kind ('coef' an
+    effects.md coefficient, 'extra' paper 002's KPPP/KOOO, 'tool' an effects.md rig effect),
+    ``runs`` the one run it belongs to (None: shared by every run)."""
+    return Parameter(name, key, _unit(key), scale, None if run is None else (run,), kind)
+
+
+def _kind(p: Parameter) -> str:
+    return p.group
 
 
 def _build_params(prep: list[_Run], per_run_bias: bool, extra_terms: Sequence[str],
-                  tool_errors: Mapping[str, str], K1_scale: float) -> list[Param]:
+                  tool_errors: Mapping[str, str], K1_scale: float) -> list[Parameter]:
     ps = []
     for c in COEFFS:
         if c == "K0" and per_run_bias:
-            ps += [Param(f"K0[{r.label}]", "K0", "coef", i, _scale("K0"))
-                   for i, r in enumerate(prep)]
+            ps += [_param(f"K0[{r.label}]", "K0", "coef", i, _scale("K0")) for i, r in enumerate(prep)]
         else:
-            ps.append(Param(c, c, "coef", None, K1_scale if c == "K1" else _scale(c)))
-    ps += [Param(e, e, "extra", None, _scale(e)) for e in extra_terms]
+            ps.append(_param(c, c, "coef", None, K1_scale if c == "K1" else _scale(c)))
+    ps += [_param(e, e, "extra", None, _scale(e)) for e in extra_terms]
     for eid, scope in tool_errors.items():
         if scope == "shared":
-            ps.append(Param(eid, eid, "tool", None, _scale(eid)))
+            ps.append(_param(eid, eid, "tool", None, _scale(eid)))
         elif scope == "per_run":
-            ps += [Param(f"{eid}[{r.label}]", eid, "tool", i, _scale(eid)) for i, r in enumerate(prep)]
+            ps += [_param(f"{eid}[{r.label}]", eid, "tool", i, _scale(eid)) for i, r in enumerate(prep)]
         else:
             raise ValueError(f"tool-error scope {scope!r} (use 'shared' or 'per_run')")
     return ps
 
 
-def _run_values(params: list[Param], x: np.ndarray, i: int) -> tuple[dict, dict, dict]:
+def _run_values(params: list[Parameter], x: np.ndarray, i: int) -> tuple[dict, dict, dict]:
     """(coefficients, extra terms, effects) of run i for the parameter vector x."""
     coeffs, extra, eff = {}, {}, dict(rigs.NOMINAL)
     for p, v in zip(params, x):
-        if p.run is not None and p.run != i:
+        if not p.acts_on(i):
             continue
-        {"coef": coeffs, "extra": extra, "tool": eff}[p.kind][p.key] = float(v)
+        {"coef": coeffs, "extra": extra, "tool": eff}[_kind(p)][p.key] = float(v)
     return coeffs, extra, eff
 
 
@@ -241,8 +264,24 @@ def _extra_accel(extra: Mapping, F: np.ndarray) -> np.ndarray:
 
 
 def model_output(run: _Run, coeffs: Mapping, extra: Mapping, eff: Mapping) -> np.ndarray:
-    """E (output_unit) of one run: accelcal.physics.rigs.rig_output (+ the optional
-    third-order extension terms, passed through the same sensor lag)."""
+    """Output of one run: the forward model.
+
+    Parameters
+    ----------
+    run : prepared run (:func:`prepare_runs`)
+    coeffs : mapping
+        Instrument coefficients [SI].
+    extra : mapping
+        Paper 002's Kppp, Kooo [s4/m2].
+    eff : mapping
+        Effects (earth rate and tool errors, effects.md ids).
+
+    Returns
+    -------
+    ndarray
+        E [output_unit]: :func:`accelcal.physics.rigs.rig_output` plus K1 (Kppp a_P^3 +
+        Kooo a_O^3), passed through the same sensor lag.
+    """
     kw = _kw(run, eff)
     E = rigs.rig_output(TEST, run.meta, run.data, coeffs, eff, **kw)
     if any(extra.values()):
@@ -252,27 +291,44 @@ def model_output(run: _Run, coeffs: Mapping, extra: Mapping, eff: Mapping) -> np
     return E
 
 
-def _jacobian_run(params: list[Param], x: np.ndarray, run: _Run, i: int) -> np.ndarray:
-    """d E_run / d x (n, p): exact columns for the (linear) coefficients through the
-    instrument model, central differences of the forward model for tool errors."""
+def _jacobian_run(params: list[Parameter], x: np.ndarray, run: _Run, i: int,
+                  cols: Sequence[int] | None = None) -> np.ndarray:
+    """d E_run / d x (n, p) of the forward model.
+
+    Parameters
+    ----------
+    params, x : the parameters and their values [SI].
+    run, i : the run and its index.
+    cols : sequence of int, optional
+        Only these columns (the others are left 0).
+
+    Returns
+    -------
+    (n, p) ndarray
+        [output_unit per parameter unit]: exact columns for the instrument coefficients
+        (:func:`accelcal.physics.instrument.output_derivative`, lagged like the output),
+        K1 times a_P^3, a_O^3 for paper 002's extra terms, and central differences of the
+        forward model (:func:`model_output`) for tool errors (one-sided at the tau >= 0 bound
+        of the sensor lag).
+    """
     coeffs, extra, eff = _run_values(params, x, i)
     kw = _kw(run, eff)
     F = rigs.specific_force(TEST, run.meta, run.data, eff, **kw)
     tau = float(eff.get("sensor_lag", 0.0))
     K1 = float(coeffs.get("K1", 1.0))
-    base = instrument.indicated_acceleration({}, F)
     J = np.zeros((run.y.size, len(params)))
     lin = []
-    for j, p in enumerate(params):
-        if p.run is not None and p.run != i:
+    for j in (range(len(params)) if cols is None else cols):
+        p = params[j]
+        if not p.acts_on(i):
             continue
-        if p.kind == "coef":
+        kind = _kind(p)
+        if kind == "coef":
             lin.append(j)
+            J[:, j] = instrument.output_derivative(p.key, coeffs, F)
             if p.key == "K1":
-                J[:, j] = instrument.indicated_acceleration(coeffs, F) + _extra_accel(extra, F)
-            else:
-                J[:, j] = K1 * (instrument.indicated_acceleration({p.key: 1.0}, F) - base)
-        elif p.kind == "extra":
+                J[:, j] += _extra_accel(extra, F)
+        elif kind == "extra":
             lin.append(j)
             J[:, j] = K1 * _extra_accel({p.key: 1.0}, F)
         else:
@@ -297,55 +353,91 @@ def _jacobian_run(params: list[Param], x: np.ndarray, run: _Run, i: int) -> np.n
 
 # --------------------------------------------------------------------------- diagnostics
 
-def _colscale(J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    s = np.linalg.norm(J, axis=0)
-    s = np.where(s > 0, s, 1.0)
-    return J / s, s
+def _small(J: np.ndarray, z: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The (p, p) least-squares problem equivalent to a tall one, to hand to the core's solver.
+
+    With J = Js diag(c) (columns scaled to unit norm) and Js^T Js = V diag(s^2) V^T, the
+    matrix M = diag(s) V^T diag(c) has M^T M = J^T J and the same column norms, so
+    :func:`accelcal.fitting.core.lstsq_svd` (M, b) with b = diag(1/s) V^T Js^T z returns the
+    solution, covariance, singular values, rank and null space of (J, z).  The Gram matrix
+    is formed by one matrix product; no LAPACK routine runs on the tall matrix (a 3000 x 16
+    SVD takes 14-150 ms under threaded OpenBLAS on a loaded 2-core machine, 0.9 ms with one
+    thread; the product and a 16 x 16 eigen-decomposition take 0.1 ms).  Precision is that of
+    the normal equations, ~1e-8 relative singular value, far below :data:`ALIAS_RTOL`.
+    """
+    c = np.linalg.norm(J, axis=0)
+    c = np.where(c > 0, c, 1.0)
+    Js = J / c
+    lam, V = np.linalg.eigh(Js.T @ Js)
+    order = np.argsort(lam)[::-1]
+    sv = np.sqrt(np.clip(lam[order], 0.0, None))
+    V = V[:, order]
+    M = (sv[:, None] * V.T) * c[None, :]
+    b = np.zeros(sv.size)
+    if z is not None:
+        ok = sv > 0
+        b[ok] = (V.T @ (Js.T @ z))[ok] / sv[ok]
+    return M, b
 
 
-def _svd(Js: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Singular values (descending) and right singular vectors (rows) of a tall matrix with
-    unit-norm columns, from the eigen-decomposition of its small Gram matrix (p x p).
-    Accurate to ~1e-8 relative singular value, far below ALIAS_RTOL; avoids LAPACK on the
-    tall matrix (slow under threaded BLAS contention)."""
-    w, V = np.linalg.eigh(Js.T @ Js)
-    order = np.argsort(w)[::-1]
-    return np.sqrt(np.clip(w[order], 0.0, None)), V[:, order].T
+def _lstsq(J: np.ndarray, z: np.ndarray | None = None, rcond: float = 1e-9):
+    """:func:`accelcal.fitting.core.lstsq_svd` of a tall (J, z) through :func:`_small`."""
+    M, b = _small(J, z)
+    return lstsq_svd(M, b, rcond)
 
 
-def _lstsq(A: np.ndarray, b: np.ndarray, rtol: float = 1e-9) -> np.ndarray:
-    """Minimum-norm least-squares solution through the Gram eigen-decomposition (column-scaled)."""
-    As, c = _colscale(A)
-    s, Vt = _svd(As)
-    keep = s > rtol * s[0] if s.size and s[0] > 0 else np.zeros(s.size, bool)
-    z = Vt[keep].T @ ((Vt[keep] @ (As.T @ b)) / s[keep] ** 2)
-    return z / c
+def _svd(J: np.ndarray, rtol: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """(relative singular values, null directions (k, p), rank) of the column-scaled design at
+    the relative cut ``rtol``, through the core's SVD (:func:`accelcal.fitting.core.lstsq_svd`).
+    A column that is identically zero counts as one zero singular value with its unit
+    vector as a null direction."""
+    p = J.shape[1]
+    sol = _lstsq(J, None, rtol)
+    S = sol.singular_values
+    zero = np.flatnonzero(sol.column_norm <= 0)
+    rel = S / S[0] if S.size and S[0] > 0 else S
+    null = sol.null_space.T if sol.null_space.size else np.zeros((0, p))
+    if zero.size:
+        rel = np.r_[rel, np.zeros(zero.size)]
+        null = np.vstack([null, np.eye(p)[zero]])
+    return rel, null, sol.rank
 
 
 def design_diagnostics(J: np.ndarray, names: Sequence[str], rtol: float = ALIAS_RTOL) -> dict:
-    """Rank / conditioning of a design (Jacobian) after scaling every column to unit norm:
-    singular values (relative), condition number, numerical rank at ``rtol``, Roy–Vetterli
-    effective rank exp(H(σ/Σσ)), and the aliased groups (see :func:`_alias_groups`)."""
-    Js, _ = _colscale(J)
-    s, Vt = _svd(Js)
-    rel = s / s[0] if s.size and s[0] > 0 else s
-    p = s / s.sum() if s.sum() > 0 else s
+    """Rank / conditioning of a design (Jacobian) after scaling every column to unit norm.
+
+    Parameters
+    ----------
+    J : (n, p) ndarray
+        Design [output_unit per parameter unit].
+    names : sequence of str
+    rtol : float
+        Relative singular value below which a direction is aliased.
+
+    Returns
+    -------
+    dict
+        n_params, rank (relative singular value > ``rtol``), condition_number,
+        effective_rank_roy_vetterli exp(H(sigma / sum sigma)), relative_singular_values, and
+        the aliased groups (:func:`_alias_groups`).
+    """
+    rel, null, rank = _svd(J, rtol)
+    p = rel / rel.sum() if rel.sum() > 0 else rel
     p = p[p > 0]
-    return {"n_params": len(names), "rank": int(np.sum(rel > rtol)),
+    return {"n_params": len(names), "rank": int(rank),
             "condition_number": float(rel[0] / rel[-1]) if rel[-1] > 0 else float("inf"),
             "effective_rank_roy_vetterli": float(np.exp(-np.sum(p * np.log(p)))),
             "relative_singular_values": [float(v) for v in rel],
-            **_alias_groups(Vt, rel, names, rtol)}
+            **_alias_groups(null, rel[rel <= rtol], names)}
 
 
-def _alias_groups(Vt: np.ndarray, rel: np.ndarray, names: Sequence[str], rtol: float) -> dict:
+def _alias_groups(null: np.ndarray, rel_null: np.ndarray, names: Sequence[str]) -> dict:
     """Groups of parameters coupled through the (near-)null space of the column-scaled design.
 
     P = V_null V_nullᵀ is the projector onto the directions the data cannot see; it does not
     depend on the choice of null basis.  Two parameters are aliased when |P_jk| is not
     negligible; groups are the connected components.  Each null direction is also returned as
     a combination {name: weight} (weights of unit-norm scaled columns)."""
-    null = Vt[rel <= rtol]
     names = list(names)
     out: dict[str, Any] = {"aliased_groups": [], "null_combinations": []}
     if null.shape[0] == 0:
@@ -366,18 +458,19 @@ def _alias_groups(Vt: np.ndarray, rel: np.ndarray, names: Sequence[str], rtol: f
             comp.append(k)
             stack += [m for m in np.nonzero(adj[k])[0] if m not in seen]
         out["aliased_groups"].append(sorted((names[k] for k in comp), key=names.index))
-    for v, sv in zip(null, rel[rel <= rtol]):
+    for v, sv in zip(null, rel_null):
         out["null_combinations"].append({"relative_singular_value": float(sv),
                                          "weights": {names[k]: round(float(v[k]), 4)
                                                      for k in np.argsort(-np.abs(v)) if abs(v[k]) > 0.05}})
     return out
 
 
-def _collinearity(Js: np.ndarray, j: int) -> float:
-    """Norm of column j (unit norm) left after projecting it onto the other columns
+def _collinearity(J: np.ndarray, j: int) -> float:
+    """Norm of unit-scaled column j left after projecting it onto the other columns
     (1/sqrt(VIF)); ~0 means the parameter is aliased with the others."""
+    Js = J / np.where(np.linalg.norm(J, axis=0) > 0, np.linalg.norm(J, axis=0), 1.0)
     others = np.delete(Js, j, axis=1)
-    b = _lstsq(others, Js[:, j])
+    b = _lstsq(others, Js[:, j]).x
     return float(np.linalg.norm(Js[:, j] - others @ b))
 
 
@@ -385,9 +478,27 @@ def _collinearity(Js: np.ndarray, j: int) -> float:
 
 @dataclass
 class SineFit:
-    """Result of :func:`identify_sine_campaign` (paper 002, joint three-attitude LS).
+    """Result of :func:`identify_sine_campaign` (Sun, Ren & Wang, paper 002: joint
+    three-attitude least squares).
 
-    values/std in SI (units per :attr:`units`); cov is residual-scaled s²(JᵀJ)⁺.
+    Attributes
+    ----------
+    names, values, std, units : list, dict, dict, dict
+        Parameters with their values and standard uncertainties [SI, per ``units``].
+    cov : ndarray
+        Residual-scaled s^2 (J^T W J)^+.
+    sigma, dof, n_obs
+        Weighted pooled residual standard deviation [output_unit], dof and readings.
+    residual_rms, run_sigma : dict
+        Per run label [output_unit]: RMS residual and the noise used as its weight.
+    diagnostics : dict
+        Rank, condition and aliasing of the joint design (:func:`design_diagnostics`).
+    dropped : dict
+        Optional parameters dropped as unidentifiable, with the reason.
+    tool_errors : dict
+        Identified tool errors (effects.md ids) [SI].
+    result : FitResult
+        The fitting core's result.
     """
     names: list[str]
     values: dict[str, float]
@@ -410,6 +521,8 @@ class SineFit:
     rows: dict[str, tuple[int, int]] = field(default_factory=dict)   # run label -> rows of the Jacobian
     mounts: dict[str, str] = field(default_factory=dict)             # run label -> 'IA-PA@0 +OA'
     _jac: np.ndarray | None = field(default=None, repr=False)
+    #: the fitting core's result (values, residual-scaled covariance, whitened design)
+    result: FitResult | None = field(default=None, repr=False)
 
     def value(self, name: str) -> float:
         return self.values[name]
@@ -423,19 +536,14 @@ class SineFit:
                 "success": self.success, "message": self.message}
 
 
-class _Solved:
-    success = True
-    message = "linear least squares (no tool-error parameter)"
-
-
-def _linear_start(params: list[Param], prep: list[_Run], w: np.ndarray) -> np.ndarray:
+def _linear_start(params: list[Parameter], prep: list[_Run], w: np.ndarray) -> np.ndarray:
     """Weighted LS optimum of the model with every tool error at zero: E is linear in
-    (K1, K1*Kj) (one-to-one with (K1, Kj) for K1 != 0)."""
+    (K1, K1*Kj) (one-to-one with (K1, Kj) for K1 != 0); solved by the core's scaled SVD."""
     x1 = np.array([1.0 if p.key == "K1" else 0.0 for p in params])
-    lin = [j for j, p in enumerate(params) if p.kind != "tool"]
-    J1 = np.vstack([w[i] * _jacobian_run(params, x1, r, i) for i, r in enumerate(prep)])[:, lin]
+    lin = [j for j, p in enumerate(params) if _kind(p) != "tool"]
+    J1 = np.vstack([w[i] * _jacobian_run(params, x1, r, i, lin) for i, r in enumerate(prep)])[:, lin]
     y = np.concatenate([w[i] * r.y for i, r in enumerate(prep)])
-    b = _lstsq(J1, y)
+    b = _lstsq(J1, y).x
     K1 = float(b[[params[j].key for j in lin].index("K1")])
     if not np.isfinite(K1) or K1 == 0.0:
         K1 = 1.0
@@ -443,6 +551,25 @@ def _linear_start(params: list[Param], prep: list[_Run], w: np.ndarray) -> np.nd
     for k, j in enumerate(lin):
         x[j] = K1 if params[j].key == "K1" else b[k] / K1
     return x
+
+
+#: Parameters bounded below by 0 (effects.md: a lag time constant is not negative).
+NON_NEGATIVE = ("sensor_lag",)
+
+
+def _solve_nonlinear(params: list[Parameter], prep: list[_Run], x0: np.ndarray, w: np.ndarray):
+    """Weighted least squares of the forward model by the core's Gauss-Newton
+    (:func:`accelcal.fitting.core.gauss_newton`) with its lower bounds: :data:`NON_NEGATIVE`
+    parameters stay >= 0."""
+    def resid(x):
+        return np.concatenate([w[i] * (r.y - model_output(r, *_run_values(params, x, i)))
+                               for i, r in enumerate(prep)])
+
+    def jac(x):
+        return np.vstack([w[i] * _jacobian_run(params, x, r, i) for i, r in enumerate(prep)])
+
+    lower = np.array([0.0 if p.key in NON_NEGATIVE else -np.inf for p in params])
+    return gauss_newton(resid, jac, x0, max_iter=50, lower=lower)
 
 
 def identify_sine_campaign(runs: Sequence, *, tool_errors: Mapping[str, str] | None = None,
@@ -453,39 +580,79 @@ def identify_sine_campaign(runs: Sequence, *, tool_errors: Mapping[str, str] | N
                            _prepared: list[_Run] | None = None) -> SineFit:
     """Joint least squares over the attitudes of a sinusoidal-rate campaign (paper 002).
 
-    runs: list of ``(meta, data)`` (typed metadata mapping; DataFrame/mapping with
-    time_s, table_rate_rad_s, table_angle_deg, output) or RunFile-like objects.
-    tool_errors: effect id -> 'shared' | 'per_run' (effects.md ids: spindle_tilt,
-    mass_centre_offset, rate_scale_error, sensor_lag, ia_tilt, arm_stretch); ``{}`` fits the
-    nominal rig (earth rate only).  Default: none (use :data:`DEFAULT_TOOL_ERRORS` for the
-    compensated fit).  Optional parameters whose design column lies (to ``alias_rtol``) in
-    the span of the others are dropped and listed in ``SineFit.dropped``.
-    per_run_bias: K0 per run instead of shared.  prepared: output of :func:`prepare_runs`
-    (then ``runs`` and the rate options are ignored).  extra_terms: subset of ('Kppp', 'Kooo').
-    Model (effects.md): E = K1·(K0 + a_i + K2 a_i² + K3 a_i³ + Koq a_i|a_i| + Kp a_p + Ko a_o
-    + Kip a_i a_p + Kio a_i a_o + Kpo a_p a_o + Kpp a_p² + Koo a_o²), a in m/s², E in output_unit.
+    .. math::
+
+        E = K_1 (K_0 + a_I + K_2 a_I^2 + K_3 a_I^3 + K_{oq} a_I |a_I| + K_p a_P + K_o a_O
+            + K_{ip} a_I a_P + K_{io} a_I a_O + K_{po} a_P a_O + K_{pp} a_P^2 + K_{oo} a_O^2)
+
+    with (a_I, a_P, a_O) [m/s2] from :func:`accelcal.physics.rigs.specific_force` of each
+    attitude (centripetal, tangential, gravity, earth rate and the tool errors fitted), E in
+    output_unit (Sun, Ren & Wang, paper 002; effects.md instrument model).
+
+    Parameters
+    ----------
+    runs : sequence
+        ``(meta, data)`` pairs (typed metadata; time_s [s], table_rate_rad_s [rad/s],
+        table_angle_deg [deg], output [output_unit]) or RunFile-like objects.
+    tool_errors : mapping, optional
+        effects.md id -> 'shared' | 'per_run' (spindle_tilt, mass_centre_offset,
+        rate_scale_error, sensor_lag, ia_tilt, arm_stretch); ``{}`` (default) fits the nominal
+        rig (earth rate only); :data:`DEFAULT_TOOL_ERRORS` is the compensated fit.
+    per_run_bias : bool
+        K0 per run instead of shared.
+    extra_terms : sequence of str
+        Subset of ('Kppp', 'Kooo') [s4/m2].
+    rate_source, rate_derivative, n_harmonics
+        How the rate and its derivative are formed (:func:`prepare_runs`).
+    reweight : bool
+        One weight per run from its residual RMS (a second pass).
+    alias_rtol : float
+        Relative singular value below which a direction is aliased: optional parameters
+        whose column lies in the span of the others are dropped (``SineFit.dropped``).
+    prepared : list, optional
+        Output of :func:`prepare_runs` (then ``runs`` and the rate options are ignored).
+
+    Returns
+    -------
+    SineFit
+        Values [SI], residual-scaled covariance s^2 (J^T W J)^+, design diagnostics.
+
+    Notes
+    -----
+    The design columns are derivatives of the forward model (:func:`_jacobian_run`); every
+    solve is the fitting core's: :func:`accelcal.fitting.core.lstsq_svd` (on the equivalent
+    small problem, :func:`_small`) for the linear start (the model is linear in (K1, K1 Kj)
+    with the tool errors at zero), the identifiability checks and the covariance, and
+    :func:`accelcal.fitting.core.gauss_newton` when tool errors are fitted.  The result
+    carries the core's :class:`~accelcal.fitting.core.FitResult`.
+
+    References
+    ----------
+    Sun, Ren & Wang, sinusoidal-rate disc centrifuge calibration (paper 002;
+    ``shared/docs/methods.md``).
     """
     tool_errors = dict(tool_errors or {})
     prep = prepared if prepared is not None else _prepared
     if prep is None:
         prep = prepare_runs(runs, rate_source, rate_derivative, n_harmonics)
     params = _build_params(prep, per_run_bias, extra_terms, tool_errors, 1.0)
+    ones = np.ones(len(prep))
 
     # 0) starting point: with the tool errors at zero the model is linear in (K1, K1*Kj),
     #    so the coefficient-only optimum is one linear solve (exact start for the solver)
-    x0 = _linear_start(params, prep, np.ones(len(prep)))
+    x0 = _linear_start(params, prep, ones)
     K1_0 = float(x0[[p.key for p in params].index("K1")])
-    params = [Param(p.name, p.key, p.kind, p.run, abs(K1_0)) if p.key == "K1" else p for p in params]
+    params = [replace(p, scale=abs(K1_0)) if p.key == "K1" else p for p in params]
 
     # 1) identifiability of the optional parameters at the starting point (design only)
     J0 = np.vstack([_jacobian_run(params, x0, r, i) for i, r in enumerate(prep)])
     dropped: dict[str, str] = {}
+    changed = False
     while True:
-        Js, _ = _colscale(J0)
-        s, _ = _svd(Js)
-        if s[-1] / s[0] > alias_rtol:
+        rel, _, _ = _svd(J0, alias_rtol)
+        if rel[-1] > alias_rtol:
             break
-        cand = [(j, _collinearity(Js, j)) for j, p in enumerate(params) if p.kind != "coef"]
+        cand = [(j, _collinearity(J0, j)) for j, p in enumerate(params) if _kind(p) != "coef"]
         cand = [c for c in cand if c[1] < alias_rtol ** 0.5]
         if not cand:
             break                                     # a core coefficient is aliased: report it
@@ -494,20 +661,19 @@ def identify_sine_campaign(runs: Sequence, *, tool_errors: Mapping[str, str] | N
         params.pop(j)
         x0 = np.delete(x0, j)
         J0 = np.delete(J0, j, axis=1)
+        changed = True
     # weakly determined optional parameters: standard uncertainty (design + noise of the
     # coefficient-only fit) larger than the parameter's typical magnitude
     # (noise from one linearised step with every parameter free, so that a large tool error
     # is not taken for noise)
-    r0 = np.concatenate([r.y - model_output(r, *_run_values(params, x0, i)) for i, r in enumerate(prep)])
-    Js, cs = _colscale(J0)
-    r0 = r0 - Js @ _lstsq(Js, r0)
-    s2_0 = float(r0 @ r0 / max(r0.size - len(params), 1))
-    while True:
-        Js, cs = _colscale(J0)
-        sv, V = _svd(Js)
-        kk = sv > 1e-9 * sv[0]
-        sd0 = np.sqrt(s2_0 * np.sum((V[kk].T / sv[kk]) ** 2, axis=1)) / cs
-        ratio = [(sd0[j] / p.scale, j) for j, p in enumerate(params) if p.kind != "coef"]
+    optional = [j for j, p in enumerate(params) if _kind(p) != "coef"]
+    if optional:
+        r0 = np.concatenate([r.y - model_output(r, *_run_values(params, x0, i)) for i, r in enumerate(prep)])
+        r0 = r0 - J0 @ _lstsq(J0, r0).x
+        s2_0 = float(r0 @ r0 / max(r0.size - len(params), 1))
+    while optional:
+        sd0 = np.sqrt(s2_0 * np.clip(np.diag(_lstsq(J0).cov), 0.0, None))
+        ratio = [(sd0[j] / p.scale, j) for j, p in enumerate(params) if _kind(p) != "coef"]
         if not ratio or max(ratio)[0] <= 1.0:
             break
         q, j = max(ratio)
@@ -516,32 +682,23 @@ def identify_sine_campaign(runs: Sequence, *, tool_errors: Mapping[str, str] | N
         params.pop(j)
         x0 = np.delete(x0, j)
         J0 = np.delete(J0, j, axis=1)
+        changed = True
 
-    scales = np.array([p.scale for p in params])
-    w_run = np.ones(len(prep))
-    lo = np.array([0.0 if p.key == "sensor_lag" else -np.inf for p in params]) / scales
-    hi = np.full(len(params), np.inf)
-
-    def resid(z, w):
-        x = z * scales
+    def resid(x, w):
         return np.concatenate([w[i] * (r.y - model_output(r, *_run_values(params, x, i)))
                                for i, r in enumerate(prep)])
 
-    def jac(z, w):
-        x = z * scales
-        return -np.vstack([w[i] * _jacobian_run(params, x, r, i) for i, r in enumerate(prep)]) * scales
-
-    z = x0 / scales
-    sol = None
-    for _ in range(2 if reweight else 1):
-        if any(p.kind == "tool" for p in params):
-            sol = least_squares(resid, z, jac=jac, args=(w_run,), bounds=(lo, hi), method="trf",
-                                x_scale=1.0, xtol=1e-10, ftol=1e-12, gtol=1e-10, max_nfev=50)
-            z = sol.x
-        else:   # no tool error: (K1, K1*Kj) reparametrise a linear model -> exact linear solve
-            z = _linear_start(params, prep, w_run) / scales
-            sol = _Solved()
-        raw = resid(z, np.ones(len(prep)))
+    nonlinear = any(_kind(p) == "tool" for p in params)
+    w_run = ones.copy()
+    x = x0
+    success, message = True, "linear least squares (no tool-error parameter)"
+    for k in range(2 if reweight else 1):
+        if nonlinear:
+            gn = _solve_nonlinear(params, prep, x, w_run)
+            x, success, message = gn.p, gn.converged, gn.message
+        elif k > 0 or changed:   # no tool error: (K1, K1*Kj) reparametrise a linear model
+            x = _linear_start(params, prep, w_run)
+        raw = resid(x, ones)
         n_i = np.array([r.y.size for r in prep])
         splits = np.split(raw, np.cumsum(n_i)[:-1])
         sig = np.array([np.sqrt(np.mean(s_ ** 2)) for s_ in splits])
@@ -549,23 +706,28 @@ def identify_sine_campaign(runs: Sequence, *, tool_errors: Mapping[str, str] | N
             break
         w_run = 1.0 / np.where(sig > 0, sig, 1.0)
         w_run = w_run / np.exp(np.mean(np.log(w_run)))   # geometric-mean-one weights
-    x = z * scales
-    Jw = jac(z, w_run) / scales                         # weighted Jacobian in SI units (sign irrelevant)
-    rw = resid(z, w_run)
+    if not nonlinear and not changed and np.array_equal(x, x0) and np.all(w_run == 1.0):
+        Jw = J0                                         # the design at the solution, already built
+    else:
+        Jw = np.vstack([w_run[i] * _jacobian_run(params, x, r, i) for i, r in enumerate(prep)])
+    splits = np.split(raw, np.cumsum([r.y.size for r in prep])[:-1])
+    rw = np.concatenate([w * e for w, e in zip(w_run, splits)])
     n_obs, p_n = rw.size, len(params)
     dof = n_obs - p_n
     s2 = float(rw @ rw / dof)
-    Js, cs = _colscale(Jw)
-    s, Vt = _svd(Js)
-    keep = s / s[0] > 1e-9
-    cov_s = (Vt[keep].T / s[keep] ** 2) @ Vt[keep]
-    cov = s2 * cov_s / np.outer(cs, cs)
-    sd = np.sqrt(np.diag(cov))
+    # the fit in the core's terms: residual-scaled covariance s^2 (J^T W J)^+ (the core's
+    # solver on the equivalent small problem, :func:`_small`)
+    pset = ParameterSet(replace(p, value=float(v)) for p, v in zip(params, x))
+    sol = _lstsq(Jw)
+    lof = LackOfFit("adequate", s2, None, dof, 0, math.sqrt(s2),
+                    "covariance scaled by the residual variance (paper 002's LS)")
+    result = FitResult(pset, x, sol.cov, sol.cov * s2, sol.estimable, float(rw @ rw), dof, n_obs, sol.rank, lof,
+                       rw, Jw, bool(success), str(message))
+    cov = result.cov
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     names = [p.name for p in params]
     out_unit = str(prep[0].meta.get("output_unit", ""))
     diag = design_diagnostics(Jw, names, alias_rtol)
-    raw = resid(z, np.ones(len(prep)))
-    splits = np.split(raw, np.cumsum([r.y.size for r in prep])[:-1])
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(sd, sd)
     return SineFit(
@@ -576,13 +738,13 @@ def identify_sine_campaign(runs: Sequence, *, tool_errors: Mapping[str, str] | N
         residual_rms={r.label: float(np.sqrt(np.mean(e ** 2))) for r, e in zip(prep, splits)},
         run_sigma={r.label: float(1.0 / w) * float(np.sqrt(s2)) for r, w in zip(prep, w_run)},
         diagnostics=diag, dropped=dropped,
-        tool_errors={p.name: float(v) for p, v in zip(params, x) if p.kind == "tool"},
+        tool_errors={p.name: float(v) for p, v in zip(params, x) if _kind(p) == "tool"},
         options={"tool_errors": tool_errors, "per_run_bias": per_run_bias, "extra_terms": list(extra_terms),
                  "rate_source": rate_source, "rate_derivative": rate_derivative or
                  ("fitted" if rate_source == "fitted" else "drive"), "n_harmonics": n_harmonics,
                  "reweight": reweight, "alias_rtol": alias_rtol},
-        attitudes={r.label: r.attitude for r in prep}, success=bool(sol.success), message=str(sol.message),
-        correlation=corr, _jac=Jw,
+        attitudes={r.label: r.attitude for r in prep}, success=bool(success), message=str(message),
+        correlation=corr, _jac=Jw, result=result,
         rows={r.label: (int(a), int(a + r.y.size)) for r, a in
               zip(prep, np.concatenate([[0], np.cumsum([q.y.size for q in prep])[:-1]]))},
         mounts={r.label: f"{r.meta['mount_plane']}@{float(r.meta['mount_angle_deg']):g} {r.meta['vertical_axis']}"
@@ -618,7 +780,18 @@ def aliasing_report(fit: SineFit, rtol: float = ALIAS_RTOL) -> list[dict[str, An
 
 
 def aliased_together(report: Mapping[str, Any], *names: str) -> bool:
-    """True when all ``names`` fall in one aliased group of an attitude's report."""
+    """Whether parameters fall in one aliased group of an attitude's report.
+
+    Parameters
+    ----------
+    report : mapping
+        One entry of :func:`aliasing_report`.
+    *names : str
+
+    Returns
+    -------
+    bool
+    """
     return any(all(n in g for n in names) for g in report["aliased_groups"])
 
 
@@ -628,20 +801,32 @@ def _summary(fit: SineFit) -> dict[str, Any]:
 
 def compare_compensation(runs: Sequence, tool_errors: Mapping[str, str] | None = None,
                          **kw) -> tuple[SineFit, SineFit, dict[str, Any]]:
-    """Paper 002's identify-then-compensate comparison.
+    """Paper 002's identify-then-compensate comparison (Sun, Ren & Wang).
 
-    Fit 1: coefficients with the nominal input (earth rate only; tool errors ignored).
-    Fit 2: the same coefficients with the tool errors (effects.md ids, default
-    :data:`DEFAULT_TOOL_ERRORS`) identified jointly through the forward model, i.e. the
-    input compensated for them.  Returns (fit1, fit2, JSON-able comparison) with the
-    coefficient shifts (fit2 − fit1, also in units of fit 2's standard uncertainty), the
-    identified tool errors and an F test of the tool-error terms.
+    Parameters
+    ----------
+    runs : sequence
+        As for :func:`prepare_runs` (or ``_prepared=`` prepared runs).
+    tool_errors : mapping, optional
+        effects.md ids to identify (default :data:`DEFAULT_TOOL_ERRORS`).
+    **kw
+        Passed to :func:`identify_sine_campaign`.
+
+    Returns
+    -------
+    (fit1, fit2, comparison)
+        Fit 1: the nominal input (earth rate only, tool errors ignored); fit 2: the tool
+        errors identified jointly through the forward model (the input compensated); the
+        JSON-able comparison: coefficient shifts (fit2 - fit1, also in units of fit 2's u),
+        the identified tool errors and an F test of the tool-error terms.
     """
     tool_errors = dict(DEFAULT_TOOL_ERRORS if tool_errors is None else tool_errors)
     prep = kw.pop("_prepared", None) or prepare_runs(runs, kw.get("rate_source", "drive"),
                                                      kw.get("rate_derivative"), kw.get("n_harmonics", 3))
+    f1 = kw.pop("_uncompensated", None)
     kw = {k: v for k, v in kw.items() if k not in ("rate_source", "rate_derivative", "n_harmonics")}
-    f1 = identify_sine_campaign(None, tool_errors={}, _prepared=prep, **kw)
+    if f1 is None:
+        f1 = identify_sine_campaign(None, tool_errors={}, _prepared=prep, **kw)
     f2 = identify_sine_campaign(None, tool_errors=tool_errors, _prepared=prep, **kw)
     coef = [n for n in f1.names if n in f2.values]
     rss1 = f1.sigma ** 2 * f1.dof
@@ -663,8 +848,21 @@ def compare_compensation(runs: Sequence, tool_errors: Mapping[str, str] | None =
 
 
 def rate_source_comparison(runs: Sequence, **kw) -> dict[str, Any]:
-    """Residual RMS per run (output_unit) and reduced fit quality for each way of forming
-    the input rate and its derivative: which one reproduces the data (see module doc)."""
+    """Which way of forming the rate and its derivative reproduces the data (module doc).
+
+    Parameters
+    ----------
+    runs : sequence
+        As for :func:`prepare_runs`.
+    **kw
+        Passed to :func:`identify_sine_campaign`.
+
+    Returns
+    -------
+    dict
+        'rate=<source>,derivative=<source>' -> residual RMS per run and sigma [output_unit]
+        of the coefficient-only fit (five linear fits; about 0.1 s on the sample campaign).
+    """
     out = {}
     for rs, rd in (("drive", "drive"), ("fitted", "fitted"), ("logged", "drive"), ("drive", "numeric"),
                    ("logged", "numeric")):
@@ -685,16 +883,30 @@ def _f_test(f_small: SineFit, f_big: SineFit) -> dict[str, Any]:
 def process_sine_campaign(runs: Sequence, rig_id: str = "", *, tool_errors: Mapping[str, str] | None = None,
                           rate_source: str = "drive", rate_derivative: str | None = None,
                           compare_rate_sources: bool = True) -> tuple[list[CoefficientResult], dict[str, Any]]:
-    """All of paper 002 on one sinusoidal-rate campaign: returns the coefficients
-    (method 'sine_ls', SI units) and JSON-able extras.
+    """All of paper 002 on one sinusoidal-rate campaign (Sun, Ren & Wang).
 
-    The coefficients are those of the compensated fit (tool errors identified and
-    compensated, paper 002), K0 and K1 shared over the attitudes.  Paper 002's KPPP and
-    KOOO are tried as well and kept only when identifiable and significant (|z| > 3).
-    extras: 'aliasing' (per attitude), 'tool_errors', 'compensation' (with vs without),
-    'residual_rms', 'sigma', 'diagnostics' (rank, condition, effective rank),
-    'per_run_bias' (F test shared vs per-run K0), 'third_order', 'rate_sources',
-    'options', 'flags'.
+    Parameters
+    ----------
+    runs : sequence
+        ``(meta, data)`` pairs or RunFile-like objects (:func:`prepare_runs`).
+    rig_id : str
+    tool_errors : mapping, optional
+        Tool errors to identify (default :data:`DEFAULT_TOOL_ERRORS`).
+    rate_source, rate_derivative : str
+        :func:`prepare_runs`.
+    compare_rate_sources : bool
+        Also run :func:`rate_source_comparison` (five linear fits, cheap).
+
+    Returns
+    -------
+    (coefficients, extras)
+        Coefficients of the compensated fit (tool errors identified and compensated),
+        method 'sine_ls', SI units, K0 and K1 shared over the attitudes; paper 002's KPPP
+        and KOOO are tried and kept only when identifiable and significant (|z| > 3).
+        extras (JSON-able): 'aliasing' (per attitude), 'tool_errors', 'compensation' (with
+        vs without), 'residual_rms', 'sigma', 'diagnostics' (rank, condition, effective
+        rank), 'per_run_bias' (F test shared vs per-run K0), 'third_order', 'rate_sources',
+        'options', 'flags'.  :func:`budget_terms` gives their GUM budgets.
     """
     prep = prepare_runs(runs, rate_source, rate_derivative)
     out_unit = str(prep[0].meta.get("output_unit", ""))
@@ -713,7 +925,8 @@ def process_sine_campaign(runs: Sequence, rig_id: str = "", *, tool_errors: Mapp
                          "in_model": e in keep} for e in EXTRA_TERMS},
                   "f_test": _f_test(base, third), "dropped": third.dropped}
     # identify-then-compensate
-    f1, f2, cmp = compare_compensation(None, tool_errors, _prepared=prep, extra_terms=keep)
+    f1, f2, cmp = compare_compensation(None, tool_errors, _prepared=prep, extra_terms=keep,
+                                       _uncompensated=None if keep else base)
     fit = f2
     if not fit.success:
         flags.append(f"compensated fit did not converge: {fit.message}")
@@ -773,3 +986,15 @@ def _jsonable(o):
     if isinstance(o, (np.bool_,)):
         return bool(o)
     return o
+
+
+def budget_terms(coefficients: Sequence[CoefficientResult]) -> list[BudgetTerm]:
+    """GUM budget lines of paper 002's coefficients: one type-A line each, the joint
+    three-attitude least squares with its residual-scaled covariance s^2 (J^T W J)^+ (the tool
+    errors identified and compensated, so they leave no type-B term of their own)."""
+    out = []
+    for c in coefficients:
+        terms = [("joint 3-attitude LS (paper 002), residual-scaled s^2 (J'WJ)^-1", c.value, c.std_uncertainty,
+                  1.0, "A", "normal")]
+        out += unc.linear_budget(c.name, terms, method=c.method, rig_id=c.rig_id, value=c.value).terms
+    return out

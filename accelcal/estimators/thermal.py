@@ -11,7 +11,10 @@ At every chamber temperature the n positions give, by least squares on
     K0(T) = a / K1(T)                              [m/s^2]
 
 (sigma = +-1, the sign of IA in ``sin_axis``; the roles of sin and cos swap when IA is the
-``cos_axis``).  For n = 4: K0 = (E0 + E1 + E2 + E3)/4 / K1 and K1 = (E1 - E3)/(2 g sin gamma).
+``cos_axis``).  The regressors are not rebuilt here: they are the derivatives of the one
+forward model (:func:`point_design`, :func:`temperature_design`; tested against central
+differences of :func:`accelcal.physics.rigs.rig_output`), and every least-squares solve is
+the fitting core's (:func:`accelcal.fitting.core.linear_fit`).  For n = 4: K0 = (E0 + E1 + E2 + E3)/4 / K1 and K1 = (E1 - E3)/(2 g sin gamma).
 The other in-plane term, c, measures the misalignment of the sense axis in the table
 plane (or, equivalently and indistinguishably, a cross-axis sensitivity on the other
 in-plane axis).  Across temperature points the effects.md temperature model
@@ -40,8 +43,12 @@ import pandas as pd
 from scipy import stats
 
 from ..constants import MICRO_G, T_REF_C
-from ..physics.axes import parse_signed_axis
-from ..results import CoefficientResult
+from ..fitting.core import lack_of_fit, linear_fit
+from ..physics.geometry import geometry_of
+from ..physics.instrument import indicated_acceleration, output_derivative
+from ..physics.rigs import tilt_rotation_specific_force
+from ..results import BudgetTerm, CoefficientResult
+from . import uncertainty as unc
 
 METHOD = "tilt_rotation_ls"
 METHOD_TWO_POSITION = "tilt_rotation_two_position"
@@ -78,31 +85,106 @@ def _jsonable(obj):
 def rig_geometry(meta: Mapping) -> dict[str, Any]:
     """Geometry of a tilt_rotation run (drop-format.md): which in-plane term carries IA.
 
-    Returns dict: g (m/s^2), gamma_rad, ia_term ('sin' if IA is the ``sin_axis``, 'cos' if
-    it is the ``cos_axis``), ia_sign (+-1), input_amplitude = g sin(gamma) (m/s^2),
-    normal_input = g cos(gamma) (m/s^2).  Raises ValueError when IA is not in the table plane.
+    Parameters
+    ----------
+    meta : mapping
+        Typed run metadata (``g_local_m_s2``, ``tilt_deg``, ``sin_axis``, ``cos_axis``,
+        ``normal_axis``), read through :func:`accelcal.physics.geometry.geometry_of`.
+
+    Returns
+    -------
+    dict
+        g [m/s2], gamma_rad [rad], ia_term ('sin' if IA is the ``sin_axis``, 'cos' if it is
+        the ``cos_axis``), ia_sign (+-1), input_amplitude = g sin(gamma) [m/s2],
+        normal_input = g cos(gamma) [m/s2], cross_term: the instrument coefficient of the
+        other in-plane axis (Kp or Ko, [rad]).
+
+    Raises
+    ------
+    ValueError
+        IA not in the table plane, or no tilt.
     """
     g = float(meta["g_local_m_s2"])
-    gamma = math.radians(float(meta["tilt_deg"]))
-    si, ss = parse_signed_axis(meta["sin_axis"])
-    ci, cs = parse_signed_axis(meta["cos_axis"])
-    if si == 0:
-        term, sign = "sin", ss
-    elif ci == 0:
-        term, sign = "cos", cs
+    tab = geometry_of(meta)
+    if tab.sin_axis == 0:
+        term, sign, other = "sin", tab.sin_sign, tab.cos_axis
+    elif tab.cos_axis == 0:
+        term, sign, other = "cos", tab.cos_sign, tab.sin_axis
     else:
         raise ValueError("tilt_rotation: IA is neither the sin_axis nor the cos_axis; "
                          "paper 001 needs IA in the table plane")
-    if math.sin(gamma) == 0.0:
+    if math.sin(tab.gamma_rad) == 0.0:
         raise ValueError("tilt_rotation: tilt_deg is 0, IA senses no input")
-    return {"g": g, "gamma_rad": gamma, "ia_term": term, "ia_sign": int(sign),
-            "input_amplitude": g * math.sin(gamma), "normal_input": g * math.cos(gamma)}
+    return {"g": g, "gamma_rad": tab.gamma_rad, "ia_term": term, "ia_sign": int(sign),
+            "input_amplitude": g * math.sin(tab.gamma_rad), "normal_input": g * math.cos(tab.gamma_rad),
+            "cross_term": CROSS_AXIS[other]}
 
 
-def _ia_direction(theta_deg, ia_term: str, ia_sign: int) -> np.ndarray:
-    """sigma * sin(theta) or sigma * cos(theta): IA input per unit g sin(gamma)."""
-    th = np.radians(np.asarray(theta_deg, float))
-    return ia_sign * (np.sin(th) if ia_term == "sin" else np.cos(th))
+#: The instrument coefficient of a cross-axis input (effects.md): PA -> Kp, OA -> Ko.
+CROSS_AXIS = {1: "Kp", 2: "Ko"}
+#: The per-point parameters of paper 001's rotation fit: K1 K0, K1 and K1 times the cross
+#: term of the other in-plane axis (the model is bilinear; the LS is linear in these).
+POINT_PARAMS = ("K1*K0", "K1", "K1*Kx")
+
+
+def _geometry_meta(g: float, tilt_deg: float, ia_term: str, ia_sign: int) -> dict:
+    """The metadata of a tilt_rotation run with IA as the signed ``ia_term`` axis (PA the other
+    in-plane axis, OA the normal): what :func:`fit_point` gives the forward model."""
+    ia = f"{'+' if ia_sign > 0 else '-'}IA"
+    if ia_term not in ("sin", "cos"):
+        raise ValueError(f"ia_term {ia_term!r} is not 'sin' or 'cos'")
+    return {"test": "tilt_rotation", "g_local_m_s2": float(g), "tilt_deg": float(tilt_deg),
+            "sin_axis": ia if ia_term == "sin" else "+PA", "cos_axis": ia if ia_term == "cos" else "+PA",
+            "normal_axis": "+OA", "positions": ""}
+
+
+def specific_force_at(meta: Mapping, theta_deg, time_s=None) -> np.ndarray:
+    """Specific force (n, 3) on (IA, PA, OA) [m/s2] at table angles ``theta_deg`` [deg]:
+    :func:`accelcal.physics.rigs.tilt_rotation_specific_force` of the nominal table."""
+    th = np.asarray(theta_deg, float)
+    t = np.zeros(th.size) if time_s is None else np.asarray(time_s, float)
+    return tilt_rotation_specific_force(meta, {"rotation_deg": th, "time_s": t})
+
+
+def point_design(meta: Mapping, theta_deg) -> np.ndarray:
+    """Regressors of one temperature point (paper 001, "least squares on {1, sin, cos}").
+
+    Parameters
+    ----------
+    meta : mapping
+        Typed run metadata of the tilt_rotation run.
+    theta_deg : array_like
+        Table angles [deg].
+
+    Returns
+    -------
+    (n, 3) ndarray
+        Columns for :data:`POINT_PARAMS`: dE/dK0 / K1 = 1, dE/dK1 = a_i and dE/dKx / K1 = a_x
+        (a_i, a_x [m/s2] the IA and other in-plane specific force), the derivatives of the
+        forward model (:func:`accelcal.physics.instrument.output_derivative` at K1 = 1,
+        other coefficients 0).  E = K1 (K0 + a_i + Kx a_x) is linear in (K1 K0, K1, K1 Kx).
+    """
+    geo = rig_geometry(meta)
+    F = specific_force_at(meta, theta_deg)
+    unit = {"K1": 1.0}
+    return np.column_stack([output_derivative("K0", unit, F), output_derivative("K1", unit, F),
+                            output_derivative(geo["cross_term"], unit, F)])
+
+
+def temperature_design(temp_c) -> np.ndarray:
+    """Regressors of the temperature lines (effects.md temperature model, paper 001).
+
+    Returns
+    -------
+    (N, 2) ndarray
+        dE/dK0 and dE/dK0T of the forward model at K1 = 1 (1 and T - T_ref [degC]): the
+        columns of K0(T) = K0 + K0T (T - T_ref) and, with p1 = K1 K1T, of
+        K1(T) = K1 + p1 (T - T_ref).
+    """
+    T = np.asarray(temp_c, float)
+    F = np.zeros((T.size, 3))
+    unit = {"K1": 1.0}
+    return np.column_stack([output_derivative("K0", unit, F, T), output_derivative("K0T", unit, F, T)])
 
 
 # --------------------------------------------------------------------------- segmentation
@@ -167,58 +249,96 @@ def position_means(labelled: pd.DataFrame) -> pd.DataFrame:
 
 def fit_point(theta_deg: Sequence[float], output: Sequence[float], g: float, tilt_deg: float,
               ia_term: str = "sin", ia_sign: int = 1,
-              sigma_override: float | None = None) -> dict[str, Any]:
+              sigma_override: float | None = None, *, meta: Mapping | None = None) -> dict[str, Any]:
     """K0, K1 of one temperature point by least squares over its n positions (paper 001).
 
-    theta_deg: table angles (deg); output: the mean output at each (output_unit);
-    g: local gravity (m/s^2); tilt_deg: gamma (deg).  Fits E = a + b sin(theta) + c cos(theta)
-    (ordinary LS; n >= 3).  With A = g sin(gamma) and sigma = ia_sign, for ia_term 'sin':
+    Parameters
+    ----------
+    theta_deg : sequence of float
+        Table angles [deg].
+    output : sequence of float
+        The mean output at each [output_unit].
+    g : float
+        Local gravity [m/s2].
+    tilt_deg : float
+        gamma [deg].
+    ia_term, ia_sign : str, int
+        IA is the ``sin_axis`` ('sin') or the ``cos_axis`` ('cos'), with sign sigma.
+    sigma_override : float, optional
+        Standard deviation of one position mean [output_unit]; default: from the residuals,
+        s^2 = RSS / (n - 3) (NaN uncertainties when n == 3).
+    meta : mapping, optional
+        The run's metadata; when given, geometry is read from it (g, tilt and the axes of
+        the arguments are then ignored).
 
-        K1 = sigma b / A   (output_unit/(m/s^2)),   K0 = a / K1   (m/s^2),
-        misalignment = c / b (rad; in-plane misalignment of the sense axis, or a cross-axis
-        sensitivity on the cos axis; the two cannot be told apart here).
+    Returns
+    -------
+    dict
+        a [output_unit] and b_sin, b_cos (the coefficients of 1, sin theta, cos theta),
+        cov_abc, K0 [m/s2], u_K0, K1 [output_unit/(m/s2)], u_K1, cov_K0_K1, cos_term (= the
+        coefficient of the other in-plane term, [output_unit]), u_cos_term, misalignment_rad
+        = cos_term / (IA term) [rad] (in-plane misalignment of the sense axis, or a
+        cross-axis sensitivity on the other in-plane axis: the two cannot be told apart),
+        u_misalignment_rad, rss, dof, s (residual std), n.
 
-    Standard uncertainties come from the residuals, s^2 = RSS / (n - 3), unless
-    ``sigma_override`` (the standard deviation of one position mean, output_unit) is given,
-    or n == 3 (no residual dof: then they are NaN unless overridden).
-    Returns a dict with a, b, c, their covariance, K0, u_K0, K1, u_K1, cos_term (= c, output_unit),
-    u_cos_term, misalignment_rad, u_misalignment_rad, rss, dof, s (residual std), n.
+    Notes
+    -----
+    E_k = K1 (K0 + a_i,k + Kx a_x,k) is fitted by ordinary least squares
+    (:func:`accelcal.fitting.core.linear_fit`) on the regressors of :func:`point_design`,
+    the derivatives of the forward model; with A = g sin(gamma) this is paper 001's
+    E = a + b sin(theta) + c cos(theta) with K1 = sigma b / A and K0 = a / K1 (for n = 4:
+    K0 = (E0 + E1 + E2 + E3)/4 / K1, K1 = (E1 - E3)/(2 g sin gamma)).
+
+    References
+    ----------
+    Zhang et al. 2021, temperature model of an ultra-sensitive accelerometer (paper 001,
+    tilted multi-position rotation; ``shared/docs/methods.md``).
     """
-    th = np.radians(np.asarray(theta_deg, float))
+    th = np.asarray(theta_deg, float)
     E = np.asarray(output, float)
     n = E.size
     if n < 3:
         raise ValueError(f"fit_point needs at least 3 positions, got {n}")
-    X = np.column_stack([np.ones(n), np.sin(th), np.cos(th)])
-    coef, *_ = np.linalg.lstsq(X, E, rcond=None)
-    resid = E - X @ coef
+    if meta is None:
+        meta = _geometry_meta(g, tilt_deg, ia_term, ia_sign)
+    geo = rig_geometry(meta)
+    A = geo["input_amplitude"]
+    X = point_design(meta, th)
+    res = linear_fit(X, E, 1.0 if sigma_override is None else float(sigma_override), list(POINT_PARAMS),
+                     residual_scale=sigma_override is None)
+    beta = res.values
+    resid = E - X @ beta
     rss = float(resid @ resid)
     dof = n - 3
     if sigma_override is not None:
         s = float(sigma_override)
+        cov_b = res.cov_noise
     elif dof > 0:
         s = math.sqrt(rss / dof)
+        cov_b = res.cov
     else:
         s = float("nan")
-    cov = s * s * np.linalg.inv(X.T @ X)
+        cov_b = np.full((3, 3), np.nan)
+    # paper 001's coefficients (a, b_sin, b_cos) of {1, sin theta, cos theta}: the columns
+    # are 1, sigma A sin|cos theta and (the other axis' sign) A cos|sin theta
+    ib, io = (1, 2) if geo["ia_term"] == "sin" else (2, 1)
+    other_sign = geometry_of(meta).cos_sign if geo["ia_term"] == "sin" else geometry_of(meta).sin_sign
+    T = np.zeros((3, 3))
+    T[0, 0] = 1.0
+    T[ib, 1] = geo["ia_sign"] * A
+    T[io, 2] = other_sign * A
+    coef = T @ beta
+    cov = T @ cov_b @ T.T
     a, bs, bc = coef
-    # which in-plane coefficient carries IA
-    if ia_term == "sin":
-        ib, io = 1, 2
-    elif ia_term == "cos":
-        ib, io = 2, 1
-    else:
-        raise ValueError(f"ia_term {ia_term!r} is not 'sin' or 'cos'")
     b, c = coef[ib], coef[io]
-    A = g * math.sin(math.radians(tilt_deg))
-    K1 = ia_sign * b / A
+    K1 = float(beta[1])
     K0 = a / K1
     # gradients for the delta method, parameters (a, bs, bc)
     gK1 = np.zeros(3)
-    gK1[ib] = ia_sign / A
+    gK1[ib] = geo["ia_sign"] / A
     gK0 = np.zeros(3)
     gK0[0] = 1.0 / K1
-    gK0[ib] = -a / (K1 * K1) * ia_sign / A
+    gK0[ib] = -a / (K1 * K1) * geo["ia_sign"] / A
     gm = np.zeros(3)
     gm[io] = 1.0 / b
     gm[ib] = -c / (b * b)
@@ -228,16 +348,34 @@ def fit_point(theta_deg: Sequence[float], output: Sequence[float], g: float, til
             "cov_K0_K1": float(gK0 @ cov @ gK1) if math.isfinite(s) else float("nan"),
             "cos_term": float(c), "u_cos_term": math.sqrt(cov[io, io]) if math.isfinite(s) else float("nan"),
             "misalignment_rad": float(c / b), "u_misalignment_rad": u(gm),
+            "cross_term": float(beta[2] / beta[1]), "cross_term_name": geo["cross_term"],
             "rss": rss, "dof": dof, "s": s}
 
 
 def closed_form_n4(output_0_90_180_270: Sequence[float], g: float, tilt_deg: float,
                    ia_sign: int = 1) -> dict[str, float]:
-    """Paper 001 closed forms for n = 4 (IA the sin axis): outputs E0..E3 at 0, 90, 180, 270 deg.
+    """Paper 001's closed forms for n = 4 positions, IA the sin axis (Zhang et al. 2021).
 
-    K1 = sigma (E1 - E3) / (2 g sin gamma)  [output_unit/(m/s^2)],
-    K0 = (E0 + E1 + E2 + E3) / 4 / K1       [m/s^2]   (the mean output is K1 K0),
-    cos term (E0 - E2)/2 [output_unit].
+    .. math::
+
+        K_1 = \\sigma \\frac{E_1 - E_3}{2 g \\sin\\gamma}, \\qquad
+        K_0 = \\frac{E_0 + E_1 + E_2 + E_3}{4 K_1}
+
+    Parameters
+    ----------
+    output_0_90_180_270 : sequence of float
+        E0..E3 at 0, 90, 180, 270 deg [output_unit].
+    g : float
+        [m/s2].
+    tilt_deg : float
+        gamma [deg].
+    ia_sign : int
+        sigma, the sign of IA in ``sin_axis``.
+
+    Returns
+    -------
+    dict
+        K1 [output_unit/(m/s2)], K0 [m/s2], mean_output, cos_term (E0 - E2)/2 [output_unit].
     """
     E0, E1, E2, E3 = (float(x) for x in output_0_90_180_270)
     K1 = ia_sign * (E1 - E3) / (2.0 * g * math.sin(math.radians(tilt_deg)))
@@ -272,7 +410,7 @@ def fit_points(meta: Mapping, data: pd.DataFrame) -> tuple[list[dict], pd.DataFr
                "n_readings": int(grp["count"].sum())}
         if len(grp) >= 3:
             fit = fit_point(grp["theta_deg"], grp["output"], geo["g"], float(meta["tilt_deg"]),
-                            geo["ia_term"], geo["ia_sign"])
+                            geo["ia_term"], geo["ia_sign"], meta=meta)
             row.update({k: v for k, v in fit.items() if k != "cov_abc"})
             row["_theta"] = grp["theta_deg"].to_numpy(float)
             row["_E"] = grp["output"].to_numpy(float)
@@ -298,7 +436,7 @@ def fit_points(meta: Mapping, data: pd.DataFrame) -> tuple[list[dict], pd.DataFr
             dof_tot = int(np.sum(cnt[ok] - 1))
         for p in fitted:
             fp = fit_point(p["_theta"], p["_E"], geo["g"], float(meta["tilt_deg"]), geo["ia_term"],
-                           geo["ia_sign"], sigma_override=s_pool)
+                           geo["ia_sign"], sigma_override=s_pool, meta=meta)
             p["u_K0_pooled"], p["u_K1_pooled"] = fp["u_K0"], fp["u_K1"]
             p["s_pooled"], p["dof_pooled"] = s_pool, dof_tot
     for p in points:
@@ -310,46 +448,61 @@ def fit_points(meta: Mapping, data: pd.DataFrame) -> tuple[list[dict], pd.DataFr
 # --------------------------------------------------------------------------- temperature model
 
 def _wls_line(x, y, u, birge: bool = True) -> dict[str, Any]:
-    """Weighted LS y = p0 + p1 x with weights 1/u^2.  When ``birge`` and chi2 exceeds its 95th
-    percentile for nu = N - 2 (the scatter is not explained by the per-point uncertainties:
-    base tilt drift, tilt tides, an unmodelled temperature dependence) the covariance is
-    multiplied by chi2/nu (the Birge ratio squared)."""
+    """Weighted LS y = p0 + p1 x with weights 1/u^2 (:func:`accelcal.fitting.core.linear_fit` on
+    the columns of :func:`temperature_design`, x = T - T_ref).  When ``birge`` and the core's
+    chi-square test fails at 5 % for nu = N - 2 (the scatter is not explained by the
+    per-point uncertainties: base tilt drift, tilt tides, an unmodelled temperature
+    dependence) the covariance is multiplied by chi2/nu (the Birge ratio squared)."""
     x, y, u = (np.asarray(v, float) for v in (x, y, u))
     N = x.size
-    w = 1.0 / u**2
-    X = np.column_stack([np.ones(N), x])
-    XtW = X.T * w
-    cov = np.linalg.inv(XtW @ X)
-    p = cov @ (XtW @ y)
-    r = y - X @ p
-    chi2 = float(np.sum(w * r * r))
-    nu = N - 2
+    X = temperature_design(x + T_REF_C)
+    res = linear_fit(X, y, u, ["p0", "p1"], residual_scale=False)
+    chi2, nu = res.chi2, N - 2
+    test = lack_of_fit(chi2, nu, alpha=0.05)
+    applied = bool(birge and test.status == "inadequate")
+    cov = res.cov_noise * (test.factor ** 2 if applied else 1.0)
     scale = chi2 / nu if nu > 0 else float("nan")
-    applied = bool(birge and nu > 0 and chi2 > stats.chi2.ppf(0.95, nu))
-    if applied:
-        cov = cov * scale
-    return {"p": p, "cov": cov, "chi2": chi2, "nu": nu, "residuals": r, "birge_applied": applied,
-            "birge_ratio": math.sqrt(scale) if nu > 0 else float("nan")}
+    return {"p": res.values, "cov": cov, "chi2": chi2, "nu": nu, "residuals": y - X @ res.values,
+            "birge_applied": applied, "birge_ratio": math.sqrt(scale) if nu > 0 else float("nan")}
 
 
 def fit_temperature_model(temp_c: Sequence[float], K0: Sequence[float], u_K0: Sequence[float],
                           K1: Sequence[float], u_K1: Sequence[float], t_ref: float = T_REF_C,
                           birge: bool = True, level: float = 0.95,
                           dof_u: float | None = None) -> dict[str, Any]:
-    """Fit the effects.md temperature model across temperature points (paper 001).
+    """Fit the effects.md temperature model across temperature points (Zhang et al. 2021,
+    paper 001).
 
-    temp_c: mean temperature of each point (degC); K0, u_K0: per-point bias and standard
-    uncertainty (m/s^2); K1, u_K1: per-point scale factor (output_unit/(m/s^2)).
+    .. math::
 
-    K0(T) = K0 + K0T (T - t_ref)      weighted LS of the per-point K0 on T
-    K1(T) = K1 (1 + K1T (T - t_ref))  weighted LS of K1(T) = p0 + p1 (T - t_ref); K1 = p0,
-                                      K1T = p1 / p0 (1/degC), uncertainty by the delta method
-                                      with the p0-p1 covariance.
-    Weights 1/u^2.  When chi2 is too large for nu = N - 2 (p < 0.05) the covariance of that
-    line is scaled by chi2/nu (``birge``).  Degrees of freedom of the result: N - 2 when scaled
-    or when ``dof_u`` (the dof of the per-point uncertainties) is not given, else dof_u.
-    Intervals: +- t_dof(0.5 + level/2) * u (Student t).  Returns values, standard
-    uncertainties, dof, 95 % intervals, chi2 and Birge ratios.
+        K_0(T) = K_0 + K_{0T} (T - T_{ref}), \\qquad
+        K_1(T) = K_1 (1 + K_{1T} (T - T_{ref})) = p_0 + p_1 (T - T_{ref})
+
+    Parameters
+    ----------
+    temp_c : sequence of float
+        Mean temperature of each point [degC].
+    K0, u_K0 : sequence of float
+        Per-point bias and its standard uncertainty [m/s2].
+    K1, u_K1 : sequence of float
+        Per-point scale factor and its standard uncertainty [output_unit/(m/s2)].
+    t_ref : float
+        T_ref [degC].
+    birge : bool
+        When chi2 of a line fails the core's test at 5 % (nu = N - 2), scale that line's
+        covariance by chi2/nu.
+    level : float
+        Coverage probability of the intervals.
+    dof_u : float, optional
+        Degrees of freedom of the per-point uncertainties.
+
+    Returns
+    -------
+    dict
+        K0, u_K0, K0T, u_K0T, K1 (= p0), u_K1, K1T (= p1 / p0, u by the delta method with the
+        p0-p1 covariance), their dof (N - 2 when scaled or when ``dof_u`` is not given,
+        else dof_u), Student-t intervals, chi2 and Birge ratios.  Weighted LS (weights
+        1/u^2) through :func:`accelcal.fitting.core.linear_fit` on :func:`temperature_design`.
     """
     T = np.asarray(temp_c, float)
     N = T.size
@@ -465,33 +618,40 @@ def fixed_point_method(meta: Mapping, pm: pd.DataFrame, s_pos: float | None = No
     """
     geo = rig_geometry(meta)
     A = geo["input_amplitude"]
-    dirn = _ia_direction(pm["theta_deg"], geo["ia_term"], geo["ia_sign"])
-    pm = pm.assign(_dir=dirn)
+    dirn = specific_force_at(meta, pm["theta_deg"])[:, 0] / A      # IA input per g sin(gamma)
     if s_pos is None or not math.isfinite(s_pos):
         sd = pm["output_sd"].to_numpy(float) / np.sqrt(pm["count"].to_numpy(float))
         s_pos = float(np.sqrt(np.nanmean(sd**2))) if np.isfinite(sd).any() else float("nan")
     rows = []
-    for pt, grp in pm.groupby("point", sort=True):
-        plus = grp[np.abs(grp["_dir"] - 1.0) < 1e-6]
-        minus = grp[np.abs(grp["_dir"] + 1.0) < 1e-6]
-        zero = grp[np.abs(grp["_dir"]) < 1e-6]
-        if plus.empty or minus.empty:
+    # plain arrays per point (the pandas boolean indexing per group dominated this method)
+    point = pm["point"].to_numpy()
+    out_v = pm["output"].to_numpy(float)
+    temp_v = pm["temp_c"].to_numpy(float)
+    set_v = pm["temp_set_c"].to_numpy(float)
+    sweep_v = pm["sweep"].to_numpy()
+    order = np.argsort(point, kind="stable")
+    bounds = np.flatnonzero(np.r_[True, np.diff(point[order]) != 0, True])
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        idx = order[a:b]
+        d = dirn[idx]
+        plus, minus, zero = idx[np.abs(d - 1.0) < 1e-6], idx[np.abs(d + 1.0) < 1e-6], idx[np.abs(d) < 1e-6]
+        if plus.size == 0 or minus.size == 0:
             continue
-        Ep, Em = float(plus["output"].mean()), float(minus["output"].mean())
+        Ep, Em = float(out_v[plus].mean()), float(out_v[minus].mean())
         K1 = (Ep - Em) / (2.0 * A)
         K0 = (Ep + Em) / 2.0 / K1
-        u_K1 = s_pos * math.sqrt(1.0 / len(plus) + 1.0 / len(minus)) / (2.0 * A)
-        u_mean = s_pos * math.sqrt(1.0 / len(plus) + 1.0 / len(minus)) / 2.0
+        u_K1 = s_pos * math.sqrt(1.0 / plus.size + 1.0 / minus.size) / (2.0 * A)
+        u_mean = s_pos * math.sqrt(1.0 / plus.size + 1.0 / minus.size) / 2.0
         u_K0 = math.hypot(u_mean / K1, K0 / K1 * u_K1)
-        T = grp["temp_c"].to_numpy(float)
-        row = {"point": int(pt), "sweep": int(grp["sweep"].iloc[0]),
-               "temp_c": float(np.nanmean(T)) if np.isfinite(T).any() else float(grp["temp_set_c"].iloc[0]),
+        T = temp_v[idx]
+        row = {"point": int(point[idx[0]]), "sweep": int(sweep_v[idx[0]]),
+               "temp_c": float(np.nanmean(T)) if np.isfinite(T).any() else float(set_v[idx[0]]),
                "E_plus": Ep, "E_minus": Em, "K1": K1, "u_K1": u_K1, "K0": K0, "u_K0": u_K0,
-               "K1_plus": Ep / A, "K1_minus": -Em / A, "u_K1_single": s_pos / math.sqrt(len(plus)) / A}
-        if not zero.empty:
-            row["E_zero"] = float(zero["output"].mean())
+               "K1_plus": Ep / A, "K1_minus": -Em / A, "u_K1_single": s_pos / math.sqrt(plus.size) / A}
+        if zero.size:
+            row["E_zero"] = float(out_v[zero].mean())
             row["K0_zero"] = row["E_zero"] / K1
-            row["u_K0_zero"] = math.hypot(s_pos / math.sqrt(len(zero)) / K1, row["K0_zero"] / K1 * u_K1)
+            row["u_K0_zero"] = math.hypot(s_pos / math.sqrt(zero.size) / K1, row["K0_zero"] / K1 * u_K1)
         rows.append(row)
     if len({round(r["temp_c"], 6) for r in rows}) < 2:
         return {"points": rows} if rows else {}
@@ -570,14 +730,34 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = "", *,
                         pooled: bool = True) -> tuple[list[CoefficientResult], dict[str, Any]]:
     """All of paper 001 on one tilt_rotation run: K0, K1, K0T, K1T and the checks.
 
-    meta: typed metadata (g_local_m_s2, tilt_deg, sin_axis, cos_axis, normal_axis, positions,
-    output_unit); data: time_s, temp_set_c, temp_c, rotation_deg, output.
-    Returns (coefficients, extras).  coefficients: K0 (m/s2), K1 (<output_unit>/(m/s2)),
-    K0T (m/s2/degC), K1T (1/degC) at T_ref = 20 degC, method 'tilt_rotation_ls' (or
-    'tilt_rotation_two_position' when the run has fewer than 3 positions).  extras (JSON-able):
-    geometry, per-point table, temperature model (with 95 % intervals), per-sweep repeatability,
-    fixed-point method and its comparison with the rotation method, closed-form check,
-    compensation (output-temperature sensitivity before/after), flags.
+    .. math::
+
+        E = K_1(T) (K_0(T) + a_i), \\quad K_0(T) = K_0 + K_{0T}(T - T_{ref}), \\quad
+        K_1(T) = K_1 (1 + K_{1T}(T - T_{ref}))
+
+    (Zhang et al. 2021, paper 001; effects.md temperature model, T_ref = 20 degC).
+
+    Parameters
+    ----------
+    meta : mapping
+        Typed metadata: g_local_m_s2 [m/s2], tilt_deg [deg], sin_axis, cos_axis,
+        normal_axis, positions, output_unit.
+    data : DataFrame
+        time_s [s], temp_set_c [degC], temp_c [degC], rotation_deg [deg], output [output_unit].
+    rig_id : str
+    pooled : bool
+        Weight the temperature lines by the per-point uncertainties from the residual
+        variance pooled over the run (default) instead of each point's own.
+
+    Returns
+    -------
+    (coefficients, extras)
+        K0 [m/s2], K1 [output_unit/(m/s2)], K0T [m/s2/degC], K1T [1/degC], method
+        'tilt_rotation_ls' ('tilt_rotation_two_position' when the run has fewer than 3
+        positions); extras (JSON-able): geometry, per-point table, temperature model (95 %
+        intervals), per-sweep repeatability, fixed-point method and its comparison with the
+        rotation method, closed-form check, compensation (output-temperature sensitivity
+        before/after), flags.  :func:`budget_terms` gives their GUM budgets.
     """
     geo = rig_geometry(meta)
     unit = str(meta.get("output_unit", "out"))
@@ -668,11 +848,9 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = "", *,
     T = d["temp_c"].to_numpy(float)
     if np.isfinite(T).any():
         T = np.where(np.isfinite(T), T, d["temp_set_c"].to_numpy(float))
-        mis = extras.get("misalignment_rad_mean", 0.0)
-        th = np.radians(d["rotation_deg"].to_numpy(float))
-        trig_ia = np.sin(th) if geo["ia_term"] == "sin" else np.cos(th)
-        trig_o = np.cos(th) if geo["ia_term"] == "sin" else np.sin(th)
-        inp = geo["input_amplitude"] * (geo["ia_sign"] * trig_ia + geo["ia_sign"] * mis * trig_o)
+        # the IA input with the fitted in-plane cross term: a_i + Kx a_x of the forward model
+        Kx = float(np.mean([p["cross_term"] for p in fitted])) if fitted else 0.0
+        inp = indicated_acceleration({geo["cross_term"]: Kx}, specific_force_at(meta, d["rotation_deg"]))
         E = d["output"].to_numpy(float)
         before = compensate(E, T, {"K0": model["K0"], "K1": model["K1"]}, inp)
         after = compensate(E, T, model, inp)
@@ -681,3 +859,37 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = "", *,
                                   "after": temperature_correlation(after, T)}
     extras["flags"] = flags
     return coeffs, _jsonable(extras)
+
+
+def budget_terms(coefficients: Sequence[CoefficientResult], model: Mapping[str, Any]) -> list[BudgetTerm]:
+    """GUM budget lines of paper 001's coefficients (JCGM 100 §4.2: type A from the fit).
+
+    Parameters
+    ----------
+    coefficients : sequence of CoefficientResult
+        K0, K1, K0T, K1T of :func:`process_thermal_run`.
+    model : mapping
+        Its ``extras['temperature_model']`` (:func:`fit_temperature_model`).
+
+    Returns
+    -------
+    list of BudgetTerm
+        Per coefficient the weighted least-squares line over the temperature points with the
+        per-point uncertainties, and, when their scatter exceeds them (Birge rule), the
+        between-point scatter as a second type-A line; the combined u is the coefficient's.
+        The fixture's thermal tilt is not a line: the method cannot tell it from the
+        instrument's bias TC (paper 001 §3.2), which the K0T note says.
+    """
+    out = []
+    for c in coefficients:
+        line = "K0" if c.name in ("K0", "K0T") else "K1"
+        birge = model.get("birge_ratio_" + line)
+        applied = bool(model.get("birge_applied_" + line)) and birge is not None and birge > 1
+        u0 = c.std_uncertainty / birge if applied else c.std_uncertainty
+        terms = [(f"weighted LS of {line}(T) over {model.get('n_points')} temperature points (paper 001), "
+                  "per-point uncertainties", c.value, u0, 1.0, "A", "normal")]
+        if applied:
+            terms.append((f"between-point scatter of {line}(T): Birge ratio {birge:.3g}", 0.0,
+                          u0 * math.sqrt(birge * birge - 1.0), 1.0, "A", "normal"))
+        out += unc.linear_budget(c.name, terms, method=c.method, rig_id=c.rig_id, value=c.value).terms
+    return out

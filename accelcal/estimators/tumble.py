@@ -33,17 +33,22 @@ K3 + 32 Koq / (15 pi g); only the weak cos 5 psi and higher harmonics separate t
 """
 from __future__ import annotations
 
-from collections.abc import Mapping
+import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
-from scipy.optimize import least_squares
-from scipy.stats import f as f_dist
-
-from ..physics.axes import parse_signed_axis
+from scipy import stats
+from ..fitting.core import (FitResult, GaussNewton, LackOfFit, Parameter, ParameterSet, birge_ratio,
+                            finish_fit, gauss_newton, lstsq_svd)
+from ..physics.axes import AXES, parse_signed_axis
+from ..physics.geometry import TumbleHead, geometry_of
+from ..physics.instrument import output_derivative
 from ..physics.rigs import rig_output, tumble_specific_force
-from ..results import CoefficientResult
+from ..results import BudgetTerm, CoefficientResult
+from . import uncertainty as unc
+from .adequacy import pure_error_test
 
 #: Parameters of the tumble fit, in order (effects.md names; theta0 = ``initial_misalignment``).
 PARAMS = ("K0", "K1", "K2", "theta0")
@@ -54,27 +59,41 @@ _ALIAS_NOTE = ("theta0 aliases with an OA cross-axis sensitivity Ko in a single 
 
 @dataclass
 class TumbleFit:
-    """Result of :func:`fit_tumble` (paper 003, LM fit of K0, K1, K2, theta0).
+    """Result of :func:`fit_tumble` (Zhan & Cai, paper 003: LM fit of K0, K1, K2, theta0).
 
-    values:      dict K0 (m/s^2), K1 (output_unit per m/s^2), K2 (s^2/m), theta0 (rad)
-    std_uncertainties: dict, same keys and units: sqrt(diag(cov))
-    cov:         (p, p) covariance in param_names order (PARAMS + extras), cov = s^2 (J^T J)^-1 with
-                 s^2 = sum(r^2)/dof, J the Jacobian of the predicted output at the
-                 solution (central differences of the forward model)
-    corr:        (p, p) correlation matrix
-    extras:      names of the extra instrument terms fitted (``extra_terms``), also in values
-    lack_of_fit: dict F, p, dof_lof = P - p, dof_pe = n - P, s_pure_error (output_unit):
-                 lack-of-fit F test of the position means against the within-position
-                 (pure-error) scatter; None without replicates
-    cov_positions: covariance from the scatter of the position means instead of the
-                 readings, [sum_k n_k rbar_k^2 / (P - p)] (J^T J)^-1: valid when errors are
-                 common to a dwell (head-angle error, unmodelled terms); None if P <= p
-    residuals:   output - prediction, output_unit, one per reading
-    residual_rms: sqrt(mean(r^2)), output_unit;  s: sqrt(sum(r^2)/dof), output_unit
-    n, dof:      readings used and n - p (p = 4 + number of extras)
-    position_means: DataFrame per head position: position, angle_deg, n, mean_output,
-                 std_output, sem_output, predicted, mean_residual (output_unit)
-    ia_phase_deg: head angle at which IA nominally points up (0 for +IA on cos_axis)
+    Attributes
+    ----------
+    values, std_uncertainties : dict
+        K0 [m/s2], K1 [output_unit/(m/s2)], K2 [s2/m], theta0 [rad] and the extra terms;
+        std = sqrt(diag(cov)).
+    cov : (p, p) ndarray
+        Covariance in ``param_names`` order: s^2 (J^T J)^+ (s^2 = RSS / dof, J the design at
+        the solution, :func:`tumble_jacobian`), times F when the lack-of-fit test fails.
+    corr : (p, p) ndarray
+    extras : tuple of str
+        Extra instrument terms fitted (``extra_terms``), also in ``values``.
+    lack_of_fit : dict or None
+        F, p, dof_lof = P - p, dof_pe = n - P, s_pure_error [output_unit], status: the
+        position means against the within-position scatter; None when untestable.
+    adequacy : LackOfFit
+        The core's test ('adequate' / 'inadequate' / 'untestable').
+    result : FitResult
+        The core's result (whitened by s).
+    cov_positions : ndarray or None
+        [sum_k n_k rbar_k^2 / (P - p)] (J^T J)^+: the covariance from the scatter of the
+        position means (valid when errors are common to a dwell: head-angle error,
+        unmodelled terms); None if P <= p.
+    residuals : ndarray
+        Output minus prediction, one per reading [output_unit].
+    residual_rms, s : float
+        sqrt(mean(r^2)) and sqrt(RSS / dof) [output_unit].
+    n, dof : int
+        Readings used and n - p.
+    position_means : DataFrame
+        Per head position: position, angle_deg, n, mean_output, std_output, sem_output,
+        predicted, mean_residual [output_unit].
+    ia_phase_deg : float
+        Head angle at which IA nominally points up [deg] (0 for +IA on cos_axis).
     """
     values: dict[str, float]
     std_uncertainties: dict[str, float]
@@ -98,6 +117,10 @@ class TumbleFit:
     lack_of_fit: dict | None = None
     cov_positions: np.ndarray | None = None
     param_names: tuple[str, ...] = PARAMS
+    #: the core's lack-of-fit test ('adequate' / 'inadequate' / 'untestable')
+    adequacy: LackOfFit | None = None
+    #: the core's fit result (whitened by s; cov scaled by sqrt(F) when inadequate)
+    result: FitResult | None = field(default=None, repr=False)
 
     @property
     def coeffs(self) -> dict[str, float]:
@@ -147,24 +170,62 @@ def _predict(meta: Mapping, df: pd.DataFrame, p: np.ndarray, extras: tuple[str, 
 
 
 def separable_extra_terms(meta: Mapping) -> dict[str, str]:
-    """Instrument terms (besides K0, K1, K2) that one tumble can separate from theta0, with
-    their SI unit: K3 (s4/m2), Koq (s2/m) and the cross term of IA with the other in-plane
-    axis (Kio for OA, Kip for PA; s2/m).  Ko/Kp (alias theta0) and Koo/Kpp (alias K2, K0)
-    are not separable; head-axis terms are identically zero."""
+    """Instrument terms (besides K0, K1, K2) that one tumble can separate from theta0.
+
+    Parameters
+    ----------
+    meta : mapping
+        The tumble run's metadata.
+
+    Returns
+    -------
+    dict
+        Name -> SI unit: K3 [s4/m2], Koq [s2/m] and the cross term of IA with the other
+        in-plane axis (Kio for OA, Kip for PA) [s2/m].  Ko/Kp (alias theta0) and Koo/Kpp
+        (alias K2, K0) are not separable (paper 003 note); head-axis terms are zero.
+    """
     _ia_phase_deg(meta)
     other = {parse_signed_axis(meta[k])[0] for k in ("cos_axis", "sin_axis")} - {0}
     cross = {1: "Kip", 2: "Kio"}[other.pop()]
     return {"K3": "s4/m2", "Koq": "s2/m", cross: "s2/m"}
 
 
-def _jacobian(meta, df, p, steps, extras=()) -> np.ndarray:
-    """dE/dp by central differences of the forward model (exact for K0, K2, K1 up to
-    rounding since E is linear in each; O(h^2) for theta0 with h = 1e-6 rad)."""
+def tumble_jacobian(meta: Mapping, df: pd.DataFrame, p: np.ndarray,
+                    extras: tuple[str, ...] = ()) -> np.ndarray:
+    """Design (Jacobian) dE/dp of the tumble model at p = (K0, K1, K2, theta0, *extras).
+
+    Parameters
+    ----------
+    meta : mapping
+        Typed run metadata.
+    df : DataFrame
+        Readings (``angle_deg`` [deg], ...).
+    p : ndarray
+        K0 [m/s2], K1 [output_unit/(m/s2)], K2 [s2/m], theta0 [rad], extras [SI].
+    extras : tuple of str
+        Extra instrument terms (:func:`separable_extra_terms`).
+
+    Returns
+    -------
+    (n, 4 + len(extras)) ndarray
+        [output_unit per parameter unit].  The instrument-coefficient columns are the exact
+        derivatives of the forward model (:func:`accelcal.physics.instrument.output_derivative`
+        at the specific force of :func:`accelcal.physics.rigs.tumble_specific_force`); the
+        theta0 column is the central difference of
+        :func:`accelcal.physics.rigs.rig_output` (h = 1e-6 rad, error O(h^2)).
+    """
+    K0, K1, K2, th0 = p[:4]
+    coeffs = {"K0": K0, "K1": K1, "K2": K2, **dict(zip(extras, p[4:]))}
+    F = tumble_specific_force(meta, df, {"initial_misalignment": th0})
     J = np.empty((len(df), len(p)))
-    for j, h in enumerate(steps):
-        dp = np.zeros_like(p)
-        dp[j] = h
-        J[:, j] = (_predict(meta, df, p + dp, extras) - _predict(meta, df, p - dp, extras)) / (2 * h)
+    for j, name in enumerate(("K0", "K1", "K2")):
+        J[:, j] = output_derivative(name, coeffs, F)
+    for j, name in enumerate(extras, start=4):
+        J[:, j] = output_derivative(name, coeffs, F)
+    h = 1e-6
+    dp = np.zeros_like(p)
+    dp[3] = h
+    J[:, 3] = (_predict(meta, df, p + dp, extras) - _predict(meta, df, p - dp, extras)) / (2 * h)
     return J
 
 
@@ -174,13 +235,24 @@ def _start(meta: Mapping, df: pd.DataFrame, g: float) -> np.ndarray:
     from the nominal sensitivity)."""
     ai = tumble_specific_force(meta, df)[:, 0]
     A = np.column_stack([np.ones_like(ai), ai, ai**2])
-    b, *_ = np.linalg.lstsq(A, df["output"].to_numpy(float), rcond=None)
+    b = lstsq_svd(A, df["output"].to_numpy(float)).x
     K1 = b[1] if b[1] != 0 else 1.0
     return np.array([b[0] / K1, K1, b[2] / K1, 0.0])
 
 
 def position_means(df: pd.DataFrame) -> pd.DataFrame:
-    """Mean, std and standard error of the output at each head position (output_unit)."""
+    """Statistics of the output at each head position.
+
+    Parameters
+    ----------
+    df : DataFrame
+        ``position``, ``angle_deg`` [deg], ``output`` [output_unit].
+
+    Returns
+    -------
+    DataFrame
+        position, angle_deg, n, mean_output, std_output, sem_output [output_unit].
+    """
     grp = df.groupby("position", sort=True)
     out = pd.DataFrame({
         "angle_deg": grp["angle_deg"].mean(),
@@ -193,29 +265,61 @@ def position_means(df: pd.DataFrame) -> pd.DataFrame:
 
 
 def fit_tumble(meta: Mapping, data, extra_terms: tuple[str, ...] | list[str] = ()) -> TumbleFit:
-    """Levenberg-Marquardt fit of E = K1 (K0 + a_i + K2 a_i^2) with a_i from the head
-    angle + theta0 (paper 003; effects.md instrument model) on every reading of a run.
+    """Levenberg-Marquardt fit of the paper 003 tumble model on every reading of a run.
 
-    meta: typed run metadata (g_local_m_s2, cos_axis, sin_axis, head_axis, output_unit).
-    data: columns angle_deg (deg), output (output_unit), optional position, time_s, temp_c.
+    .. math::
 
-    The prediction is :func:`accelcal.physics.rigs.rig_output` with coefficients
-    (K0, K1, K2) and effect ``initial_misalignment`` = theta0.  Start: theta0 = 0, K0, K1,
-    K2 from a linear fit on the nominal input (K1 from the data's amplitude).  Solver:
-    ``scipy.optimize.least_squares(method='lm')`` with the Jacobian by central differences
-    of the forward model.  Covariance: cov = s^2 (J^T J)^-1, s^2 = RSS / (n - p) (p = 4 +
-    extras), J at the solution, computed through the SVD of the column-scaled J (white,
-    equal-variance reading noise assumed).  Errors common to a dwell (head-angle error,
-    unmodelled terms) make it optimistic: ``lack_of_fit`` tests the position means against
-    the within-position scatter, and ``cov_positions`` = [sum_k n_k rbar_k^2 / (P - p)]
-    (J^T J)^-1 is the covariance that rests on the P position means instead.
+        E = K_1 (K_0 + a_i + K_2 a_i^2), \\quad a_i = g \\cos(\\theta + \\theta_0)
 
-    theta0 aliases with the OA cross-axis sensitivity Ko (paper 003): Ko is not estimated;
-    see the module docstring (Koo likewise aliases into K2 and K0).  ``extra_terms`` adds
-    separable instrument terms (:func:`separable_extra_terms`: K3, Koq, Kio or Kip) as
-    further fit parameters, started at 0.  Raises ValueError if IA lies on the head axis,
-    an extra term is not separable, or there are fewer than p + 1 readings at p - 1 or
-    more distinct angles.
+    (Zhan & Cai, paper 003, with a_i from the head angle and the axis assignment; effects.md
+    instrument model).
+
+    Parameters
+    ----------
+    meta : mapping
+        Typed run metadata: ``g_local_m_s2`` [m/s2], ``cos_axis``, ``sin_axis``,
+        ``head_axis``, ``output_unit``.
+    data : DataFrame or mapping
+        ``angle_deg`` [deg], ``output`` [output_unit]; optional ``position``, ``time_s`` [s],
+        ``temp_c`` [degC].
+    extra_terms : sequence of str
+        Separable instrument terms to add (:func:`separable_extra_terms`: K3 [s4/m2], Koq,
+        Kio or Kip [s2/m]), started at 0.
+
+    Returns
+    -------
+    TumbleFit
+        K0 [m/s2], K1 [output_unit/(m/s2)], K2 [s2/m], theta0 [rad] (+ extras) with their
+        covariance.
+
+    Raises
+    ------
+    ValueError
+        IA on the head axis, an extra term that is not separable, fewer than p + 1 readings
+        at p - 1 or more distinct angles, or a singular design.
+
+    Notes
+    -----
+    The prediction is :func:`accelcal.physics.rigs.rig_output` with coefficients (K0, K1,
+    K2, extras) and effect ``initial_misalignment`` = theta0; the design is
+    :func:`tumble_jacobian` (exact coefficient columns, central difference for theta0).
+    Start: theta0 = 0, K0, K1, K2 from a linear fit on the nominal input (paper 003 starts
+    from the nominal sensitivity).  Solver: :func:`accelcal.fitting.core.gauss_newton`
+    (Gauss-Newton with Marquardt damping), unweighted (equal-variance readings).
+    Covariance: s^2 (J^T J)^+ with s^2 = RSS / (n - p) (the core's scaled SVD), multiplied
+    by the lack-of-fit factor F when the core's test of the position means against the
+    within-position scatter (:func:`accelcal.fitting.core.lack_of_fit`) fails; with as many
+    positions as parameters the test is 'untestable' (``adequacy``) and the covariance
+    counts reading noise only.  ``cov_positions`` = [sum_k n_k rbar_k^2 / (P - p)]
+    (J^T J)^+ rests on the P position means instead.
+
+    theta0 aliases with the cross-axis sensitivity of the other turning axis (Ko for
+    +IA/+OA): it is not estimated (module docstring; Koo likewise aliases into K2 and K0).
+
+    References
+    ----------
+    Zhan & Cai, gravity calibration with an initial misalignment angle (paper 003;
+    ``shared/docs/methods.md``).
     """
     g = float(meta["g_local_m_s2"])
     phase = _ia_phase_deg(meta)
@@ -233,54 +337,57 @@ def fit_tumble(meta: Mapping, data, extra_terms: tuple[str, ...] | list[str] = (
                          f"{npar - 1} head angles, got {len(df)} readings at {n_ang} angles")
     y = df["output"].to_numpy(float)
     p0 = np.r_[_start(meta, df, g), np.zeros(len(extras))]
-    extra_step = {"K3": 1e-4 / g**2, "Koq": 1e-4 / g, "Kio": 1e-4 / g, "Kip": 1e-4 / g}
-
-    def steps(p):
-        return np.array([1e-4 * g, 1e-6 * max(abs(p[1]), 1e-12), 1e-4 / g, 1e-6]
-                        + [extra_step[e] for e in extras])
+    units = {"K0": "m/s2", "K1": f"{meta.get('output_unit', 'out')}/(m/s2)", "K2": "s2/m", "theta0": "rad",
+             "K3": "s4/m2"}
+    params = ParameterSet(Parameter(nm, nm, units.get(nm, "s2/m"), value=float(v)) for nm, v in zip(names, p0))
 
     def resid(p):
-        return _predict(meta, df, p, extras) - y
+        return y - _predict(meta, df, p, extras)
 
     def jac(p):
-        return _jacobian(meta, df, p, steps(p), extras)
+        return tumble_jacobian(meta, df, p, extras)
 
-    sol = least_squares(resid, p0, jac=jac, method="lm", x_scale="jac",
-                        xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=2000)
-    p = sol.x
-    pred = _predict(meta, df, p, extras)
-    r = y - pred
+    # Levenberg-Marquardt from the nominal sensitivity (paper 003), unweighted: every reading
+    # has the same variance; the core's Gauss-Newton with Marquardt damping
+    gn = gauss_newton(resid, jac, p0, max_iter=100, rtol=1e-14)
+    p = gn.p
+    r = gn.z
+    pred = y - r
     n = len(y)
     dof = n - npar
     rss = float(r @ r)
     s2 = rss / dof if dof > 0 else np.nan
-    J = jac(p)
-    scale = np.sqrt((J**2).sum(axis=0))
-    scale[scale == 0] = 1.0
-    _, sv, Vt = np.linalg.svd(J / scale, full_matrices=False)
-    if sv[-1] <= sv[0] * 1e-13:
+    sol = lstsq_svd(gn.J, np.zeros(n))
+    if sol.rank < npar:
         raise ValueError(f"tumble fit is singular: the head angles do not separate {names}")
-    inv = (Vt.T / sv**2) @ Vt                     # (Js^T Js)^-1
-    cov = s2 * inv / np.outer(scale, scale)
-    sd = np.sqrt(np.diag(cov))
-    corr = cov / np.outer(sd, sd)
 
     pm = position_means(df)
     pos = df["position"].to_numpy()
     pm["predicted"] = pd.Series(pred).groupby(pos).mean().to_numpy()
     pm["mean_residual"] = pm["mean_output"] - pm["predicted"]
 
-    # Lack of fit: position-mean residuals against the within-position (pure error) scatter.
+    # Lack of fit: position-mean residuals against the within-position (pure error) scatter,
+    # the fitting core's one test
     P = len(pm)
     ss_lof = float((pm["n"] * pm["mean_residual"] ** 2).sum())
     ss_pe = float(((r - pd.Series(r).groupby(pos).transform("mean").to_numpy()) ** 2).sum())
     dof_lof, dof_pe = P - npar, n - P
+    test = pure_error_test(ss_lof, dof_lof, ss_pe, dof_pe)
     lof = None
-    if dof_lof > 0 and dof_pe > 0 and ss_pe > 0:
-        F = (ss_lof / dof_lof) / (ss_pe / dof_pe)
-        lof = {"F": float(F), "p": float(f_dist.sf(F, dof_lof, dof_pe)), "dof_lof": dof_lof,
-               "dof_pe": dof_pe, "s_pure_error": float(np.sqrt(ss_pe / dof_pe))}
-    cov_pos = (ss_lof / dof_lof) * inv / np.outer(scale, scale) if dof_lof > 0 else None
+    if test.status != "untestable":
+        lof = {"F": float(test.statistic), "p": float(test.p_value), "dof_lof": dof_lof,
+               "dof_pe": dof_pe, "s_pure_error": float(np.sqrt(ss_pe / dof_pe)), "status": test.status}
+    # the fit in the core's terms: residuals whitened by s (equal-variance readings), so the
+    # noise-model covariance is s^2 (J^T J)^+; the reported one is scaled by sqrt(F) when
+    # the lack-of-fit test fails (fitting.core.FitResult)
+    w = 1.0 / np.sqrt(s2) if np.isfinite(s2) and s2 > 0 else 1.0
+    result = finish_fit(params, GaussNewton(p, r * w, gn.J * w, rss * w * w, gn.iterations, gn.converged,
+                                            gn.message), test)
+    cov = result.cov if dof > 0 else np.full((npar, npar), np.nan)
+    sd = np.sqrt(np.diag(cov))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(sd, sd)
+    cov_pos = (ss_lof / dof_lof) * sol.cov if dof_lof > 0 else None
 
     return TumbleFit(
         values=dict(zip(names, map(float, p))),
@@ -288,9 +395,9 @@ def fit_tumble(meta: Mapping, data, extra_terms: tuple[str, ...] | list[str] = (
         cov=cov, corr=corr, residuals=r,
         residual_rms=float(np.sqrt(rss / n)), s=float(np.sqrt(s2)), n=n, dof=dof,
         position_means=pm, output_unit=str(meta.get("output_unit", "")), g_local_m_s2=g,
-        ia_phase_deg=phase, success=bool(sol.success), message=str(sol.message),
-        nfev=int(sol.nfev), start=dict(zip(names, map(float, p0))), extras=extras,
-        lack_of_fit=lof, cov_positions=cov_pos, param_names=names)
+        ia_phase_deg=phase, success=bool(gn.converged), message=str(gn.message),
+        nfev=int(gn.iterations), start=dict(zip(names, map(float, p0))), extras=extras,
+        lack_of_fit=lof, cov_positions=cov_pos, param_names=names, adequacy=test, result=result)
 
 
 def _mean_at(pm: pd.DataFrame, angle: float, tol: float) -> tuple[float, float, int] | None:
@@ -356,12 +463,23 @@ def two_position(meta: Mapping, data, angle_tol_deg: float = 1e-3) -> dict:
 
 
 def tumble_coefficients(fit: TumbleFit, rig_id: str, covariance: str = "readings") -> list[CoefficientResult]:
-    """CoefficientResults (method 'tumble_lm') for K0 (m/s2), K1 (<output_unit>/(m/s2)),
-    K2 (s2/m), theta0 (rad) and any fitted extra terms of a :class:`TumbleFit`.
+    """Coefficient records (method 'tumble_lm') of one :class:`TumbleFit`.
 
-    covariance: 'readings' (default): std uncertainties from fit.cov = s^2 (J^T J)^-1, dof n - p;
-    'positions': from fit.cov_positions (scatter of the position means), dof P - p.
-    A significant lack of fit (p < 0.01) is written into every note."""
+    Parameters
+    ----------
+    fit : TumbleFit
+    rig_id : str
+    covariance : str
+        'readings' (default): u from fit.cov (s^2 (J^T J)^+, lack-of-fit scaled), dof n - p;
+        'positions': from fit.cov_positions (scatter of the position means), dof P - p.
+
+    Returns
+    -------
+    list of CoefficientResult
+        K0 [m/s2], K1 [output_unit/(m/s2)], K2 [s2/m], theta0 [rad] and the extra terms; a
+        significant lack of fit (p < 0.01) is written into every note.  A campaign's runs go
+        through :func:`pool_runs` and :func:`tumble_records` instead.
+    """
     if covariance == "readings":
         sd, dof = fit.std_uncertainties, float(fit.dof)
     elif covariance == "positions":
@@ -382,4 +500,347 @@ def tumble_coefficients(fit: TumbleFit, rig_id: str, covariance: str = "readings
         note = "; ".join(x for x in (notes.get(k, ""), f"covariance from {covariance}", lof) if x)
         out.append(CoefficientResult(name=k, value=fit.values[k], std_uncertainty=float(sd[k]),
                                      unit=units[k], method="tumble_lm", rig_id=rig_id, dof=dof, note=note))
+    return out
+
+
+# --------------------------------------------------------------------------- a campaign's tumble runs
+
+@dataclass(frozen=True)
+class TumbleRun:
+    """One tumble run fitted by :func:`fit_tumble_run`.
+
+    Attributes
+    ----------
+    run_id, rig_id : str
+    head : TumbleHead
+        The dividing head's axis assignment (physics.geometry).
+    fit : TumbleFit
+    two_position : dict
+        :func:`two_position` (or {'error': ...}).
+    model_choice : dict or None
+        The extended model chosen when the basic one failed its lack-of-fit test.
+    flags : tuple of str
+    """
+    run_id: str
+    rig_id: str
+    head: TumbleHead
+    fit: TumbleFit
+    two_position: dict
+    model_choice: dict | None = None
+    flags: tuple[str, ...] = ()
+
+    @property
+    def group(self) -> str:
+        """Instrument axis on the head axis: the runs of one group measure the same K0, K2 and
+        theta0 (the other turning axis, whose square term aliases into K2, is the same)."""
+        return AXES[self.head.head_axis]
+
+    def u_parts(self, name: str) -> tuple[float, float, float]:
+        """(u, u from the reading noise, lack-of-fit factor) of a fitted parameter."""
+        u = float(self.fit.std_uncertainties[name])
+        res = self.fit.result
+        if res is None:
+            return u, u, 1.0
+        return u, float(res.std_noise(name)), float(res.lof.factor)
+
+
+def fit_tumble_run(meta: Mapping, data, alpha: float = 0.01) -> TumbleRun:
+    """Paper 003 on one run, with its model adequacy.
+
+    Fits K0, K1, K2, theta0 (:func:`fit_tumble`); when that fails its lack-of-fit test the IA
+    cross term with the other in-plane axis (separable from theta0 in one tumble) is added
+    and kept if it improves the fit.  A fit that stays inadequate is used and flagged (its u
+    carries the lack-of-fit factor); one with as many positions as parameters is flagged as
+    untestable.
+
+    Returns
+    -------
+    TumbleRun
+    """
+    run_id = str(meta.get("run_id"))
+    fit = fit_tumble(meta, data)
+    choice, flags = None, []
+    lof = fit.lack_of_fit
+    if lof and lof["p"] < alpha:
+        cross = tuple(k for k in separable_extra_terms(meta) if k in ("Kio", "Kip"))
+        try:
+            fit2 = fit_tumble(meta, data, cross)
+        except Exception:
+            fit2 = None
+        if fit2 is not None and fit2.lack_of_fit and fit2.lack_of_fit["p"] > lof["p"]:
+            choice = {"run_id": run_id, "basic_lof_p": lof["p"], "extended_terms": list(cross),
+                      "extended_lof_p": fit2.lack_of_fit["p"]}
+            fit = fit2
+        if fit.lack_of_fit and fit.lack_of_fit["p"] < alpha:
+            flags.append(f"tumble {run_id}: model inadequate (lack-of-fit p = {fit.lack_of_fit['p']:.2g}); "
+                         f"used and flagged, u scaled by sqrt(F) = {math.sqrt(fit.lack_of_fit['F']):.3g}")
+    if fit.adequacy is not None and fit.adequacy.status == "untestable":
+        flags.append(f"tumble {run_id}: untestable: {len(fit.position_means)} head positions for "
+                     f"{len(fit.param_names)} parameters leave no degrees of freedom to test the model; "
+                     "its u counts reading noise only")
+    try:
+        tp = two_position(meta, data)
+    except Exception as exc:
+        tp = {"error": str(exc)}
+    return TumbleRun(run_id, str(meta.get("rig_id", "")), geometry_of(meta), fit, tp, choice, tuple(flags))
+
+
+@dataclass(frozen=True)
+class Pooled:
+    """A quantity from one or more tumble runs: weighted mean with the Birge ratio applied.
+
+    Attributes
+    ----------
+    name : str
+        Record name (``'K0'``, ``'theta0[PA]'``, ...).
+    key : str
+        The fitted parameter.
+    value, u : float
+        Weighted mean [SI] and its standard uncertainty: 1/sqrt(sum w) times the Birge ratio
+        when that exceeds 1.
+    runs : tuple of TumbleRun
+    birge, p_value : float
+        Birge ratio sqrt(chi2 / (N - 1)) and P(chi2 > observed) (NaN for one run).
+    disagree : bool
+        p < 0.01: the runs disagree beyond their uncertainties.
+    """
+    name: str
+    key: str
+    value: float
+    u: float
+    u_internal: float
+    runs: tuple
+    birge: float = float("nan")
+    p_value: float = float("nan")
+    disagree: bool = False
+
+    @property
+    def weights(self) -> np.ndarray:
+        w = np.array([1.0 / r.u_parts(self.key)[0] ** 2 for r in self.runs])
+        return w / w.sum()
+
+
+def pool(name: str, key: str, runs: Sequence[TumbleRun], alpha: float = 0.01) -> Pooled:
+    """Weighted mean of one fitted parameter over tumble runs, with the Birge ratio.
+
+    .. math::
+
+        \\bar x = \\frac{\\sum w_i x_i}{\\sum w_i}, \\quad w_i = u_i^{-2}, \\quad
+        u(\\bar x) = \\frac{\\max(1, R_B)}{\\sqrt{\\sum w_i}}, \\quad
+        R_B = \\sqrt{\\chi^2 / (N - 1)}
+
+    (Birge 1932; :func:`accelcal.fitting.core.birge_ratio`).
+
+    Parameters
+    ----------
+    name : str
+        Record name.
+    key : str
+        The fitted parameter.
+    runs : sequence of TumbleRun
+    alpha : float
+        The runs disagree when P(chi2 > observed) < alpha.
+
+    Returns
+    -------
+    Pooled
+    """
+    vals = [r.fit.values[key] for r in runs]
+    us = [r.u_parts(key)[0] for r in runs]
+    if len(runs) == 1:
+        return Pooled(name, key, float(vals[0]), float(us[0]), float(us[0]), tuple(runs))
+    if not all(np.isfinite(us)) or min(us) <= 0:
+        return Pooled(name, key, float(np.mean(vals)), float("nan"), float("nan"), tuple(runs))
+    mean, u_int, birge, dof = birge_ratio(vals, us)
+    p = float(stats.chi2.sf(birge ** 2 * dof, dof))
+    return Pooled(name, key, mean, u_int * max(1.0, birge), u_int, tuple(runs), birge, p, p < alpha)
+
+
+def _group_name(key: str, group: str, several: bool) -> str:
+    return f"{key}[{group}]" if several else key
+
+
+def pool_runs(runs: Sequence[TumbleRun]) -> dict[str, Pooled]:
+    """The campaign's tumble quantities: K0 and K1 over every run, K2 and theta0 per head axis
+    (never pooled across heads: a head about another axis measures K2 minus another square
+    term, and its own misalignment), extra terms over the runs that fitted them.
+
+    Returns
+    -------
+    dict
+        record name -> Pooled; names carry the head axis (``theta0[PA]``) when the campaign has
+        several head axes.
+    """
+    groups: dict[str, list[TumbleRun]] = {}
+    for r in runs:
+        groups.setdefault(r.group, []).append(r)
+    several = len(groups) > 1
+    out = {k: pool(k, k, runs) for k in ("K0", "K1")}
+    for g, rr in groups.items():
+        for k in ("K2", "theta0"):
+            out[_group_name(k, g, several)] = pool(_group_name(k, g, several), k, rr)
+    for k in sorted({e for r in runs for e in r.fit.extras}):
+        out[k] = pool(k, k, [r for r in runs if k in r.fit.extras])
+    return out
+
+
+def k1_correction(g: float, koq: tuple[float, float], k3: tuple[float, float] | None) -> tuple[float, float]:
+    """(delta, u(delta)): the tumble's K1 fits the cos(psi) fundamental of the IA input, which
+    Koq a|a| and K3 a^3 also feed (cos|cos| has fundamental 8/(3 pi), cos^3 has 3/4), so
+    K1_fitted = K1 (1 + delta) with delta = Koq g 8/(3 pi) + K3 g^2 3/4 (paper 003 model with
+    the effects.md terms).  Koq [s2/m], K3 [s4/m2] as (value, u); g [m/s2]."""
+    a, b = g * 8 / (3 * math.pi), 0.75 * g * g
+    delta = koq[0] * a + (k3[0] * b if k3 else 0.0)
+    return delta, math.hypot(koq[1] * a, (k3[1] * b) if k3 else 0.0)
+
+
+_UNITS = {"K0": "m/s2", "K2": "s2/m", "theta0": "rad", "K3": "s4/m2", "Koq": "s2/m", "Kio": "s2/m", "Kip": "s2/m"}
+_NOTES = {"theta0": _ALIAS_NOTE, "K2": "a single tumble gives K2 - Koo (Koo aliases)"}
+
+
+def tumble_records(pooled: Mapping[str, Pooled], *, square_terms: Mapping[str, tuple[float, float]] | None = None,
+                   k1: tuple[float, float] | None = None, g: float = 9.80665, out_unit: str = "out",
+                   method: str = "tumble_lm") -> tuple[list[CoefficientResult], list[BudgetTerm]]:
+    """Coefficient records and GUM budgets of the campaign's tumble quantities (paper 003).
+
+    Parameters
+    ----------
+    pooled : mapping
+        :func:`pool_runs`.
+    square_terms : mapping, optional
+        Square term of an axis (Kpp, Koo) -> (value, u) [s2/m] from the centrifuge: a tumble
+        measures K2 minus the square term of its other turning axis, which is added back.
+    k1 : (delta, u_delta), optional
+        :func:`k1_correction`; K1 is divided by 1 + delta.
+    g : float
+        Local gravity [m/s2] (the note of an uncorrected K1).
+    out_unit : str
+        The runs' output unit.
+
+    Returns
+    -------
+    (coefficients, budget)
+        Budgets: one type-A line per run (its fit; split into reading noise and lack-of-fit
+        scaling for a single run), the between-run scatter (Birge ratio) when it exceeds the
+        runs' u, and the centrifuge terms of a correction.  u = the budget's combined u.
+    """
+    square_terms = square_terms or {}
+    coeffs, budget = [], []
+    # K2: a head measures K2 minus the square term of its other turning axis; that is added
+    # back per head, and the heads are pooled only when every one of them is corrected
+    k2_rows = {n: q for n, q in pooled.items() if q.key == "K2"}
+    if len(k2_rows) > 1 and all(_other_square(q.runs[0].head) in square_terms for q in k2_rows.values()):
+        k2_rows = {"K2": pool("K2", "K2", tuple(r for q in k2_rows.values() for r in q.runs))}
+    items = ([(n, q) for n, q in pooled.items() if q.key in ("K0", "K1")] + list(k2_rows.items())
+             + [(n, q) for n, q in pooled.items() if q.key not in ("K0", "K1", "K2")])
+    for name, q in items:
+        terms, note = _fit_terms(q), []
+        value = q.value
+        unit = _UNITS.get(q.key, f"{out_unit}/(m/s2)")
+        if q.key == "K2":
+            adds = {}
+            for r in q.runs:
+                sq = _other_square(r.head)
+                adds[sq] = adds.get(sq, 0.0) + q.weights[q.runs.index(r)]
+            if all(sq in square_terms for sq in adds):
+                for sq, wsum in adds.items():
+                    v, u = square_terms[sq]
+                    value += wsum * v
+                    terms.append((f"{sq} from the centrifuge (a tumble measures K2 - {sq})", v, u, wsum, "A", "normal"))
+                note.append("one tumble measures K2 − " + "/".join(adds) + "; " + ", ".join(
+                    f"{sq} = {square_terms[sq][0]:.3e} s2/m" for sq in adds) + " from the centrifuge added")
+            else:
+                note.append("measures K2 − " + "/".join(adds) + " (aliased in one tumble; no centrifuge "
+                            + "/".join(adds) + " to correct it)")
+        elif q.key == "K1":
+            if k1 is not None:
+                delta, u_delta = k1
+                value = q.value / (1.0 + delta)
+                terms = [(t[0], t[1], t[2], t[3] / (1.0 + delta), t[4], t[5]) for t in terms]
+                terms.append(("Koq g 8/(3 pi) + K3 g^2 3/4 from the centrifuge (in the fitted K1)", delta, u_delta,
+                              -value / (1.0 + delta), "A", "normal"))
+                note.append(f"corrected for Koq and K3 from the centrifuge: fitted K1 = K1 (1 + {delta:.3e})")
+            else:
+                note.append("includes Koq g 8/(3 pi) + K3 g^2 3/4 (no centrifuge values to remove it)")
+        else:
+            if _NOTES.get(q.key):
+                note.insert(0, _NOTES[q.key])
+        if q.key == "theta0" and "[" in name:
+            note.append("initial misalignment of this dividing head (never pooled across heads)")
+        note += _pool_notes(q)
+        gb = unc.linear_budget(name, terms, method=method, rig_id=_rig(q), value=value)
+        u = float(gb.u_c) if math.isfinite(q.u) else float("nan")
+        dof = float(q.runs[0].fit.dof) if len(q.runs) == 1 else None
+        coeffs.append(CoefficientResult(name, float(value), u, unit, method, _rig(q), dof, "; ".join(note)))
+        budget += gb.terms
+    return coeffs, budget
+
+
+def _other_square(head: TumbleHead) -> str:
+    """The square term of the head's other turning axis (Kpp for PA, Koo for OA)."""
+    return {1: "Kpp", 2: "Koo"}.get(head.other_axis, "K2")
+
+
+def _rig(q: Pooled) -> str:
+    rigs = sorted({r.rig_id for r in q.runs})
+    return rigs[0] if len(rigs) == 1 else "+".join(rigs)
+
+
+def _fit_terms(q: Pooled) -> list[tuple]:
+    """Type-A lines of a pooled quantity: per run its fit (reading noise and lack-of-fit scaling
+    apart for one run), and the Birge scatter of several runs."""
+    if len(q.runs) == 1:
+        r = q.runs[0]
+        u, u_noise, factor = r.u_parts(q.key)
+        rows = [(f"readings of {r.run_id}: LM fit (paper 003), s^2 (J'J)^-1", r.fit.values[q.key], u_noise, 1.0,
+                 "A", "normal")]
+        if factor > 1.0:
+            rows.append((f"model inadequacy of {r.run_id}: lack-of-fit scaling sqrt(F) = {factor:.3g}", 0.0,
+                         u_noise * math.sqrt(factor ** 2 - 1.0), 1.0, "A", "normal"))
+        return rows
+    rows = [(f"{r.run_id}: LM fit (paper 003)", r.fit.values[q.key], r.u_parts(q.key)[0], float(w), "A", "normal")
+            for r, w in zip(q.runs, q.weights)]
+    if math.isfinite(q.birge) and q.birge > 1.0:
+        rows.append((f"between-run scatter: Birge ratio {q.birge:.3g} ({len(q.runs)} runs)", 0.0,
+                     q.u_internal * math.sqrt(q.birge ** 2 - 1.0), 1.0, "A", "normal"))
+    return rows
+
+
+def _pool_notes(q: Pooled) -> list[str]:
+    if len(q.runs) == 1:
+        r = q.runs[0]
+        out = ["covariance from readings"]
+        lof = r.fit.lack_of_fit
+        if lof and lof["p"] < 0.01:
+            out.append(f"lack of fit: F = {lof['F']:.3g}, p = {lof['p']:.2g}")
+        if r.fit.adequacy is not None and r.fit.adequacy.status == "untestable":
+            out.append("untestable: as many head positions as parameters, u from reading noise only")
+        return out
+    out = [f"weighted mean of {len(q.runs)} tumble runs"]
+    if math.isfinite(q.birge):
+        out.append(f"Birge ratio {q.birge:.3g} (p = {q.p_value:.2g})"
+                   + ("; u scaled by it" if q.birge > 1 else ""))
+    return out
+
+
+def pooling_flags(pooled: Mapping[str, Pooled]) -> list[str]:
+    """Flags for the pooled quantities whose runs disagree beyond their u.
+
+    Parameters
+    ----------
+    pooled : mapping
+        :func:`pool_runs`.
+
+    Returns
+    -------
+    list of str
+        One flag per quantity with P(chi2) < 0.01, naming each run's value and u and the
+        Birge ratio applied.
+    """
+    out = []
+    for name, q in pooled.items():
+        if q.disagree:
+            vals = ", ".join(f"{r.run_id} {r.fit.values[q.key]:.6g} ± {r.u_parts(q.key)[0]:.2g}" for r in q.runs)
+            out.append(f"tumble runs disagree on {name}: {vals} (Birge ratio {q.birge:.3g}, p = {q.p_value:.2g}); "
+                       f"not averaged silently: weighted mean {q.value:.6g} with u scaled by the Birge ratio")
     return out

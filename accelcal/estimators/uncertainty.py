@@ -32,8 +32,18 @@ DISTRIBUTIONS = ("normal", "uniform", "triangular", "arcsine", "t")
 
 
 def uniform_u(half_width: float) -> float:
-    """Type B standard uncertainty of a rectangular distribution of half-width a:
-    u = a / sqrt(3) (JCGM 100 4.3.7, eq 7).  Same unit as a."""
+    """Type B standard uncertainty of a rectangular distribution (JCGM 100 4.3.7, eq 7).
+
+    Parameters
+    ----------
+    half_width : float
+        a [any unit].
+
+    Returns
+    -------
+    float
+        u = |a| / sqrt(3) [unit of a].
+    """
     return abs(float(half_width)) / math.sqrt(3.0)
 
 
@@ -78,8 +88,24 @@ def sensitivity_coefficients(func: Callable, values: Sequence[float], std_uncert
 
 
 def welch_satterthwaite(contributions: Sequence[float], dofs: Sequence[float]) -> float:
-    """nu_eff = u_c^4 / sum(u_i(y)^4 / nu_i) with u_i(y) = |c_i| u_i (JCGM 100 eq G.2b);
-    infinite dofs (Type B taken as exactly known) contribute nothing."""
+    """Welch–Satterthwaite effective degrees of freedom (JCGM 100 eq G.2b).
+
+    .. math::
+
+        \\nu_{eff} = \\frac{u_c^4}{\\sum_i u_i^4(y) / \\nu_i}, \\quad u_i(y) = |c_i| u(x_i)
+
+    Parameters
+    ----------
+    contributions : sequence of float
+        u_i(y) [unit of y].
+    dofs : sequence of float
+        nu_i; infinite ones (Type B taken as exactly known) contribute nothing.
+
+    Returns
+    -------
+    float
+        nu_eff (inf when every finite-dof contribution is zero).
+    """
     ui = np.asarray(contributions, float)
     nu = np.asarray(dofs, float)
     uc4 = float((ui**2).sum()) ** 2
@@ -94,17 +120,46 @@ def gum_budget(func: Callable, names: Sequence[str], values: Sequence[float],
                sensitivities: Sequence[float] | None = None, correlation: np.ndarray | None = None,
                dofs: Sequence[float] | None = None, k: float = 2.0, use_t: bool = False,
                p: float = 0.95) -> GumBudget:
-    """GUM uncertainty budget of y = func(*x) (JCGM 100 §5).
+    """GUM uncertainty budget of y = func(*x) (JCGM 100:2008 §5).
 
-    names, values, std_uncertainties: the inputs x_i and u(x_i) (own units).
-    distributions: per input (default 'normal'), recorded in the budget; types: 'A'/'B'
-    (default 'A' for normal and t, 'B' otherwise).  coefficient: name of the output
-    (e.g. 'Kip').  sensitivities: analytic c_i; default central differences
-    (:func:`sensitivity_coefficients`).  correlation: r(x_i, x_j) matrix (default
-    uncorrelated); u_c^2 = sum_ij c_i c_j u_i u_j r_ij (JCGM 100 eq 13).
-    dofs: nu_i per input (inf for exactly known Type B) -> Welch-Satterthwaite nu_eff
-    (uncorrelated inputs only).  Expanded uncertainty U = k u_c with k = 2 by default;
-    with use_t=True and a finite nu_eff, k = t_{(1+p)/2}(nu_eff) (JCGM 100 G.3, G.4).
+    .. math::
+
+        u_c^2(y) = \\sum_{i,j} c_i c_j u(x_i) u(x_j) r(x_i, x_j), \\quad
+        c_i = \\partial f / \\partial x_i
+
+    (JCGM 100 eq 13; eq 10 for uncorrelated inputs).
+
+    Parameters
+    ----------
+    func : callable
+        The measurement function, inputs positional in ``names`` order.
+    names : sequence of str
+    values, std_uncertainties : sequence of float
+        x_i and u(x_i) [their own units].
+    distributions : sequence of str, optional
+        Per input (default 'normal'), recorded in the budget.
+    types : sequence of str, optional
+        'A'/'B' (default 'A' for normal and t, 'B' otherwise).
+    coefficient : str
+        Name of the output (e.g. 'Kip').
+    sensitivities : sequence of float, optional
+        Analytic c_i; default central differences (:func:`sensitivity_coefficients`).
+    correlation : ndarray, optional
+        r(x_i, x_j) (default uncorrelated).
+    dofs : sequence of float, optional
+        nu_i per input (inf for an exactly known Type B) -> Welch-Satterthwaite nu_eff
+        (JCGM 100 G.4; uncorrelated inputs only).
+    k : float
+        Coverage factor when ``use_t`` is False (default 2).
+    use_t, p : bool, float
+        k = t_{(1+p)/2}(nu_eff) (JCGM 100 G.3, G.4).
+
+    Returns
+    -------
+    GumBudget
+        y [unit of func], u_c, one :class:`~accelcal.results.BudgetTerm` per input
+        (contribution |c_i| u_i), nu_eff, k, U = k u_c.  Tested against JCGM 100 Annex H.1
+        (tests/test_uncertainty.py).
     """
     x = np.asarray(values, float)
     u = np.asarray(std_uncertainties, float)
@@ -142,6 +197,41 @@ def gum_budget(func: Callable, names: Sequence[str], values: Sequence[float],
         pp = p
         kk = float(stats.t.ppf((1 + p) / 2, nu_eff)) if math.isfinite(nu_eff) else float(stats.norm.ppf((1 + p) / 2))
     return GumBudget(value=y, u_c=uc, terms=terms, nu_eff=nu_eff, k=kk, U=kk * uc, p=pp, sensitivities=c)
+
+
+def linear_budget(coefficient: str, terms: Sequence[tuple], *, method: str = "", rig_id: str = "",
+                  value: float | None = None) -> GumBudget:
+    """GUM budget (JCGM 100 eq 10) of a coefficient that depends linearly on its inputs.
+
+    Parameters
+    ----------
+    coefficient : str
+        Its name (effects.md), e.g. ``'K2'``.
+    terms : sequence of tuple
+        (quantity, value, standard uncertainty, sensitivity c_i, type 'A'/'B', distribution)
+        per input [input units; c_i in coefficient unit per input unit].  Inputs with zero
+        uncertainty are kept (they document a correction).
+    method, rig_id : str
+        Written into every :class:`~accelcal.results.BudgetTerm`.
+    value : float, optional
+        The coefficient's value (default: the sum of c_i x_i).
+
+    Returns
+    -------
+    GumBudget
+        u_c = sqrt(sum (c_i u_i)^2) (uncorrelated inputs); terms carry ``method`` and ``rig_id``.
+    """
+    names = [str(t[0]) for t in terms]
+    vals = np.array([float(t[1]) for t in terms])
+    us = np.array([float(t[2]) for t in terms])
+    cs = np.array([float(t[3]) for t in terms])
+    gb = gum_budget(lambda *x: float(np.dot(cs, x)), names, vals, us, [t[5] for t in terms],
+                    [t[4] for t in terms], coefficient, sensitivities=cs)
+    for b in gb.terms:
+        b.method, b.rig_id = method, rig_id
+    if value is not None:
+        gb.value = float(value)
+    return gb
 
 
 @dataclass
@@ -326,6 +416,38 @@ def validate_gum_linear(sensitivities: Sequence[float], std_uncertainties: Seque
     d_low, d_high = abs(-k * sd - lo), abs(k * sd - hi)
     return {"gum_u": sd, "gum_low": -k * sd, "gum_high": k * sd, "low": lo, "high": hi, "delta": delta,
             "d_low": d_low, "d_high": d_high, "validated": bool(d_low <= delta and d_high <= delta)}
+
+
+def budget_check(method: str, rig_id: str, coefficient: str, value: float, terms: Sequence[BudgetTerm]) -> dict | None:
+    """JCGM 101 §8 check of a linear budget, keyed and shaped as ``extras['mc_check']`` holds it.
+
+    Parameters
+    ----------
+    method, rig_id, coefficient : str
+        Which coefficient.
+    value : float
+        Its value [its unit].
+    terms : sequence of BudgetTerm
+        Its budget lines (sensitivity, standard uncertainty, distribution; those with u = 0
+        are left out).
+
+    Returns
+    -------
+    dict or None
+        gum_u, mc_u, mc_low, mc_high (absolute), validated, delta, procedure: the GUM
+        interval against the propagated distribution of the linear model, by numerical
+        convolution (:func:`validate_gum_linear`; no sampling noise, so a FAIL is the normal
+        approximation's, not the Monte Carlo's); None without an uncertain input.
+    """
+    use = [b for b in terms if b.std_uncertainty > 0]
+    if not use or not math.isfinite(value):
+        return None
+    chk = validate_gum_linear([b.sensitivity for b in use], [b.std_uncertainty for b in use],
+                              [b.distribution for b in use])
+    return {"method": method, "rig_id": rig_id, "coefficient": coefficient, "gum_u": chk["gum_u"],
+            "mc_u": chk["gum_u"], "mc_low": value + chk["low"], "mc_high": value + chk["high"],
+            "validated": chk["validated"], "delta": chk["delta"],
+            "procedure": "propagation of distributions by numerical convolution (linear budget, JCGM 101 5.4)"}
 
 
 def kip_uncertainty(u_c2: float, u_dc2: float, u_K2: float, u_Kpp: float, u_dKpp: float, *,

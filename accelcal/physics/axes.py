@@ -17,7 +17,23 @@ class AxisError(ValueError):
 
 
 def parse_signed_axis(text: str) -> tuple[int, int]:
-    """'+IA' -> (0, +1); '-OA' -> (2, -1); 'PA' -> (1, +1)."""
+    """A signed axis of drop-format.md as (axis index, sign).
+
+    Parameters
+    ----------
+    text : str
+        '+IA', '-OA', 'PA', ...
+
+    Returns
+    -------
+    (int, int)
+        Index into (IA, PA, OA) and +1/-1: '+IA' -> (0, +1), '-OA' -> (2, -1).
+
+    Raises
+    ------
+    AxisError
+        Not a signed axis.
+    """
     m = _SIGNED.match(str(text))
     if not m:
         raise AxisError(f"{text!r} is not a signed axis (+IA, -PA, OA, ...)")
@@ -25,7 +41,23 @@ def parse_signed_axis(text: str) -> tuple[int, int]:
 
 
 def parse_plane(text: str) -> tuple[int, int]:
-    """'IA-PA' -> (0, 1): the first and second plane axes."""
+    """A mount plane of drop-format.md as (first, second) axis indices.
+
+    Parameters
+    ----------
+    text : str
+        'IA-PA', 'OA-IA', ...
+
+    Returns
+    -------
+    (int, int)
+        'IA-PA' -> (0, 1).
+
+    Raises
+    ------
+    AxisError
+        Not two distinct axes.
+    """
     parts = str(text).strip().split("-")
     if len(parts) != 2 or any(p.strip() not in AXIS_INDEX for p in parts):
         raise AxisError(f"{text!r} is not a plane of two axes such as IA-PA")
@@ -36,16 +68,42 @@ def parse_plane(text: str) -> tuple[int, int]:
 
 
 def cross_sign(first: int, second: int) -> tuple[int, int]:
-    """e_first x e_second = sign * e_third; returns (third, sign)."""
+    """The third axis of a pair and the sign of their cross product.
+
+    Parameters
+    ----------
+    first, second : int
+        Axis indices (IA x PA = OA, drop-format.md).
+
+    Returns
+    -------
+    (int, int)
+        (third, sign) with e_first x e_second = sign e_third.
+    """
     third = 3 - first - second
     sign = 1 if (second - first) % 3 == 1 else -1
     return third, sign
 
 
 def plane_handedness(plane: str, vertical_axis: str) -> int:
-    """+1 when first x second plane axes points up, -1 when down (drop-format.md, sine_centrifuge).
+    """Handedness h of a mount plane (drop-format.md, ``sine_centrifuge``).
 
-    Raises AxisError when the vertical axis lies in the plane.
+    Parameters
+    ----------
+    plane : str
+        'IA-PA', ...
+    vertical_axis : str
+        The signed vertical axis, e.g. '+OA'.
+
+    Returns
+    -------
+    int
+        +1 when e1 x e2 points up, -1 when down.
+
+    Raises
+    ------
+    AxisError
+        The vertical axis lies in the plane.
     """
     e1, e2 = parse_plane(plane)
     v, vs = parse_signed_axis(vertical_axis)

@@ -171,6 +171,19 @@ _KEYS = {
 def geometry_of(meta: Mapping) -> Geometry:
     """The typed geometry of a run from its (typed or raw) metadata.
 
+    Parameters
+    ----------
+    meta : mapping
+        Run metadata: ``test`` and its geometry keys (drop-format.md): mount_plane,
+        vertical_axis, mount_angle_deg [deg], arm_radius_m [m], rotation_sense (centrifuges);
+        head_axis, cos_axis, sin_axis (tumble); tilt_deg [deg], sin_axis, cos_axis,
+        normal_axis, positions (tilt_rotation).
+
+    Returns
+    -------
+    CentrifugeMount, TumbleHead or TiltTable
+        Cached per distinct geometry.
+
     Raises
     ------
     ValueError (AxisError)

@@ -24,10 +24,33 @@ def indicated_acceleration(coeffs: Mapping[str, float], f: np.ndarray,
                            temp_c: np.ndarray | None = None,
                            time_s: np.ndarray | None = None,
                            bias_drift: float = 0.0) -> np.ndarray:
-    """A (m/s^2) of the instrument model for specific force f[..., (IA, PA, OA)] in m/s^2.
+    """Indicated acceleration of the instrument model (effects.md, IEEE 1293 form).
 
-    Temperature enters only the bias here (K0T); the scale-factor temperature
-    term belongs to K1(T) and is applied by :func:`output`.
+    .. math::
+
+        A = K_0 + K_{0T}(T - T_{ref}) + d\\,t + a_i + K_2 a_i^2 + K_3 a_i^3 + K_{oq} a_i |a_i|
+            + K_p a_p + K_o a_o + K_{ip} a_i a_p + K_{io} a_i a_o + K_{po} a_p a_o
+            + K_{pp} a_p^2 + K_{oo} a_o^2
+
+    (He & Yin 2017, paper 000 eq 1, with the odd quadratic and cubic of effects.md).
+
+    Parameters
+    ----------
+    coeffs : mapping
+        Coefficients [SI, effects.md units]; absent ones are 0 (K1 is not used here).
+    f : (..., 3) ndarray
+        Specific force on (IA, PA, OA) [m/s2].
+    temp_c : ndarray, optional
+        Temperature T [degC] (K0T only; the scale-factor TC belongs to K1(T), :func:`output`).
+    time_s : ndarray, optional
+        Time t [s] (``bias_drift``).
+    bias_drift : float
+        d [m/s2/s].
+
+    Returns
+    -------
+    ndarray
+        A [m/s2].
     """
     c = {**DEFAULTS, **{k: float(v) for k, v in coeffs.items() if k in DEFAULTS}}
     ai, ap, ao = f[..., 0], f[..., 1], f[..., 2]
@@ -101,7 +124,24 @@ def output_derivative(name: str, coeffs: Mapping[str, float], f: np.ndarray,
 
 
 def scale_factor(coeffs: Mapping[str, float], temp_c: np.ndarray | None = None) -> np.ndarray | float:
-    """K1(T) = K1 (1 + K1T (T - T_ref)), output_unit per m/s^2."""
+    """Scale factor at temperature (effects.md temperature model).
+
+    .. math::
+
+        K_1(T) = K_1 (1 + K_{1T} (T - T_{ref})), \\quad T_{ref} = 20\\,^\\circ C
+
+    Parameters
+    ----------
+    coeffs : mapping
+        K1 [output_unit/(m/s2)], K1T [1/degC].
+    temp_c : ndarray, optional
+        T [degC].
+
+    Returns
+    -------
+    ndarray or float
+        K1(T) [output_unit/(m/s2)] (Zhang et al. 2021, paper 001, temperature model).
+    """
     K1 = float(coeffs.get("K1", 1.0))
     K1T = float(coeffs.get("K1T", 0.0))
     if temp_c is None or K1T == 0.0:
@@ -111,13 +151,48 @@ def scale_factor(coeffs: Mapping[str, float], temp_c: np.ndarray | None = None) 
 
 def output(coeffs: Mapping[str, float], f: np.ndarray, temp_c=None, time_s=None,
            bias_drift: float = 0.0) -> np.ndarray:
-    """E = K1(T) * A, in the run's output_unit."""
+    """Instrument output E = K1(T) A (effects.md).
+
+    Parameters
+    ----------
+    coeffs : mapping
+        Coefficients [SI].
+    f : (..., 3) ndarray
+        Specific force on (IA, PA, OA) [m/s2].
+    temp_c, time_s, bias_drift
+        As for :func:`indicated_acceleration`.
+
+    Returns
+    -------
+    ndarray
+        E [output_unit].
+    """
     return scale_factor(coeffs, temp_c) * indicated_acceleration(coeffs, f, temp_c, time_s, bias_drift)
 
 
 def first_order_lag(x: np.ndarray, time_s: np.ndarray, tau: float) -> np.ndarray:
-    """Output of a first-order lag tau*y' = x - y (effect ``sensor_lag``), exact for x
-    linear between samples (first-order hold); y(t0) = x(t0)."""
+    """Output of a first-order lag (effect ``sensor_lag``).
+
+    .. math::
+
+        \\tau \\dot y = x - y, \\quad y(t_0) = x(t_0)
+
+    exact for x linear between samples (first-order hold).
+
+    Parameters
+    ----------
+    x : ndarray
+        Input series [any unit].
+    time_s : ndarray
+        Sample times [s].
+    tau : float
+        Time constant [s]; tau <= 0 returns a copy of x.
+
+    Returns
+    -------
+    ndarray
+        y [unit of x].
+    """
     x = np.asarray(x, float)
     if tau <= 0.0 or x.size == 0:
         return x.copy()

@@ -55,7 +55,18 @@ def _n(data) -> int:
 
 
 def rotation_sign(meta: Mapping) -> int:
-    """s = +1 for a ccw table, -1 for cw (drop-format.md)."""
+    """Sign of the table rate about the vertical.
+
+    Parameters
+    ----------
+    meta : mapping
+        Run metadata with ``rotation_sense`` ('ccw' or 'cw'; default 'ccw').
+
+    Returns
+    -------
+    int
+        s = +1 for a ccw table, -1 for cw (drop-format.md).
+    """
     sense = str(meta.get("rotation_sense", "ccw")).strip().lower()
     if sense not in ("ccw", "cw"):
         raise ValueError(f"rotation_sense {sense!r} is not ccw or cw")
@@ -63,8 +74,27 @@ def rotation_sign(meta: Mapping) -> int:
 
 
 def omega_z(meta: Mapping, rate: np.ndarray, effects: Mapping[str, float] | None = None) -> np.ndarray:
-    """Inertial rate about the vertical, rad/s: omega_z = s (1+eps) omega + scale * Omega_e sin(lat)
-    (drop-format.md; effects ``rate_scale_error`` eps and ``earth_rate`` scale)."""
+    """Inertial rate of the table about the vertical.
+
+    .. math::
+
+        \\omega_z = s (1 + \\varepsilon) \\omega + k \\Omega_e \\sin \\Phi
+
+    Parameters
+    ----------
+    meta : mapping
+        ``rotation_sense`` (s), ``site_latitude_deg`` (Phi [deg]).
+    rate : ndarray
+        Logged table rate omega [rad/s].
+    effects : mapping, optional
+        ``rate_scale_error`` epsilon [1] and ``earth_rate`` k [1] (effects.md; absent = 0).
+
+    Returns
+    -------
+    ndarray
+        omega_z [rad/s], Omega_e = 7.292115e-5 rad/s (drop-format.md; He & Yin 2017, paper 000
+        eq 6 carries the same earth-rate term).
+    """
     effects = effects or {}
     eps = float(effects.get("rate_scale_error", 0.0))
     scale = float(effects.get("earth_rate", 0.0))
@@ -73,8 +103,28 @@ def omega_z(meta: Mapping, rate: np.ndarray, effects: Mapping[str, float] | None
 
 
 def sine_rate_derivative(meta: Mapping, time_s: np.ndarray, effects: Mapping[str, float] | None = None) -> np.ndarray:
-    """d(omega_z)/dt, rad/s^2, of the sinusoidal drive omega = Omega sin(2 pi f t) (paper 002),
-    signed like omega_z and scaled by (1 + eps) of ``rate_scale_error``."""
+    """Angular acceleration of the sinusoidal drive.
+
+    .. math::
+
+        \\dot\\omega_z = s (1 + \\varepsilon) \\Omega \\, 2 \\pi f \\cos(2 \\pi f t)
+
+    Parameters
+    ----------
+    meta : mapping
+        ``rate_amplitude_rad_s`` (Omega [rad/s]), ``rate_frequency_hz`` (f [Hz]),
+        ``rotation_sense``.
+    time_s : ndarray
+        Time [s].
+    effects : mapping, optional
+        ``rate_scale_error`` epsilon [1].
+
+    Returns
+    -------
+    ndarray
+        [rad/s2], signed like omega_z (Sun, Ren & Wang, paper 002: drive
+        omega = Omega sin(2 pi f t)).
+    """
     effects = effects or {}
     eps = float(effects.get("rate_scale_error", 0.0))
     Om = float(meta["rate_amplitude_rad_s"])
@@ -86,14 +136,39 @@ def sine_rate_derivative(meta: Mapping, time_s: np.ndarray, effects: Mapping[str
 def centrifuge_specific_force(meta: Mapping, data, effects: Mapping[str, float] | None = None, *,
                               radius_m: float | None = None,
                               rate_derivative: np.ndarray | None = None) -> np.ndarray:
-    """Specific force (n, 3) on (IA, PA, OA), m/s^2, for ``centrifuge`` and ``sine_centrifuge`` runs.
+    """Specific force on the instrument axes of a centrifuge run.
 
-    radius_m: distance spindle -> fixture turning centre (default ``arm_radius_m``).
-    rate_derivative: d(omega_z)/dt per row; default 0 for ``centrifuge`` and the drive's
-    derivative (:func:`sine_rate_derivative`) for ``sine_centrifuge``.
-    Effects: earth_rate, rate_scale_error, mount_angle_error, mass_centre_offset,
-    arm_stretch, ia_tilt, spindle_tilt (effects.md definitions and signs; spindle_tilt with
-    both its radial and its tangential part).
+    .. math::
+
+        \\mathbf f = -\\omega_z^2 \\mathbf p + h \\dot\\omega_z \\, \\hat z \\times \\mathbf p + g \\, \\widehat{up},
+        \\quad \\mathbf p = -R(1 + \\kappa \\omega_z^2) \\mathbf u(\\varphi + \\Delta\\varphi) + r \\mathbf e_1
+
+    (u the unit vector towards the spindle at the mount angle, e1 the first plane axis;
+    centripetal, tangential and gravity terms of drop-format.md; He & Yin 2017, paper 000
+    §2.2 for the mass-centre geometry; Sun, Ren & Wang, paper 002 for the tangential term).
+
+    Parameters
+    ----------
+    meta : mapping
+        Typed run metadata (``g_local_m_s2`` [m/s2], mount geometry, ``arm_radius_m`` [m],
+        ``rotation_sense``, ``site_latitude_deg`` [deg]; sine: ``rate_amplitude_rad_s``,
+        ``rate_frequency_hz``).
+    data : DataFrame or mapping
+        ``table_rate_rad_s`` [rad/s], ``time_s`` [s], ``table_angle_deg`` [deg] (spindle tilt).
+    effects : mapping, optional
+        earth_rate [1], rate_scale_error [1], mount_angle_error [rad], mass_centre_offset [m],
+        arm_stretch [s2], ia_tilt [rad], spindle_tilt [rad] (effects.md definitions and signs;
+        spindle_tilt with both its radial and its tangential part).
+    radius_m : float, optional
+        Spindle to fixture turning centre [m] (default ``arm_radius_m``).
+    rate_derivative : ndarray, optional
+        d(omega_z)/dt per row [rad/s2]; default 0 for ``centrifuge`` and
+        :func:`sine_rate_derivative` for ``sine_centrifuge``.
+
+    Returns
+    -------
+    (n, 3) ndarray
+        Specific force on (IA, PA, OA) [m/s2].
     """
     effects = effects or {}
     n = _n(data)
@@ -141,9 +216,28 @@ def centrifuge_specific_force(meta: Mapping, data, effects: Mapping[str, float] 
 
 
 def tumble_specific_force(meta: Mapping, data, effects: Mapping[str, float] | None = None) -> np.ndarray:
-    """Specific force (n, 3) for a ``tumble`` run: cos_axis senses g cos(theta + theta0),
-    sin_axis g sin(theta + theta0), head_axis 0 (drop-format.md; paper 003; effect
-    ``initial_misalignment`` theta0 in rad)."""
+    """Specific force on the instrument axes of a dividing-head tumble.
+
+    .. math::
+
+        f_{cos} = g \\cos(\\theta + \\theta_0), \\quad f_{sin} = g \\sin(\\theta + \\theta_0), \\quad f_{head} = 0
+
+    (drop-format.md; Zhan & Cai, paper 003).
+
+    Parameters
+    ----------
+    meta : mapping
+        ``g_local_m_s2`` [m/s2], ``head_axis``, ``cos_axis``, ``sin_axis`` (signed axes).
+    data : DataFrame or mapping
+        ``angle_deg``: head angle theta [deg].
+    effects : mapping, optional
+        ``initial_misalignment`` theta0 [rad].
+
+    Returns
+    -------
+    (n, 3) ndarray
+        Specific force on (IA, PA, OA) [m/s2].
+    """
     effects = effects or {}
     n = _n(data)
     g = float(meta["g_local_m_s2"])
@@ -156,10 +250,32 @@ def tumble_specific_force(meta: Mapping, data, effects: Mapping[str, float] | No
 
 
 def tilt_rotation_specific_force(meta: Mapping, data, effects: Mapping[str, float] | None = None) -> np.ndarray:
-    """Specific force (n, 3) for a ``tilt_rotation`` run (paper 001; drop-format.md):
-    sin_axis g sin(gamma) sin(theta), cos_axis g sin(gamma) cos(theta), normal_axis g cos(gamma).
-    Effects: base_tilt_drift (gamma += dgamma/dt * t), tilt_tide (gamma += A sin(2 pi t / M2)),
-    fixture_thermal_tilt (IA tilts towards the normal axis by c (T - T_ref)); t = time_s."""
+    """Specific force on the instrument axes of a tilted rotary table.
+
+    .. math::
+
+        f_{sin} = g \\sin\\gamma \\sin\\theta, \\quad f_{cos} = g \\sin\\gamma \\cos\\theta,
+        \\quad f_{normal} = g \\cos\\gamma
+
+    (drop-format.md; Zhang et al. 2021, paper 001).
+
+    Parameters
+    ----------
+    meta : mapping
+        ``g_local_m_s2`` [m/s2], ``tilt_deg`` (gamma [deg]), ``sin_axis``, ``cos_axis``,
+        ``normal_axis``.
+    data : DataFrame or mapping
+        ``rotation_deg`` (theta [deg]), ``time_s`` [s], ``temp_c`` [degC].
+    effects : mapping, optional
+        base_tilt_drift [rad/s] (gamma += dgamma/dt t), tilt_tide [rad]
+        (gamma += A sin(2 pi t / M2)), fixture_thermal_tilt [rad/degC] (IA tilts towards the
+        normal axis by c (T - T_ref)).
+
+    Returns
+    -------
+    (n, 3) ndarray
+        Specific force on (IA, PA, OA) [m/s2].
+    """
     effects = effects or {}
     n = _n(data)
     g = float(meta["g_local_m_s2"])
@@ -187,7 +303,21 @@ def tilt_rotation_specific_force(meta: Mapping, data, effects: Mapping[str, floa
 
 def specific_force(test: str, meta: Mapping, data, effects: Mapping[str, float] | None = None,
                    **kw) -> np.ndarray:
-    """Dispatch on the test kind; returns (n, 3) specific force on (IA, PA, OA), m/s^2."""
+    """Specific force of any run: dispatch on the test kind.
+
+    Parameters
+    ----------
+    test : str
+        'centrifuge', 'sine_centrifuge', 'tumble' or 'tilt_rotation'.
+    meta, data, effects, **kw
+        As for :func:`centrifuge_specific_force`, :func:`tumble_specific_force`,
+        :func:`tilt_rotation_specific_force`.
+
+    Returns
+    -------
+    (n, 3) ndarray
+        Specific force on (IA, PA, OA) [m/s2].
+    """
     if test in ("centrifuge", "sine_centrifuge"):
         return centrifuge_specific_force(meta, data, effects, **kw)
     if test == "tumble":
@@ -199,10 +329,37 @@ def specific_force(test: str, meta: Mapping, data, effects: Mapping[str, float] 
 
 def rig_output(test: str, meta: Mapping, data, coeffs: Mapping[str, float],
                effects: Mapping[str, float] | None = None, **kw) -> np.ndarray:
-    """Noise-free instrument output E (output_unit) of a run: rig kinematics + effects +
-    instrument model (+ ``sensor_lag``, ``bias_drift``).  Instrument-term effects
-    (odd_quadratic, cubic, cross_coupling, bias_temperature, scale_temperature) add to
-    the corresponding coefficient."""
+    """Noise-free instrument output of a run: the one forward model.
+
+    .. math::
+
+        E = K_1(T) \\, A(\\mathbf f), \\quad \\mathbf f = \\text{specific force of the rig}
+
+    with A the effects.md instrument model (:func:`accelcal.physics.instrument.output`)
+    and f from :func:`specific_force`.
+
+    Parameters
+    ----------
+    test : str
+        Test kind.
+    meta : mapping
+        Typed run metadata.
+    data : DataFrame or mapping
+        The run's columns (drop-format.md); ``temp_c`` [degC] feeds K0T, K1T.
+    coeffs : mapping
+        Instrument coefficients [SI, effects.md units].
+    effects : mapping, optional
+        effects.md id -> parameter; instrument-term effects (odd_quadratic, cubic,
+        cross_coupling, bias_temperature, scale_temperature) add to their coefficient;
+        ``sensor_lag`` [s] lags the output, ``bias_drift`` [m/s2/s] drifts K0.
+    **kw
+        Passed to :func:`specific_force` (``radius_m``, ``rate_derivative``).
+
+    Returns
+    -------
+    ndarray
+        E [output_unit].
+    """
     effects = dict(effects or {})
     c = dict(coeffs)
     for eid, name in INSTRUMENT_EFFECTS.items():

@@ -1,0 +1,53 @@
+"""The records one paper method adds to a :class:`~accelcal.results.CampaignResult`."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from ..results import AdequacyResult, BudgetTerm, CoefficientResult, RadiusResult
+
+
+@dataclass
+class Records:
+    """Records for a :class:`~accelcal.results.CampaignResult`, built once."""
+    coefficients: list[CoefficientResult] = field(default_factory=list)
+    radii: list[RadiusResult] = field(default_factory=list)
+    adequacy: list[AdequacyResult] = field(default_factory=list)
+    budget: list[BudgetTerm] = field(default_factory=list)
+    alignment: list[dict] = field(default_factory=list)
+    extras: dict[str, dict] = field(default_factory=dict)
+    flags: list[str] = field(default_factory=list)
+
+    def checked(self) -> "Records":
+        """The records with the JCGM 101 check of every coefficient's budget in
+        ``extras['mc_check']`` (:func:`.uncertainty.budget_check`), where not there yet."""
+        from .uncertainty import budget_check
+        checks = self.extras.setdefault("mc_check", {})
+        for c in self.coefficients:
+            key = f"{c.method}:{c.rig_id}:{c.name}"
+            if key in checks:
+                continue
+            terms = [b for b in self.budget if b.coefficient == c.name and b.method == c.method
+                     and b.rig_id == c.rig_id]
+            chk = budget_check(c.method, c.rig_id, c.name, c.value, terms)
+            if chk is not None:
+                checks[key] = chk
+        if not checks:
+            del self.extras["mc_check"]
+        return self
+
+    def add_to(self, res) -> None:
+        """Append to a CampaignResult: lists appended, extras merged per key (dicts by key,
+        lists extended), as the paper methods write them."""
+        res.coefficients += self.coefficients
+        res.radii += self.radii
+        res.adequacy += self.adequacy
+        res.budget += self.budget
+        res.alignment += self.alignment
+        res.flags += self.flags
+        for key, value in self.extras.items():
+            if isinstance(value, dict) and isinstance(res.extras.get(key), dict):
+                res.extras[key] = {**res.extras[key], **value}
+            elif isinstance(value, list) and isinstance(res.extras.get(key), list):
+                res.extras[key] = res.extras[key] + value
+            else:
+                res.extras[key] = value
