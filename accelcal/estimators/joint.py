@@ -118,7 +118,7 @@ def _pure_error(model: CampaignModel, p: np.ndarray) -> tuple[float, int]:
 
 def fit_campaign_model(runs: Sequence[RunCells], effects: Sequence[str], *, shared: Sequence[str] = (),
                        per_run_bias: bool | None = None, per_run_scale: bool = False,
-                       noise_passes: int = 2, keep: Sequence[str] = ()) -> JointFit:
+                       noise_passes: int = 1, keep: Sequence[str] = ()) -> JointFit:
     """Fit a campaign model to runs whose cells are built (:func:`prepare`).
 
     The noise model of each run is first fitted to its outputs, then refitted to the

@@ -234,15 +234,33 @@ def position_means(labelled: pd.DataFrame) -> pd.DataFrame:
     temp_set_c, temp_c (mean of the finite ``temp_c``; NaN when none), output (mean,
     output_unit), output_sd (sample standard deviation), count.
     """
-    d = labelled.copy()
-    th = np.radians(d["rotation_deg"].to_numpy(float))
-    d["_c"], d["_s"] = np.cos(th), np.sin(th)
-    g = d.groupby(["point", "position"], sort=True)
-    m = g.agg(sweep=("sweep", "first"), time_s=("time_s", "mean"), temp_set_c=("temp_set_c", "first"),
-              temp_c=("temp_c", "mean"), output=("output", "mean"), output_sd=("output", "std"),
-              count=("output", "size"), _c=("_c", "mean"), _s=("_s", "mean")).reset_index()
-    m["theta_deg"] = np.mod(np.degrees(np.arctan2(m["_s"], m["_c"])), 360.0)
-    return m.drop(columns=["_c", "_s"])
+    point = labelled["point"].to_numpy()
+    position = labelled["position"].to_numpy()
+    key = point.astype(np.int64) * (int(position.max(initial=0)) + 1) + position
+    uniq, first, gid = np.unique(key, return_index=True, return_inverse=True)
+    k = uniq.size
+    n = np.bincount(gid, minlength=k).astype(float)
+
+    def mean(col):
+        return np.bincount(gid, weights=col, minlength=k) / n
+
+    out = labelled["output"].to_numpy(float)
+    m_out = mean(out)
+    dev = out - m_out[gid]
+    sd = np.sqrt(np.bincount(gid, weights=dev * dev, minlength=k) / np.maximum(n - 1, 1))
+    sd[n < 2] = np.nan
+    T = labelled["temp_c"].to_numpy(float)
+    fin = np.isfinite(T)
+    nT = np.bincount(gid, weights=fin.astype(float), minlength=k)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mT = np.bincount(gid, weights=np.where(fin, T, 0.0), minlength=k) / nT
+    th = np.radians(labelled["rotation_deg"].to_numpy(float))
+    theta = np.mod(np.degrees(np.arctan2(mean(np.sin(th)), mean(np.cos(th)))), 360.0)
+    return pd.DataFrame({
+        "point": point[first], "position": position[first],
+        "sweep": labelled["sweep"].to_numpy()[first], "time_s": mean(labelled["time_s"].to_numpy(float)),
+        "temp_set_c": labelled["temp_set_c"].to_numpy(float)[first], "temp_c": mT, "output": m_out,
+        "output_sd": sd, "count": n.astype(int), "theta_deg": theta})
 
 
 # --------------------------------------------------------------------------- one temperature point

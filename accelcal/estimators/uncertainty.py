@@ -362,7 +362,7 @@ def validate_gum_with_mc(func: Callable, names: Sequence[str], values: Sequence[
 
 
 def linear_output_interval(sensitivities: Sequence[float], std_uncertainties: Sequence[float],
-                           distributions: Sequence[str], p: float = 0.95, points: int = 1 << 15
+                           distributions: Sequence[str], p: float = 0.95, points: int = 1 << 12
                            ) -> tuple[float, float, float]:
     """The probabilistically symmetric 100p % interval and the standard deviation of
     y = sum c_i x_i for independent inputs, by numerical convolution of their densities
