@@ -312,6 +312,8 @@ class CampaignModel:
         tau = float(eff.get("sensor_lag", 0.0))
         t = r.cols.get("time_s")
         base = None
+        lin: list[int] = []
+        rows: list[np.ndarray] = []
         for c, i in enumerate(cols):
             if i not in self.run_params[j]:
                 continue
@@ -322,9 +324,8 @@ class CampaignModel:
                     temp = self._temp(r)
                 col = instrument.output_derivative(role.key, co, F, temp, t,
                                                    float(eff.get("bias_drift", 0.0)))
-                if tau > 0:
-                    col = first_order_lag(col, t, tau)
-                J[:, c] = r.cell_mean(np.broadcast_to(col, r.y_rows.shape))
+                lin.append(c)
+                rows.append(np.broadcast_to(col, r.y_rows.shape))
                 continue
             h = 1e-3 * self.params[i].scale
             pp, pm = p.copy(), p.copy()
@@ -336,6 +337,13 @@ class CampaignModel:
                 continue
             pm[i] -= h
             J[:, c] = (self.predict_run(pp, j) - self.predict_run(pm, j)) / (2 * h)
+        if lin:
+            X = np.column_stack(rows)
+            if tau > 0:                       # the lag is linear: lag the columns at once
+                X = first_order_lag(X, t, tau)
+            keep = r.cid >= 0
+            for k, c in enumerate(lin):
+                J[:, c] = np.bincount(r.cid[keep], weights=X[keep, k], minlength=r.ncell) / r.n
         return J
 
     def jacobian(self, p: np.ndarray, params: Sequence[int] | None = None) -> np.ndarray:
@@ -373,10 +381,11 @@ class CampaignModel:
         return out / self.sig
 
     # ----------------------------------------------------------------- start, selection
-    def start(self) -> np.ndarray:
+    def start(self, profile_lag: bool = True) -> np.ndarray:
         """Start values: K1 by regression of each campaign's outputs on the nominal input
         (the amplitude of the data, paper 003 starts from the nominal sensitivity), K0 and
-        the run biases from the mean residual, radii at the nominal arm radius."""
+        the run biases from the mean residual, radii at the nominal arm radius; a sensor lag
+        profiled (:meth:`start_lag`) unless ``profile_lag`` is False (a start given)."""
         p = self.params.values()
         for c in self.campaigns:
             i1 = self.params.index.get(self.name(c, "K1"))
@@ -406,7 +415,30 @@ class CampaignModel:
         for i, prm in enumerate(self.params):
             if self.roles[i].key == "K1":
                 self.params._p[i] = replace(prm, scale=max(abs(p[i]), 1e-12))
-        return p
+        return self.start_lag(p) if profile_lag else p
+
+    def start_lag(self, p: np.ndarray) -> np.ndarray:
+        """Start of ``sensor_lag`` (when it is a parameter): a sampled first-order lag shows
+        nothing of a tau far below the sample period, its derivative vanishing at 0
+        (:func:`accelcal.physics.instrument.first_order_lag`); the start is the best of 0 and
+        lags whose delays dt a / (1 - a) span 1e-8 to 3 sample periods, by the weighted
+        residual of a linear refit of the instrument coefficients."""
+        i = next((k for k, r in enumerate(self.roles) if r.key == "sensor_lag"), None)
+        if i is None:
+            return p
+        dt = float(np.median(np.concatenate([np.diff(self.runs[j].cols["time_s"])
+                                             for j in (self.params[i].runs or range(len(self.runs)))])))
+        lin = [k for k, r in enumerate(self.roles) if r.kind in ("coef", "bias")]
+        best, p_best = None, p
+        for tau in [0.0] + [dt / math.log1p(1.0 / d) for d in np.geomspace(1e-8, 3.0, 12)]:
+            q = p.copy()
+            q[i] = tau
+            z = self.residual(q)
+            q[lin] += lstsq_svd(self.jacobian(q, lin), z).x
+            c = float(np.sum(self.residual(q) ** 2))
+            if best is None or c < best:
+                best, p_best = c, q
+        return p_best
 
     def select(self, p: np.ndarray, tol: float = ALIAS_TOL, keep: Sequence[str] = ()) -> dict[str, str]:
         """Hold the parameters the design cannot determine (module docstring); returns
