@@ -22,6 +22,16 @@ def _case(name):
     return cells, truth
 
 
+def test_instrument_effect_adds_its_coefficient_where_it_applies():
+    """bias_temperature in a centrifuge campaign's model adds K0T (effects.md: it applies to
+    every test), although no centrifuge test is designed to measure it."""
+    cells, truth = _case("cent-k0t-d0")
+    jf = fit_campaign_model(cells, truth["baseline"] + ["bias_temperature"])
+    assert "K0T" in jf.model.params.index
+    assert jf.fit.value("K0T") == pytest.approx(truth["param"], rel=0.1)
+    assert jf.fit.lof.status == "adequate"
+
+
 def test_sampled_sensor_lag_recovered():
     """The sine-centrifuge lag of the reference simulator is recovered by the joint fit (the
     sampled first-order lag, physics.instrument.first_order_lag; the start is profiled since

@@ -152,8 +152,13 @@ class CampaignModel:
         for c in self.campaigns:
             idx = [j for j, r in enumerate(self.runs) if r.campaign == c]
             tests = {self.runs[j].test for j in idx}
-            wanted = [k for k in instrument.DEFAULTS if any(k in DESIGNED[t] for t in tests)
-                      and (k not in COEFFICIENT_EFFECT or COEFFICIENT_EFFECT[k] in self.effects)]
+            # an instrument-term effect in the model adds its coefficient wherever the effect
+            # applies (bias_temperature to a centrifuge campaign too), not only where a test
+            # is designed to measure it
+            wanted = [k for k in instrument.DEFAULTS
+                      if (k not in COEFFICIENT_EFFECT and any(k in DESIGNED[t] for t in tests))
+                      or (k in COEFFICIENT_EFFECT and COEFFICIENT_EFFECT[k] in self.effects
+                          and any(t in EFFECTS[COEFFICIENT_EFFECT[k]].tests for t in tests))]
             bias_runs = {j for j in idx if self._has_bias(self.runs[j], per_run_bias)}
             for k in wanted:
                 acts = [j for j in idx if not (k == "K0" and j in bias_runs)]
