@@ -124,17 +124,27 @@ class CampaignModel:
         never (False).
     per_run_scale : bool
         K1 per run (a heterogeneity check; not for adopted values).
+    include : sequence of str
+        Instrument coefficients that are catalogue effects (K0T, K1T, Koq, K3, Kip) to include
+        wherever a campaign's tests are designed to determine them (:data:`DESIGNED`), even
+        when their effect is not in ``effects`` (the diagnosis' bare model: the
+        tilt-rotation test measures K0T and K1T).
+    fixed : sequence of str
+        Effects held at their physical size when in ``effects`` (default: ``earth_rate`` at 1);
+        an effect in ``effects`` but not here is a fitted parameter (the diagnosis estimates
+        the earth-rate scale when the baseline omits it).
     """
 
     def __init__(self, runs: Sequence[RunCells], effects: Sequence[str] = (), *,
                  shared: Sequence[str] = (), per_run_bias: bool | None = None,
-                 per_run_scale: bool = False):
+                 per_run_scale: bool = False, include: Sequence[str] = (),
+                 fixed: Sequence[str] = ("earth_rate",)):
         self.runs = list(runs)
         self.effects = [e for e in dict.fromkeys(effects)]
         for e in self.effects:
             if e not in EFFECTS:
                 raise ValueError(f"unknown effect id {e!r} (effects.md ids: {sorted(EFFECTS)})")
-        self.fixed = {"earth_rate": 1.0} if "earth_rate" in self.effects else {}
+        self.fixed = {"earth_rate": 1.0} if "earth_rate" in self.effects and "earth_rate" in fixed else {}
         #: mount angles the design cannot separate (IA radial): label -> runs
         self.unseparable_angles: dict[str, list[int]] = {}
         self.campaigns = list(dict.fromkeys(r.campaign for r in self.runs))
@@ -158,7 +168,8 @@ class CampaignModel:
             wanted = [k for k in instrument.DEFAULTS
                       if (k not in COEFFICIENT_EFFECT and any(k in DESIGNED[t] for t in tests))
                       or (k in COEFFICIENT_EFFECT and COEFFICIENT_EFFECT[k] in self.effects
-                          and any(t in EFFECTS[COEFFICIENT_EFFECT[k]].tests for t in tests))]
+                          and any(t in EFFECTS[COEFFICIENT_EFFECT[k]].tests for t in tests))
+                      or (k in include and any(k in DESIGNED[t] for t in tests))]
             bias_runs = {j for j in idx if self._has_bias(self.runs[j], per_run_bias)}
             for k in wanted:
                 acts = [j for j in idx if not (k == "K0" and j in bias_runs)]
