@@ -37,6 +37,12 @@ from scipy.optimize import minimize
 from ..physics.geometry import CentrifugeMount, geometry_of
 from ..physics.rigs import omega_z
 
+#: a logged head/table angle that moves less than this within one position [deg] is reading
+#: noise: the dwell stays one cell (the model still reads each reading's logged angle, so that
+#: the noise of the log shows in the residual scatter and is counted in the weights)
+ANGLE_TOL_DEG = 0.2
+#: a reading further than this many robust sigmas from its cell's median is a spike
+SPIKE_SIGMAS = 7.0
 #: smallest and largest lag-1 autocorrelation the noise model accepts
 RHO_BOUNDS = (-0.5, 0.95)
 #: |rho| sqrt(pairs) below which the lag-1 autocorrelation is not distinguished from 0
@@ -190,14 +196,15 @@ class RunCells:
 
 # ----------------------------------------------------------------------------- building
 
-def _blocks(keys: Sequence[np.ndarray]) -> np.ndarray:
-    """Consecutive readings with equal keys form one block; the block index of each."""
+def _blocks(keys: Sequence[np.ndarray], tols: Sequence[float] | None = None) -> np.ndarray:
+    """Consecutive readings with equal keys (within ``tols``, default exact) form one block;
+    the block index of each."""
     n = len(keys[0])
     change = np.zeros(n, bool)
-    for k in keys:
+    for k, tol in zip(keys, tols or [0.0] * len(keys)):
         k = np.asarray(k, float)
         kk = np.where(np.isfinite(k), k, -1e300)
-        change[1:] |= kk[1:] != kk[:-1]
+        change[1:] |= (np.abs(kk[1:] - kk[:-1]) > tol) if tol > 0 else (kk[1:] != kk[:-1])
     return np.cumsum(change)
 
 
@@ -249,9 +256,9 @@ def make_run(meta: Mapping, data, index: int = 0, sha256: str = "") -> RunCells:
     if test == "centrifuge":
         cid = _blocks([cols["step"]])
     elif test == "tumble":
-        cid = _blocks([cols["position"], cols["angle_deg"]])
+        cid = _blocks([cols["position"], cols["angle_deg"]], [0.0, ANGLE_TOL_DEG])
     elif test == "tilt_rotation":
-        cid = _blocks([cols["temp_set_c"], cols["rotation_deg"]])
+        cid = _blocks([cols["temp_set_c"], cols["rotation_deg"]], [0.0, ANGLE_TOL_DEG])
     elif test == "sine_centrifuge":
         f = float(meta["rate_frequency_hz"])
         rate, wdot, drive_note = drive_rate(meta, t, cols["table_rate_rad_s"])
@@ -348,6 +355,48 @@ def _labels(run: RunCells, t: np.ndarray) -> dict:
             f = float(meta["rate_frequency_hz"])
             attrs["position"] = run.cell_mean(((t - t[0]) * f % 1.0) * 360.0)
     return attrs
+
+
+def reject_spikes(run: RunCells, k: float = SPIKE_SIGMAS) -> int:
+    """Drop the readings further than ``k`` robust sigmas from their cell's median (rare
+    spikes of a DAQ); returns how many, with a note on the run.
+
+    The robust sigma of a cell is 1.4826 times its median absolute deviation, but at least
+    half the median of the run's cells (a cell of a few equal readings has none) and twice
+    the output's count size when the output is quantised.  Cells of fewer than four readings
+    are left alone."""
+    keep = run.cid >= 0
+    y = run.y_rows
+    k_cells = run.ncell
+    med = np.full(k_cells, np.nan)
+    mad = np.full(k_cells, np.nan)
+    order = np.argsort(run.cid, kind="stable")
+    cid_s = run.cid[order]
+    for c in range(k_cells):
+        a, b = np.searchsorted(cid_s, c), np.searchsorted(cid_s, c, side="right")
+        if b - a >= 4:
+            v = y[order[a:b]]
+            med[c] = np.median(v)
+            mad[c] = 1.4826 * np.median(np.abs(v - med[c]))
+    ok = np.isfinite(mad)
+    if not ok.any():
+        return 0
+    u = np.unique(y[keep])
+    quantum = float(np.min(np.diff(u))) if u.size > 1 else 0.0
+    floor = max(0.5 * float(np.median(mad[ok])), 2.0 * quantum)
+    scale = np.maximum(np.where(ok, mad, np.inf), floor)
+    c = np.where(keep, run.cid, 0)
+    bad = keep & ok[c] & (np.abs(y - med[c]) > k * scale[c])
+    nbad = int(bad.sum())
+    if nbad:
+        run.cid = np.where(bad, -1, run.cid)
+        n = np.bincount(run.cid[run.cid >= 0], minlength=k_cells).astype(float)
+        run.n = n
+        run.y = run.cell_mean(y)
+        run.x = run.cell_mean(run.x_rows)
+        run.notes.append(f"{nbad} reading(s) more than {k:g} robust sigmas from their cell's median dropped "
+                         "as spikes")
+    return nbad
 
 
 def drop_duplicate_cells(runs: Sequence[RunCells]) -> list[str]:
