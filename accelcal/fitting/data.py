@@ -32,7 +32,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.optimize import minimize
+from scipy.optimize import minimize_scalar
 
 from ..physics.geometry import CentrifugeMount, geometry_of
 from ..physics.rigs import omega_z
@@ -473,29 +473,34 @@ def fit_noise(run: RunCells, residual_rows: np.ndarray | None = None, *, use_lev
 
 
 def _fit_variance_function(S: np.ndarray, nu: np.ndarray, X: np.ndarray, use_level: bool) -> NoiseModel:
-    """a + b x^2 by the Gamma likelihood of cell variances S with nu dof each."""
+    """a + b x^2 by the Gamma likelihood of cell variances S with nu dof each.
+
+    Written v = c ((1 - t) + t u), u = (x / max|x|)^2, t in [0, 1]: for each t the scale c
+    has a closed form, c = sum(nu S / w) / sum(nu), so the likelihood is profiled on t alone
+    (a grid, then Brent's method on the best bracket): the same maximum as a 2-D search,
+    some 50 times faster (the diagnosis refits noise models many times)."""
     pooled = float(np.sum(nu * S) / np.sum(nu))
     if not use_level or S.size < 3:
         return NoiseModel(a=max(pooled, 1e-300))
-    base = max(pooled, 1e-300)
     sx = max(float(np.max(np.abs(X))), 1e-30)
+    u = (np.asarray(X, float) / sx) ** 2
+    sn = float(np.sum(nu))
 
-    def var(q):
-        a, b = np.exp(np.clip(q, -50, 50))
-        return base * (a + b * (X / sx) ** 2)
+    def profile(t: float) -> tuple[float, float]:
+        w = np.maximum((1.0 - t) + t * u, 1e-300)
+        c = max(float(np.sum(nu * S / w)) / sn, 1e-300)
+        return sn * math.log(c) + float(np.sum(nu * np.log(w))), c
 
-    def nll(q):
-        v = var(q)
-        return float(np.sum(nu * (S / v + np.log(v))))
-
-    best = None
-    for q0 in ([0.0, -12.0], [-3.0, 0.0], [-12.0, 0.0], [-1.0, -1.0]):
-        r = minimize(nll, np.array(q0), method="Nelder-Mead",
-                     options={"xatol": 1e-4, "fatol": 1e-6, "maxiter": 400})
-        if best is None or r.fun < best.fun:
-            best = r
-    a, b = np.exp(np.clip(best.x, -50, 50))
-    return NoiseModel(a=float(base * a), b=float(base * b / sx ** 2))
+    ts = np.concatenate([[0.0], np.geomspace(1e-9, 1.0, 46)[:-1], [1.0 - 1e-12]])
+    vals = [profile(t)[0] for t in ts]
+    k = int(np.argmin(vals))
+    t = float(ts[k])
+    lo, hi = float(ts[max(k - 1, 0)]), float(ts[min(k + 1, ts.size - 1)])
+    r = minimize_scalar(lambda q: profile(q)[0], bounds=(lo, hi), method="bounded", options={"xatol": 1e-12})
+    if r.fun < vals[k]:
+        t = float(r.x)
+    c = profile(t)[1]
+    return NoiseModel(a=float(c * (1.0 - t)), b=float(c * t / sx ** 2))
 
 
 def pool_missing_noise(runs: Sequence[RunCells]) -> None:
