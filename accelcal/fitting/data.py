@@ -234,7 +234,7 @@ def fitted_drive(t: np.ndarray, logged: np.ndarray, f: float, harmonics: int = 3
     return X @ b, D @ b
 
 
-def make_run(meta: Mapping, data, index: int = 0, sha256: str = "") -> RunCells:
+def make_run(meta: Mapping, data, index: int = 0, sha256: str = "", sine_segments: int = 1) -> RunCells:
     """Cells, levels and labels of one run (typed meta and its columns).
 
     Parameters
@@ -243,6 +243,11 @@ def make_run(meta: Mapping, data, index: int = 0, sha256: str = "") -> RunCells:
         Typed metadata of the drop format.
     data : DataFrame or mapping of arrays
         The run's columns (drop format), optionally with ``line`` (file line numbers).
+    sine_segments : int
+        A sine run's cells are the phases of the drive within each of this many equal
+        stretches of time (default 1: across the whole run).  With one, whatever changes
+        slowly in time (a bias drift) lands inside the cells, in the noise; the diagnosis
+        uses several, keeping at least five periods per cell.
     """
     meta = dict(meta)
     test = str(meta["test"])
@@ -268,6 +273,10 @@ def make_run(meta: Mapping, data, index: int = 0, sha256: str = "") -> RunCells:
         dt = float(np.median(np.diff(t))) if nrow > 1 else 1.0
         nb = max(int(round(1.0 / (f * dt))), 1)
         cid = np.floor(((t - t[0]) * f % 1.0) * nb + 0.5).astype(int) % nb
+        periods = float(np.ptp(t)) * f if nrow > 1 else 0.0
+        seg = int(max(1, min(sine_segments, periods // 5)))
+        if seg > 1:
+            cid = cid + nb * np.minimum(((t - t[0]) / (np.ptp(t) + dt) * seg).astype(int), seg - 1)
     else:
         raise ValueError(f"unknown test kind {test!r}")
     _, cid = np.unique(cid, return_inverse=True)
