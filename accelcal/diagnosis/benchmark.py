@@ -305,6 +305,9 @@ def summarise(sim: list[dict], dev: list[dict], elapsed: float, commit: str = ""
     def frac(xs):
         return float(np.mean(xs)) if xs else None
 
+    def count(xs):
+        return f"{sum(bool(x) for x in xs)} of {len(xs)}"
+
     s = {"commit": commit,
          "observable_cases": len(obs),
          "top1_alias_aware": frac([c["top1"] for c in obs]),
@@ -313,9 +316,9 @@ def summarise(sim: list[dict], dev: list[dict], elapsed: float, commit: str = ""
          "median_rel_error": float(np.median(rel)) if rel else None,
          "heldout_shrink_ge_0.5": frac([x >= 0.5 for x in sh]),
          "median_heldout_shrink": float(np.median(sh)) if sh else None,
-         "unobservable_cases": len(uno), "unobservable_reported": frac([c["right"] for c in uno]),
-         "two_effect_cases": len(two), "two_effect_right": frac([c["right"] for c in two]),
-         "unknown_cases": len(unk), "unknown_explained_false": frac([c["right"] for c in unk]),
+         "unobservable_cases": len(uno), "unobservable_reported": count([c["right"] for c in uno]),
+         "two_effect_cases": len(two), "two_effect_right": count([c["right"] for c in two]),
+         "unknown_cases": len(unk), "unknown_explained_false": count([c["right"] for c in unk]),
          "clean_cases": len(clean), "false_alarms": fa, "false_alarm_rate": fa / len(clean) if clean else None,
          "false_alarm_wilson95": [lo, hi],
          "clean_said_gap_remains": frac([c["explained"] is False for c in clean]),
@@ -345,10 +348,9 @@ def markdown(s: dict) -> str:
          f"| median relative estimate error | {f(s['median_rel_error'])} |",
          f"| held-out shrink >= 0.5 (of the top-1 hits) | {f(s['heldout_shrink_ge_0.5'])} |",
          f"| median held-out shrink | {f(s['median_heldout_shrink'])} |",
-         f"| effects the design cannot see, reported not observable, no verdict | "
-         f"{f(s['unobservable_reported'])} of {s['unobservable_cases']} |",
-         f"| two effects at once, both found | {f(s['two_effect_right'])} of {s['two_effect_cases']} |",
-         f"| gaps outside the catalogue said unexplained | {f(s['unknown_explained_false'])} of {s['unknown_cases']} |",
+         f"| effects the design cannot see, reported not observable, no verdict | {s['unobservable_reported']} |",
+         f"| two effects at once, both found | {s['two_effect_right']} |",
+         f"| gaps outside the catalogue said unexplained | {s['unknown_explained_false']} |",
          f"| clean campaigns | {s['clean_cases']} |",
          f"| false alarms (a verdict on clean data) | {s['false_alarms']} = {f(s['false_alarm_rate'])}, Wilson 95 % "
          f"[{s['false_alarm_wilson95'][0]:.3f}, {s['false_alarm_wilson95'][1]:.3f}] (alpha = 0.05) |",

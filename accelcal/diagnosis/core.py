@@ -38,8 +38,9 @@ import numpy as np
 from scipy import stats
 
 from ..effects import EFFECTS
-from ..estimators.joint import prepare, processing_effects
-from ..fitting.data import RunCells, fit_noise, pool_missing_noise, reject_spikes
+from ..estimators.joint import processing_effects
+from ..fitting.data import (RunCells, drop_duplicate_cells, fit_noise, make_run, pool_missing_noise,
+                            reject_spikes)
 from ..fitting.model import EFFECT_PLAUSIBLE
 from ..physics.rigs import INSTRUMENT_EFFECTS
 from ._blas import single_thread
@@ -53,6 +54,9 @@ ALIAS_COS = 0.95
 UNOBSERVABLE_FRACTION = 1e-3
 #: smallest held-out shrink of a verdict
 HELDOUT_GATE = 0.5
+#: a sine run's cells: the drive's phases in this many stretches of time (a slow change in
+#: time, a bias drift, then shows between cells instead of inside them)
+SINE_SEGMENTS = 4
 
 
 def resolve_baseline(baseline, tests: Sequence[str]) -> tuple[list[str], str]:
@@ -74,18 +78,21 @@ def candidates_for(tests: Sequence[str], baseline: Sequence[str]) -> list[str]:
 
 
 def prepare_cells(runs) -> tuple[list[RunCells], list[str]]:
-    """RunFile-like objects (meta, data) -> cells (:func:`accelcal.estimators.joint.prepare`)
-    with rare spikes dropped before the noise model is fitted
+    """RunFile-like objects (meta, data) -> cells as :func:`accelcal.estimators.joint.prepare`
+    makes them, but with sine cells per stretch of time (:data:`SINE_SEGMENTS`) and rare
+    spikes dropped before the noise model is fitted
     (:func:`accelcal.fitting.data.reject_spikes`); RunCells pass through."""
     runs = list(runs)
     if runs and all(isinstance(r, RunCells) for r in runs):
         return runs, []
-    cells, notes = prepare(runs)
-    if sum(reject_spikes(c) for c in cells):
-        for c in cells:
-            fit_noise(c)
-        pool_missing_noise(cells)
-        notes += [n for c in cells for n in c.notes if "spikes" in n]
+    cells = [make_run(r.meta, r.data, j, getattr(r, "sha256", ""), sine_segments=SINE_SEGMENTS)
+             for j, r in enumerate(runs)]
+    notes = drop_duplicate_cells(cells)
+    for c in cells:
+        if reject_spikes(c):
+            notes += [n for n in c.notes if "spikes" in n]
+        fit_noise(c)
+    pool_missing_noise(cells)
     return cells, notes
 
 
