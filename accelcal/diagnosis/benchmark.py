@@ -170,8 +170,9 @@ def score_case(res: dict, truth: str | None, param: float | None, also: dict | N
 
 
 # ----------------------------------------------------------------------------- section 1
-def simulated_cases(quick: bool, seeds: int, n_clean: int, rng: np.random.Generator):
-    """Yield (label, kind, scenario dict, seed, baseline, truth, param, also, unknown, category)."""
+def simulated_cases(quick: bool, seeds: int, n_clean: int, rng_seed: int = 20261110, only: str = "*"):
+    """Yield (label, kind, scenario dict, seed, baseline, truth, param, also, unknown, category);
+    a family whose label does not match ``only`` is skipped before its sizes are calibrated."""
     case = 0
     base_sets = {"processing": processing_effects, "dev": lambda ks: DEV_BASELINE[ks[0]]}
     for kind in KINDS:
@@ -184,6 +185,9 @@ def simulated_cases(quick: bool, seeds: int, n_clean: int, rng: np.random.Genera
                 if quick and e not in ("odd_quadratic", "initial_misalignment", "base_tilt_drift", "sensor_lag"):
                     continue
                 base = [b for b in base_all if b != e]
+                if not fnmatch.fnmatch(f"{kind}/{e}/{bname}", only):
+                    case += seeds
+                    continue
                 per, frac = snr_scale(kind, e, base, 999)
                 for s in range(seeds):
                     case += 1
@@ -192,8 +196,9 @@ def simulated_cases(quick: bool, seeds: int, n_clean: int, rng: np.random.Genera
                     elif per is None:
                         val, cat = 10 * _typical(e), "unobservable"
                     else:
-                        k = math.exp(rng.uniform(*np.log(SNR_RANGE)))
-                        val = _lag_for(per, k) if e == "sensor_lag" else float(k * per * rng.choice([-1, 1]))
+                        r = np.random.default_rng([rng_seed, case])     # a case's size: its own stream
+                        k = math.exp(r.uniform(*np.log(SNR_RANGE)))
+                        val = _lag_for(per, k) if e == "sensor_lag" else float(k * per * r.choice([-1, 1]))
                         cat = "observable"
                     yield (f"{kind}/{e}/{bname}", kind, scenario(kind, {e: val}), 1000 + case, base, e, val,
                            None, False, cat)
@@ -237,9 +242,9 @@ def _lag_for(per: float, k: float, dt: float = 0.02) -> float:
 
 
 def run_section1(quick: bool = False, seeds: int = 2, n_clean: int = 200, log=print, only: str = "*") -> list[dict]:
-    rng = np.random.default_rng(20261110)
     out = []
-    for label, kind, sc, seed, base, truth, param, also, unknown, cat in simulated_cases(quick, seeds, n_clean, rng):
+    for label, kind, sc, seed, base, truth, param, also, unknown, cat in simulated_cases(quick, seeds, n_clean,
+                                                                                          only=only):
         if not fnmatch.fnmatch(label, only):
             continue
         res = diagnose(runs_of(sc, seed), base)

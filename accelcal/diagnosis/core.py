@@ -42,7 +42,7 @@ from ..estimators.joint import processing_effects
 from ..fitting.data import (RunCells, drop_duplicate_cells, fit_noise, make_run, pool_missing_noise,
                             reject_spikes)
 from ..fitting.model import EFFECT_PLAUSIBLE
-from ..physics.rigs import INSTRUMENT_EFFECTS
+from ..physics.rigs import INSTRUMENT_EFFECTS, specific_force
 from ._blas import single_thread
 from .fits import (GAP_ALPHA, NON_CATALOGUE, Fit, Fitter, folds, gap_rms, gap_test, heldout_gap, lr_test,
                    project_out, shrink)
@@ -91,9 +91,33 @@ def prepare_cells(runs) -> tuple[list[RunCells], list[str]]:
     for c in cells:
         if reject_spikes(c):
             notes += [n for n in c.notes if "spikes" in n]
-        fit_noise(c)
+        angle_level(c)
+        fit_noise(c, use_level=noise_grows(c))
     pool_missing_noise(cells)
     return cells, notes
+
+
+def angle_level(run: RunCells) -> None:
+    """On a gravity test the noise level variable x of the noise model (a + b x^2) becomes the
+    sensitivity of the IA input to the logged angle, |d a_i / d theta| [m/s^2 per rad]: the
+    reading noise of a logged head or table angle enters the residuals as much as the input
+    moves with the angle (none at IA up or down, most at IA horizontal), as the logged rate's
+    noise grows with the centripetal level on a centrifuge."""
+    col = {"tumble": "angle_deg", "tilt_rotation": "rotation_deg"}.get(run.test)
+    if col is None:
+        return
+    h = 1e-3
+    up, dn = dict(run.cols), dict(run.cols)
+    up[col] = run.cols[col] + h
+    dn[col] = run.cols[col] - h
+    da = (specific_force(run.test, run.meta, up)[:, 0] - specific_force(run.test, run.meta, dn)[:, 0])
+    run.x_rows = np.abs(da) / (2 * math.radians(h))
+    run.x = run.cell_mean(run.x_rows)
+
+
+def noise_grows(run: RunCells) -> bool:
+    """Whether the run's noise model has its level term (the level varies between cells)."""
+    return bool(run.x.size and np.ptp(run.x) > 0)
 
 
 def diagnose(runs, baseline=None, alpha: float = 0.05, *, max_effects: int = 8, refit_top: int = 3) -> dict:

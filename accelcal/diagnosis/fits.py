@@ -199,7 +199,7 @@ class Fitter:
         gn = gauss_newton(m.residual, m.jacobian, p, free, max_iter=max_iter)
         for _ in range(noise_passes):
             for j, r in enumerate(m.runs):
-                fit_noise(r, r.y_rows - m.predict_rows(gn.p, j))
+                fit_noise(r, r.y_rows - m.predict_rows(gn.p, j), use_level=bool(r.x.size and np.ptp(r.x) > 0))
             pool_missing_noise(m.runs)
             m.refresh_noise()
             gn = gauss_newton(m.residual, m.jacobian, gn.p, free, max_iter=max_iter)
