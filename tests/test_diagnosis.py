@@ -147,3 +147,51 @@ def test_cli_json(tmp_path, capsys):
     out = json.loads(capsys.readouterr().out)
     assert out["verdict"] == "bias_drift"
     assert np.isclose(_entry(out, "bias_drift")["estimate"], t["param"], rtol=0.25)
+
+
+# ----------------------------------------------------------------- our simulator, realistic DAQ noise
+def _sim(kind, effects, disturbance=None, seed=11):
+    from accelcal.diagnosis.benchmark import runs_of, scenario
+    return runs_of(scenario(kind, effects, disturbance), seed)
+
+
+def test_realistic_noise_clean_tumble_and_withheld_k1t():
+    """What real DAQs add (logged-angle noise, counts, spikes, bias walk) gives no verdict on
+    clean data; a withheld K1T is found with the scenario's size."""
+    from accelcal.diagnosis.benchmark import DEV_BASELINE
+    res = diagnose(_sim("tumble", {}), DEV_BASELINE["tumble"])
+    assert res["verdict"] is None and res["explained"] is True
+    res = diagnose(_sim("tumble", {"scale_temperature": 1e-4}), DEV_BASELINE["tumble"])
+    assert res["verdict"] == "scale_temperature"
+    assert _entry(res, "scale_temperature")["estimate"] == pytest.approx(1e-4, rel=0.1)
+
+
+@pytest.mark.parametrize("kind,dist", [
+    ("tumble", {"bias_periodic_m_s2": 5e-6, "bias_periodic_period_s": 150.0}),
+    ("tilt_rotation", {"bias_temp_quadratic_m_s2_c2": 4e-9}),
+])
+def test_gap_outside_the_catalogue_is_said_unexplained(kind, dist):
+    from accelcal.estimators.joint import processing_effects
+    res = diagnose(_sim(kind, {}, dist), processing_effects([kind]))
+    assert res["explained"] is False
+    assert res["gap"]["significant_after"]["significant"] is True
+    assert res["unexplained"]["where"]
+    if "bias_periodic_period_s" in dist:
+        assert res["unexplained"]["shape"][0]["form"].startswith("periodic in time")
+
+
+def test_wilson_interval():
+    from accelcal.diagnosis.benchmark import wilson
+    lo, hi = wilson(0, 200)
+    assert lo == pytest.approx(0.0, abs=1e-12) and hi == pytest.approx(0.01885, abs=1e-4)  # (z^2/n)/(1+z^2/n)
+    lo, hi = wilson(10, 200)
+    assert lo == pytest.approx(0.02738, abs=1e-4) and hi == pytest.approx(0.08958, abs=1e-4)
+
+
+def test_readme_section_replaced_between_markers(tmp_path):
+    from accelcal.diagnosis.benchmark import README_END, README_START, write_readme
+    p = tmp_path / "README.md"
+    p.write_text(f"intro\n{README_START}\nold\n{README_END}\ntail\n")
+    write_readme(p, "new table")
+    t = p.read_text()
+    assert "old" not in t and "new table" in t and t.startswith("intro") and t.rstrip().endswith("tail")
