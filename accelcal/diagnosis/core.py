@@ -54,6 +54,10 @@ ALIAS_COS = 0.95
 UNOBSERVABLE_FRACTION = 1e-3
 #: smallest held-out shrink of a verdict
 HELDOUT_GATE = 0.5
+#: drop-one statistic (delta chi2 per parameter, divided by chi2/dof when that exceeds 1) of
+#: an effect the verdict may name when several are found: a five-sigma part of the
+#: chi-square; if none has it, the largest is named
+VERDICT_STATISTIC = 25.0
 #: a sine run's cells: the drive's phases in this many stretches of time (a slow change in
 #: time, a bias drift, then shows between cells instead of inside them)
 SINE_SEGMENTS = 4
@@ -317,7 +321,8 @@ class _Diagnosis:
             if len(many) > 1 else {}
         return {"effect": c, "estimate": est, "std_uncertainty": u, "unit": EFFECTS[c].unit, **extra,
                 "z": (est / u) if (est is not None and u) else None, "delta_chi2": lr["delta_chi2"],
-                "p_value": lr["p_value"], "significant": bool(selected and lr["significant"]),
+                "p_value": lr["p_value"], "statistic": lr["statistic"],
+                "significant": bool(selected and lr["significant"]),
                 "selected": selected,
                 "shrink_in_sample": shrink(gap_rms(without), gap_rms(final)),
                 "shrink_heldout": shrink(self.ho(without), self.ho(final)),
@@ -372,8 +377,11 @@ class _Diagnosis:
         # verdict: a selected effect that passes significance and the held-out gate
         ok = [e for e in ranking if e["selected"] and e["significant"]
               and (e["shrink_heldout"] or -math.inf) >= HELDOUT_GATE]
-        # of several, the one the processing model carries first (all are listed significant)
-        verdict = min(ok, key=lambda e: self.precedence(e["effect"]))["effect"] if ok else None
+        # of several, the one the processing model carries first among those that carry a
+        # five-sigma part of the chi-square on their own (all are listed significant)
+        strong = ([e for e in ok if (e.get("statistic") or 0.0) >= VERDICT_STATISTIC]
+                  or sorted(ok, key=lambda e: -e["delta_chi2"])[:1])
+        verdict = min(strong, key=lambda e: self.precedence(e["effect"]))["effect"] if strong else None
         sel_rank = sorted([e for e in ranking if e["selected"]], key=lambda e: -(e["delta_chi2"] or 0))
         ranking = sel_rank + [e for e in ranking if not e["selected"]]
         if verdict:

@@ -22,7 +22,7 @@ from ..estimators.joint import _pure_error
 from ..fitting.core import (LackOfFit, ParameterSet, gauss_newton, lack_of_fit, lstsq_svd,
                             separable_columns)
 from ..fitting.data import RunCells, fit_noise, pool_missing_noise
-from ..fitting.model import ALIAS_TOL, EFFECT_PLAUSIBLE, EFFECT_SCALE, PRIORITY, CampaignModel
+from ..fitting.model import ALIAS_TOL, EFFECT_SCALE, PRIORITY, CampaignModel
 
 #: Instrument coefficients that are not catalogue effects.  A candidate effect they would
 #: absorb claims its direction first: the bare model holds them and the diagnosis names
@@ -350,7 +350,8 @@ def heldout_gap(f: Fit, fold: np.ndarray, tol: float = 1e-6) -> float | None:
 def lr_test(before: Fit, after: Fit, m: int, alpha: float) -> dict:
     """Likelihood ratio of a nested model with q more parameters, the chi-square scaled by
     the larger model's chi2/dof when that exceeds 1 (F test against the residual that the gap
-    leaves), Bonferroni over m candidates.  Untestable without degrees of freedom."""
+    leaves), Bonferroni over m candidates.  Untestable without degrees of freedom.
+    ``statistic`` is delta chi2 / q, divided by that chi2/dof when it exceeds 1."""
     q = max(after.rank - before.rank, 1)
     dchi = float(before.chi2 - after.chi2)
     if after.dof <= 0:
@@ -361,7 +362,7 @@ def lr_test(before: Fit, after: Fit, m: int, alpha: float) -> dict:
         F = dchi / q / s2
         p = float(stats.f.sf(F, q, after.dof))
     else:
-        F = dchi
+        F = dchi / q
         p = float(stats.chi2.sf(dchi, q))
     return {"delta_chi2": dchi, "scale": s2, "statistic": float(F), "p_value": p, "threshold_p": alpha / m,
             "significant": bool(dchi > 0 and p < alpha / m)}
@@ -380,7 +381,3 @@ def gap_test(f: Fit) -> dict:
             "alpha": GAP_ALPHA,
             "test": "lack of fit of the cell means against the pure error (F)" if lof.dof_pe else
                     "chi-square of the cell means against the noise model"}
-
-
-def plausible_limit(effect: str) -> float:
-    return EFFECT_PLAUSIBLE[effect]

@@ -19,8 +19,8 @@ def text_report(res: dict) -> str:
     g = res["gap"]
     L.append(f"baseline: {res['baseline']['label']} ({', '.join(res['baseline']['effects']) or 'bare model'})")
     sb, sa = g["significant_before"], g["significant_after"]
-    L.append(f"gap before: {sb['status']}" + (f" (F = {sb['F']:.4g}, p = {sb['p_value']:.3g})" if sb["p_value"] is not None
-                                                else ""))
+    L.append(f"gap before: {sb['status']}"
+             + (f" (F = {sb['F']:.4g}, p = {sb['p_value']:.3g})" if sb["p_value"] is not None else ""))
     L.append(f"gap (whitened rms, noise = {_f(g['noise_rms'], '{:.3f}')}): before {g['rms_before']:.4g}, after "
              f"{g['rms_after']:.4g}; in SI {g['si']['rms_before_m_s2']:.3g} -> {g['si']['rms_after_m_s2']:.3g} m/s2"
              f" (noise {g['si']['noise_rms_m_s2']:.3g})")
