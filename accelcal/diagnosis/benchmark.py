@@ -72,8 +72,8 @@ def design(kind: str) -> dict:
                 "g_levels": [1, 2, 3, 5, 7, 10, 14, 18, 21, 25], "temp_c": 26.0, "temp_start_c": 23.0,
                 "temp_tau_s": 900.0}
     if kind == "tumble":
-        return {"kind": "tumble", "rig_id": "DH-1", "positions": 24, "readings": 10, "temp_c": 26.0,
-                "temp_start_c": 22.0, "temp_tau_s": 300.0}
+        return {"kind": "tumble", "rig_id": "DH-1", "positions": 24, "readings": 10, "temp_c": 24.0,
+                "temp_start_c": 22.5, "temp_tau_s": 400.0, "temp_cycle_c": 1.0, "temp_cycle_period_s": 700.0}
     if kind == "tilt_rotation":
         return {"kind": "tilt_rotation", "rig_id": "TT-1", "tilt_deg": 0.45, "positions": 12, "readings": 10,
                 "sweeps": 2, "soak_s": 1800, "temp_set_c": [20, 25, 30, 35, 40]}

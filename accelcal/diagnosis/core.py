@@ -18,7 +18,8 @@ Method (docs/diagnosis.md says it for a lab engineer):
    small an effect they could detect.
 4. *Forward selection.*  The best candidates by score are refitted (nonlinear, all
    parameters); the likelihood ratio, scaled by chi2/dof of the larger model when that
-   exceeds 1, is tested at alpha / m (Bonferroni over the m candidates), and an effect is
+   exceeds 1, is tested at alpha / (m k) (Bonferroni over the m candidates of step k and the
+   steps), and an effect is
    taken only if it also shrinks the gap on held-out cells (alternate cells of each run
    predicted by a fit to the others).
 5. *Verdict.*  The selected effect that carries most of the chi-square and whose held-out
@@ -261,7 +262,8 @@ class _Diagnosis:
             rows, best = [], None
             for c in top:
                 t = self.trial(cur, c, sc[c][1])
-                lr = lr_test(cur, t, len(rem), self.alpha)
+                # Bonferroni over every test the selection has made: m candidates at step k
+                lr = lr_test(cur, t, len(rem) * (len(sel) + 1), self.alpha)
                 sh = shrink(self.ho(cur), self.ho(t))
                 rows.append({"effect": c, "score": sc[c][0], **{k: lr[k] for k in ("delta_chi2", "p_value",
                                                                                      "threshold_p", "significant")},

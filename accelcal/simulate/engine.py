@@ -193,14 +193,20 @@ def _tumble_run(sc, t, head, meta, effects, noise, rng):
 
 
 def _case_temperature(t: dict, time: np.ndarray) -> np.ndarray:
-    """Case temperature of a tumble or centrifuge run: ``temp_c``, or, with ``temp_tau_s``,
-    an exponential approach to it from ``temp_start_c`` (a unit warming up on the rig)."""
-    T = float(t.get("temp_c", 23.0))
+    """Case temperature of a tumble or centrifuge run: ``temp_c``; with ``temp_tau_s`` an
+    exponential approach to it from ``temp_start_c`` (a unit warming up on the rig); with
+    ``temp_cycle_c`` a sinusoidal swing of that amplitude and ``temp_cycle_period_s`` (the
+    room's air conditioning)."""
+    time = np.asarray(time, float)
+    T = np.full(time.shape, float(t.get("temp_c", 23.0)))
+    t0 = float(np.min(time)) if time.size else 0.0
     tau = float(t.get("temp_tau_s", 0.0))
-    if tau <= 0:
-        return np.full(np.shape(time), T)
-    T0 = float(t.get("temp_start_c", T))
-    return T + (T0 - T) * np.exp(-(np.asarray(time, float) - float(np.min(time))) / tau)
+    if tau > 0:
+        T = T + (float(t.get("temp_start_c", T[0] if T.size else 0.0)) - T) * np.exp(-(time - t0) / tau)
+    amp, period = float(t.get("temp_cycle_c", 0.0)), float(t.get("temp_cycle_period_s", 0.0))
+    if amp and period > 0:
+        T = T + amp * np.sin(2 * np.pi * (time - t0) / period)
+    return T
 
 
 def _frame_phys(cols: dict) -> pd.DataFrame:

@@ -72,7 +72,8 @@ Per kind (defaults in brackets):
 ``positions`` [24] equally spaced head angles; ``readings`` [10] per position;
 ``sample_period_s`` [1]; ``dwell_period_s`` [40] from one position to the next;
 ``temp_c`` [23] case temperature (plus temp noise); with ``temp_tau_s`` [0] the temperature
-approaches ``temp_c`` exponentially from ``temp_start_c`` (also for ``centrifuge``).
+approaches ``temp_c`` exponentially from ``temp_start_c``, with ``temp_cycle_c`` [0] it swings
+by that amplitude with ``temp_cycle_period_s`` (also for ``centrifuge``).
 
 ``centrifuge``: ``arm_radius_m`` (nominal, written to the file; the true turning centre is
 the same unless ``arm_stretch``), ``rotation_sense`` [ccw], ``mounts`` = list of
