@@ -22,8 +22,9 @@ Method (docs/diagnosis.md says it for a lab engineer):
    steps), and an effect is
    taken only if it also shrinks the gap on held-out cells (alternate cells of each run
    predicted by a fit to the others).
-5. *Verdict.*  The selected effect that carries most of the chi-square and whose held-out
-   shrink is at least 0.5; null when none passes both gates.  ``explained`` is the lack-of-fit
+5. *Verdict.*  A selected effect whose held-out shrink is at least 0.5 (of several, the
+   processing model's first among those with a five-sigma part of their own); null when
+   none passes both gates.  ``explained`` is the lack-of-fit
    test of the final model against the pure error: false when a significant gap remains,
    null when the runs leave no degrees of freedom to test it.
 6. *Where and what shape* the gap has (before, and what remains after): segments of the
@@ -55,6 +56,9 @@ ALIAS_COS = 0.95
 UNOBSERVABLE_FRACTION = 1e-3
 #: smallest held-out shrink of a verdict
 HELDOUT_GATE = 0.5
+#: lack-of-fit level at which the bare model shows a gap worth naming an effect for (below
+#: it, only an effect of five sigma on its own is named)
+GAP_SEEN = 0.05
 #: drop-one statistic (delta chi2 per parameter, divided by chi2/dof when that exceeds 1) of
 #: an effect the verdict may name when several are found: a five-sigma part of the
 #: chi-square; if none has it, the largest is named
@@ -377,8 +381,12 @@ class _Diagnosis:
                                 | ({"absorbed_by": o["absorbed_by"]} if "absorbed_by" in o else {}))
         self.aliases(ranking, obs)
         # verdict: a selected effect that passes significance and the held-out gate
+        # a gap worth naming: the bare model's lack of fit at 5 %, or a five-sigma effect of
+        # its own (a two-sigma effect in a model that fits is not a diagnosis)
+        gap = bare.lof.p_value is not None and bare.lof.p_value < GAP_SEEN
         ok = [e for e in ranking if e["selected"] and e["significant"]
-              and (e["shrink_heldout"] or -math.inf) >= HELDOUT_GATE]
+              and (e["shrink_heldout"] or -math.inf) >= HELDOUT_GATE
+              and (gap or (e.get("statistic") or 0.0) >= VERDICT_STATISTIC)]
         # of several, the one the processing model carries first among those that carry a
         # five-sigma part of the chi-square on their own (all are listed significant)
         strong = ([e for e in ok if (e.get("statistic") or 0.0) >= VERDICT_STATISTIC]
@@ -507,7 +515,8 @@ class _Diagnosis:
         if after["significant"]:
             return ("a significant gap remains unexplained" + (f" after {', '.join(sel)}" if sel else "")
                     + ("" if verdict else ": no catalogue effect passes the significance and held-out gates"))
-        return f"{', '.join(sel)} significant, but no effect shrinks the held-out gap by {HELDOUT_GATE:g}"
+        return (f"{', '.join(sel)} significant, but none is named: no held-out shrink of {HELDOUT_GATE:g}, or a "
+                "gap too small to name an effect for (the bare model fits at 5 % and no effect has five sigma)")
 
 
 def _noise_si(f: Fit) -> float:
