@@ -294,8 +294,34 @@ def run_section2(root: Path | None = None, log=print, only: str = "*") -> list[d
     return out
 
 
+# ----------------------------------------------------------------------------- section 3
+def run_section3(log=print) -> list[dict]:
+    """The real hand-held IMU session (../shared/real/imucal-ferraris): per campaign with
+    baseline initial_misalignment, and one run alone."""
+    from .cli import read_paths
+    root = dev_root()
+    real = root.parent / "real" / "imucal-ferraris" if root is not None else None
+    if real is None or not real.is_dir():
+        return []
+    out = []
+    cases = [(f"{c} channel, both runs", sorted(real.glob(f"IMUCAL-EXAMPLE-{c}-HEAD*.csv"))) for c in "XYZ"]
+    cases.append(("X channel, head PA run alone", [real / "IMUCAL-EXAMPLE-X-HEADPA.csv"]))
+    for label, files in cases:
+        res = diagnose(read_paths(files), ["initial_misalignment"])
+        w = max(res["where"], key=lambda x: x["share"] if x["dimension"] == "ia_input" else -1, default=None)
+        top = next((r for r in res["ranking"] if r["effect"] == res["verdict"]), {})
+        sb = res["gap"]["significant_before"]
+        out.append({"case": label, "status": res["status"], "explained": res["explained"],
+                    "verdict": res["verdict"], "shrink_heldout": top.get("shrink_heldout"),
+                    "F_before": sb.get("F"), "gap_rms_sigma": res["gap"]["gap_rms_before"],
+                    "where": (f"{w['segment']} ({100 * w['share']:.0f} %)" if w and w["dimension"] == "ia_input"
+                              else None), "seconds": res["elapsed_s"]})
+        log(f"real {label}: {res['status']}")
+    return out
+
+
 # ----------------------------------------------------------------------------- summary
-def summarise(sim: list[dict], dev: list[dict], elapsed: float, commit: str = "") -> dict:
+def summarise(sim: list[dict], dev: list[dict], elapsed: float, commit: str = "", real: list | None = None) -> dict:
     obs = [c for c in sim if c["category"] == "observable"]
     uno = [c for c in sim if c["category"] == "unobservable"]
     two = [c for c in sim if c["category"] == "two"]
@@ -330,7 +356,7 @@ def summarise(sim: list[dict], dev: list[dict], elapsed: float, commit: str = ""
          "dev_cases": len(dev), "dev_right": sum(c["right"] for c in dev),
          "median_seconds_per_diagnosis": float(np.median(secs)) if secs else None,
          "p90_seconds_per_diagnosis": float(np.percentile(secs, 90)) if secs else None,
-         "elapsed_s": elapsed, "simulated": sim, "dev": dev}
+         "elapsed_s": elapsed, "simulated": sim, "dev": dev, "real": real or []}
     s["markdown"] = markdown(s)
     return s
 
@@ -379,6 +405,15 @@ def markdown(s: dict) -> str:
     for c in s["dev"]:
         if not c["right"]:
             L.append(f"- MISS {c['case']}: {c['why']}")
+    if s.get("real"):
+        L += ["", "**Section 3: real data**, the hand-held IMU session of `../shared/real/imucal-ferraris` (baseline "
+                  "initial_misalignment; the gap is hand placement, in no catalogue):", "",
+              "| runs | status | explained | gap before (F, rms in sigma) | where (IA input) | verdict |",
+              "|---|---|---|---|---|---|"]
+        for c in s["real"]:
+            L.append(f"| {c['case']} | {c['status']} | {c['explained']} | "
+                     f"{f(c['F_before'], '{:.4g}')}, {f(c['gap_rms_sigma'], '{:.3g}')} | {c['where'] or '-'} | "
+                     f"{c['verdict'] or '-'} |")
     return "\n".join(L)
 
 
@@ -388,7 +423,8 @@ def run_benchmark(quick: bool = False, seeds: int = 2, n_clean: int = 200, dev: 
     with single_thread():
         sim = run_section1(quick, 1 if quick else seeds, min(n_clean, 8) if quick else n_clean, log, only)
         devr = run_section2(log=log, only="*" if not quick else "*-d0") if dev else []
-    return summarise(sim, devr, time.perf_counter() - t0, commit)
+        real = run_section3(log) if dev else []
+    return summarise(sim, devr, time.perf_counter() - t0, commit, real)
 
 
 README_START = "<!-- diagnose-benchmark:start (written by accelcal diagnose-benchmark --readme) -->"
