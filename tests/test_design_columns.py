@@ -107,7 +107,7 @@ def test_sine_columns_are_derivatives_of_rig_output():
     params = S._build_params(prep, False, (), tools, 0.13)
     truth = {"K0": 4e-4, "K1": 0.1325, "Kp": 2e-5, "Ko": -1.5e-5, "K2": 3.94e-7, "K3": 1.5e-9, "Koq": 2e-8,
              "Kip": 7.1e-7, "Kio": 2.0e-7, "Kpo": 5e-8, "Kpp": 4.7e-8, "Koo": 3.0e-8, "spindle_tilt": 3e-4,
-             "mass_centre_offset": 2e-3, "rate_scale_error": 2e-4, "sensor_lag": 2e-4}
+             "mass_centre_offset": 2e-3, "rate_scale_error": 2e-4, "sensor_lag": 1e-2}  # a sampled lag: tau ~ dt
     x = np.array([truth[p.name] for p in params])
     coeffs = {k: v for k, v in truth.items() if k[0] == "K"}
     effects = {"earth_rate": 1.0, **{k: v for k, v in truth.items() if k[0] != "K"}}

@@ -1,108 +1,197 @@
-"""Diagnosis (issue 4): known effect withheld -> found; clean -> silent; the real drop."""
+"""The sim-to-real diagnosis (issues 4 and 10), checked against truth from the data's maker:
+the independent reference simulator's dev cases (../shared/diagnosis-dev/truth.json), the
+lab's sample drop (its truth, conftest.TRUTH_20), the real imucal session (what its README
+says is known about it) and our own simulator's scenario truth."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from accelcal.diagnosis import diagnose, diagnose_paths
-from accelcal.diagnosis.benchmark import _cells, scenario
-from accelcal.diagnosis.core import default_baseline
+from accelcal.diagnosis import diagnose, read_paths
+from accelcal.diagnosis.core import public
+from accelcal.diagnosis.report import clean_json, text_report
 
-from conftest import EXAMPLES  # noqa: E402
+from conftest import SHARED, TRUTH_20
 
-DROP = EXAMPLES / "drop-2026-11-20"
+DEV = SHARED / "diagnosis-dev"
+REAL = SHARED / "real" / "imucal-ferraris"
 
 
-@pytest.fixture(scope="module")
-def real():
-    if not DROP.exists():
-        pytest.skip("sample drop not present")
-    return diagnose_paths([DROP], "none")
+def _dev(name):
+    if not (DEV / "cases" / name).is_dir():
+        pytest.skip(f"{DEV} not found")
+    truth = json.loads((DEV / "truth.json").read_text())[name]
+    return diagnose(read_paths([DEV / "cases" / name]), truth["baseline"] or "none"), truth
 
 
 def _entry(res, eff):
     return next(e for e in res["ranking"] if e["effect"] == eff)
 
 
-def test_real_drop_finds_earth_rate_koq_k3_with_sizes(real):
-    found = set(real["selected"])
-    for eff in ("earth_rate", "odd_quadratic", "cubic"):
-        e = _entry(real, eff)
-        assert eff in found or any(eff in _entry(real, s)["aliases"] for s in found), eff
-        assert e["significant"]
-        assert e["shrink_in_sample"] is not None and e["shrink_in_sample"] > 0
-    assert _entry(real, "earth_rate")["estimate"] == pytest.approx(1.0, rel=0.25)
-    assert _entry(real, "odd_quadratic")["estimate"] == pytest.approx(3.0e-8, rel=0.25)
-    assert _entry(real, "cubic")["estimate"] == pytest.approx(2.0e-10, rel=0.25)
-    assert real["gap"]["shrink_in_sample"] > 0.9
-    assert real["gap"]["shrink_heldout"] > 0.5
+def _right(res, t):
+    """score.py's rule for one case."""
+    v = res["verdict"]
+    if t["truth"] is None:
+        return v is None and res["explained"] is not False
+    top = next((r for r in res["ranking"] if r["effect"] == v), {})
+    ok = (t["truth"] in {v, *(top.get("aliases") or [])} and top.get("estimate") is not None
+          and abs(top["estimate"] - t["param"]) <= 0.25 * abs(t["param"]) and (top.get("shrink_heldout") or 0) >= 0.5)
+    return ok and all(any(r["effect"] == k and r["significant"] for r in res["ranking"]) for k in t.get("also") or {})
 
 
-def test_real_drop_reports_absorbed_effects(real):
-    unobs = {u["effect"]: u for u in real["unobservable"]}
-    for eff in ("mass_centre_offset", "ia_tilt"):
-        assert eff in unobs, eff
-        assert unobs[eff]["absorbed_fraction"] > 0.99
-        assert "absorbed" in unobs[eff]["note"]
-        assert eff not in real["selected"]
-    # the transverse mounts do carry the mass-centre offset: the strict check recovers it
-    chk = unobs["mass_centre_offset"]["transverse_mount_check"]
-    assert chk["estimate"] == pytest.approx(-4.49e-3, rel=0.05)
+@pytest.mark.parametrize("name", ["cent-koq-d0", "cent-two-d1", "cent-earth-d2", "sine-lag-d1", "sine-tilt-d3",
+                                  "tumble-th0-d0", "tumble-k1t-d2", "tilt-basedrift-d1"])
+def test_dev_case_withheld_effect_found(name):
+    res, t = _dev(name)
+    assert _right(res, t), (res["verdict"], res["selected"], [(e["effect"], e["estimate"]) for e in res["ranking"][:3]])
+    assert res["explained"] is True
 
 
-def test_real_drop_json_serialisable(real):
-    from accelcal.diagnosis.core import public
-    from accelcal.diagnosis.report import _jd
-    d = json.loads(json.dumps(public(real), default=_jd))
-    for k in ("verdict", "ranking", "where", "gap"):
+@pytest.mark.parametrize("name", ["sine-clean-d0", "cent-clean-d0", "tumble-clean-d1", "tilt-clean-d2"])
+def test_dev_clean_case_no_false_alarm(name):
+    res, t = _dev(name)
+    assert res["verdict"] is None and not res["selected"]
+    assert res["explained"] is True
+
+
+def test_koq_in_ia_pair_is_observable_and_not_cubic():
+    """Koq is separable in a 0/180 pair (paper 000 eq 9): it is found, not cubic, and the
+    exactly aliased arm stretch is named as its alias, not guessed."""
+    res, t = _dev("cent-koq-d2")
+    assert res["verdict"] == "odd_quadratic"
+    assert "arm_stretch" in _entry(res, "odd_quadratic")["aliases"]
+    assert "odd_quadratic" not in {u["effect"] for u in res["unobservable"]}
+
+
+def test_theta0_and_ko_named_as_aliases():
+    res, _ = _dev("tumble-th0-d1")
+    e = _entry(res, "initial_misalignment")
+    assert [a["coefficient"] for a in e.get("coefficient_aliases", [])] == ["Ko"]
+
+
+def test_sample_drop_fully_explained_with_sizes(examples):
+    """The lab's sample drop (tumble and centrifuge of one unit, one campaign), bare model:
+    every effect its maker put in is found with its size, and nothing remains."""
+    res = diagnose(read_paths([examples / "drop-2026-11-20"]), "none")
+    for eff, val, rel in (("earth_rate", 1.0, 0.1), ("odd_quadratic", TRUTH_20["Koq"], 0.25),
+                          ("cubic", TRUTH_20["K3"], 0.25), ("cross_coupling", TRUTH_20["Kip"], 0.05)):
+        e = _entry(res, eff)
+        assert e["significant"], eff
+        assert e["estimate"] == pytest.approx(val, rel=rel), eff
+    r = _entry(res, "mass_centre_offset")["estimate"]
+    assert r == pytest.approx(-(TRUTH_20["R+"] - TRUTH_20["R-"]) / 2, rel=0.01)
+    assert res["explained"] is True
+    assert res["gap"]["shrink_heldout"] > 0.9
+
+
+def test_two_campaigns_in_one_diagnosis(examples):
+    """Tumble and centrifuge of one unit as two campaigns: one model, coefficients per
+    campaign, the effects of each found."""
+    runs = read_paths([examples / "drop-2026-11-20"])
+    for r in runs:
+        if r.meta["test"] == "tumble":
+            r.meta["campaign"] = r.meta["campaign"] + "/tumble"
+    res = diagnose(runs, ["earth_rate", "mass_centre_offset", "cross_coupling", "mount_angle_error"])
+    assert len(res["K1"]) == 2
+    assert {"initial_misalignment", "odd_quadratic", "cubic"} <= set(res["selected"])
+
+
+@pytest.mark.parametrize("channel", ["X", "Y", "Z"])
+def test_real_imucal_gap_unexplained_at_horizontal_positions(channel):
+    """Real hand-placed data: a large gap that is hand placement (in no catalogue): it is
+    said to remain, placed at the horizontal positions, and no effect is claimed that does
+    not shrink it held out."""
+    if not REAL.is_dir():
+        pytest.skip(f"{REAL} not found")
+    res = diagnose(read_paths(sorted(REAL.glob(f"IMUCAL-EXAMPLE-{channel}-HEAD*.csv"))), ["initial_misalignment"])
+    assert res["explained"] is False
+    assert res["gap"]["significant_before"]["significant"] is True
+    top = max((w for w in res["where"] if w["dimension"] == "ia_input"), key=lambda w: w["share"])
+    assert top["segment"] == "IA horizontal" and top["share"] > 0.9
+    assert res["verdict"] is None or (_entry(res, res["verdict"])["shrink_heldout"] or 0) >= 0.5
+    assert "unexplained" in res["unexplained"]["text"] or "explains" in res["unexplained"]["text"]
+
+
+def test_real_one_run_is_untestable():
+    if not REAL.is_dir():
+        pytest.skip(f"{REAL} not found")
+    res = diagnose(read_paths([REAL / "IMUCAL-EXAMPLE-X-HEADPA.csv"]), ["initial_misalignment"])
+    assert res["gap"]["significant_before"]["status"] == "untestable"
+    assert res["explained"] is None and res["verdict"] is None
+    assert res["status"].startswith("untestable: no degrees of freedom")
+    assert "untestable" in text_report(res)
+
+
+def test_json_contract():
+    res, _ = _dev("cent-k3-d0")
+    d = json.loads(json.dumps(clean_json(public(res)), allow_nan=False))
+    for k in ("verdict", "explained", "ranking", "where", "gap", "unobservable", "selected", "status"):
         assert k in d
-    r0 = d["ranking"][0]
-    for k in ("effect", "estimate", "std_uncertainty", "significant", "shrink_in_sample",
-              "shrink_heldout", "aliases"):
-        assert k in r0
-    assert {"rms_before", "rms_after", "noise_rms"} <= set(d["gap"])
-    assert all({"dimension", "segment", "share"} <= set(w) for w in d["where"])
-
-
-@pytest.mark.parametrize("kind,effect,value", [
-    ("centrifuge", "odd_quadratic", 2.0e-7),
-    ("centrifuge", "earth_rate", 1.0),
-    ("tumble", "initial_misalignment", 2.0e-5),
-])
-def test_withheld_effect_is_found(kind, effect, value):
-    runs = _cells(scenario(kind, {effect: value}), seed=4242)
-    base = [b for b in default_baseline([kind]) if b != effect]
-    res = diagnose(runs, base, separate=False, strict_check=False)
-    assert res["verdict"] == effect or effect in res["verdict_aliases"]
-    e = _entry(res, effect)
-    assert e["estimate"] == pytest.approx(value, rel=0.25)
-    assert res["gap"]["shrink_heldout"] >= 0.5
-
-
-@pytest.mark.parametrize("kind", ["centrifuge", "tumble"])
-def test_clean_data_gives_no_verdict(kind):
-    runs = _cells(scenario(kind, {}), seed=777)
-    res = diagnose(runs, default_baseline([kind]), separate=False, strict_check=False)
-    assert res["verdict"] is None
-    assert not res["selected"]
-
-
-def test_absorbed_effect_is_reported_not_guessed():
-    runs = _cells(scenario("centrifuge", {"mass_centre_offset": -5e-3}), seed=99)
-    base = [b for b in default_baseline(["centrifuge"]) if b != "mass_centre_offset"]
-    res = diagnose(runs, base, separate=False, strict_check=False)
-    assert res["verdict"] is None
-    assert "mass_centre_offset" in {u["effect"] for u in res["unobservable"]}
+    for k in ("significant_before", "significant_after", "shrink_heldout", "rms_before", "rms_after"):
+        assert k in d["gap"]
+    assert d["gap"]["significant_before"]["p_value"] < 1e-6 and d["gap"]["significant_after"]["p_value"] > 1e-3
+    for k in ("effect", "estimate", "std_uncertainty", "significant", "shrink_in_sample", "shrink_heldout",
+              "aliases"):
+        assert k in d["ranking"][0]
 
 
 def test_cli_json(tmp_path, capsys):
     from accelcal.diagnosis.cli import main
-    from accelcal.simulate import load_scenario, simulate_campaign, write_drop
-    write_drop(simulate_campaign(load_scenario(scenario("tumble", {"initial_misalignment": 3e-5})), 5), tmp_path)
-    assert main(["diagnose", str(tmp_path), "--baseline", "none", "--json"]) == 0
+    if not (DEV / "cases" / "tumble-drift-d0").is_dir():
+        pytest.skip(f"{DEV} not found")
+    t = json.loads((DEV / "truth.json").read_text())["tumble-drift-d0"]
+    assert main(["diagnose", str(DEV / "cases" / "tumble-drift-d0"), "--baseline", "initial_misalignment",
+                 "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert out["verdict"] == "initial_misalignment"
-    assert np.isclose(_entry(out, "initial_misalignment")["estimate"], 3e-5, rtol=0.25)
+    assert out["verdict"] == "bias_drift"
+    assert np.isclose(_entry(out, "bias_drift")["estimate"], t["param"], rtol=0.25)
+
+
+# ----------------------------------------------------------------- our simulator, realistic DAQ noise
+def _sim(kind, effects, disturbance=None, seed=11):
+    from accelcal.diagnosis.benchmark import runs_of, scenario
+    return runs_of(scenario(kind, effects, disturbance), seed)
+
+
+def test_realistic_noise_clean_tumble_and_withheld_k1t():
+    """What real DAQs add (logged-angle noise, counts, spikes, bias walk) gives no verdict on
+    clean data; a withheld K1T is found with the scenario's size."""
+    from accelcal.diagnosis.benchmark import DEV_BASELINE
+    res = diagnose(_sim("tumble", {}), DEV_BASELINE["tumble"])
+    assert res["verdict"] is None and res["explained"] is True
+    res = diagnose(_sim("tumble", {"scale_temperature": 1e-4}), DEV_BASELINE["tumble"])
+    assert res["verdict"] == "scale_temperature"
+    assert _entry(res, "scale_temperature")["estimate"] == pytest.approx(1e-4, rel=0.1)
+
+
+@pytest.mark.parametrize("kind,dist", [
+    ("tumble", {"bias_periodic_m_s2": 5e-6, "bias_periodic_period_s": 150.0}),
+    ("tilt_rotation", {"bias_temp_quadratic_m_s2_c2": 4e-9}),
+])
+def test_gap_outside_the_catalogue_is_said_unexplained(kind, dist):
+    from accelcal.estimators.joint import processing_effects
+    res = diagnose(_sim(kind, {}, dist), processing_effects([kind]))
+    assert res["explained"] is False
+    assert res["gap"]["significant_after"]["significant"] is True
+    assert res["unexplained"]["where"]
+    if "bias_periodic_period_s" in dist:
+        assert res["unexplained"]["shape"][0]["form"].startswith("periodic in time")
+
+
+def test_wilson_interval():
+    from accelcal.diagnosis.benchmark import wilson
+    lo, hi = wilson(0, 200)
+    assert lo == pytest.approx(0.0, abs=1e-12) and hi == pytest.approx(0.01885, abs=1e-4)  # (z^2/n)/(1+z^2/n)
+    lo, hi = wilson(10, 200)
+    assert lo == pytest.approx(0.02738, abs=1e-4) and hi == pytest.approx(0.08958, abs=1e-4)
+
+
+def test_readme_section_replaced_between_markers(tmp_path):
+    from accelcal.diagnosis.benchmark import README_END, README_START, write_readme
+    p = tmp_path / "README.md"
+    p.write_text(f"intro\n{README_START}\nold\n{README_END}\ntail\n")
+    write_readme(p, "new table")
+    t = p.read_text()
+    assert "old" not in t and "new table" in t and t.startswith("intro") and t.rstrip().endswith("tail")

@@ -306,3 +306,31 @@ def test_tilt_rotation():
     got = specific_force("tilt_rotation", meta, data, {"fixture_thermal_tilt": c_tilt,
                                                        "base_tilt_drift": drift, "tilt_tide": tide})
     np.testing.assert_allclose(got, np.array(ref), atol=1e-12)
+
+
+# ----------------------------------------------------------------- sensor_lag
+@pytest.mark.parametrize("tau_over_dt", [0.05, 0.2, 1.0, 4.0])
+def test_sampled_lag_frequency_response(tau_over_dt):
+    """The recorded lag is the digital first-order lag at the DAQ's sample times: in steady
+    state a sampled sinusoid comes out multiplied by (1 - a) / (1 - a e^{-i w dt}),
+    a = exp(-dt / tau) (reference computed here from that transfer function, not from
+    accelcal)."""
+    from accelcal.physics.instrument import first_order_lag
+    dt, f = 0.02, 2.0
+    tau = tau_over_dt * dt
+    t = np.arange(4000) * dt
+    w = 2 * np.pi * f
+    y = first_order_lag(np.sin(w * t), t, tau)
+    a = np.exp(-dt / tau)
+    H = (1 - a) / (1 - a * np.exp(-1j * w * dt))
+    ref = np.imag(H * np.exp(1j * w * t))
+    np.testing.assert_allclose(y[2000:], ref[2000:], atol=1e-12)
+    # irregular sampling takes the same recursion step by step
+    t2 = t + 1e-4 * np.sin(t)
+    y2 = first_order_lag(np.sin(w * t2), t2, tau)
+    a2 = np.exp(-np.diff(t2) / tau)
+    ref2 = np.empty_like(t2)
+    ref2[0] = 0.0
+    for n in range(1, t2.size):
+        ref2[n] = a2[n - 1] * ref2[n - 1] + (1 - a2[n - 1]) * np.sin(w * t2[n])
+    np.testing.assert_allclose(y2, ref2, atol=1e-12)

@@ -404,3 +404,37 @@ def test_sine_sample_reproduced():
             E = rig_output("sine_centrifuge", m, x, sc.coefficients, r.truth["effects"])
             res.append(np.std(x.output - E))
         assert 1 / 1.5 < res[0] / res[1] < 1.5, (meta["run_id"], res)
+
+
+# ----------------------------------------------------------------- what real DAQs add (issue 10)
+def test_logged_angle_noise_quantum_and_spikes():
+    """The logged angle carries its own noise while the output follows the true angle; the
+    output is in counts of the quantum; spikes come at their rate."""
+    t = {"kind": "tumble", "positions": 8, "readings": 500, "dwell_period_s": 600.0}
+    noise = {"angle_log_deg": 0.01, "output_quantum": 1e-5, "spike_rate": 0.01, "spike_m_s2": 1e-3,
+             "white_m_s2": 2e-6}
+    run = simulate_campaign(load_scenario(_base(t, effects={}, noise=noise)), seed=4)[0]
+    d = run.data
+    nominal = 360.0 * d.position / 8
+    assert (d.angle_deg - nominal).std() == pytest.approx(0.01, rel=0.1)
+    q = d.output.to_numpy() / 1e-5
+    np.testing.assert_allclose(q, np.round(q), atol=1e-6)
+    clean = G * np.cos(np.radians(nominal))           # the output follows the true angle
+    dev = d.output - clean
+    spikes = np.abs(dev) > 5e-4
+    assert spikes.mean() == pytest.approx(0.01, abs=0.004)
+    assert np.abs(dev[~spikes]).max() < 2e-5
+
+
+def test_disturbances_outside_the_catalogue():
+    t = {"kind": "tumble", "positions": 4, "readings": 10, "temp_c": 30.0}
+    base = _base(t, effects={})
+    base["disturbance"] = {"bias_temp_quadratic_m_s2_c2": 1e-6, "bias_periodic_m_s2": 2e-6,
+                           "bias_periodic_period_s": 100.0}
+    run = simulate_campaign(load_scenario(base), seed=1)[0]
+    d = run.data
+    expect = G * np.cos(np.radians(d.angle_deg)) + 1e-6 * 100.0 + 2e-6 * np.sin(2 * np.pi * d.time_s / 100.0)
+    np.testing.assert_allclose(d.output, expect, atol=1e-12)
+    assert run.truth["disturbance"]["bias_periodic_period_s"] == 100.0
+    with pytest.raises(ScenarioError):
+        load_scenario(dict(base, disturbance={"bias_cubic": 1.0}))

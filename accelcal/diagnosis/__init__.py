@@ -1,14 +1,15 @@
-"""Sim-to-real gap diagnosis (issue 4): which catalogue effect the forward model misses,
-its size, where the gap lies, how far it shrinks in sample and held out.
+"""Sim-to-real gap diagnosis (issues 4 and 10): which catalogue effect the forward model
+misses, its size, where the gap lies and what shape it has, how far it shrinks in sample
+and held out; or that a gap remains that no catalogue effect explains.
 
-    diagnose(runs, baseline=None|'none'|[ids]) -> dict     (runs: data.make_cells(meta, data))
-    register_cli(subparsers)                                # `diagnose`, `diagnose-benchmark`
+    diagnose(runs, baseline=None|'none'|[ids]) -> dict   (runs: RunFile-like or RunCells)
+    diagnose_paths(paths, baseline) -> dict              (run files or folders)
+    register_cli(subparsers)                             # `diagnose`, `diagnose-benchmark`
 """
-from .cli import register_cli  # noqa: F401
-from .core import DEFAULT_BASELINE, diagnose, public  # noqa: F401
-from .data import make_cells, read_paths  # noqa: F401
+from .cli import read_paths, register_cli  # noqa: F401
+from .core import diagnose, public  # noqa: F401
 
 
 def diagnose_paths(paths, baseline=None, **kw):
-    """Read run files/folders and diagnose them."""
-    return diagnose([make_cells(m, d, p) for m, d, p in read_paths(paths)], baseline, **kw)
+    """Read run files/folders (drop format) and diagnose them together."""
+    return diagnose(read_paths(paths), baseline, **kw)

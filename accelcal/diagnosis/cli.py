@@ -7,22 +7,34 @@ import json
 import sys
 
 
+def read_paths(paths) -> list:
+    """Run files or folders -> parsed runs (drop format); a file the parser refuses is
+    skipped with its reason on stderr (it is not ours to diagnose)."""
+    from pathlib import Path
+
+    from ..schemas.dropformat import discover, read_run
+    files: list[Path] = []
+    for p in paths:
+        p = Path(p)
+        files += discover(p) if p.is_dir() else [p]
+    out = []
+    for f in files:
+        try:
+            out.append(read_run(f))
+        except Exception as e:  # noqa: BLE001 - a refused file: say so, diagnose the rest
+            print(f"diagnose: skipping {f}: {e}", file=sys.stderr)
+    return out
+
+
 def _diagnose(args) -> int:
-    from .core import public
-    from .data import make_cells, read_paths
-    from .report import _jd, html_report, text_report
-    from .core import diagnose
-    loaded = read_paths(args.paths)
-    if not loaded:
+    from .core import diagnose, public
+    from .report import _jd, clean_json, html_report, text_report
+    runs = read_paths(args.paths)
+    if not runs:
         print("diagnose: no readable run files", file=sys.stderr)
         return 2
-    runs = [make_cells(m, d, p) for m, d, p in loaded]
-    base = None
-    if args.baseline is not None:
-        base = "none" if args.baseline.strip().lower() == "none" else [
-            b.strip() for b in args.baseline.split(",") if b.strip()]
     try:
-        res = diagnose(runs, base)
+        res = diagnose(runs, args.baseline)
     except ValueError as e:
         print(f"diagnose: {e}", file=sys.stderr)
         return 2
@@ -33,21 +45,37 @@ def _diagnose(args) -> int:
         pub = public(res)
         if not args.all_segments:
             pub.pop("where_all", None)
-        print(json.dumps(pub, default=_jd, allow_nan=False if False else True))
+        print(json.dumps(clean_json(pub), default=_jd, allow_nan=False))
     else:
         print(text_report(res))
     return 0
 
 
 def _benchmark(args) -> int:
-    from .benchmark import run_benchmark
-    from .report import _jd
-    s = run_benchmark(quick=args.quick, log=(lambda m: print(m, file=sys.stderr)))
+    import subprocess
+    from pathlib import Path
+
+    from .benchmark import run_benchmark, write_readme
+    from .report import _jd, clean_json
+    commit = ""
+    try:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                                cwd=Path(__file__).resolve().parent, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True,
+                               text=True, cwd=Path(__file__).resolve().parent).stdout.strip()
+        commit += "+changes" if dirty else ""
+    except Exception:  # noqa: BLE001 - not a git checkout
+        pass
+    s = run_benchmark(quick=args.quick, seeds=args.seeds, n_clean=args.clean, dev=not args.no_dev,
+                      log=(lambda m: print(m, file=sys.stderr, flush=True)), only=args.only, commit=commit)
     if args.markdown:
-        with open(args.markdown, "w", encoding="utf-8") as fh:
-            fh.write(s["markdown"] + "\n")
+        Path(args.markdown).write_text(s["markdown"] + "\n", encoding="utf-8")
+    if args.results:
+        Path(args.results).write_text(json.dumps(clean_json(s), default=_jd, indent=1) + "\n", encoding="utf-8")
+    if args.readme:
+        write_readme(Path(args.readme), s["markdown"])
     if args.json:
-        print(json.dumps(s, default=_jd))
+        print(json.dumps(clean_json(s), default=_jd))
     else:
         print(s["markdown"])
         print(f"\n({s['elapsed_s']:.1f} s)")
@@ -64,10 +92,18 @@ def register_cli(subparsers) -> None:
     p.add_argument("--all-segments", action="store_true", help="with --json: every localisation segment")
     p.add_argument("--report", metavar="DIR", help="write DIR/diagnosis.html (self-contained)")
     p.set_defaults(func=_diagnose)
-    b = subparsers.add_parser("diagnose-benchmark", help="score the diagnosis on simulated campaigns")
-    b.add_argument("--quick", action="store_true", help="one size, one noise level, few clean cases (CI)")
+    b = subparsers.add_parser("diagnose-benchmark",
+                              help="score the diagnosis on simulated campaigns with realistic DAQ noise, and on the "
+                                   "dev set of the independent reference simulator")
+    b.add_argument("--quick", action="store_true", help="a few cases of each kind (a smoke test)")
+    b.add_argument("--seeds", type=int, default=2, help="cases per (test, effect, baseline) (default 2)")
+    b.add_argument("--clean", type=int, default=200, help="clean campaigns for the false-alarm rate (default 200)")
+    b.add_argument("--no-dev", action="store_true", help="skip the dev-set section")
+    b.add_argument("--only", default="*", help="glob on the simulated case labels (test/effect/baseline)")
     b.add_argument("--json", action="store_true")
-    b.add_argument("--markdown", metavar="FILE", help="also write the markdown tables to FILE")
+    b.add_argument("--markdown", metavar="FILE", help="also write the markdown report to FILE")
+    b.add_argument("--results", metavar="FILE", help="also write every case as JSON to FILE")
+    b.add_argument("--readme", metavar="FILE", help="replace the README's diagnosis-benchmark section in FILE")
     b.set_defaults(func=_benchmark)
 
 

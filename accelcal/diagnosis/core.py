@@ -1,593 +1,544 @@
-"""diagnose(): where the sim-to-real gap lies, which catalogue effect causes it, how far
-it shrinks (in sample and held out).  See docs in ``accelcal/diagnosis/README.md``.
+"""diagnose(): where the real data depart from the rig model, which catalogue effect causes
+it, how far the gap shrinks once that effect is added, checked on held-out data.
 
-Statistics (all on whitened cell means z = (y - model) / sigma, sigma from replicates):
-- localisation: per segment of each dimension, sum z^2 against chi^2(n * dof/N), Holm
-  correction over all segments; share = excess chi^2 of the segment / excess of its dimension;
-- screening: the candidate's signature (numerical Jacobian through the physics) projected
-  off the span of the fitted model's Jacobian; observable fraction = |P j| / |j|;
-- selection: nonlinear refit with the effect, likelihood ratio (delta chi^2) against the
-  chi^2_1 quantile at alpha / m (Bonferroni over the m observable candidates), forward;
-- aliases: |cos| > 0.95 between projected signatures;
-- held-out shrink: leave one run out (linearised refit of the shared parameters on the
-  other runs, the left-out run's own bias and scale refitted on it alone), or, for a run
-  alone of its kind, leave one half of its cells out (alternate cells).
-gap RMS = sqrt(max(0, mean z^2 - expected noise mean square)); shrink = 1 - after / before.
+Method (docs/diagnosis.md says it for a lab engineer):
+
+1. *Cells and noise.*  Readings are grouped in cells of replicates and a noise model is
+   fitted to the within-cell scatter of the residuals, per run, heteroscedastic in the
+   centripetal level, with lag-1 autocorrelation (:mod:`accelcal.fitting.data`).
+2. *Bare model.*  The one forward model with the baseline effects
+   (:class:`accelcal.fitting.model.CampaignModel`): the instrument coefficients the tests are
+   designed to determine shared by the campaign as eq 2 mixes them, a bias per centrifuge
+   run, a turning-centre radius per rig; no free term per mount.  A non-catalogue
+   coefficient that a candidate effect would have to share its direction with is held, and
+   named as the effect's alias.
+3. *Candidates.*  Catalogue effects that apply to the tests and are not in the baseline.
+   Each one's signature (the derivative of the forward model) projected off the bare
+   model's columns says whether the runs can see it at all (observable fraction) and how
+   small an effect they could detect.
+4. *Forward selection.*  The best candidates by score are refitted (nonlinear, all
+   parameters); the likelihood ratio, scaled by chi2/dof of the larger model when that
+   exceeds 1, is tested at alpha / (m k) (Bonferroni over the m candidates of step k and the
+   steps), and an effect is
+   taken only if it also shrinks the gap on held-out cells (alternate cells of each run
+   predicted by a fit to the others).
+5. *Verdict.*  A selected effect whose held-out shrink is at least 0.5 (of several, the
+   processing model's first among those with a five-sigma part of their own); null when
+   none passes both gates.  ``explained`` is the lack-of-fit
+   test of the final model against the pure error: false when a significant gap remains,
+   null when the runs leave no degrees of freedom to test it.
+6. *Where and what shape* the gap has (before, and what remains after): segments of the
+   cells by run, mount, g level, position, IA input, temperature, time; simple forms.
 """
 from __future__ import annotations
 
+import math
 import time
-from dataclasses import dataclass
+from collections.abc import Sequence
 
 import numpy as np
 from scipy import stats
 
 from ..effects import EFFECTS
+from ..estimators.joint import processing_effects
+from ..fitting.data import (RunCells, drop_duplicate_cells, fit_noise, make_run, pool_missing_noise,
+                            reject_spikes)
+from ..fitting.model import EFFECT_PLAUSIBLE
+from ..physics.rigs import INSTRUMENT_EFFECTS, specific_force
 from ._blas import single_thread
-from .model import EFFECT_STEP, PLAUSIBLE_MAX, CENTRIFUGES, Fit, Model, fit, lstsq_scaled
+from .fits import (GAP_ALPHA, NON_CATALOGUE, Fit, Fitter, folds, gap_rms, gap_test, heldout_gap, lr_test,
+                   project_out, shrink)
+from .localise import localise, residual_si, shape, summary, where
 
-#: effects the pipeline's own processing already models, per test kind (the default baseline)
-DEFAULT_BASELINE = {
-    "centrifuge": ["earth_rate", "odd_quadratic", "cubic", "cross_coupling", "mass_centre_offset"],
-    "sine_centrifuge": ["earth_rate", "odd_quadratic", "cubic", "cross_coupling", "mass_centre_offset"],
-    "tumble": ["initial_misalignment"],
-    "tilt_rotation": [],
-}
+#: |cos| between projected signatures above which two effects are reported as aliases
 ALIAS_COS = 0.95
+#: observable fraction |P s| / |s| below which the bare model absorbs a candidate
 UNOBSERVABLE_FRACTION = 1e-3
-#: instrument coefficients that are not catalogue effects but can mimic one (reported as aliases)
-NON_CATALOGUE = ["Kp", "Ko", "Kpp", "Koo", "Kio", "Kpo"]
+#: smallest held-out shrink of a verdict
+HELDOUT_GATE = 0.5
+#: lack-of-fit level at which the bare model shows a gap worth naming an effect for (below
+#: it, only an effect of five sigma on its own is named)
+GAP_SEEN = 0.05
+#: drop-one statistic (delta chi2 per parameter, divided by chi2/dof when that exceeds 1) of
+#: an effect the verdict may name when several are found: a five-sigma part of the
+#: chi-square; if none has it, the largest is named
+VERDICT_STATISTIC = 25.0
+#: a sine run's cells: the drive's phases in this many stretches of time (a slow change in
+#: time, a bias drift, then shows between cells instead of inside them)
+SINE_SEGMENTS = 4
 
 
-def default_baseline(tests) -> list[str]:
-    out: list[str] = []
-    for t in sorted(set(tests)):
-        for e in DEFAULT_BASELINE.get(t, []):
-            if e not in out:
-                out.append(e)
-    return out
+def resolve_baseline(baseline, tests: Sequence[str]) -> tuple[list[str], str]:
+    """(effects, label): None -> the pipeline's processing model; 'none' -> the bare model."""
+    if baseline is None:
+        return processing_effects(tests), "default"
+    if isinstance(baseline, str):
+        baseline = [] if baseline.strip().lower() == "none" else [b.strip() for b in baseline.split(",") if b.strip()]
+    out = list(dict.fromkeys(baseline))
+    for b in out:
+        if b not in EFFECTS:
+            raise ValueError(f"unknown effect id {b!r} in the baseline (effects.md ids: {sorted(EFFECTS)})")
+    return out, (",".join(out) or "none")
 
 
-def candidates_for(tests, baseline) -> list[str]:
+def candidates_for(tests: Sequence[str], baseline: Sequence[str]) -> list[str]:
+    """Catalogue effects that apply to the tests present and are not in the baseline."""
     return [e for e, d in EFFECTS.items() if e not in baseline and any(t in d.tests for t in tests)]
 
 
-# ------------------------------------------------------------------ helpers
-def _basis(J: np.ndarray, rcond=1e-9) -> np.ndarray:
-    s = np.linalg.norm(J, axis=0)
-    act = s > 0
-    if not act.any():
-        return np.zeros((J.shape[0], 0))
-    U, S, _ = np.linalg.svd(J[:, act] / s[act], full_matrices=False)
-    return U[:, S > S[0] * rcond]
+def prepare_cells(runs) -> tuple[list[RunCells], list[str]]:
+    """RunFile-like objects (meta, data) -> cells as :func:`accelcal.estimators.joint.prepare`
+    makes them, but with sine cells per stretch of time (:data:`SINE_SEGMENTS`) and rare
+    spikes dropped before the noise model is fitted
+    (:func:`accelcal.fitting.data.reject_spikes`); RunCells pass through."""
+    runs = list(runs)
+    if runs and all(isinstance(r, RunCells) for r in runs):
+        return runs, []
+    cells = [make_run(r.meta, r.data, j, getattr(r, "sha256", ""), sine_segments=SINE_SEGMENTS)
+             for j, r in enumerate(runs)]
+    notes = drop_duplicate_cells(cells)
+    for c in cells:
+        if reject_spikes(c):
+            notes += [n for n in c.notes if "spikes" in n]
+        angle_level(c)
+        fit_noise(c, use_level=noise_grows(c))
+    pool_missing_noise(cells)
+    return cells, notes
 
 
-def _perp(U, v):
-    return v - U @ (U.T @ v)
+def angle_level(run: RunCells) -> None:
+    """On a gravity test the noise level variable x of the noise model (a + b x^2) becomes the
+    sensitivity of the IA input to the logged angle, |d a_i / d theta| [m/s^2 per rad]: the
+    reading noise of a logged head or table angle enters the residuals as much as the input
+    moves with the angle (none at IA up or down, most at IA horizontal), as the logged rate's
+    noise grows with the centripetal level on a centrifuge."""
+    col = {"tumble": "angle_deg", "tilt_rotation": "rotation_deg"}.get(run.test)
+    if col is None:
+        return
+    h = 1e-3
+    up, dn = dict(run.cols), dict(run.cols)
+    up[col] = run.cols[col] + h
+    dn[col] = run.cols[col] - h
+    da = (specific_force(run.test, run.meta, up)[:, 0] - specific_force(run.test, run.meta, dn)[:, 0])
+    run.x_rows = np.abs(da) / (2 * math.radians(h))
+    run.x = run.cell_mean(run.x_rows)
 
 
-def gap_rms(z, expected_ms=1.0) -> float:
-    return float(np.sqrt(max(np.mean(z ** 2) - expected_ms, 0.0)))
+def noise_grows(run: RunCells) -> bool:
+    """Whether the run's noise model has its level term (the level varies between cells)."""
+    return bool(run.x.size and np.ptp(run.x) > 0)
 
 
-def _shrink(before, after):
-    if before <= 0:
-        return None
-    return float(1.0 - after / before)
+def diagnose(runs, baseline=None, alpha: float = 0.05, *, max_effects: int = 8, refit_top: int = 3) -> dict:
+    """Diagnose the gap between the forward model with ``baseline`` and the runs.
 
+    Parameters
+    ----------
+    runs : sequence of RunFile-like (meta, data) or RunCells
+        One or more campaigns (every run is fitted in one model; coefficients per campaign).
+    baseline : None, 'none', str or list of str
+        Effects the model already includes: None = the pipeline's processing model for the
+        tests present, 'none' = the bare model, or effects.md ids.
+    alpha : float
+        Family-wise significance of the selection (Bonferroni over the candidates).
 
-@dataclass
-class _State:
-    effects: list
-    fit: Fit
-
-
-def _fit_set(runs, baseline, effects, prev: Fit | None = None, transverse_scale=True) -> Fit:
-    m = Model(runs, baseline, effects, transverse_scale=transverse_scale)
-    p0 = m.initial()
-    if prev is not None:
-        pp = m.initial(prev.model, prev.p)
-        for i, q in enumerate(m.params):      # keep the K1 steps of the fresh start
-            if q.name in prev.model.index:
-                p0[i] = pp[i]
-    for i, q in enumerate(m.params):
-        if q.kind == "K1":
-            q.h = 1e-4 * abs(p0[i]) if p0[i] else 1e-4
-    return fit(m, p0)
-
-
-# ------------------------------------------------------------------ held-out
-def heldout_z(f: Fit):
-    """Held-out whitened residuals of a fitted model (linearised refits), with the expected
-    noise mean square of those residuals."""
-    m, J, z = f.model, f.J, f.z
-    runs = m.runs
-    kinds = {}
-    for j, r in enumerate(runs):
-        kinds.setdefault(r.test, []).append(j)
-    zs, exp_n, exp_d = [], 0.0, 0.0
-    for j, r in enumerate(runs):
-        rows = np.arange(m.offsets[j], m.offsets[j + 1])
-        if len(kinds[r.test]) >= 3:
-            train = np.ones(m.N, bool)
-            train[rows] = False
-            d, _, _ = lstsq_scaled(J[train], z[train])
-            zh = z[rows] - J[rows] @ d
-            own = [i for i, q in enumerate(m.params) if q.runs == [j]]
-            if own:
-                dq, _, rk = lstsq_scaled(J[np.ix_(rows, own)], zh)
-                zh = zh - J[np.ix_(rows, own)] @ dq
-            else:
-                rk = 0
-            zs.append(zh)
-            exp_n += len(rows) - rk
-            exp_d += len(rows)
-        else:
-            for par in (0, 1):
-                held = rows[(np.arange(len(rows)) % 2) == par]
-                train = np.ones(m.N, bool)
-                train[held] = False
-                d, _, _ = lstsq_scaled(J[train], z[train])
-                zs.append(z[held] - J[held] @ d)
-                exp_n += len(held)
-                exp_d += len(held)
-    zz = np.concatenate(zs) if zs else np.zeros(0)
-    return zz, (exp_n / exp_d if exp_d else 1.0)
-
-
-def heldout_gap(f: Fit) -> float:
-    zz, e = heldout_z(f)
-    # leaving out inflates the noise of the held-out residuals a little; use the held-out
-    # residual mean square of a model that is known to be complete: not available, so the
-    # expectation is the number of held-out cells minus the refitted own parameters.
-    return gap_rms(zz, e)
-
-
-# ------------------------------------------------------------------ localisation
-def _segments(runs):
-    """dimension -> list of (segment label, boolean mask over all cells)."""
-    labels: dict[str, list] = {}
-
-    def add(dim, arr):
-        labels.setdefault(dim, []).append(np.asarray(arr, object))
-
-    for r in runs:
-        k = r.ncell
-        a = r.attrs
-        add("run", [r.run_id] * k)
-        add("test", [r.test] * k)
-        add("attitude", a.get("mount", np.array([r.test] * k, object)))
-        add("polarity", a.get("polarity", np.array(["n/a"] * k, object)))
-        if "g_level" in a:
-            gl = a["g_level"]
-            lab = np.select([gl < 0.01, gl < 2, gl < 5, gl < 10, gl < 20],
-                            ["rest", "0-2 g", "2-5 g", "5-10 g", "10-20 g"], ">20 g").astype(object)
-        else:
-            lab = np.array(["n/a"] * k, object)
-        add("g_level", lab)
-        add("sweep", a.get("sweep", np.array(["n/a"] * k, object)))
-        if "position" in a:
-            pos = np.floor(((a["position"] + 22.5) % 360) / 45.0) * 45.0
-            add("position", np.array([f"{p:.0f} deg" for p in pos], object))
-        else:
-            add("position", np.array(["n/a"] * k, object))
-        if "temperature" in a:
-            add("temperature", np.array([f"{t:.0f} C" for t in np.round(a["temperature"])], object))
-        else:
-            add("temperature", np.array(["n/a"] * k, object))
-        q = np.minimum((a["time_frac"] * 4).astype(int), 3)
-        add("time", np.array([["first quarter", "second quarter", "third quarter", "last quarter"][i]
-                              for i in q], object))
-    out = {}
-    for dim, parts in labels.items():
-        lab = np.concatenate(parts)
-        segs = [s for s in dict.fromkeys(lab) if s != "n/a"]
-        if len(segs) >= 2 or dim == "run":
-            out[dim] = [(s, lab == s) for s in segs]
-    return out
-
-
-def localise(f: Fit, alpha=0.05):
-    z = f.z
-    N = f.model.N
-    ratio = f.dof / N
-    segs = _segments(f.model.runs)
-    rows = []
-    for dim, lst in segs.items():
-        exc = []
-        for s, mask in lst:
-            S = float(np.sum(z[mask] ** 2))
-            n = int(mask.sum())
-            df = max(n * ratio, 1e-9)
-            p = float(stats.chi2.sf(S, df))
-            exc.append(max(S - df, 0.0))
-            rows.append({"dimension": dim, "segment": str(s), "cells": n, "chi2": S, "expected": df,
-                         "p_value": p, "rms": float(np.sqrt(S / n))})
-        tot = sum(exc)
-        for k, e in enumerate(exc):
-            rows[len(rows) - len(exc) + k]["share"] = e / tot if tot > 0 else 0.0
-    # Holm over all segments
-    order = np.argsort([r["p_value"] for r in rows])
-    m = len(rows)
-    running = 0.0
-    for rank, i in enumerate(order):
-        adj = min(1.0, (m - rank) * rows[i]["p_value"])
-        running = max(running, adj)
-        rows[i]["p_holm"] = running
-        rows[i]["significant"] = running < alpha
-    return rows
-
-
-# ------------------------------------------------------------------ aliases, separation
-def _non_catalogue_signatures(f: Fit):
-    """Signatures of instrument coefficients that are not catalogue effects (Kp, Ko, ...)."""
-    from ..physics import rig_output
-    m, p = f.model, f.p
-    out = {}
-    for cname in NON_CATALOGUE:
-        v = np.zeros(m.N)
-        h = 1e-5 if cname in ("Kp", "Ko") else 1e-7
-        for j, r in enumerate(m.runs):
-            co, eff = m.run_inputs(p, j)
-            up = dict(co)
-            up[cname] = co.get(cname, 0.0) + h
-            dn = dict(co)
-            dn[cname] = co.get(cname, 0.0) - h
-            rr = m.run_rows(j)
-            v[rr] = (r.cell_mean(rig_output(r.test, r.meta, r.cols, up, eff))
-                     - r.cell_mean(rig_output(r.test, r.meta, r.cols, dn, eff))) / (2 * h) / m.sig[rr]
-        if np.linalg.norm(v) > 0:
-            out[cname] = v
-    return out
-
-
-def _clone_run(r, **meta_changes):
-    from copy import copy
-    q = copy(r)
-    q.meta = {**r.meta, **meta_changes}
-    q.run_id = r.run_id + "+" + ",".join(f"{k}={v}" for k, v in meta_changes.items())
-    return q
-
-
-def separating_tests(runs, baseline, selected, a: str, b: str, fbase: Fit, limit=3):
-    """Extra test points (a new mount / head) that would separate effects a and b: the
-    design added, and |cos| of their projected signatures with it."""
-    proposals = []
-    tests = {r.test for r in runs}
-    for t in tests:
-        tmpl = next(r for r in runs if r.test == t)
-        if t in CENTRIFUGES and (t in EFFECTS[a].tests or t in EFFECTS[b].tests):
-            for plane, vert in (("IA-PA", "+OA"), ("IA-OA", "-PA")):
-                for ang in (0.0, 45.0, 90.0, 135.0):
-                    proposals.append(_clone_run(tmpl, mount_plane=plane, vertical_axis=vert,
-                                                mount_angle_deg=ang))
-        if t == "tumble" and (t in EFFECTS[a].tests or t in EFFECTS[b].tests):
-            for head, ca, sa in (("OA", "+IA", "+PA"), ("IA", "+PA", "+OA"), ("PA", "+OA", "-IA")):
-                proposals.append(_clone_run(tmpl, head_axis=head, cos_axis=ca, sin_axis=sa))
-    out = []
-    others = [e for e in selected if e not in (a, b)]
-    for q in proposals:
-        rs = list(runs) + [q]
-        try:
-            m = Model(rs, baseline, others)
-            p = m.initial(fbase.model, fbase.p)
-            for i, par in enumerate(m.params):       # new run: start from its template's values
-                if par.name not in fbase.model.index:
-                    tn = par.name.split("[")[0] + "[" + runs[[r.run_id for r in runs].index(
-                        q.run_id.split("+")[0])].run_id + "]"
-                    if tn in fbase.model.index:
-                        p[i] = fbase.p[fbase.model.index[tn]]
-            U = _basis(m.jac(p))
-            ja, jb = _perp(U, m.signature(p, a)), _perp(U, m.signature(p, b))
-            na, nb = np.linalg.norm(ja), np.linalg.norm(jb)
-            if na == 0 or nb == 0:
-                continue
-            c = abs(float(ja @ jb) / (na * nb))
-            desc = ({k: q.meta[k] for k in ("mount_plane", "mount_angle_deg", "vertical_axis")}
-                    if q.test in CENTRIFUGES else {k: q.meta[k] for k in ("head_axis", "cos_axis", "sin_axis")})
-            out.append({"add_run": {"test": q.test, **desc}, "abs_cos": c})
-        except Exception:
-            continue
-    out.sort(key=lambda d: d["abs_cos"])
-    return out[:limit]
-
-
-# ------------------------------------------------------------------ main entry
-def diagnose(runs, baseline=None, alpha: float = 0.05, max_effects: int = 6,
-             refit_top: int = 3, separate: bool = True, strict_check: bool = True) -> dict:
-    """Diagnose the gap between the (baseline) forward model and the runs (RunCells list).
-
-    baseline: None (the pipeline's default for the tests present), 'none' (the bare model)
-    or a list of effect ids.  Returns a dict (see :func:`public` for its JSON part)."""
+    Returns
+    -------
+    dict
+        The JSON contract (:func:`public` drops the private ``_fits``): verdict, explained,
+        ranking, gap (with significant_before/after), where, unexplained, ...
+    """
     with single_thread():
-        return _diagnose(runs, baseline, alpha, max_effects, refit_top, separate, strict_check)
+        return _Diagnosis(runs, baseline, alpha, max_effects, refit_top).run()
 
 
-def _diagnose(runs, baseline, alpha, max_effects, refit_top, separate, strict_check):
-    t0 = time.perf_counter()
-    tests = sorted({r.test for r in runs})
-    if baseline is None:
-        baseline = default_baseline(tests)
-        base_label = "default"
-    elif baseline in ("none", [], ()):
-        baseline = []
-        base_label = "none"
-    else:
-        baseline = [b for b in baseline]
-        for b in baseline:
-            if b not in EFFECTS:
-                raise ValueError(f"unknown effect id {b!r} in --baseline (effects.md ids: {sorted(EFFECTS)})")
-        base_label = ",".join(baseline)
-    cands = candidates_for(tests, baseline)
+class _Diagnosis:
+    def __init__(self, runs, baseline, alpha, max_effects, refit_top):
+        self.t0 = time.perf_counter()
+        self.cells, self.notes = prepare_cells(runs)
+        if not self.cells:
+            raise ValueError("no runs to diagnose")
+        self.tests = sorted({c.test for c in self.cells})
+        self.baseline, self.label = resolve_baseline(baseline, self.tests)
+        self.cands = candidates_for(self.tests, self.baseline)
+        self.alpha, self.max_effects, self.refit_top = alpha, max_effects, refit_top
+        self.F = Fitter(self.cells, self.baseline)
+        self.fold = folds(self.cells)
+        self._ho: dict[int, float | None] = {}
 
-    f0 = _fit_set(runs, baseline, [])
-    N = f0.model.N
-    z0 = f0.z
-    where_rows = localise(f0, alpha)
+    # ------------------------------------------------------------------ helpers
+    def ho(self, f: Fit) -> float | None:
+        if id(f) not in self._ho:
+            self._ho[id(f)] = heldout_gap(f, self.fold)
+        return self._ho[id(f)]
 
-    # --- observability of every candidate against the baseline
-    U0 = _basis(f0.J)
-    sig0 = {c: f0.model.signature(f0.p, c) for c in cands}
-    obs = {}
-    for c in cands:
-        j = sig0[c]
-        nj = float(np.linalg.norm(j))
-        if nj == 0:
-            obs[c] = {"observable_fraction": 0.0, "absorbed_fraction": None, "se": np.inf,
-                      "applies": False}
-            continue
-        jp = _perp(U0, j)
-        fr = float(np.linalg.norm(jp) / nj)
-        se = 1.0 / max(float(np.linalg.norm(jp)), 1e-300)
-        obs[c] = {"observable_fraction": fr, "absorbed_fraction": 1.0 - fr ** 2, "se": se, "applies": True}
-    z_thr_all = stats.norm.isf(alpha / (2 * max(len(cands), 1)))
-    for c in cands:
-        o = obs[c]
-        o["min_detectable"] = float(z_thr_all * o["se"]) if np.isfinite(o["se"]) else None
-        o["observable"] = bool(o["applies"] and o["observable_fraction"] >= UNOBSERVABLE_FRACTION
-                               and o["min_detectable"] is not None and o["min_detectable"] <= PLAUSIBLE_MAX[c])
+    def param_values(self, model, effect: str, value: float) -> dict[str, float]:
+        """Start values of an effect's parameter(s) in a model that includes it."""
+        coef = INSTRUMENT_EFFECTS.get(effect)
+        out = {}
+        for prm, role in zip(model.params, model.roles):
+            if (role.kind == "effect" and role.key == effect) or (role.kind == "coef" and coef and role.key == coef):
+                out[prm.name] = value
+        return out
 
-    # --- forward selection
-    state = _State([], f0)
-    steps = []
-    while len(state.effects) < max_effects:
-        f = state.fit
-        U = _basis(f.J)
-        pool = [c for c in cands if c not in state.effects and obs[c]["observable"]]
-        if not pool:
-            break
-        scores = {}
-        for c in pool:
-            jp = _perp(U, f.model.signature(f.p, c))
-            n2 = float(jp @ jp)
-            scores[c] = float((jp @ f.z) ** 2 / n2) if n2 > 0 else 0.0
-        top = sorted(pool, key=lambda c: -scores[c])[:refit_top]
-        trials = {}
-        for c in top:
-            ft = _fit_set(runs, baseline, state.effects + [c], prev=f)
-            trials[c] = ft
-        best = max(top, key=lambda c: f.chi2 - trials[c].chi2)
-        dchi = f.chi2 - trials[best].chi2
-        thr = float(stats.chi2.isf(alpha / len(pool), 1))
-        steps.append({"step": len(state.effects) + 1, "best": best, "delta_chi2": dchi, "threshold": thr,
-                      "scores": {c: scores[c] for c in top}})
-        if dchi <= thr:
-            break
-        state = _State(state.effects + [best], trials[best])
+    def score(self, f: Fit, effect: str, U: np.ndarray | None = None) -> tuple[float, float, float, np.ndarray]:
+        """(score, linear estimate, its standard uncertainty, projected signature) of a
+        candidate against a fit."""
+        U = f.basis() if U is None else U
+        sp = project_out(U, self.F.signature(f.model, f.p, effect))
+        n2 = float(sp @ sp)
+        if n2 <= 0:
+            return 0.0, 0.0, math.inf, sp
+        est = float(sp @ f.z) / n2
+        return est * est * n2, est, 1.0 / math.sqrt(n2), sp
 
-    sel = state.effects
-    ffinal = state.fit
-    # --- gaps
-    exp0 = f0.dof / N
-    g_before = gap_rms(z0, exp0)
-    g_after = gap_rms(ffinal.z, ffinal.dof / N)
-    ho_before = heldout_gap(f0)
-    ho_after = heldout_gap(ffinal) if sel else ho_before
+    def trial(self, f: Fit, effect: str, est: float) -> Fit:
+        lim = EFFECT_PLAUSIBLE[effect]
+        vals = {} if effect == "sensor_lag" else self.param_values(
+            self.F.model(f.effects + [effect]), effect, float(np.clip(est, -lim, lim)))
+        return self.F.fit(f.effects + [effect], start=f, values=vals)
 
-    # --- ranking: selected (drop-one) then the rest (add-one)
-    ranking = []
-    Ufin = _basis(ffinal.J)
-    chi_scale = max(1.0, ffinal.chi2 / ffinal.dof)
-    proj_final = {}
-    for c in sel:
-        others = [e for e in sel if e != c]
-        fprev = _fit_set(runs, baseline, others, prev=ffinal)
-        name = f"effect:{c}"
-        est, se = ffinal.value(name), ffinal.std(name) * np.sqrt(chi_scale)
-        gb, ga = gap_rms(fprev.z, fprev.dof / N), g_after
-        hb = heldout_gap(fprev)
-        Up = _basis(fprev.J)
-        proj_final[c] = _perp(Up, fprev.model.signature(fprev.p, c))
-        ranking.append({"effect": c, "estimate": est, "std_uncertainty": float(se),
-                        "unit": EFFECTS[c].unit, "z": est / se if se > 0 else None,
-                        "delta_chi2": float(fprev.chi2 - ffinal.chi2), "significant": True,
-                        "shrink_in_sample": _shrink(gb, ga), "shrink_heldout": _shrink(hb, ho_after),
-                        "observable": True, **_obsfields(obs[c]), "aliases": []})
-    rest = [c for c in cands if c not in sel]
-    rest_scores = {}
-    for c in rest:
-        if not obs[c]["observable"]:
-            continue
-        jp = _perp(Ufin, ffinal.model.signature(ffinal.p, c))
-        n2 = float(jp @ jp)
-        proj_final[c] = jp
-        rest_scores[c] = float((jp @ ffinal.z) ** 2 / n2) if n2 > 0 else 0.0
-    for k, c in enumerate(sorted(rest_scores, key=lambda c: -rest_scores[c])):
-        if k < 3:
-            ft = _fit_set(runs, baseline, sel + [c], prev=ffinal)
-            name = f"effect:{c}"
-            est = ft.value(name)
-            se = ft.std(name) * np.sqrt(max(1.0, ft.chi2 / ft.dof))
-            dchi = float(ffinal.chi2 - ft.chi2)
-            sh = _shrink(g_after, gap_rms(ft.z, ft.dof / N))
-            shh = _shrink(ho_after, heldout_gap(ft))
-        else:
-            jp = proj_final[c]
-            n2 = float(jp @ jp)
-            est = float(jp @ ffinal.z / n2)
-            se = float(1 / np.sqrt(n2))
-            dchi, sh, shh = rest_scores[c], None, None
-        ranking.append({"effect": c, "estimate": est, "std_uncertainty": float(se), "unit": EFFECTS[c].unit,
-                        "z": est / se if se > 0 else None, "delta_chi2": dchi, "significant": False,
-                        "shrink_in_sample": sh, "shrink_heldout": shh, "observable": True,
-                        **_obsfields(obs[c]), "aliases": []})
-    unobservable = []
-    for c in cands:
-        if obs[c]["observable"]:
-            continue
-        entry = {"effect": c, "estimate": None, "std_uncertainty": None, "unit": EFFECTS[c].unit,
-                 "z": None, "delta_chi2": None, "significant": False, "shrink_in_sample": None,
-                 "shrink_heldout": None, "observable": False, **_obsfields(obs[c]), "aliases": []}
-        if obs[c]["applies"]:
-            entry["absorbed_by"] = _absorbed_by(f0, sig0[c])
-            entry["note"] = (f"not observable in these runs: {100 * entry['absorbed_fraction']:.4f} % of its "
-                             f"signature is absorbed by the fitted " + ", ".join(
-                                 a["group"] for a in entry["absorbed_by"][:2]))
-        else:
-            entry["note"] = "no run of a test kind it applies to"
-        ranking.append(entry)
-        unobservable.append(entry)
-
-    # --- aliases (projected signatures, |cos| > 0.95) incl. non-catalogue coefficients
-    keys = [c for c in proj_final if np.linalg.norm(proj_final[c]) > 0]
-    for e in ranking:
-        c = e["effect"]
-        if c not in proj_final:
-            continue
-        a = proj_final[c]
-        na = np.linalg.norm(a)
-        for d in keys:
-            if d == c:
+    # ------------------------------------------------------------------ steps
+    def observability(self, bare: Fit, sigs: dict[str, np.ndarray]) -> dict[str, dict]:
+        U = bare.basis()
+        m = max(len(self.cands), 1)
+        zthr = float(stats.norm.isf(self.alpha / (2 * m)))
+        obs = {}
+        for c in self.cands:
+            applies = any(r.test in EFFECTS[c].tests for r in self.cells)
+            s = sigs[c]
+            ns = float(np.linalg.norm(s))
+            o = {"applies": applies, "observable": False, "observable_fraction": 0.0, "absorbed_fraction": None,
+                 "min_detectable": None, "signature": s}
+            if ns == 0:
+                o["note"] = ("no signature in these runs: nothing they vary acts on it"
+                             + (" (no temperature logged)" if c in ("bias_temperature", "scale_temperature") else ""))
+                obs[c] = o
                 continue
-            b = proj_final[d]
-            cs = float(a @ b / (na * np.linalg.norm(b)))
-            if abs(cs) > ALIAS_COS:
-                e["aliases"].append(d)
-                e.setdefault("alias_cos", {})[d] = cs
-    if sel:
-        Ubase = _basis(f0.J)
-        ncs = _non_catalogue_signatures(f0)
-        for e in ranking[:len(sel)]:
-            a = _perp(Ubase, sig0[e["effect"]])
-            for cname, v in ncs.items():
-                b = _perp(Ubase, v)
-                nb = np.linalg.norm(b)
-                if nb > 0 and abs(float(a @ b) / (np.linalg.norm(a) * nb)) > ALIAS_COS:
-                    e.setdefault("coefficient_aliases", []).append(
-                        {"coefficient": cname, "note": "instrument coefficient, not a catalogue effect"})
-        if separate:
-            for e in ranking[:len(sel)]:
-                if e["aliases"]:
-                    e["separating_tests"] = {d: separating_tests(runs, baseline, sel, e["effect"], d, f0)
-                                             for d in e["aliases"][:2]}
+            sp = project_out(U, s)
+            fr = float(np.linalg.norm(sp) / ns)
+            o["observable_fraction"] = fr
+            o["absorbed_fraction"] = float(max(0.0, 1.0 - fr * fr))
+            o["projected"] = sp
+            if fr < UNOBSERVABLE_FRACTION:
+                ab = self.absorbed_by(bare, s)
+                o["absorbed_by"] = ab
+                o["note"] = (f"not observable in these runs: {100 * o['absorbed_fraction']:.4g} % of its signature "
+                             f"lies in the bare model's columns ({', '.join(a['parameter'] for a in ab[:3])}); "
+                             "whatever its size, those parameters take it up")
+                obs[c] = o
+                continue
+            # against the noise, not the gap: the gap is what a candidate may explain
+            md = zthr / float(np.linalg.norm(sp))
+            o["min_detectable"] = md
+            if md > EFFECT_PLAUSIBLE[c]:
+                o["note"] = (f"weakly observable: the smallest size these runs could detect ({md:.3g} "
+                             f"{EFFECTS[c].unit}) exceeds its largest plausible size ({EFFECT_PLAUSIBLE[c]:.3g})")
+                obs[c] = o
+                continue
+            o["observable"] = True
+            obs[c] = o
+        return obs
 
-    verdict = sel[0] if sel else None
-    # strict check of the mass-centre offset in transverse mounts (see model.py)
-    notes = []
-    if strict_check and any(u["effect"] == "mass_centre_offset" for u in unobservable):
-        tr = [r for r in runs if r.test in CENTRIFUGES
-              and abs(np.cos(np.radians(float(r.meta["mount_angle_deg"])))) < 0.1]
-        if tr:
-            fs0 = _fit_set(runs, baseline, sel, transverse_scale=False)
-            fs1 = _fit_set(runs, baseline, sel + ["mass_centre_offset"], transverse_scale=False, prev=fs0)
-            est = fs1.value("effect:mass_centre_offset")
-            se = fs1.std("effect:mass_centre_offset") * np.sqrt(max(1.0, fs1.chi2 / fs1.dof))
-            chk = {"effect": "mass_centre_offset", "transverse_runs": [r.run_id for r in tr],
-                   "estimate": est, "std_uncertainty": float(se), "delta_chi2": float(fs0.chi2 - fs1.chi2),
-                   "text": (f"The transverse mounts ({len(tr)} runs, cos phi = 0) do show it: there IA senses "
-                            f"omega_z^2 * r, the same sign at both polarities, which no bias, scale or K2-like "
-                            f"term of an IA mount produces. If the bare model kept no linear term in transverse "
-                            f"mounts it would be found: r = {est * 1e3:.3f} +- {se * 1e3:.3f} mm "
-                            f"(delta chi2 {fs0.chi2 - fs1.chi2:.3g}). With the per-run scale (radius) of the "
-                            f"baseline it is absorbed, as in the IA 0/180 pair.")}
-            for u in unobservable:
-                if u["effect"] == "mass_centre_offset":
-                    u["transverse_mount_check"] = chk
-            notes.append(chk["text"])
+    def absorbed_by(self, f: Fit, s: np.ndarray) -> list[dict]:
+        """The bare model's parameters that take up a signature, by their share of it."""
+        idx = np.flatnonzero(f.free)
+        J = f.J[:, idx]
+        x = np.linalg.lstsq(J / np.linalg.norm(J, axis=0), s, rcond=1e-10)[0] / np.linalg.norm(J, axis=0)
+        n2 = float(s @ s)
+        out = [{"parameter": f.model.params[i].name, "share": float((J[:, k] * x[k]) @ s / n2)}
+               for k, i in enumerate(idx)]
+        out.sort(key=lambda a: -abs(a["share"]))
+        return [a for a in out if abs(a["share"]) > 1e-3][:6]
 
-    where = [{"dimension": r["dimension"], "segment": r["segment"], "share": r["share"],
-              "chi2": r["chi2"], "expected": r["expected"], "p_holm": r["p_holm"], "significant": r["significant"]}
-             for r in where_rows if r["significant"]]
-    where.sort(key=lambda w: (-w["share"], w["dimension"]))
-    K1s = {c: f0.value(f"K1[{c}]") for c in f0.model.camp_index}
-    res_si = lambda f: _si_rms(f)  # noqa: E731
-    out = {
-        "verdict": verdict,
-        "verdict_aliases": ranking[0]["aliases"] if sel else [],
-        "selected": sel,
-        "baseline": {"label": base_label, "effects": baseline,
-                     "bare_model": "K1, K2 per campaign; K0 and scale (radius) per run; one K2-like c2 per "
-                                   "centrifuge mount orientation; the head-plane cross term per tumble head; "
-                                   "K0T, K1T with tilt_rotation runs; earth rate only if in the baseline"},
-        "ranking": ranking,
-        "unobservable": [{"effect": u["effect"], "absorbed_fraction": u["absorbed_fraction"],
-                          "observable_fraction": u["observable_fraction"], "note": u.get("note", ""),
-                          **({"transverse_mount_check": u["transverse_mount_check"]}
-                             if "transverse_mount_check" in u else {})} for u in unobservable],
-        "where": where,
-        "where_all": where_rows,
-        "gap": {"rms_before": float(np.sqrt(np.mean(z0 ** 2))), "rms_after": float(np.sqrt(np.mean(ffinal.z ** 2))),
-                "noise_rms": float(np.sqrt(ffinal.dof / N)),
-                "gap_rms_before": g_before, "gap_rms_after": g_after,
-                "shrink_in_sample": _shrink(g_before, g_after),
-                "heldout_gap_rms_before": ho_before, "heldout_gap_rms_after": ho_after,
-                "shrink_heldout": _shrink(ho_before, ho_after),
-                "units": "rms_* in units of the noise sigma of a cell mean (whitened); gap_rms = "
-                         "sqrt(max(0, mean z^2 - expected noise))",
-                "si": {"rms_before_m_s2": res_si(f0), "rms_after_m_s2": res_si(ffinal),
-                       "noise_rms_m_s2": _si_noise(f0)},
-                "chi2_before": f0.chi2, "dof_before": f0.dof, "chi2_after": ffinal.chi2, "dof_after": ffinal.dof},
-        "selection_steps": steps,
-        "alpha": alpha,
-        "notes": notes,
-        "runs": [{"run_id": r.run_id, "test": r.test, "campaign": r.campaign, "cells": r.ncell,
-                  "noise_model": r.noise_note} for r in runs],
-        "K1": K1s,
-        "elapsed_s": None,
-    }
-    out["_fits"] = {"before": f0, "after": ffinal}
-    out["elapsed_s"] = time.perf_counter() - t0
-    return out
+    def select(self, bare: Fit, obs: dict) -> tuple[Fit, list[str], list[dict], dict]:
+        """Forward selection: score, refit the best, likelihood ratio and held-out gates."""
+        cur, sel, steps = bare, [], []
+        fits = {(): bare}
+        pool = [c for c in self.cands if obs[c]["observable"]]
+        while len(sel) < self.max_effects:
+            rem = [c for c in pool if c not in sel]
+            if not rem or cur.dof <= 0:
+                break
+            U = cur.basis()
+            sc = {c: self.score(cur, c, U) for c in rem}
+            top = sorted(rem, key=lambda c: -sc[c][0])[: self.refit_top]
+            rows, best = [], None
+            for c in top:
+                t = self.trial(cur, c, sc[c][1])
+                # Bonferroni over every test the selection has made: m candidates at step k
+                lr = lr_test(cur, t, len(rem) * (len(sel) + 1), self.alpha)
+                sh = shrink(self.ho(cur), self.ho(t))
+                rows.append({"effect": c, "score": sc[c][0], **{k: lr[k] for k in ("delta_chi2", "p_value",
+                                                                                     "threshold_p", "significant")},
+                             "shrink_heldout": sh})
+                fits[tuple(sel + [c])] = t
+                ok = lr["significant"] and (sh is None or sh > 0)
+                if ok and (best is None or lr["delta_chi2"] > best[1]["delta_chi2"]):
+                    best = (c, lr, t)
+            best = self.tie_break(best, rows, fits, sel, sc)
+            steps.append({"step": len(sel) + 1, "candidates": len(rem), "tried": rows,
+                          "taken": best[0] if best else None})
+            if best is None:
+                break
+            sel.append(best[0])
+            # the noise model is refitted to the residuals of the model that takes the effect
+            # (a gap that varies inside cells, a K1T with the temperature moving during a
+            # dwell, inflates the bare model's), and the next step compares on it
+            cur = self.F.fit(best[2].effects, start=best[2], noise_passes=1)
+            fits = {tuple(sel): cur}
+        return cur, sel, steps, fits
+
+    def tie_break(self, best, rows, fits, sel, sc):
+        """Two aliased candidates (|cos| of their projected signatures > ALIAS_COS) that the
+        data do not tell apart (their chi-squares within 1 of each other: neither preferred by
+        a sigma) are a tie: the one of higher
+        precedence (:meth:`precedence`) is taken and the other is reported as its alias."""
+        if best is None:
+            return None
+        c0, lr0, _ = best
+        a = sc[c0][3]
+        for r in rows:
+            c = r["effect"]
+            if c == c0 or not r["significant"] or (r["shrink_heldout"] is not None and r["shrink_heldout"] <= 0):
+                continue
+            b = sc[c][3]
+            cos = abs(float(a @ b) / (np.linalg.norm(a) * np.linalg.norm(b) or 1.0))
+            tie = abs(r["delta_chi2"] - lr0["delta_chi2"]) <= 1.0
+            if cos > ALIAS_COS and tie and self.precedence(c) < self.precedence(best[0]):
+                best = (c, r, fits[tuple(sel + [c])])
+        return best
+
+    def precedence(self, effect: str) -> int:
+        """Order in which effects are named when the data cannot choose: first those the
+        lab's processing model carries for these tests (in its order: the term it would have
+        to add), then the catalogue's order (effects.md)."""
+        order = processing_effects(self.tests) + [e for e in EFFECTS if e not in processing_effects(self.tests)]
+        return order.index(effect)
+
+    def entry(self, c: str, final: Fit, without: Fit, obs: dict, selected: bool, m: int) -> dict:
+        """Ranking row of an effect from a fit with it (final or add-one) and one without."""
+        name = final.effect_parameter(c)
+        lr = lr_test(without, final, m, self.alpha)
+        est = final.value(name) if name else None
+        u = final.std(name) if name else None
+        many = final.effect_parameters(c)
+        extra = {"estimates": {n: {"value": final.value(n), "std_uncertainty": final.std(n)} for n in many}} \
+            if len(many) > 1 else {}
+        return {"effect": c, "estimate": est, "std_uncertainty": u, "unit": EFFECTS[c].unit, **extra,
+                "z": (est / u) if (est is not None and u) else None, "delta_chi2": lr["delta_chi2"],
+                "p_value": lr["p_value"], "statistic": lr["statistic"],
+                "significant": bool(selected and lr["significant"]),
+                "selected": selected,
+                "shrink_in_sample": shrink(gap_rms(without), gap_rms(final)),
+                "shrink_heldout": shrink(self.ho(without), self.ho(final)),
+                "observable": True, "observable_fraction": obs[c]["observable_fraction"],
+                "absorbed_fraction": obs[c]["absorbed_fraction"], "min_detectable": obs[c]["min_detectable"],
+                "aliases": []}
+
+    # ------------------------------------------------------------------ main
+    def run(self) -> dict:
+        bare, sigs = self.F.bare(self.cands)
+        obs = self.observability(bare, sigs)
+        final, sel, steps, fits = self.select(bare, obs)
+        if sel:          # the bare model on the final noise model: gaps compared on one scale
+            fits[()] = self.F.fit(self.baseline, start=bare)
+        m = max(sum(o["observable"] for o in obs.values()), 1)
+        ranking = []
+        for c in sel:
+            others = [e for e in sel if e != c]
+            wo = fits.get(tuple(others)) or self.F.fit(self.baseline + others, start=final)
+            ranking.append(self.entry(c, final, wo, obs, True, m))
+        U = final.basis()
+        rest = [c for c in self.cands if c not in sel and obs[c]["observable"]]
+        sc = {c: self.score(final, c, U) for c in rest}
+        for k, c in enumerate(sorted(rest, key=lambda c: -sc[c][0])):
+            if k < self.refit_top and final.dof > 0:
+                ranking.append(self.entry(c, self.trial(final, c, sc[c][1]), final, obs, False, m))
+            else:
+                s, est, se, _ = sc[c]
+                ranking.append({"effect": c, "estimate": est, "std_uncertainty": se * math.sqrt(
+                    final.scale2 if math.isfinite(final.scale2) else 1.0), "unit": EFFECTS[c].unit,
+                    "z": est / se if se and math.isfinite(se) else None, "delta_chi2": s, "p_value": None,
+                    "significant": False, "selected": False, "shrink_in_sample": None, "shrink_heldout": None,
+                    "observable": True, "observable_fraction": obs[c]["observable_fraction"],
+                    "absorbed_fraction": obs[c]["absorbed_fraction"], "min_detectable": obs[c]["min_detectable"],
+                    "aliases": [], "note": "linear estimate (projected signature), not refitted"})
+        unobservable = []
+        for c in self.cands:
+            if obs[c]["observable"]:
+                continue
+            o = obs[c]
+            e = {"effect": c, "estimate": None, "std_uncertainty": None, "unit": EFFECTS[c].unit, "z": None,
+                 "delta_chi2": None, "p_value": None, "significant": False, "selected": False,
+                 "shrink_in_sample": None, "shrink_heldout": None, "observable": False,
+                 "observable_fraction": o["observable_fraction"], "absorbed_fraction": o["absorbed_fraction"],
+                 "min_detectable": o["min_detectable"], "aliases": [], "note": o.get("note", "")}
+            if "absorbed_by" in o:
+                e["absorbed_by"] = o["absorbed_by"]
+            ranking.append(e)
+            unobservable.append({k: e[k] for k in ("effect", "observable_fraction", "absorbed_fraction", "note")}
+                                | ({"absorbed_by": o["absorbed_by"]} if "absorbed_by" in o else {}))
+        self.aliases(ranking, obs)
+        # verdict: a selected effect that passes significance and the held-out gate
+        # a gap worth naming: the bare model's lack of fit at 5 %, or a five-sigma effect of
+        # its own (a two-sigma effect in a model that fits is not a diagnosis)
+        gap = bare.lof.p_value is not None and bare.lof.p_value < GAP_SEEN
+        ok = [e for e in ranking if e["selected"] and e["significant"]
+              and (e["shrink_heldout"] or -math.inf) >= HELDOUT_GATE
+              and (gap or (e.get("statistic") or 0.0) >= VERDICT_STATISTIC)]
+        # of several, the one the processing model carries first among those that carry a
+        # five-sigma part of the chi-square on their own (all are listed significant)
+        strong = ([e for e in ok if (e.get("statistic") or 0.0) >= VERDICT_STATISTIC]
+                  or sorted(ok, key=lambda e: -e["delta_chi2"])[:1])
+        verdict = min(strong, key=lambda e: self.precedence(e["effect"]))["effect"] if strong else None
+        sel_rank = sorted([e for e in ranking if e["selected"]], key=lambda e: -(e["delta_chi2"] or 0))
+        ranking = sel_rank + [e for e in ranking if not e["selected"]]
+        if verdict:
+            ranking.sort(key=lambda e: e["effect"] != verdict)
+            self.alias_estimates(ranking[0], final, sel, obs)
+        return self.report(bare, fits[()], final, sel, steps, ranking, unobservable, verdict)
+
+    def alias_estimates(self, e: dict, final: Fit, sel: list[str], obs: dict) -> None:
+        """What each alias of the verdict would be if it were the cause: the final model with
+        the alias in place of the verdict, refitted (its estimate and how much worse it fits)."""
+        out = {}
+        for d in e["aliases"]:
+            if d in sel or not obs.get(d, {}).get("observable"):
+                continue
+            alt = self.F.fit([x for x in final.effects if x != e["effect"]] + [d], start=final)
+            name = alt.effect_parameter(d)
+            if name is not None:
+                out[d] = alt.value(name)
+                e.setdefault("alias_fit", {})[d] = {"delta_chi2_worse": alt.chi2 - final.chi2,
+                                                    "std_uncertainty": alt.std(name)}
+        if out:
+            e["alias_estimates"] = out
+
+    def aliases(self, ranking: list[dict], obs: dict) -> None:
+        """Effects whose signatures, projected off the bare model, have |cos| > ALIAS_COS; and
+        the non-catalogue coefficients the bare model holds for an effect."""
+        proj = {c: o["projected"] for c, o in obs.items() if "projected" in o and np.any(o["projected"])}
+        held = self.F.extra_held
+        for e in ranking:
+            c = e["effect"]
+            if c in proj:
+                a = proj[c]
+                na = np.linalg.norm(a)
+                for d, b in proj.items():
+                    if d == c:
+                        continue
+                    cs = float(a @ b / (na * np.linalg.norm(b)))
+                    if abs(cs) > ALIAS_COS:
+                        e["aliases"].append(d)
+                        e.setdefault("alias_cos", {})[d] = cs
+            co = [k for k, why in held.items() if c in why.split("candidate effect ", 1)[-1].split(" (")[0].split(", ")]
+            if co:
+                e["coefficient_aliases"] = [{"coefficient": k, "note": "instrument coefficient, not a catalogue "
+                                             "effect: held in the bare model so that the effect can be seen; the "
+                                             "runs cannot tell them apart"} for k in co]
+
+    def report(self, bare0: Fit, bare: Fit, final: Fit, sel, steps, ranking, unobservable, verdict) -> dict:
+        """bare0: the bare model on its own noise model (its lack of fit is 'before'); bare:
+        on the final noise model (gaps and shrinks are compared with the final fit on it)."""
+        before, after = gap_test(bare0), gap_test(final)
+        explained = None if after["significant"] is None else not after["significant"]
+        if before["significant"] is False and after["significant"] is None:
+            explained = True
+        rows_b = localise(bare0, self.alpha)
+        rows_a = localise(final, self.alpha) if sel else rows_b
+        ho_b, ho_a = self.ho(bare), self.ho(final)
+        g = {"rms_before": float(np.sqrt(np.mean(bare.z ** 2))), "rms_after": float(np.sqrt(np.mean(final.z ** 2))),
+             "noise_rms": float(np.sqrt(final.dof / final.N)) if final.N else None,
+             "gap_rms_before": gap_rms(bare), "gap_rms_after": gap_rms(final),
+             "shrink_in_sample": shrink(gap_rms(bare), gap_rms(final)),
+             "heldout_gap_rms_before": ho_b, "heldout_gap_rms_after": ho_a, "shrink_heldout": shrink(ho_b, ho_a),
+             "significant_before": before, "significant_after": after,
+             "units": "rms_* and gap_* in units of the noise sigma of a cell mean (whitened); gap_rms = "
+                      "sqrt(max(0, (chi2 - dof) / N)); held-out: alternate cells of each run predicted by a fit to "
+                      "the others",
+             "si": {"rms_before_m_s2": float(np.sqrt(np.mean(residual_si(bare) ** 2))),
+                    "rms_after_m_s2": float(np.sqrt(np.mean(residual_si(final) ** 2))),
+                    "noise_rms_m_s2": _noise_si(final)},
+             "chi2_before": bare.chi2, "dof_before": bare.dof, "chi2_after": final.chi2, "dof_after": final.dof}
+        if explained is False:
+            forms = shape(final)
+            unexplained = {"where": where(rows_a), "shape": forms, "text": "a significant gap remains that no "
+                           "catalogue effect explains: " + summary(rows_a, forms)}
+        else:
+            unexplained = None
+        status = self.status(before, after, verdict, sel)
+        K1 = {}
+        for c in final.model.campaigns:
+            n = final.model.name(c, "K1")
+            if n is not None:
+                K1[c] = final.value(n)
+        out = {
+            "verdict": verdict,
+            "verdict_aliases": next((e["aliases"] for e in ranking if e["effect"] == verdict), []) if verdict else [],
+            "explained": explained,
+            "status": status,
+            "selected": sel,
+            "baseline": {"label": self.label, "effects": self.baseline, "bare_model": _bare_text(bare0)},
+            "ranking": ranking,
+            "unobservable": unobservable,
+            "where": where(rows_b),
+            "where_after": where(rows_a) if sel else None,
+            "unexplained": unexplained,
+            "shape_before": shape(bare0),
+            "gap": g,
+            "selection_steps": steps,
+            "alpha": self.alpha, "gap_alpha": GAP_ALPHA, "heldout_gate": HELDOUT_GATE,
+            "held": dict(bare0.held),
+            "notes": self.notes,
+            "runs": [{"run_id": r.run_id, "test": r.test, "campaign": r.campaign, "cells": r.ncell,
+                      "noise": {"a": r.noise.a, "b": r.noise.b, "rho": r.noise.rho, "dof": r.noise.dof,
+                                "source": r.noise.source}, "notes": r.notes} for r in self.cells],
+            "K1": K1,
+            "where_all": rows_b,
+            "elapsed_s": None,
+        }
+        out["_fits"] = {"before": bare0, "after": final}
+        out["elapsed_s"] = time.perf_counter() - self.t0
+        return out
+
+    @staticmethod
+    def status(before, after, verdict, sel) -> str:
+        if before["significant"] is None:
+            return "untestable: no degrees of freedom (the bare model has as many parameters as distinct inputs)"
+        if not before["significant"] and not sel:
+            return "no significant gap"
+        if verdict and after["significant"] is False:
+            return f"gap explained by {', '.join(sel)}"
+        if after["significant"] is None:
+            return f"{', '.join(sel)} found; what remains is untestable (no degrees of freedom left)"
+        if after["significant"]:
+            return ("a significant gap remains unexplained" + (f" after {', '.join(sel)}" if sel else "")
+                    + ("" if verdict else ": no catalogue effect passes the significance and held-out gates"))
+        return (f"{', '.join(sel)} significant, but none is named: no held-out shrink of {HELDOUT_GATE:g}, or a "
+                "gap too small to name an effect for (the bare model fits at 5 % and no effect has five sigma)")
 
 
-def _obsfields(o):
-    return {"observable_fraction": o["observable_fraction"], "absorbed_fraction": o["absorbed_fraction"],
-            "min_detectable": o.get("min_detectable")}
+def _noise_si(f: Fit) -> float:
+    out = []
+    for j, r in enumerate(f.model.runs):
+        sl = f.model.rows(j)
+        n = f.model.name(r.campaign, "K1")
+        K1 = abs(f.value(n)) if n is not None else 1.0
+        out.append(f.model.sig[sl] / (K1 or 1.0))
+    return float(np.sqrt(np.mean(np.concatenate(out) ** 2))) if out else 0.0
 
 
-def _absorbed_by(f: Fit, j: np.ndarray):
-    """Which groups of baseline parameters absorb a signature (share of its energy)."""
-    m = f.model
-    d, _, _ = lstsq_scaled(f.J, j)
-    groups: dict[str, np.ndarray] = {}
-    for i, q in enumerate(m.params):
-        if d[i] != 0:
-            groups.setdefault(q.group, np.zeros(m.N))
-            groups[q.group] += f.J[:, i] * d[i]
-    nj = float(j @ j)
-    out = [{"group": g, "share": float(v @ j) / nj} for g, v in groups.items()]
-    out.sort(key=lambda a: -abs(a["share"]))
-    return [a for a in out if abs(a["share"]) > 1e-3]
-
-
-def _si_rms(f: Fit) -> float:
-    m = f.model
-    res = []
-    for j, r in enumerate(m.runs):
-        K1 = abs(f.value(f"K1[{r.campaign}]")) or 1.0
-        res.append(f.z[m.run_rows(j)] * m.sig[m.run_rows(j)] / K1)
-    return float(np.sqrt(np.mean(np.concatenate(res) ** 2)))
-
-
-def _si_noise(f: Fit) -> float:
-    m = f.model
-    res = []
-    for j, r in enumerate(m.runs):
-        K1 = abs(f.value(f"K1[{r.campaign}]")) or 1.0
-        res.append(m.sig[m.run_rows(j)] / K1)
-    return float(np.sqrt(np.mean(np.concatenate(res) ** 2)))
+def _bare_text(f: Fit) -> str:
+    free = [p.name for p, v in zip(f.model.params, f.free) if v]
+    held = [f"{k} ({v})" for k, v in f.held.items()]
+    return ("the forward model with the baseline effects; free: " + ", ".join(free)
+            + ("; held: " + "; ".join(held) if held else ""))
 
 
 def public(result: dict) -> dict:
     """The JSON-able part of a diagnosis."""
     return {k: v for k, v in result.items() if not k.startswith("_")}
+
+
+__all__ = ["diagnose", "public", "resolve_baseline", "candidates_for", "NON_CATALOGUE"]

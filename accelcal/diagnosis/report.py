@@ -18,40 +18,48 @@ def text_report(res: dict) -> str:
     L = []
     g = res["gap"]
     L.append(f"baseline: {res['baseline']['label']} ({', '.join(res['baseline']['effects']) or 'bare model'})")
-    L.append(f"gap (whitened rms, noise = {g['noise_rms']:.3f}): before {g['rms_before']:.4g}, after {g['rms_after']:.4g};"
-             f" in SI {g['si']['rms_before_m_s2']:.3g} -> {g['si']['rms_after_m_s2']:.3g} m/s2"
+    sb, sa = g["significant_before"], g["significant_after"]
+    L.append(f"gap before: {sb['status']}"
+             + (f" (F = {sb['F']:.4g}, p = {sb['p_value']:.3g})" if sb["p_value"] is not None else ""))
+    L.append(f"gap (whitened rms, noise = {_f(g['noise_rms'], '{:.3f}')}): before {g['rms_before']:.4g}, after "
+             f"{g['rms_after']:.4g}; in SI {g['si']['rms_before_m_s2']:.3g} -> {g['si']['rms_after_m_s2']:.3g} m/s2"
              f" (noise {g['si']['noise_rms_m_s2']:.3g})")
     L.append(f"shrink: in sample {_f(g['shrink_in_sample'], '{:.3f}')}, held out {_f(g['shrink_heldout'], '{:.3f}')}")
-    L.append(f"VERDICT: {res['verdict'] or 'no significant gap'}"
-             + (f" (aliases: {', '.join(res['verdict_aliases'])})" if res.get("verdict_aliases") else ""))
+    L.append(f"STATUS: {res['status']}")
+    L.append(f"VERDICT: {res['verdict'] or 'none'}"
+             + (f" (aliases: {', '.join(res['verdict_aliases'])})" if res.get("verdict_aliases") else "")
+             + f"; explained: {'-' if res['explained'] is None else str(res['explained']).lower()}")
     if res["selected"]:
-        L.append(f"effects found (forward selection, alpha {res['alpha']}): {', '.join(res['selected'])}")
+        L.append(f"effects found (forward selection, alpha {res['alpha']}): {', '.join(res['selected'])}; "
+                 f"gap after: {sa['status']}" + (f" (p = {sa['p_value']:.3g})" if sa["p_value"] is not None else ""))
+    if res.get("unexplained"):
+        L.append("UNEXPLAINED: " + res["unexplained"]["text"])
     L.append("")
-    L.append(f"{'effect':22s} {'estimate':>12s} {'u':>10s} {'z':>8s} {'dchi2':>10s} {'shrink':>7s} {'heldout':>7s} {'absorbed':>9s} sig aliases")
+    L.append(f"{'effect':22s} {'estimate':>12s} {'u':>10s} {'z':>8s} {'dchi2':>10s} {'shrink':>7s} {'heldout':>7s} "
+             f"{'obs.frac':>9s} sig aliases")
     for e in res["ranking"]:
         L.append(f"{e['effect']:22s} {_f(e['estimate']):>12s} {_f(e['std_uncertainty'], '{:.2g}'):>10s} "
                  f"{_f(e['z'], '{:.1f}'):>8s} {_f(e['delta_chi2'], '{:.3g}'):>10s} "
                  f"{_f(e['shrink_in_sample'], '{:.2f}'):>7s} {_f(e['shrink_heldout'], '{:.2f}'):>7s} "
-                 f"{_f(e['absorbed_fraction'], '{:.5f}'):>9s} {'*' if e['significant'] else ' ':>3s} "
+                 f"{_f(e['observable_fraction'], '{:.3g}'):>9s} {'*' if e['significant'] else ' ':>3s} "
                  f"{','.join(e['aliases'])}")
     if res["unobservable"]:
         L.append("")
         L.append("not observable in these runs:")
         for u in res["unobservable"]:
             L.append(f"  {u['effect']}: {u['note']}")
-            if "transverse_mount_check" in u:
-                L.append("    " + u["transverse_mount_check"]["text"])
     for e in res["ranking"]:
         for ca in e.get("coefficient_aliases", []):
-            L.append(f"note: {e['effect']} is indistinguishable here from the coefficient {ca['coefficient']} ({ca['note']})")
-        for d, props in (e.get("separating_tests") or {}).items():
-            if props:
-                p = props[0]
-                L.append(f"to separate {e['effect']} from {d}: add {p['add_run']} (|cos| -> {p['abs_cos']:.3f})")
+            L.append(f"note: {e['effect']} is indistinguishable here from the coefficient {ca['coefficient']} "
+                     f"({ca['note']})")
     L.append("")
-    L.append("where the gap lies (Holm-significant segments, share of the dimension's excess chi2):")
+    L.append("where the gap lies before (Holm-significant segments, share of the dimension's excess chi2):")
     for w in res["where"][:15]:
-        L.append(f"  {w['dimension']:12s} {w['segment']:28s} share {w['share']:.2f}  chi2 {w['chi2']:.4g} (expected {w['expected']:.3g})")
+        L.append(f"  {w['dimension']:12s} {w['segment']:28s} share {w['share']:.2f}  chi2 {w['chi2']:.4g} "
+                 f"(expected {w['expected']:.3g}), mean residual {w['mean_residual_m_s2']:.3g} m/s2")
+    if res.get("shape_before"):
+        L.append("shape before: " + "; ".join(f"{s['form']} ({100 * s['explained_fraction']:.0f} %)"
+                                              for s in res["shape_before"]))
     L.append(f"\n({len(res['runs'])} runs, {res['elapsed_s']:.2f} s)")
     return "\n".join(L)
 
@@ -78,7 +86,7 @@ def html_report(res: dict, out_dir) -> Path:
     for row, (f, lab) in enumerate(((fb, "before"), (fa, "after"))):
         ax = axes[row, 0]
         for j, r in enumerate(runs):
-            zz = f.z[f.model.run_rows(j)]
+            zz = f.z[f.model.rows(j)]
             ax.plot(np.full(zz.size, j) + np.linspace(-0.3, 0.3, zz.size), zz, ".", ms=3)
         ax.set_xticks(range(len(runs)))
         ax.set_xticklabels([r.run_id[-4:] for r in runs], rotation=90, fontsize=7)
@@ -88,10 +96,10 @@ def html_report(res: dict, out_dir) -> Path:
             ax = axes[row, k + 1]
             for j, r in enumerate(runs):
                 if d in r.attrs:
-                    ax.plot(r.attrs[d], f.z[f.model.run_rows(j)], ".", ms=3)
+                    ax.plot(r.attrs[d], f.z[f.model.rows(j)], ".", ms=3)
             ax.set_title(f"residual vs {d}")
     imgs.append(("Whitened residuals before (top) and after (bottom) adding the effects found", _png(fig)))
-    rk = [e for e in res["ranking"] if e["delta_chi2"] is not None][:10]
+    rk = [e for e in res["ranking"] if e["delta_chi2"] is not None and e["delta_chi2"] > 0][:10]
     if rk:
         fig, ax = plt.subplots(figsize=(7, 3.5))
         ax.barh([e["effect"] for e in rk][::-1], [max(e["delta_chi2"], 1e-3) for e in rk][::-1],
@@ -113,11 +121,26 @@ def html_report(res: dict, out_dir) -> Path:
     from .core import public
     pub = public(res)
     pub.pop("where_all", None)
-    body.append(f"<h2>JSON</h2><pre>{html.escape(json.dumps(pub, indent=1, default=_jd))}</pre>")
+    body.append(f"<h2>JSON</h2><pre>{html.escape(json.dumps(clean_json(pub), indent=1, default=_jd))}</pre>")
     p = out / "diagnosis.html"
     p.write_text("<!doctype html><html><head><meta charset='utf-8'><title>accelcal diagnosis</title></head><body>"
                  + "\n".join(body) + "</body></html>", encoding="utf-8")
     return p
+
+
+def clean_json(o):
+    """The same structure with non-finite floats as None (strict JSON)."""
+    if isinstance(o, dict):
+        return {k: clean_json(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [clean_json(v) for v in o]
+    if isinstance(o, (float, np.floating)):
+        return float(o) if np.isfinite(o) else None
+    if isinstance(o, np.integer):
+        return int(o)
+    if isinstance(o, np.ndarray):
+        return clean_json(o.tolist())
+    return o
 
 
 def _jd(o):

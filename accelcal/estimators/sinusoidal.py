@@ -536,14 +536,18 @@ class SineFit:
                 "success": self.success, "message": self.message}
 
 
-def _linear_start(params: list[Parameter], prep: list[_Run], w: np.ndarray) -> np.ndarray:
-    """Weighted LS optimum of the model with every tool error at zero: E is linear in
-    (K1, K1*Kj) (one-to-one with (K1, Kj) for K1 != 0); solved by the core's scaled SVD."""
-    x1 = np.array([1.0 if p.key == "K1" else 0.0 for p in params])
+def _linear_start(params: list[Parameter], prep: list[_Run], w: np.ndarray, tau: float = 0.0,
+                  rss: list | None = None) -> np.ndarray:
+    """Weighted LS optimum of the model with every tool error at zero (``sensor_lag`` at
+    ``tau``): E is linear in (K1, K1*Kj) (one-to-one with (K1, Kj) for K1 != 0); solved by
+    the core's scaled SVD.  The residual sum of squares is appended to ``rss`` when given."""
+    x1 = np.array([1.0 if p.key == "K1" else (tau if p.key == "sensor_lag" else 0.0) for p in params])
     lin = [j for j, p in enumerate(params) if _kind(p) != "tool"]
     J1 = np.vstack([w[i] * _jacobian_run(params, x1, r, i, lin) for i, r in enumerate(prep)])[:, lin]
     y = np.concatenate([w[i] * r.y for i, r in enumerate(prep)])
     b = _lstsq(J1, y).x
+    if rss is not None:
+        rss.append(float(np.sum((y - J1 @ b) ** 2)))
     K1 = float(b[[params[j].key for j in lin].index("K1")])
     if not np.isfinite(K1) or K1 == 0.0:
         K1 = 1.0
@@ -570,6 +574,22 @@ def _solve_nonlinear(params: list[Parameter], prep: list[_Run], x0: np.ndarray, 
 
     lower = np.array([0.0 if p.key in NON_NEGATIVE else -np.inf for p in params])
     return gauss_newton(resid, jac, x0, max_iter=50, lower=lower)
+def _lag_start(params: list[Parameter], prep: list[_Run], x0: np.ndarray) -> np.ndarray:
+    """Start of ``sensor_lag``: a sampled first-order lag shows nothing of a tau far below
+    the sample period (its derivative vanishes at 0, physics.instrument.first_order_lag), so
+    the start is the best of a few multiples of the period (0 included) by the residual of
+    the coefficient-only fit."""
+    j = next((k for k, p in enumerate(params) if p.key == "sensor_lag"), None)
+    if j is None:
+        return x0
+    dt = float(np.median(np.concatenate([np.diff(r.t) for r in prep])))
+    taus = [0.0] + [k * dt for k in (0.2, 0.5, 1.0, 2.0, 5.0)]
+    rss: list[float] = []
+    starts = [_linear_start(params, prep, np.ones(len(prep)), tau, rss) for tau in taus]
+    best = int(np.argmin(rss))
+    x = starts[best]
+    x[j] = taus[best]
+    return x
 
 
 def identify_sine_campaign(runs: Sequence, *, tool_errors: Mapping[str, str] | None = None,
@@ -643,6 +663,7 @@ def identify_sine_campaign(runs: Sequence, *, tool_errors: Mapping[str, str] | N
     x0 = _linear_start(params, prep, ones)
     K1_0 = float(x0[[p.key for p in params].index("K1")])
     params = [replace(p, scale=abs(K1_0)) if p.key == "K1" else p for p in params]
+    x0 = _lag_start(params, prep, x0)
 
     # 1) identifiability of the optional parameters at the starting point (design only)
     J0 = np.vstack([_jacobian_run(params, x0, r, i) for i, r in enumerate(prep)])

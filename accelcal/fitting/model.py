@@ -124,17 +124,27 @@ class CampaignModel:
         never (False).
     per_run_scale : bool
         K1 per run (a heterogeneity check; not for adopted values).
+    include : sequence of str
+        Instrument coefficients that are catalogue effects (K0T, K1T, Koq, K3, Kip) to include
+        wherever a campaign's tests are designed to determine them (:data:`DESIGNED`), even
+        when their effect is not in ``effects`` (the diagnosis' bare model: the
+        tilt-rotation test measures K0T and K1T).
+    fixed : sequence of str
+        Effects held at their physical size when in ``effects`` (default: ``earth_rate`` at 1);
+        an effect in ``effects`` but not here is a fitted parameter (the diagnosis estimates
+        the earth-rate scale when the baseline omits it).
     """
 
     def __init__(self, runs: Sequence[RunCells], effects: Sequence[str] = (), *,
                  shared: Sequence[str] = (), per_run_bias: bool | None = None,
-                 per_run_scale: bool = False):
+                 per_run_scale: bool = False, include: Sequence[str] = (),
+                 fixed: Sequence[str] = ("earth_rate",)):
         self.runs = list(runs)
         self.effects = [e for e in dict.fromkeys(effects)]
         for e in self.effects:
             if e not in EFFECTS:
                 raise ValueError(f"unknown effect id {e!r} (effects.md ids: {sorted(EFFECTS)})")
-        self.fixed = {"earth_rate": 1.0} if "earth_rate" in self.effects else {}
+        self.fixed = {"earth_rate": 1.0} if "earth_rate" in self.effects and "earth_rate" in fixed else {}
         #: mount angles the design cannot separate (IA radial): label -> runs
         self.unseparable_angles: dict[str, list[int]] = {}
         self.campaigns = list(dict.fromkeys(r.campaign for r in self.runs))
@@ -152,8 +162,14 @@ class CampaignModel:
         for c in self.campaigns:
             idx = [j for j, r in enumerate(self.runs) if r.campaign == c]
             tests = {self.runs[j].test for j in idx}
-            wanted = [k for k in instrument.DEFAULTS if any(k in DESIGNED[t] for t in tests)
-                      and (k not in COEFFICIENT_EFFECT or COEFFICIENT_EFFECT[k] in self.effects)]
+            # an instrument-term effect in the model adds its coefficient wherever the effect
+            # applies (bias_temperature to a centrifuge campaign too), not only where a test
+            # is designed to measure it
+            wanted = [k for k in instrument.DEFAULTS
+                      if (k not in COEFFICIENT_EFFECT and any(k in DESIGNED[t] for t in tests))
+                      or (k in COEFFICIENT_EFFECT and COEFFICIENT_EFFECT[k] in self.effects
+                          and any(t in EFFECTS[COEFFICIENT_EFFECT[k]].tests for t in tests))
+                      or (k in include and any(k in DESIGNED[t] for t in tests))]
             bias_runs = {j for j in idx if self._has_bias(self.runs[j], per_run_bias)}
             for k in wanted:
                 acts = [j for j in idx if not (k == "K0" and j in bias_runs)]
@@ -317,6 +333,8 @@ class CampaignModel:
         tau = float(eff.get("sensor_lag", 0.0))
         t = r.cols.get("time_s")
         base = None
+        lin: list[int] = []
+        rows: list[np.ndarray] = []
         for c, i in enumerate(cols):
             if i not in self.run_params[j]:
                 continue
@@ -327,9 +345,8 @@ class CampaignModel:
                     temp = self._temp(r)
                 col = instrument.output_derivative(role.key, co, F, temp, t,
                                                    float(eff.get("bias_drift", 0.0)))
-                if tau > 0:
-                    col = first_order_lag(col, t, tau)
-                J[:, c] = r.cell_mean(np.broadcast_to(col, r.y_rows.shape))
+                lin.append(c)
+                rows.append(np.broadcast_to(col, r.y_rows.shape))
                 continue
             h = 1e-3 * self.params[i].scale
             pp, pm = p.copy(), p.copy()
@@ -341,6 +358,13 @@ class CampaignModel:
                 continue
             pm[i] -= h
             J[:, c] = (self.predict_run(pp, j) - self.predict_run(pm, j)) / (2 * h)
+        if lin:
+            X = np.column_stack(rows)
+            if tau > 0:                       # the lag is linear: lag the columns at once
+                X = first_order_lag(X, t, tau)
+            keep = r.cid >= 0
+            for k, c in enumerate(lin):
+                J[:, c] = np.bincount(r.cid[keep], weights=X[keep, k], minlength=r.ncell) / r.n
         return J
 
     def jacobian(self, p: np.ndarray, params: Sequence[int] | None = None) -> np.ndarray:
@@ -382,10 +406,11 @@ class CampaignModel:
         return np.array([0.0 if r.key == "sensor_lag" else -np.inf for r in self.roles])
 
     # ----------------------------------------------------------------- start, selection
-    def start(self) -> np.ndarray:
+    def start(self, profile_lag: bool = True) -> np.ndarray:
         """Start values: K1 by regression of each campaign's outputs on the nominal input
         (the amplitude of the data, paper 003 starts from the nominal sensitivity), K0 and
-        the run biases from the mean residual, radii at the nominal arm radius."""
+        the run biases from the mean residual, radii at the nominal arm radius; a sensor lag
+        profiled (:meth:`start_lag`) unless ``profile_lag`` is False (a start given)."""
         p = self.params.values()
         for c in self.campaigns:
             i1 = self.params.index.get(self.name(c, "K1"))
@@ -415,7 +440,30 @@ class CampaignModel:
         for i, prm in enumerate(self.params):
             if self.roles[i].key == "K1":
                 self.params._p[i] = replace(prm, scale=max(abs(p[i]), 1e-12))
-        return p
+        return self.start_lag(p) if profile_lag else p
+
+    def start_lag(self, p: np.ndarray) -> np.ndarray:
+        """Start of ``sensor_lag`` (when it is a parameter): a sampled first-order lag shows
+        nothing of a tau far below the sample period, its derivative vanishing at 0
+        (:func:`accelcal.physics.instrument.first_order_lag`); the start is the best of 0 and
+        lags whose delays dt a / (1 - a) span 1e-8 to 3 sample periods, by the weighted
+        residual of a linear refit of the instrument coefficients."""
+        i = next((k for k, r in enumerate(self.roles) if r.key == "sensor_lag"), None)
+        if i is None:
+            return p
+        dt = float(np.median(np.concatenate([np.diff(self.runs[j].cols["time_s"])
+                                             for j in (self.params[i].runs or range(len(self.runs)))])))
+        lin = [k for k, r in enumerate(self.roles) if r.kind in ("coef", "bias")]
+        best, p_best = None, p
+        for tau in [0.0] + [dt / math.log1p(1.0 / d) for d in np.geomspace(1e-8, 3.0, 12)]:
+            q = p.copy()
+            q[i] = tau
+            z = self.residual(q)
+            q[lin] += lstsq_svd(self.jacobian(q, lin), z).x
+            c = float(np.sum(self.residual(q) ** 2))
+            if best is None or c < best:
+                best, p_best = c, q
+        return p_best
 
     def select(self, p: np.ndarray, tol: float = ALIAS_TOL, keep: Sequence[str] = ()) -> dict[str, str]:
         """Hold the parameters the design cannot determine at p (module docstring); returns

@@ -9,6 +9,7 @@ and bias drift K0 + d t (effect ``bias_drift``).  a_* in m/s^2, E in output_unit
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 
 import numpy as np
@@ -171,18 +172,26 @@ def output(coeffs: Mapping[str, float], f: np.ndarray, temp_c=None, time_s=None,
 
 
 def first_order_lag(x: np.ndarray, time_s: np.ndarray, tau: float) -> np.ndarray:
-    """Output of a first-order lag (effect ``sensor_lag``).
+    """The recorded output of a first-order lag with time constant tau (effect ``sensor_lag``).
 
-    .. math::
+    A DAQ record of a lagged output is the digital first-order lag at its own sample times:
 
-        \\tau \\dot y = x - y, \\quad y(t_0) = x(t_0)
+        y[n] = a_n y[n-1] + (1 - a_n) x[n],   a_n = exp(-(t_n - t_{n-1}) / tau),   y[0] = x[0]
 
-    exact for x linear between samples (first-order hold).
+    (exponential smoothing; the exact response of tau y' = x - y to an input that takes the
+    value x[n] over (t_{n-1}, t_n]).  For slow inputs it delays them by
+    D = dt a / (1 - a), i.e. tau - dt/2 for tau >> dt and almost nothing for tau << dt, and it
+    attenuates them by a further omega^2 D dt / 2 that a continuous lag of the same delay
+    does not: the data tell the two forms apart.  Data of an independent reference
+    simulator (``../shared/diagnosis-dev``, ``sine-lag-*``) follow this form to the noise,
+    and reject the continuous one (issue 10).
+
+    ``x`` may be (n,) or (n, k): k series filtered at once along the time axis.
 
     Parameters
     ----------
     x : ndarray
-        Input series [any unit].
+        Input series [any unit], (n,) or (n, k).
     time_s : ndarray
         Sample times [s].
     tau : float
@@ -198,22 +207,14 @@ def first_order_lag(x: np.ndarray, time_s: np.ndarray, tau: float) -> np.ndarray
         return x.copy()
     t = np.asarray(time_s, float)
     dts = np.diff(t)
-    if x.size > 2 and dts.size and np.all(dts > 0) and np.ptp(dts) <= 1e-9 * dts[0]:
-        # uniform sampling: the same recursion as one linear filter
-        # y[n] = a y[n-1] + b0 x[n] + b1 x[n-1], a = exp(-dt/tau), b0 = 1 - tau (1 - a)/dt
+    if x.shape[0] > 2 and dts.size and np.all(dts > 0) and np.ptp(dts) <= 1e-9 * dts[0]:
         from scipy.signal import lfilter
-        dt = float(dts.mean())
-        a = np.exp(-dt / tau)
-        b0 = 1.0 - tau * (1.0 - a) / dt
-        b1 = (1.0 - a) - b0
-        zi = np.array([a * x[0] + b1 * x[0]])          # makes y[0] = x[0] (steady state)
-        y, _ = lfilter([b0, b1], [1.0, -a], x[1:], zi=zi)
-        return np.concatenate([[x[0]], y])
+        a = math.exp(-float(dts.mean()) / tau)
+        y, _ = lfilter([1.0 - a], [1.0, -a], x[1:], axis=0, zi=(a * x[:1]))
+        return np.concatenate([x[:1], y])
     y = np.empty_like(x)
     y[0] = x[0]
     for n in range(1, x.size):
-        dt = t[n] - t[n - 1]
-        a = np.exp(-dt / tau) if dt > 0 else 1.0
-        s = (x[n] - x[n - 1]) / dt if dt > 0 else 0.0
-        y[n] = a * y[n - 1] + (1.0 - a) * x[n - 1] + s * (dt - tau * (1.0 - a))
+        a = math.exp(-max(t[n] - t[n - 1], 0.0) / tau)
+        y[n] = a * y[n - 1] + (1.0 - a) * x[n]
     return y

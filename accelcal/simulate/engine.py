@@ -13,7 +13,21 @@ Noise model (per run, from the run's own random stream):
 - white noise: K1(T) * N(0, white_m_s2) per row;
 - centripetal noise: K1(T) * N(0, centripetal_rel * omega_z^2 R) per row of a centrifuge or
   sine run, in every mount (what the lab's centrifuge data show: std/a_c ~ 2e-6 at 0, 45 and
-  90 deg alike).
+  90 deg alike);
+- logged-angle noise: the logged angle (tumble ``angle_deg``, tilt ``rotation_deg``, the
+  centrifuges' ``table_angle_deg``) = true angle + N(0, angle_log_deg); the physics sees the
+  true angle;
+- rare spikes: with probability spike_rate per row the output gains
+  K1(T) * s * spike_m_s2 * (1 + |N(0, 1)|), s = +-1;
+- output counts: the output is rounded to a multiple of output_quantum (output_unit), last.
+
+The optional noise keys draw random numbers only when they are above 0, so a scenario
+without them gives the same bytes as before they existed.
+
+Disturbances (``[disturbance]``): effects outside the catalogue (effects.md), for testing that
+the diagnosis says a gap is unexplained: a bias quadratic in temperature
+K1(T) * bias_temp_quadratic_m_s2_c2 * (T - T_ref)^2 and a periodic bias
+K1(T) * bias_periodic_m_s2 * sin(2 pi t / bias_periodic_period_s).
 """
 from __future__ import annotations
 
@@ -24,11 +38,11 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ..constants import OMEGA_EARTH
+from ..constants import OMEGA_EARTH, T_REF_C
 from ..effects import EFFECTS
 from ..physics import rig_output, scale_factor
 from ..physics.rigs import INSTRUMENT_EFFECTS
-from .scenario import Scenario, load_scenario
+from .scenario import DISTURBANCE_DEFAULTS, Scenario, load_scenario
 
 COLUMNS = {
     "tumble": ["time_s", "position", "angle_deg", "output", "temp_c"],
@@ -115,7 +129,30 @@ def _finish(kind, meta, phys, coeffs, effects, noise, rng, sc_truth, level=None)
         E = E + K1 * noise["white_m_s2"] * rng.standard_normal(n)
     if level is not None and noise.get("centripetal_rel", 0.0) > 0:
         E = E + K1 * noise["centripetal_rel"] * np.abs(level) * rng.standard_normal(n)
+    quad = noise.get("bias_temp_quadratic_m_s2_c2", 0.0)
+    if quad and temp is not None:
+        E = E + K1 * quad * (temp - T_REF_C) ** 2
+    amp, period = noise.get("bias_periodic_m_s2", 0.0), noise.get("bias_periodic_period_s", 0.0)
+    if amp and period > 0:
+        E = E + K1 * amp * np.sin(2 * np.pi * t / period)
+    if noise.get("spike_rate", 0.0) > 0 and noise.get("spike_m_s2", 0.0) > 0:
+        hit = rng.random(n) < noise["spike_rate"]
+        sign = np.where(rng.random(n) < 0.5, -1.0, 1.0)
+        size = noise["spike_m_s2"] * (1.0 + np.abs(rng.standard_normal(n)))
+        E = E + K1 * np.where(hit, sign * size, 0.0)
+    q = noise.get("output_quantum", 0.0)
+    if q > 0:
+        E = np.round(E / q) * q
     return E, E0
+
+
+def _logged_angle(angle: np.ndarray, noise: dict, rng: np.random.Generator) -> np.ndarray:
+    """The angle as logged: the true angle plus its reading noise (only drawn when
+    ``angle_log_deg`` > 0; NaN stays NaN)."""
+    sd = noise.get("angle_log_deg", 0.0)
+    if sd <= 0:
+        return angle
+    return np.asarray(angle, float) + sd * rng.standard_normal(np.shape(angle))
 
 
 def _frame(kind: str, cols: dict) -> pd.DataFrame:
@@ -144,13 +181,32 @@ def _tumble_run(sc, t, head, meta, effects, noise, rng):
     j = np.tile(np.arange(n_read), n_pos)
     time = pos * period + j * dt
     angle = 360.0 * pos / n_pos
-    temp = float(t.get("temp_c", 23.0)) + noise["temp_noise_c"] * rng.standard_normal(time.size)
+    temp = _case_temperature(t, time) + noise["temp_noise_c"] * rng.standard_normal(time.size)
     meta.update({"head_axis": head["head_axis"], "cos_axis": head["cos_axis"], "sin_axis": head["sin_axis"]})
     cols = {"time_s": time, "position": pos, "angle_deg": angle, "temp_c": temp}
     phys = _frame_phys(cols)
+    logged = _logged_angle(angle, noise, rng)
     E, E0 = _finish("tumble", meta, phys, sc.coefficients, effects, noise, rng, None)
     cols["output"] = E
+    cols["angle_deg"] = logged
     return cols, {"noise_free_output": E0}
+
+
+def _case_temperature(t: dict, time: np.ndarray) -> np.ndarray:
+    """Case temperature of a tumble or centrifuge run: ``temp_c``; with ``temp_tau_s`` an
+    exponential approach to it from ``temp_start_c`` (a unit warming up on the rig); with
+    ``temp_cycle_c`` a sinusoidal swing of that amplitude and ``temp_cycle_period_s`` (the
+    room's air conditioning)."""
+    time = np.asarray(time, float)
+    T = np.full(time.shape, float(t.get("temp_c", 23.0)))
+    t0 = float(np.min(time)) if time.size else 0.0
+    tau = float(t.get("temp_tau_s", 0.0))
+    if tau > 0:
+        T = T + (float(t.get("temp_start_c", T[0] if T.size else 0.0)) - T) * np.exp(-(time - t0) / tau)
+    amp, period = float(t.get("temp_cycle_c", 0.0)), float(t.get("temp_cycle_period_s", 0.0))
+    if amp and period > 0:
+        T = T + amp * np.sin(2 * np.pi * (time - t0) / period)
+    return T
 
 
 def _frame_phys(cols: dict) -> pd.DataFrame:
@@ -213,7 +269,7 @@ def _centrifuge_run(sc, t, mount, meta, effects, noise, rng):
     delta = noise["rate_jitter_rel"] * rng.standard_normal(time.size)
     true_rate = np.where(moving, logged * np.sqrt(1.0 + delta), 0.0)
     angle = np.asarray(dwell_angle)[step]
-    temp = float(t.get("temp_c", 23.0)) + noise["temp_noise_c"] * rng.standard_normal(time.size)
+    temp = _case_temperature(t, time) + noise["temp_noise_c"] * rng.standard_normal(time.size)
     meta.update({"arm_radius_m": R, "rotation_sense": sense, "mount_plane": str(mount["plane"]),
                  "mount_angle_deg": float(mount.get("angle_deg", 0.0)),
                  "vertical_axis": str(mount["vertical"]),
@@ -221,6 +277,7 @@ def _centrifuge_run(sc, t, mount, meta, effects, noise, rng):
     cols = {"time_s": time, "step": step, "table_rate_rad_s": logged, "table_angle_deg": angle,
             "temp_c": temp}
     phys = _frame_phys({**cols, "table_rate_rad_s": true_rate})
+    cols["table_angle_deg"] = _logged_angle(angle, noise, rng)
     E, E0 = _finish("centrifuge", meta, phys, sc.coefficients, effects, noise, rng, None,
                     level=_centripetal(meta, true_rate, R))
     cols["output"] = E
@@ -260,8 +317,10 @@ def _tilt_run(sc, t, meta, effects, noise, rng):
     cols = {"time_s": time, "temp_set_c": np.concatenate(tset), "temp_c": temp,
             "rotation_deg": np.concatenate(rot)}
     phys = _frame_phys(cols)
+    logged = _logged_angle(cols["rotation_deg"], noise, rng)
     E, E0 = _finish("tilt_rotation", meta, phys, sc.coefficients, effects, noise, rng, None)
     cols["output"] = E
+    cols["rotation_deg"] = logged
     return cols, {"noise_free_output": E0}
 
 
@@ -283,6 +342,7 @@ def _sine_run(sc, t, att, meta, effects, noise, rng):
                  "vertical_axis": str(att["vertical"]), "rate_amplitude_rad_s": Om, "rate_frequency_hz": f})
     cols = {"time_s": time, "table_rate_rad_s": logged, "table_angle_deg": angle}
     phys = _frame_phys({**cols, "table_rate_rad_s": true_rate})
+    cols["table_angle_deg"] = _logged_angle(angle, noise, rng)
     E, E0 = _finish("sine_centrifuge", meta, phys, sc.coefficients, effects, noise, rng, None,
                     level=_centripetal(meta, true_rate, float(t["arm_radius_m"])))
     cols["output"] = E
@@ -323,7 +383,7 @@ def simulate_campaign(scenario, seed: int | None = None) -> list[SimRun]:
         run_id = f"{prefix}-{num:04d}"
         item_effects = (item or {}).get("effects", {}) if isinstance(item, dict) else {}
         effects = _effects_for(kind, sc.effects, t["effects"], item_effects)
-        noise = {**sc.noise, **t["noise"]}
+        noise = {**sc.noise, **t["noise"], **sc.disturbance, **t["disturbance"]}
         rng = _rng(seed, index)
         if kind == "tumble":
             period = float(t.get("sample_period_s", 1.0))
@@ -343,8 +403,11 @@ def simulate_campaign(scenario, seed: int | None = None) -> list[SimRun]:
         else:
             cols, extra = _sine_run(sc, t, item, meta, effects, noise, rng)
         _optional_meta(meta, item if isinstance(item, dict) else None, t)
+        dist = {k: noise.pop(k) for k in list(noise) if k in DISTURBANCE_DEFAULTS}
         truth: dict[str, Any] = {"scenario": sc.name, "coefficients": dict(sc.coefficients),
                                  "effects": effects, "noise": noise, "seed": seed, "run_index": index}
+        if any(dist.values()):
+            truth["disturbance"] = dist
         if kind == "centrifuge":
             truth["mount"] = {k2: v for k2, v in item.items() if k2 != "effects"}
         truth.update(extra)

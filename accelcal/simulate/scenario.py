@@ -40,6 +40,17 @@ key says otherwise (``*_deg``, ``*_c``).  Layout::
                                     # the same in every mount (what real centrifuge data show)
     bias_walk_m_s2_rt_s = 0.0       # bias random walk, m/s^2/sqrt(s): K0 gains a Wiener process
     temp_noise_c = 0.02             # reading-to-reading noise of temp_c, degC
+    angle_log_deg = 0.0             # noise of the logged angle (angle_deg, rotation_deg,
+                                    #   table_angle_deg), deg; the physics sees the true angle
+    spike_rate = 0.0                # probability per row of a spike in the output ...
+    spike_m_s2 = 0.0                # ... of size spike_m_s2 (1 + |N(0,1)|) m/s^2 of input, random sign
+    output_quantum = 0.0            # output rounded to counts of this size (output_unit)
+                                    # (the optional keys draw nothing when 0: same bytes as before)
+
+    [disturbance]                   # effects outside the catalogue (diagnosis tests); defaults 0
+    bias_temp_quadratic_m_s2_c2 = 0.0   # bias gains c (T - 20 degC)^2
+    bias_periodic_m_s2 = 0.0            # bias gains A sin(2 pi t / P) ...
+    bias_periodic_period_s = 0.0        # ... with this period P
 
     [[test]]                        # one [[test]] per rig session; each makes one or more runs
     kind = "tumble"                 # tumble | centrifuge | tilt_rotation | sine_centrifuge
@@ -52,6 +63,7 @@ key says otherwise (``*_deg``, ``*_c``).  Layout::
     notes = ""                      # optional metadata (also: operator, daq_id)
     [test.effects]                  # overrides/additions to the campaign-wide effects
     [test.noise]                    # overrides of the noise defaults
+    [test.disturbance]              # overrides of the disturbances
 
 Per kind (defaults in brackets):
 
@@ -59,7 +71,9 @@ Per kind (defaults in brackets):
 [one run from ``head_axis``/``cos_axis``/``sin_axis``, default PA/+IA/+OA];
 ``positions`` [24] equally spaced head angles; ``readings`` [10] per position;
 ``sample_period_s`` [1]; ``dwell_period_s`` [40] from one position to the next;
-``temp_c`` [23] case temperature (plus temp noise).
+``temp_c`` [23] case temperature (plus temp noise); with ``temp_tau_s`` [0] the temperature
+approaches ``temp_c`` exponentially from ``temp_start_c``, with ``temp_cycle_c`` [0] it swings
+by that amplitude with ``temp_cycle_period_s`` (also for ``centrifuge``).
 
 ``centrifuge``: ``arm_radius_m`` (nominal, written to the file; the true turning centre is
 the same unless ``arm_stretch``), ``rotation_sense`` [ccw], ``mounts`` = list of
@@ -110,6 +124,16 @@ NOISE_DEFAULTS: dict[str, float] = {
     "centripetal_rel": 0.0,
     "bias_walk_m_s2_rt_s": 0.0,
     "temp_noise_c": 0.0,
+    "angle_log_deg": 0.0,
+    "spike_rate": 0.0,
+    "spike_m_s2": 0.0,
+    "output_quantum": 0.0,
+}
+#: Effects outside the catalogue the simulator can add (``[disturbance]``), all off by default.
+DISTURBANCE_DEFAULTS: dict[str, float] = {
+    "bias_temp_quadratic_m_s2_c2": 0.0,
+    "bias_periodic_m_s2": 0.0,
+    "bias_periodic_period_s": 0.0,
 }
 
 _COEFF_NAMES = set(COEFFICIENTS) - {"theta0"}
@@ -132,6 +156,7 @@ class Scenario:
     tests: list[dict[str, Any]]
     raw: dict[str, Any] = field(repr=False, default_factory=dict)
     source: str | None = None
+    disturbance: dict[str, float] = field(default_factory=dict)
 
 
 def _check_effects(eff: Mapping, where: str) -> dict[str, float]:
@@ -146,14 +171,17 @@ def _check_effects(eff: Mapping, where: str) -> dict[str, float]:
     return out
 
 
-def _check_noise(noise: Mapping, where: str) -> dict[str, float]:
+def _check_noise(noise: Mapping, where: str, known: Mapping[str, float] = NOISE_DEFAULTS,
+                 what: str = "noise") -> dict[str, float]:
     out = {}
     for k, v in (noise or {}).items():
-        if k not in NOISE_DEFAULTS:
-            raise ScenarioError(f"{where}: unknown noise key {k!r} (known: {sorted(NOISE_DEFAULTS)})")
+        if k not in known:
+            raise ScenarioError(f"{where}: unknown {what} key {k!r} (known: {sorted(known)})")
         out[k] = float(v)
-        if out[k] < 0:
+        if what == "noise" and out[k] < 0:
             raise ScenarioError(f"{where}: noise {k} must be >= 0")
+    if what == "noise" and out.get("spike_rate", 0.0) > 1:
+        raise ScenarioError(f"{where}: noise spike_rate is a probability (<= 1)")
     return out
 
 
@@ -205,6 +233,7 @@ def load_scenario(path_or_dict) -> Scenario:
 
     effects = _check_effects(raw.get("effects", {}), "[effects]")
     noise = {**NOISE_DEFAULTS, **_check_noise(raw.get("noise", {}), "[noise]")}
+    disturbance = _check_noise(raw.get("disturbance", {}), "[disturbance]", DISTURBANCE_DEFAULTS, "disturbance")
 
     tests = [dict(t) for t in raw.get("test", [])]
     if not tests:
@@ -216,6 +245,7 @@ def load_scenario(path_or_dict) -> Scenario:
             raise ScenarioError(f"{where}: kind {kind!r} is not one of {TESTS}")
         t["effects"] = _check_effects(t.get("effects", {}), where)
         t["noise"] = _check_noise(t.get("noise", {}), where)
+        t["disturbance"] = _check_noise(t.get("disturbance", {}), where, DISTURBANCE_DEFAULTS, "disturbance")
         t.setdefault("rig_id", {"tumble": "DH-1", "centrifuge": "CF-1", "tilt_rotation": "TT-1",
                                 "sine_centrifuge": "DC-1"}[kind])
         if kind in ("centrifuge", "sine_centrifuge"):
@@ -256,4 +286,5 @@ def load_scenario(path_or_dict) -> Scenario:
     seed = raw.get("seed")
     return Scenario(name=str(raw.get("name", Path(source).stem if source else "scenario")),
                     seed=None if seed is None else int(seed), unit=unit, coefficients=coeffs,
-                    site=site, effects=effects, noise=noise, tests=tests, raw=raw, source=source)
+                    site=site, effects=effects, noise=noise, tests=tests, raw=raw, source=source,
+                    disturbance=disturbance)

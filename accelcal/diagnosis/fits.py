@@ -1,0 +1,383 @@
+"""The fits a diagnosis compares: the campaign model (:class:`accelcal.fitting.model.
+CampaignModel`, the one forward model) with the baseline effects and with candidates added,
+all on the same cells and the same noise model, and the statistics on them (lack of fit,
+likelihood ratio, held-out gap).
+
+Conventions: every residual is whitened by the noise model of its run (fitted to the
+within-cell scatter of the bare model's residuals, :func:`accelcal.fitting.data.fit_noise`),
+so that fits with different effects are compared on the same weights (a likelihood ratio
+needs them).  Gaps are rms excesses over the noise in units of a cell mean's sigma.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy import stats
+
+from ..effects import EFFECTS
+from ..estimators.joint import _pure_error
+from ..fitting.core import (LackOfFit, ParameterSet, gauss_newton, lack_of_fit, lstsq_svd,
+                            separable_columns)
+from ..fitting.data import RunCells, fit_noise, pool_missing_noise
+from ..fitting.model import ALIAS_TOL, EFFECT_SCALE, PRIORITY, CampaignModel
+
+#: Instrument coefficients that are not catalogue effects.  A candidate effect they would
+#: absorb claims its direction first: the bare model holds them and the diagnosis names
+#: them as the effect's coefficient aliases (theta0 and Ko in one tumble; Kip and Kpp with
+#: only 0 and 45 deg mounts).
+NON_CATALOGUE = ("Kp", "Ko", "Kio", "Kpo", "Kpp", "Koo")
+#: Catalogue instrument terms a test is designed to measure: part of the bare model where
+#: that test is present (the tilt-rotation test measures K0T and K1T, paper 001).
+DESIGNED_TERMS = ("K0T", "K1T")
+#: Level of the lack-of-fit test that says whether a gap remains: a claim that the model is
+#: inadequate is a strong one (one clean campaign in a thousand makes it by chance).
+GAP_ALPHA = 0.001
+
+
+@dataclass
+class Fit:
+    """A fitted model: values, whitened residual z and Jacobian J (free columns), chi-square,
+    rank, lack of fit against the pure error."""
+    model: CampaignModel
+    effects: list[str]
+    p: np.ndarray
+    z: np.ndarray
+    J: np.ndarray
+    free: np.ndarray
+    chi2: float
+    rank: int
+    lof: LackOfFit
+    held: dict[str, str] = field(default_factory=dict)
+    converged: bool = True
+
+    @property
+    def N(self) -> int:
+        return int(self.z.size)
+
+    @property
+    def dof(self) -> int:
+        return self.N - self.rank
+
+    @property
+    def scale2(self) -> float:
+        """max(1, chi2/dof): the variance factor of a model that leaves a gap (inf without dof)."""
+        return max(1.0, self.chi2 / self.dof) if self.dof > 0 else math.inf
+
+    def index(self, name: str) -> int | None:
+        return self.model.params.index.get(name)
+
+    def value(self, name: str) -> float | None:
+        i = self.index(name)
+        return None if i is None else float(self.p[i])
+
+    def cov(self) -> tuple[np.ndarray, np.ndarray]:
+        """(free column indices, covariance (J^T J)^+ of them) under the noise model."""
+        idx = np.flatnonzero(self.free)
+        return idx, lstsq_svd(self.J[:, idx], np.zeros(self.N)).cov
+
+    def std(self, name: str) -> float | None:
+        """Standard uncertainty under the noise model, scaled by sqrt(chi2/dof) when the
+        model leaves a gap (None when held or not determined)."""
+        i = self.index(name)
+        if i is None or not self.free[i]:
+            return None
+        idx, C = self.cov()
+        k = int(np.flatnonzero(idx == i)[0])
+        v = C[k, k]
+        return float(math.sqrt(v * (self.scale2 if math.isfinite(self.scale2) else 1.0))) if v > 0 else None
+
+    def basis(self) -> np.ndarray:
+        """Orthonormal basis of the span of the free columns (whitened)."""
+        return _basis(self.J[:, self.free])
+
+    def effect_parameters(self, effect: str) -> list[str]:
+        """Names of the free parameters of an effect in this model (theta0 per head, ...)."""
+        coef = {"odd_quadratic": "Koq", "cubic": "K3", "cross_coupling": "Kip",
+                "bias_temperature": "K0T", "scale_temperature": "K1T"}.get(effect)
+        return [prm.name for prm, role, v in zip(self.model.params, self.model.roles, self.free)
+                if v and ((role.kind == "effect" and role.key == effect) or (coef and role.kind == "coef"
+                                                                              and role.key == coef))]
+
+    def effect_parameter(self, effect: str) -> str | None:
+        """Name of the (single) parameter of an effect in this model, if it has one."""
+        names = [prm.name for prm, role in zip(self.model.params, self.model.roles)
+                 if role.kind == "effect" and role.key == effect and prm.vary]
+        if not names:
+            coef = {"odd_quadratic": "Koq", "cubic": "K3", "cross_coupling": "Kip",
+                    "bias_temperature": "K0T", "scale_temperature": "K1T"}.get(effect)
+            names = [prm.name for prm, role in zip(self.model.params, self.model.roles)
+                     if role.kind == "coef" and role.key == coef and prm.vary]
+        return names[0] if len(names) == 1 else None
+
+
+def _basis(J: np.ndarray, rcond: float = 1e-10) -> np.ndarray:
+    norm = np.linalg.norm(J, axis=0)
+    act = norm > 0
+    if not act.any():
+        return np.zeros((J.shape[0], 0))
+    U, S, _ = np.linalg.svd(J[:, act] / norm[act], full_matrices=False)
+    return U[:, S > S[0] * rcond]
+
+
+def project_out(U: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """v minus its part in the span of U (orthonormal columns)."""
+    return v - U @ (U.T @ v)
+
+
+# ----------------------------------------------------------------------------- the fits
+class Fitter:
+    """Fits campaign models of one set of cells with a fixed noise model.
+
+    Parameters
+    ----------
+    cells : list of RunCells
+    baseline : list of str
+        Effects the model is told about.
+    include : sequence of str
+        Designed catalogue terms to keep in the bare model (:data:`DESIGNED_TERMS`).
+    """
+
+    def __init__(self, cells: Sequence[RunCells], baseline: Sequence[str], include: Sequence[str] = DESIGNED_TERMS):
+        self.cells = list(cells)
+        self.baseline = list(baseline)
+        self.include = tuple(include)
+        #: non-catalogue coefficients held in every model: name -> reason
+        self.extra_held: dict[str, str] = {}
+        self.sample_period = {j: float(np.median(np.diff(r.cols["time_s"]))) if r.y_rows.size > 1 else 1.0
+                              for j, r in enumerate(self.cells)}
+
+    # ------------------------------------------------------------------ models
+    def model(self, effects: Sequence[str]) -> CampaignModel:
+        """The campaign model with ``effects``; the earth rate is held at its physical size
+        only when the baseline says it is there (as a candidate its scale is estimated)."""
+        return CampaignModel(self.cells, list(effects), include=self.include,
+                             fixed=[e for e in ("earth_rate",) if e in self.baseline],
+                             shared=[e for e in ("mount_angle_error",) if e not in self.baseline])
+
+    def step(self, effect: str) -> float:
+        """Difference step of an effect's signature: a sampled lag needs a finite one (a
+        fraction of the sample period: its derivative vanishes at 0)."""
+        if effect == "sensor_lag":
+            dts = [self.sample_period[j] for j, r in enumerate(self.cells) if r.test in EFFECTS[effect].tests]
+            return 0.5 * float(np.median(dts)) if dts else 1e-3
+        return 1e-3 * EFFECT_SCALE[effect]
+
+    def signature(self, model: CampaignModel, p: np.ndarray, effect: str) -> np.ndarray:
+        """Whitened derivative of the model with respect to a candidate effect."""
+        return model.signature(p, effect, self.step(effect))
+
+    def fit(self, effects: Sequence[str], start: "Fit | None" = None, values: Mapping[str, float] | None = None,
+            noise_passes: int = 0, max_iter: int = 30) -> Fit:
+        """Fit the model with ``effects``; start from a previous fit's values (by name) and
+        ``values`` (e.g. a candidate's linear estimate)."""
+        m = self.model(effects)
+        given = start is not None and any(start.index(prm.name) is not None for prm, role in
+                                          zip(m.params, m.roles) if role.key == "sensor_lag")
+        p = m.start(profile_lag=not given)
+        if start is not None:
+            for i, prm in enumerate(m.params):
+                j = start.index(prm.name)
+                if j is not None and start.model.params[j].vary:
+                    p[i] = start.p[j]
+        for k, v in (values or {}).items():
+            i = m.params.index.get(k)
+            if i is not None:
+                p[i] = v
+        held = m.select(p)
+        if start is not None:
+            held = self._nested(m, p, held, start)
+        for k, v in self.extra_held.items():
+            if k in m.params.index:
+                held.setdefault(k, v)
+        m.params = ParameterSet(replace(prm, vary=prm.name not in held) for prm in m.params)
+        for k in held:                           # at their held value, whatever a start said
+            p[m.params.index[k]] = m.params[k].value
+        free = m.params.free()
+        gn = gauss_newton(m.residual, m.jacobian, p, free, max_iter=max_iter)
+        for _ in range(noise_passes):
+            for j, r in enumerate(m.runs):
+                fit_noise(r, r.y_rows - m.predict_rows(gn.p, j), use_level=bool(r.x.size and np.ptp(r.x) > 0))
+            pool_missing_noise(m.runs)
+            m.refresh_noise()
+            gn = gauss_newton(m.residual, m.jacobian, gn.p, free, max_iter=max_iter)
+        return self._finish(m, effects, gn, held)
+
+    @staticmethod
+    def _nested(m: CampaignModel, p: np.ndarray, held: dict[str, str], start: Fit) -> dict[str, str]:
+        """Holds of a model that extends ``start``: the parameters they share keep the status
+        they had there (so that the two are nested and their chi-squares comparable); the new
+        ones claim directions, in the model's priority order, among the free ones only (a
+        new effect aliased with a free coefficient of higher priority is held; Ko gives its
+        direction to theta0, which comes first); a new one ``select`` finds weakly
+        determined stays held."""
+        new = [i for i, prm in enumerate(m.params) if start.index(prm.name) is None]
+        old_free = [i for i, prm in enumerate(m.params) if i not in new
+                    and start.model.params[start.index(prm.name)].vary]
+        out = {prm.name: start.held[prm.name] for prm in m.params if prm.name in start.held}
+        cols = old_free + new
+        J = m.jacobian(p, cols)
+        order = sorted(range(len(cols)), key=lambda c: (m.priority[cols[c]], cols[c]))
+        kept = separable_columns(J, order, ALIAS_TOL)
+        for c, i in enumerate(cols):
+            if c not in kept:
+                with_ = [m.params[cols[k]].name for k in kept
+                         if abs(float(J[:, k] @ J[:, c])) > 1e-3 * np.linalg.norm(J[:, k]) * np.linalg.norm(J[:, c])]
+                out[m.params[i].name] = "aliased with " + ", ".join(with_[:4]) if with_ else "not excited by these runs"
+        for i in new:
+            why = held.get(m.params[i].name, "")
+            if why.startswith("weakly"):
+                out[m.params[i].name] = why
+        return out
+
+    def _finish(self, m: CampaignModel, effects, gn, held) -> Fit:
+        free = m.params.free() & (np.linalg.norm(gn.J, axis=0) > 0)
+        sol = lstsq_svd(gn.J[:, free], np.zeros(m.N))
+        rank = sol.rank
+        chi_pe, dof_pe = _pure_error(m, gn.p)
+        lof = lack_of_fit(gn.chi2, m.N - rank, chi_pe if dof_pe > 0 else None, dof_pe, alpha=GAP_ALPHA)
+        return Fit(m, list(effects), gn.p, gn.z, gn.J, free, float(gn.chi2), rank, lof, dict(held), gn.converged)
+
+    # ------------------------------------------------------------------ bare model
+    def bare(self, candidates: Sequence[str]) -> tuple[Fit, dict[str, np.ndarray]]:
+        """The bare model (baseline effects) fitted, the noise model refitted to its residuals
+        (twice), and the candidates' signatures at it.  A non-catalogue coefficient that a
+        candidate would have to share its direction with is then held (:data:`NON_CATALOGUE`)
+        and the model refitted."""
+        f = self.fit(self.baseline, noise_passes=2)
+        sigs = {c: self.signature(f.model, f.p, c) for c in candidates}
+        self.extra_held = self._competing(f, sigs)
+        if self.extra_held:
+            f = self.fit(self.baseline, start=f)
+            sigs = {c: self.signature(f.model, f.p, c) for c in candidates}
+        return f, sigs
+
+    def _competing(self, f: Fit, sigs: Mapping[str, np.ndarray]) -> dict[str, str]:
+        """Non-catalogue coefficients (free in the fit) whose direction a candidate effect
+        takes when the candidates claim directions before them."""
+        m = f.model
+        free = [i for i in np.flatnonzero(f.free)]
+        nc = [c for c, i in enumerate(free) if m.roles[i].kind == "coef" and m.roles[i].key in NON_CATALOGUE]
+        if not nc:
+            return {}
+        J = f.J[:, free]
+
+        def prio(c):
+            i = free[c]
+            key = m.roles[i].key
+            k = "theta0" if key == "initial_misalignment" else (key if key in PRIORITY else (
+                m.roles[i].kind if m.roles[i].kind in PRIORITY else "effect"))
+            return (PRIORITY.index(k) if k in PRIORITY else len(PRIORITY), c)
+
+        base = sorted([c for c in range(len(free)) if c not in nc], key=prio)
+        ncs = sorted(nc, key=prio)
+        kept0 = set(separable_columns(J, base + ncs, ALIAS_TOL))
+        out: dict[str, list[str]] = {}
+        n = len(free)
+        for e, s in sigs.items():
+            if not np.any(s):
+                continue
+            kept = set(separable_columns(np.column_stack([J, s]), base + [n] + ncs, ALIAS_TOL))
+            if n not in kept:
+                continue
+            for c in ncs:
+                if c in kept0 and c not in kept:
+                    out.setdefault(m.params[free[c]].name, []).append(e)
+        return {k: "aliased with candidate effect " + ", ".join(v) + " (the effect claims the direction)"
+                for k, v in out.items()}
+
+
+# ----------------------------------------------------------------------------- statistics
+def gap_rms(f: Fit) -> float:
+    """rms excess of the whitened cell residuals over the noise: sqrt(max(0, (chi2 - dof) / N))."""
+    return float(math.sqrt(max(f.chi2 - f.dof, 0.0) / f.N)) if f.N else 0.0
+
+
+def shrink(before: float | None, after: float | None) -> float | None:
+    """1 - after / before (None when there was no gap to shrink)."""
+    if before is None or after is None or before <= 0:
+        return None
+    return float(1.0 - after / before)
+
+
+def folds(cells: Sequence[RunCells]) -> np.ndarray:
+    """Held-out fold (0/1) of every cell: alternate cells of each run, in the order of the
+    run's cells (dwells in time, head positions, phases of the drive)."""
+    return np.concatenate([np.arange(r.ncell) % 2 for r in cells]) if cells else np.zeros(0, int)
+
+
+def heldout_gap(f: Fit, fold: np.ndarray, tol: float = 1e-6) -> float | None:
+    """rms excess over the noise of the residuals of each fold predicted by the model fitted
+    to the other fold (linearised at the solution), with the exact expectation of a model
+    that is right: 1 + j (J_T^T J_T)^+ j^T per held-out cell.  Cells the training fold does
+    not determine (outside its row space) are not predicted; None when no cell is."""
+    J = f.J[:, f.free]
+    z = f.z
+    ss = ex = 0.0
+    n = 0
+    for k in (0, 1):
+        T, H = fold != k, fold == k
+        if not T.any() or not H.any():
+            continue
+        norm = np.linalg.norm(J[T], axis=0)
+        act = norm > 0
+        if not act.any():
+            continue
+        Js = J[T][:, act] / norm[act]
+        U, S, Vt = np.linalg.svd(Js, full_matrices=False)
+        keep = S > S[0] * 1e-10
+        V = Vt[keep].T
+        JH = J[H][:, act] / norm[act]
+        inact = np.linalg.norm(J[H][:, ~act], axis=1)
+        resid = np.linalg.norm(JH - (JH @ V) @ V.T, axis=1)
+        scale = np.maximum(np.linalg.norm(JH, axis=1), 1e-300)
+        ok = (resid <= tol * scale) & (inact <= tol * np.maximum(scale, 1.0))
+        if not ok.any():
+            continue
+        d = V @ ((U[:, keep].T @ z[T]) / S[keep])
+        zh = z[H][ok] - JH[ok] @ d
+        A = (JH[ok] @ V) / S[keep]
+        ss += float(zh @ zh)
+        ex += float(ok.sum() + np.sum(A * A))
+        n += int(ok.sum())
+    if n == 0:
+        return None
+    return float(math.sqrt(max(ss - ex, 0.0) / n))
+
+
+def lr_test(before: Fit, after: Fit, m: int, alpha: float) -> dict:
+    """Likelihood ratio of a nested model with q more parameters, the chi-square scaled by
+    the larger model's chi2/dof when that exceeds 1 (F test against the residual that the gap
+    leaves), Bonferroni over m candidates.  Untestable without degrees of freedom.
+    ``statistic`` is delta chi2 / q, divided by that chi2/dof when it exceeds 1."""
+    q = max(after.rank - before.rank, 1)
+    dchi = float(before.chi2 - after.chi2)
+    if after.dof <= 0:
+        return {"delta_chi2": dchi, "scale": None, "statistic": None, "p_value": None, "threshold_p": alpha / m,
+                "significant": False, "note": "untestable: no degrees of freedom left"}
+    s2 = after.scale2
+    if s2 > 1.0:
+        F = dchi / q / s2
+        p = float(stats.f.sf(F, q, after.dof))
+    else:
+        F = dchi / q
+        p = float(stats.chi2.sf(dchi, q))
+    return {"delta_chi2": dchi, "scale": s2, "statistic": float(F), "p_value": p, "threshold_p": alpha / m,
+            "significant": bool(dchi > 0 and p < alpha / m)}
+
+
+def gap_test(f: Fit) -> dict:
+    """The lack-of-fit test of a model against the pure error (the tests behind 'explained')."""
+    lof = f.lof
+    if lof.status == "untestable":
+        return {"status": "untestable", "significant": None, "p_value": None, "F": None,
+                "dof_lof": lof.dof_lof, "dof_pe": lof.dof_pe, "alpha": GAP_ALPHA,
+                "note": "untestable: no degrees of freedom" if lof.dof_lof <= 0 else f"untestable: {lof.note}"}
+    sig = lof.status == "inadequate"
+    return {"status": "significant gap" if sig else "no significant gap", "significant": sig,
+            "p_value": lof.p_value, "F": lof.statistic, "dof_lof": lof.dof_lof, "dof_pe": lof.dof_pe,
+            "alpha": GAP_ALPHA,
+            "test": "lack of fit of the cell means against the pure error (F)" if lof.dof_pe else
+                    "chi-square of the cell means against the noise model"}
