@@ -244,7 +244,7 @@ def _joint_truth(sc, per_method: Mapping) -> dict[tuple[str, str, str], tuple[fl
     rigs): the instrument values; K0 and K1 at the tumble's temperature when there is a
     tumble; theta0 as for tumble_lm (Ko aliases with it in one tumble); for a tilt-rotation
     campaign the apparent K0 and K0T of tilt_rotation_ls (the design aliases them)."""
-    label = "+".join(sorted({str(t["rig_id"]) for t in sc.tests}))
+    label = "*"           # the joint fit names each coefficient's rig (the one its information comes from)
     kinds = {t["kind"] for t in sc.tests}
     c = {k: 0.0 for k in _ALL_COEFFS}
     c["K1"] = 1.0
@@ -458,7 +458,7 @@ def cramer_rao(scenario, seed: int | None = None) -> dict[tuple[str, str, str], 
     J = np.vstack(blocks)
     keep = _crb_selection(J, order)
     bound = _bound(J[:, keep], [order[i] for i in keep])
-    label = "+".join(rigs)
+    label = "*"
     out: dict[tuple[str, str, str], float | None] = {}
     for k in _ALL_COEFFS:
         if k in bound:
@@ -579,7 +579,8 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
         m = len(x)
         sd = float(np.std(x, ddof=1)) if m > 1 else float("nan")
         u_rms = float(np.sqrt(np.mean(u**2)))
-        tv, tnote = truth.get(key, (None, "no truth defined for this coefficient/method"))
+        tv, tnote = truth.get(key) or truth.get((name, method, "*")) or (
+            None, "no truth defined for this coefficient/method")
         cs = CoefficientStats(name, method, rig, m, tv, tnote, float(np.mean(x)), sd, u_rms,
                               float(np.mean(u)), noise_free=nf.get(key),
                               main=name in MAIN.get(method, ()))
@@ -597,7 +598,7 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
             lo, hi = cs.coverage_wilson
             cs.status = "ok" if lo <= TARGET <= hi else ("UNDER" if hi < TARGET else "OVER")
             cs.bias_over_sd = cs.bias / sd if sd > 0 else None
-        b = bounds.get(key)
+        b = bounds.get(key, bounds.get((name, method, "*")))
         if b is not None and b > 0 and tv is not None and m > 1:
             cs.crb_sd = math.sqrt(b)
             cs.var_over_crb = sd**2 / b
