@@ -7,12 +7,18 @@ be cheap: import heavy things inside ``func``.  Other parts of accelcal may add
 a subcommand by providing ``register(subparsers)`` / ``register_cli(subparsers)``
 in a module listed in :data:`PLUGIN_MODULES` (skipped if absent).
 
-Exit codes: 0 processed what it could (refused files are results); 1 could not
-work at all (one-line reason on stderr); 2 usage error.
+Exit codes (:data:`EXIT_CODES`): 0 processed what it could (refused and held-back files
+are results, listed); 1 could not work, or stopped part-way (one line on stderr naming the
+path and what to do; what was committed stays, a re-run completes it exactly once); 2 usage
+error; 3 an internal error (a bug: one line, the traceback saved to a file it names; in a
+run, the other files are still processed); 130 interrupted.  Nothing is printed that has
+not passed through :mod:`accelcal.textout` (no markup, emoji or control characters from a
+file reach the terminal) and no error is a traceback.
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import os
 import sys
@@ -26,9 +32,13 @@ SUBCOMMANDS: dict[str, Registrar] = {}
 #: own subcommands (simulate, diagnose, montecarlo, report, serve, ...).  Absent
 #: modules are skipped.  They are not imported when a built-in command runs.
 PLUGIN_MODULES = ("accelcal.simulate.cli", "accelcal.diagnosis.cli", "accelcal.montecarlo",
-                  "accelcal.ops.cli")
+                  "accelcal.ops.cli", "accelcal.ops.sql")
 
-EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
+EXIT_OK, EXIT_FAIL, EXIT_USAGE, EXIT_BUG, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
+EXIT_CODES = {EXIT_OK: "processed what it could (refused / held-back files listed)",
+              EXIT_FAIL: "could not work, or stopped part-way: one line says where and what to do",
+              EXIT_USAGE: "usage error", EXIT_BUG: "internal error (a bug; traceback saved)",
+              EXIT_INTERRUPTED: "interrupted"}
 
 
 class CliError(RuntimeError):
@@ -85,12 +95,20 @@ class RichReporter:
 
 
 def _console(stderr: bool = False):
-    from rich.console import Console
-    return Console(stderr=stderr, highlight=False)
+    from .textout import console
+    return console(stderr)
+
+
+#: Longest line printed for one refusal / error (the warehouse keeps the whole reason).
+LINE_MAX = 400
 
 
 def print_summary(summary: dict[str, Any], console=None) -> None:
+    """The run summary.  Every value that came from a file or a path goes through
+    textout.esc: printed as text, never as markup."""
     from rich.table import Table
+
+    from .textout import esc
     con = console or _console()
     wh = summary["warehouse"]
     t = Table(title="Drops", title_justify="left", show_edge=False)
@@ -98,18 +116,20 @@ def print_summary(summary: dict[str, Any], console=None) -> None:
                    ("refused", "right"), ("new", "right")):
         t.add_column(col, justify=j)
     for d in summary["drops"]:
-        t.add_row(d["drop"], str(d["files"]), str(d["accepted"]),
+        t.add_row(esc(d["drop"], 80), str(d["files"]), str(d["accepted"]),
                   f"[red]{d['refused']}[/red]" if d["refused"] else "0", str(d["new"]))
     con.print(t)
     for d in summary["drops"]:
         for r in d["refused_files"]:
             rel = f"{d['drop']}/{os.path.relpath(r['path'], d['path'])}"
             reason = (r["reason"] or "refused").replace(r["path"], rel)
-            con.print(f"  [red]refused[/red] {reason}", soft_wrap=True)
+            con.print(f"  [red]refused[/red] {esc(reason, LINE_MAX)}", soft_wrap=True)
+        for e in d.get("held", []):
+            con.print(f"  [yellow]held back[/yellow] {esc(e, LINE_MAX)}", soft_wrap=True)
         for e in d["errors"]:
-            con.print(f"  [yellow]not ingested[/yellow] {e}", soft_wrap=True)
+            con.print(f"  [yellow]not ingested[/yellow] {esc(e, LINE_MAX)}", soft_wrap=True)
         if d.get("docs"):
-            con.print(f"  Data Docs: {d['docs']}", soft_wrap=True)
+            con.print(f"  Data Docs: {esc(d['docs'])}", soft_wrap=True)
     from .flows.pipeline import SUMMARY_DETAIL_MAX
     for k, c in enumerate(summary["campaigns"]):
         if k == SUMMARY_DETAIL_MAX:
@@ -123,16 +143,18 @@ def print_summary(summary: dict[str, Any], console=None) -> None:
                       + "): see the unit_history view or `accelcal report CAMPAIGN`")
             for x in rest:
                 if x.get("error"):
-                    con.print(f"  [red]failed[/red] {x['campaign']}: {x['error']}", soft_wrap=True)
+                    con.print(f"  [red]failed[/red] {esc(x['campaign'], 120)}: "
+                              f"{esc(x['error'], LINE_MAX)}", soft_wrap=True)
             break
         con.print()
         status = c["status"]
-        head = f"[bold]{c['campaign']}[/bold] ({c.get('unit_serial') or '?'}): {c['n_runs']} runs, {status}"
+        head = (f"[bold]{esc(c['campaign'], 120)}[/bold] ({esc(c.get('unit_serial') or '?', 80)}): "
+                f"{c['n_runs']} runs, {esc(status)}")
         if c.get("current_result_id"):
-            head += f", result {c['current_result_id'][:12]}"
-        con.print(head)
+            head += f", result {esc(c['current_result_id'][:12])}"
+        con.print(head, soft_wrap=True)
         if c.get("error"):
-            con.print(f"  [red]failed[/red]: {c['error']}", soft_wrap=True)
+            con.print(f"  [red]failed[/red]: {esc(c['error'], LINE_MAX)}", soft_wrap=True)
         if c.get("coefficients"):
             t = Table(show_edge=False, box=None, padding=(0, 2))
             for col, j in (("coef", "left"), ("value", "right"), ("U (k=2)", "right"),
@@ -140,7 +162,8 @@ def print_summary(summary: dict[str, Any], console=None) -> None:
                 t.add_column(col, justify=j)
             for co in c["coefficients"]:
                 v, U, unit = display_coefficient(co)
-                t.add_row(co["name"], v, U, unit, co.get("method") or "", co.get("rig_id") or "")
+                t.add_row(esc(co["name"]), esc(v), esc(U), esc(unit), esc(co.get("method") or ""),
+                          esc(co.get("rig_id") or "", 60))
             con.print(t)
         radii = _radius_rows(c.get("radii") or [])
         if radii:
@@ -151,14 +174,14 @@ def print_summary(summary: dict[str, Any], console=None) -> None:
             t.add_column("R− / m", justify="right", no_wrap=True)
             t.add_column("U / µm", justify="right", no_wrap=True)
             for label, plus, minus in radii:
-                t.add_row(label, *(_fmt_radius(plus)), *(_fmt_radius(minus)))
+                t.add_row(esc(label, 80), *(_fmt_radius(plus)), *(_fmt_radius(minus)))
             con.print(t)
         for f in c.get("flags") or []:
-            con.print(f"  [yellow]flag[/yellow] {f}", soft_wrap=True)
+            con.print(f"  [yellow]flag[/yellow] {esc(f, LINE_MAX)}", soft_wrap=True)
     con.print()
     tm = summary.get("timings", {})
-    con.print(f"warehouse {wh}  ·  {summary.get('engine', '')} engine  ·  "
-              f"{tm.get('total', 0):.1f} s  ·  flow run {summary['flow_run_id']}", soft_wrap=True)
+    con.print(f"warehouse {esc(wh)}  ·  {esc(summary.get('engine', ''))} engine  ·  "
+              f"{tm.get('total', 0):.1f} s  ·  flow run {esc(summary['flow_run_id'])}", soft_wrap=True)
 
 
 def _fmt_radius(r):
@@ -186,7 +209,8 @@ def _radius_rows(radii: list[dict[str, Any]]):
 
 # ---------------------------------------------------------------- commands --
 
-def _execute(drops: list[str], warehouse: str, args, console) -> int:
+def _execute(drops: list[str], warehouse: str, args, console, create: bool = False) -> int:
+    from .fileio import StoreError
     from .flows.pipeline import PipelineError, quiet_prefect
     from .warehouse.db import WarehouseError
     quiet_prefect(args.log_level)
@@ -208,8 +232,9 @@ def _execute(drops: list[str], warehouse: str, args, console) -> int:
                 rep.stage("prefect", None)
             summary = run_pipeline(drops, warehouse, engine=args.engine,
                                    lock_timeout=args.lock_timeout,
-                                   task_runner=args.task_runner)
-    except (PipelineError, WarehouseError) as e:
+                                   task_runner=args.task_runner, settle=args.settle,
+                                   create=create, snapshot=not args.no_snapshot)
+    except (PipelineError, WarehouseError, StoreError) as e:
         raise CliError(str(e)) from None
     finally:
         prog.set_reporter(None)
@@ -218,6 +243,15 @@ def _execute(drops: list[str], warehouse: str, args, console) -> int:
         print(json.dumps(summary, indent=2, default=str))
     else:
         print_summary(summary, console)
+    from .textout import warn
+    for w in [w for d in summary["drops"] for w in d.get("warnings", [])] + summary.get("warnings", []):
+        warn(w)
+    if any(d["errors"] for d in summary["drops"]):
+        n = sum(len(d["errors"]) for d in summary["drops"])
+        from .textout import error
+        error(f"{n} file(s) not ingested because of an internal error (listed above); "
+              "the others were processed")
+        return EXIT_BUG
     return EXIT_OK
 
 
@@ -229,6 +263,12 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
                         "without Prefect (no server start-up)")
     p.add_argument("--task-runner", default="thread",
                    help="Prefect task runner for ingest/validate batches and campaign science: thread, dask (local cluster) or tcp://HOST:PORT (an existing Dask scheduler)")
+    p.add_argument("--settle", type=float, default=None, metavar="S",
+                   help="read a file only when its size and mtime have been stable for S "
+                        "seconds (default $ACCELCAL_SETTLE_S or 2); one still changing is "
+                        "held back for the next run")
+    p.add_argument("--no-snapshot", action="store_true",
+                   help="do not publish the read-only copy <warehouse>-snapshot.duckdb")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.add_argument("--log-level", default="WARNING",
@@ -244,12 +284,14 @@ def _register_run(sub) -> None:
     p.add_argument("--warehouse", "-w", default=os.environ.get("ACCELCAL_WAREHOUSE", "lab.duckdb"),
                    help="DuckDB warehouse file (default: $ACCELCAL_WAREHOUSE or ./lab.duckdb); "
                         "Parquet and Data Docs go next to it")
+    p.add_argument("--create", action="store_true",
+                   help="create the warehouse's folder if it does not exist (else an error)")
     _add_run_options(p)
     p.set_defaults(func=_cmd_run)
 
 
 def _cmd_run(args) -> int:
-    return _execute(args.drops, args.warehouse, args, _console())
+    return _execute(args.drops, args.warehouse, args, _console(), create=args.create)
 
 
 def demo_drops() -> list[Path]:
@@ -281,8 +323,9 @@ def _cmd_demo(args) -> int:
     drops = [str(d) for d in demo_drops()]
     console = _console()
     if not args.json:
-        console.print(f"demo drops: {', '.join(Path(d).name for d in drops)} -> {out / 'lab.duckdb'}")
-    return _execute(drops, str(out / "lab.duckdb"), args, console)
+        from .textout import esc
+        console.print(esc(f"demo drops: {', '.join(Path(d).name for d in drops)} -> {out / 'lab.duckdb'}"))
+    return _execute(drops, str(out / "lab.duckdb"), args, console, create=True)
 
 
 # -------------------------------------------------------------------- main --
@@ -319,19 +362,61 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+#: Commands that may start processes of their own (Prefect's server, Dask workers): they
+#: are watched by accelcal.procguard so nothing outlives the command, even after SIGKILL.
+GUARDED = ("run", "demo", "serve")
+
+
 def main(argv: list[str] | None = None) -> int:
+    from . import textout
     if argv is None:
         argv = sys.argv[1:]
     parser = build_parser(argv)
     args = parser.parse_args(argv)
+    if getattr(args, "command", None) in GUARDED and not os.environ.get("ACCELCAL_NO_GUARD"):
+        from .procguard import guard_descendants
+        guard_descendants()
     try:
         return int(args.func(args) or 0)
     except CliError as e:
-        print(f"accelcal: error: {e}", file=sys.stderr)
+        textout.error(e)
         return EXIT_FAIL
     except KeyboardInterrupt:
-        print("accelcal: interrupted", file=sys.stderr)
-        return 130
+        textout.error("interrupted; what was committed stays, a re-run completes the rest")
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:                 # the reader of our output went away (| head)
+        with contextlib.suppress(OSError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_FAIL
+    except OSError as e:
+        from .fileio import os_error_text
+        textout.error(os_error_text(e))
+        return EXIT_FAIL
+    except MemoryError:
+        textout.error("out of memory; see the README (Faults) for the memory a run needs")
+        return EXIT_FAIL
+    except Exception as e:
+        if os.environ.get("ACCELCAL_DEBUG"):
+            raise
+        where = _save_traceback()
+        textout.error(f"internal error: {type(e).__name__}: {e} -- a bug in accelcal; "
+                      f"traceback saved in {where}")
+        return EXIT_BUG
+
+
+def _save_traceback() -> str:
+    import tempfile
+    import time
+    import traceback
+    try:
+        fd, path = tempfile.mkstemp(prefix=f"accelcal-crash-{time.strftime('%Y%m%dT%H%M%S')}-",
+                                    suffix=".txt")
+        with os.fdopen(fd, "w") as f:
+            f.write(f"accelcal {' '.join(sys.argv[1:])}\n\n")
+            traceback.print_exc(file=f)
+        return path
+    except OSError:
+        return "(nowhere: the temporary folder is not writable; set ACCELCAL_DEBUG=1)"
 
 
 if __name__ == "__main__":
