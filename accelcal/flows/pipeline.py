@@ -124,9 +124,14 @@ def in_flight() -> int:
 
 class _Session:
     """One warehouse connection for a stretch of small writes (Warehouse.session), closed
-    and reopened every ``hold_s`` seconds so readers in other processes get their turn."""
+    and reopened every ``hold_s`` seconds.
 
-    def __init__(self, wh: Warehouse, hold_s: float = 2.0):
+    The pipeline holds it for the whole run (hold_s = inf): a reader outside accelcal
+    that opened the live file between two reconnects used to make the run fail half-way
+    once it had waited --lock-timeout.  Readers use ``accelcal sql`` (which waits for the
+    run) or the snapshot each run publishes (never locked by a run)."""
+
+    def __init__(self, wh: Warehouse, hold_s: float = float("inf")):
         self.wh, self.hold_s, self._cm, self._t = wh, hold_s, None, 0.0
 
     def touch(self) -> None:

@@ -51,7 +51,7 @@ def _cmd_sql(args) -> int:
 
     import duckdb
 
-    from ..warehouse.db import Warehouse, WarehouseError, warehouse_lock
+    from ..warehouse.db import Warehouse, WarehouseBusy, WarehouseError, warehouse_lock
     wh = Warehouse(args.warehouse, lock_timeout=args.lock_timeout)
     path = wh.snapshot_path if args.snapshot else wh.path
     if not path.exists():
@@ -61,7 +61,7 @@ def _cmd_sql(args) -> int:
         lock = contextlib.nullcontext() if args.snapshot else \
             warehouse_lock(wh.path, timeout=args.lock_timeout, shared=True)
         with lock:
-            wh.check_duckdb_file() if not args.snapshot else None
+            wh.check_duckdb_file(path)
             con = wh._open(read_only=True, path=path)
             try:
                 try:
@@ -77,6 +77,8 @@ def _cmd_sql(args) -> int:
                 rows = cur.fetchmany(max(args.max_rows, 0) + 1)
             finally:
                 con.close()
+    except WarehouseBusy as e:
+        _fail(f"{e}; --snapshot reads the copy the last run published, without waiting")
     except WarehouseError as e:
         _fail(str(e))
     _print_table(cols, rows, args.max_rows)

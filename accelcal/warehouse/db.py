@@ -62,6 +62,24 @@ _DUCKDB_HINTS = (
 )
 
 
+def _duckdb_size(head: bytes) -> int | None:
+    """Bytes a DuckDB file must have, from the newer of its two database headers (at 4096
+    and 8192: checksum, iteration, meta block, free list, block count, block size, ...):
+    3 header blocks + block count x block size.  None when the header is not understood
+    (another storage version): then only DuckDB's own checks apply."""
+    import struct
+    if len(head) < 3 * 4096:
+        return 3 * 4096
+    best = None
+    for off in (4096, 8192):
+        _, iteration, _, _, count, bsize = struct.unpack_from("<QQqqQQ", head, off)
+        if not (4096 <= bsize <= 1 << 26 and bsize & (bsize - 1) == 0 and count < 1 << 40):
+            return None
+        if best is None or iteration > best[0]:
+            best = (iteration, 3 * 4096 + count * bsize)
+    return best[1]
+
+
 def duckdb_error_text(e: Exception, what: str, untouched: bool = False) -> str:
     """One line for a DuckDB error: what, DuckDB's first line (cut), what to do."""
     msg = " ".join(str(e).split())[:240]
@@ -122,7 +140,7 @@ def describe_pid(pid: int) -> str:
             cmd = f.read().replace(b"\0", b" ").decode("utf-8", "replace").strip()
     except OSError:
         cmd = ""
-    cmd = re.sub(r"^\S*python[0-9.]*\s+(-m\s+)?", "", cmd)
+    cmd = re.sub(r"^\S*python[0-9.]*\s+(-m\s+)?", "", " ".join(cmd.split()))
     return f"pid {pid}" + (f" ({cmd[:60]})" if cmd else "")
 
 
@@ -337,7 +355,10 @@ class Warehouse:
     def connect(self, read_only: bool = False) -> Iterator[duckdb.DuckDBPyConnection]:
         """A connection; write connections hold the lock and see the schema applied."""
         if not read_only and self._session is not None:
-            yield self._session
+            try:
+                yield self._session
+            except duckdb.Error as e:
+                raise WarehouseError(duckdb_error_text(e, f"cannot write warehouse {self.path}")) from None
             return
         if read_only:
             if not self.path.exists():
@@ -404,6 +425,8 @@ class Warehouse:
         p, root = self.path, self.root
         if p.is_dir():
             raise WarehouseError(f"warehouse {p} is a folder: give the path of a .duckdb file")
+        if p.exists():
+            self.check_duckdb_file()
         for d in drops:
             d = os.path.realpath(d)
             if str(p).startswith(d.rstrip(os.sep) + os.sep):
@@ -420,8 +443,6 @@ class Warehouse:
                 root.mkdir(parents=True, exist_ok=True)
             except OSError as e:
                 raise WarehouseError(os_error_text(e, "cannot create the warehouse folder")) from None
-        if p.exists():
-            self.check_duckdb_file()
         try:
             fd, probe = tempfile.mkstemp(prefix=f".{p.name}.probe.", suffix=".tmp", dir=root)
             os.close(fd)
@@ -431,17 +452,26 @@ class Warehouse:
                 e, f"cannot write in the warehouse folder {root} (a run writes {p.name}, its "
                    ".wal and .lock, and the Parquet store there)")) from None
 
-    def check_duckdb_file(self) -> None:
-        """The file starts like a DuckDB database (its magic bytes); read only."""
+    def check_duckdb_file(self, path: Path | None = None) -> None:
+        """The file is a DuckDB database (magic bytes) of the size its header says; read
+        only.  DuckDB itself opens a truncated file and only fails when it reaches a
+        missing block -- after a write open may already have changed the file."""
+        path = path or self.path
         try:
-            with open(self.path, "rb") as f:
-                head = f.read(16)
+            with open(path, "rb") as f:
+                head = f.read(3 * 4096)
+                size = os.fstat(f.fileno()).st_size
         except OSError as e:
             raise WarehouseError(os_error_text(e, "cannot read the warehouse")) from None
         if len(head) < 12 or head[8:12] != b"DUCK":
             what = "an empty file" if not head else f"a file that starts {head[:12]!r}"
-            raise WarehouseError(f"{self.path} is not a DuckDB warehouse ({what}); it was not "
+            raise WarehouseError(f"{path} is not a DuckDB warehouse ({what}); it was not "
                                  "touched: give the path of a .duckdb file, or a new name")
+        need = _duckdb_size(head)
+        if need is not None and size < need:
+            raise WarehouseError(
+                f"warehouse {path} is truncated ({size:,} bytes; its header needs {need:,}); it "
+                "was not modified (restore it from a backup or its -snapshot.duckdb copy)")
 
     def check_readable(self) -> None:
         """Open the existing file read-only and read its catalog; refuse it untouched
