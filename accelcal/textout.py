@@ -6,9 +6,10 @@ that is not UTF-8 can make printing fail.
 The whole API:
 
 ``plain(x, limit=None)``
-    ``str(x)`` as one printable line: control characters, line breaks, bidi overrides
-    and the undecodable bytes of a file name (surrogate escapes) become ``\\xNN`` /
-    ``\\uNNNN`` escapes and a backslash ``\\\\`` (so the text is unambiguous, as
+    ``str(x)`` as one printable line: every character ``str.isprintable`` refuses
+    (controls, line breaks, bidi overrides, zero-width and private-use characters) and
+    the undecodable bytes of a file name (surrogate escapes) become ``\\xNN`` /
+    ``\\uNNNN`` escapes, and a backslash ``\\\\`` (so the text is unambiguous, as
     repr() is); cut to ``limit`` characters with "…".
 ``esc(x, limit=None)``
     ``plain(x)`` escaped for rich markup: safe to put inside a markup string.
@@ -19,34 +20,30 @@ The whole API:
 """
 from __future__ import annotations
 
-import re
 import sys
 
 __all__ = ["plain", "esc", "console", "error", "warn"]
 
-# C0/C1 controls, DEL, lone surrogates (undecodable bytes of names), line/paragraph
-# separators, bidi embeddings/overrides/isolates, BOM/zero-width no-break space.
-_UNSAFE = re.compile("[\\\\\x00-\x1f\x7f-\x9f\ud800-\udfff\u2028\u2029\u200e\u200f"
-                     "\u202a-\u202e\u2066-\u2069\ufeff]")
 
-
-def _escape(m: re.Match) -> str:
-    c = ord(m.group())
-    if 0xDC80 <= c <= 0xDCFF:           # a byte that was not UTF-8 (surrogateescape)
-        return f"\\x{c - 0xDC00:02x}"
-    if c < 0x100:
-        return {0x5C: "\\\\", 0x09: "\\t", 0x0A: "\\n", 0x0D: "\\r"}.get(c, f"\\x{c:02x}")
-    return f"\\u{c:04x}"
+def _escape(c: str) -> str:
+    o = ord(c)
+    if 0xDC80 <= o <= 0xDCFF:           # a byte that was not UTF-8 (surrogateescape)
+        return f"\\x{o - 0xDC00:02x}"
+    if o < 0x100:
+        return {0x5C: "\\\\", 0x09: "\\t", 0x0A: "\\n", 0x0D: "\\r"}.get(o, f"\\x{o:02x}")
+    return f"\\u{o:04x}" if o < 0x10000 else f"\\U{o:08x}"
 
 
 def plain(x, limit: int | None = None) -> str:
     s = x if isinstance(x, str) else str(x)
-    if limit is not None and len(s) > limit:
+    cut = limit is not None and len(s) > limit
+    if cut:
         s = s[:limit]
-        cut = True
-    else:
-        cut = False
-    s = _UNSAFE.sub(_escape, s)
+    if not s.isprintable() or "\\" in s:
+        # everything str.isprintable() calls unprintable: controls, line and paragraph
+        # separators, format characters (bidi overrides, zero-width), unassigned and
+        # private-use code points, lone surrogates
+        s = "".join(c if c.isprintable() and c != "\\" else _escape(c) for c in s)
     if limit is not None and (cut or len(s) > limit):
         s = s[:max(limit - 1, 0)] + "…"
     return s
