@@ -213,7 +213,13 @@ def _execute(drops: list[str], warehouse: str, args, console, create: bool = Fal
     from .fileio import StoreError
     from .flows.pipeline import PipelineError, quiet_prefect
     from .warehouse.db import WarehouseError
-    quiet_prefect(args.log_level)
+    # Prefect logs a failed task or flow with its traceback; the CLI reports every failure
+    # itself in one line, so Prefect's console says nothing unless asked (--log-level, or
+    # PREFECT_LOGGING_LEVEL in the environment).
+    level = (args.log_level or os.environ.get("PREFECT_LOGGING_LEVEL") or "CRITICAL").upper()
+    for k in ("PREFECT_LOGGING_LEVEL", "PREFECT_SERVER_LOGGING_LEVEL", "PREFECT_LOGGING_ROOT_LEVEL"):
+        os.environ[k] = level
+    quiet_prefect(level)
     from rich.progress import (BarColumn, MofNCompleteColumn, Progress, SpinnerColumn,
                                TextColumn, TimeElapsedColumn)
 
@@ -271,8 +277,9 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
                    help="do not publish the read-only copy <warehouse>-snapshot.duckdb")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--log-level", default="WARNING",
-                   help="Prefect log level (default WARNING, keeps the progress bar readable)")
+    p.add_argument("--log-level", default=None,
+                   help="Prefect's console log level (default $PREFECT_LOGGING_LEVEL or CRITICAL: "
+                        "the CLI reports failures itself, in one line)")
 
 
 @subcommand("run")

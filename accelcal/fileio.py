@@ -35,11 +35,12 @@ def atomic_write(target: str | Path, write: Callable[[IO[Any]], None], mode: str
     return target
 
 
-_TEMP = re.compile(r"^\..+\.[A-Za-z0-9_]{8}\.tmp$")
+_TEMP = re.compile(r"^\..+\.[A-Za-z0-9_]{8}\.tmp(\.wal)?$")
 
 
 def is_temp_name(name: str) -> bool:
-    """A name :func:`atomic_write` gives its temporary files (``.<target>.XXXXXXXX.tmp``)."""
+    """A name :func:`atomic_write` gives its temporary files (``.<target>.XXXXXXXX.tmp``;
+    with ``.wal``: DuckDB's log of a warehouse being created under a temporary name)."""
     return bool(_TEMP.match(name))
 
 

@@ -79,7 +79,7 @@ class Res:
 
 def accelcal(*args, cwd=None, env=None, timeout=600, priv=False, marker=None) -> tuple:
     """(exit code, stdout, stderr, seconds) of ``python -m accelcal ARGS``."""
-    e = {**os.environ, "PREFECT_LOGGING_LEVEL": "ERROR", **(env or {})}
+    e = {**os.environ, **(env or {})}
     if marker:
         e["BENCH_FAULTS_MARK"] = marker
     cmd = (NOPRIV if priv else []) + [sys.executable, "-m", "accelcal", *map(str, args)]
@@ -578,7 +578,7 @@ def p_big_file(tmp, args):
 
 
 def _popen_accelcal(*args, marker, env=None, cwd=None, priv=False):
-    e = {**os.environ, "PREFECT_LOGGING_LEVEL": "ERROR", "BENCH_FAULTS_MARK": marker, **(env or {})}
+    e = {**os.environ, "BENCH_FAULTS_MARK": marker, **(env or {})}
     return subprocess.Popen((NOPRIV if priv else []) + [sys.executable, "-m", "accelcal", *map(str, args)],
                             env=e, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
 
@@ -1057,6 +1057,8 @@ def main(argv=None) -> int:
     ap.add_argument("--only", default=None, help="comma-separated probe name fragments")
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "faults.md"))
     ap.add_argument("--keep", action="store_true", help="keep the temporary folders")
+    ap.add_argument("--readme", action="store_true",
+                    help="put the table into README.md between the bench_faults markers")
     args = ap.parse_args(argv)
     os.environ.setdefault("PREFECT_HOME", tempfile.mkdtemp(prefix="bench-faults-prefect-"))
     os.environ.setdefault("PYTHONPATH", str(ROOT))
@@ -1086,11 +1088,18 @@ def main(argv=None) -> int:
     md = (f"Faults and hostile inputs (`python benchmarks/bench_faults.py`), commit {commit}, "
           f"{time.strftime('%Y-%m-%d')}, {os.cpu_count()} cores, "
           f"{time.perf_counter() - t_all:.0f} s in all.\n\n" + table(rows) + "\n")
+    md = md.replace(str(base), "…")
     print(md)
+    if args.readme:
+        readme = ROOT / "README.md"
+        text = readme.read_text()
+        a, b = "<!-- bench_faults:begin -->\n", "<!-- bench_faults:end -->"
+        i, j = text.index(a) + len(a), text.index(b)
+        readme.write_text(text[:i] + md + text[j:])
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(md)
-        Path(args.out).with_suffix(".json").write_text(json.dumps(rows, indent=1))
+        Path(args.out).with_suffix(".json").write_text(json.dumps(rows, indent=1).replace(str(base), "…"))
     return 1 if any(r["crashed"] or r["lost"] for r in rows) else 0
 
 

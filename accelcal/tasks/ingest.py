@@ -213,8 +213,10 @@ def _ingest_open_file(fd, e, src, out, known, vv, parquet_root, warehouse_root,
     _check_unchanged(fd, st, size)
     try:
         pq = contracts.write_run_parquet(run, parquet_root)
-    except OSError as err:
-        raise StoreError(os_error_text(err, f"cannot write the Parquet store {parquet_root}")) from None
+    except OSError as err:      # name the folder, not our temporary file in it
+        where = os.path.dirname(err.filename) if isinstance(err.filename, str) else parquet_root
+        raise StoreError(os_error_text(OSError(err.errno, err.strerror, where),
+                                       "cannot write the Parquet store")) from None
     m = run.meta
     out.keys.append((sha, src))
     out.records.append(RunRecord(
