@@ -276,3 +276,33 @@ def test_text_out_is_one_printable_line_never_markup(s):
     assert p.isprintable() and "\n" not in p
     p.encode("utf-8")                                     # never an encoding error
     assert Text.from_markup(esc(s), emoji=False).plain in (p, p.rstrip("\\") + "\\" * (p.endswith("\\")))
+
+
+def test_an_os_error_or_a_change_while_reading_costs_only_that_file(tmp_path, monkeypatch):
+    """Per-file isolation in ingest: EIO while reading one file is that file's refusal
+    ('unreadable', with the OS's words), a file that grows while it is read is held back
+    (not judged, not recorded), and the rest of the batch is ingested."""
+    from accelcal.tasks import ingest
+    drop = tmp_path / "drop"
+    drop.mkdir()
+    for name in ("a.csv", "eio.csv", "grows.csv", "z.csv"):
+        (drop / name).write_bytes(OK.replace(b"BAD-0001", name.encode()))
+    real = ingest._read_all
+
+    def read_all(fd, size):
+        name = os.path.basename(os.readlink(f"/proc/self/fd/{fd}"))
+        if name == "eio.csv":
+            raise OSError(5, "Input/output error")
+        raw = real(fd, size)
+        if name == "grows.csv":
+            with open(drop / name, "ab") as f:
+                f.write(b"0,0,0,0,0\n")
+        return raw
+    monkeypatch.setattr(ingest, "_read_all", read_all)
+    ing = ingest.ingest_drop(str(drop), str(tmp_path / "pq"), str(tmp_path), {})
+    got = {os.path.basename(r.source_path): (r.status, r.refusals[0].rule if r.refusals else None)
+           for r in ing.records}
+    assert got == {"a.csv": ("accepted", None), "z.csv": ("accepted", None),
+                   "eio.csv": ("refused", "unreadable")}
+    assert "Input/output error" in next(r.reason for r in ing.records if r.status == "refused")
+    assert len(ing.held) == 1 and "grows.csv" in ing.held[0] and ing.errors == []
