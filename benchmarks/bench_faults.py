@@ -53,6 +53,11 @@ RESULTS: list[dict] = []
 
 # ----------------------------------------------------------------- helpers --
 
+def _short_paths(s: str) -> str:
+    """Absolute paths of the bench's own folders shown by their last part."""
+    return re.sub(r"(?<![\w.])/(?:[^\s:;,()'\"/]+/)+([^\s:;,()'\"/]*)", r"…/\1", s)
+
+
 class Res:
     """One probe's counts."""
 
@@ -62,6 +67,7 @@ class Res:
         self.skipped = None
 
     def note(self, s: str) -> None:
+        s = _short_paths(s)
         if s not in self.notes:
             self.notes.append(s)
 
@@ -612,6 +618,7 @@ def p_sigkill_prefect(tmp, args):
         attempts += 1
         wh = tmp / f"g{g}" / "lab.duckdb"
         mark = uuid.uuid4().hex
+        t_start = time.time()
         p = _popen_accelcal("run", *drops, "-w", wh, "--create", "-q", "--settle", "0", "--lock-timeout", "120",
                             marker=mark)
         delay = rng.uniform(0.5, T)
@@ -620,9 +627,13 @@ def p_sigkill_prefect(tmp, args):
         except subprocess.TimeoutExpired:
             pass
         if p.poll() is None:
-            # where was it?  (the Prefect server up, the warehouse there, results stored?)
-            stage = ("Prefect starting" if not wh.exists() else
-                     "Prefect stopping" if (wh.parent / "lab-snapshot.duckdb").exists() else "writing")
+            # where was it?  before Prefect's server was up, after this run published its
+            # snapshot (Prefect stopping), or in between (ingest ... store)
+            snap = wh.parent / "lab-snapshot.duckdb"
+            server = any(b"uvicorn" in _cmdline(q) for q in marked_pids(mark))
+            stage = ("Prefect starting" if not server else
+                     "Prefect stopping" if snap.exists() and snap.stat().st_mtime > t_start else
+                     "server up (ingest to store)")
             stages[stage] = stages.get(stage, 0) + 1
             os.kill(p.pid, signal.SIGKILL)
             p.wait()
@@ -659,6 +670,14 @@ def p_sigkill_prefect(tmp, args):
     return res
 
 
+def _cmdline(pid: int) -> bytes:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            return f.read()
+    except OSError:
+        return b""
+
+
 def with_kill(pid: int) -> None:
     try:
         os.kill(pid, signal.SIGKILL)
@@ -675,6 +694,7 @@ def p_sigkill_parquet(tmp, args):
     rc, out, err, _ = accelcal("run", drop, "-w", clean, "--create", "--engine", "local", "-q", "--settle", "0")
     check_run(res, rc, out, err)
     want = contents(clean)
+    tmp_left = 0
     for trial in range(3):
         wh = tmp / f"w{trial}" / "lab.duckdb"
         wh.parent.mkdir()
@@ -701,9 +721,9 @@ def p_sigkill_parquet(tmp, args):
             res.note("warehouse differs from the clean run")
         else:
             res.clear += 1
-        res.note(f"a .tmp was left by the kill ({len(left_before)} in trial {trial}); the next run removed it "
-                 "and equals the clean run" if left_before else "killed; the next run equals the clean run")
-    res.notes = res.notes[-1:] if not (res.crashed or res.lost) else res.notes
+        tmp_left += bool(left_before)
+    res.note(f"a .tmp was left by {tmp_left} of {res.tried} kills; the next run removed it and "
+             "equals the clean run")
     return res
 
 
@@ -719,7 +739,7 @@ def p_disk_full(tmp, args):
     rc, out, err, _ = accelcal("run", *drops, "-w", clean, "--create", "--engine", "local", "-q", "--settle", "0")
     check_run(res, rc, out, err)
     want = contents(clean)
-    full_seen = 0
+    full_seen, kinds, example = 0, {}, ""
     for mb in (2, 4, 6, 8, 10, 13, 16, 40):
         mnt = tmp / f"fs{mb}"
         mnt.mkdir()
@@ -734,7 +754,9 @@ def p_disk_full(tmp, args):
             elif one_line_error(rc, err) and ("No space left" in err or "disk is full" in err):
                 res.clear += 1
                 full_seen += 1
-                res.note("one line: " + re.sub(r"/tmp/\S+/", ".../", err.strip().splitlines()[-1])[:150])
+                m = re.search(r"cannot (write|create|publish) ([\w ]+?)(?: under| \S*/|:)", err)
+                kinds[m.group(2) if m else "?"] = kinds.get(m.group(2) if m else "?", 0) + 1
+                example = err.strip().splitlines()[-1]
             else:
                 res.crashed += 1
                 res.note(f"{mb} MB: exit {rc}: {err.strip()[-300:]}")
@@ -749,7 +771,10 @@ def p_disk_full(tmp, args):
                 res.note(f"{mb} MB: temporary files left {temp_files(wh)[:1]}")
         finally:
             subprocess.run(["umount", "-l", mnt])
-    res.notes.insert(0, f"full {full_seen} times: one line, exit 1; after a re-run with space: = clean run")
+    where = ", ".join(f"{k} {v}" for k, v in sorted(kinds.items()))
+    res.notes.insert(0, f"full {full_seen} times ({where}): one line, exit 1; with space again, "
+                        "a re-run = a clean run")
+    res.note(f"e.g. `{_short_paths(example)[:170]}`")
     return res
 
 
@@ -788,7 +813,8 @@ def p_truncated(tmp, args):
             if sha_file(wh) != before:
                 res.crashed += 1
                 res.note(f"{size} B: the file was modified")
-        res.note("one line, exit 1, file unmodified: " + err.strip().splitlines()[-1][:120])
+    res.note("one line, exit 1, the file unmodified, for run and sql alike")
+    res.note(f"e.g. `{err.strip().splitlines()[-1][:170]}`")
     return res
 
 

@@ -258,23 +258,32 @@ def _body(wh, drops, summary, steps, flow_run_id, parameters, cv, settle, B, W, 
             if ing.docs and entry["docs"] is None:
                 entry["docs"] = ing.docs
 
+        # every drop listed first, and one settle wait for all of them
+        t0 = time.perf_counter()
+        scanned: dict[str, list] = {}
         for drop in drops:
-            t0 = time.perf_counter()
+            try:
+                scanned[drop] = _contracts.scan_drop(drop)
+            except OSError as e:
+                raise PipelineError(os_error_text(e, "cannot list drop")) from None
+        unique = {e.path: e for es in scanned.values() for e in es}
+        ready, held_all = _contracts.settle_wait(list(unique.values()), settle)
+        ready_at = {e.path: e for e in ready}
+        held_at = {e.path: why for e, why in held_all}
+        by_drop = {d: [ready_at[e.path] for e in scanned[d] if e.path in ready_at] for d in drops}
+        held_by = {d: [f"{path_text(e.path)}: {held_at[e.path]}" for e in scanned[d]
+                       if e.path in held_at] for d in drops}
+        tick("discover", t0)
+        for drop in drops:
             sess.touch()
             known = steps.known_keys(wh, drop)
             entry = {"drop": Path(drop).name, "path": drop, "files": 0, "accepted": 0,
                      "refused": 0, "new": 0, "refused_files": [], "rechecked": 0,
-                     "errors": [], "held": [], "warnings": [], "docs": None}
+                     "errors": [], "held": held_by[drop], "warnings": [], "docs": None}
             summary["drops"].append(entry)
-            try:
-                scanned = _contracts.scan_drop(drop)
-            except OSError as e:
-                raise PipelineError(os_error_text(e, "cannot list drop")) from None
-            if not scanned:
+            if not scanned[drop]:
                 entry["warnings"].append(f"drop {drop} holds no *.csv file: nothing to do")
-            paths, held = _contracts.settle_wait(scanned, settle)
-            entry["held"].extend(f"{path_text(e.path)}: {why}" for e, why in held)
-            tick("discover", t0)
+            paths = by_drop[drop]
             progress.stage("ingest", len(paths))
             nb = max(1, -(-len(paths) // B))
             progress.stage("validate", nb)
