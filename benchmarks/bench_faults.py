@@ -1086,7 +1086,9 @@ def main(argv=None) -> int:
     ap.add_argument("--readme", action="store_true",
                     help="put the table into README.md between the bench_faults markers")
     args = ap.parse_args(argv)
-    os.environ.setdefault("PREFECT_HOME", tempfile.mkdtemp(prefix="bench-faults-prefect-"))
+    own_home = None
+    if "PREFECT_HOME" not in os.environ:             # a Prefect home of its own, removed at the end
+        own_home = os.environ["PREFECT_HOME"] = tempfile.mkdtemp(prefix="bench-faults-prefect-")
     os.environ.setdefault("PYTHONPATH", str(ROOT))
     names = [n for n in PROBES if not args.only or any(f.lower() in n.lower() for f in args.only.split(","))]
     commit = git_commit()
@@ -1111,6 +1113,8 @@ def main(argv=None) -> int:
         print(f"    {row['outcome'][:200]} ({row['seconds']} s)", file=sys.stderr, flush=True)
     if not args.keep:
         shutil.rmtree(base, ignore_errors=True)
+        if own_home:
+            shutil.rmtree(own_home, ignore_errors=True)
     md = (f"Faults and hostile inputs (`python benchmarks/bench_faults.py`), commit {commit}, "
           f"{time.strftime('%Y-%m-%d')}, {os.cpu_count()} cores, "
           f"{time.perf_counter() - t_all:.0f} s in all.\n\n" + table(rows) + "\n")
