@@ -7,12 +7,18 @@ be cheap: import heavy things inside ``func``.  Other parts of accelcal may add
 a subcommand by providing ``register(subparsers)`` / ``register_cli(subparsers)``
 in a module listed in :data:`PLUGIN_MODULES` (skipped if absent).
 
-Exit codes: 0 processed what it could (refused files are results); 1 could not
-work at all (one-line reason on stderr); 2 usage error.
+Exit codes (:data:`EXIT_CODES`): 0 processed what it could (refused and held-back files
+are results, listed); 1 could not work, or stopped part-way (one line on stderr naming the
+path and what to do; what was committed stays, a re-run completes it exactly once); 2 usage
+error; 3 an internal error (a bug: one line, the traceback saved to a file it names; in a
+run, the other files are still processed); 130 interrupted.  Nothing is printed that has
+not passed through :mod:`accelcal.textout` (no markup, emoji or control characters from a
+file reach the terminal) and no error is a traceback.
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import os
 import sys
@@ -26,9 +32,13 @@ SUBCOMMANDS: dict[str, Registrar] = {}
 #: own subcommands (simulate, diagnose, montecarlo, report, serve, ...).  Absent
 #: modules are skipped.  They are not imported when a built-in command runs.
 PLUGIN_MODULES = ("accelcal.simulate.cli", "accelcal.diagnosis.cli", "accelcal.montecarlo",
-                  "accelcal.ops.cli")
+                  "accelcal.ops.cli", "accelcal.ops.sql")
 
-EXIT_OK, EXIT_FAIL, EXIT_USAGE = 0, 1, 2
+EXIT_OK, EXIT_FAIL, EXIT_USAGE, EXIT_BUG, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
+EXIT_CODES = {EXIT_OK: "processed what it could (refused / held-back files listed)",
+              EXIT_FAIL: "could not work, or stopped part-way: one line says where and what to do",
+              EXIT_USAGE: "usage error", EXIT_BUG: "internal error (a bug; traceback saved)",
+              EXIT_INTERRUPTED: "interrupted"}
 
 
 class CliError(RuntimeError):
@@ -78,23 +88,29 @@ class RichReporter:
 
 
 def _console(stderr: bool = False):
-    from rich.console import Console
-    return Console(stderr=stderr, highlight=False)
+    from .textout import console
+    return console(stderr)
+
+
+#: Longest line printed for one refusal / error (the warehouse keeps the whole reason).
+LINE_MAX = 400
 
 
 def say(con, text: str, tag: str = "", style: str = "", indent: str = "") -> None:
     """Print one line whose ``text`` may come from a file (a run id, a campaign label, a
     refusal reason): it is escaped, so it is shown as written and never read as markup.
     ``tag`` is ours (e.g. "refused") and shown in ``style``."""
-    from rich.markup import escape
-    head = f"[{style}]{escape(tag)}[/{style}] " if tag and style else (f"{escape(tag)} " if tag else "")
-    con.print(indent + head + escape(str(text)), soft_wrap=True)
+    from .textout import esc
+    head = f"[{style}]{esc(tag)}[/{style}] " if tag and style else (f"{esc(tag)} " if tag else "")
+    con.print(indent + head + esc(text, LINE_MAX), soft_wrap=True)
 
 
 def _cell(x) -> Any:
     """A table cell taken literally (file-derived text is not markup)."""
     from rich.text import Text
-    return Text("" if x is None else str(x))
+
+    from .textout import plain
+    return Text("" if x is None else plain(x, 200))
 
 
 #: What a campaign's store status means, for people.
@@ -103,7 +119,11 @@ STATUS_WORDS = {"simulated-not-current": "simulated: stored, NOT current (the un
 
 
 def print_summary(summary: dict[str, Any], console=None) -> None:
+    """The run summary.  Every value that came from a file or a path goes through
+    textout.esc: printed as text, never as markup."""
     from rich.table import Table
+
+    from .textout import esc
     con = console or _console()
     wh = summary["warehouse"]
     t = Table(title="Drops", title_justify="left", show_edge=False)
@@ -127,6 +147,8 @@ def print_summary(summary: dict[str, Any], console=None) -> None:
                      "results)", "refused", "red", "  ")
         if len(held) > 5:
             say(con, f"... and {len(held) - 5} more simulated files of {d['drop']}", indent="  ")
+        for e in d.get("held", []):
+            say(con, e, "held back", "yellow", "  ")
         for e in d["errors"]:
             say(con, e, "not ingested", "yellow", "  ")
         if d.get("docs"):
@@ -229,11 +251,18 @@ def _radius_rows(radii: list[dict[str, Any]]):
 
 # ---------------------------------------------------------------- commands --
 
-def _execute(drops: list[str], warehouse: str, args, console,
+def _execute(drops: list[str], warehouse: str, args, console, create: bool = False,
              allow_simulated: bool = False) -> int:
+    from .fileio import StoreError
     from .flows.pipeline import PipelineError, quiet_prefect
     from .warehouse.db import WarehouseError
-    quiet_prefect(args.log_level)
+    # Prefect logs a failed task or flow with its traceback; the CLI reports every failure
+    # itself in one line, so Prefect's console says nothing unless asked (--log-level, or
+    # PREFECT_LOGGING_LEVEL in the environment).
+    level = (args.log_level or os.environ.get("PREFECT_LOGGING_LEVEL") or "CRITICAL").upper()
+    for k in ("PREFECT_LOGGING_LEVEL", "PREFECT_SERVER_LOGGING_LEVEL", "PREFECT_LOGGING_ROOT_LEVEL"):
+        os.environ[k] = level
+    quiet_prefect(level)
     from rich.progress import (BarColumn, MofNCompleteColumn, Progress, SpinnerColumn,
                                TextColumn, TimeElapsedColumn)
 
@@ -252,9 +281,10 @@ def _execute(drops: list[str], warehouse: str, args, console,
                 rep.stage("prefect", None)
             summary = run_pipeline(drops, warehouse, engine=args.engine,
                                    lock_timeout=args.lock_timeout,
-                                   task_runner=args.task_runner,
+                                   task_runner=args.task_runner, settle=args.settle,
+                                   create=create, snapshot=not args.no_snapshot,
                                    allow_simulated=allow_simulated)
-    except (PipelineError, WarehouseError) as e:
+    except (PipelineError, WarehouseError, StoreError) as e:
         raise CliError(str(e)) from None
     finally:
         prog.set_reporter(None)
@@ -263,6 +293,15 @@ def _execute(drops: list[str], warehouse: str, args, console,
         print(json.dumps(summary, indent=2, default=str))
     else:
         print_summary(summary, console)
+    from .textout import warn
+    for w in [w for d in summary["drops"] for w in d.get("warnings", [])] + summary.get("warnings", []):
+        warn(w)
+    if any(d["errors"] for d in summary["drops"]):
+        n = sum(len(d["errors"]) for d in summary["drops"])
+        from .textout import error
+        error(f"{n} file(s) not ingested because of an internal error (listed above); "
+              "the others were processed")
+        return EXIT_BUG
     return EXIT_OK
 
 
@@ -274,10 +313,17 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
                         "without Prefect (no server start-up)")
     p.add_argument("--task-runner", default="thread",
                    help="Prefect task runner for ingest/validate batches and campaign science: thread, dask (local cluster) or tcp://HOST:PORT (an existing Dask scheduler)")
+    p.add_argument("--settle", type=float, default=None, metavar="S",
+                   help="read a file only when its size and mtime have been stable for S "
+                        "seconds (default $ACCELCAL_SETTLE_S or 2); one still changing is "
+                        "held back for the next run")
+    p.add_argument("--no-snapshot", action="store_true",
+                   help="do not publish the read-only copy <warehouse>-snapshot.duckdb")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--log-level", default="WARNING",
-                   help="Prefect log level (default WARNING, keeps the progress bar readable)")
+    p.add_argument("--log-level", default=None,
+                   help="Prefect's console log level (default $PREFECT_LOGGING_LEVEL or CRITICAL: "
+                        "the CLI reports failures itself, in one line)")
 
 
 @subcommand("run")
@@ -294,12 +340,14 @@ def _register_run(sub) -> None:
                         "without it they are refused. A simulated result is never current for "
                         "a unit that has a complete real calibration, and never enters history, "
                         "En or the fleet views")
+    p.add_argument("--create", action="store_true",
+                   help="create the warehouse's folder if it does not exist (else an error)")
     _add_run_options(p)
     p.set_defaults(func=_cmd_run)
 
 
 def _cmd_run(args) -> int:
-    return _execute(args.drops, args.warehouse, args, _console(),
+    return _execute(args.drops, args.warehouse, args, _console(), create=args.create,
                     allow_simulated=args.allow_simulated)
 
 
@@ -334,7 +382,7 @@ def _cmd_demo(args) -> int:
     if not args.json:
         say(console, f"demo drops: {', '.join(Path(d).name for d in drops)} -> {out / 'lab.duckdb'}")
     # the demo drop is made by the simulator (accelcal/demo_data/README.md)
-    return _execute(drops, str(out / "lab.duckdb"), args, console, allow_simulated=True)
+    return _execute(drops, str(out / "lab.duckdb"), args, console, create=True, allow_simulated=True)
 
 
 # -------------------------------------------------------------------- main --
@@ -371,19 +419,61 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+#: Commands that may start processes of their own (Prefect's server, Dask workers): they
+#: are watched by accelcal.procguard so nothing outlives the command, even after SIGKILL.
+GUARDED = ("run", "demo", "serve")
+
+
 def main(argv: list[str] | None = None) -> int:
+    from . import textout
     if argv is None:
         argv = sys.argv[1:]
     parser = build_parser(argv)
     args = parser.parse_args(argv)
+    if getattr(args, "command", None) in GUARDED and not os.environ.get("ACCELCAL_NO_GUARD"):
+        from .procguard import guard_descendants
+        guard_descendants()
     try:
         return int(args.func(args) or 0)
     except CliError as e:
-        print(f"accelcal: error: {e}", file=sys.stderr)
+        textout.error(e)
         return EXIT_FAIL
     except KeyboardInterrupt:
-        print("accelcal: interrupted", file=sys.stderr)
-        return 130
+        textout.error("interrupted; what was committed stays, a re-run completes the rest")
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:                 # the reader of our output went away (| head)
+        with contextlib.suppress(OSError):
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_FAIL
+    except OSError as e:
+        from .fileio import os_error_text
+        textout.error(os_error_text(e))
+        return EXIT_FAIL
+    except MemoryError:
+        textout.error("out of memory; see the README (Faults) for the memory a run needs")
+        return EXIT_FAIL
+    except Exception as e:
+        if os.environ.get("ACCELCAL_DEBUG"):
+            raise
+        where = _save_traceback()
+        textout.error(f"internal error: {type(e).__name__}: {e} -- a bug in accelcal; "
+                      f"traceback saved in {where}")
+        return EXIT_BUG
+
+
+def _save_traceback() -> str:
+    import tempfile
+    import time
+    import traceback
+    try:
+        fd, path = tempfile.mkstemp(prefix=f"accelcal-crash-{time.strftime('%Y%m%dT%H%M%S')}-",
+                                    suffix=".txt")
+        with os.fdopen(fd, "w") as f:
+            f.write(f"accelcal {' '.join(sys.argv[1:])}\n\n")
+            traceback.print_exc(file=f)
+        return path
+    except OSError:
+        return "(nowhere: the temporary folder is not writable; set ACCELCAL_DEBUG=1)"
 
 
 if __name__ == "__main__":

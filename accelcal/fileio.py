@@ -1,7 +1,11 @@
-"""Atomic file writes: a killed writer leaves the old file or the new one, never a part."""
+"""Files accelcal writes: atomic writes (a killed writer leaves the old file or the new
+one, never a part) and the clean-up of what a killed writer leaves; paths and OS errors
+as one line of text."""
 from __future__ import annotations
 
+import errno
 import os
+import re
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
@@ -29,3 +33,79 @@ def atomic_write(target: str | Path, write: Callable[[IO[Any]], None], mode: str
             pass
         raise
     return target
+
+
+_TEMP = re.compile(r"^\..+\.[A-Za-z0-9_]{8}\.tmp(\.wal)?$")
+
+
+def is_temp_name(name: str) -> bool:
+    """A name :func:`atomic_write` gives its temporary files (``.<target>.XXXXXXXX.tmp``;
+    with ``.wal``: DuckDB's log of a warehouse being created under a temporary name)."""
+    return bool(_TEMP.match(name))
+
+
+def remove_stale_temps(folder: str | Path, recursive: bool = True) -> list[str]:
+    """Remove the temporary files of :func:`atomic_write` under ``folder`` (left by a
+    writer that was killed); returns their paths.  Call it only while no writer of that
+    folder can be running (the pipeline holds the warehouse lock)."""
+    removed: list[str] = []
+    stack = [os.fspath(folder)]
+    while stack:
+        d = stack.pop()
+        try:
+            with os.scandir(d) as it:
+                items = list(it)
+        except OSError:
+            continue
+        for de in items:
+            try:
+                if de.is_dir(follow_symlinks=False):
+                    if recursive:
+                        stack.append(de.path)
+                elif is_temp_name(de.name) and de.is_file(follow_symlinks=False):
+                    os.unlink(de.path)
+                    removed.append(de.path)
+            except OSError:
+                pass
+    return removed
+
+
+def path_text(path) -> str:
+    """A path as text that is always valid UTF-8: bytes of a name that are not UTF-8 are
+    shown as ``\\xNN`` (os.fsencode, then backslashreplace).  For valid names it is the
+    path itself."""
+    p = os.fspath(path)
+    if isinstance(p, bytes):
+        return p.decode("utf-8", "backslashreplace")
+    try:
+        p.encode("utf-8")
+        return p
+    except UnicodeEncodeError:
+        return os.fsencode(p).decode("utf-8", "backslashreplace")
+
+
+class StoreError(RuntimeError):
+    """A place accelcal writes (the Parquet store, Data Docs, the snapshot) cannot be
+    written: a one-line message naming it and what to do.  Not a verdict on any file."""
+
+
+_HINTS = {
+    errno.ENOSPC: "the disk is full: free space there, then run again",
+    errno.EDQUOT: "the disk quota is used up: free space, then run again",
+    errno.EROFS: "a read-only file system: choose a writable place",
+    errno.EACCES: "no permission: make it writable for this user, or choose another place",
+    errno.EPERM: "not permitted: make it writable for this user, or choose another place",
+    errno.ENAMETOOLONG: "the path is too long",
+    errno.ENOTDIR: "a part of the path is not a folder",
+    errno.EIO: "the device reports an input/output error: check the disk",
+}
+
+
+def os_error_text(e: OSError, what: str | None = None) -> str:
+    """One line for an OSError: what, the path, the OS's reason and what to do."""
+    parts = [what] if what else []
+    if e.filename is not None:
+        parts.append(path_text(e.filename))
+    reason = e.strerror or str(e) or type(e).__name__
+    hint = _HINTS.get(e.errno)
+    return ": ".join(parts + [reason]) + (f" ({hint})" if hint else "")

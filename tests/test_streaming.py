@@ -47,12 +47,13 @@ def _drop_of_copies(src: Path, dst: Path, copies: int) -> Path:
 
 
 class _LiveRuns:
-    """Counts parsed runs (RunFile objects from the parser or from Parquet) alive at once."""
+    """Counts parsed runs (RunFile objects from the parser -- read_run, or parse_run on an
+    open file as ingest calls it -- or from Parquet) alive at once."""
 
     def __init__(self):
         from accelcal.tasks import contracts
         self.contracts, self.live, self.peak = contracts, weakref.WeakSet(), 0
-        self.real = {n: contracts.resolve(n) for n in ("read_run", "read_run_parquet")}
+        self.real = {n: contracts.resolve(n) for n in ("read_run", "parse_run", "read_run_parquet")}
 
     def _wrap(self, name):
         def f(*a, **kw):

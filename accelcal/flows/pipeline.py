@@ -26,6 +26,7 @@ from ..tasks import progress
 from ..tasks import science as _science
 from ..tasks import store as _store
 from ..tasks import validate as _validate
+from ..fileio import StoreError, os_error_text, path_text
 from ..warehouse.db import Warehouse, WarehouseError
 from ..warehouse.lineage import code_version as _code_version
 from ..warehouse.lineage import result_id as _result_id
@@ -78,10 +79,15 @@ def check_drops(drops: list[str]) -> list[str]:
     for d in drops:
         p = Path(d).expanduser()
         if not p.exists():
-            raise PipelineError(f"drop {d} does not exist")
+            raise PipelineError(f"drop {path_text(d)} does not exist")
         if not p.is_dir():
-            raise PipelineError(f"drop {d} is not a folder")
-        out.append(str(p.resolve()))
+            raise PipelineError(f"drop {path_text(d)} is not a folder")
+        r = str(p.resolve())
+        if path_text(r) != r:
+            raise PipelineError(f"the path of drop {path_text(r)} is not UTF-8: rename it")
+        if not os.access(r, os.R_OK | os.X_OK):
+            raise PipelineError(f"drop {r} cannot be read (no permission)")
+        out.append(r)
     if len(set(out)) != len(out):
         out = list(dict.fromkeys(out))
     return out
@@ -119,9 +125,14 @@ def in_flight() -> int:
 
 class _Session:
     """One warehouse connection for a stretch of small writes (Warehouse.session), closed
-    and reopened every ``hold_s`` seconds so readers in other processes get their turn."""
+    and reopened every ``hold_s`` seconds.
 
-    def __init__(self, wh: Warehouse, hold_s: float = 2.0):
+    The pipeline holds it for the whole run (hold_s = inf): a reader outside accelcal
+    that opened the live file between two reconnects used to make the run fail half-way
+    once it had waited --lock-timeout.  Readers use ``accelcal sql`` (which waits for the
+    run) or the snapshot each run publishes (never locked by a run)."""
+
+    def __init__(self, wh: Warehouse, hold_s: float = float("inf")):
         self.wh, self.hold_s, self._cm, self._t = wh, hold_s, None, 0.0
 
     def touch(self) -> None:
@@ -144,9 +155,22 @@ class _Session:
         self.close()
 
 
+#: Seconds a run file's size and mtime must have been stable before ``run`` reads it
+#: (``--settle``; ``ACCELCAL_SETTLE_S``).
+SETTLE_S = 2.0
+
+
+def settle_seconds() -> float:
+    try:
+        return max(0.0, float(os.environ.get("ACCELCAL_SETTLE_S", SETTLE_S)))
+    except ValueError:
+        return SETTLE_S
+
+
 def pipeline_body(drops: list[str], warehouse: str, *, lock_timeout: float = 60.0,
                   parameters: dict[str, Any] | None = None, steps: SimpleNamespace,
-                  flow_run_id: str, allow_simulated: bool = False) -> dict[str, Any]:
+                  flow_run_id: str, settle: float | None = None,
+                  snapshot: bool = True, allow_simulated: bool = False) -> dict[str, Any]:
     """The composition shared by both engines.  Returns a JSON-able summary.
 
     Streams: each drop's files go in batches (ingest + validate as one task, possibly
@@ -159,6 +183,12 @@ def pipeline_body(drops: list[str], warehouse: str, *, lock_timeout: float = 60.
     Files carrying the simulator's mark are not taken in unless ``allow_simulated``
     (each drop's ``simulated_held`` lists them); even then a simulated result is never
     current for a unit that has a complete real result (Warehouse.store_result).
+    Before reading, each drop's files wait until they are settled (``settle`` seconds
+    unchanged; a file still being written is held back, listed under ``held``).  A fault
+    of the places the run writes (Parquet store, Data Docs, warehouse: disk full,
+    read-only) stops the run with StoreError / WarehouseError; what was committed stays
+    and a re-run completes the rest exactly once.  At the end, when anything was written,
+    a read-only copy ``<stem>-snapshot.duckdb`` is published for readers outside accelcal.
     """
     parameters = dict(parameters or {})
     timings: dict[str, float] = {}
@@ -171,10 +201,30 @@ def pipeline_body(drops: list[str], warehouse: str, *, lock_timeout: float = 60.
     cv = _code_version()
     summary: dict[str, Any] = {"warehouse": str(wh.path), "flow_run_id": flow_run_id,
                                "code_version": cv, "parameters": parameters,
-                               "drops": [], "campaigns": [], "timings": timings}
+                               "drops": [], "campaigns": [], "timings": timings,
+                               "warnings": [], "snapshot": None}
     B, W = batch_files(), in_flight()
-    with wh.lock(), _Session(wh) as sess:
+    settle = settle_seconds() if settle is None else settle
+    with wh.lock():
         wh.init()
+        summary["removed_temp_files"] = len(wh.remove_stale_temps())
+        _body(wh, drops, summary, steps, flow_run_id, parameters, cv, settle, B, W, tick,
+              allow_simulated)
+        wrote = any(d["new"] or d["rechecked"] for d in summary["drops"]) or any(
+            c["status"] in ("new", "reactivated") for c in summary["campaigns"])
+        if snapshot and (wrote or not wh.snapshot_path.exists()):
+            t0 = time.perf_counter()
+            try:
+                summary["snapshot"] = str(wh.publish_snapshot())
+            except WarehouseError as e:
+                summary["warnings"].append(f"the results are stored, but {e}")
+            tick("snapshot", t0)
+    return summary
+
+
+def _body(wh, drops, summary, steps, flow_run_id, parameters, cv, settle, B, W, tick,
+          allow_simulated: bool = False) -> None:
+    with _Session(wh) as sess:
         touched: set[str] = set()
 
         # -- 1-3: ingest + validate in batches (tasks), record each batch (flow process)
@@ -185,6 +235,8 @@ def pipeline_body(drops: list[str], warehouse: str, *, lock_timeout: float = 60.
             t0 = time.perf_counter()
             try:
                 ing = fut.result()
+            except (StoreError, WarehouseError):
+                raise                # a place the run writes is unusable: stop, say where
             except Exception as e:   # a bug in a step, not a bad file: report, record nothing
                 entry["errors"].append(f"batch failed: {type(e).__name__}: {e}")
                 tick("ingest+validate (wait)", t0)
@@ -209,26 +261,44 @@ def pipeline_body(drops: list[str], warehouse: str, *, lock_timeout: float = 60.
             entry["rechecked"] += sum(1 for r in ing.records if r.rechecked)
             entry["errors"].extend(ing.errors)
             entry["simulated_held"].extend(ing.simulated_held)
+            entry["held"].extend(ing.held)
             if ing.docs and entry["docs"] is None:
                 entry["docs"] = ing.docs
 
+        # every drop listed first, and one settle wait for all of them
+        t0 = time.perf_counter()
+        scanned: dict[str, list] = {}
         for drop in drops:
-            t0 = time.perf_counter()
+            try:
+                scanned[drop] = _contracts.scan_drop(drop)
+            except OSError as e:
+                raise PipelineError(os_error_text(e, "cannot list drop")) from None
+        unique = {e.path: e for es in scanned.values() for e in es}
+        ready, held_all = _contracts.settle_wait(list(unique.values()), settle)
+        ready_at = {e.path: e for e in ready}
+        held_at = {e.path: why for e, why in held_all}
+        by_drop = {d: [ready_at[e.path] for e in scanned[d] if e.path in ready_at] for d in drops}
+        held_by = {d: [f"{path_text(e.path)}: {held_at[e.path]}" for e in scanned[d]
+                       if e.path in held_at] for d in drops}
+        tick("discover", t0)
+        for drop in drops:
             sess.touch()
             known = steps.known_keys(wh, drop)
-            paths = [str(Path(p).resolve()) for p in _contracts.discover(Path(drop))]
-            tick("discover", t0)
             entry = {"drop": Path(drop).name, "path": drop, "files": 0, "accepted": 0,
                      "refused": 0, "new": 0, "refused_files": [], "rechecked": 0,
-                     "errors": [], "docs": None, "simulated_held": []}
+                     "errors": [], "held": held_by[drop], "warnings": [], "docs": None,
+                     "simulated_held": []}
             summary["drops"].append(entry)
+            if not scanned[drop]:
+                entry["warnings"].append(f"drop {drop} holds no *.csv file: nothing to do")
+            paths = by_drop[drop]
             progress.stage("ingest", len(paths))
             nb = max(1, -(-len(paths) // B))
             progress.stage("validate", nb)
             progress.stage("record", nb)
             for k in range(nb):
                 batch = paths[k * B:(k + 1) * B]
-                bset = set(batch)
+                bset = {path_text(e.path) for e in batch}
                 kb = {key: v for key, v in known.items() if key[1] in bset}
                 t0 = time.perf_counter()
                 pending.append((entry, steps.submit_intake(
@@ -325,7 +395,6 @@ def pipeline_body(drops: list[str], warehouse: str, *, lock_timeout: float = 60.
         sess.touch()
         _fill_campaigns(wh, summary["campaigns"])
         tick("summary", t0)
-    return summary
 
 
 #: Campaigns whose coefficients, radii and flags the run summary carries (the CLI prints
@@ -384,12 +453,13 @@ def pipeline_flow():
         @flow(name="accelcal-pipeline", persist_result=False, validate_parameters=False,
               log_prints=False)
         def accelcal_pipeline(drops: list[str], warehouse: str, lock_timeout: float = 60.0,
-                              parameters: dict | None = None,
-                              allow_simulated: bool = False) -> dict:
+                              parameters: dict | None = None, settle: float | None = None,
+                              snapshot: bool = True, allow_simulated: bool = False) -> dict:
             from prefect.runtime import flow_run
             return pipeline_body(drops, warehouse, lock_timeout=lock_timeout,
                                  parameters=parameters, steps=_prefect_steps(),
-                                 flow_run_id=str(flow_run.id), allow_simulated=allow_simulated)
+                                 flow_run_id=str(flow_run.id), settle=settle,
+                                 snapshot=snapshot, allow_simulated=allow_simulated)
 
         _FLOW = accelcal_pipeline
     return _FLOW
@@ -429,20 +499,27 @@ def _task_runner(name: str):
 
 def run_pipeline(drops: list[str], warehouse: str | Path, *, engine: str = "prefect",
                  lock_timeout: float = 60.0, parameters: dict[str, Any] | None = None,
-                 task_runner: str = "thread", allow_simulated: bool = False) -> dict[str, Any]:
-    """Process drops into a warehouse.  Raises PipelineError / WarehouseError when it cannot work."""
+                 task_runner: str = "thread", settle: float | None = None,
+                 create: bool = True, snapshot: bool = True,
+                 allow_simulated: bool = False) -> dict[str, Any]:
+    """Process drops into a warehouse.  Raises PipelineError / WarehouseError / StoreError
+    (one line each) when it cannot work.  ``create``: make the warehouse's folder if it
+    does not exist (the CLI asks for ``--create``)."""
     drops = check_drops(list(drops))
     if not drops:
         raise PipelineError("no drop given")
     warehouse = str(Path(warehouse).expanduser().resolve())
+    if path_text(warehouse) != warehouse:
+        raise PipelineError(f"the warehouse path {path_text(warehouse)} is not UTF-8")
+    Warehouse(warehouse, lock_timeout=lock_timeout).check_place(create=create, drops=drops)
+    kw = dict(lock_timeout=lock_timeout, parameters=parameters, settle=settle, snapshot=snapshot,
+              allow_simulated=allow_simulated)
     t0 = time.perf_counter()
     if engine == "local":
         if task_runner != "thread":
             raise PipelineError("--task-runner needs the prefect engine")
-        summary = pipeline_body(drops, warehouse, lock_timeout=lock_timeout,
-                                parameters=parameters, steps=_local_steps(),
-                                flow_run_id=f"local-{uuid.uuid4()}",
-                                allow_simulated=allow_simulated)
+        summary = pipeline_body(drops, warehouse, steps=_local_steps(),
+                                flow_run_id=f"local-{uuid.uuid4()}", **kw)
     elif engine == "prefect":
         # Fail fast (before the Prefect server starts) when the warehouse is busy.
         wh = Warehouse(warehouse, lock_timeout=lock_timeout)
@@ -452,7 +529,8 @@ def run_pipeline(drops: list[str], warehouse: str | Path, *, engine: str = "pref
             if runner is not None:
                 fl = fl.with_options(task_runner=runner)
             summary = fl(drops=drops, warehouse=warehouse, lock_timeout=lock_timeout,
-                         parameters=parameters or {}, allow_simulated=allow_simulated)
+                         parameters=parameters or {}, settle=settle, snapshot=snapshot,
+                         allow_simulated=allow_simulated)
     else:
         raise PipelineError(f"unknown engine {engine!r} (choose from {', '.join(ENGINES)})")
     summary["engine"] = engine
@@ -461,4 +539,5 @@ def run_pipeline(drops: list[str], warehouse: str | Path, *, engine: str = "pref
 
 
 __all__ = ["run_pipeline", "pipeline_body", "pipeline_flow", "PipelineError", "WarehouseError",
+           "StoreError",
            "quiet_prefect", "ENGINES", "TASK_RUNNERS"]

@@ -61,16 +61,6 @@ def register_cli(sub) -> None:
     r.add_argument("--lock-timeout", type=float, default=60.0, metavar="S")
     r.set_defaults(func=_cmd_report)
 
-    q = sub.add_parser(
-        "sql", help="run a read-only SQL query on the warehouse (the DuckDB that wrote it)",
-        description="Read-only SQL on the warehouse with the DuckDB Python client accelcal "
-                    "uses (2.x): the duckdb 1.x CLI (e.g. pip's duckdb-cli 1.5) cannot open a "
-                    "file written by DuckDB 2.0. Views: accelcal/warehouse/README.md.")
-    q.add_argument("query", help="SQL, e.g. \"SELECT * FROM calibration\"")
-    q.add_argument("--warehouse", "-w", default=_default_warehouse())
-    q.add_argument("--csv", action="store_true", help="CSV on stdout instead of a table")
-    q.set_defaults(func=_cmd_sql)
-
     st = sub.add_parser(
         "status", help="the last passes of `accelcal serve` and what waits",
         description="What the scheduled processing did and what it waits for: the last passes "
@@ -142,37 +132,6 @@ def _need_warehouse(path: str) -> None:
     from pathlib import Path
     if not Path(path).expanduser().exists():
         _fail(f"warehouse {path} does not exist")
-
-
-def _cmd_sql(args) -> int:
-    from ..warehouse.db import Warehouse, WarehouseError
-    _need_warehouse(args.warehouse)
-    import duckdb
-    try:
-        rows = Warehouse(args.warehouse).query(args.query)
-    except WarehouseError as e:
-        _fail(str(e))
-    except duckdb.Error as e:
-        _fail(str(e).splitlines()[0])
-    cols = list(rows[0]) if rows else []
-    if args.csv:
-        import csv
-        w = csv.writer(sys.stdout)
-        w.writerow(cols)
-        w.writerows([r[c] for c in cols] for r in rows)
-        return 0
-    from rich.table import Table
-
-    from ..cli import _cell, _console
-    t = Table(show_edge=False)
-    for c in cols:
-        t.add_column(_cell(c), overflow="fold")
-    for r in rows:
-        t.add_row(*(_cell(r[c]) for c in cols))
-    con = _console()
-    con.print(t)
-    con.print(f"{len(rows)} row(s)")
-    return 0
 
 
 def _cmd_status(args) -> int:

@@ -86,21 +86,22 @@ def find_drops(watch_dir: str | Path) -> list[Path]:
 
 
 def snapshot(drop: Path) -> tuple[dict[str, list[int]], list[str]]:
-    """({csv path: [size, mtime_ns]}, [partial files]) of one drop, by stat only."""
+    """({csv path: [size, mtime_ns]}, [partial files]) of one drop, by stat only.
+
+    The run files are those of ``scan_drop`` (shared with ``run``: links are not followed,
+    entries it refuses -- links, FIFOs, bad names -- are left to the pipeline, which
+    records why); ``*.part`` files are found without following links either."""
+    from ..schemas.dropformat import scan_drop
     files: dict[str, list[int]] = {}
     partial: list[str] = []
-    for p in drop.rglob("*"):
-        name = p.name.lower()
-        try:
-            if not p.is_file():
-                continue
-            if name.endswith(".part"):
-                partial.append(str(p))
-            elif p.suffix.lower() == ".csv":
-                st = p.stat()
-                files[str(p)] = [st.st_size, st.st_mtime_ns]
-        except OSError:        # vanished between listing and stat: look again next pass
-            partial.append(str(p))
+    try:
+        for e in scan_drop(drop):
+            if e.refusal is None:
+                files[e.path] = [e.size, e.mtime_ns]
+    except OSError:            # the drop itself vanished or cannot be listed: next pass
+        partial.append(str(drop))
+    for folder, dirs, names in os.walk(drop):
+        partial += [os.path.join(folder, n) for n in names if n.lower().endswith(".part")]
     return files, sorted(partial)
 
 

@@ -34,13 +34,28 @@ Rule ids emitted here (short kebab-case, stable; tests and the warehouse use the
 ``empty-value``     an empty cell in a column where the spec allows none
 ``not-integer``     a non-integral ``step``/``position``
 ``no-data``         a header but no data rows
+``line-too-long``   a line longer than LINE_MAX bytes (64 KiB): no line of the
+                    format is, and the file is never held whole in memory
+``out-of-range``    a number written in full that a 64-bit float cannot hold
+                    (``1e999``: the spec's numbers are finite unless written
+                    ``inf``/``nan``, which the suites judge)
 ==================  =========================================================
+
+Files are read as a stream (:func:`parse_run`): blocks of bytes, lines found with numpy,
+numbers parsed a chunk of about CHUNK_BYTES at a time by pyarrow, no Python per row;
+memory is a chunk plus the run's columns.  The first problem in file order is reported.
+A ``detail`` is at most DETAIL_MAX characters, and text quoted from the file is repr()-ed
+(control characters escaped) and cut.
 """
 from __future__ import annotations
 
 import hashlib
+import io
 import math
+import os
 import re
+import stat as stat_mod
+import time
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
@@ -48,6 +63,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
 from ..effects import TESTS
@@ -106,6 +122,15 @@ _NUMBER = re.compile(r"^\s*[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|nan|inf|
 _INTEGER = re.compile(r"^\s*[+-]?\d+\s*$", re.ASCII)
 
 
+#: Longest refusal detail kept (characters); longer ones are cut with "…".
+DETAIL_MAX = 300
+
+
+def cap_detail(text) -> str:
+    text = str(text)
+    return text if len(text) <= DETAIL_MAX else text[:DETAIL_MAX - 1] + "…"
+
+
 class DropFormatError(ValueError):
     """A run file that breaks the drop format (drop-format.md, "What the pipeline must refuse").
 
@@ -116,7 +141,7 @@ class DropFormatError(ValueError):
         self.path = str(path)
         self.line = None if line is None else int(line)
         self.rule = rule
-        self.detail = detail
+        self.detail = cap_detail(detail)
         super().__init__(self.__str__())
 
     def __str__(self) -> str:
@@ -138,6 +163,9 @@ class Refusal:
     line: int | None
     rule: str
     detail: str
+
+    def __post_init__(self):
+        object.__setattr__(self, "detail", cap_detail(self.detail))
 
     def __str__(self) -> str:
         where = self.path if self.line is None else f"{self.path}:{self.line}"
@@ -188,14 +216,202 @@ class RunFile:
         return hash((self.path, self.sha256))
 
 
-def discover(drop_dir) -> list[Path]:
-    """Every run file of a drop (drop-format.md, "A drop"): ``*.csv`` at any depth, sorted.
+@dataclass(frozen=True)
+class Entry:
+    """One thing in a drop that is, or looks like, a run file (see :func:`scan_drop`).
 
-    Other files (``*.log``, ``*.txt``, ``Thumbs.db``, partial copies ``*.csv.part``) are ignored;
-    so are directories that happen to be named ``*.csv``.
+    ``path`` is the path as the OS gives it (a name that is not UTF-8 holds surrogate
+    escapes); ``size``/``mtime_ns`` are from lstat at the scan; ``refusal`` is
+    ``(rule, detail)`` when the entry is refused as it stands, without being opened.
     """
-    root = Path(drop_dir)
-    return sorted(p for p in root.rglob("*") if p.suffix.lower() == ".csv" and p.is_file())
+
+    path: str
+    size: int = -1
+    mtime_ns: int = -1
+    refusal: tuple[str, str] | None = None
+
+
+#: Rules of entries refused without being read (the file rules of issue 12).
+ENTRY_RULES = {
+    "link": "a symbolic link: links are not followed (copy the file into the drop)",
+    "not-a-file": "a FIFO, socket or device named *.csv: not a regular file",
+    "unreadable": "the OS refuses to open or read it (the reason is named)",
+    "bad-file-name": "a name that is not UTF-8 or holds a control character",
+}
+
+_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f]")
+
+
+def bad_name(name: str) -> str | None:
+    """Why a file or folder name is refused, or None.  A name must be UTF-8 (a lineage
+    that names the raw file must name it exactly) and hold no control character (every
+    message naming it is one line)."""
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError as e:
+        b = os.fsencode(name)
+        k = len(name[:e.start].encode("utf-8", "surrogateescape"))
+        return f"the name is not UTF-8 (byte 0x{b[k]:02x} at byte {k} of the name)"
+    m = _CONTROL.search(name)
+    if m:
+        return f"the name holds a control character (U+{ord(m.group()):04X})"
+    return None
+
+
+def _is_csv(name: str) -> bool:
+    return name[-4:].lower() == ".csv"
+
+
+def scan_drop(drop_dir) -> list[Entry]:
+    """Every run file of a drop, and every entry refused as a run file, sorted by path.
+
+    A drop's run files are its regular ``*.csv`` files at any depth (drop-format.md, "A
+    drop"); other files (``*.log``, ``*.txt``, ``Thumbs.db``, ``*.csv.part``) are ignored,
+    and so are folders named ``*.csv`` (their files are looked at).  Nothing is followed
+    out of the drop and nothing is opened here.  Refused, with a reason
+    (:data:`ENTRY_RULES`): a symbolic link named ``*.csv`` or to a folder (dangling,
+    inside or out of the drop); a FIFO, socket or device named ``*.csv``; a sub-folder
+    that cannot be listed; a ``*.csv`` file or a folder whose name is not UTF-8 or holds
+    a control character (its files are not looked at).  Raises OSError when the drop
+    folder itself cannot be listed.
+    """
+    root = os.fspath(drop_dir)
+    out: list[Entry] = []
+    stack = [root]
+    while stack:
+        folder = stack.pop()
+        try:
+            with os.scandir(folder) as it:
+                items = list(it)
+        except OSError as e:
+            if folder == root:
+                raise
+            out.append(Entry(folder, 0, 0, ("unreadable", f"cannot list this folder: "
+                                                          f"{e.strerror or e}; its files are not read")))
+            continue
+        for de in items:
+            path, name = de.path, de.name
+            try:
+                st = de.stat(follow_symlinks=False)
+            except FileNotFoundError:          # gone since the listing
+                continue
+            except OSError as e:
+                if _is_csv(name):
+                    out.append(Entry(path, 0, 0, ("unreadable", f"cannot stat: {e.strerror or e}")))
+                continue
+            mode = st.st_mode
+            if stat_mod.S_ISLNK(mode):
+                why = _link_refusal(root, path, name)
+                if why is not None:
+                    out.append(Entry(path, 0, 0, ("link", why)))
+                continue
+            why = bad_name(name)
+            if stat_mod.S_ISDIR(mode):
+                if why is not None:
+                    out.append(Entry(path, 0, 0, ("bad-file-name", f"a folder: {why}; its files "
+                                                                   "are not read (rename it)")))
+                else:
+                    stack.append(path)
+                continue
+            if not _is_csv(name):
+                continue
+            if why is not None:
+                out.append(Entry(path, st.st_size, st.st_mtime_ns, ("bad-file-name", f"{why} (rename it)")))
+            elif not stat_mod.S_ISREG(mode):
+                kind = ("a FIFO (named pipe)" if stat_mod.S_ISFIFO(mode) else
+                        "a socket" if stat_mod.S_ISSOCK(mode) else "a device")
+                out.append(Entry(path, 0, st.st_mtime_ns, ("not-a-file", f"{kind}, not a regular file")))
+            else:
+                out.append(Entry(path, st.st_size, st.st_mtime_ns))
+    out.sort(key=lambda e: e.path.split(os.sep))
+    return out
+
+
+def _link_refusal(root: str, path: str, name: str) -> str | None:
+    """Why a symbolic link in a drop is refused, or None (a link to something that is not
+    a folder, with a name that is not ``*.csv``: ignored like any other non-run file)."""
+    try:
+        target = os.readlink(path)
+    except OSError:
+        target = "?"
+    try:
+        is_dir = stat_mod.S_ISDIR(os.stat(path).st_mode)
+        dangling = False
+    except OSError:
+        is_dir, dangling = False, True
+    if not (_is_csv(name) or is_dir):
+        return None
+    what = "a symbolic link to a folder" if is_dir else "a symbolic link"
+    real = os.path.realpath(path)
+    root_real = os.path.realpath(root)
+    if dangling:
+        where = "that points nowhere (dangling)"
+    elif real == root_real or real.startswith(root_real.rstrip(os.sep) + os.sep):
+        where = "inside the drop (what it points to is read under its own name)"
+    else:
+        where = "out of the drop"
+    return (f"{what} to {target!r}, {where}: links are not followed; copy the "
+            f"{'files' if is_dir else 'file'} into the drop")
+
+
+def discover(drop_dir) -> list[Path]:
+    """The run files of a drop (drop-format.md, "A drop"): the regular ``*.csv`` files at
+    any depth, sorted; see :func:`scan_drop` for what is refused and why."""
+    return [Path(e.path) for e in scan_drop(drop_dir) if e.refusal is None]
+
+
+def settle_wait(entries: list[Entry], settle: float, max_wait: float | None = None,
+                sleep=time.sleep, clock=time.time) -> tuple[list[Entry], list[tuple[Entry, str]]]:
+    """Wait until every run file's size and mtime have been stable for ``settle`` seconds
+    -- its mtime is that old, or two looks that far apart saw the same (size, mtime), which
+    also copes with a clock that is off -- looking again at the others for at most
+    ``max_wait`` seconds (default ``2 * settle + 5``).  Returns (settled entries with their
+    latest stat, held back [(entry, why)]): a file still being written is not read.
+
+    Shared by ``run`` and ``serve``: a DAQ copying into the drop is never read half-way.
+    Entries refused as they stand pass through; files gone meanwhile are dropped.
+    """
+    ready = [e for e in entries if e.refusal is not None]
+    pending = [e for e in entries if e.refusal is None]
+    if settle <= 0:
+        return ready + pending, []
+    max_wait = 2 * settle + 5 if max_wait is None else max_wait
+    t_end = clock() + max_wait
+    since: dict[str, tuple[tuple[int, int], float]] = {}     # path -> (stat, first seen)
+    left: list[Entry] = []
+    while pending:
+        now = clock()
+        left = []
+        for e in pending:
+            sig = (e.size, e.mtime_ns)
+            if since.get(e.path, (None,))[0] != sig:
+                since[e.path] = (sig, now)
+            if now - e.mtime_ns / 1e9 >= settle or now - since[e.path][1] >= settle:
+                ready.append(e)
+            else:
+                left.append(e)
+        if not left:
+            break
+        wake = min(min(e.mtime_ns / 1e9, since[e.path][1]) + settle for e in left)
+        if wake > t_end:
+            break
+        sleep(max(wake - now, 0.01))
+        pending = []
+        for e in left:
+            try:
+                st = os.lstat(e.path)
+            except FileNotFoundError:
+                continue
+            except OSError:
+                ready.append(e)                  # reading it will say why
+                continue
+            pending.append(Entry(e.path, st.st_size, st.st_mtime_ns))
+        left = []
+    now = clock()
+    held = [(e, f"still being written (modified {max(now - e.mtime_ns / 1e9, 0):.1f} s ago, "
+                f"settle time {settle:g} s): not read this time") for e in left]
+    ready.sort(key=lambda e: e.path.split(os.sep))
+    return ready, held
 
 
 # --------------------------------------------------------------------------------------
@@ -294,91 +510,193 @@ def _check_axes(path, test, raw, lines) -> None:
 
 
 # --------------------------------------------------------------------------------------
-# the file
+# the file, read as a stream: memory is bounded by a chunk, not by the file
+
+#: Bytes read at a time, and (about) the bytes of rows parsed at a time.
+BLOCK_BYTES = 1 << 20
+CHUNK_BYTES = 4 << 20
+#: Longest line a run file may have.  The spec's lines are short (a key, a header of a few
+#: names, a row of a few numbers); a longer one is refused (``line-too-long``) without
+#: ever being held whole in memory.
+LINE_MAX = 1 << 16
+_BOM = b"\xef\xbb\xbf"
+_IS_BLANK_BYTE = np.zeros(256, dtype=bool)
+_IS_BLANK_BYTE[[0x20, 0x09, 0x0B, 0x0C]] = True        # \r is dealt with as part of \r\n
+_LITERAL_INF = r"^\s*[+-]?inf(inity)?\s*$"
 
 
-def _decode(path, raw: bytes) -> str:
+class _Stream:
+    """Lines, then chunks of whole lines, of a binary file object; hashes every byte read."""
+
+    def __init__(self, fh, path: str):
+        self.fh, self.path = fh, path
+        self.hash = hashlib.sha256()
+        self.size = 0
+        self.buf = b""
+        self.pos = 0           # next unread byte of buf
+        self.offset = 0        # file offset of buf[0]
+        self.line = 0          # lines handed out so far
+        self.eof = False
+
+    def _block(self) -> bytes:
+        if self.eof:
+            return b""
+        data = self.fh.read(BLOCK_BYTES)
+        if not data:
+            self.eof = True
+            return b""
+        self.hash.update(data)
+        self.size += len(data)
+        return data
+
+    def _too_long(self, line: int, n: int) -> DropFormatError:
+        return DropFormatError(self.path, line, "line-too-long",
+                               f"more than {LINE_MAX} bytes ({n:,} read) without a line end; "
+                               "no line of a run file is that long")
+
+    def readline(self):
+        """(line bytes without its \\n, line number, file offset, ends with \\n) or None at EOF."""
+        while True:
+            k = self.buf.find(b"\n", self.pos)
+            if k >= 0:
+                term = True
+                break
+            if len(self.buf) - self.pos > LINE_MAX:
+                raise self._too_long(self.line + 1, len(self.buf) - self.pos)
+            data = self._block()
+            if not data:
+                if self.pos >= len(self.buf):
+                    return None
+                k, term = len(self.buf), False
+                break
+            self.offset += self.pos
+            self.buf, self.pos = self.buf[self.pos:] + data, 0
+        line = self.buf[self.pos:k]
+        if len(line) > LINE_MAX:
+            raise self._too_long(self.line + 1, len(line))
+        self.line += 1
+        off = self.offset + self.pos
+        self.pos = k + 1 if term else k
+        return line, self.line, off, term
+
+    def chunks(self):
+        """The rest of the file as (bytes, number of its first line, file offset, is last):
+        whole lines of about CHUNK_BYTES, the last chunk possibly without a final \\n."""
+        pending = self.buf[self.pos:]
+        offset = self.offset + self.pos
+        first = self.line + 1
+        self.buf, self.pos = b"", 0
+        grow = False               # the pending bytes hold no line end yet: read on
+        while True:
+            blocks, n = [pending], len(pending)
+            while n < CHUNK_BYTES or grow:
+                grow = False
+                data = self._block()
+                if not data:
+                    break
+                blocks.append(data)
+                n += len(data)
+            buf = b"".join(blocks) if len(blocks) > 1 else blocks[0]
+            del blocks
+            if self.eof:
+                if buf:
+                    yield buf, first, offset, True
+                return
+            k = buf.rfind(b"\n")
+            if k < 0:
+                if len(buf) > LINE_MAX:
+                    raise self._too_long(first, len(buf))
+                pending, grow = buf, True
+                continue
+            chunk, pending = buf[:k + 1], buf[k + 1:]
+            del buf
+            if len(pending) > LINE_MAX:
+                raise self._too_long(first + chunk.count(b"\n"), len(pending))
+            yield chunk, first, offset, False
+            first += chunk.count(b"\n")
+            offset += len(chunk)
+
+
+def _decode_line(path, line: bytes, ln: int, off: int) -> str:
     try:
-        text = raw.decode("utf-8")
+        return line.decode("utf-8")
     except UnicodeDecodeError as e:
-        line = raw.count(b"\n", 0, e.start) + 1
-        raise DropFormatError(path, line, "not-utf8",
-                              f"byte 0x{raw[e.start]:02x} at byte offset {e.start} is not UTF-8 "
-                              f"({e.reason})") from None
-    if text.startswith("\ufeff"):  # a UTF-8 byte-order mark is still UTF-8
-        text = text[1:]
-    return text
+        raise DropFormatError(path, ln, "not-utf8",
+                              f"byte 0x{line[e.start]:02x} at byte offset {off + e.start} is not "
+                              f"UTF-8 ({e.reason})") from None
 
 
 def read_run(path) -> RunFile:
     """Read and structurally check one run file (drop-format.md, "A run file").
 
-    Raises DropFormatError naming the file, the line and the rule broken.
+    Raises DropFormatError naming the file, the line and the rule broken.  The file is
+    read once, in blocks; memory is bounded by a chunk of rows plus the parsed columns.
     """
-    p = Path(path)
+    with open(path, "rb", buffering=0) as fh:
+        return parse_run(fh, path)
+
+
+def parse_run(fh, path) -> RunFile:
+    """:func:`read_run` on an open binary file object (or ``io.BytesIO``); ``path`` names
+    it in messages.  ``RunFile.sha256`` and ``size_bytes`` are those of the bytes read."""
     spath = str(path)
-    raw = p.read_bytes()
-    sha = hashlib.sha256(raw).hexdigest()
-    if not raw.strip():
-        raise DropFormatError(spath, None, "empty-file", f"the file is empty ({len(raw)} bytes)")
-    text = _decode(spath, raw)
-    if not text.strip():
-        raise DropFormatError(spath, None, "empty-file", f"the file holds only blank lines ({len(raw)} bytes)")
-    if "\r" in text:
-        text = text.replace("\r\n", "\n")
-        if "\r" in text:
-            ln = text.count("\n", 0, text.index("\r")) + 1
-            raise DropFormatError(spath, ln, "bad-line-end",
-                                  "a lone carriage return; line ends must be \\n or \\r\\n")
-    ends_nl = text.endswith("\n")
-    lines = text.split("\n")
-    if ends_nl:
-        lines.pop()
-    nlines = len(lines)
+    st = _Stream(fh, spath)
 
-    def cut_short(rule_if_not: str) -> str:
-        return "truncated" if not ends_nl else rule_if_not
-
-    # ---- metadata block
+    # ---- metadata block, line by line
     raw_meta: dict[str, str] = {}
     key_line: dict[str, int] = {}
-    i = 0
-    header_idx = None
-    while i < nlines:
-        s = lines[i].strip()
+    header = None                       # (text, line number, ends with \n)
+    last_term, last_ln, seen_text = True, 0, False
+    while True:
+        got = st.readline()
+        if got is None:
+            break
+        line, ln, off, term = got
+        last_term, last_ln = term, ln
+        if ln == 1 and line.startswith(_BOM):      # a UTF-8 byte-order mark is still UTF-8
+            line, off = line[3:], off + 3
+        text = _decode_line(spath, line, ln, off)
+        if text.endswith("\r") and term:
+            text = text[:-1]
+        if "\r" in text:
+            raise DropFormatError(spath, ln, "bad-line-end",
+                                  "a lone carriage return; line ends must be \\n or \\r\\n")
+        s = text.strip()
         if not s:
-            i += 1
             continue
+        seen_text = True
         if not s.startswith("#"):
-            header_idx = i
+            header = (text, ln, term)
             break
         m = _META_LINE.match(s)
         if not m:
             if not raw_meta:
-                raise DropFormatError(spath, i + 1, "no-metadata",
+                raise DropFormatError(spath, ln, "no-metadata",
                                       f"the file must start with '# format: {FORMAT}', found {s[:60]!r}")
-            raise DropFormatError(spath, i + 1, cut_short("metadata-syntax") if i == nlines - 1
-                                  else "metadata-syntax", f"{s[:60]!r} is not '# key: value'")
+            raise DropFormatError(spath, ln, "metadata-syntax" if term else "truncated",
+                                  f"{s[:60]!r} is not '# key: value'")
         key, value = m.group(1), m.group(2).strip()
         if not raw_meta and key != "format":
-            raise DropFormatError(spath, i + 1, "format-not-first",
+            raise DropFormatError(spath, ln, "format-not-first",
                                   f"the first metadata line must be '# format: {FORMAT}', found key {key!r}")
         if key in raw_meta:
-            raise DropFormatError(spath, i + 1, "duplicate-key",
+            raise DropFormatError(spath, ln, "duplicate-key",
                                   f"{key} given again (first on line {key_line[key]})")
         raw_meta[key] = value
-        key_line[key] = i + 1
-        i += 1
+        key_line[key] = ln
+    if not seen_text:
+        what = "is empty" if st.size == 0 else "holds only blank lines"
+        raise DropFormatError(spath, None, "empty-file", f"the file {what} ({st.size} bytes)")
     if not raw_meta:
-        first = next(j for j in range(nlines) if lines[j].strip())
-        raise DropFormatError(spath, first + 1, "no-metadata",
+        raise DropFormatError(spath, header[1], "no-metadata",
                               f"the file must start with '# format: {FORMAT}', found "
-                              f"{lines[first].strip()[:60]!r}")
+                              f"{header[0].strip()[:60]!r}")
+    cut = header is None and not last_term      # the file ends inside the metadata block
     if raw_meta["format"] != FORMAT:
         raise DropFormatError(spath, key_line["format"], "unknown-format",
                               f"format {raw_meta['format']!r} is not {FORMAT!r}")
     if "test" not in raw_meta:
-        raise DropFormatError(spath, None, cut_short("missing-key"),
+        raise DropFormatError(spath, None, "truncated" if cut else "missing-key",
                               "required key 'test' is missing")
     test = raw_meta["test"]
     if test not in TESTS:
@@ -386,20 +704,20 @@ def read_run(path) -> RunFile:
                               f"test {test!r} is not one of {', '.join(TESTS)}")
     missing = [k for k in REQUIRED_KEYS[test] if k not in raw_meta]
     if missing:
-        if header_idx is None and not ends_nl:
-            raise DropFormatError(spath, nlines, "truncated",
+        if cut:
+            raise DropFormatError(spath, last_ln, "truncated",
                                   f"the file ends inside the metadata block (missing {', '.join(missing)})")
         raise DropFormatError(spath, None, "missing-key",
                               f"required key{'s' if len(missing) > 1 else ''} "
                               f"{', '.join(missing)} missing for test {test}")
-    if header_idx is None:
-        raise DropFormatError(spath, nlines if not ends_nl else None, cut_short("no-header"),
+    if header is None:
+        raise DropFormatError(spath, last_ln if cut else None, "truncated" if cut else "no-header",
                               "the metadata block is not followed by a CSV header line")
     meta = _typed_meta(spath, raw_meta, key_line)
 
     # ---- header
-    header_line = header_idx + 1
-    names = [c.strip() for c in lines[header_idx].split(",")]
+    htext, header_line, hterm = header
+    names = [c.strip() for c in htext.split(",")]
     want = COLUMNS[test]
     dup = sorted({c for c in names if names.count(c) > 1})
     miss = [c for c in want if c not in names]
@@ -409,131 +727,251 @@ def read_run(path) -> RunFile:
         if miss:
             parts.append("missing " + ", ".join(miss))
         if extra:
-            parts.append("unexpected " + ", ".join(repr(c) for c in extra))
+            parts.append("unexpected " + ", ".join(repr(c[:40]) for c in extra[:5])
+                         + (f" and {len(extra) - 5} more" if len(extra) > 5 else ""))
         if dup:
             parts.append("repeated " + ", ".join(dup))
-        rule = "truncated" if (header_idx == nlines - 1 and not ends_nl) else "bad-columns"
-        raise DropFormatError(spath, header_line, rule,
+        raise DropFormatError(spath, header_line, "bad-columns" if hterm else "truncated",
                               f"columns for {test} must be {', '.join(want)}: {'; '.join(parts)}")
 
-    # ---- rows. Fast path: the body has no blank lines -> pyarrow parses it as it is (it
-    # refuses ragged rows itself). Otherwise, or when pyarrow refuses, check the structure
-    # line by line in Python to name the line, then parse the numbers.
-    n_body = nlines - header_idx - 1
-    if n_body > 0 and not ends_nl and lines[-1].rstrip().endswith(","):
-        raise DropFormatError(spath, nlines, "truncated",
-                              "the file ends mid-row: the last line ends with an empty field "
-                              "and no line end")
-    tbl = None
-    rows: list[str] | None = None
-    if n_body > 0:
-        body = text[sum(len(s) + 1 for s in lines[:header_idx + 1]):]
-        if not body.startswith("\n") and "\n\n" not in body:
-            tbl = _arrow_table(body.encode("utf-8"), names, n_body)
-    if tbl is not None:
-        line_no = header_line + 1 + np.arange(n_body, dtype=np.int64)
-    else:
-        rows, line_no = _structure(spath, lines[header_idx + 1:], header_line, names, ends_nl)
-        tbl = _arrow_table("\n".join(rows).encode("utf-8"), names, len(rows))
-
-    def get_rows() -> list[str]:
-        return rows if rows is not None else lines[header_idx + 1:]
-
-    cols = _parse_numbers(spath, test, names, tbl, get_rows, line_no, ends_nl)
-    data = pd.DataFrame({c: cols[c] for c in want})
-    data["line"] = line_no
-    return RunFile(path=spath, sha256=sha, size_bytes=len(raw), meta=meta, meta_raw=raw_meta,
-                   data=data, header_line=header_line, meta_lines=key_line)
-
-
-def _structure(path, body: list[str], header_line: int, names, ends_nl):
-    """Non-blank rows and their line numbers; refuses rows with the wrong number of fields."""
-    row_idx = [j for j, s in enumerate(body) if s and not s.isspace()]
-    if not row_idx:
-        raise DropFormatError(path, header_line, "no-data", "a header but no data rows")
-    rows = [body[j] for j in row_idx]
-    ncomma = len(names) - 1
-    counts = np.fromiter((s.count(",") for s in rows), dtype=np.int64, count=len(rows))
-    bad = np.flatnonzero(counts != ncomma)
-    if bad.size:
-        k = int(bad[0])
-        ln = header_line + 1 + row_idx[k]
-        last = k == len(rows) - 1 and not ends_nl
-        raise DropFormatError(path, ln, "truncated" if last else "field-count",
-                              f"{'the file ends mid-row: ' if last else ''}"
-                              f"{int(counts[k]) + 1} fields, the header has {len(names)}")
-    return rows, header_line + 1 + np.asarray(row_idx, dtype=np.int64)
-
-
-def _arrow_table(buf: bytes, names, n_rows: int) -> pa.Table | None:
-    """All columns as float64 with pyarrow; None when pyarrow refuses or counts other rows."""
+    # ---- rows, a chunk at a time (numpy finds the lines, pyarrow parses the numbers)
     try:
-        tbl = pacsv.read_csv(
-            pa.py_buffer(buf),
-            read_options=pacsv.ReadOptions(column_names=names, use_threads=False),
-            parse_options=pacsv.ParseOptions(quote_char=False, double_quote=False,
-                                              escape_char=False, ignore_empty_lines=False),
+        size_hint = os.fstat(fh.fileno()).st_size
+    except (AttributeError, OSError, ValueError, io.UnsupportedOperation):
+        size_hint = len(fh.getbuffer()) if hasattr(fh, "getbuffer") else None
+    body = _Body(spath, test, names, size_hint)
+    if hterm:
+        for chunk, first, offset, last in st.chunks():
+            body.add(chunk, first, offset, last)
+    if body.n_rows == 0:
+        raise DropFormatError(spath, header_line, "no-data", "a header but no data rows")
+    data = body.frame()
+    return RunFile(path=spath, sha256=st.hash.hexdigest(), size_bytes=st.size, meta=meta,
+                   meta_raw=raw_meta, data=data, header_line=header_line, meta_lines=key_line)
+
+
+def _excerpt(text: str, n: int = 40) -> str:
+    """A cell or line quoted for a message: repr (escapes control characters), at most n
+    characters of it, and its length when cut."""
+    text = text.strip()
+    if len(text) <= n:
+        return repr(text)
+    return f"{text[:n]!r}… ({len(text):,} characters)"
+
+
+class _BadCell(Exception):
+    def __init__(self, row: int, error: DropFormatError):
+        self.row, self.error = row, error
+
+
+class _Body:
+    """The data rows of one run, parsed a chunk at a time into per-column arrays."""
+
+    def __init__(self, path: str, test: str, names: list[str], size_hint: int | None = None):
+        self.path, self.test, self.names = path, test, names
+        self.size_hint = size_hint          # bytes of the file, to size the arrays once
+        self.cols: dict[str, np.ndarray] = {}
+        self.n_rows = 0
+        self.bytes_seen = 0
+        self._read = pacsv.ReadOptions(column_names=names, use_threads=False,
+                                       block_size=CHUNK_BYTES + LINE_MAX + 1)
+        self._parse = pacsv.ParseOptions(quote_char=False, double_quote=False,
+                                         escape_char=False, ignore_empty_lines=False)
+
+    # -- one chunk --------------------------------------------------------------------
+    def add(self, chunk: bytes, first: int, offset: int, last: bool) -> None:
+        b = np.frombuffer(chunk, dtype=np.uint8)
+        n = len(b)
+        nl = np.flatnonzero(b == 10)
+        ends_nl = n > 0 and chunk[-1] == 10
+        starts = np.concatenate(([0], nl + 1))
+        ends = np.concatenate((nl, [n]))
+        if ends_nl:
+            starts, ends = starts[:-1], ends[:-1]
+        line_no = first + np.arange(len(starts), dtype=np.int64)
+        problems: list[tuple[int, int, str, str]] = []     # (line, order, rule, detail)
+
+        def line_of(pos: int) -> int:
+            return first + int(np.searchsorted(nl, pos))
+
+        if n and int(b.max()) >= 0x80:
+            try:
+                chunk.decode("utf-8")
+            except UnicodeDecodeError as e:
+                problems.append((line_of(e.start), 0, "not-utf8",
+                                 f"byte 0x{chunk[e.start]:02x} at byte offset {offset + e.start} "
+                                 f"is not UTF-8 ({e.reason})"))
+        raw_ends = ends
+        cr = np.flatnonzero(b == 13)
+        if cr.size:
+            nxt = np.minimum(cr + 1, n - 1)
+            lone = cr[(cr + 1 >= n) | (b[nxt] != 10)]
+            if lone.size:
+                problems.append((line_of(int(lone[0])), 1, "bad-line-end",
+                                 "a lone carriage return; line ends must be \\n or \\r\\n"))
+            has_cr = (ends > starts) & (b[np.maximum(ends - 1, 0)] == 13)
+            ends = ends - has_cr
+        lens = ends - starts
+        long_ = np.flatnonzero(lens > LINE_MAX)
+        if long_.size:
+            i = int(long_[0])
+            problems.append((int(line_no[i]), 2, "line-too-long",
+                             f"a line of {int(lens[i]):,} bytes; no line of a run file is longer "
+                             f"than {LINE_MAX}"))
+        blanks = np.flatnonzero(_IS_BLANK_BYTE[b])
+        blank = lens == (np.searchsorted(blanks, ends) - np.searchsorted(blanks, starts))
+        commas = np.flatnonzero(b == 44)
+        nfields = np.searchsorted(commas, ends) - np.searchsorted(commas, starts) + 1
+        cut = last and not ends_nl           # the chunk's last line is the file's, unfinished
+        bad = np.flatnonzero(~blank & (nfields != len(self.names)))
+        if bad.size:
+            i = int(bad[0])
+            short = cut and i == len(starts) - 1
+            problems.append((int(line_no[i]), 3, "truncated" if short else "field-count",
+                             f"{'the file ends mid-row: ' if short else ''}"
+                             f"{int(nfields[i])} fields, the header has {len(self.names)}"))
+        if cut and len(starts) and not blank[-1] and chunk[starts[-1]:ends[-1]].rstrip().endswith(b","):
+            problems.append((int(line_no[-1]), 3, "truncated",
+                             "the file ends mid-row: the last line ends with an empty field "
+                             "and no line end"))
+        limit = min(problems)[0] if problems else None
+        rows = np.flatnonzero(~blank if limit is None else (~blank & (line_no < limit)))
+        if rows.size:
+            self._numbers(chunk, b, starts, ends, raw_ends, rows, line_no, cut)
+        if problems:
+            ln, _, rule, detail = min(problems)
+            raise DropFormatError(self.path, ln, rule, detail)
+
+    def _numbers(self, chunk, b, starts, ends, raw_ends, rows, line_no, cut) -> None:
+        """Parse the non-blank rows ``rows`` of the chunk; raise the first bad cell."""
+        n = len(b)
+        k = int(rows[-1])
+        stop = min(int(raw_ends[k]) + 1, n)      # through row k's line end
+        if rows.size == k + 1:                   # rows 0..k, none blank: the bytes as they are
+            buf = pa.py_buffer(chunk)
+            if stop < n:
+                buf = buf.slice(0, stop)
+        else:                                    # leave the blank lines out
+            mark = np.zeros(n + 1, dtype=np.int8)
+            mark[starts[rows]] += 1
+            mark[np.minimum(raw_ends[rows] + 1, n)] -= 1
+            buf = pa.py_buffer(b[np.cumsum(mark[:n], dtype=np.int8) > 0].tobytes())
+        rlines = line_no[rows]
+        last_row = len(rows) - 1 if cut and k == len(starts) - 1 else -1
+
+        def row_text(j: int) -> str:
+            i = int(rows[j])
+            return chunk[int(starts[i]):int(ends[i])].decode("utf-8", "replace")
+
+        def cell(j: int, c: str) -> str:
+            return row_text(j).split(",")[self.names.index(c)]
+
+        found: list[tuple[int, int, str, str]] = []     # (row, column order, rule, detail)
+        try:
+            tbl = self._csv(buf, pa.float64())
+        except pa.ArrowException:
+            try:
+                tbl = self._floats_via_text(buf, rlines, last_row)
+            except _BadCell as bad:
+                if bad.row > 0:      # a problem in the rows before it comes first
+                    self._numbers(chunk, b, starts, ends, raw_ends, rows[:bad.row], line_no, cut)
+                raise bad.error from None
+        nullable = NULLABLE_COLUMNS[self.test]
+        cols: dict[str, np.ndarray] = {}
+        for o, c in enumerate(COLUMNS[self.test]):
+            col = tbl.column(c)
+            v = col.to_numpy(zero_copy_only=False)
+            if col.null_count and c not in nullable:
+                j = int(np.flatnonzero(col.is_null().to_numpy(zero_copy_only=False))[0])
+                found.append((j, o, "truncated" if j == last_row else "empty-value",
+                              f"{c} is empty; the spec allows empty cells only in "
+                              f"{', '.join(sorted(nullable)) or 'no column'} for {self.test}"))
+            inf = np.flatnonzero(np.isinf(v))
+            if inf.size:
+                lit = self._csv(buf, pa.string(), [c]).column(c)
+                lit = np.asarray(pc.match_substring_regex(lit, _LITERAL_INF, ignore_case=True)
+                                 .to_numpy(zero_copy_only=False), dtype=bool)
+                over = inf[~lit[inf]]
+                if over.size:
+                    j = int(over[0])
+                    found.append((j, o, "out-of-range",
+                                  f"{c}: {_excerpt(cell(j, c))} is a number too large for a "
+                                  "64-bit float"))
+            if c in INT_COLUMNS:
+                ok = np.isnan(v) if c in nullable else np.zeros(len(v), dtype=bool)
+                ok |= np.isfinite(v) & (v == np.round(v)) & (np.abs(v) < 2.0 ** 53)
+                if not ok.all():
+                    j = int(np.flatnonzero(~ok)[0])
+                    found.append((j, o, "not-integer",
+                                  f"{c} value {_excerpt(cell(j, c))} is not an integer"))
+                    continue
+                v = v.astype(np.int64)
+            cols[c] = v
+        if found:
+            j, _, rule, detail = min(found)
+            raise DropFormatError(self.path, int(rlines[j]), rule, detail)
+        cols["line"] = rlines
+        self._store(cols, len(rows), stop)
+
+    def _store(self, cols: dict[str, np.ndarray], m: int, nbytes: int) -> None:
+        """Append m rows.  The arrays are allocated once, sized from the rows per byte of the
+        first chunk and the file's size (pages never written cost no memory), and grown
+        only when later rows are denser: no list of pieces to concatenate at the end."""
+        n = self.n_rows
+        self.bytes_seen += nbytes
+        cap = len(self.cols["line"]) if self.cols else 0
+        if n + m > cap:
+            est = (n + m) * (self.size_hint or 0) / max(self.bytes_seen, 1)
+            new_cap = int(max(n + m, 1.1 * est, 1.25 * cap)) + 1024
+            for c, v in cols.items():
+                a = np.empty(new_cap, dtype=v.dtype)
+                if n:
+                    a[:n] = self.cols[c][:n]
+                self.cols[c] = a
+        for c, v in cols.items():
+            self.cols[c][n:n + m] = v
+        self.n_rows = n + m
+
+    def _csv(self, buf, typ, columns=None) -> pa.Table:
+        return pacsv.read_csv(
+            buf, read_options=self._read, parse_options=self._parse,
             convert_options=pacsv.ConvertOptions(
-                column_types={c: pa.float64() for c in names}, null_values=[""],
-                strings_can_be_null=False, quoted_strings_can_be_null=False))
-    except pa.ArrowException:
-        return None
-    return tbl if tbl.num_rows == n_rows else None
+                column_types={c: typ for c in self.names}, include_columns=columns,
+                null_values=[""], strings_can_be_null=False, quoted_strings_can_be_null=False,
+                check_utf8=False))
 
+    def _floats_via_text(self, buf, rlines, last_row) -> pa.Table:
+        """When pyarrow refuses a cell: find the first cell that is not a number in the
+        spec's form (and refuse it), or convert the cells pyarrow refused but the spec
+        allows (blank cells: spaces only, which are empty)."""
+        tbl = self._csv(buf, pa.string())
+        best = None
+        for c in self.names:
+            col = tbl.column(c)
+            ok = pc.or_(pc.match_substring_regex(col, _NUMBER.pattern, ignore_case=True),
+                        pc.equal(pc.utf8_trim_whitespace(col), ""))
+            bad = np.flatnonzero(~np.asarray(ok.to_numpy(zero_copy_only=False), dtype=bool))
+            if bad.size and (best is None or bad[0] < best[0]):
+                best = (int(bad[0]), c, col[int(bad[0])].as_py())
+        if best is not None:
+            j, c, text = best
+            short = j == last_row
+            raise _BadCell(j, DropFormatError(
+                self.path, int(rlines[j]), "truncated" if short else "non-numeric",
+                f"{'the file ends mid-row: ' if short else ''}"
+                f"column {c}: {_excerpt(text)} is not a number"))
+        cols = []
+        for c in self.names:
+            t = pc.utf8_trim_whitespace(tbl.column(c))
+            cols.append(pc.cast(pc.if_else(pc.equal(t, ""), pa.scalar(None, pa.string()), t),
+                                pa.float64()))
+        return pa.table(cols, names=self.names)
 
-def _parse_numbers(path, test, names, tbl, get_rows, line_no, ends_nl) -> dict[str, np.ndarray]:
-    """Columns as arrays (int columns int64) from the pyarrow table, or from the exact
-    Python fallback (which names the first non-numeric cell) when pyarrow refused."""
-    if tbl is not None:
-        values = {c: tbl.column(c).to_numpy(zero_copy_only=False) for c in names}
-        empty = {c: (tbl.column(c).null_count > 0) and
-                 np.asarray(tbl.column(c).is_null().to_numpy(zero_copy_only=False)) for c in names}
-    else:
-        values, empty = _parse_numbers_slow(path, names, get_rows(), line_no, ends_nl)
-    out: dict[str, np.ndarray] = {}
-    nullable = NULLABLE_COLUMNS[test]
-    for c in COLUMNS[test]:
-        e = empty[c]
-        if c not in nullable and e is not False and e.any():
-            k = int(np.flatnonzero(e)[0])
-            last = k == len(line_no) - 1 and not ends_nl
-            raise DropFormatError(path, int(line_no[k]), "truncated" if last else "empty-value",
-                                  f"{c} is empty; the spec allows empty cells only in "
-                                  f"{', '.join(sorted(nullable)) or 'no column'} for {test}")
-        v = np.asarray(values[c], dtype=np.float64)
-        if c in INT_COLUMNS:
-            okv = np.isfinite(v) & (v == np.round(v)) & (np.abs(v) < 2.0 ** 53)
-            if not okv.all():
-                k = int(np.flatnonzero(~okv)[0])
-                raise DropFormatError(path, int(line_no[k]), "not-integer",
-                                      f"{c} value {get_rows()[k].split(',')[names.index(c)].strip()!r} "
-                                      "is not an integer")
-            v = v.astype(np.int64)
-        out[c] = v
-    return out
-
-
-def _parse_numbers_slow(path, names, rows, line_no, ends_nl):
-    """Exact cell-by-column check, used only when pyarrow refuses: names the first bad cell."""
-    cells = pd.DataFrame([s.split(",") for s in rows], columns=range(len(names)), dtype=object)
-    values, empty = {}, {}
-    first_bad = None
-    for j, c in enumerate(names):
-        col = cells[j].astype(str).str.strip()
-        e = (col == "").to_numpy()
-        ok = col.str.fullmatch(_NUMBER.pattern, flags=_NUMBER.flags).to_numpy(dtype=bool) | e
-        if not ok.all():
-            k = int(np.flatnonzero(~ok)[0])
-            if first_bad is None or k < first_bad[0]:
-                first_bad = (k, c, cells[j].iloc[k])
-            continue
-        v = np.full(len(rows), np.nan)
-        v[~e] = col[~e].astype(np.float64).to_numpy()
-        values[c], empty[c] = v, e
-    if first_bad is not None:
-        k, c, cell = first_bad
-        last = k == len(rows) - 1 and not ends_nl
-        raise DropFormatError(path, int(line_no[k]), "truncated" if last else "non-numeric",
-                              f"{'the file ends mid-row: ' if last else ''}"
-                              f"column {c}: {str(cell)[:40]!r} is not a number")
-    return values, empty
+    # -- the run ----------------------------------------------------------------------
+    def frame(self) -> pd.DataFrame:
+        n = self.n_rows
+        cols = {c: self.cols[c][:n] for c in COLUMNS[self.test]}
+        data = pd.DataFrame(cols, copy=False)
+        data["line"] = self.cols["line"][:n]
+        self.cols = {}
+        return data

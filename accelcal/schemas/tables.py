@@ -15,6 +15,7 @@ size, header line) and as constant columns ``run_id`` and ``sha256``.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 from urllib.parse import quote
@@ -46,10 +47,21 @@ def run_schema(test: str) -> pa.Schema:
 SCHEMAS: dict[str, pa.Schema] = {t: run_schema(t) for t in COLUMNS}
 
 
+#: Longest path component made from a value (bytes; file systems allow 255).
+PART_MAX = 96
+
+
 def _part(value: str) -> str:
-    """A path component that is safe and reversible (percent-encoding)."""
+    """A path component that is safe (percent-encoding) and short: a value whose encoding
+    is longer than PART_MAX keeps its first characters and gets a hash of the whole value
+    (``~<sha256[:16]>``), so a 300-byte run_id or serial cannot make a name the file
+    system refuses.  Values of up to PART_MAX encoded bytes map as before."""
     q = quote(str(value), safe="-_+@")
     q = q.replace(".", "%2E") if q.strip(".") == "" or q.startswith(".") else q
+    if len(q) > PART_MAX:
+        head = q[:PART_MAX - 17]
+        head = head[:head.rfind("%")] if "%" in head[-2:] else head
+        q = f"{head}~{hashlib.sha256(str(value).encode('utf-8', 'surrogatepass')).hexdigest()[:16]}"
     return q or "%00"
 
 
@@ -59,18 +71,7 @@ def parquet_path(run: RunFile, root: Path) -> Path:
             / f"{_part(run.run_id)}__{run.sha256[:16]}.parquet")
 
 
-def run_table(run: RunFile) -> pa.Table:
-    """The run as an Arrow table of :func:`run_schema` with the metadata attached."""
-    schema = SCHEMAS[run.test]
-    n = len(run.data)
-    arrays = []
-    for f in schema:
-        if f.name == "run_id":
-            arrays.append(pa.array([run.run_id] * n, pa.string()))
-        elif f.name == "sha256":
-            arrays.append(pa.array([run.sha256] * n, pa.string()))
-        else:
-            arrays.append(pa.array(run.data[f.name].to_numpy(), type=f.type))
+def _schema_with_metadata(run: RunFile) -> pa.Schema:
     info = {
         "layout_version": LAYOUT_VERSION, "source_path": run.path, "sha256": run.sha256,
         "size_bytes": run.size_bytes, "header_line": run.header_line, "meta_raw": run.meta_raw,
@@ -79,7 +80,40 @@ def run_table(run: RunFile) -> pa.Table:
     md = {META_KEY: json.dumps(info, sort_keys=False).encode("utf-8"),
           b"accelcal.run_id": run.run_id.encode("utf-8"),
           b"accelcal.sha256": run.sha256.encode("ascii")}
-    return pa.Table.from_arrays(arrays, schema=schema.with_metadata(md))
+    return SCHEMAS[run.test].with_metadata(md)
+
+
+#: Bytes of the constant columns (run_id, sha256) built per row group: a run of millions
+#: of rows is written a row group at a time, so they never exist for the whole run.
+_CONST_BYTES = 8 << 20
+
+
+def _row_group_rows(run: RunFile) -> int:
+    per_row = len(run.run_id.encode("utf-8")) + len(run.sha256) + 8
+    return int(min(1 << 20, max(1024, _CONST_BYTES // per_row)))
+
+
+def _batches(run: RunFile, schema: pa.Schema):
+    n = len(run.data)
+    step = _row_group_rows(run)
+    cols = {f.name: run.data[f.name].to_numpy() for f in schema if f.name not in ("run_id", "sha256")}
+    for a in range(0, max(n, 1), step):
+        b = min(a + step, n)
+        arrays = []
+        for f in schema:
+            if f.name == "run_id":
+                arrays.append(pa.array([run.run_id] * (b - a), pa.string()))
+            elif f.name == "sha256":
+                arrays.append(pa.array([run.sha256] * (b - a), pa.string()))
+            else:
+                arrays.append(pa.array(cols[f.name][a:b], type=f.type))
+        yield pa.RecordBatch.from_arrays(arrays, schema=schema)
+
+
+def run_table(run: RunFile) -> pa.Table:
+    """The run as an Arrow table of :func:`run_schema` with the metadata attached."""
+    schema = _schema_with_metadata(run)
+    return pa.Table.from_batches(list(_batches(run, schema)), schema=schema)
 
 
 def write_run_parquet(run: RunFile, root: Path) -> Path:
@@ -87,14 +121,24 @@ def write_run_parquet(run: RunFile, root: Path) -> Path:
 
     Idempotent: when the content-addressed file already exists it is left alone.
     Atomic: written to a temporary file in the target folder, then ``os.replace``-d, so a
-    killed writer leaves no partial ``*.parquet``.
+    killed writer leaves no partial ``*.parquet`` (its ``.*.tmp`` is removed by the next
+    run, accelcal.fileio.remove_stale_temps).  A long run is written a row group at a time.
     """
     target = parquet_path(run, root)
     if target.exists():
         return target
     target.parent.mkdir(parents=True, exist_ok=True)
-    table = run_table(run)
-    atomic_write(target, lambda fh: pq.write_table(table, fh, compression="zstd"), "wb", fsync=True)
+    schema = _schema_with_metadata(run)
+
+    def write(fh):
+        if len(run.data) <= _row_group_rows(run):
+            pq.write_table(pa.Table.from_batches(list(_batches(run, schema)), schema=schema), fh,
+                           compression="zstd")
+            return
+        with pq.ParquetWriter(fh, schema, compression="zstd") as w:
+            for batch in _batches(run, schema):
+                w.write_batch(batch)
+    atomic_write(target, write, "wb", fsync=True)
     return target
 
 
@@ -108,7 +152,10 @@ def read_run_parquet(path) -> RunFile:
     meta = info["meta"]
     test = str(meta["test"])
     table = pf.read(columns=list(COLUMNS[test]) + ["line"])
-    data = table.to_pandas()
+    # one column at a time, each Arrow buffer freed once converted: the run is in memory
+    # once, not twice
+    data = table.to_pandas(split_blocks=True, self_destruct=True)
+    del table
     data = data[list(COLUMNS[test]) + ["line"]]
     return RunFile(path=info["source_path"], sha256=info["sha256"], size_bytes=int(info["size_bytes"]),
                    meta=meta, meta_raw=info["meta_raw"], data=data,

@@ -1,6 +1,7 @@
 """The parser team's API (accelcal.schemas), resolved by name at call time.
 
-The contract (docs/design.md): ``read_run``, ``discover``, ``DropFormatError``,
+The contract (docs/design.md): ``read_run``, ``parse_run``, ``discover``, ``scan_drop``,
+``Entry``, ``settle_wait``, ``DropFormatError``,
 ``RunFile`` (schemas.dropformat), ``validate_runs`` (GE suites, Data Docs),
 ``write_run_parquet`` / ``read_run_parquet`` (Parquet).  Looking the names up
 in every schemas module keeps the pipeline independent of which module
@@ -45,6 +46,18 @@ def validate_runs(runs, docs_dir, drop_name, parse_refusals=None):
 
 def write_drop_index(drop_docs, title):
     return resolve("write_drop_index")(drop_docs, title)
+
+
+def scan_drop(drop_dir):
+    return resolve("scan_drop")(drop_dir)
+
+
+def settle_wait(entries, settle, max_wait=None):
+    return resolve("settle_wait")(entries, settle, max_wait)
+
+
+def parse_run(fh, path):
+    return resolve("parse_run")(fh, path)
 
 
 def docs_folder_name(drop_name):

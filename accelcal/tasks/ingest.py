@@ -1,22 +1,38 @@
 """Step 1: ingest a drop -- discover, hash, parse, write Parquet.  Plain functions.
 
-The raw files are only read.  Files already in the warehouse (same bytes at the
-same path) are not parsed again: their stored record stands.
+The raw files are only read, never followed out of the drop (``O_NOFOLLOW``), never
+waited on (``O_NONBLOCK``: a FIFO cannot hang a run).  Files already in the warehouse
+(same bytes at the same path) are not parsed again: their stored record stands.
+
+One file never costs another: whatever one file does -- an OS error, a link, a FIFO, a
+name that is not UTF-8, bytes that break the format -- is that file's refusal (rule, path
+as UTF-8 text, reason), recorded, and the batch goes on.  A file still being written is
+held back (not read, not recorded: the next run takes it).  What is not the file's fault
+-- the Parquet store cannot be written (disk full, read-only) -- raises StoreError and
+stops the run: no verdict is recorded for a file that was not judged.
 """
 from __future__ import annotations
 
 import hashlib
+import io
 import os
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from ..provenance import metadata_lines, simulated_line
+from ..fileio import StoreError, os_error_text, path_text
 from ..warehouse.db import Refusal, RunRecord
 from ..warehouse.lineage import validator_version
 from . import contracts, progress
 
 _SNIFF_KEYS = ("run_id", "test", "unit_serial", "unit_model", "campaign", "rig_id", "started_at")
+#: Files up to this size are read into memory once (hash, then parse from the bytes);
+#: bigger ones are hashed in one pass and parsed as a stream in a second.
+SMALL_FILE = 4 << 20
+_OPEN_FLAGS = os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0) | \
+    getattr(os, "O_CLOEXEC", 0)
 
 
 @dataclass
@@ -26,7 +42,8 @@ class DropIngest:
     keys: list[tuple[str, str]] = field(default_factory=list)       # (sha256, source_path), all files
     records: list[RunRecord] = field(default_factory=list)          # files not yet in the warehouse
     parsed: dict[str, Any] = field(default_factory=dict)            # source_path -> RunFile
-    errors: list[str] = field(default_factory=list)                 # unexpected failures (not recorded)
+    errors: list[str] = field(default_factory=list)                 # bugs: not judged, not recorded
+    held: list[str] = field(default_factory=list)                   # still being written: next run
     known: int = 0
     #: simulated files not taken into the warehouse (no --allow-simulated): path, line
     simulated_held: list[dict[str, Any]] = field(default_factory=list)
@@ -43,11 +60,24 @@ def sniff_meta(raw: bytes) -> dict[str, str]:
     return out
 
 
+def entry_digest(rule: str, detail: str) -> str:
+    """The sha256 recorded for an entry refused without its bytes being read (a link, a
+    FIFO, an unreadable file): a hash of what was seen, so a re-run finds the same key
+    and records nothing new, while a change (another link target) is a new record."""
+    return hashlib.sha256(f"accelcal-entry\0{rule}\0{detail}".encode("utf-8", "backslashreplace")
+                          ).hexdigest()
+
+
 def _relative(path: Path, root: Path) -> str:
     try:
         return os.path.relpath(path, root)
     except ValueError:
         return str(path)
+
+
+def _entries(paths) -> list:
+    E = contracts.resolve("Entry")
+    return [p if isinstance(p, E) else E(os.fspath(p)) for p in paths]
 
 
 def ingest_drop(drop_dir: str, parquet_root: str, warehouse_root: str,
@@ -58,76 +88,176 @@ def ingest_drop(drop_dir: str, parquet_root: str, warehouse_root: str,
     ``known`` maps files already recorded to the validator version of their
     latest verdict; those checked by the current version are skipped.
     """
-    paths = contracts.discover(Path(drop_dir).resolve())
-    progress.stage("ingest", len(paths))
-    return ingest_files(drop_dir, paths, parquet_root, warehouse_root, known, allow_simulated)
+    entries = contracts.scan_drop(os.path.realpath(drop_dir))
+    progress.stage("ingest", len(entries))
+    return ingest_files(drop_dir, entries, parquet_root, warehouse_root, known, allow_simulated)
+
+
+class _Held(Exception):
+    """The file changed while it was looked at: not judged this time."""
 
 
 def ingest_files(drop_dir: str, paths: list, parquet_root: str, warehouse_root: str,
                  known: dict[tuple[str, str], str] | None = None,
                  allow_simulated: bool = False) -> DropIngest:
-    """:func:`ingest_drop` for some of the drop's files (the pipeline streams a drop in
-    batches of these, so memory does not grow with the drop).
+    """:func:`ingest_drop` for some of the drop's entries (Entry objects from
+    ``scan_drop``, or paths); the pipeline streams a drop in batches of these, so memory
+    does not grow with the drop.
 
     A file that carries the simulator's mark (accelcal.provenance) is not taken in
     unless ``allow_simulated``: it is listed in ``simulated_held`` and nothing of it is
     written (no Parquet, no record), so a later run with the flag still sees it as new."""
     known = known or {}
     vv = validator_version()
-    drop = Path(drop_dir).resolve()
-    out = DropIngest(drop_name=drop.name, drop_path=str(drop))
+    drop = os.path.realpath(drop_dir)
+    out = DropIngest(drop_name=path_text(os.path.basename(drop)), drop_path=path_text(drop))
     DropFormatError = contracts.drop_format_error()
-    for p in paths:
-        src = str(Path(p).resolve())
-        try:
-            raw = Path(src).read_bytes()
-        except OSError as e:
-            out.errors.append(f"{src}: cannot read: {e.strerror}")
-            progress.advance("ingest")
-            continue
-        sha = hashlib.sha256(raw).hexdigest()
+
+    def refuse(src: str, sha: str, size: int, rule: str, detail: str, line=None,
+               raw: bytes = b"") -> None:
+        meta = sniff_meta(raw) if raw else {}
         out.keys.append((sha, src))
         if known.get((sha, src)) == vv:
             out.known += 1
-            progress.advance("ingest", note=Path(src).name)
-            continue
-        sim_line = simulated_line(raw)
-        if sim_line is not None and not allow_simulated:
-            out.keys.pop()
-            out.simulated_held.append({"path": src, "line": sim_line})
-            progress.advance("ingest", note=Path(src).name)
-            continue
-        base = dict(sha256=sha, source_path=src, drop_name=out.drop_name,
-                    drop_path=out.drop_path, size_bytes=len(raw), validator_version=vv,
-                    simulated=sim_line is not None)
-        try:
-            run = contracts.read_run(src)
-        except DropFormatError as e:
-            meta = sniff_meta(raw)
-            out.records.append(RunRecord(
-                **base, status="refused",
-                refusals=[Refusal(rule=e.rule, detail=e.detail, line=e.line, path=e.path)],
-                **{k: meta.get(k) for k in _SNIFF_KEYS}))
-            progress.advance("ingest", note=Path(src).name)
-            continue
-        except Exception as e:  # a parser bug: report, do not record a verdict
-            out.keys.pop()
-            out.errors.append(f"{src}: parser failed: {type(e).__name__}: {e}")
-            progress.advance("ingest")
-            continue
-        if run.sha256 != sha:   # the file changed under our feet
-            out.keys.pop()
-            out.errors.append(f"{src}: changed while being read; not ingested")
-            progress.advance("ingest")
-            continue
-        pq = contracts.write_run_parquet(run, parquet_root)
-        m = run.meta
+            return
         out.records.append(RunRecord(
-            **base, status="accepted", run_id=str(m["run_id"]), test=str(m["test"]),
-            unit_serial=str(m["unit_serial"]), unit_model=str(m.get("unit_model", "")),
-            campaign=str(m["campaign"]), rig_id=str(m.get("rig_id", "")),
-            started_at=str(run.meta_raw.get("started_at", m.get("started_at", ""))),
-            n_rows=int(len(run.data)), parquet_path=_relative(Path(pq), Path(warehouse_root))))
-        out.parsed[src] = run
-        progress.advance("ingest", note=Path(src).name)
+            sha256=sha, source_path=src, drop_name=out.drop_name, drop_path=out.drop_path,
+            size_bytes=max(int(size), 0), validator_version=vv, status="refused",
+            refusals=[Refusal(rule=rule, detail=detail, line=line, path=src)],
+            simulated=bool(raw) and simulated_line(raw) is not None,
+            **{k: meta.get(k) for k in _SNIFF_KEYS}))
+
+    for e in _entries(paths):
+        src = path_text(e.path)
+        name = os.path.basename(src)
+        try:
+            if e.refusal is not None:
+                refuse(src, entry_digest(*e.refusal), e.size, *e.refusal)
+                continue
+            try:
+                fd = os.open(e.path, _OPEN_FLAGS)
+            except OSError as err:
+                rule, detail = _open_refusal(err)
+                refuse(src, entry_digest(rule, detail), e.size, rule, detail)
+                continue
+            try:
+                _ingest_open_file(fd, e, src, out, known, vv, parquet_root, warehouse_root,
+                                  DropFormatError, refuse, allow_simulated)
+            finally:
+                os.close(fd)
+        except _Held as h:
+            out.held.append(f"{src}: {h}")
+        except StoreError:
+            raise
+        except Exception as err:   # a bug in the parser or here: report, record no verdict
+            out.keys = [k for k in out.keys if k[1] != src]
+            out.records = [r for r in out.records if r.source_path != src]
+            out.parsed.pop(src, None)
+            out.errors.append(f"{src}: not ingested: {type(err).__name__}: {err}")
+        progress.advance("ingest", note=name)
     return out
+
+
+def _open_refusal(err: OSError) -> tuple[str, str]:
+    import errno
+    if err.errno == errno.ELOOP:
+        return "link", "a symbolic link (it appeared after the drop was listed): not followed"
+    return "unreadable", f"cannot open: {err.strerror or err}"
+
+
+def _ingest_open_file(fd, e, src, out, known, vv, parquet_root, warehouse_root,
+                      DropFormatError, refuse, allow_simulated: bool = False) -> None:
+    st = os.fstat(fd)
+    if not stat.S_ISREG(st.st_mode):
+        detail = "not a regular file (it changed after the drop was listed)"
+        refuse(src, entry_digest("not-a-file", detail), 0, "not-a-file", detail)
+        return
+    if e.size >= 0 and (st.st_size, st.st_mtime_ns) != (e.size, e.mtime_ns):
+        raise _Held("changed since the drop was listed (still being written?): not read "
+                    "this time")
+    try:
+        if st.st_size <= SMALL_FILE:
+            raw = _read_all(fd, st.st_size)
+            sha, size, head = hashlib.sha256(raw).hexdigest(), len(raw), raw
+        else:
+            raw = None
+            sha, size = _hash_fd(fd)
+            head = os.pread(fd, 65536, 0)
+    except OSError as err:
+        detail = f"cannot read: {err.strerror or err}"
+        refuse(src, entry_digest("unreadable", detail), st.st_size, "unreadable", detail)
+        return
+    _check_unchanged(fd, st, size)
+    out.keys.append((sha, src))
+    if known.get((sha, src)) == vv:
+        out.known += 1
+        return
+    out.keys.pop()
+    sim_line = simulated_line(head)
+    if sim_line is not None and not allow_simulated:
+        out.simulated_held.append({"path": src, "line": sim_line})
+        return
+    base = dict(sha256=sha, source_path=src, drop_name=out.drop_name, drop_path=out.drop_path,
+                size_bytes=size, validator_version=vv, simulated=sim_line is not None)
+    try:
+        if raw is not None:
+            run = contracts.parse_run(io.BytesIO(raw), src)
+        else:
+            os.lseek(fd, 0, os.SEEK_SET)
+            with io.FileIO(fd, "rb", closefd=False) as fh:
+                run = contracts.parse_run(fh, src)
+    except DropFormatError as err:
+        refuse(src, sha, size, err.rule, err.detail, err.line, head)
+        return
+    except OSError as err:
+        detail = f"cannot read: {err.strerror or err}"
+        refuse(src, sha, size, "unreadable", detail, None, head)
+        return
+    del raw
+    if run.sha256 != sha:
+        raise _Held("changed while being read: not read this time")
+    _check_unchanged(fd, st, size)
+    try:
+        pq = contracts.write_run_parquet(run, parquet_root)
+    except OSError as err:      # name the folder, not our temporary file in it
+        where = os.path.dirname(err.filename) if isinstance(err.filename, str) else parquet_root
+        raise StoreError(os_error_text(OSError(err.errno, err.strerror, where),
+                                       "cannot write the Parquet store")) from None
+    m = run.meta
+    out.keys.append((sha, src))
+    out.records.append(RunRecord(
+        **base, status="accepted", run_id=str(m["run_id"]), test=str(m["test"]),
+        unit_serial=str(m["unit_serial"]), unit_model=str(m.get("unit_model", "")),
+        campaign=str(m["campaign"]), rig_id=str(m.get("rig_id", "")),
+        started_at=str(run.meta_raw.get("started_at", m.get("started_at", ""))),
+        n_rows=int(len(run.data)), parquet_path=_relative(Path(pq), Path(warehouse_root))))
+    out.parsed[src] = run
+
+
+def _read_all(fd: int, size: int) -> bytes:
+    chunks, n = [], 0
+    while True:
+        b = os.read(fd, max(size - n, 0) + 1)
+        if not b:
+            break
+        chunks.append(b)
+        n += len(b)
+        if n > SMALL_FILE + 1:
+            break
+    return b"".join(chunks)
+
+
+def _hash_fd(fd: int) -> tuple[str, int]:
+    h, n = hashlib.sha256(), 0
+    while True:
+        b = os.read(fd, 1 << 20)
+        if not b:
+            return h.hexdigest(), n
+        h.update(b)
+        n += len(b)
+
+
+def _check_unchanged(fd: int, st: os.stat_result, size: int) -> None:
+    now = os.fstat(fd)
+    if size != st.st_size or (now.st_size, now.st_mtime_ns) != (st.st_size, st.st_mtime_ns):
+        raise _Held("changed while being read (still being written?): not read this time")

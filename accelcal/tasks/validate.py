@@ -9,6 +9,7 @@ import logging
 import time
 from pathlib import Path
 
+from ..fileio import StoreError, os_error_text
 from ..warehouse.db import Refusal
 from . import contracts, progress
 from .ingest import DropIngest, ingest_files
@@ -35,11 +36,8 @@ def validate_drop(ing: DropIngest, docs_root: str, part: int | None = None) -> D
     if runs or parse_refusals:
         _follow_quiet_parent()
         folder = contracts.docs_folder_name(ing.drop_name)
-        if part is None:
-            verdicts = contracts.validate_runs(runs, docs_root, ing.drop_name, parse_refusals)
-        else:
-            verdicts = contracts.validate_runs(runs, str(Path(docs_root) / folder),
-                                               f"part-{part:04d}", parse_refusals)
+        verdicts = _validate_isolated(ing, runs, docs_root, part, parse_refusals)
+        if part is not None:
             contracts.write_drop_index(Path(docs_root) / folder, ing.drop_name)
         by_path = {}
         for k, v in (verdicts or {}).items():
@@ -63,10 +61,47 @@ def validate_drop(ing: DropIngest, docs_root: str, part: int | None = None) -> D
     return ing
 
 
-def intake_batch(drop_dir: str, paths: list[str], parquet_root: str, warehouse_root: str,
+def _validate_isolated(ing: DropIngest, runs: list, docs_root: str, part: int | None,
+                       parse_refusals: list | None = None) -> dict:
+    """validate_runs on the batch; if it raises, on each run alone, so one run that makes
+    the validation fail (a bug) costs only itself: it is reported, not recorded.  Data
+    Docs that cannot be written stop the run (StoreError), as the Parquet store does."""
+    if part is None:
+        where = (docs_root, ing.drop_name)
+    else:
+        where = (str(Path(docs_root) / contracts.docs_folder_name(ing.drop_name)), f"part-{part:04d}")
+
+    def validate(rs):
+        try:
+            return contracts.validate_runs(rs, *where, parse_refusals)
+        except OSError as e:
+            raise StoreError(os_error_text(e, f"cannot write Data Docs under {docs_root}")) from None
+
+    try:
+        return validate(runs)
+    except StoreError:
+        raise
+    except Exception:
+        pass
+    verdicts: dict = {}
+    for r in runs:
+        try:
+            verdicts.update(validate([r]))
+        except StoreError:
+            raise
+        except Exception as e:
+            ing.errors.append(f"{r.path}: not ingested: validation failed: {type(e).__name__}: {e}")
+            ing.parsed.pop(r.path, None)
+            ing.records = [x for x in ing.records if x.source_path != r.path]
+            ing.keys = [k for k in ing.keys if k[1] != r.path]
+    return verdicts
+
+
+def intake_batch(drop_dir: str, paths: list, parquet_root: str, warehouse_root: str,
                  known: dict[tuple[str, str], str], docs_root: str,
                  part: int | None, allow_simulated: bool = False) -> DropIngest:
-    """Steps 1-2 on a batch of one drop's files: hash, parse, write Parquet, validate.
+    """Steps 1-2 on a batch of one drop's entries (``scan_drop``'s Entry objects, or
+    paths): hash, parse, write Parquet, validate.
 
     Returns the verdicts without the parsed data (the science re-reads Parquet), so a
     batch costs memory only while it is processed.  Touches no warehouse table: safe to

@@ -1,10 +1,17 @@
 """The DuckDB warehouse: schema, the write lock, transactional idempotent writes.
 
 Plain Python, no Prefect.  One writer at a time: every write session holds an
-exclusive ``fcntl.flock`` on ``<db>.lock`` (re-entrant within a process).  Each
-drop's run records and each campaign result with its lineage go in ONE
-transaction, so a process killed at any moment leaves the warehouse as it was
-before that transaction; running again completes the work exactly once.
+exclusive ``fcntl.flock`` on ``<db>.lock`` (re-entrant within a process); readers
+(``accelcal sql``) hold it shared, so they wait for a writer and a writer waits for
+them, never half-way through a run.  Each drop's run records and each campaign result
+with its lineage go in ONE transaction, so a process killed at any moment leaves the
+warehouse as it was before that transaction; running again completes the work exactly
+once.
+
+A warehouse file is never modified before it has been opened read-only and found to be a
+DuckDB database: a truncated or foreign file is refused as it is.  A new warehouse is
+created in a temporary file and renamed into place, so a kill never leaves half a one.
+Every failure is a WarehouseError with one line naming the file and what to do.
 
 duckdb 2.0: always fetch a result before the next statement.
 """
@@ -14,6 +21,10 @@ import contextlib
 import errno
 import fcntl
 import os
+import re
+import shutil
+import stat
+import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
@@ -23,6 +34,7 @@ from typing import Any, Callable, Iterator
 
 import duckdb
 
+from ..fileio import atomic_write, os_error_text, path_text, remove_stale_temps
 from .lineage import canonical_json
 
 SCHEMA_VERSION = "2"
@@ -36,6 +48,47 @@ class WarehouseError(RuntimeError):
 
 class WarehouseBusy(WarehouseError):
     """Another process holds the warehouse lock."""
+
+
+_DUCKDB_HINTS = (
+    ("no space left", "the disk is full: free space, then run again; what was committed stays"),
+    ("read-only file system", "a read-only file system: choose a writable place"),
+    ("permission denied", "no permission: make the warehouse folder writable for this user"),
+    ("not a valid duckdb database", "restore it from a backup or its -snapshot.duckdb copy"),
+    ("serialization", "the file is damaged or from another DuckDB version: restore it from a "
+                      "backup or its -snapshot.duckdb copy"),
+    ("corrupt", "the file is damaged: restore it from a backup or its -snapshot.duckdb copy"),
+    ("checksum", "the file is damaged: restore it from a backup or its -snapshot.duckdb copy"),
+)
+
+
+def _duckdb_size(head: bytes) -> int | None:
+    """Bytes a DuckDB file must have, from the newer of its two database headers (at 4096
+    and 8192: checksum, iteration, meta block, free list, block count, block size, ...):
+    3 header blocks + block count x block size.  None when the header is not understood
+    (another storage version): then only DuckDB's own checks apply."""
+    import struct
+    if len(head) < 3 * 4096:
+        return 3 * 4096
+    best = None
+    for off in (4096, 8192):
+        _, iteration, _, _, count, bsize = struct.unpack_from("<QQqqQQ", head, off)
+        if not (4096 <= bsize <= 1 << 26 and bsize & (bsize - 1) == 0 and count < 1 << 40):
+            return None
+        if best is None or iteration > best[0]:
+            best = (iteration, 3 * 4096 + count * bsize)
+    return best[1]
+
+
+def duckdb_error_text(e: Exception, what: str, untouched: bool = False) -> str:
+    """One line for a DuckDB error: what, DuckDB's first line (cut), what to do."""
+    msg = " ".join(str(e).split())[:240]
+    low = msg.lower()
+    hint = next((h for k, h in _DUCKDB_HINTS if k in low), None)
+    if hint is None and untouched:
+        hint = "restore it from a backup or its -snapshot.duckdb copy"
+    tail = "; it was not modified" if untouched else ""
+    return f"{what}: {msg}{tail}" + (f" ({hint})" if hint else "")
 
 
 # --------------------------------------------------------------------- lock --
@@ -56,13 +109,59 @@ def _holder_pid(lock_path: Path) -> str:
         return "unknown"
 
 
+def lock_holders(lock_path: str | Path) -> list[tuple[int, str]]:
+    """(pid, 'WRITE'|'READ') of the processes holding a flock on ``lock_path``, from
+    /proc/locks (Linux; empty elsewhere)."""
+    try:
+        st = os.stat(lock_path)
+        with open("/proc/locks") as f:
+            lines = f.read().splitlines()
+    except OSError:
+        return []
+    want = (os.major(st.st_dev), os.minor(st.st_dev), st.st_ino)
+    out = []
+    for line in lines:
+        parts = line.split()
+        if "->" in parts or len(parts) < 6 or parts[1] != "FLOCK":
+            continue
+        try:
+            maj, mnr, ino = parts[5].split(":")
+            if (int(maj, 16), int(mnr, 16), int(ino)) == want:
+                out.append((int(parts[4]), parts[3]))
+        except ValueError:
+            continue
+    return out
+
+
+def describe_pid(pid: int) -> str:
+    """'pid N (command line)' for a message."""
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            cmd = f.read().replace(b"\0", b" ").decode("utf-8", "replace").strip()
+    except OSError:
+        cmd = ""
+    cmd = re.sub(r"^\S*python[0-9.]*\s+(-m\s+)?", "", " ".join(cmd.split()))
+    return f"pid {pid}" + (f" ({cmd[:60]})" if cmd else "")
+
+
+def _busy_text(db_path, lp: Path, timeout: float) -> str:
+    holders = lock_holders(lp)
+    if holders:
+        who = ", ".join(describe_pid(p) + (", reading" if m == "READ" else "") for p, m in holders[:3])
+    else:
+        who = f"pid {_holder_pid(lp)}"
+    return f"warehouse {db_path} is in use by {who} (waited {timeout:g} s; see {lp})"
+
+
 @contextlib.contextmanager
 def warehouse_lock(db_path: str | Path, timeout: float = 60.0,
-                   poll: float = 0.1) -> Iterator[None]:
-    """Exclusive OS lock on ``<db>.lock``; waits up to ``timeout`` seconds.
+                   poll: float = 0.1, shared: bool = False) -> Iterator[None]:
+    """Exclusive OS lock on ``<db>.lock`` (``shared=True``: a reader's shared lock);
+    waits up to ``timeout`` seconds.
 
     Re-entrant within one process.  Raises :class:`WarehouseBusy` naming the
-    holder's pid when the wait times out.
+    holder's pid when the wait times out.  A reader in a folder where the lock file
+    cannot be created goes on without it (no writer can work there either).
     """
     lp = lock_path_for(db_path)
     key = os.path.realpath(lp)
@@ -81,29 +180,40 @@ def warehouse_lock(db_path: str | Path, timeout: float = 60.0,
         return
 
     try:
-        lp.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(lp, os.O_RDWR | os.O_CREAT, 0o644)
+        if not shared:
+            lp.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(lp, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
     except OSError as e:
-        raise WarehouseError(f"cannot use warehouse {db_path}: {lp}: {e.strerror}") from None
+        fd = None
+        if shared:
+            try:
+                fd = os.open(lp, os.O_RDONLY | os.O_CLOEXEC)
+            except OSError:
+                pass
+        if fd is None and not shared:
+            raise WarehouseError(os_error_text(e, f"cannot use warehouse {db_path}: cannot "
+                                                  "create its lock file")) from None
+    if fd is None:                     # a reader, no lock file and none can be made
+        yield
+        return
     deadline = time.monotonic() + max(0.0, timeout)
     try:
         while True:
             try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                fcntl.flock(fd, (fcntl.LOCK_SH if shared else fcntl.LOCK_EX) | fcntl.LOCK_NB)
                 break
             except OSError as e:
                 if e.errno not in (errno.EAGAIN, errno.EACCES, errno.EWOULDBLOCK):
                     raise
                 if time.monotonic() >= deadline:
-                    raise WarehouseBusy(
-                        f"warehouse {db_path} is in use by pid {_holder_pid(lp)} "
-                        f"(waited {timeout:g} s; see {lp})") from None
+                    raise WarehouseBusy(_busy_text(db_path, lp, timeout)) from None
                 time.sleep(poll)
     except BaseException:
         os.close(fd)
         raise
-    os.ftruncate(fd, 0)
-    os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+    if not shared:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
     with _held_lock:
         _held[key] = [fd, 1]
     try:
@@ -112,7 +222,8 @@ def warehouse_lock(db_path: str | Path, timeout: float = 60.0,
         with _held_lock:
             del _held[key]
         try:
-            os.ftruncate(fd, 0)
+            if not shared:
+                os.ftruncate(fd, 0)
         finally:
             fcntl.flock(fd, fcntl.LOCK_UN)
             os.close(fd)
@@ -236,8 +347,10 @@ class Warehouse:
         self.root = self.path.parent
         self.parquet_root = self.root / f"{self.path.stem}-parquet"
         self.docs_root = self.root / f"{self.path.stem}-datadocs"
+        self.snapshot_path = self.root / f"{self.path.stem}-snapshot.duckdb"
         self.lock_timeout = lock_timeout
         self._schema_ok = False
+        self._checked = False            # opened read-only once and found sound
         self._session: duckdb.DuckDBPyConnection | None = None
 
     def __repr__(self) -> str:
@@ -273,7 +386,10 @@ class Warehouse:
     def connect(self, read_only: bool = False) -> Iterator[duckdb.DuckDBPyConnection]:
         """A connection; write connections hold the lock and see the schema applied."""
         if not read_only and self._session is not None:
-            yield self._session
+            try:
+                yield self._session
+            except duckdb.Error as e:
+                raise WarehouseError(duckdb_error_text(e, f"cannot write warehouse {self.path}")) from None
             return
         if read_only:
             if not self.path.exists():
@@ -286,35 +402,178 @@ class Warehouse:
                 con.close()
             return
         with self.lock():
-            try:
-                self.root.mkdir(parents=True, exist_ok=True)
-            except OSError as e:
-                raise WarehouseError(f"cannot create {self.root}: {e.strerror}") from None
+            if not self.root.is_dir():
+                raise WarehouseError(f"the warehouse folder {self.root} does not exist")
             con = self._open(read_only=False)
             try:
                 if not self._schema_ok:
                     self._apply_schema(con)
                 yield con
+            except duckdb.Error as e:
+                raise WarehouseError(duckdb_error_text(e, f"cannot write warehouse {self.path}")) from None
             finally:
-                con.close()
+                with contextlib.suppress(duckdb.Error):
+                    con.close()
 
-    def _open(self, read_only: bool) -> duckdb.DuckDBPyConnection:
+    def _open(self, read_only: bool, path: Path | None = None) -> duckdb.DuckDBPyConnection:
         """Open the DuckDB file; while another process has it open (DuckDB's own file
-        lock, e.g. a reader), retry until ``lock_timeout``."""
+        lock, e.g. a reader outside accelcal), retry until ``lock_timeout``.  Before the
+        first write open, a new warehouse is created whole (temporary file + rename) and an
+        existing one is opened read-only and checked, so a file that is not a sound DuckDB
+        database is refused untouched."""
+        path = path or self.path
+        if not read_only and path == self.path and not self._checked:
+            if self.path.exists():
+                self.check_readable()
+            else:
+                self._create()
+            self._checked = True
         deadline = time.monotonic() + max(0.0, self.lock_timeout)
         while True:
             try:
-                return duckdb.connect(str(self.path), read_only=read_only)
+                return duckdb.connect(str(path), read_only=read_only)
             except duckdb.IOException as e:
                 msg = str(e).splitlines()[0]
                 if "lock" not in msg.lower():
-                    raise WarehouseError(f"cannot open warehouse {self.path}: {msg}") from None
+                    raise WarehouseError(duckdb_error_text(e, f"cannot open warehouse {path}")) from None
                 if time.monotonic() >= deadline:
-                    raise WarehouseBusy(f"warehouse {self.path} is in use: {msg}") from None
+                    m = re.search(r"PID (\d+)", msg)
+                    who = describe_pid(int(m.group(1))) if m else "another process"
+                    raise WarehouseBusy(
+                        f"warehouse {path} is open in {who}, which blocks "
+                        f"{'reading' if read_only else 'writing'} (waited {self.lock_timeout:g} s): "
+                        f"close it; programs outside accelcal should read {self.snapshot_path.name} "
+                        "or use `accelcal sql`") from None
                 time.sleep(0.1)
             except duckdb.Error as e:
+                raise WarehouseError(duckdb_error_text(e, f"cannot open warehouse {path}")) from None
+
+    # -- guarding the file -------------------------------------------------------
+
+    def check_place(self, create: bool = False, drops: list[str] = ()) -> None:
+        """Before a run writes anything: the warehouse's folder exists (or ``create``), is
+        writable, lies in no drop; an existing file is a DuckDB database.  Raises
+        WarehouseError with one line naming the path and what to do."""
+        p, root = self.path, self.root
+        if p.is_dir():
+            raise WarehouseError(f"warehouse {p} is a folder: give the path of a .duckdb file")
+        if p.exists():
+            self.check_duckdb_file()
+        for d in drops:
+            d = os.path.realpath(d)
+            if str(p).startswith(d.rstrip(os.sep) + os.sep):
                 raise WarehouseError(
-                    f"cannot open warehouse {self.path}: {str(e).splitlines()[0]}") from None
+                    f"warehouse {p} is inside the drop {path_text(d)}: a run never writes into a "
+                    "drop (what arrives is never modified); put the warehouse elsewhere")
+        if not root.is_dir():
+            if root.exists():
+                raise WarehouseError(f"the warehouse folder {root} is not a folder")
+            if not create:
+                raise WarehouseError(f"the warehouse folder {root} does not exist: create it, "
+                                     "or give --create")
+            try:
+                root.mkdir(parents=True, exist_ok=True)
+            except OSError as e:
+                raise WarehouseError(os_error_text(e, "cannot create the warehouse folder")) from None
+        try:
+            fd, probe = tempfile.mkstemp(prefix=f".{p.name}.probe.", suffix=".tmp", dir=root)
+            os.close(fd)
+            os.unlink(probe)
+        except OSError as e:
+            raise WarehouseError(os_error_text(
+                e, f"cannot write in the warehouse folder {root} (a run writes {p.name}, its "
+                   ".wal and .lock, and the Parquet store there)")) from None
+
+    def check_duckdb_file(self, path: Path | None = None) -> None:
+        """The file is a DuckDB database (magic bytes) of the size its header says; read
+        only.  DuckDB itself opens a truncated file and only fails when it reaches a
+        missing block -- after a write open may already have changed the file."""
+        path = path or self.path
+        try:
+            with open(path, "rb") as f:
+                head = f.read(3 * 4096)
+                size = os.fstat(f.fileno()).st_size
+        except OSError as e:
+            raise WarehouseError(os_error_text(e, "cannot read the warehouse")) from None
+        if len(head) < 12 or head[8:12] != b"DUCK":
+            what = "an empty file" if not head else f"a file that starts {head[:12]!r}"
+            raise WarehouseError(f"{path} is not a DuckDB warehouse ({what}); it was not "
+                                 "touched: give the path of a .duckdb file, or a new name")
+        need = _duckdb_size(head)
+        if need is not None and size < need:
+            raise WarehouseError(
+                f"warehouse {path} is truncated ({size:,} bytes; its header needs {need:,}); it "
+                "was not modified (restore it from a backup or its -snapshot.duckdb copy)")
+
+    def check_readable(self) -> None:
+        """Open the existing file read-only and read its catalog; refuse it untouched
+        when DuckDB cannot (truncated, corrupt, another program's file)."""
+        self.check_duckdb_file()
+        try:
+            con = duckdb.connect(str(self.path), read_only=True)
+        except duckdb.IOException as e:
+            if "lock" in str(e).lower():       # a reader outside accelcal has it open
+                return                         # (the write open waits for it)
+            raise WarehouseError(duckdb_error_text(
+                e, f"cannot open warehouse {self.path}", untouched=True)) from None
+        except duckdb.Error as e:
+            raise WarehouseError(duckdb_error_text(
+                e, f"cannot open warehouse {self.path}", untouched=True)) from None
+        try:
+            con.execute("SELECT count(*) FROM duckdb_tables()").fetchall()
+        except duckdb.Error as e:
+            raise WarehouseError(duckdb_error_text(
+                e, f"cannot read warehouse {self.path}", untouched=True)) from None
+        finally:
+            con.close()
+
+    def _create(self) -> None:
+        """A new, empty warehouse file: made as a temporary file, renamed into place."""
+        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.root)
+        os.close(fd)
+        os.unlink(tmp)                          # DuckDB creates it itself
+        try:
+            con = duckdb.connect(tmp)
+            try:
+                con.execute("CREATE TABLE IF NOT EXISTS schema_info "
+                            "(key VARCHAR PRIMARY KEY, value VARCHAR NOT NULL)")
+                con.execute("CHECKPOINT")
+            finally:
+                con.close()
+            os.replace(tmp, self.path)
+        except duckdb.Error as e:
+            raise WarehouseError(duckdb_error_text(e, f"cannot create warehouse {self.path}")) from None
+        except OSError as e:
+            raise WarehouseError(os_error_text(e, f"cannot create warehouse {self.path}")) from None
+        finally:
+            for f in (tmp, tmp + ".wal"):
+                with contextlib.suppress(OSError):
+                    os.unlink(f)
+
+    def remove_stale_temps(self) -> list[str]:
+        """Temporary files of writers that were killed (Parquet, snapshot, creation);
+        only while holding the lock."""
+        if not holds_lock(self.path):
+            raise RuntimeError("remove_stale_temps needs the warehouse lock")
+        return (remove_stale_temps(self.root, recursive=False)
+                + remove_stale_temps(self.parquet_root))
+
+    def publish_snapshot(self) -> Path:
+        """Copy the warehouse to ``<stem>-snapshot.duckdb`` (checkpointed first, written
+        as a temporary file and renamed, mode 0444): a read-only copy that dashboards and
+        programs outside accelcal can open at any time without DuckDB's file lock getting
+        in the way of a run.  Needs the lock."""
+        with self.lock(), self.connect() as con:
+            con.execute("CHECKPOINT")
+        try:
+            def copy(fh):
+                with open(self.path, "rb") as src:
+                    shutil.copyfileobj(src, fh, 1 << 20)
+            atomic_write(self.snapshot_path, copy, "wb", fsync=True)
+            os.chmod(self.snapshot_path, 0o444)
+        except OSError as e:
+            raise WarehouseError(os_error_text(e, f"cannot publish the snapshot {self.snapshot_path}")) from None
+        return self.snapshot_path
 
     def _apply_schema(self, con) -> None:
         sql = resources.files("accelcal.warehouse").joinpath("schema.sql").read_text()

@@ -1,0 +1,106 @@
+"""Nothing a command starts outlives it, even when the command is killed with SIGKILL.
+
+``accelcal run`` with the Prefect engine starts Prefect's ephemeral API server (a uvicorn
+subprocess, about 200 MB); ``--task-runner dask`` starts Dask workers; ``serve`` starts
+flow-run subprocesses.  Killed with SIGKILL, the command cannot stop them, and they would
+run on as orphans.
+
+:func:`guard_descendants` (called by ``main`` for ``run``, ``demo`` and ``serve``) puts a
+token in this process's environment, which every process it starts inherits, and starts a
+small watchdog process holding the read end of a pipe whose write end only this process
+holds.  However this process ends -- a normal exit, an exception, SIGKILL -- the kernel
+closes the write end; the watchdog wakes, finds every process whose environment carries
+the token (``/proc/<pid>/environ``), sends SIGTERM, and SIGKILL to those still there after
+a grace period.
+
+Why not the other two usual ways: a process group of our own would take the command out
+of its terminal's foreground group (Ctrl-C would no longer reach it) and a group kill hits
+whatever else shares the group; ``PR_SET_PDEATHSIG`` must be set inside each child (that
+is, in Prefect's and Dask's code) and fires when the *thread* that started the child ends,
+not the process, and it does not reach grandchildren.  The token reaches every
+descendant however it was started.  Linux only (``/proc``); elsewhere this does nothing.
+"""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import uuid
+
+ENV = "ACCELCAL_GUARD"
+#: Seconds between SIGTERM and SIGKILL.
+GRACE_S = 5.0
+
+# Runs as ``python -I -S -c``: no site-packages, no PYTHONPATH, nothing of accelcal.
+_WATCHDOG = r'''
+import os, signal, sys, time
+token, grace = sys.argv[1], float(sys.argv[2])
+for s in (signal.SIGINT, signal.SIGHUP, signal.SIGTERM, signal.SIGQUIT):
+    signal.signal(s, signal.SIG_IGN)
+try:
+    while os.read(0, 4096):
+        pass
+except OSError:
+    pass
+me = os.getpid()
+needle = ("\0%s=%s\0" % (sys.argv[3], token)).encode()
+
+def marked():
+    out = []
+    for d in os.listdir("/proc"):
+        if not d.isdigit() or int(d) == me:
+            continue
+        try:
+            with open("/proc/%s/environ" % d, "rb") as f:
+                env = b"\0" + f.read() + b"\0"
+        except OSError:
+            continue
+        if needle in env:
+            out.append(int(d))
+    return out
+
+def send(pids, sig):
+    for p in pids:
+        try:
+            os.kill(p, sig)
+        except OSError:
+            pass
+
+pids = marked()
+if pids:
+    send(pids, signal.SIGTERM)
+    t_end = time.time() + grace
+    while time.time() < t_end and marked():
+        time.sleep(0.1)
+    for _ in range(3):
+        left = marked()
+        if not left:
+            break
+        send(left, signal.SIGKILL)
+        time.sleep(0.2)
+'''
+
+_guard: dict[str, object] = {}
+
+
+def guard_descendants(grace: float = GRACE_S) -> str | None:
+    """Start the watchdog for this process (once); returns the token, or None where there
+    is no /proc.  Call it before starting any process that must not outlive this one."""
+    if "token" in _guard:
+        return _guard["token"]      # type: ignore[return-value]
+    if not os.path.isdir("/proc/self"):
+        return None
+    token = uuid.uuid4().hex
+    r, w = os.pipe()                 # both non-inheritable: children never hold w
+    try:
+        proc = subprocess.Popen([sys.executable, "-I", "-S", "-c", _WATCHDOG, token, str(grace), ENV],
+                                stdin=r, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                env={}, start_new_session=True, close_fds=True)
+    except OSError:
+        os.close(r)
+        os.close(w)
+        return None
+    os.close(r)
+    os.environ[ENV] = token          # after the watchdog started: it does not carry it
+    _guard.update(token=token, write_fd=w, watchdog=proc)
+    return token
