@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import subprocess
 import time
 import warnings
 from pathlib import Path
@@ -53,7 +54,8 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         res = mc.run_study(sc, n=n, seed=args.seed, workers=args.workers)
         wall = time.perf_counter() - t0
-        head = (f"<!-- bench_montecarlo.py: {name}, n = {n}, seed {args.seed}, {args.workers} workers; one "
+        head = (f"<!-- bench_montecarlo.py at commit {commit()}: {name}, n = {n}, seed {args.seed}, "
+                f"{args.workers} workers; one "
                 f"campaign {t1:.2f} s; study {res.seconds:.0f} s, total with CRB {wall:.0f} s -->\n")
         (RESULTS / f"montecarlo-{name}.md").write_text(head + res.to_markdown(), encoding="utf-8")
         if args.json:
@@ -61,6 +63,14 @@ def main(argv=None) -> int:
                                                              encoding="utf-8")
         print(res.to_markdown(), flush=True)
     return 0
+
+
+def commit() -> str:
+    """Short hash of HEAD, with ``-dirty`` when tracked files differ from it."""
+    root = Path(__file__).resolve().parents[1]
+    run = lambda *a: subprocess.run(["git", *a], cwd=root, capture_output=True, text=True).stdout.strip()
+    return (run("rev-parse", "--short", "HEAD") or "unknown") + ("-dirty" if run("status", "--porcelain",
+                                                                                      "--untracked-files=no") else "")
 
 
 if __name__ == "__main__":
