@@ -2,13 +2,16 @@
 """Process the lab's sample drops (../shared/examples) and compare every coefficient with
 the truth they were made from (quoted in the issues).  Prints the README's markdown table.
 
-    python benchmarks/sample_truth_table.py [--examples DIR]
+    python benchmarks/sample_truth_table.py [--examples DIR] [--readme README.md]
+
+With ``--readme`` the table is also written between the ``<!-- sample-truth:begin -->`` /
+``<!-- sample-truth:end -->`` markers, stamped with the commit it ran on.
 """
 from __future__ import annotations
 
 import argparse
 import math
-import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -17,6 +20,8 @@ from accelcal.estimators.campaign import process_campaign
 from accelcal.schemas.dropformat import discover, read_run
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from readme_block import commit, write_block  # noqa: E402
 CENTRIFUGE = {"K2": 3.94e-7, "Kpp": 4.7e-8, "Kip": 7.1e-7, "Kio": 2.0e-7, "Koo": 3.0e-8,
               "Koq": 3.0e-8, "K3": 2.0e-10}
 TRUTH = {
@@ -36,12 +41,15 @@ DIGITS = {("drop-2026-11-18-thermal", "K0T"): 3}
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--examples", default=str(ROOT.parent / "shared" / "examples"))
+    ap.add_argument("--readme", type=Path, help="write the table into this README's sample-truth block")
     args = ap.parse_args()
-    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
-                          text=True).stdout.strip()
-    print(f"<!-- python benchmarks/sample_truth_table.py, commit {head} -->")
-    print("| drop | coefficient | method | estimate | U | truth | error | error / u |")
-    print("|---|---|---|---|---|---|---|---|")
+    out = [f"`python benchmarks/sample_truth_table.py --readme README.md`, commit {commit()}. "
+           "U = k·u (k = 2 unless shown), error / u in standard uncertainties; bold: the adopted "
+           "value (joint fit), the other rows are the papers' methods kept as the cross-check.", "",
+           "| drop | coefficient | method | estimate | U | truth | error | error / u |",
+           "|---|---|---|---|---|---|---|---|"]
+    row = out.append
+    timings = []
     for drop, truth in TRUTH.items():
         t0 = time.perf_counter()
         res = process_campaign([read_run(p) for p in discover(Path(args.examples) / drop)])
@@ -59,7 +67,7 @@ def main() -> None:
                 if (drop, c.name) in DIGITS else 0.0
             z = "—" if rounding > c.std_uncertainty else f"{(c.value - t) / c.std_uncertainty:+.2f}"
             kk = "" if k == 2 else f" (k={k:.3g})"
-            print(f"| {drop} | {c.name} | {method} | {c.value / f:.5g} {du} | {k * c.std_uncertainty / f:.2g}{kk} | "
+            row(f"| {drop} | {c.name} | {method} | {c.value / f:.5g} {du} | {k * c.std_uncertainty / f:.2g}{kk} | "
                   f"{t / f:.4g} | {100 * (c.value / t - 1):+.2f} % | {z} |")
         for r in res.radii:
             if drop not in RADII:
@@ -69,10 +77,15 @@ def main() -> None:
                 t = RADII[drop][r.polarity]
                 order = "" if r.model_order is None else f" o{r.model_order}"
                 m = f"**{r.method}** (adopted)" if r.method == "joint_ml" else r.method
-                print(f"| {drop} | R{r.polarity} | {m}{order} | {r.radius_m:.7f} m | "
+                row(f"| {drop} | R{r.polarity} | {m}{order} | {r.radius_m:.7f} m | "
                       f"{2e6 * r.std_uncertainty_m:.2f} µm | {t:.6f} | {1e6 * (r.radius_m - t):+.1f} µm | "
                       f"{(r.radius_m - t) / r.std_uncertainty_m:+.2f} |")
-        print(f"<!-- {drop}: science {dt:.2f} s -->")
+        timings.append(f"{drop} {dt:.2f} s")
+    out += ["", "Science per drop: " + ", ".join(timings) + "."]
+    text = "\n".join(out)
+    sys.stdout.write(text + "\n")
+    if args.readme:
+        write_block(args.readme, "sample-truth", text)
 
 
 if __name__ == "__main__":
