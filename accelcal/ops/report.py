@@ -806,8 +806,31 @@ def _sec_alignment(d) -> str:
         out.append("<p class='note'>Δc2 from the mount angle error (paper 000 eq 8), treated as "
                    "a uniform type-B term in the budget.</p>")
     for a in other:
-        out.append(f"<p class='mono'>{_e(json.dumps(a, default=str))}</p>")
+        if a.get("kind") == "joint":
+            out.append(_joint_geometry(a))
+        else:
+            out.append(f"<p class='mono'>{_e(json.dumps(a, default=str))}</p>")
     return "".join(out)
+
+
+#: display of the joint fit's geometry parameters by SI unit: (value unit, factor, U unit, factor)
+_GEOMETRY_DISPLAY = {"m": ("mm", 1e3, "µm", 1e6), "rad": ("mrad", 1e3, "µrad", 1e6)}
+
+
+def _joint_geometry(a: dict) -> str:
+    """The joint fit's rig-geometry and effect parameters (radii, mass-centre offset, mount
+    angle errors) as a table: value, U (k = 2), and what was held and why."""
+    rows = []
+    for name, prm in (a.get("parameters") or {}).items():
+        vu, vf, uu, uf = _GEOMETRY_DISPLAY.get(prm.get("unit"), (prm.get("unit") or "", 1.0, prm.get("unit") or "", 1.0))
+        u = prm.get("u")
+        held = prm.get("held")
+        rows.append([name, (f"{_fmt(_mul(prm.get('value'), vf), '.6g')} {vu}", "num"),
+                     (f"{_fmt(2 * u * uf, '.2g')} {uu}" if u is not None else "—", "num"),
+                     "" if not held else f"held: {held}"])
+    return (_table(["joint-fit parameter", "value", "U (k=2)", "note"], rows)
+            + "<p class='note'>Rig geometry fitted with the coefficients in the joint maximum-likelihood "
+              "fit (section 6); these are its estimates, not separate measurements.</p>")
 
 
 def _mul(x, f):
