@@ -1,13 +1,15 @@
 """Benchmark: science per campaign (``process_campaign``), this code against a reference commit.
 
-    python benchmarks/bench_science.py [--ref a893528] [--repeat 5] [--simulated 8]
+    python benchmarks/bench_science.py [--ref a893528] [--repeat 5] [--simulated 8] [--readme README.md]
 
 The same inputs go through both versions in one run: the lab's sample drops (../shared),
 and ``--simulated`` campaigns per shipped scenario written once as drop files by the current
 simulator.  The reference commit is checked out in a temporary git worktree and run with
 PYTHONPATH pointing at it, so both versions parse the same bytes with their own parser.
 Every campaign is timed ``--repeat`` times in a warm process; the table gives the median
-per campaign and the ratio current/reference.  Writes benchmarks/results/science-timing.md.
+per campaign and the ratio current/reference.  Writes benchmarks/results/science-timing.md,
+and with ``--readme`` the same table between the README's ``<!-- bench-science:begin/end -->``
+markers.
 """
 from __future__ import annotations
 
@@ -21,6 +23,8 @@ import tempfile
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from readme_block import commit, write_block  # noqa: E402
 SHARED = ROOT / ".." / "shared"
 RESULTS = Path(__file__).with_name("results")
 SAMPLES = {"drop-2026-11-20 (tumble + 10 mounts)": "examples/drop-2026-11-20",
@@ -82,9 +86,9 @@ def main(argv=None) -> int:
     ap.add_argument("--ref", default="a893528", help="reference commit (default: before issue 9)")
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--simulated", type=int, default=4, help="simulated campaigns per scenario")
+    ap.add_argument("--readme", type=Path, help="also write the table into this README")
     args = ap.parse_args(argv)
-    head = _git("rev-parse", "--short", "HEAD")
-    dirty = bool(_git("status", "--porcelain", "--untracked-files=no"))
+    head = commit()
     with tempfile.TemporaryDirectory() as td:
         tmp = Path(td)
         cases = _cases(tmp, args.simulated)
@@ -111,11 +115,13 @@ def main(argv=None) -> int:
     all_c = statistics.median(cur.values())
     rows.append(f"| **median over all campaigns** | **{all_r:.3f}** | **{all_c:.3f}** | **{all_c / all_r:.2f}** |")
     text = (f"Science per campaign (`process_campaign`, median of {args.repeat} warm runs, one thread), "
-            f"current commit {head}{' + uncommitted changes' if dirty else ''} against {args.ref}, "
+            f"current commit {head} against {args.ref}, "
             f"same inputs, one run of `python benchmarks/bench_science.py`:\n\n" + "\n".join(rows) + "\n")
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "science-timing.md").write_text(text, encoding="utf-8")
     print(text)
+    if args.readme:
+        write_block(args.readme, "bench-science", text)
     return 0
 
 
