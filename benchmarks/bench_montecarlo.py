@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
+import sys
 import time
 import warnings
 from pathlib import Path
@@ -21,6 +21,9 @@ import numpy as np
 
 from accelcal import montecarlo as mc
 from accelcal.simulate import load_scenario
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from readme_block import commit  # noqa: E402
 
 RESULTS = Path(__file__).with_name("results")
 DEFAULT = ("snj103-lxj100", "hust-m07-thermal", "qa5512-sine")
@@ -35,6 +38,7 @@ def time_one(sc, seed: int = 10_000) -> float:
 
 
 def main(argv=None) -> int:
+    code = commit()  # the code this run imports, before anything can move HEAD
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenarios", nargs="*", default=list(DEFAULT))
     ap.add_argument("--workers", type=int, default=2)
@@ -54,7 +58,7 @@ def main(argv=None) -> int:
         t0 = time.perf_counter()
         res = mc.run_study(sc, n=n, seed=args.seed, workers=args.workers)
         wall = time.perf_counter() - t0
-        head = (f"<!-- bench_montecarlo.py at commit {commit()}: {name}, n = {n}, seed {args.seed}, "
+        head = (f"<!-- bench_montecarlo.py at commit {code}: {name}, n = {n}, seed {args.seed}, "
                 f"{args.workers} workers; one "
                 f"campaign {t1:.2f} s; study {res.seconds:.0f} s, total with CRB {wall:.0f} s -->\n")
         (RESULTS / f"montecarlo-{name}.md").write_text(head + res.to_markdown(), encoding="utf-8")
@@ -63,14 +67,6 @@ def main(argv=None) -> int:
                                                              encoding="utf-8")
         print(res.to_markdown(), flush=True)
     return 0
-
-
-def commit() -> str:
-    """Short hash of HEAD, with ``-dirty`` when tracked files differ from it."""
-    root = Path(__file__).resolve().parents[1]
-    run = lambda *a: subprocess.run(["git", *a], cwd=root, capture_output=True, text=True).stdout.strip()
-    return (run("rev-parse", "--short", "HEAD") or "unknown") + ("-dirty" if run("status", "--porcelain",
-                                                                                      "--untracked-files=no") else "")
 
 
 if __name__ == "__main__":
