@@ -1,13 +1,15 @@
 """Benchmark: science per campaign (``process_campaign``), this code against a reference commit.
 
-    python benchmarks/bench_science.py [--ref a893528] [--repeat 5] [--simulated 8] [--readme README.md]
+    python benchmarks/bench_science.py [--ref a893528] [--repeat 5] [--simulated 8] [--rounds 3]
+                                       [--readme README.md]
 
 The same inputs go through both versions in one run: the lab's sample drops (../shared),
 and ``--simulated`` campaigns per shipped scenario written once as drop files by the current
 simulator.  The reference commit is checked out in a temporary git worktree and run with
 PYTHONPATH pointing at it, so both versions parse the same bytes with their own parser.
-Every campaign is timed ``--repeat`` times in a warm process; the table gives the median
-per campaign and the ratio current/reference.  Writes benchmarks/results/science-timing.md,
+Every campaign is timed ``--repeat`` times in a warm process, in CPU seconds of that process
+(BLAS on one thread), so other jobs on the machine do not enter the figure; the table gives
+the median per campaign and the ratio current/reference.  Writes benchmarks/results/science-timing.md,
 and with ``--readme`` the same table between the README's ``<!-- bench-science:begin/end -->``
 markers.
 """
@@ -46,7 +48,7 @@ for label, files in cases.items():
     process_campaign(runs)                      # warm: imports, caches
     ts = []
     for _ in range(repeat):
-        t = time.perf_counter(); process_campaign(runs); ts.append(time.perf_counter() - t)
+        t = time.process_time(); process_campaign(runs); ts.append(time.process_time() - t)
     out[label] = statistics.median(ts)
 print(json.dumps(out))
 '''
@@ -86,6 +88,7 @@ def main(argv=None) -> int:
     ap.add_argument("--ref", default="a893528", help="reference commit (default: before issue 9)")
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--simulated", type=int, default=4, help="simulated campaigns per scenario")
+    ap.add_argument("--rounds", type=int, default=3, help="alternating rounds of reference and current")
     ap.add_argument("--readme", type=Path, help="also write the table into this README")
     args = ap.parse_args(argv)
     head = commit()
@@ -95,10 +98,14 @@ def main(argv=None) -> int:
         ref_dir = tmp / "ref"
         _git("worktree", "add", "--detach", str(ref_dir), args.ref)
         try:
-            ref = _time(ref_dir, cases, args.repeat)
+            # alternate the two versions round by round, so a change in the machine's load
+            # during the run falls on both alike; per campaign the median over the rounds
+            rounds = [(_time(ref_dir, cases, args.repeat), _time(ROOT, cases, args.repeat))
+                      for _ in range(args.rounds)]
         finally:
             _git("worktree", "remove", "--force", str(ref_dir))
-        cur = _time(ROOT, cases, args.repeat)
+        ref = {k: statistics.median(r[k] for r, _ in rounds) for k in cases}
+        cur = {k: statistics.median(c[k] for _, c in rounds) for k in cases}
     rows = ["| campaign | reference (s) | current (s) | current / reference |", "|---|---:|---:|---:|"]
     for label in cases:
         if not label.startswith("sim "):
@@ -114,7 +121,8 @@ def main(argv=None) -> int:
     all_r = statistics.median(ref.values())
     all_c = statistics.median(cur.values())
     rows.append(f"| **median over all campaigns** | **{all_r:.3f}** | **{all_c:.3f}** | **{all_c / all_r:.2f}** |")
-    text = (f"Science per campaign (`process_campaign`, median of {args.repeat} warm runs, one thread), "
+    text = (f"Science per campaign (`process_campaign`, CPU seconds, median of {args.repeat} warm runs, one thread, "
+            f"median over {args.rounds} alternating rounds), "
             f"current commit {head} against {args.ref}, "
             f"same inputs, one run of `python benchmarks/bench_science.py`:\n\n" + "\n".join(rows) + "\n")
     RESULTS.mkdir(exist_ok=True)

@@ -85,21 +85,26 @@ def merge_rest(dw: pd.DataFrame) -> pd.DataFrame:
         minus azimuths for the merged rest group, so the spread between azimuths, which is
         the spindle tilt and not noise, counts in neither term).
     """
-    moving = dw[~dw["rest"]].copy()
-    moving["dof_pe"] = moving["n"] - 1
-    rest = dw[dw["rest"]]
+    is_rest = dw["rest"].to_numpy()
+    moving = dw[~is_rest]
+    rest = dw[is_rest]
     if rest.empty:
-        return moving.reset_index(drop=True)
+        out = moving.reset_index(drop=True)
+        out["dof_pe"] = out["n"] - 1
+        return out
     E0, _, n = rest_mean(rest)
-    row = rest.iloc[[0]].copy()
-    row["n"] = n
-    row["mean_output"] = E0
-    row["ss_within"] = float(rest["ss_within"].sum())
-    row["var_output"] = float(rest["ss_within"].sum() / max(n - len(rest), 1))
-    row["time_mid"] = float(rest["time_mid"].mean())
-    row["dof_pe"] = n - len(rest)
-    row["omega_z"] = float(rest["omega_z"].mean())
-    return pd.concat([row, moving], ignore_index=True)
+    ss = float(rest["ss_within"].sum())
+    merged = {"n": n, "mean_output": E0, "ss_within": ss,
+              "var_output": float(rest["ss_within"].sum() / max(n - len(rest), 1)),
+              "time_mid": float(rest["time_mid"].mean()), "omega_z": float(rest["omega_z"].mean())}
+    # column by column (the merged rest group first, then the moving dwells): the same
+    # values as a one-row frame concatenated, without pandas' per-cell overhead
+    cols = {}
+    for c in dw.columns:
+        first = np.asarray([merged[c]]) if c in merged else rest[c].to_numpy()[:1]
+        cols[c] = np.concatenate([first, moving[c].to_numpy()])
+    cols["dof_pe"] = np.concatenate([[n - len(rest)], moving["n"].to_numpy() - 1])
+    return pd.DataFrame(cols)
 
 
 def rest_mean(dw: pd.DataFrame) -> tuple[float, float, int]:
