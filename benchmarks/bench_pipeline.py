@@ -1,18 +1,29 @@
 #!/usr/bin/env python
-"""Benchmark the pipeline on the sample drop (a script, not a test).
+"""Benchmark the pipeline, stage by stage, against the floor (a script, not a test).
 
-    python benchmarks/bench_pipeline.py [--drop DIR] [--repeat N] [--skip-demo]
+    python benchmarks/bench_pipeline.py [--drop DIR ...] [--sim N] [--repeat 3]
+                                        [--demo] [--readme README.md]
 
 Each scenario runs in a fresh Python process (cold imports, cold Prefect):
 
 * prefect start-up: import, first flow call (ephemeral server start), a second flow call;
-* the sample drop end to end, engine 'local' (no Prefect) and 'prefect', stage by stage,
-  plus an idempotent re-run;
-* ingest (discover + sha256 + parse + Parquet) against a bare ``pyarrow.csv.read_csv``
-  of the same files (data part only), best of N;
-* ``accelcal demo`` wall time.
+* the drops end to end, engine 'local' (no Prefect) and 'prefect': every stage the
+  pipeline times (summary['timings']: discover, ingest = hash + parse + Parquet,
+  validate = the great-expectations suites, record, plan, load, science, store,
+  snapshot), plus an idempotent re-run;  the 'ingest' and 'validate' of the first run
+  include the one-time imports (great-expectations: seconds);
+* in the same process run as the local pipeline, after it: ingest + validate again
+  (intake_batch, warm, batches as the pipeline makes them, best of --repeat) and the
+  floor on the same files -- a bare ``pyarrow.csv.read_csv`` of each file's data part and
+  one numpy least-squares fit per run -- best of --repeat; the ratio
+  (ingest + validate per file) / (bare read per file) is printed;
+* optionally (--demo) ``accelcal demo`` wall time.
 
-Prints a markdown table to paste into the README; raw numbers go to bench-out/bench.json.
+Default drops: every sample drop in ../shared/examples (drop-bad included).  --sim N adds
+N simulated campaigns (11 runs each, as benchmarks/bench_fleet.py makes them).
+Prints a markdown table; --readme FILE writes it between ``<!-- bench_pipeline:begin -->``
+and ``<!-- bench_pipeline:end -->`` with the commit it ran on; raw numbers go to
+bench-out/bench.json.
 """
 from __future__ import annotations
 
@@ -20,6 +31,8 @@ import argparse
 import json
 import os
 import platform
+import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -27,9 +40,12 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-DEFAULT_DROP = ROOT.parent / "shared" / "examples" / "drop-2026-11-20"
-if not DEFAULT_DROP.is_dir():
-    DEFAULT_DROP = ROOT / "accelcal" / "demo_data" / "drop-demo"
+EXAMPLES = ROOT.parent / "shared" / "examples"
+DEFAULT_DROPS = sorted(p for p in EXAMPLES.glob("drop-*") if p.is_dir()) or \
+    [ROOT / "accelcal" / "demo_data" / "drop-demo"]
+#: the stages a pipeline run times (summary['timings']), in order
+STAGES = ("discover", "ingest", "validate", "record", "plan", "load", "science", "store",
+          "snapshot")
 
 
 # ------------------------------------------------------------------ children --
@@ -67,38 +83,85 @@ def child_prefect_startup(_args) -> dict:
             "flow_with_20_tasks": t_tasks}
 
 
+def _drops(args) -> list[str]:
+    return [str(d) for d in json.loads(args.drops)]
+
+
 def child_pipeline(args) -> dict:
     from accelcal.flows.pipeline import quiet_prefect
     quiet_prefect()
     t0 = time.perf_counter()
     from accelcal.flows.pipeline import run_pipeline
     t_import = time.perf_counter() - t0
+    drops = _drops(args)
     with tempfile.TemporaryDirectory() as tmp:
         db = Path(tmp) / "lab.duckdb"
         t0 = time.perf_counter()
-        s1 = run_pipeline([args.drop], db, engine=args.engine)
+        s1 = run_pipeline(drops, db, engine=args.engine, settle=0, allow_simulated=True)
         t_first = time.perf_counter() - t0
         t0 = time.perf_counter()
-        s2 = run_pipeline([args.drop], db, engine=args.engine)
+        s2 = run_pipeline(drops, db, engine=args.engine, settle=0, allow_simulated=True)
         t_rerun = time.perf_counter() - t0
-    return {"import": t_import, "first": t_first, "rerun": t_rerun,
-            "stages": s1["timings"], "rerun_stages": s2["timings"],
-            "accepted": sum(d["accepted"] for d in s1["drops"]),
-            "campaigns": [c["status"] for c in s1["campaigns"]]}
+    out = {"import": t_import, "first": t_first, "rerun": t_rerun,
+           "stages": s1["timings"], "rerun_stages": s2["timings"],
+           "files": sum(d["files"] for d in s1["drops"]),
+           "accepted": sum(d["accepted"] for d in s1["drops"]),
+           "refused": sum(d["refused"] for d in s1["drops"]),
+           "campaigns": [c["status"] for c in s1["campaigns"]]}
+    if args.engine == "local":      # the same process run: warm intake, then the floor
+        out["intake"] = warm_intake(drops, args.repeat)
+        out["floor"] = floor(drops, args.repeat)
+    return out
 
 
-def child_ingest(args) -> dict:
-    import hashlib
+def _best(fn, repeat: int):
+    ts, val = [], None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        val = fn()
+        ts.append(time.perf_counter() - t0)
+    return min(ts), val
 
+
+def warm_intake(drops: list[str], repeat: int) -> dict:
+    """ingest + validate of every file (intake_batch, batches as the pipeline makes them),
+    imports already done: best of ``repeat``, split by step."""
+    from accelcal.flows.pipeline import batch_files
+    from accelcal.tasks import contracts
+    from accelcal.tasks.validate import intake_batch
+    B = batch_files()
+    batches = []
+    for d in drops:
+        es = contracts.scan_drop(os.path.realpath(d))
+        batches += [(d, es[k:k + B], None if len(es) <= B else k // B)
+                    for k in range(0, max(len(es), 1), B) if es[k:k + B]]
+    best = None
+    for _ in range(repeat):
+        with tempfile.TemporaryDirectory() as tmp:
+            st = {"ingest": 0.0, "validate": 0.0, "files": 0}
+            for d, es, part in batches:
+                ing = intake_batch(d, es, f"{tmp}/pq", tmp, {}, f"{tmp}/docs", part, True)
+                st["ingest"] += ing.stage_seconds["ingest"]
+                st["validate"] += ing.stage_seconds["validate"]
+                st["files"] += len(es)
+        if best is None or st["ingest"] + st["validate"] < best["ingest"] + best["validate"]:
+            best = st
+    best["batches"] = len(batches)
+    return best
+
+
+def floor(drops: list[str], repeat: int) -> dict:
+    """The least any pipeline must do with the same files: a bare ``pyarrow.csv.read_csv``
+    of each file's data part (where the header starts is found beforehand, untimed), then
+    one numpy least-squares fit per run.  Files pyarrow cannot read are counted, not fitted."""
+    import numpy as np
     import pyarrow.csv as pacsv
 
     from accelcal.tasks import contracts
-    from accelcal.tasks.ingest import ingest_drop
-    files = [Path(p) for p in contracts.discover(args.drop)]
-    nbytes = sum(p.stat().st_size for p in files)
-    nrows = 0
+    files = [e.path for d in drops for e in contracts.scan_drop(os.path.realpath(d))
+             if e.refusal is None]
 
-    def skip_rows(p: Path) -> int:
+    def skip_rows(p: str) -> int:
         n = 0
         with open(p, "rb") as f:
             for line in f:
@@ -109,47 +172,46 @@ def child_ingest(args) -> dict:
         return n
     skips = {p: skip_rows(p) for p in files}
 
-    def bare():
-        nonlocal nrows
-        nrows = 0
+    def read():
+        tables = []
         for p in files:
-            t = pacsv.read_csv(p, read_options=pacsv.ReadOptions(skip_rows=skips[p]))
-            nrows += t.num_rows
+            try:
+                tables.append(pacsv.read_csv(p, read_options=pacsv.ReadOptions(skip_rows=skips[p])))
+            except Exception:
+                tables.append(None)
+        return tables
 
-    def bare_hash():
-        for p in files:
-            hashlib.sha256(p.read_bytes()).hexdigest()
-            pacsv.read_csv(p, read_options=pacsv.ReadOptions(skip_rows=skips[p]))
+    def fit(tables):
+        for t in tables:
+            if t is None or "output" not in t.column_names:
+                continue
+            col = {c: t.column(c).to_numpy(zero_copy_only=False).astype(float)
+                   for c in t.column_names}
+            y = col["output"]
+            if "step" in col and "table_rate_rad_s" in col:         # dwell means, poly in w^2
+                step = np.nan_to_num(col["step"]).astype(int)
+                cnt = np.bincount(step)
+                ok = cnt > 0
+                ym = (np.bincount(step, y) / np.maximum(cnt, 1))[ok]
+                a = (np.bincount(step, col["table_rate_rad_s"] ** 2) / np.maximum(cnt, 1))[ok]
+                X = np.vander(a, 4, increasing=True)
+            else:                                                   # harmonics of the angle
+                ang = col.get("angle_deg", col.get("rotation_deg", col.get("table_angle_deg")))
+                th = np.radians(ang if ang is not None else np.zeros_like(y))
+                X = np.column_stack([np.ones_like(th), np.cos(th), np.sin(th),
+                                     np.cos(2 * th), np.sin(2 * th)])
+                ym = y
+            good = np.all(np.isfinite(X), axis=1) & np.isfinite(ym)
+            if good.sum() >= X.shape[1]:
+                np.linalg.lstsq(X[good], ym[good], rcond=None)
 
-    def parse_only():
-        for p in files:
-            contracts.read_run(p)
-
-    def ingest(tmp):
-        ingest_drop(str(args.drop), str(Path(tmp) / "pq"), tmp, {})
-
-    def best(fn, *a):
-        ts = []
-        for _ in range(args.repeat):
-            t0 = time.perf_counter()
-            fn(*a)
-            ts.append(time.perf_counter() - t0)
-        return min(ts)
-
-    bare()  # warm the file cache and pyarrow
-    out = {"files": len(files), "bytes": nbytes, "rows": nrows,
-           "pyarrow_read_csv": best(bare), "pyarrow_read_csv_plus_sha256": best(bare_hash),
-           "read_run": best(parse_only)}
-    with tempfile.TemporaryDirectory() as tmp:
-        ingest(tmp)   # warm-up
-    ts = []
-    for _ in range(args.repeat):
-        with tempfile.TemporaryDirectory() as tmp:
-            t0 = time.perf_counter()
-            ingest(tmp)
-            ts.append(time.perf_counter() - t0)
-    out["ingest_drop"] = min(ts)
-    return out
+    tables = read()                         # warm the file cache and pyarrow
+    t_read, tables = _best(read, repeat)
+    t_fit, _ = _best(lambda: fit(tables), repeat)
+    return {"files": len(files), "bytes": sum(os.path.getsize(p) for p in files),
+            "rows": sum(t.num_rows for t in tables if t is not None),
+            "unreadable": sum(t is None for t in tables),
+            "read": t_read, "fit": t_fit}
 
 
 def child_demo(args) -> dict:
@@ -162,7 +224,7 @@ def child_demo(args) -> dict:
 
 
 CHILDREN = {"prefect-startup": child_prefect_startup, "pipeline": child_pipeline,
-            "ingest": child_ingest, "demo": child_demo}
+            "demo": child_demo}
 
 
 # -------------------------------------------------------------------- parent --
@@ -187,66 +249,117 @@ def fmt(x: float | None) -> str:
     return f"{x * 1e3:.1f} ms" if x < 0.1 else f"{x:.2f} s"
 
 
+def commit() -> str:
+    """Short hash of HEAD, with ``-dirty`` when tracked files differ from it."""
+    def git(*a):
+        return subprocess.run(["git", *a], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    return (git("rev-parse", "--short", "HEAD") or "unknown") + \
+        ("-dirty" if git("status", "--porcelain", "--untracked-files=no") else "")
+
+
+def table(res: dict) -> list[str]:
+    """The markdown of a result (bench.json): stages on both engines, then the floor."""
+    lo, pp = res["local"], res["prefect_pipeline"]
+    iv, fl = lo["intake"], lo["floor"]
+    n = iv["files"]
+    mb = fl["bytes"] / 1e6
+    lines = [f"Commit `{res['commit']}`; {res['cpus']} cpus, Python {res['python']}; drops: "
+             f"{', '.join(res['drop_names'])} -- {n} files ({mb:.2f} MB, {fl['rows']:,} data "
+             f"rows), {lo['accepted']} accepted, {lo['refused']} refused, "
+             f"{len(lo['campaigns'])} campaigns.", "",
+             "| stage (first run, cold imports) | engine local | engine prefect |",
+             "|---|---:|---:|"]
+    for k in STAGES:
+        a, b = lo["stages"].get(k), pp["stages"].get(k)
+        if a is not None or b is not None:
+            lines.append(f"| {k} | {fmt(a)} | {fmt(b)} |")
+    lines += [f"| **total** | {fmt(lo['first'])} | {fmt(pp['first'])} |",
+              f"| re-run (nothing new) | {fmt(lo['rerun'])} | {fmt(pp['rerun'])} |"]
+    if "prefect" in res:
+        pf = res["prefect"]
+        lines.append(f"| Prefect start-up (import + first flow call) | — | "
+                     f"{fmt(pf['import_prefect'] + pf['first_flow'])} |")
+    if "demo_local" in res:
+        lines.append(f"| `accelcal demo` wall | {res['demo_local']['wall']:.1f} s | "
+                     f"{res['demo_prefect']['wall']:.1f} s |")
+    per = lambda x: f"{x / max(n, 1) * 1e3:.2f} ms"
+    ivs = iv["ingest"] + iv["validate"]
+    lines += ["", f"Same process as the local run, imports done, best of {res['repeat']}:", "",
+              "| measure | total | per file |", "|---|---:|---:|",
+              f"| ingest (sha256 + parse + Parquet), {iv['batches']} batch(es) | "
+              f"{fmt(iv['ingest'])} | {per(iv['ingest'])} |",
+              f"| validate (great-expectations suites) | "
+              f"{fmt(iv['validate'])} | {per(iv['validate'])} |",
+              f"| **ingest + validate** | {fmt(ivs)} | {per(ivs)} |",
+              f"| floor: bare `pyarrow.csv.read_csv` of the same files | {fmt(fl['read'])} | "
+              f"{per(fl['read'])} |",
+              f"| floor: numpy least-squares fit, one per run | {fmt(fl['fit'])} | "
+              f"{per(fl['fit'])} |",
+              f"| **ratio ingest + validate / bare read** | {ivs / fl['read']:.1f}× | |"]
+    return lines
+
+
+def write_readme(path: Path, lines: list[str], cmd: str) -> None:
+    begin, end = "<!-- bench_pipeline:begin -->", "<!-- bench_pipeline:end -->"
+    text = path.read_text(encoding="utf-8")
+    block = "\n".join([begin, f"Written by `{cmd}`.", ""] + lines + [end])
+    if begin in text and end in text:
+        text = re.sub(re.escape(begin) + ".*?" + re.escape(end), lambda _: block, text,
+                      flags=re.S)
+    else:
+        raise SystemExit(f"{path} has no {begin} ... {end} section: add the markers first")
+    path.write_text(text, encoding="utf-8")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--drop", type=Path, default=DEFAULT_DROP)
-    ap.add_argument("--repeat", type=int, default=5)
-    ap.add_argument("--engine", default="prefect")
-    ap.add_argument("--skip-demo", action="store_true")
+    ap.add_argument("--drop", type=Path, action="append", help="a drop (repeatable); "
+                    "default: every sample drop")
+    ap.add_argument("--sim", type=int, default=0, help="add N simulated campaigns")
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--engine", default="local")
+    ap.add_argument("--demo", action="store_true", help="also time `accelcal demo`")
+    ap.add_argument("--readme", type=Path, help="write the table into this README")
     ap.add_argument("--child", choices=sorted(CHILDREN))
+    ap.add_argument("--drops", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
         print(json.dumps(CHILDREN[args.child](args), default=str))
         return
 
-    drop = args.drop.resolve()
-    print(f"benchmarking on {drop} ({os.cpu_count()} cpus, Python {platform.python_version()})",
-          file=sys.stderr)
-    res = {"drop": str(drop), "cpus": os.cpu_count(), "python": platform.python_version()}
-    res["prefect"] = run_child("prefect-startup")
-    res["local"] = run_child("pipeline", drop=drop, engine="local")
-    res["prefect_pipeline"] = run_child("pipeline", drop=drop, engine="prefect")
-    res["ingest"] = run_child("ingest", drop=drop, repeat=args.repeat)
-    if not args.skip_demo:
-        res["demo_prefect"] = run_child("demo", engine="prefect")
-        res["demo_local"] = run_child("demo", engine="local")
+    drops = [d.resolve() for d in (args.drop or DEFAULT_DROPS)]
+    tmp = None
+    if args.sim:
+        tmp = Path(tempfile.mkdtemp(prefix="bench-pipeline-sim-"))
+        sys.path.insert(0, str(ROOT / "benchmarks"))
+        from bench_fleet import simulate_fleet
+        drops += simulate_fleet(args.sim, tmp, per_drop=max(args.sim, 1))[0]
+    print(f"benchmarking on {len(drops)} drops ({os.cpu_count()} cpus, Python "
+          f"{platform.python_version()})", file=sys.stderr)
+    res = {"commit": commit(), "drops": [str(d) for d in drops], "cpus": os.cpu_count(),
+           "python": platform.python_version(), "repeat": args.repeat,
+           "drop_names": [d.name for d in drops if not tmp or tmp not in d.parents]
+           + ([f"{args.sim} simulated campaigns"] if args.sim else [])}
+    try:
+        dj = json.dumps(res["drops"])
+        res["prefect"] = run_child("prefect-startup")
+        res["local"] = run_child("pipeline", drops=dj, engine="local", repeat=args.repeat)
+        res["prefect_pipeline"] = run_child("pipeline", drops=dj, engine="prefect",
+                                            repeat=args.repeat)
+        if args.demo:
+            res["demo_prefect"] = run_child("demo", engine="prefect")
+            res["demo_local"] = run_child("demo", engine="local")
+    finally:
+        if tmp:
+            shutil.rmtree(tmp, ignore_errors=True)
     out = ROOT / "bench-out"
     out.mkdir(exist_ok=True)
     (out / "bench.json").write_text(json.dumps(res, indent=2, default=str))
-
-    pf, lo, pp, ing = res["prefect"], res["local"], res["prefect_pipeline"], res["ingest"]
-    st = lo["stages"]
-    n = ing["files"]
-    mb = ing["bytes"] / 1e6
-    rows = [
-        ("Prefect import", fmt(pf["import_prefect"]), ""),
-        ("Prefect start-up (first flow call: ephemeral server)", fmt(pf["first_flow"]), ""),
-        ("Prefect per flow run after start-up", fmt(pf["next_flow"]), ""),
-        ("Prefect flow with 20 trivial tasks", fmt(pf["flow_with_20_tasks"]), ""),
-        ("sample drop, engine local: total", fmt(lo["first"]),
-         f"ingest {st.get('ingest', 0):.2f}, validate {st.get('validate', 0):.2f}, "
-         f"record {st.get('record', 0):.2f}, science {st.get('science', 0):.2f}, "
-         f"store {st.get('store', 0):.2f}"),
-        ("sample drop, engine prefect: total", fmt(pp["first"]),
-         f"of which Prefect ≈ {pp['first'] - lo['first']:.2f} s"),
-        ("re-run (nothing new), local / prefect", f"{lo['rerun']:.2f} s / {pp['rerun']:.2f} s", ""),
-        (f"ingest {n} files ({mb:.2f} MB): discover+sha256+parse+Parquet",
-         fmt(ing["ingest_drop"]), f"{mb / ing['ingest_drop']:.1f} MB/s"),
-        ("  read_run only (parse + checks)", fmt(ing["read_run"]),
-         f"{mb / ing['read_run']:.1f} MB/s"),
-        ("  bare pyarrow.csv.read_csv, same files", fmt(ing["pyarrow_read_csv"]),
-         f"{mb / ing['pyarrow_read_csv']:.1f} MB/s; ingest/bare = "
-         f"{ing['ingest_drop'] / ing['pyarrow_read_csv']:.1f}×"),
-    ]
-    if "demo_prefect" in res:
-        rows.append(("`accelcal demo` wall (prefect / local engine)",
-                     f"{res['demo_prefect']['wall']:.1f} s / {res['demo_local']['wall']:.1f} s",
-                     "fresh process, cold imports"))
-    print(f"\nSample drop `{drop.name}`, {res['cpus']} cpus, Python {res['python']}\n")
-    print("| measure | time | notes |")
-    print("|---|---:|---|")
-    for a, b, c in rows:
-        print(f"| {a} | {b} | {c} |")
+    lines = table(res)
+    print("\n".join(lines))
+    if args.readme:
+        argv = " ".join(a for a in sys.argv[1:])
+        write_readme(args.readme, lines, f"python benchmarks/bench_pipeline.py {argv}".strip())
 
 
 if __name__ == "__main__":

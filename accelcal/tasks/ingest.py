@@ -49,6 +49,8 @@ class DropIngest:
     simulated_held: list[dict[str, Any]] = field(default_factory=list)
     docs: str | None = None
     seconds: float = 0.0                                            # time spent in the step(s)
+    #: the same time by step ("ingest": hash + parse + Parquet, "validate": the suites)
+    stage_seconds: dict[str, float] = field(default_factory=dict)
 
 
 def sniff_meta(raw: bytes) -> dict[str, str]:
