@@ -576,12 +576,12 @@ def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
         kinds = list(dict.fromkeys(t for _, t, _ in items))
         df, columns, run_ix_a, line_a, meta_why = _batch_table(items)
         specs = _batch_specs(kinds, columns)
-        res = _run_suite(df, [_expectation(sp, table=table, kinds=ks) for sp, table, ks in specs])
+        results, res_json = _validate_batch(df, specs, docs_root is not None)
         if docs_root is not None:
-            suite_results.append((BATCH_SUITE, res.to_json_dict()))
+            suite_results.append((BATCH_SUITE, res_json))
         kind_runs = [r for r, _, _ in items]
         test_of = [t for _, t, _ in items]
-        for er in res.results:
+        for er in results:
             if er.success:
                 continue
             cfg = er.expectation_config
@@ -641,19 +641,42 @@ def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
     return ValidationReport(refusals, time.perf_counter() - t0, per_kind, index)
 
 
-def _run_suite(df: pd.DataFrame, expectations: list):
-    """One great-expectations validation of ``df`` by ``expectations``: failures name
-    their rows by WHERE_COLUMNS."""
+def _validate_batch(df: pd.DataFrame, specs: list, want_json: bool) -> tuple[list, dict | None]:
+    """The batch's suite on ``df``: GE's results, in GE's order, and (``want_json``) the
+    validation result as JSON for the Data Docs.
+
+    Every expectation is run once with result format BOOLEAN_ONLY (passed or not: the
+    cheap metrics); only those that failed are run again, COMPLETE, for the rows to name
+    (their file and line: WHERE_COLUMNS) and the observed values.  A clean batch costs one
+    validation; the failures' results replace theirs, so the Data Docs show them whole."""
     import great_expectations as gx
     ctx = _new_context()
-    suite = ctx.suites.add(gx.ExpectationSuite(name=BATCH_SUITE, expectations=expectations))
-    bd = ctx.data_sources.add_pandas("accelcal").add_dataframe_asset(BATCH_SUITE) \
-        .add_batch_definition_whole_dataframe("all")
-    batch = bd.get_batch(batch_parameters={"dataframe": df})
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return batch.validate(suite, result_format={
-            "result_format": "COMPLETE", "unexpected_index_column_names": WHERE_COLUMNS})
+    ds = ctx.data_sources.add_pandas("accelcal")
+
+    def run(name: str, which: list[int], result_format: dict):
+        exps = [_expectation(specs[i][0], table=specs[i][1], kinds=specs[i][2], i=i) for i in which]
+        suite = ctx.suites.add(gx.ExpectationSuite(name=name, expectations=exps))
+        batch = ds.add_dataframe_asset(name).add_batch_definition_whole_dataframe("all") \
+            .get_batch(batch_parameters={"dataframe": df})
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return batch.validate(suite, result_format=result_format)
+
+    first = run(BATCH_SUITE, list(range(len(specs))), {"result_format": "BOOLEAN_ONLY"})
+    failed = [int(er.expectation_config.meta["i"]) for er in first.results if not er.success]
+    if not failed:
+        return list(first.results), first.to_json_dict() if want_json else None
+    again = run(f"{BATCH_SUITE}.failed", failed, {
+        "result_format": "COMPLETE", "unexpected_index_column_names": WHERE_COLUMNS})
+    full = {int(er.expectation_config.meta["i"]): er for er in again.results}
+    results = [full.get(int(er.expectation_config.meta["i"]), er) for er in first.results]
+    if not want_json:
+        return results, None
+    doc = first.to_json_dict()
+    full_json = {int(r["expectation_config"]["meta"]["i"]): r for r in again.to_json_dict()["results"]}
+    doc["results"] = [full_json.get(int(r["expectation_config"]["meta"]["i"]), r)
+                      for r in doc["results"]]
+    return results, doc
 
 
 def _docs(docs_root: Path | None, title: str, runs: list[RunFile],
