@@ -13,7 +13,7 @@ Each scenario runs in a fresh Python process (cold imports, cold Prefect):
   snapshot), plus an idempotent re-run;  the 'ingest' and 'validate' of the first run
   include the one-time imports (great-expectations: seconds);
 * in the same process run as the local pipeline, after it: ingest + validate again
-  (intake_batch, warm, batches as the pipeline makes them, best of --repeat) and the
+  (as intake_batch does, warm, in the pipeline's batches, best of --repeat) and the
   floor on the same files -- a bare ``pyarrow.csv.read_csv`` of each file's data part and
   one numpy least-squares fit per run -- best of --repeat; the ratio
   (ingest + validate per file) / (bare read per file) is printed;
@@ -109,8 +109,9 @@ def child_pipeline(args) -> dict:
            "refused": sum(d["refused"] for d in s1["drops"]),
            "campaigns": [c["status"] for c in s1["campaigns"]]}
     if args.engine == "local":      # the same process run: warm intake, then the floor
-        out["intake"] = warm_intake(drops, args.repeat)
-        out["floor"] = floor(drops, args.repeat)
+        groups = json.loads(args.groups) if args.groups else {"all drops": drops}
+        out["intake"] = {g: warm_intake(ds, args.repeat) for g, ds in groups.items()}
+        out["floor"] = {g: floor(ds, args.repeat) for g, ds in groups.items()}
     return out
 
 
@@ -124,11 +125,11 @@ def _best(fn, repeat: int):
 
 
 def warm_intake(drops: list[str], repeat: int) -> dict:
-    """ingest + validate of every file (intake_batch, batches as the pipeline makes them),
-    imports already done: best of ``repeat``, split by step."""
+    """ingest + validate of every file (as intake_batch does, in batches as the pipeline
+    makes them), imports already done: best of ``repeat``, split by step."""
     from accelcal.flows.pipeline import batch_files
     from accelcal.tasks import contracts
-    from accelcal.tasks.validate import intake_batch
+    from accelcal.tasks.validate import ingest_files, validate_drop
     B = batch_files()
     batches = []
     for d in drops:
@@ -139,10 +140,13 @@ def warm_intake(drops: list[str], repeat: int) -> dict:
     for _ in range(repeat):
         with tempfile.TemporaryDirectory() as tmp:
             st = {"ingest": 0.0, "validate": 0.0, "files": 0}
-            for d, es, part in batches:
-                ing = intake_batch(d, es, f"{tmp}/pq", tmp, {}, f"{tmp}/docs", part, True)
-                st["ingest"] += ing.stage_seconds["ingest"]
-                st["validate"] += ing.stage_seconds["validate"]
+            for d, es, part in batches:      # what intake_batch does, each step timed
+                t0 = time.perf_counter()
+                ing = ingest_files(d, es, f"{tmp}/pq", tmp, {}, True)
+                t1 = time.perf_counter()
+                validate_drop(ing, f"{tmp}/docs", part)
+                st["ingest"] += t1 - t0
+                st["validate"] += time.perf_counter() - t1
                 st["files"] += len(es)
         if best is None or st["ingest"] + st["validate"] < best["ingest"] + best["validate"]:
             best = st
@@ -250,9 +254,13 @@ def fmt(x: float | None) -> str:
 
 
 def commit() -> str:
-    """Short hash of HEAD, with ``-dirty`` when tracked files differ from it."""
+    """Short hash of HEAD of the checkout whose accelcal is imported (PYTHONPATH may name
+    another one than this script's), with ``-dirty`` when tracked files differ from it."""
+    import accelcal
+    where = Path(accelcal.__file__).resolve().parents[1]
+
     def git(*a):
-        return subprocess.run(["git", *a], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+        return subprocess.run(["git", *a], cwd=where, capture_output=True, text=True).stdout.strip()
     return (git("rev-parse", "--short", "HEAD") or "unknown") + \
         ("-dirty" if git("status", "--porcelain", "--untracked-files=no") else "")
 
@@ -260,13 +268,9 @@ def commit() -> str:
 def table(res: dict) -> list[str]:
     """The markdown of a result (bench.json): stages on both engines, then the floor."""
     lo, pp = res["local"], res["prefect_pipeline"]
-    iv, fl = lo["intake"], lo["floor"]
-    n = iv["files"]
-    mb = fl["bytes"] / 1e6
     lines = [f"Commit `{res['commit']}`; {res['cpus']} cpus, Python {res['python']}; drops: "
-             f"{', '.join(res['drop_names'])} -- {n} files ({mb:.2f} MB, {fl['rows']:,} data "
-             f"rows), {lo['accepted']} accepted, {lo['refused']} refused, "
-             f"{len(lo['campaigns'])} campaigns.", "",
+             f"{', '.join(res['drop_names'])}: {lo['files']} files, {lo['accepted']} accepted, "
+             f"{lo['refused']} refused, {len(lo['campaigns'])} campaigns.", "",
              "| stage (first run, cold imports) | engine local | engine prefect |",
              "|---|---:|---:|"]
     for k in STAGES:
@@ -282,20 +286,25 @@ def table(res: dict) -> list[str]:
     if "demo_local" in res:
         lines.append(f"| `accelcal demo` wall | {res['demo_local']['wall']:.1f} s | "
                      f"{res['demo_prefect']['wall']:.1f} s |")
-    per = lambda x: f"{x / max(n, 1) * 1e3:.2f} ms"
-    ivs = iv["ingest"] + iv["validate"]
-    lines += ["", f"Same process as the local run, imports done, best of {res['repeat']}:", "",
-              "| measure | total | per file |", "|---|---:|---:|",
-              f"| ingest (sha256 + parse + Parquet), {iv['batches']} batch(es) | "
-              f"{fmt(iv['ingest'])} | {per(iv['ingest'])} |",
-              f"| validate (great-expectations suites) | "
-              f"{fmt(iv['validate'])} | {per(iv['validate'])} |",
-              f"| **ingest + validate** | {fmt(ivs)} | {per(ivs)} |",
-              f"| floor: bare `pyarrow.csv.read_csv` of the same files | {fmt(fl['read'])} | "
-              f"{per(fl['read'])} |",
-              f"| floor: numpy least-squares fit, one per run | {fmt(fl['fit'])} | "
-              f"{per(fl['fit'])} |",
-              f"| **ratio ingest + validate / bare read** | {ivs / fl['read']:.1f}× | |"]
+    groups = list(lo["intake"])
+    lines += ["", f"In the local run's process after it, imports done, best of {res['repeat']}; "
+              "per file:", "",
+              "| per file | " + " | ".join(groups) + " |",
+              "|---|" + "---:|" * len(groups)]
+
+    def row(name, get, fmt_=lambda x: f"{x * 1e3:.2f} ms"):
+        lines.append(f"| {name} | " + " | ".join(fmt_(get(g)) for g in groups) + " |")
+    iv, fl = lo["intake"], lo["floor"]
+    n = {g: max(iv[g]["files"], 1) for g in groups}
+    row("files (MB)", lambda g: (iv[g]["files"], fl[g]["bytes"] / 1e6),
+        lambda x: f"{x[0]} ({x[1]:.2f} MB)")
+    row("ingest: sha256 + parse + Parquet", lambda g: iv[g]["ingest"] / n[g])
+    row("validate: great-expectations, one suite per batch", lambda g: iv[g]["validate"] / n[g])
+    row("**ingest + validate**", lambda g: (iv[g]["ingest"] + iv[g]["validate"]) / n[g])
+    row("floor: bare `pyarrow.csv.read_csv`", lambda g: fl[g]["read"] / n[g])
+    row("floor: numpy least-squares fit", lambda g: fl[g]["fit"] / n[g])
+    row("**ratio (ingest + validate) / bare read**",
+        lambda g: (iv[g]["ingest"] + iv[g]["validate"]) / fl[g]["read"], lambda x: f"{x:.1f}×")
     return lines
 
 
@@ -322,6 +331,7 @@ def main() -> None:
     ap.add_argument("--readme", type=Path, help="write the table into this README")
     ap.add_argument("--child", choices=sorted(CHILDREN))
     ap.add_argument("--drops", help=argparse.SUPPRESS)
+    ap.add_argument("--groups", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child:
         print(json.dumps(CHILDREN[args.child](args), default=str))
@@ -336,14 +346,20 @@ def main() -> None:
         drops += simulate_fleet(args.sim, tmp, per_drop=max(args.sim, 1))[0]
     print(f"benchmarking on {len(drops)} drops ({os.cpu_count()} cpus, Python "
           f"{platform.python_version()})", file=sys.stderr)
+    real = [d for d in drops if not tmp or tmp not in d.parents]
     res = {"commit": commit(), "drops": [str(d) for d in drops], "cpus": os.cpu_count(),
            "python": platform.python_version(), "repeat": args.repeat,
-           "drop_names": [d.name for d in drops if not tmp or tmp not in d.parents]
+           "drop_names": [d.name for d in real]
            + ([f"{args.sim} simulated campaigns"] if args.sim else [])}
+    groups = {("sample drops" if not args.drop else "drops"): [str(d) for d in real]}
+    if args.sim:
+        groups[f"{args.sim} simulated campaigns"] = [str(d) for d in drops if d not in real]
+    groups = {g: ds for g, ds in groups.items() if ds}
     try:
         dj = json.dumps(res["drops"])
         res["prefect"] = run_child("prefect-startup")
-        res["local"] = run_child("pipeline", drops=dj, engine="local", repeat=args.repeat)
+        res["local"] = run_child("pipeline", drops=dj, engine="local", repeat=args.repeat,
+                                 groups=json.dumps(groups))
         res["prefect_pipeline"] = run_child("pipeline", drops=dj, engine="prefect",
                                             repeat=args.repeat)
         if args.demo:
