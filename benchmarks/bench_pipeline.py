@@ -1,7 +1,7 @@
 #!/usr/bin/env python
 """Benchmark the pipeline, stage by stage, against the floor (a script, not a test).
 
-    python benchmarks/bench_pipeline.py [--drop DIR ...] [--sim N] [--repeat 3]
+    python benchmarks/bench_pipeline.py [--drop DIR ...] [--sim N] [--repeat 3] [--runs 3]
                                         [--demo] [--readme README.md]
 
 Each scenario runs in a fresh Python process (cold imports, cold Prefect):
@@ -10,8 +10,9 @@ Each scenario runs in a fresh Python process (cold imports, cold Prefect):
 * the drops end to end, engine 'local' (no Prefect) and 'prefect': every stage the
   pipeline times (summary['timings']: discover, ingest = hash + parse + Parquet,
   validate = the great-expectations suites, record, plan, load, science, store,
-  snapshot), plus an idempotent re-run;  the 'ingest' and 'validate' of the first run
-  include the one-time imports (great-expectations: seconds);
+  snapshot), plus an idempotent re-run, best of --runs processes by total;  the 'ingest'
+  and 'validate' of the first run include the one-time imports (great-expectations:
+  seconds);
 * in the same process run as the local pipeline, after it: ingest + validate again
   (as intake_batch does, warm, in the pipeline's batches, best of --repeat) and the
   floor on the same files -- a bare ``pyarrow.csv.read_csv`` of each file's data part and
@@ -271,9 +272,12 @@ def table(res: dict) -> list[str]:
     lines = [f"Commit `{res['commit']}`; {res['cpus']} cpus, Python {res['python']}; drops: "
              f"{', '.join(res['drop_names'])}: {lo['files']} files, {lo['accepted']} accepted, "
              f"{lo['refused']} refused, {len(lo['campaigns'])} campaigns.", "",
-             "| stage (first run, cold imports) | engine local | engine prefect |",
+             f"| stage (first run, cold imports; best of {res.get('runs', 1)} runs) "
+             "| engine local | engine prefect |",
              "|---|---:|---:|"]
-    for k in STAGES:
+    stages = STAGES if "ingest" in lo["stages"] else \
+        ("discover", "ingest+validate") + STAGES[3:]      # a version that timed them as one
+    for k in stages:
         a, b = lo["stages"].get(k), pp["stages"].get(k)
         if a is not None or b is not None:
             lines.append(f"| {k} | {fmt(a)} | {fmt(b)} |")
@@ -299,7 +303,7 @@ def table(res: dict) -> list[str]:
     row("files (MB)", lambda g: (iv[g]["files"], fl[g]["bytes"] / 1e6),
         lambda x: f"{x[0]} ({x[1]:.2f} MB)")
     row("ingest: sha256 + parse + Parquet", lambda g: iv[g]["ingest"] / n[g])
-    row("validate: great-expectations, one suite per batch", lambda g: iv[g]["validate"] / n[g])
+    row("validate: great-expectations suites", lambda g: iv[g]["validate"] / n[g])
     row("**ingest + validate**", lambda g: (iv[g]["ingest"] + iv[g]["validate"]) / n[g])
     row("floor: bare `pyarrow.csv.read_csv`", lambda g: fl[g]["read"] / n[g])
     row("floor: numpy least-squares fit", lambda g: fl[g]["fit"] / n[g])
@@ -325,7 +329,8 @@ def main() -> None:
     ap.add_argument("--drop", type=Path, action="append", help="a drop (repeatable); "
                     "default: every sample drop")
     ap.add_argument("--sim", type=int, default=0, help="add N simulated campaigns")
-    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--repeat", type=int, default=3, help="best of N for the warm figures")
+    ap.add_argument("--runs", type=int, default=3, help="pipeline runs per engine (best of N)")
     ap.add_argument("--engine", default="local")
     ap.add_argument("--demo", action="store_true", help="also time `accelcal demo`")
     ap.add_argument("--readme", type=Path, help="write the table into this README")
@@ -358,10 +363,17 @@ def main() -> None:
     try:
         dj = json.dumps(res["drops"])
         res["prefect"] = run_child("prefect-startup")
-        res["local"] = run_child("pipeline", drops=dj, engine="local", repeat=args.repeat,
-                                 groups=json.dumps(groups))
-        res["prefect_pipeline"] = run_child("pipeline", drops=dj, engine="prefect",
-                                            repeat=args.repeat)
+        # each pipeline run is a cold process: best of --runs (by total) of each engine
+        local = [run_child("pipeline", drops=dj, engine="local", repeat=args.repeat,
+                           groups=json.dumps(groups)) for _ in range(args.runs)]
+        res["local"] = min(local, key=lambda r: r["first"])
+        for g in groups:        # warm figures: the process whose ingest + validate was best
+            best = min(local, key=lambda r: r["intake"][g]["ingest"] + r["intake"][g]["validate"])
+            res["local"]["intake"][g], res["local"]["floor"][g] = best["intake"][g], best["floor"][g]
+        res["prefect_pipeline"] = min((run_child("pipeline", drops=dj, engine="prefect",
+                                                 repeat=args.repeat) for _ in range(args.runs)),
+                                      key=lambda r: r["first"])
+        res["runs"] = args.runs
         if args.demo:
             res["demo_prefect"] = run_child("demo", engine="prefect")
             res["demo_local"] = run_child("demo", engine="local")

@@ -476,7 +476,9 @@ def _batch_table(items: list[tuple[RunFile, str, dict]]) -> tuple[pd.DataFrame, 
     lens = np.array([len(next(iter(d.values()))) if d else 0 for _, _, d in items], np.int64)
     for j, (r, t, d) in enumerate(items):
         if lens[j] == 0:      # nothing to hold its metadata: one empty row (not a file's)
-            items[j] = (r, t, {**{c: np.full(1, np.nan) for c in d}, "line": np.full(1, -1)})
+            items[j] = (r, t, {**{c: np.full(1, np.nan) if v.dtype.kind == "f" else
+                                  np.zeros(1, v.dtype) for c, v in d.items()},
+                               "line": np.full(1, -1)})
             lens[j] = 1
     starts = np.r_[0, np.cumsum(lens)[:-1]]
     n = int(lens.sum())
