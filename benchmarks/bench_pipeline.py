@@ -23,8 +23,8 @@ Each scenario runs in a fresh Python process (cold imports, cold Prefect):
 Default drops: every sample drop in ../shared/examples (drop-bad included).  --sim N adds
 N simulated campaigns (11 runs each, as benchmarks/bench_fleet.py makes them).
 Prints a markdown table; --readme FILE writes it between ``<!-- bench_pipeline:begin -->``
-and ``<!-- bench_pipeline:end -->`` with the commit it ran on; raw numbers go to
-bench-out/bench.json.
+and ``<!-- bench_pipeline:end -->`` with the commit it ran on (and the raw numbers to
+benchmarks/results/bench-pipeline.json); raw numbers always go to bench-out/bench.json.
 """
 from __future__ import annotations
 
@@ -41,6 +41,7 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+RESULTS = ROOT / "benchmarks" / "results"
 EXAMPLES = ROOT.parent / "shared" / "examples"
 DEFAULT_DROPS = sorted(p for p in EXAMPLES.glob("drop-*") if p.is_dir()) or \
     [ROOT / "accelcal" / "demo_data" / "drop-demo"]
@@ -281,7 +282,7 @@ def table(res: dict) -> list[str]:
         a, b = lo["stages"].get(k), pp["stages"].get(k)
         if a is not None or b is not None:
             lines.append(f"| {k} | {fmt(a)} | {fmt(b)} |")
-    lines += [f"| **total** | {fmt(lo['first'])} | {fmt(pp['first'])} |",
+    lines += [f"| **total** (wall) | {fmt(lo['first'])} | {fmt(pp['first'])} |",
               f"| re-run (nothing new) | {fmt(lo['rerun'])} | {fmt(pp['rerun'])} |"]
     if "prefect" in res:
         pf = res["prefect"]
@@ -290,6 +291,11 @@ def table(res: dict) -> list[str]:
     if "demo_local" in res:
         lines.append(f"| `accelcal demo` wall | {res['demo_local']['wall']:.1f} s | "
                      f"{res['demo_prefect']['wall']:.1f} s |")
+    lines += ["", "A stage is the time inside it; with the prefect engine, tasks run side by side "
+              "(thread runner), so its stages are summed over workers and exceed the wall time."]
+    if res.get("loadavg"):
+        lines[-1] += (f" Load average when the benchmark started: {res['loadavg']:.1f} on "
+                      f"{res['cpus']} cpus (other jobs share the machine).")
     groups = list(lo["intake"])
     lines += ["", f"In the local run's process after it, imports done, best of {res['repeat']}; "
               "per file:", "",
@@ -315,7 +321,8 @@ def table(res: dict) -> list[str]:
 def write_readme(path: Path, lines: list[str], cmd: str) -> None:
     begin, end = "<!-- bench_pipeline:begin -->", "<!-- bench_pipeline:end -->"
     text = path.read_text(encoding="utf-8")
-    block = "\n".join([begin, f"Written by `{cmd}`.", ""] + lines + [end])
+    block = "\n".join([begin, f"Written by `{cmd}`; raw figures in "
+                        "`benchmarks/results/bench-pipeline.json`.", ""] + lines + [end])
     if begin in text and end in text:
         text = re.sub(re.escape(begin) + ".*?" + re.escape(end), lambda _: block, text,
                       flags=re.S)
@@ -337,7 +344,16 @@ def main() -> None:
     ap.add_argument("--child", choices=sorted(CHILDREN))
     ap.add_argument("--drops", help=argparse.SUPPRESS)
     ap.add_argument("--groups", help=argparse.SUPPRESS)
+    ap.add_argument("--from-json", type=Path, help="print (and --readme) the table of an "
+                    "earlier run's bench.json instead of running")
     args = ap.parse_args()
+    if args.from_json:
+        lines = table(json.loads(args.from_json.read_text()))
+        print("\n".join(lines))
+        if args.readme:
+            write_readme(args.readme, lines, "python benchmarks/bench_pipeline.py "
+                         + " ".join(sys.argv[1:]))
+        return
     if args.child:
         print(json.dumps(CHILDREN[args.child](args), default=str))
         return
@@ -353,6 +369,8 @@ def main() -> None:
           f"{platform.python_version()})", file=sys.stderr)
     real = [d for d in drops if not tmp or tmp not in d.parents]
     res = {"commit": commit(), "drops": [str(d) for d in drops], "cpus": os.cpu_count(),
+           "loadavg": os.getloadavg()[0],
+           "argv": "python benchmarks/bench_pipeline.py " + " ".join(sys.argv[1:]),
            "python": platform.python_version(), "repeat": args.repeat,
            "drop_names": [d.name for d in real]
            + ([f"{args.sim} simulated campaigns"] if args.sim else [])}
@@ -386,8 +404,9 @@ def main() -> None:
     lines = table(res)
     print("\n".join(lines))
     if args.readme:
-        argv = " ".join(a for a in sys.argv[1:])
-        write_readme(args.readme, lines, f"python benchmarks/bench_pipeline.py {argv}".strip())
+        RESULTS.mkdir(exist_ok=True)
+        (RESULTS / "bench-pipeline.json").write_text(json.dumps(res, indent=2, default=str))
+        write_readme(args.readme, lines, res["argv"])
 
 
 if __name__ == "__main__":
