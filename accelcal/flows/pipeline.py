@@ -243,6 +243,8 @@ def _body(wh, drops, summary, steps, flow_run_id, parameters, cv, settle, B, W, 
                 return
             tick("ingest+validate (wait)", t0)
             tick("ingest+validate", 0.0, ing.seconds)
+            for k, v in (getattr(ing, "stage_seconds", None) or {}).items():
+                tick(k, 0.0, v)      # the same time by step: "ingest", "validate"
             t0 = time.perf_counter()
             sess.touch()
             stored = steps.record_drop(wh, ing, flow_run_id)

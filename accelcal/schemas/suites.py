@@ -94,13 +94,24 @@ class ValidationReport:
 # suites
 
 
-def _E(cls_name: str, rule: str, what: str, **kw):
+def _E(cls_name: str, rule: str, what: str, **kw) -> tuple[str, str, str, dict]:
+    """An expectation as a spec: (GE class name, rule, what, keyword arguments)."""
+    return cls_name, rule, what, kw
+
+
+def _expectation(spec: tuple[str, str, str, dict], **meta):
     import great_expectations.expectations as gxe
-    return getattr(gxe, cls_name)(meta={"rule": rule, "what": what}, **kw)
+    cls_name, rule, what, kw = spec
+    return getattr(gxe, cls_name)(meta={"rule": rule, "what": what, **meta}, **kw)
 
 
 def build_suites(test: str) -> dict[str, list]:
     """The expectations of ``<test>.rows`` and ``<test>.meta`` (not yet in a suite)."""
+    return {t: [_expectation(x) for x in specs] for t, specs in _suite_specs(test).items()}
+
+
+def _suite_specs(test: str) -> dict[str, list[tuple[str, str, str, dict]]]:
+    """The expectations of one test kind: on its rows, and on its metadata."""
     cols = COLUMNS[test]
     rows: list = [_E("ExpectTableColumnsToMatchSet", "missing-column",
                      f"the columns of a {test} run", column_set=list(cols), exact_match=False)]
@@ -252,11 +263,12 @@ def _segments(values: np.ndarray) -> np.ndarray:
     return np.cumsum(change)
 
 
-def _derive(test: str, run: RunFile) -> pd.DataFrame:
-    """The run's columns plus the derived columns the ``<test>.rows`` suite checks."""
+def _derive(test: str, run: RunFile) -> dict[str, np.ndarray]:
+    """The run's columns plus the derived columns the suite checks, as numpy arrays of the
+    run's length (no DataFrame per run: the batch is one table, made once)."""
     d = run.data.reset_index(drop=True)
     cols = [c for c in COLUMNS[test] if c in d.columns]
-    out = d[cols].copy()
+    out: dict[str, np.ndarray] = {c: d[c].to_numpy() for c in cols}
     n = len(d)
     meta = run.meta
     nullable = NULLABLE_COLUMNS[test]
@@ -307,6 +319,9 @@ def _derive(test: str, run: RunFile) -> pd.DataFrame:
             ratio, resid = _sine_fit(t, d["table_rate_rad_s"].to_numpy(np.float64), meta)
             out["rate_amplitude_ratio"] = _first_only(n, ratio)
             out["rate_fit_residual"] = _first_only(n, resid)
+    for k, v in out.items():         # a scalar stands for every row (as a column would)
+        if np.ndim(v) == 0:
+            out[k] = np.full(n, v, dtype=np.float64)
     return out
 
 
@@ -371,31 +386,21 @@ def _sine_fit(t: np.ndarray, rate: np.ndarray, meta: dict) -> tuple[float, float
     return amp / Om, rel_resid
 
 
-def _meta_table(test: str, runs: list[RunFile]) -> tuple[pd.DataFrame, list[dict[str, str]]]:
-    """One row per run: the typed metadata, plus counts of missing and badly typed keys;
-    and per run the names behind those counts (for the refusal's detail)."""
+def _meta_record(test: str, r: RunFile) -> tuple[dict, dict[str, str]]:
+    """The run's typed metadata for the ``meta`` expectations, plus counts of missing and
+    badly typed keys; and the names behind those counts (for the refusal's detail)."""
     keys = list(REQUIRED_KEYS[test]) + ["ambient_temp_c"]
-    recs, why = [], []
-    for r in runs:
-        rec = {k: r.meta.get(k) for k in keys}
-        missing = [k for k in REQUIRED_KEYS[test] if r.meta.get(k) in (None, "")]
-        badtype = [k for k in keys if k in r.meta and (
-            (k in FLOAT_KEYS and (isinstance(r.meta[k], bool) or not isinstance(r.meta[k], (float, int))))
-            or (k in INT_KEYS and (isinstance(r.meta[k], bool) or not isinstance(r.meta[k], int)))
-            or (k not in FLOAT_KEYS and k not in INT_KEYS and not isinstance(r.meta[k], str)))]
-        rec["missing_keys"] = len(missing)
-        rec["badly_typed_keys"] = len(badtype)
-        for k in badtype:
-            rec[k] = None  # keep the range checks from choking on a wrong kind
-        recs.append(rec)
-        why.append({"missing_keys": ", ".join(missing), "badly_typed_keys": ", ".join(badtype)})
-    df = pd.DataFrame.from_records(recs, columns=keys + ["missing_keys", "badly_typed_keys"])
-    for k in keys:
-        if k in FLOAT_KEYS or k in INT_KEYS:
-            df[k] = pd.to_numeric(df[k], errors="coerce").astype("float64")
-        else:
-            df[k] = df[k].astype(object)
-    return df, why
+    rec = {k: r.meta.get(k) for k in keys}
+    missing = [k for k in REQUIRED_KEYS[test] if r.meta.get(k) in (None, "")]
+    badtype = [k for k in keys if k in r.meta and (
+        (k in FLOAT_KEYS and (isinstance(r.meta[k], bool) or not isinstance(r.meta[k], (float, int))))
+        or (k in INT_KEYS and (isinstance(r.meta[k], bool) or not isinstance(r.meta[k], int)))
+        or (k not in FLOAT_KEYS and k not in INT_KEYS and not isinstance(r.meta[k], str)))]
+    rec["missing_keys"] = len(missing)
+    rec["badly_typed_keys"] = len(badtype)
+    for k in badtype:
+        rec[k] = None  # keep the range checks from choking on a wrong kind
+    return rec, {"missing_keys": ", ".join(missing), "badly_typed_keys": ", ".join(badtype)}
 
 
 # --------------------------------------------------------------------------------------
@@ -426,139 +431,256 @@ def docs_folder_name(drop_name: str | None) -> str:
 WHERE_COLUMNS = ["file", "line", "_row"]
 
 
+#: Name of the one suite (and Data Docs page) that validates a batch.
+BATCH_SUITE = "batch"
+
+
+def _batch_specs(kinds: list[str], columns: dict[str, set[str]]) -> list[tuple[tuple, str, list[str]]]:
+    """The expectations of every kind present, merged into one suite for one table:
+    (spec, table 'rows'|'meta', kinds it applies to).  An expectation shared by several
+    kinds is there once; each kind's own keep their order (so a file's refusals come in
+    the same order as from its kind's suite).  One that is a kind's own, on a column other
+    kinds' rows also fill, is limited to that kind's rows (row condition on ``test``)."""
+    from great_expectations.expectations.row_conditions import Column
+    merged: list[list] = []      # [key, spec, table, kinds]
+    for k in kinds:
+        prev = -1
+        specs = _suite_specs(k)
+        for table in ("rows", "meta"):
+            for spec in specs[table]:
+                key = (table, spec[0], spec[1], spec[2], repr(sorted(spec[3].items())))
+                pos = next((i for i, m in enumerate(merged) if m[0] == key), -1)
+                if pos > prev:
+                    merged[pos][3].append(k)
+                    prev = pos
+                else:
+                    merged.insert(prev + 1, [key, spec, table, [k]])
+                    prev += 1
+    out = []
+    for _, (cls_name, rule, what, kw), table, ks in merged:
+        col = kw.get("column")
+        if col is not None and any(col in columns[o] for o in kinds if o not in ks):
+            cond = Column("test").is_in(ks) if len(ks) > 1 else Column("test") == ks[0]
+            kw = dict(kw, row_condition=cond if "row_condition" not in kw
+                      else kw["row_condition"] & cond)
+        out.append(((cls_name, rule, what, kw), table, ks))
+    return out
+
+
+def _batch_table(items: list[tuple[RunFile, str, dict]]) -> tuple[pd.DataFrame, dict, np.ndarray,
+                                                                  np.ndarray, list[dict]]:
+    """The batch as one table: every run's rows (its columns and derived columns; a column
+    a kind does not have is empty on its rows), its metadata on its first row, and where
+    each row came from (``test``, ``file``, ``line``, ``_row``).  Also: the columns each
+    kind fills, the run and the line of each row, and each run's meta 'why'."""
+    lens = np.array([len(next(iter(d.values()))) if d else 0 for _, _, d in items], np.int64)
+    for j, (r, t, d) in enumerate(items):
+        if lens[j] == 0:      # nothing to hold its metadata: one empty row (not a file's)
+            items[j] = (r, t, {**{c: np.full(1, np.nan) if v.dtype.kind == "f" else
+                                  np.zeros(1, v.dtype) for c, v in d.items()},
+                               "line": np.full(1, -1)})
+            lens[j] = 1
+    starts = np.r_[0, np.cumsum(lens)[:-1]]
+    n = int(lens.sum())
+    run_ix = np.repeat(np.arange(len(items)), lens)
+    line = np.concatenate([d["line"] if "line" in d else
+                           (r.data["line"].to_numpy(np.int64) if "line" in r.data
+                            else np.full(lens[j], -1)) for j, (r, _, d) in enumerate(items)])
+    columns: dict[str, set[str]] = {}
+    names: dict[str, None] = {}
+    for _, t, d in items:
+        columns.setdefault(t, set()).update(c for c in d if c != "line")
+        names.update(dict.fromkeys(c for c in d if c != "line"))
+    data: dict[str, object] = {}
+    for c in names:
+        parts = [d.get(c) for _, _, d in items]
+        if all(p is not None for p in parts):
+            data[c] = np.concatenate(parts)
+            continue
+        dt = np.result_type(*[p.dtype for p in parts if p is not None])
+        if dt.kind in "iu":
+            # an int column stays int64 (GE checks a nullable one row by row, in Python):
+            # the other kinds' rows hold 0, and count as having the column, so its
+            # expectations are limited to the kinds whose column it is (_batch_specs)
+            vals = np.zeros(n, np.int64)
+            for j, p in enumerate(parts):
+                if p is not None:
+                    vals[starts[j]:starts[j] + lens[j]] = p
+            data[c] = vals
+            for _, t, _ in items:
+                columns[t].add(c)
+        else:
+            a = np.full(n, np.nan)
+            for j, p in enumerate(parts):
+                if p is not None:
+                    a[starts[j]:starts[j] + lens[j]] = p
+            data[c] = a
+    # the metadata, on each run's first row
+    whys, recs = [], []
+    for r, t, _ in items:
+        rec, why = _meta_record(t, r)
+        recs.append(rec)
+        whys.append(why)
+        columns[t].update(rec)
+    for k in dict.fromkeys(k for rec in recs for k in rec):
+        numeric = k in FLOAT_KEYS or k in INT_KEYS or k in ("missing_keys", "badly_typed_keys")
+        if numeric:
+            vals = pd.to_numeric(pd.Series([rec.get(k) for rec in recs], dtype=object),
+                                 errors="coerce").astype("float64").to_numpy()
+            a = np.full(n, np.nan)
+        else:
+            vals = np.empty(len(recs), dtype=object)
+            vals[:] = [rec.get(k) for rec in recs]
+            a = np.full(n, None, dtype=object)
+        a[starts] = vals
+        data[k] = a if numeric else pd.Series(a, dtype=object)
+    tests = np.asarray([t for _, t, _ in items], dtype=object)
+    data["test"] = pd.Series(tests[run_ix], dtype=object)
+    data["file"] = np.asarray([r.path for r, _, _ in items], dtype=object)[run_ix]
+    data["line"] = line
+    data["_row"] = np.arange(n)
+    df = pd.DataFrame(data, copy=False)
+    return df, columns, run_ix, line, whys
+
+
 def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
                     drop_name: str = "drop",
                     parse_refusals: list[Refusal] | None = None) -> ValidationReport:
-    """Validate parsed runs with the GE suites; one ephemeral GE context per call, one batch
-    per (test kind, table). Writes Data Docs to ``docs_dir/<drop_name>/`` when docs_dir is
-    given, listing ``parse_refusals`` (files the parser refused) beside the suites' verdicts.
+    """Validate parsed runs with the GE suites: the batch is one table (every run's rows,
+    derived columns and metadata, with ``file`` and ``line`` columns), validated by one
+    suite -- the suites of the test kinds present, merged -- in one great-expectations
+    call, in an ephemeral context.  Writes Data Docs to ``docs_dir/<drop_name>/`` when
+    docs_dir is given, listing ``parse_refusals`` (files the parser refused) beside the
+    suite's verdicts.
     """
     t0 = time.perf_counter()
     suite_results: list[tuple[str, dict]] = []
     refusals: dict[str, list[Refusal]] = {r.path: [] for r in runs}
-    by_kind: dict[str, list[RunFile]] = {}
+    items: list[tuple[RunFile, str, dict]] = []
     for r in runs:
         test = str(r.meta.get("test", ""))
         if test not in TESTS:
             refusals[r.path].append(Refusal(r.path, r.meta_lines.get("test"), "unknown-test",
                                             f"test {test!r} is not one of {', '.join(TESTS)}"))
             continue
-        by_kind.setdefault(test, []).append(r)
+        miss = [c for c in list(COLUMNS[test]) + ["line"] if c not in r.data.columns]
+        if miss:
+            refusals[r.path].append(Refusal(r.path, r.header_line, "missing-column",
+                                            f"columns missing: {', '.join(miss)}"))
+            continue
+        try:
+            items.append((r, test, _derive(test, r)))
+        except Exception as e:  # a bug or data beyond the checks: refuse, don't stop the drop
+            refusals[r.path].append(Refusal(r.path, None, "validation-error",
+                                            f"{type(e).__name__}: {e}"[:300]))
     docs_root = None if docs_dir is None else Path(docs_dir) / docs_folder_name(drop_name)
-    if not by_kind:
-        index = _docs(docs_root, drop_name, runs, refusals, parse_refusals, suite_results)
-        return ValidationReport(refusals, time.perf_counter() - t0, {}, index)
-
-    import great_expectations as gx
-    ctx = _new_context()
-    ds = ctx.data_sources.add_pandas("accelcal")
     per_kind: dict[str, float] = {}
-    for test, kind_runs in by_kind.items():
+    if items:
         tk = time.perf_counter()
-        complete = []
-        for r in kind_runs:
-            miss = [c for c in list(COLUMNS[test]) + ["line"] if c not in r.data.columns]
-            if miss:
-                refusals[r.path].append(Refusal(r.path, r.header_line, "missing-column",
-                                                f"columns missing: {', '.join(miss)}"))
-            else:
-                complete.append(r)
-        kind_runs = complete
-        if not kind_runs:
-            continue
-        parts, run_ix, lines = [], [], []
-        derived = []
-        for r in kind_runs:
-            try:
-                derived.append((r, _derive(test, r)))
-            except Exception as e:  # a bug or data beyond the checks: refuse, don't stop the drop
-                refusals[r.path].append(Refusal(r.path, None, "validation-error",
-                                                f"{type(e).__name__}: {e}"[:300]))
-        kind_runs = [r for r, _ in derived]
-        if not kind_runs:
-            continue
-        for i, (r, d) in enumerate(derived):
-            parts.append(d)
-            run_ix.append(np.full(len(d), i))
-            lines.append(r.data["line"].to_numpy() if "line" in r.data else np.full(len(d), -1))
-        rows = pd.concat(parts, ignore_index=True)
-        run_ix_a = np.concatenate(run_ix)
-        line_a = np.concatenate(lines)
-        rows["file"] = np.asarray([r.path for r in kind_runs], dtype=object)[run_ix_a]
-        rows["line"] = line_a
-        rows["_row"] = np.arange(len(rows))
-        meta_df, meta_why = _meta_table(test, kind_runs)
-        meta_df["file"] = [r.path for r in kind_runs]
-        meta_df["line"] = [min(r.meta_lines.values(), default=1) for r in kind_runs]
-        meta_df["_row"] = np.arange(len(meta_df))
-        suites = build_suites(test)
-        tables = {"rows": rows, "meta": meta_df}
-        for table, df in tables.items():
-            name = f"{test}.{table}"
-            suite = ctx.suites.add(gx.ExpectationSuite(name=name, expectations=suites[table]))
-            bd = ds.add_dataframe_asset(name).add_batch_definition_whole_dataframe("all")
-            batch = bd.get_batch(batch_parameters={"dataframe": df})
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                res = batch.validate(suite, result_format={
-                    "result_format": "COMPLETE", "unexpected_index_column_names": WHERE_COLUMNS})
-            if docs_root is not None:
-                suite_results.append((name, res.to_json_dict()))
-            for er in res.results:
-                if er.success:
-                    continue
-                cfg = er.expectation_config
-                rule = cfg.meta.get("rule", "validation")
-                what = cfg.meta.get("what", cfg.type)
-                col = cfg.kwargs.get("column")
-                idx = er.result.get("unexpected_index_list") if er.result else None
-                if idx and isinstance(idx[0], dict):      # {file, line, _row, value}
-                    idx = [e["_row"] for e in idx]
+        kinds = list(dict.fromkeys(t for _, t, _ in items))
+        df, columns, run_ix_a, line_a, meta_why = _batch_table(items)
+        specs = _batch_specs(kinds, columns)
+        results, res_json = _validate_batch(df, specs, docs_root is not None)
+        if docs_root is not None:
+            suite_results.append((BATCH_SUITE, res_json))
+        kind_runs = [r for r, _, _ in items]
+        test_of = [t for _, t, _ in items]
+        for er in results:
+            if er.success:
+                continue
+            cfg = er.expectation_config
+            rule = cfg.meta.get("rule", "validation")
+            what = cfg.meta.get("what", cfg.type)
+            table = cfg.meta.get("table", "rows")
+            ks = set(cfg.meta.get("kinds") or kinds)
+            col = cfg.kwargs.get("column")
+            idx = er.result.get("unexpected_index_list") if er.result else None
+            if idx and isinstance(idx[0], dict):      # {file, line, _row, value}
+                idx = [e["_row"] for e in idx]
+            if er.exception_info and er.exception_info.get("raised_exception"):
+                idx = None
+            if not idx:  # whole-table failure (column missing, wrong type, error)
+                msg = what
+                if er.result and "observed_value" in er.result:
+                    msg += f" (observed {_fmt(er.result['observed_value'])})"
                 if er.exception_info and er.exception_info.get("raised_exception"):
-                    idx = None
-                if not idx:  # whole-table failure (column missing, wrong type, error)
-                    msg = what
-                    if er.result and "observed_value" in er.result:
-                        msg += f" (observed {_fmt(er.result['observed_value'])})"
-                    if er.exception_info and er.exception_info.get("raised_exception"):
-                        msg += f" ({str(er.exception_info.get('exception_message'))[:120]})"
-                    for r in kind_runs:
+                    msg += f" ({str(er.exception_info.get('exception_message'))[:120]})"
+                for r, t in zip(kind_runs, test_of):
+                    if t in ks:
                         ln = r.meta_lines.get(col) if table == "meta" else r.header_line
                         refusals[r.path].append(Refusal(r.path, ln, rule, msg))
-                    continue
-                idx = np.asarray(sorted(int(i) for i in idx))
+                continue
+            idx = np.asarray(sorted(int(i) for i in idx))
+            ri = run_ix_a[idx]
+            for i in np.unique(ri):
+                sel = idx[ri == i]
+                k = int(sel[0])
+                r = kind_runs[int(i)]
                 if table == "meta":
-                    for i in idx:
-                        r = kind_runs[i]
-                        if col in meta_why[i]:
-                            names = meta_why[i][col]
-                            ln = r.meta_lines.get(names.split(", ")[0]) if names else None
-                            detail = f"{what}: {names}"
-                        else:
-                            ln = r.meta_lines.get(col)
-                            detail = f"{what}: {col} = {_fmt(r.meta.get(col, df[col].iloc[i]))}"
-                        refusals[r.path].append(Refusal(r.path, ln, rule, detail))
+                    why = meta_why[int(i)]
+                    if col in why:
+                        names = why[col]
+                        ln = r.meta_lines.get(names.split(", ")[0]) if names else None
+                        detail = f"{what}: {names}"
+                    else:
+                        ln = r.meta_lines.get(col)
+                        detail = f"{what}: {col} = {_fmt(r.meta.get(col, df[col].iloc[k]))}"
+                    refusals[r.path].append(Refusal(r.path, ln, rule, detail))
                     continue
-                ri = run_ix_a[idx]
-                for i in np.unique(ri):
-                    sel = idx[ri == i]
-                    k = int(sel[0])
-                    r = kind_runs[int(i)]
-                    ln = int(line_a[k])
-                    more = f" ({len(sel)} rows, first here)" if len(sel) > 1 else ""
-                    shown = [c for c in (col, "time_s") if c and c in df.columns]
-                    if col == "nonfinite_cells":
-                        shown = [c for c in COLUMNS[test] if c not in INT_COLUMNS
-                                 and not np.isfinite(df[c].iloc[k])
-                                 and not (np.isnan(df[c].iloc[k]) and c in NULLABLE_COLUMNS[test])]
-                    vals = ", ".join(f"{c} = {_fmt(df[c].iloc[k])}" for c in dict.fromkeys(shown))
-                    refusals[r.path].append(Refusal(r.path, ln if ln > 0 else None, rule,
-                                                    f"{what}: {vals}{more}"))
-        per_kind[test] = time.perf_counter() - tk
+                test = test_of[int(i)]
+                ln = int(line_a[k])
+                more = f" ({len(sel)} rows, first here)" if len(sel) > 1 else ""
+                shown = [c for c in (col, "time_s") if c and c in columns[test]]
+                if col == "nonfinite_cells":
+                    shown = [c for c in COLUMNS[test] if c not in INT_COLUMNS
+                             and not np.isfinite(df[c].iloc[k])
+                             and not (np.isnan(df[c].iloc[k]) and c in NULLABLE_COLUMNS[test])]
+                vals = ", ".join(f"{c} = {_fmt(df[c].iloc[k])}" for c in dict.fromkeys(shown))
+                refusals[r.path].append(Refusal(r.path, ln if ln > 0 else None, rule,
+                                                f"{what}: {vals}{more}"))
+        per_kind["+".join(kinds)] = time.perf_counter() - tk
     for p in refusals:
         refusals[p].sort(key=lambda x: (x.line is None, x.line or 0, x.rule))
     index = _docs(docs_root, drop_name, runs, refusals, parse_refusals, suite_results)
     return ValidationReport(refusals, time.perf_counter() - t0, per_kind, index)
+
+
+def _validate_batch(df: pd.DataFrame, specs: list, want_json: bool) -> tuple[list, dict | None]:
+    """The batch's suite on ``df``: GE's results, in GE's order, and (``want_json``) the
+    validation result as JSON for the Data Docs.
+
+    Every expectation is run once with result format BOOLEAN_ONLY (passed or not: the
+    cheap metrics); only those that failed are run again, COMPLETE, for the rows to name
+    (their file and line: WHERE_COLUMNS) and the observed values.  A clean batch costs one
+    validation; the failures' results replace theirs, so the Data Docs show them whole."""
+    import great_expectations as gx
+    ctx = _new_context()
+    ds = ctx.data_sources.add_pandas("accelcal")
+
+    def run(name: str, which: list[int], result_format: dict):
+        exps = [_expectation(specs[i][0], table=specs[i][1], kinds=specs[i][2], i=i) for i in which]
+        suite = ctx.suites.add(gx.ExpectationSuite(name=name, expectations=exps))
+        batch = ds.add_dataframe_asset(name).add_batch_definition_whole_dataframe("all") \
+            .get_batch(batch_parameters={"dataframe": df})
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            return batch.validate(suite, result_format=result_format)
+
+    first = run(BATCH_SUITE, list(range(len(specs))), {"result_format": "BOOLEAN_ONLY"})
+    failed = [int(er.expectation_config.meta["i"]) for er in first.results if not er.success]
+    if not failed:
+        return list(first.results), first.to_json_dict() if want_json else None
+    again = run(f"{BATCH_SUITE}.failed", failed, {
+        "result_format": "COMPLETE", "unexpected_index_column_names": WHERE_COLUMNS})
+    full = {int(er.expectation_config.meta["i"]): er for er in again.results}
+    results = [full.get(int(er.expectation_config.meta["i"]), er) for er in first.results]
+    if not want_json:
+        return results, None
+    doc = first.to_json_dict()
+    full_json = {int(r["expectation_config"]["meta"]["i"]): r for r in again.to_json_dict()["results"]}
+    doc["results"] = [full_json.get(int(r["expectation_config"]["meta"]["i"]), r)
+                      for r in doc["results"]]
+    return results, doc
 
 
 def _docs(docs_root: Path | None, title: str, runs: list[RunFile],

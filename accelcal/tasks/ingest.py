@@ -17,6 +17,7 @@ import hashlib
 import io
 import os
 import stat
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -49,6 +50,8 @@ class DropIngest:
     simulated_held: list[dict[str, Any]] = field(default_factory=list)
     docs: str | None = None
     seconds: float = 0.0                                            # time spent in the step(s)
+    #: the same time by step ("ingest": hash + parse + Parquet, "validate": the suites)
+    stage_seconds: dict[str, float] = field(default_factory=dict)
 
 
 def sniff_meta(raw: bytes) -> dict[str, str]:
@@ -127,35 +130,78 @@ def ingest_files(drop_dir: str, paths: list, parquet_root: str, warehouse_root: 
             simulated=bool(raw) and simulated_line(raw) is not None,
             **{k: meta.get(k) for k in _SNIFF_KEYS}))
 
-    for e in _entries(paths):
-        src = path_text(e.path)
-        name = os.path.basename(src)
-        try:
-            if e.refusal is not None:
-                refuse(src, entry_digest(*e.refusal), e.size, *e.refusal)
-                continue
-            try:
-                fd = os.open(e.path, _OPEN_FLAGS)
-            except OSError as err:
-                rule, detail = _open_refusal(err)
-                refuse(src, entry_digest(rule, detail), e.size, rule, detail)
-                continue
-            try:
-                _ingest_open_file(fd, e, src, out, known, vv, parquet_root, warehouse_root,
-                                  DropFormatError, refuse, allow_simulated)
-            finally:
-                os.close(fd)
-        except _Held as h:
-            out.held.append(f"{src}: {h}")
-        except StoreError:
-            raise
-        except Exception as err:   # a bug in the parser or here: report, record no verdict
-            out.keys = [k for k in out.keys if k[1] != src]
-            out.records = [r for r in out.records if r.source_path != src]
-            out.parsed.pop(src, None)
-            out.errors.append(f"{src}: not ingested: {type(err).__name__}: {err}")
-        progress.advance("ingest", note=name)
+    writes: list[tuple[str, RunRecord, Any]] = []      # (source, its record, Parquet write)
+    with ThreadPoolExecutor(PARQUET_WRITERS, thread_name_prefix="accelcal-parquet") as pool:
+        for e in _entries(paths):
+            _ingest_entry(e, out, known, vv, parquet_root, warehouse_root, DropFormatError,
+                          refuse, allow_simulated, pool, writes)
+        _finish_writes(out, writes, parquet_root, warehouse_root)
     return out
+
+
+#: Parquet files of a batch written at once.  Each is fsync-ed before it is renamed into
+#: place (fileio.atomic_write), and every one is in place before the batch's verdicts are
+#: returned; writing them side by side lets the disk flush them together (one fsync after
+#: another cost ~5 ms a file here, eight at a time < 1 ms).
+PARQUET_WRITERS = 8
+
+
+def _finish_writes(out: DropIngest, writes: list, parquet_root: str, warehouse_root: str) -> None:
+    """Wait for the batch's Parquet writes; fill in each record's path.  The store that
+    cannot be written stops the run (StoreError, as the first failure); a bug in one file's
+    write costs that file only (reported, not recorded)."""
+    store_error = None
+    for src, rec, fut in writes:
+        try:
+            pq = fut.result()
+        except OSError as err:      # name the folder, not our temporary file in it
+            if store_error is None:
+                where = os.path.dirname(err.filename) if isinstance(err.filename, str) else parquet_root
+                store_error = StoreError(os_error_text(OSError(err.errno, err.strerror, where),
+                                                       "cannot write the Parquet store"))
+            continue
+        except Exception as err:
+            _forget(out, src)
+            out.errors.append(f"{src}: not ingested: {type(err).__name__}: {err}")
+            continue
+        rec.parquet_path = _relative(Path(pq), Path(warehouse_root))
+    if store_error is not None:
+        raise store_error from None
+
+
+def _forget(out: DropIngest, src: str) -> None:
+    out.keys = [k for k in out.keys if k[1] != src]
+    out.records = [r for r in out.records if r.source_path != src]
+    out.parsed.pop(src, None)
+
+
+def _ingest_entry(e, out, known, vv, parquet_root, warehouse_root, DropFormatError, refuse,
+                  allow_simulated, pool, writes) -> None:
+    src = path_text(e.path)
+    name = os.path.basename(src)
+    try:
+        if e.refusal is not None:
+            refuse(src, entry_digest(*e.refusal), e.size, *e.refusal)
+            return
+        try:
+            fd = os.open(e.path, _OPEN_FLAGS)
+        except OSError as err:
+            rule, detail = _open_refusal(err)
+            refuse(src, entry_digest(rule, detail), e.size, rule, detail)
+            return
+        try:
+            _ingest_open_file(fd, e, src, out, known, vv, parquet_root, warehouse_root,
+                              DropFormatError, refuse, allow_simulated, pool, writes)
+        finally:
+            os.close(fd)
+    except _Held as h:
+        out.held.append(f"{src}: {h}")
+    except StoreError:
+        raise
+    except Exception as err:   # a bug in the parser or here: report, record no verdict
+        _forget(out, src)
+        out.errors.append(f"{src}: not ingested: {type(err).__name__}: {err}")
+    progress.advance("ingest", note=name)
 
 
 def _open_refusal(err: OSError) -> tuple[str, str]:
@@ -166,7 +212,8 @@ def _open_refusal(err: OSError) -> tuple[str, str]:
 
 
 def _ingest_open_file(fd, e, src, out, known, vv, parquet_root, warehouse_root,
-                      DropFormatError, refuse, allow_simulated: bool = False) -> None:
+                      DropFormatError, refuse, allow_simulated: bool = False, pool=None,
+                      writes=None) -> None:
     st = os.fstat(fd)
     if not stat.S_ISREG(st.st_mode):
         detail = "not a regular file (it changed after the drop was listed)"
@@ -217,20 +264,19 @@ def _ingest_open_file(fd, e, src, out, known, vv, parquet_root, warehouse_root,
     if run.sha256 != sha:
         raise _Held("changed while being read: not read this time")
     _check_unchanged(fd, st, size)
-    try:
-        pq = contracts.write_run_parquet(run, parquet_root)
-    except OSError as err:      # name the folder, not our temporary file in it
-        where = os.path.dirname(err.filename) if isinstance(err.filename, str) else parquet_root
-        raise StoreError(os_error_text(OSError(err.errno, err.strerror, where),
-                                       "cannot write the Parquet store")) from None
     m = run.meta
-    out.keys.append((sha, src))
-    out.records.append(RunRecord(
+    rec = RunRecord(
         **base, status="accepted", run_id=str(m["run_id"]), test=str(m["test"]),
         unit_serial=str(m["unit_serial"]), unit_model=str(m.get("unit_model", "")),
         campaign=str(m["campaign"]), rig_id=str(m.get("rig_id", "")),
         started_at=str(run.meta_raw.get("started_at", m.get("started_at", ""))),
-        n_rows=int(len(run.data)), parquet_path=_relative(Path(pq), Path(warehouse_root))))
+        n_rows=int(len(run.data)))
+    # the Parquet file is written beside the next files' reading; its path is filled in
+    # when it is in place, before the batch returns (_finish_writes)
+    fut = pool.submit(contracts.write_run_parquet, run, parquet_root)
+    writes.append((src, rec, fut))
+    out.keys.append((sha, src))
+    out.records.append(rec)
     out.parsed[src] = run
 
 

@@ -109,7 +109,10 @@ def intake_batch(drop_dir: str, paths: list, parquet_root: str, warehouse_root: 
     """
     t0 = time.perf_counter()
     ing = ingest_files(drop_dir, paths, parquet_root, warehouse_root, known, allow_simulated)
+    t1 = time.perf_counter()
     ing = validate_drop(ing, docs_root, part)
     ing.parsed.clear()
-    ing.seconds = time.perf_counter() - t0
+    t2 = time.perf_counter()
+    ing.seconds = t2 - t0
+    ing.stage_seconds = {"ingest": t1 - t0, "validate": t2 - t1}
     return ing
