@@ -363,6 +363,19 @@ _PLAN_RUNS = """
            SELECT 1 FROM current_runs r WHERE r.campaign = c.campaign AND NOT r.simulated))"""
 
 
+#: DuckDB's memory limit on a write connection (``ACCELCAL_DUCKDB_MEMORY``).  The
+#: pipeline holds one write connection for the whole run; with DuckDB's default (80 % of
+#: RAM) its buffer pool kept every block of the growing file it had written, so the flow
+#: process's memory grew with the warehouse (≈ 0.1 MB per campaign).  The writes and the
+#: plan queries need a few MB; blocks beyond the limit are dropped (they are on disk).
+WRITE_MEMORY_LIMIT = "64MB"
+
+
+def write_memory_limit() -> str:
+    v = os.environ.get("ACCELCAL_DUCKDB_MEMORY", WRITE_MEMORY_LIMIT).strip()
+    return v if re.fullmatch(r"\d+(\.\d+)?\s*[KMGT]i?B", v, re.I) else WRITE_MEMORY_LIMIT
+
+
 # ----------------------------------------------------------------- schema --
 
 def check_schema_version(con, path) -> None:
@@ -457,6 +470,7 @@ class Warehouse:
                 raise WarehouseError(f"the warehouse folder {self.root} does not exist")
             con = self._open(read_only=False)
             try:
+                con.execute(f"SET memory_limit = '{write_memory_limit()}'").fetchall()
                 if not self._schema_ok:
                     self._apply_schema(con)
                 yield con
