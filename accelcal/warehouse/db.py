@@ -565,10 +565,33 @@ class Warehouse:
             raise WarehouseError(f"{path} is not a DuckDB warehouse ({what}); it was not "
                                  "touched: give the path of a .duckdb file, or a new name")
         need = _duckdb_size(head)
-        if need is not None and size < need:
+        if need is not None and size < need and not self._all_blocks_readable(path):
             raise WarehouseError(
                 f"warehouse {path} is truncated ({size:,} bytes; its header needs {need:,}); it "
                 "was not modified (restore it from a backup or its -snapshot.duckdb copy)")
+
+    @staticmethod
+    def _all_blocks_readable(path: Path) -> bool:
+        """Whether every row of every table can be read (read-only).  Asked only when the
+        file is shorter than its header's block count: DuckDB cuts free blocks off the
+        end of the file at a checkpoint (seen at 1,000 campaigns: 172 of 229 blocks on
+        disk, 74 free) without lowering that count, so the size alone cannot tell a
+        truncated file from a sound one.  A truncated file fails on a missing block."""
+        try:
+            con = duckdb.connect(str(path), read_only=True)
+        except duckdb.IOException as e:
+            return "lock" in str(e).lower()     # open in a writer: not ours to judge here
+        except duckdb.Error:
+            return False
+        try:
+            for (t,) in con.execute("SELECT table_name FROM information_schema.tables "
+                                    "WHERE table_type = 'BASE TABLE'").fetchall():
+                con.execute(f'SELECT bit_xor(hash(x)) FROM "{t}" AS x').fetchall()
+            return True
+        except duckdb.Error:
+            return False
+        finally:
+            con.close()
 
     def check_readable(self) -> None:
         """Open the existing file read-only and read its catalog; refuse it untouched
