@@ -3,6 +3,7 @@
 
     python benchmarks/bench_fleet.py --campaigns 20 100 [--per-drop 50] [--engine local]
                                      [--task-runner thread|dask] [--out bench-out/fleet]
+                                     [--readme README.md]
 
 For each size N (a fresh child process, so peak memory is per size):
   1. simulate N campaigns with accelcal.simulate (scenario snj103-lxj100: one tumble +
@@ -10,10 +11,16 @@ For each size N (a fresh child process, so peak memory is per size):
      --per-drop campaigns;
   2. run the pipeline on all drops (one call), timing every step (summary['timings']);
   3. apply views.sql and time the history / change / fleet / rig views;
-  4. the bare-numpy floor: read every file's data with numpy and do one least-squares
-     fit per run (dwell means + polynomial in the table rate for a centrifuge run,
-     harmonics of the head angle for a tumble run) -- the least any pipeline must do.
-Prints a markdown table; raw numbers to <out>/bench-fleet.json.
+  4. the floor, in the same child process: read every file's data with pyarrow's CSV
+     reader and do one numpy least-squares fit per run (dwell means + polynomial in the
+     table rate for a centrifuge run, harmonics of the head angle for a tumble run) --
+     the least any pipeline must do; the ratio pipeline / floor is printed.
+Every stage is timed on both engines, as wall time of the flow process (the columns sum
+to the pipeline time; 'other' is what no stage claims), and, for the stages that run as
+tasks, as time inside the tasks summed over workers.
+Prints a markdown table; raw numbers to <out>/bench-fleet.json; with --readme FILE the
+table replaces what stands between <!-- bench_fleet:begin --> and <!-- bench_fleet:end -->,
+headed by the commit of the accelcal code that ran.
 """
 from __future__ import annotations
 
@@ -55,24 +62,27 @@ def simulate_fleet(n: int, out: Path, per_drop: int, seed0: int = 1000) -> tuple
 
 
 def numpy_floor(files: list[Path]) -> dict:
-    """Read + one LS fit per run with bare numpy (the floor)."""
+    """Read (pyarrow CSV reader) + one least-squares fit per run with bare numpy (the floor)."""
     import numpy as np
+    from pyarrow import csv as pacsv
     t0 = time.perf_counter()
     t_read = 0.0
     for f in files:
         ta = time.perf_counter()
         with open(f, "rb") as fh:
-            lines = fh.read().decode().splitlines()
-        k = next(i for i, l in enumerate(lines) if not l.startswith("#"))
-        header = lines[k].split(",")
-        arr = np.array([[float(c) if c else np.nan for c in l.split(",")]
-                        for l in lines[k + 1:] if l], dtype=float)
+            skip = 0
+            for line in fh:
+                if not line.startswith(b"#"):
+                    break
+                skip += 1
+        tbl = pacsv.read_csv(f, read_options=pacsv.ReadOptions(skip_rows=skip))
+        col = {h: tbl.column(h).to_numpy(zero_copy_only=False).astype(float)
+               for h in tbl.column_names}
         t_read += time.perf_counter() - ta
-        col = {h: i for i, h in enumerate(header)}
-        y = arr[:, col["output"]]
+        y = col["output"]
         if "table_rate_rad_s" in col:
-            step = arr[:, col["step"]].astype(int)
-            w = arr[:, col["table_rate_rad_s"]]
+            step = col["step"].astype(int)
+            w = col["table_rate_rad_s"]
             cnt = np.bincount(step)
             ok = cnt > 0
             ym = (np.bincount(step, y) / np.maximum(cnt, 1))[ok]
@@ -80,14 +90,52 @@ def numpy_floor(files: list[Path]) -> dict:
             good = np.isfinite(ym) & np.isfinite(a)
             X, ym = np.vander(a[good], 4, increasing=True), ym[good]
         else:
-            th = np.radians(arr[:, col["angle_deg"]])
+            th = np.radians(col["angle_deg"])
             X = np.column_stack([np.ones_like(th), np.cos(th), np.sin(th), np.cos(2 * th),
                                  np.sin(2 * th)])
             good = np.isfinite(y) & np.isfinite(th)
             X, ym = X[good], y[good]
         np.linalg.lstsq(X, ym, rcond=None)
     total = time.perf_counter() - t0
-    return {"seconds": total, "read_seconds": t_read, "runs_per_s": len(files) / total}
+    return {"seconds": total, "read_seconds": t_read, "runs_per_s": len(files) / total,
+            "reader": "pyarrow.csv"}
+
+
+#: Stages as the flow process lives them (wall time; they sum to the pipeline time but
+#: for 'other'): name -> the summary['timings'] keys that make it.  A stage that runs as
+#: tasks is the submit (the local engine runs the task there) plus the wait for results.
+FLOW_STAGES = {
+    "discover": ("discover",),
+    "ingest+validate": ("ingest+validate (submit)", "ingest+validate (wait)"),
+    "record": ("record",),
+    "plan": ("plan",),
+    "load+science": ("science (submit)", "science (wait)"),
+    "store": ("store",),
+    "summary": ("summary",),
+    "snapshot": ("snapshot",),
+}
+#: Time inside the tasks (summed over workers): where the flow's waiting goes.
+TASK_STAGES = ("ingest+validate", "load", "science")
+
+
+def stage_times(r: dict) -> dict[str, float]:
+    t = r["timings"]
+    out = {k: sum(t.get(x, 0.0) for x in keys) for k, keys in FLOW_STAGES.items()}
+    out["other"] = r["pipeline_s"] - sum(out.values())
+    for k in TASK_STAGES:
+        out[f"task {k}"] = t.get(k, 0.0)
+    return out
+
+
+def commit() -> str:
+    """Short hash of the checkout the accelcal code under test comes from (+ ``-dirty``
+    when its tracked files differ from it)."""
+    import accelcal
+    root = Path(accelcal.__file__).resolve().parents[1]
+    run = lambda *a: subprocess.run(["git", *a], cwd=root, capture_output=True,
+                                    text=True).stdout.strip()
+    return (run("rev-parse", "--short", "HEAD") or "unknown") + (
+        "-dirty" if run("status", "--porcelain", "--untracked-files=no") else "")
 
 
 def child(args) -> dict:
@@ -100,6 +148,7 @@ def child(args) -> dict:
     drops, n_runs = simulate_fleet(n, root / "watch", per_drop)
     t_sim = time.perf_counter() - t0
     rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    load_before = os.getloadavg()[0]
     from accelcal.flows.pipeline import run_pipeline
     from accelcal.ops.fleet import ensure_views
     wh = root / "lab.duckdb"
@@ -144,6 +193,7 @@ def child(args) -> dict:
                       allow_simulated=True)
     t_rerun = time.perf_counter() - t0
     return {"campaigns": n, "runs": n_runs, "drops": len(drops), "engine": engine,
+            "commit": commit(), "load_before": load_before, "load_after": os.getloadavg()[0],
             "task_runner": runner, "simulate_s": t_sim, "pipeline_s": t_pipe,
             "runs_per_s": n_runs / t_pipe, "timings": s["timings"], "statuses": statuses,
             "peak_rss_mb": rss_peak / 1024, "rss_before_pipeline_mb": rss_before / 1024,
@@ -167,6 +217,9 @@ def main(argv=None) -> int:
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--n", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--keep", default=None, help="keep the simulated drops + warehouse here")
+    ap.add_argument("--readme", default=None,
+                    help="write the table into this file between <!-- bench_fleet:begin --> "
+                         "and <!-- bench_fleet:end -->")
     args = ap.parse_args(argv)
     if args.child:
         print("RESULT " + json.dumps(child(args), default=str))
@@ -190,39 +243,68 @@ def main(argv=None) -> int:
             "cpus": os.cpu_count()}
     (out / "bench-fleet.json").write_text(json.dumps({"meta": meta, "results": results},
                                                      indent=1, default=str))
+    md = report(results, args)
     print()
-    print(f"engine {args.engine}, task runner {args.task_runner}; step times in s. "
-          "'ingest+validate' and 'load'/'science' are time inside the tasks (summed over "
-          "workers); 'waiting' is the flow process waiting for tasks to finish.")
-    print()
-    print("| campaigns | runs | pipeline s | runs/s | peak RSS MB | ingest+validate | record "
-          "| plan | load | science | store | waiting | numpy floor s | ratio |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
-    for r in results:
-        t = r["timings"]
-        iv = t.get("ingest+validate", 0)
-        wait = 0.0 if args.engine == "local" else \
-            t.get("ingest+validate (wait)", 0) + t.get("science (wait)", 0)
-        rss = max(r["peak_rss_mb"], r.get("peak_rss_children_mb", 0))
-        print(f"| {r['campaigns']} | {r['runs']} | {r['pipeline_s']:.1f} | {r['runs_per_s']:.1f} "
-              f"| {rss:.0f} | {iv:.1f} | " + " | ".join(f"{t.get(k, 0):.1f}" for k in
-                                                    ("record", "plan", "load", "science",
-                                                     "store")) +
-              f" | {wait:.1f} | {r['numpy_floor']['seconds']:.2f} "
-              f"| {r['ratio_pipeline_to_floor']:.0f}× |")
-    print()
-    print("| query | " + " | ".join(f"{r['campaigns']} campaigns" for r in results) + " |")
-    print("|---|" + "---|" * len(results))
-    for q in results[0]["query_latency_s"]:
-        print(f"| {q} | " + " | ".join(f"{1e3 * r['query_latency_s'][q]:.1f} ms" for r in results) + " |")
-    if len(results) >= 2:
-        a, b = results[-2], results[-1]
-        per = (b["pipeline_s"] - a["pipeline_s"]) / (b["campaigns"] - a["campaigns"])
-        mem = (b["peak_rss_mb"] - a["peak_rss_mb"]) / (b["campaigns"] - a["campaigns"])
-        print(f"\nmarginal cost {per:.2f} s/campaign, {mem:.2f} MB/campaign -> 2,000 campaigns "
-              f"≈ {(b['pipeline_s'] + per * (2000 - b['campaigns'])) / 60:.0f} min, "
-              f"peak RSS ≈ {b['peak_rss_mb'] + mem * (2000 - b['campaigns']):.0f} MB (linear extrapolation)")
+    print(md)
+    if args.readme:
+        readme = Path(args.readme)
+        text = readme.read_text()
+        a, b = "<!-- bench_fleet:begin -->\n", "<!-- bench_fleet:end -->"
+        if a not in text or b not in text:
+            print(f"{readme} has no {a.strip()} ... {b} section: not written", file=sys.stderr)
+            return 1
+        i, j = text.index(a) + len(a), text.index(b)
+        readme.write_text(text[:i] + md + "\n" + text[j:])
     return 0
+
+
+def report(results: list[dict], args) -> str:
+    """The markdown: one row per size, every stage; the floor and the ratio; re-run time."""
+    engine = args.engine + (f" + {args.task_runner}" if args.engine == "prefect" else "")
+    workers = os.environ.get("ACCELCAL_DASK_WORKERS")
+    if args.task_runner == "dask":
+        engine += f" ({workers or os.cpu_count()} workers)"
+    r0 = results[0]
+    lines = [f"Fleet benchmark (`python benchmarks/bench_fleet.py --campaigns "
+             f"{' '.join(str(r['campaigns']) for r in results)} --engine {args.engine}"
+             + (f" --task-runner {args.task_runner}" if args.task_runner != "thread" else "")
+             + f"`), commit {r0['commit']}, {time.strftime('%Y-%m-%d')}, {os.cpu_count()} cores "
+             f"(load average {r0['load_before']:.1f} at the start), engine {engine}.",
+             "",
+             "Stage times in s, wall time of the flow process (they sum to the pipeline time; "
+             "'other' is what no stage claims: opening the warehouse, Prefect and Dask start). "
+             "'in tasks' is time inside the ingest/validate and load/science tasks, summed over "
+             "workers. Floor: pyarrow CSV read + one numpy least-squares fit per run, same "
+             "process run.",
+             "",
+             "| campaigns | runs | pipeline s | runs/s | peak RSS MB | "
+             + " | ".join(FLOW_STAGES) + " | other | in tasks: ingest+validate / load / science "
+             "| floor s | ratio to floor | re-run s |",
+             "|---|---|---|---|---|" + "---|" * (len(FLOW_STAGES) + 5)]
+    for r in results:
+        st = stage_times(r)
+        rss = f"{r['peak_rss_mb']:.0f}"
+        if r.get("peak_rss_children_mb"):
+            rss += f" + {r['peak_rss_children_mb']:.0f} workers"
+        lines.append(
+            f"| {r['campaigns']} | {r['runs']} | {r['pipeline_s']:.1f} | {r['runs_per_s']:.1f} "
+            f"| {rss} | " + " | ".join(f"{st[k]:.1f}" for k in FLOW_STAGES)
+            + f" | {st['other']:.1f} | "
+            + " / ".join(f"{st['task ' + k]:.1f}" for k in TASK_STAGES)
+            + f" | {r['numpy_floor']['seconds']:.2f} | {r['ratio_pipeline_to_floor']:.0f}× "
+            f"| {r['rerun_s']:.1f} |")
+    lines += ["", "| query | " + " | ".join(f"{r['campaigns']} campaigns" for r in results) + " |",
+              "|---|" + "---|" * len(results)]
+    for q in r0["query_latency_s"]:
+        lines.append(f"| {q} | " + " | ".join(f"{1e3 * r['query_latency_s'][q]:.1f} ms"
+                                             for r in results) + " |")
+    if len(results) >= 2:
+        a, b = results[0], results[-1]
+        lines += ["", f"Peak RSS {b['campaigns']} / {a['campaigns']} campaigns: "
+                      f"{b['peak_rss_mb'] / a['peak_rss_mb']:.2f}×; time per campaign "
+                      f"{a['pipeline_s'] / a['campaigns']:.3f} → "
+                      f"{b['pipeline_s'] / b['campaigns']:.3f} s."]
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

@@ -117,6 +117,15 @@ def campaigns_per_task() -> int:
     return _env_int("ACCELCAL_CAMPAIGNS_PER_TASK", CAMPAIGNS_PER_TASK)
 
 
+#: Computed campaigns stored per warehouse transaction (columnar inserts; all or none of
+#: them, so a killed run recomputes at most this many).
+CAMPAIGNS_PER_STORE = 32
+
+
+def campaigns_per_store() -> int:
+    return _env_int("ACCELCAL_CAMPAIGNS_PER_STORE", CAMPAIGNS_PER_STORE)
+
+
 def in_flight() -> int:
     """Tasks submitted ahead of the one the flow waits for (feeds several workers; bounds
     memory to this many batches / campaigns at a time)."""
@@ -336,7 +345,6 @@ def _body(wh, drops, summary, steps, flow_run_id, parameters, cv, settle, B, W, 
             except Exception as e:           # the task itself failed: every campaign in it
                 outcomes = [(None, f"{type(e).__name__}: {e}")] * len(chunk)
             tick("science (wait)", t0)
-            items = []
             for (entry, inputs), (result, info) in zip(chunk, outcomes):
                 progress.advance("science", note=entry["campaign"])
                 if result is None:
@@ -349,14 +357,24 @@ def _body(wh, drops, summary, steps, flow_run_id, parameters, cv, settle, B, W, 
                 if missing:
                     result.flags.append(
                         f"science reported inputs not handed to it: {sorted(missing)}")
-                items.append((entry, result, inputs))
-            if not items:
+                to_store.append((entry, result, inputs))
+            if len(to_store) >= S:
+                flush_store()
+
+        to_store: list = []
+        S = campaigns_per_store()
+
+        def flush_store() -> None:
+            """Store the computed campaigns waiting in ONE transaction (columnar)."""
+            if not to_store:
                 return
+            items = to_store[:]
             t0 = time.perf_counter()
             sess.touch()
             statuses = steps.store_campaigns(
                 wh, [(r, e["result_id"], i) for e, r, i in items], code_version=cv,
                 parameters=parameters, flow_run_id=flow_run_id)
+            del to_store[:]
             for (entry, _, _), st in zip(items, statuses):
                 entry["status"] = st
             tick("store", t0)
@@ -391,6 +409,7 @@ def _body(wh, drops, summary, steps, flow_run_id, parameters, cv, settle, B, W, 
             submit(chunk)
         while inflight:
             store_next()
+        flush_store()
 
         # -- what the warehouse now says about these campaigns
         t0 = time.perf_counter()

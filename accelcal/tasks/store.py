@@ -34,8 +34,10 @@ def store_campaign(wh: Warehouse, result, *, result_id: str, inputs: list[dict[s
 
 def store_campaigns(wh: Warehouse, items: list[tuple], *, code_version: str,
                     parameters: dict[str, Any], flow_run_id: str | None) -> list[str]:
-    """:func:`store_campaign` for several (result, result_id, inputs): one task call, each
-    campaign still its own transaction."""
-    return [store_campaign(wh, result, result_id=rid, inputs=inputs, code_version=code_version,
-                           parameters=parameters, flow_run_id=flow_run_id)
-            for result, rid, inputs in items]
+    """Store several (result, result_id, inputs) in ONE transaction (all or none; a re-run
+    stores what a killed one did not), each with the status :func:`store_campaign` gives."""
+    statuses = wh.store_results(items, code_version=code_version, parameters=parameters,
+                                flow_run_id=flow_run_id)
+    for result, _, _ in items:
+        progress.advance("store", note=result.campaign)
+    return statuses
