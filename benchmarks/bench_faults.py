@@ -729,7 +729,7 @@ def p_sigkill_parquet(tmp, args):
 
 @probe("disk full")
 def p_disk_full(tmp, args):
-    res = Res("disk full (the warehouse folder on a tmpfs of 2 to 40 MB), then space freed and run again")
+    res = Res("disk full (the warehouse folder on a tmpfs of 0.25 to 40 MB), then space freed and run again")
     if not can_mount():
         res.skipped = "needs root (tmpfs mounts)"
         return res
@@ -740,10 +740,13 @@ def p_disk_full(tmp, args):
     check_run(res, rc, out, err)
     want = contents(clean)
     full_seen, kinds, example = 0, {}, ""
-    for mb in (2, 4, 6, 8, 10, 13, 16, 40):
-        mnt = tmp / f"fs{mb}"
+    # sizes from well below what a run writes to well above it, so that the disk fills at
+    # several different places (a smaller warehouse file moved them once: keep the low end low)
+    for kb in (256, 512, 768, 1024, 1536, 2048, 4096, 40960):
+        mb = f"{kb / 1024:g}"
+        mnt = tmp / f"fs{kb}k"
         mnt.mkdir()
-        subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={mb}m", "tmpfs", mnt], check=True)
+        subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={kb}k", "tmpfs", mnt], check=True)
         try:
             wh = mnt / "lab.duckdb"
             rc, out, err, _ = accelcal("run", *drops, "-w", wh, "--engine", "local", "-q", "--settle", "0")
@@ -771,6 +774,9 @@ def p_disk_full(tmp, args):
                 res.note(f"{mb} MB: temporary files left {temp_files(wh)[:1]}")
         finally:
             subprocess.run(["umount", "-l", mnt])
+    if not full_seen:                # the probe did not test what it names: say so, loudly
+        res.crashed += 1
+        res.note("the disk never filled: no run met a full disk, so this probe tested nothing")
     where = ", ".join(f"{k} {v}" for k, v in sorted(kinds.items()))
     res.notes.insert(0, f"full {full_seen} times ({where}): one line, exit 1; with space again, "
                         "a re-run = a clean run")
