@@ -164,13 +164,17 @@ class _Diagnosis:
         self.alpha, self.max_effects, self.refit_top = alpha, max_effects, refit_top
         self.F = Fitter(self.cells, self.baseline)
         self.fold = folds(self.cells)
-        self._ho: dict[int, float | None] = {}
+        # held-out gap per fit, keyed by id() with the fit kept alive beside its value: an
+        # id alone can be reused by a new Fit once the old one is collected, which returned
+        # another model's held-out gap (an intermittent failure seen in CI)
+        self._ho: dict[int, tuple[Fit, float | None]] = {}
 
     # ------------------------------------------------------------------ helpers
     def ho(self, f: Fit) -> float | None:
-        if id(f) not in self._ho:
-            self._ho[id(f)] = heldout_gap(f, self.fold)
-        return self._ho[id(f)]
+        hit = self._ho.get(id(f))
+        if hit is None or hit[0] is not f:
+            hit = self._ho[id(f)] = (f, heldout_gap(f, self.fold))
+        return hit[1]
 
     def param_values(self, model, effect: str, value: float) -> dict[str, float]:
         """Start values of an effect's parameter(s) in a model that includes it."""
