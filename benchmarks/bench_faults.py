@@ -41,6 +41,9 @@ import time
 import uuid
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from readme_block import commit, write_block  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT.parent / "shared" / "examples"
 sys.path.insert(0, str(ROOT / "tests"))
@@ -610,7 +613,12 @@ def p_sigkill_prefect(tmp, args):
     rc, out, err, T = accelcal("run", *drops, "-w", clean, "--create", "-q", "--settle", "0", marker=mark)
     if not check_run(res, rc, out, err):
         return res
-    orphans = _orphans_after(mark)
+    orphans = _orphans_after(mark)        # a clean run must leave no process behind either
+    if orphans:
+        res.crashed += 1
+        res.note(f"processes left after the clean run: {len(orphans)}")
+        for q in orphans:
+            with_kill(q)
     want = contents(clean)
     g, attempts, kills = 0, 0, 0
     stages: dict[str, int] = {}
@@ -1060,17 +1068,6 @@ def p_two_runs(tmp, args):
 
 # ------------------------------------------------------------------- main --
 
-def git_commit() -> str:
-    try:
-        sha = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
-                             text=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT,
-                               capture_output=True, text=True).stdout.strip()
-        return sha + ("+changes" if dirty else "")
-    except OSError:
-        return "unknown"
-
-
 def table(rows: list[dict]) -> str:
     out = ["| probe | outcome | N tried | N refused clearly | N crashed | N lost |",
            "|---|---|---:|---:|---:|---:|"]
@@ -1097,7 +1094,7 @@ def main(argv=None) -> int:
         own_home = os.environ["PREFECT_HOME"] = tempfile.mkdtemp(prefix="bench-faults-prefect-")
     os.environ.setdefault("PYTHONPATH", str(ROOT))
     names = [n for n in PROBES if not args.only or any(f.lower() in n.lower() for f in args.only.split(","))]
-    commit = git_commit()
+    commit_id = commit()
     t_all = time.perf_counter()
     rows = []
     base = Path(tempfile.mkdtemp(prefix="bench-faults-"))
@@ -1121,17 +1118,13 @@ def main(argv=None) -> int:
         shutil.rmtree(base, ignore_errors=True)
         if own_home:
             shutil.rmtree(own_home, ignore_errors=True)
-    md = (f"Faults and hostile inputs (`python benchmarks/bench_faults.py`), commit {commit}, "
+    md = (f"Faults and hostile inputs (`python benchmarks/bench_faults.py`), commit {commit_id}, "
           f"{time.strftime('%Y-%m-%d')}, {os.cpu_count()} cores, "
           f"{time.perf_counter() - t_all:.0f} s in all.\n\n" + table(rows) + "\n")
     md = md.replace(str(base), "…")
     print(md)
     if args.readme:
-        readme = ROOT / "README.md"
-        text = readme.read_text()
-        a, b = "<!-- bench_faults:begin -->\n", "<!-- bench_faults:end -->"
-        i, j = text.index(a) + len(a), text.index(b)
-        readme.write_text(text[:i] + md + text[j:])
+        write_block(ROOT / "README.md", "bench_faults", md)
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(md)

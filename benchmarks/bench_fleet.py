@@ -35,6 +35,9 @@ import tempfile
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from readme_block import commit, write_block  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -125,17 +128,6 @@ def stage_times(r: dict) -> dict[str, float]:
     for k in TASK_STAGES:
         out[f"task {k}"] = t.get(k, 0.0)
     return out
-
-
-def commit() -> str:
-    """Short hash of the checkout the accelcal code under test comes from (+ ``-dirty``
-    when its tracked files differ from it)."""
-    import accelcal
-    root = Path(accelcal.__file__).resolve().parents[1]
-    run = lambda *a: subprocess.run(["git", *a], cwd=root, capture_output=True,
-                                    text=True).stdout.strip()
-    return (run("rev-parse", "--short", "HEAD") or "unknown") + (
-        "-dirty" if run("status", "--porcelain", "--untracked-files=no") else "")
 
 
 def child(args) -> dict:
@@ -247,14 +239,7 @@ def main(argv=None) -> int:
     print()
     print(md)
     if args.readme:
-        readme = Path(args.readme)
-        text = readme.read_text()
-        a, b = "<!-- bench_fleet:begin -->\n", "<!-- bench_fleet:end -->"
-        if a not in text or b not in text:
-            print(f"{readme} has no {a.strip()} ... {b} section: not written", file=sys.stderr)
-            return 1
-        i, j = text.index(a) + len(a), text.index(b)
-        readme.write_text(text[:i] + md + "\n" + text[j:])
+        write_block(Path(args.readme), "bench_fleet", md)
     return 0
 
 

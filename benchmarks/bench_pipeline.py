@@ -32,13 +32,15 @@ import argparse
 import json
 import os
 import platform
-import re
 import shutil
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from readme_block import commit, write_block  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "benchmarks" / "results"
@@ -255,18 +257,6 @@ def fmt(x: float | None) -> str:
     return f"{x * 1e3:.1f} ms" if x < 0.1 else f"{x:.2f} s"
 
 
-def commit() -> str:
-    """Short hash of HEAD of the checkout whose accelcal is imported (PYTHONPATH may name
-    another one than this script's), with ``-dirty`` when tracked files differ from it."""
-    import accelcal
-    where = Path(accelcal.__file__).resolve().parents[1]
-
-    def git(*a):
-        return subprocess.run(["git", *a], cwd=where, capture_output=True, text=True).stdout.strip()
-    return (git("rev-parse", "--short", "HEAD") or "unknown") + \
-        ("-dirty" if git("status", "--porcelain", "--untracked-files=no") else "")
-
-
 def table(res: dict) -> list[str]:
     """The markdown of a result (bench.json): stages on both engines, then the floor."""
     lo, pp = res["local"], res["prefect_pipeline"]
@@ -319,16 +309,8 @@ def table(res: dict) -> list[str]:
 
 
 def write_readme(path: Path, lines: list[str], cmd: str) -> None:
-    begin, end = "<!-- bench_pipeline:begin -->", "<!-- bench_pipeline:end -->"
-    text = path.read_text(encoding="utf-8")
-    block = "\n".join([begin, f"Written by `{cmd}`; raw figures in "
-                        "`benchmarks/results/bench-pipeline.json`.", ""] + lines + [end])
-    if begin in text and end in text:
-        text = re.sub(re.escape(begin) + ".*?" + re.escape(end), lambda _: block, text,
-                      flags=re.S)
-    else:
-        raise SystemExit(f"{path} has no {begin} ... {end} section: add the markers first")
-    path.write_text(text, encoding="utf-8")
+    write_block(path, "bench_pipeline", "\n".join([f"Written by `{cmd}`; raw figures in "
+                                                   "`benchmarks/results/bench-pipeline.json`.", ""] + lines))
 
 
 def main() -> None:

@@ -18,10 +18,17 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def commit() -> str:
-    """Short hash of HEAD, with ``+changes`` when tracked files differ from it."""
+    """Short hash of HEAD of the checkout whose ``accelcal`` is imported (PYTHONPATH may name
+    another one than this script's), with ``+changes`` when its tracked files differ from it."""
+    try:
+        import accelcal
+        where = Path(accelcal.__file__).resolve().parents[1]
+    except ImportError:
+        where = ROOT
+
     def git(*a: str) -> str:
         try:
-            return subprocess.run(["git", *a], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+            return subprocess.run(["git", *a], cwd=where, capture_output=True, text=True).stdout.strip()
         except OSError:
             return ""
     sha = git("rev-parse", "--short", "HEAD") or "unknown"

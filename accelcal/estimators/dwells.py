@@ -95,7 +95,7 @@ def merge_rest(dw: pd.DataFrame) -> pd.DataFrame:
     E0, _, n = rest_mean(rest)
     ss = float(rest["ss_within"].sum())
     merged = {"n": n, "mean_output": E0, "ss_within": ss,
-              "var_output": float(rest["ss_within"].sum() / max(n - len(rest), 1)),
+              "var_output": ss / max(n - len(rest), 1),
               "time_mid": float(rest["time_mid"].mean()), "omega_z": float(rest["omega_z"].mean())}
     # column by column (the merged rest group first, then the moving dwells): the same
     # values as a one-row frame concatenated, without pandas' per-cell overhead
