@@ -242,16 +242,16 @@ def _first_only(n: int, value: float) -> np.ndarray:
     return out
 
 
-def _dwell_keys(test: str, d: pd.DataFrame) -> np.ndarray:
+def _dwell_keys(test: str, d: dict[str, np.ndarray]) -> np.ndarray:
     """Consecutive rows of one dwell share a key (the DAQ logs at sample_period within it)."""
     if test == "tumble":
-        k = d["position"].to_numpy(np.float64)
+        k = d["position"].astype(np.float64)
     elif test == "centrifuge":
-        k = d["step"].to_numpy(np.float64)
+        k = d["step"].astype(np.float64)
     elif test == "tilt_rotation":
-        k = d["temp_set_c"].to_numpy(np.float64) * 1e4 + d["rotation_deg"].to_numpy(np.float64)
+        k = d["temp_set_c"].astype(np.float64) * 1e4 + d["rotation_deg"].astype(np.float64)
     else:
-        k = np.zeros(len(d))
+        k = np.zeros(len(d["line"]))
     return k
 
 
@@ -265,22 +265,25 @@ def _segments(values: np.ndarray) -> np.ndarray:
 
 def _derive(test: str, run: RunFile) -> dict[str, np.ndarray]:
     """The run's columns plus the derived columns the suite checks, as numpy arrays of the
-    run's length (no DataFrame per run: the batch is one table, made once)."""
-    d = run.data.reset_index(drop=True)
-    cols = [c for c in COLUMNS[test] if c in d.columns]
-    out: dict[str, np.ndarray] = {c: d[c].to_numpy() for c in cols}
-    n = len(d)
+    run's length (no DataFrame per run: the batch is one table, made once).  The run's
+    columns are taken out of its DataFrame once: a pandas column lookup costs more than
+    most of the arithmetic here."""
+    d = {c: run.data[c].to_numpy() for c in run.data.columns}
+    d.setdefault("line", np.full(len(run.data), -1))
+    cols = [c for c in COLUMNS[test] if c in d]
+    out: dict[str, np.ndarray] = {c: d[c] for c in cols}
+    n = len(run.data)
     meta = run.meta
     nullable = NULLABLE_COLUMNS[test]
     bad = np.zeros(n, np.int64)
     for c in cols:
         if c == "output" or c in INT_COLUMNS:
             continue
-        v = d[c].to_numpy(np.float64)
+        v = d[c].astype(np.float64, copy=False)
         bad += np.isinf(v) if c in nullable else ~np.isfinite(v)
     out["nonfinite_cells"] = bad
     with np.errstate(all="ignore"):
-        t = d["time_s"].to_numpy(np.float64) if "time_s" in d else np.full(n, np.nan)
+        t = d["time_s"].astype(np.float64, copy=False) if "time_s" in d else np.full(n, np.nan)
         dt = np.r_[np.nan, np.diff(t)] if n else np.zeros(0)
         out["d_time_s"] = dt
         period = float(meta.get("sample_period_s", np.nan) or np.nan)
@@ -295,28 +298,29 @@ def _derive(test: str, run: RunFile) -> dict[str, np.ndarray]:
             perr = np.nan
         out["period_error"] = _first_only(n, perr)
 
-        if test == "tumble" and {"position", "angle_deg"} <= set(d.columns):
-            med = d.groupby("position")["angle_deg"].transform("median").to_numpy(np.float64)
-            out["angle_dev_deg"] = np.abs(d["angle_deg"].to_numpy(np.float64) - med)
-        if test == "centrifuge" and {"step", "table_rate_rad_s", "table_angle_deg"} <= set(d.columns):
+        if test == "tumble" and {"position", "angle_deg"} <= d.keys():
+            ang = d["angle_deg"].astype(np.float64, copy=False)
+            med = pd.Series(ang).groupby(d["position"]).transform("median").to_numpy(np.float64)
+            out["angle_dev_deg"] = np.abs(ang - med)
+        if test == "centrifuge" and {"step", "table_rate_rad_s", "table_angle_deg"} <= d.keys():
             out["rest_dwell_error_deg"] = _first_only(n, _rest_dwell_error(d))
             out["one_g_error"] = _one_g(d, meta, n)
-        if test == "tilt_rotation" and {"temp_set_c", "rotation_deg"} <= set(d.columns):
+        if test == "tilt_rotation" and {"temp_set_c", "rotation_deg"} <= d.keys():
             npos = int(meta.get("positions", 0) or 0)
-            rot = d["rotation_deg"].to_numpy(np.float64)
+            rot = d["rotation_deg"].astype(np.float64, copy=False)
             if npos >= 1:
                 step = 360.0 / npos
                 r = np.mod(rot, step)
                 out["rotation_grid_dev_deg"] = np.minimum(r, step - r)
             else:
                 out["rotation_grid_dev_deg"] = np.nan
-            seg = _segments(d["temp_set_c"].to_numpy(np.float64))
+            seg = _segments(d["temp_set_c"].astype(np.float64, copy=False))
             rk = np.round(np.mod(rot, 360.0) / ANGLE_TOL_DEG)
             distinct = pd.Series(rk).groupby(seg).transform("nunique").to_numpy(np.float64)
             first = np.r_[True, seg[1:] != seg[:-1]] if n else np.zeros(0, bool)
             out["positions_error"] = np.where(first, distinct - npos, np.nan)
-        if test == "sine_centrifuge" and "table_rate_rad_s" in d.columns:
-            ratio, resid = _sine_fit(t, d["table_rate_rad_s"].to_numpy(np.float64), meta)
+        if test == "sine_centrifuge" and "table_rate_rad_s" in d:
+            ratio, resid = _sine_fit(t, d["table_rate_rad_s"].astype(np.float64, copy=False), meta)
             out["rate_amplitude_ratio"] = _first_only(n, ratio)
             out["rate_fit_residual"] = _first_only(n, resid)
     for k, v in out.items():         # a scalar stands for every row (as a column would)
@@ -325,11 +329,11 @@ def _derive(test: str, run: RunFile) -> dict[str, np.ndarray]:
     return out
 
 
-def _rest_dwell_error(d: pd.DataFrame) -> float:
+def _rest_dwell_error(d: dict[str, np.ndarray]) -> float:
     """Worst spacing error (deg) of the leading rest dwells' azimuths; 999 if < 2 of them."""
-    rate = d["table_rate_rad_s"].to_numpy(np.float64)
-    step = d["step"].to_numpy()
-    ang = d["table_angle_deg"].to_numpy(np.float64)
+    rate = d["table_rate_rad_s"].astype(np.float64, copy=False)
+    step = d["step"]
+    ang = d["table_angle_deg"].astype(np.float64, copy=False)
     seg = _segments(step)
     az = []
     for s in range(int(seg[-1]) + 1 if len(seg) else 0):
@@ -348,9 +352,9 @@ def _rest_dwell_error(d: pd.DataFrame) -> float:
     return float(np.max(np.abs(gaps - 360.0 / len(az))))
 
 
-def _one_g(d: pd.DataFrame, meta: dict, n: int) -> np.ndarray:
+def _one_g(d: dict[str, np.ndarray], meta: dict, n: int) -> np.ndarray:
     """min over turning dwells of |omega^2 R / g - 1|, placed on the first turning row."""
-    rate = d["table_rate_rad_s"].to_numpy(np.float64)
+    rate = d["table_rate_rad_s"].astype(np.float64, copy=False)
     R = float(meta.get("arm_radius_m", np.nan))
     g = float(meta.get("g_local_m_s2", np.nan))
     turning = rate >= REST_RATE
@@ -358,7 +362,7 @@ def _one_g(d: pd.DataFrame, meta: dict, n: int) -> np.ndarray:
     if not turning.any() or not (R > 0 and g > 0):
         out[0] = 999.0 if n else np.nan
         return out
-    means = pd.Series(rate[turning]).groupby(d["step"].to_numpy()[turning]).mean().to_numpy()
+    means = pd.Series(rate[turning]).groupby(d["step"][turning]).mean().to_numpy()
     err = np.abs(means ** 2 * R / g - 1.0)
     out[int(np.flatnonzero(turning)[0])] = float(np.nanmin(err)) if np.isfinite(err).any() else 999.0
     return out
@@ -467,12 +471,16 @@ def _batch_specs(kinds: list[str], columns: dict[str, set[str]]) -> list[tuple[t
     return out
 
 
-def _batch_table(items: list[tuple[RunFile, str, dict]]) -> tuple[pd.DataFrame, dict, np.ndarray,
-                                                                  np.ndarray, list[dict]]:
-    """The batch as one table: every run's rows (its columns and derived columns; a column
-    a kind does not have is empty on its rows), its metadata on its first row, and where
-    each row came from (``test``, ``file``, ``line``, ``_row``).  Also: the columns each
-    kind fills, the run and the line of each row, and each run's meta 'why'."""
+def _batch_table(items: list[tuple[RunFile, str, dict]]) -> tuple[dict[str, pd.DataFrame], dict,
+                                                                  np.ndarray, np.ndarray, list[dict]]:
+    """The batch as two tables: ``rows``, every run's rows (its columns and derived columns;
+    a column a kind does not have is empty on its rows), and ``meta``, one row per run with
+    its metadata; both say where each row came from (``test``, ``file``, ``line``, ``_row``;
+    a run's meta row carries the ``_row`` and ``line`` of its first data row).  Two tables,
+    not one, because great-expectations copies the whole table for every column it checks:
+    metadata columns spread over every data row cost that copy without holding anything.
+    Also: the columns each kind fills, the run and the line of each row, and each run's
+    meta 'why'."""
     lens = np.array([len(next(iter(d.values()))) if d else 0 for _, _, d in items], np.int64)
     for j, (r, t, d) in enumerate(items):
         if lens[j] == 0:      # nothing to hold its metadata: one empty row (not a file's)
@@ -515,8 +523,9 @@ def _batch_table(items: list[tuple[RunFile, str, dict]]) -> tuple[pd.DataFrame, 
                 if p is not None:
                     a[starts[j]:starts[j] + lens[j]] = p
             data[c] = a
-    # the metadata, on each run's first row
+    # the metadata, one row per run
     whys, recs = [], []
+    meta: dict[str, object] = {}
     for r, t, _ in items:
         rec, why = _meta_record(t, r)
         recs.append(rec)
@@ -525,22 +534,24 @@ def _batch_table(items: list[tuple[RunFile, str, dict]]) -> tuple[pd.DataFrame, 
     for k in dict.fromkeys(k for rec in recs for k in rec):
         numeric = k in FLOAT_KEYS or k in INT_KEYS or k in ("missing_keys", "badly_typed_keys")
         if numeric:
-            vals = pd.to_numeric(pd.Series([rec.get(k) for rec in recs], dtype=object),
-                                 errors="coerce").astype("float64").to_numpy()
-            a = np.full(n, np.nan)
+            meta[k] = pd.to_numeric(pd.Series([rec.get(k) for rec in recs], dtype=object),
+                                    errors="coerce").astype("float64").to_numpy()
         else:
             vals = np.empty(len(recs), dtype=object)
             vals[:] = [rec.get(k) for rec in recs]
-            a = np.full(n, None, dtype=object)
-        a[starts] = vals
-        data[k] = a if numeric else pd.Series(a, dtype=object)
+            meta[k] = pd.Series(vals, dtype=object)
     tests = np.asarray([t for _, t, _ in items], dtype=object)
+    files = np.asarray([r.path for r, _, _ in items], dtype=object)
     data["test"] = pd.Series(tests[run_ix], dtype=object)
-    data["file"] = np.asarray([r.path for r, _, _ in items], dtype=object)[run_ix]
+    data["file"] = files[run_ix]
     data["line"] = line
     data["_row"] = np.arange(n)
-    df = pd.DataFrame(data, copy=False)
-    return df, columns, run_ix, line, whys
+    meta["test"] = pd.Series(tests, dtype=object)
+    meta["file"] = files
+    meta["line"] = line[starts]
+    meta["_row"] = starts
+    tables = {"rows": pd.DataFrame(data, copy=False), "meta": pd.DataFrame(meta, copy=False)}
+    return tables, columns, run_ix, line, whys
 
 
 def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
@@ -578,9 +589,10 @@ def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
     if items:
         tk = time.perf_counter()
         kinds = list(dict.fromkeys(t for _, t, _ in items))
-        df, columns, run_ix_a, line_a, meta_why = _batch_table(items)
+        tables, columns, run_ix_a, line_a, meta_why = _batch_table(items)
+        df, dfm = tables["rows"], tables["meta"]
         specs = _batch_specs(kinds, columns)
-        results, res_json = _validate_batch(df, specs, docs_root is not None)
+        results, res_json = _validate_batch(tables, specs, docs_root is not None)
         if docs_root is not None:
             suite_results.append((BATCH_SUITE, res_json))
         kind_runs = [r for r, _, _ in items]
@@ -624,7 +636,7 @@ def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
                         detail = f"{what}: {names}"
                     else:
                         ln = r.meta_lines.get(col)
-                        detail = f"{what}: {col} = {_fmt(r.meta.get(col, df[col].iloc[k]))}"
+                        detail = f"{what}: {col} = {_fmt(r.meta.get(col, dfm[col].iloc[int(i)]))}"
                     refusals[r.path].append(Refusal(r.path, ln, rule, detail))
                     continue
                 test = test_of[int(i)]
@@ -645,19 +657,22 @@ def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
     return ValidationReport(refusals, time.perf_counter() - t0, per_kind, index)
 
 
-def _validate_batch(df: pd.DataFrame, specs: list, want_json: bool) -> tuple[list, dict | None]:
-    """The batch's suite on ``df``: GE's results, in GE's order, and (``want_json``) the
+def _validate_batch(tables: dict[str, pd.DataFrame], specs: list,
+                    want_json: bool) -> tuple[list, dict | None]:
+    """The batch's suite on its tables (``rows`` and ``meta``, each expectation on the
+    table its spec names): GE's results, in the suite's order, and (``want_json``) one
     validation result as JSON for the Data Docs.
 
     Every expectation is run once with result format BOOLEAN_ONLY (passed or not: the
     cheap metrics); only those that failed are run again, COMPLETE, for the rows to name
     (their file and line: WHERE_COLUMNS) and the observed values.  A clean batch costs one
-    validation; the failures' results replace theirs, so the Data Docs show them whole."""
+    validation per table; the failures' results replace theirs, so the Data Docs show them
+    whole."""
     import great_expectations as gx
     ctx = _new_context()
     ds = ctx.data_sources.add_pandas("accelcal")
 
-    def run(name: str, which: list[int], result_format: dict):
+    def run(name: str, df: pd.DataFrame, which: list[int], result_format: dict):
         exps = [_expectation(specs[i][0], table=specs[i][1], kinds=specs[i][2], i=i) for i in which]
         suite = ctx.suites.add(gx.ExpectationSuite(name=name, expectations=exps))
         batch = ds.add_dataframe_asset(name).add_batch_definition_whole_dataframe("all") \
@@ -666,21 +681,43 @@ def _validate_batch(df: pd.DataFrame, specs: list, want_json: bool) -> tuple[lis
             warnings.simplefilter("ignore")
             return batch.validate(suite, result_format=result_format)
 
-    first = run(BATCH_SUITE, list(range(len(specs))), {"result_format": "BOOLEAN_ONLY"})
-    failed = [int(er.expectation_config.meta["i"]) for er in first.results if not er.success]
-    if not failed:
-        return list(first.results), first.to_json_dict() if want_json else None
-    again = run(f"{BATCH_SUITE}.failed", failed, {
-        "result_format": "COMPLETE", "unexpected_index_column_names": WHERE_COLUMNS})
-    full = {int(er.expectation_config.meta["i"]): er for er in again.results}
-    results = [full.get(int(er.expectation_config.meta["i"]), er) for er in first.results]
+    def key(er) -> int:
+        return int(er.expectation_config.meta["i"])
+
+    results: dict[int, object] = {}
+    docs: dict[int, dict] = {}
+    stats = {"evaluated_expectations": 0, "successful_expectations": 0,
+             "unsuccessful_expectations": 0}
+    for table, df in tables.items():
+        which = [i for i, sp in enumerate(specs) if sp[1] == table]
+        if not which:
+            continue
+        name = f"{BATCH_SUITE}.{table}"
+        first = run(name, df, which, {"result_format": "BOOLEAN_ONLY"})
+        failed = [key(er) for er in first.results if not er.success]
+        again = run(f"{name}.failed", df, failed, {
+            "result_format": "COMPLETE", "unexpected_index_column_names": WHERE_COLUMNS}) \
+            if failed else None
+        full = {key(er): er for er in again.results} if again is not None else {}
+        results.update({key(er): full.get(key(er), er) for er in first.results})
+        if want_json:
+            doc = first.to_json_dict()
+            full_json = {int(r["expectation_config"]["meta"]["i"]): r
+                         for r in (again.to_json_dict()["results"] if again is not None else [])}
+            for r in doc["results"]:
+                i = int(r["expectation_config"]["meta"]["i"])
+                docs[i] = full_json.get(i, r)
+            for k in stats:
+                stats[k] += int((doc.get("statistics") or {}).get(k) or 0)
+    ordered = [results[i] for i in sorted(results)]
     if not want_json:
-        return results, None
-    doc = first.to_json_dict()
-    full_json = {int(r["expectation_config"]["meta"]["i"]): r for r in again.to_json_dict()["results"]}
-    doc["results"] = [full_json.get(int(r["expectation_config"]["meta"]["i"]), r)
-                      for r in doc["results"]]
-    return results, doc
+        return ordered, None
+    n = stats["evaluated_expectations"]
+    stats["success_percent"] = 100.0 * stats["successful_expectations"] / n if n else None
+    doc = {"success": all(er.success for er in ordered), "statistics": stats,
+           "suite_name": BATCH_SUITE, "results": [docs[i] for i in sorted(docs)],
+           "tables": {t: [i for i, sp in enumerate(specs) if sp[1] == t] for t in tables}}
+    return ordered, doc
 
 
 def _docs(docs_root: Path | None, title: str, runs: list[RunFile],
