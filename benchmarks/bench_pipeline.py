@@ -131,15 +131,13 @@ def _best(fn, repeat: int):
 def warm_intake(drops: list[str], repeat: int) -> dict:
     """ingest + validate of every file (as intake_batch does, in batches as the pipeline
     makes them), imports already done: best of ``repeat``, split by step."""
-    from accelcal.flows.pipeline import batch_files
+    from accelcal.flows.pipeline import batch_bytes, batch_files, file_batches
     from accelcal.tasks import contracts
     from accelcal.tasks.validate import ingest_files, validate_drop
-    B = batch_files()
     batches = []
     for d in drops:
-        es = contracts.scan_drop(os.path.realpath(d))
-        batches += [(d, es[k:k + B], None if len(es) <= B else k // B)
-                    for k in range(0, max(len(es), 1), B) if es[k:k + B]]
+        bs = file_batches(contracts.scan_drop(os.path.realpath(d)), batch_files(), batch_bytes())
+        batches += [(d, es, None if len(bs) == 1 else k) for k, es in enumerate(bs)]
     best = None
     for _ in range(repeat):
         with tempfile.TemporaryDirectory() as tmp:
