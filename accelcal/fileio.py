@@ -35,6 +35,61 @@ def atomic_write(target: str | Path, write: Callable[[IO[Any]], None], mode: str
     return target
 
 
+def sync_files(paths: list[str | Path]) -> None:
+    """Make files written without an fsync durable, names included: one ``syncfs`` of each
+    file system they are on (Linux), else an ``fsync`` of each file and of each folder
+    holding them.  One flush for a batch of files: an fsync per file cost ~3.5 ms a file on
+    this lab's disks, one syncfs after 500 files 0.15-0.5 ms a file.  Raises OSError."""
+    paths = [os.fspath(p) for p in paths]
+    if not paths:
+        return
+    syncfs = _syncfs()
+    folders = sorted({os.path.dirname(p) or "." for p in paths})
+    if syncfs is not None:
+        seen: set[int] = set()
+        for d in folders:
+            dev = os.stat(d).st_dev
+            if dev in seen:
+                continue
+            seen.add(dev)
+            fd = os.open(d, os.O_RDONLY)
+            try:
+                if syncfs(fd) != 0:
+                    err = ctypes_errno()
+                    raise OSError(err, os.strerror(err), d)
+            finally:
+                os.close(fd)
+        return
+    for p in paths + folders:
+        fd = os.open(p, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def _syncfs():
+    """libc's syncfs, or None where there is none (not Linux)."""
+    global _SYNCFS
+    if _SYNCFS is False:
+        import ctypes
+        try:
+            f = ctypes.CDLL(None, use_errno=True).syncfs
+            f.argtypes, f.restype = [ctypes.c_int], ctypes.c_int
+            _SYNCFS = f
+        except (AttributeError, OSError):
+            _SYNCFS = None
+    return _SYNCFS
+
+
+_SYNCFS: Any = False
+
+
+def ctypes_errno() -> int:
+    import ctypes
+    return ctypes.get_errno() or errno.EIO
+
+
 _TEMP = re.compile(r"^\..+\.[A-Za-z0-9_]{8}\.tmp(\.wal)?$")
 
 

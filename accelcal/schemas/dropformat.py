@@ -970,8 +970,6 @@ class _Body:
     # -- the run ----------------------------------------------------------------------
     def frame(self) -> pd.DataFrame:
         n = self.n_rows
-        cols = {c: self.cols[c][:n] for c in COLUMNS[self.test]}
-        data = pd.DataFrame(cols, copy=False)
-        data["line"] = self.cols["line"][:n]
+        cols = {c: self.cols[c][:n] for c in (*COLUMNS[self.test], "line")}
         self.cols = {}
-        return data
+        return pd.DataFrame(cols, copy=False)       # in one go: adding a column copies

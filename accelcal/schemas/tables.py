@@ -119,13 +119,16 @@ def run_table(run: RunFile) -> pa.Table:
 def write_run_parquet(run: RunFile, root: Path) -> Path:
     """Write ``run`` under ``root`` (see module doc) and return the file's path.
 
-    Idempotent: when the content-addressed file already exists it is left alone.
+    Idempotent: when the content-addressed file already exists, whole, it is left alone.
     Atomic: written to a temporary file in the target folder, then ``os.replace``-d, so a
     killed writer leaves no partial ``*.parquet`` (its ``.*.tmp`` is removed by the next
     run, accelcal.fileio.remove_stale_temps).  A long run is written a row group at a time.
+    Not flushed to disk: the caller makes a batch of them durable at once
+    (accelcal.fileio.sync_files) before anything refers to them.  A file cut short by a
+    power loss before that flush is not whole (no Parquet footer) and is written again.
     """
     target = parquet_path(run, root)
-    if target.exists():
+    if _whole(target):
         return target
     target.parent.mkdir(parents=True, exist_ok=True)
     schema = _schema_with_metadata(run)
@@ -138,8 +141,19 @@ def write_run_parquet(run: RunFile, root: Path) -> Path:
         with pq.ParquetWriter(fh, schema, compression="zstd") as w:
             for batch in _batches(run, schema):
                 w.write_batch(batch)
-    atomic_write(target, write, "wb", fsync=True)
+    atomic_write(target, write, "wb")
     return target
+
+
+def _whole(path: Path) -> bool:
+    """The file exists and ends with a readable Parquet footer."""
+    try:
+        pq.read_metadata(path)
+    except FileNotFoundError:
+        return False
+    except Exception:
+        return False
+    return True
 
 
 def read_run_parquet(path) -> RunFile:
