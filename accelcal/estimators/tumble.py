@@ -39,7 +39,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 from ..fitting.core import (FitResult, GaussNewton, LackOfFit, Parameter, ParameterSet, birge_ratio,
                             finish_fit, gauss_newton, lstsq_svd)
 from ..physics.axes import AXES, parse_signed_axis
@@ -49,6 +48,7 @@ from ..physics.rigs import rig_output, tumble_specific_force
 from ..results import BudgetTerm, CoefficientResult
 from . import uncertainty as unc
 from .adequacy import pure_error_test
+from ..fitting.distributions import chi2_sf
 
 #: Parameters of the tumble fit, in order (effects.md names; theta0 = ``initial_misalignment``).
 PARAMS = ("K0", "K1", "K2", "theta0")
@@ -652,7 +652,7 @@ def pool(name: str, key: str, runs: Sequence[TumbleRun], alpha: float = 0.01) ->
     if not all(np.isfinite(us)) or min(us) <= 0:
         return Pooled(name, key, float(np.mean(vals)), float("nan"), float("nan"), tuple(runs))
     mean, u_int, birge, dof = birge_ratio(vals, us)
-    p = float(stats.chi2.sf(birge ** 2 * dof, dof))
+    p = float(chi2_sf(birge ** 2 * dof, dof))
     return Pooled(name, key, mean, u_int * max(1.0, birge), u_int, tuple(runs), birge, p, p < alpha)
 
 

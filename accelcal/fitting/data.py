@@ -36,6 +36,7 @@ from scipy.optimize import minimize_scalar
 
 from ..physics.geometry import CentrifugeMount, geometry_of
 from ..physics.rigs import omega_z
+from .distributions import f_sf
 
 #: a logged head/table angle that moves less than this within one position [deg] is reading
 #: noise: the dwell stays one cell (the model still reads each reading's logged angle, so that
@@ -317,7 +318,6 @@ def drive_rate(meta: Mapping, t: np.ndarray, logged: np.ndarray, alpha: float = 
     -------
     rate [rad/s], rate_derivative [rad/s^2] or None, note
     """
-    from scipy import stats
     Om, f = float(meta["rate_amplitude_rad_s"]), float(meta["rate_frequency_hz"])
     nominal = Om * np.sin(2 * np.pi * f * np.asarray(t, float))
     fit, dfit = fitted_drive(t, logged, f, harmonics)
@@ -326,7 +326,7 @@ def drive_rate(meta: Mapping, t: np.ndarray, logged: np.ndarray, alpha: float = 
     rss0 = float(np.sum((logged - nominal) ** 2))
     dof = max(len(t) - q, 1)
     F = ((rss0 - rss1) / q) / (rss1 / dof) if rss1 > 0 else float("inf")
-    p = float(stats.f.sf(F, q, dof)) if np.isfinite(F) else 0.0
+    p = float(f_sf(F, q, dof)) if np.isfinite(F) else 0.0
     if p >= alpha:
         return nominal, None, (f"logged rate follows the nominal drive within its noise ({math.sqrt(rss1 / dof):.2g} "
                                f"rad/s, F = {F:.3g}, p = {p:.2g}): the nominal drive is the model's rate")

@@ -346,7 +346,7 @@ class CampaignModel:
                 col = instrument.output_derivative(role.key, co, F, temp, t,
                                                    float(eff.get("bias_drift", 0.0)))
                 lin.append(c)
-                rows.append(np.broadcast_to(col, r.y_rows.shape))
+                rows.append(col)
                 continue
             h = 1e-3 * self.params[i].scale
             pp, pm = p.copy(), p.copy()
@@ -359,7 +359,10 @@ class CampaignModel:
             pm[i] -= h
             J[:, c] = (self.predict_run(pp, j) - self.predict_run(pm, j)) / (2 * h)
         if lin:
-            X = np.column_stack(rows)
+            # the columns side by side (a scalar column, K0 at a constant K1, fills its column)
+            X = np.empty(r.y_rows.shape + (len(rows),))
+            for k, col in enumerate(rows):
+                X[:, k] = col
             if tau > 0:                       # the lag is linear: lag the columns at once
                 X = first_order_lag(X, t, tau)
             keep = r.cid >= 0
