@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+from functools import lru_cache
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -485,6 +486,14 @@ def fit_noise(run: RunCells, residual_rows: np.ndarray | None = None, *, use_lev
     return model
 
 
+@lru_cache(maxsize=1)
+def _profile_grid() -> np.ndarray:
+    """The t grid of :func:`_fit_variance_function` (a constant: built once, read only)."""
+    ts = np.concatenate([[0.0], np.geomspace(1e-9, 1.0, 46)[:-1], [1.0 - 1e-12]])
+    ts.setflags(write=False)
+    return ts
+
+
 def _fit_variance_function(S: np.ndarray, nu: np.ndarray, X: np.ndarray, use_level: bool) -> NoiseModel:
     """a + b x^2 by the Gamma likelihood of cell variances S with nu dof each.
 
@@ -504,8 +513,13 @@ def _fit_variance_function(S: np.ndarray, nu: np.ndarray, X: np.ndarray, use_lev
         c = max(float(np.sum(nu * S / w)) / sn, 1e-300)
         return sn * math.log(c) + float(np.sum(nu * np.log(w))), c
 
-    ts = np.concatenate([[0.0], np.geomspace(1e-9, 1.0, 46)[:-1], [1.0 - 1e-12]])
-    vals = [profile(t)[0] for t in ts]
+    ts = _profile_grid()
+    # the grid at once: row k is profile(ts[k]) element for element (the same operations on
+    # the same values; each row summed on its own as the 1-d sums do)
+    W = np.maximum((1.0 - ts[:, None]) + ts[:, None] * u, 1e-300)
+    cs = np.sum(nu * S / W, axis=1)
+    ls = np.sum(nu * np.log(W), axis=1)
+    vals = [sn * math.log(max(float(ck) / sn, 1e-300)) + float(lk) for ck, lk in zip(cs, ls)]
     k = int(np.argmin(vals))
     t = float(ts[k])
     lo, hi = float(ts[max(k - 1, 0)]), float(ts[min(k + 1, ts.size - 1)])
