@@ -314,7 +314,11 @@ class PairData:
 
     def subset(self, keep: np.ndarray) -> "PairData":
         """The pair restricted to the rows ``keep``."""
-        return PairData(self.table[keep].reset_index(drop=True), self.K1, self.metas)
+        sub = PairData(self.table[keep].reset_index(drop=True), self.K1, self.metas)
+        taken = self.__dict__.get("_columns")
+        if taken:
+            sub.__dict__["_columns"] = {k: v[keep] for k, v in taken.items()}
+        return sub
 
     @property
     def direction(self) -> np.ndarray:
@@ -421,7 +425,7 @@ def test_radius_iterative(pair: PairData, R0_plus: float, R0_minus: float, order
         # the g range is judged on the starting radii so the dwell set does not change
         if it == 1:
             keep = np.ones(len(T), bool) if gm is None else (np.abs(a) <= gm * 1.02)
-            sub = pair.subset(keep)
+            sub = pair if keep.all() else pair.subset(keep)
         fit, _ = sub.fit(a[keep], order, subtract_a=True)
         cp, cm = fit.value("b+"), fit.value("b-")
         Rp *= 1.0 + cp
