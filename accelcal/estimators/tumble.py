@@ -217,7 +217,7 @@ def tumble_jacobian(meta: Mapping, df: pd.DataFrame, p: np.ndarray,
     K0, K1, K2, th0 = p[:4]
     coeffs = {"K0": K0, "K1": K1, "K2": K2, **dict(zip(extras, p[4:]))}
     F = tumble_specific_force(meta, df, {"initial_misalignment": th0})
-    J = np.empty((len(df), len(p)))
+    J = np.empty((F.shape[0], len(p)))
     for j, name in enumerate(("K0", "K1", "K2")):
         J[:, j] = output_derivative(name, coeffs, F)
     for j, name in enumerate(extras, start=4):
@@ -341,11 +341,14 @@ def fit_tumble(meta: Mapping, data, extra_terms: tuple[str, ...] | list[str] = (
              "K3": "s4/m2"}
     params = ParameterSet(Parameter(nm, nm, units.get(nm, "s2/m"), value=float(v)) for nm, v in zip(names, p0))
 
+    # the model reads the same columns as numpy arrays, taken once (not per evaluation)
+    cols = {k: df[k].to_numpy() for k in df.columns}
+
     def resid(p):
-        return y - _predict(meta, df, p, extras)
+        return y - _predict(meta, cols, p, extras)
 
     def jac(p):
-        return tumble_jacobian(meta, df, p, extras)
+        return tumble_jacobian(meta, cols, p, extras)
 
     # Levenberg-Marquardt from the nominal sensitivity (paper 003), unweighted: every reading
     # has the same variance; the core's Gauss-Newton with Marquardt damping
