@@ -86,3 +86,33 @@ def test_pair_table_fast_equals_pandas(examples, monkeypatch):
     monkeypatch.setattr("accelcal.estimators.radius.merged_dwell_columns", lambda *a: None)
     for p, f in zip(pairs, fast):
         _same(f, PairData.from_runs(p, 1.0).table)
+
+
+def _clean_reference(data):
+    """accelcal.estimators.tumble._clean as it was (column by column into a frame)."""
+    df = pd.DataFrame({k: np.asarray(data[k]) for k in ("angle_deg", "output")})
+    for k in ("time_s", "position", "temp_c"):
+        try:
+            df[k] = np.asarray(data[k])
+        except (KeyError, IndexError):
+            pass
+    df = df[np.isfinite(df["output"].astype(float)) & np.isfinite(df["angle_deg"].astype(float))]
+    if "position" not in df:
+        df["position"] = pd.factorize(df["angle_deg"].round(9))[0]
+    return df.reset_index(drop=True)
+
+
+def test_tumble_clean_same_frame(examples):
+    from accelcal.estimators.tumble import _clean
+    runs = [read_run(p) for p in sorted(examples.parent.rglob("*.csv"))
+            if "drop-bad" not in str(p) and "diagnosis" not in str(p)]
+    tumbles = [r.data for r in runs if str(r.meta.get("test")) == "tumble"]
+    assert tumbles
+    rng = np.random.default_rng(5)
+    for d in list(tumbles):
+        d2 = d.copy()
+        d2.loc[rng.integers(0, len(d2), 3), "output"] = np.nan
+        tumbles.append(d2)
+        tumbles.append({k: d[k].to_numpy() for k in ("angle_deg", "output")})   # no position, no time
+    for d in tumbles:
+        _same(_clean(d), _clean_reference(d))
