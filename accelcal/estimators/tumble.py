@@ -258,6 +258,9 @@ def position_means(df: pd.DataFrame) -> pd.DataFrame:
     DataFrame
         position, angle_deg, n, mean_output, std_output, sem_output [output_unit].
     """
+    fast = _position_means_fast(df)
+    if fast is not None:
+        return fast
     grp = df.groupby("position", sort=True)
     out = pd.DataFrame({
         "angle_deg": grp["angle_deg"].mean(),
@@ -406,6 +409,24 @@ def fit_tumble(meta: Mapping, data, extra_terms: tuple[str, ...] | list[str] = (
         ia_phase_deg=phase, success=bool(gn.converged), message=str(gn.message),
         nfev=int(gn.iterations), start=dict(zip(names, map(float, p0))), extras=extras,
         lack_of_fit=lof, cov_positions=cov_pos, param_names=names, adequacy=test, result=result)
+
+
+def _position_means_fast(df: pd.DataFrame) -> pd.DataFrame | None:
+    """:func:`position_means` by numpy and pandas' own groupby kernels, taking pandas' path
+    for each reduction (:class:`.dwells._Groups`: the same floats); None where it does not
+    apply (then pandas itself)."""
+    from .dwells import _PANDAS_FOLLOWED, _Groups, _plain
+    if pd.__version__ != _PANDAS_FOLLOWED or any(c not in df for c in ("position", "angle_deg", "output")):
+        return None
+    pos, ang, out = _plain(df["position"], "i"), _plain(df["angle_deg"], "f"), _plain(df["output"], "f")
+    if pos is None or ang is None or out is None or len(pos) == 0:
+        return None
+    if not (np.isfinite(ang).all() and np.isfinite(out).all()):
+        return None
+    grp = _Groups(pos)
+    std = grp.std(out)
+    return pd.DataFrame({"position": grp.keys, "angle_deg": grp.mean(ang), "n": grp.counts,
+                         "mean_output": grp.mean(out), "std_output": std, "sem_output": std / np.sqrt(grp.counts)})
 
 
 def _mean_at(pm: pd.DataFrame, angle: float, tol: float) -> tuple[float, float, int] | None:
