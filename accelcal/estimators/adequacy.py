@@ -199,6 +199,8 @@ def sweep_test(level: np.ndarray, sweep: np.ndarray, r: np.ndarray) -> float:
         Two-sided p of the mean up-minus-down difference (paired t test); 1.0 with fewer
         than 3 matched levels.
     """
+    # python floats (tolist) carry the same values as the numpy scalars, at a fraction of the cost
+    level, sweep, r = (np.asarray(v).tolist() for v in (level, sweep, r))
     up = {round(float(a), 3): x for a, s, x in zip(level, sweep, r) if s == "up"}
     down = {round(float(a), 3): x for a, s, x in zip(level, sweep, r) if s == "down"}
     # match each down level to the nearest up level within 2 %

@@ -130,6 +130,17 @@ def rest_mean(dw: pd.DataFrame) -> tuple[float, float, int]:
     ValueError
         The run has no rest dwell.
     """
+    if pd.__version__ == _PANDAS_FOLLOWED:
+        cols = {c: _plain(dw[c], k) for c, k in (("azimuth_deg", "f"), ("mean_output", "f"), ("n", "i"),
+                                                  ("ss_within", "f"))}
+        rest = dw["rest"].to_numpy()
+        if (all(v is not None for v in cols.values()) and rest.dtype == bool
+                and not np.isnan(cols["ss_within"]).any()):          # pandas' sum skips NaN
+            return _rest_mean_columns({**cols, "rest": rest})     # the same numbers without pandas
+    return _rest_mean_pandas(dw)
+
+
+def _rest_mean_pandas(dw: pd.DataFrame) -> tuple[float, float, int]:
     r = dw[dw["rest"]]
     if r.empty:
         raise ValueError("run has no rest dwell")
