@@ -21,10 +21,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import special, stats
+from scipy import special
 
 from ..fitting.core import ALPHA, FitResult, LackOfFit, linear_fit
 from ..fitting.core import lack_of_fit as core_lack_of_fit
+from ..fitting.distributions import norm_sf, t_ppf
 
 __all__ = ["ALPHA", "DwellFit", "choose_order", "lack_of_fit", "pure_error_test", "runs_test", "sweep_test", "trend_test",
            "weighted_dwell_fit"]
@@ -198,6 +199,8 @@ def sweep_test(level: np.ndarray, sweep: np.ndarray, r: np.ndarray) -> float:
         Two-sided p of the mean up-minus-down difference (paired t test); 1.0 with fewer
         than 3 matched levels.
     """
+    # python floats (tolist) carry the same values as the numpy scalars, at a fraction of the cost
+    level, sweep, r = (np.asarray(v).tolist() for v in (level, sweep, r))
     up = {round(float(a), 3): x for a, s, x in zip(level, sweep, r) if s == "up"}
     down = {round(float(a), 3): x for a, s, x in zip(level, sweep, r) if s == "down"}
     # match each down level to the nearest up level within 2 %
@@ -240,7 +243,7 @@ def runs_test(r: np.ndarray) -> float:
     if var <= 0:
         return 1.0
     z = (runs - mu) / np.sqrt(var)
-    return float(2 * stats.norm.sf(abs(z)))
+    return float(2 * norm_sf(abs(z)))
 
 
 def weighted_dwell_fit(X: np.ndarray, names: list[str], ybar: np.ndarray, n: np.ndarray,
@@ -346,7 +349,7 @@ def choose_order(fits: dict[int, DwellFit], added: dict[int, list[str]]) -> tupl
         if i + 1 < len(orders):
             nxt = fits[orders[i + 1]]
             dof = max(nxt.dof_lof + nxt.dof_pe, 1)
-            tcrit = stats.t.ppf(1 - ALPHA / 2, dof)
+            tcrit = t_ppf(1 - ALPHA / 2, dof)
             if any(abs(nxt.value(n)) > tcrit * nxt.std_error(n) for n in added.get(orders[i + 1], [])):
                 continue
         return o, True

@@ -33,7 +33,6 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
 from ..constants import MOUNT_ANGLE_TOLERANCE_RAD
 from ..fitting.core import (FitResult, LackOfFit, finish_fit, gauss_newton, lack_of_fit, lstsq_svd,
@@ -44,6 +43,7 @@ from ..physics.axes import AXES
 from ..physics.geometry import CentrifugeMount
 from ..results import AdequacyResult, BudgetTerm, CoefficientResult, RadiusResult
 from .adequacy import runs_test, trend_test
+from ..fitting.distributions import chi2_sf, t_ppf
 
 METHOD = "joint_ml"
 
@@ -69,7 +69,7 @@ def coverage_factor(dof: float, p: float = 0.95) -> float:
     (JCGM 100 G.3); 2 for 30 or more dof (or an infinite/unknown dof)."""
     if not dof or not math.isfinite(dof) or dof >= 30:
         return 2.0
-    return float(stats.t.ppf(0.5 + p / 2, dof))
+    return float(t_ppf(0.5 + p / 2, dof))
 
 
 def processing_effects(tests: Sequence[str]) -> list[str]:
@@ -220,7 +220,7 @@ def run_consistency(runs, effects: Sequence[str], alpha: float = 0.01) -> tuple[
         if len(vals) < 2 or not all(u > 0 for u in us):
             continue
         m, um, birge, dof = birge_ratio(vals, us)
-        p = float(stats.chi2.sf(birge ** 2 * dof, dof))
+        p = float(chi2_sf(birge ** 2 * dof, dof))
         agree = p >= alpha
         rows.append({"test": "tumble", "coefficient": name, "runs": ids, "values": vals, "u_readings": us,
                      "birge_ratio": birge, "p": p, "agree": agree})

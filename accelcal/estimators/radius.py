@@ -22,7 +22,7 @@ from ..physics.geometry import geometry_of
 from ..physics.instrument import indicated_acceleration
 from ..physics.rigs import NOMINAL, centrifuge_specific_force
 from .adequacy import DwellFit, weighted_dwell_fit
-from .dwells import dwell_table, merge_rest, noise_model, rest_mean
+from .dwells import dwell_table, merge_rest, merged_dwell_columns, noise_model, rest_mean
 
 
 def ia_polarity(meta: Mapping) -> int | None:
@@ -287,17 +287,38 @@ class PairData:
 
     @classmethod
     def from_runs(cls, runs: list[tuple[Mapping, pd.DataFrame, int]], K1: float) -> "PairData":
+        metas = {pol: meta for meta, _, pol in runs}
+        fast = [merged_dwell_columns(meta, data) for meta, data, _ in runs]
+        if runs and all(c is not None for c in fast):
+            # the same table as below, built from the columns at once (dwells.py fast path)
+            cols = {k: np.concatenate([c[k] for c in fast]) for k in fast[0]}
+            cols["pol"] = np.concatenate([np.full(len(c["n"]), pol, dtype=np.int64)
+                                          for c, (_, _, pol) in zip(fast, runs)])
+            cols["run_id"] = np.concatenate([np.full(len(c["n"]), str(meta.get("run_id", "")), dtype=object)
+                                             for c, (meta, _, _) in zip(fast, runs)])
+            return cls(pd.DataFrame(cols), K1, metas)
         rows = []
         for meta, data, pol in runs:
             t = merge_rest(dwell_table(meta, data))
             t["pol"] = pol
             t["run_id"] = str(meta.get("run_id", ""))
             rows.append(t)
-        return cls(pd.concat(rows, ignore_index=True), K1, {pol: meta for meta, _, pol in runs})
+        return cls(pd.concat(rows, ignore_index=True), K1, metas)
+
+    def column(self, name: str) -> np.ndarray:
+        """``table[name].to_numpy()``, taken once (the table is not changed after it is built)."""
+        cache = self.__dict__.setdefault("_columns", {})
+        if name not in cache:
+            cache[name] = self.table[name].to_numpy()
+        return cache[name]
 
     def subset(self, keep: np.ndarray) -> "PairData":
         """The pair restricted to the rows ``keep``."""
-        return PairData(self.table[keep].reset_index(drop=True), self.K1, self.metas)
+        sub = PairData(self.table[keep].reset_index(drop=True), self.K1, self.metas)
+        taken = self.__dict__.get("_columns")
+        if taken:
+            sub.__dict__["_columns"] = {k: v[keep] for k, v in taken.items()}
+        return sub
 
     @property
     def direction(self) -> np.ndarray:
@@ -310,8 +331,8 @@ class PairData:
     def input_columns(self) -> tuple[np.ndarray, np.ndarray]:
         """d a / d R and d a / d r of every row (:func:`radial_input_columns`): a is the
         specific force along :attr:`direction`, positive for the '+' run, negative for '-'."""
-        pol = self.table["pol"].to_numpy()
-        rate = self.table["rate"].to_numpy(float)
+        pol = self.column("pol")
+        rate = self.column("rate").astype(float, copy=False)
         dR, dr = np.zeros(len(pol)), np.zeros(len(pol))
         u = self.direction
         for p, meta in self.metas.items():
@@ -325,7 +346,7 @@ class PairData:
         mass centre r [m] along the first plane axis (effects.md ``mass_centre_offset``)."""
         dR, dr = self.input_columns()
         if isinstance(R, Mapping):
-            pol = self.table["pol"].to_numpy()
+            pol = self.column("pol")
             Rrow = np.where(pol > 0, R.get(1, 0.0), R.get(-1, 0.0))
             return Rrow * dR + r * dr
         return float(R) * dR + r * dr
@@ -334,22 +355,22 @@ class PairData:
             odd_quadratic: bool = True) -> tuple[DwellFit, np.ndarray]:
         """Weighted fit of y = E/K1 (− a when subtract_a) on the eq 7/9 regressors, dwell
         groups with |a| <= g_max only; noise model fitted on the groups used."""
-        T = self.table
-        keep = np.ones(len(T), bool) if g_max_ms2 is None else (np.abs(a) <= g_max_ms2 * 1.02)
-        T = T[keep]
+        keep = np.ones(len(self.table), bool) if g_max_ms2 is None else (np.abs(a) <= g_max_ms2 * 1.02)
+        T = {c: self.column(c)[keep] for c in ("mean_output", "ss_within", "n", "dof_pe", "pol", "time_mid",
+                                               "sweep", "rest")}
         a = a[keep]
-        y = T["mean_output"].to_numpy() / self.K1 - (a if subtract_a else 0.0)
-        ssw = T["ss_within"].to_numpy() / self.K1**2
-        n = T["n"].to_numpy().astype(float)
-        var = ssw / np.maximum(T["dof_pe"].to_numpy(), 1)
-        s0, k2 = noise_model(np.abs(a), var, T["dof_pe"].to_numpy() + 1)
+        y = T["mean_output"] / self.K1 - (a if subtract_a else 0.0)
+        ssw = T["ss_within"] / self.K1**2
+        n = T["n"].astype(float)
+        var = ssw / np.maximum(T["dof_pe"], 1)
+        s0, k2 = noise_model(np.abs(a), var, T["dof_pe"] + 1)
         sigma2 = s0 + k2 * a**2
-        X, names = polarity_design(a, T["pol"].to_numpy(), order, odd_quadratic)
-        fit = weighted_dwell_fit(X, names, y, n, ssw, sigma2, time=T["time_mid"].to_numpy(),
-                                 level=np.abs(a), sweep=T["sweep"].to_numpy(),
-                                 moving=~T["rest"].to_numpy(), group=T["pol"].to_numpy(),
-                                 dof_pe_rows=T["dof_pe"].to_numpy())
-        fit.extra.update(noise_s0=float(np.sqrt(s0)), noise_k=float(np.sqrt(k2)), n_groups=int(len(T)))
+        X, names = polarity_design(a, T["pol"], order, odd_quadratic)
+        fit = weighted_dwell_fit(X, names, y, n, ssw, sigma2, time=T["time_mid"],
+                                 level=np.abs(a), sweep=T["sweep"],
+                                 moving=~T["rest"], group=T["pol"],
+                                 dof_pe_rows=T["dof_pe"])
+        fit.extra.update(noise_s0=float(np.sqrt(s0)), noise_k=float(np.sqrt(k2)), n_groups=int(len(y)))
         return fit, keep
 
 
@@ -393,7 +414,7 @@ def test_radius_iterative(pair: PairData, R0_plus: float, R0_minus: float, order
     as 1/K1 of the tumble.
     """
     T = pair.table
-    pol = T["pol"].to_numpy()
+    pol = pair.column("pol")
     dR, _ = pair.input_columns()            # a_i+- = R+- d a_IA / d R of the forward model
     Rp, Rm = float(R0_plus), float(R0_minus)
     gm = None if g_max is None else g_max * G_STANDARD
@@ -404,7 +425,7 @@ def test_radius_iterative(pair: PairData, R0_plus: float, R0_minus: float, order
         # the g range is judged on the starting radii so the dwell set does not change
         if it == 1:
             keep = np.ones(len(T), bool) if gm is None else (np.abs(a) <= gm * 1.02)
-            sub = pair.subset(keep)
+            sub = pair if keep.all() else pair.subset(keep)
         fit, _ = sub.fit(a[keep], order, subtract_a=True)
         cp, cm = fit.value("b+"), fit.value("b-")
         Rp *= 1.0 + cp
@@ -430,7 +451,7 @@ def g_levels(pair: PairData, R_plus: float, R_minus: float) -> list[float]:
     list of float
         |a| of the moving dwells [g, standard], rounded to 0.1 g.
     """
-    a = np.abs(pair.inputs({1: R_plus, -1: R_minus}))[~pair.table["rest"].to_numpy()]
+    a = np.abs(pair.inputs({1: R_plus, -1: R_minus}))[~pair.column("rest")]
     return sorted({round(float(x) / G_STANDARD, 1) for x in a})
 
 

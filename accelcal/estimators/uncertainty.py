@@ -22,9 +22,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
 
 from ..results import BudgetTerm
+from ..fitting.distributions import norm_ppf, t_ppf
 
 #: half-width / standard uncertainty of the bounded distributions.
 HALF_WIDTH_PER_U = {"uniform": math.sqrt(3.0), "triangular": math.sqrt(6.0), "arcsine": math.sqrt(2.0)}
@@ -195,7 +195,7 @@ def gum_budget(func: Callable, names: Sequence[str], values: Sequence[float],
     kk, pp = float(k), None
     if use_t:
         pp = p
-        kk = float(stats.t.ppf((1 + p) / 2, nu_eff)) if math.isfinite(nu_eff) else float(stats.norm.ppf((1 + p) / 2))
+        kk = float(t_ppf((1 + p) / 2, nu_eff)) if math.isfinite(nu_eff) else float(norm_ppf((1 + p) / 2))
     return GumBudget(value=y, u_c=uc, terms=terms, nu_eff=nu_eff, k=kk, U=kk * uc, p=pp, sensitivities=c)
 
 
@@ -411,7 +411,7 @@ def validate_gum_linear(sensitivities: Sequence[float], std_uncertainties: Seque
     Returns dict: gum_u, gum_low/high (k = the normal quantile of p), low, high, delta,
     d_low, d_high, validated."""
     lo, hi, sd = linear_output_interval(sensitivities, std_uncertainties, distributions, p)
-    k = float(stats.norm.ppf((1 + p) / 2))
+    k = float(norm_ppf((1 + p) / 2))
     delta = numerical_tolerance(sd, ndig)
     d_low, d_high = abs(-k * sd - lo), abs(k * sd - hi)
     return {"gum_u": sd, "gum_low": -k * sd, "gum_high": k * sd, "low": lo, "high": hi, "delta": delta,

@@ -31,7 +31,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy import stats
+from .distributions import chi2_sf, f_sf
 
 #: Relative singular value below which a direction of the column-scaled design counts as
 #: not determined by the data (the rank rule of every fit in accelcal).
@@ -414,14 +414,14 @@ def lack_of_fit(chi2_lof: float, dof_lof: int, chi2_pe: float | None = None, dof
                          "distinct inputs")
     if chi2_pe is None or dof_pe <= 0:
         stat = chi2_lof / dof_lof
-        p = float(stats.chi2.sf(chi2_lof, dof_lof))
+        p = float(chi2_sf(chi2_lof, dof_lof))
         dpe = 0
     else:
         if chi2_pe <= 0:
             return LackOfFit("untestable", None, None, int(dof_lof), int(dof_pe), 1.0,
                              "no pure-error scatter")
         stat = (chi2_lof / dof_lof) / (chi2_pe / dof_pe)
-        p = float(stats.f.sf(stat, dof_lof, dof_pe))
+        p = float(f_sf(stat, dof_lof, dof_pe))
         dpe = int(dof_pe)
     bad = p < alpha
     return LackOfFit("inadequate" if bad else "adequate", float(stat), p, int(dof_lof), dpe,

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+from functools import lru_cache
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -36,6 +37,7 @@ from scipy.optimize import minimize_scalar
 
 from ..physics.geometry import CentrifugeMount, geometry_of
 from ..physics.rigs import omega_z
+from .distributions import f_sf
 
 #: a logged head/table angle that moves less than this within one position [deg] is reading
 #: noise: the dwell stays one cell (the model still reads each reading's logged angle, so that
@@ -317,7 +319,6 @@ def drive_rate(meta: Mapping, t: np.ndarray, logged: np.ndarray, alpha: float = 
     -------
     rate [rad/s], rate_derivative [rad/s^2] or None, note
     """
-    from scipy import stats
     Om, f = float(meta["rate_amplitude_rad_s"]), float(meta["rate_frequency_hz"])
     nominal = Om * np.sin(2 * np.pi * f * np.asarray(t, float))
     fit, dfit = fitted_drive(t, logged, f, harmonics)
@@ -326,7 +327,7 @@ def drive_rate(meta: Mapping, t: np.ndarray, logged: np.ndarray, alpha: float = 
     rss0 = float(np.sum((logged - nominal) ** 2))
     dof = max(len(t) - q, 1)
     F = ((rss0 - rss1) / q) / (rss1 / dof) if rss1 > 0 else float("inf")
-    p = float(stats.f.sf(F, q, dof)) if np.isfinite(F) else 0.0
+    p = float(f_sf(F, q, dof)) if np.isfinite(F) else 0.0
     if p >= alpha:
         return nominal, None, (f"logged rate follows the nominal drive within its noise ({math.sqrt(rss1 / dof):.2g} "
                                f"rad/s, F = {F:.3g}, p = {p:.2g}): the nominal drive is the model's rate")
@@ -421,9 +422,14 @@ def drop_duplicate_cells(runs: Sequence[RunCells]) -> list[str]:
     for run in runs:
         t = run.cols.get("time_s", np.arange(run.y_rows.size, dtype=float))
         dup = []
+        # rows of cell c in row order: a stable sort by cell, split at the cell boundaries
+        # (the same rows, and bytes, as np.flatnonzero(run.cid == c) taken cell by cell)
+        ty = np.c_[t, run.y_rows]
+        order = np.argsort(run.cid, kind="stable")
+        bounds = np.searchsorted(run.cid[order], np.arange(run.ncell + 1))
         for c in range(run.ncell):
-            rows = np.flatnonzero(run.cid == c)
-            h = hashlib.sha1(np.ascontiguousarray(np.c_[t[rows], run.y_rows[rows]]).tobytes()).hexdigest()
+            rows = order[bounds[c]:bounds[c + 1]]
+            h = hashlib.sha1(np.ascontiguousarray(ty[rows]).tobytes()).hexdigest()
             if h in seen and seen[h][0] != run.run_id:
                 dup.append((c, seen[h]))
             else:
@@ -485,6 +491,14 @@ def fit_noise(run: RunCells, residual_rows: np.ndarray | None = None, *, use_lev
     return model
 
 
+@lru_cache(maxsize=1)
+def _profile_grid() -> np.ndarray:
+    """The t grid of :func:`_fit_variance_function` (a constant: built once, read only)."""
+    ts = np.concatenate([[0.0], np.geomspace(1e-9, 1.0, 46)[:-1], [1.0 - 1e-12]])
+    ts.setflags(write=False)
+    return ts
+
+
 def _fit_variance_function(S: np.ndarray, nu: np.ndarray, X: np.ndarray, use_level: bool) -> NoiseModel:
     """a + b x^2 by the Gamma likelihood of cell variances S with nu dof each.
 
@@ -504,8 +518,13 @@ def _fit_variance_function(S: np.ndarray, nu: np.ndarray, X: np.ndarray, use_lev
         c = max(float(np.sum(nu * S / w)) / sn, 1e-300)
         return sn * math.log(c) + float(np.sum(nu * np.log(w))), c
 
-    ts = np.concatenate([[0.0], np.geomspace(1e-9, 1.0, 46)[:-1], [1.0 - 1e-12]])
-    vals = [profile(t)[0] for t in ts]
+    ts = _profile_grid()
+    # the grid at once: row k is profile(ts[k]) element for element (the same operations on
+    # the same values; each row summed on its own as the 1-d sums do)
+    W = np.maximum((1.0 - ts[:, None]) + ts[:, None] * u, 1e-300)
+    cs = np.sum(nu * S / W, axis=1)
+    ls = np.sum(nu * np.log(W), axis=1)
+    vals = [sn * math.log(max(float(ck) / sn, 1e-300)) + float(lk) for ck, lk in zip(cs, ls)]
     k = int(np.argmin(vals))
     t = float(ts[k])
     lo, hi = float(ts[max(k - 1, 0)]), float(ts[min(k + 1, ts.size - 1)])

@@ -346,7 +346,7 @@ class CampaignModel:
                 col = instrument.output_derivative(role.key, co, F, temp, t,
                                                    float(eff.get("bias_drift", 0.0)))
                 lin.append(c)
-                rows.append(np.broadcast_to(col, r.y_rows.shape))
+                rows.append(col)
                 continue
             h = 1e-3 * self.params[i].scale
             pp, pm = p.copy(), p.copy()
@@ -359,7 +359,10 @@ class CampaignModel:
             pm[i] -= h
             J[:, c] = (self.predict_run(pp, j) - self.predict_run(pm, j)) / (2 * h)
         if lin:
-            X = np.column_stack(rows)
+            # the columns side by side (a scalar column, K0 at a constant K1, fills its column)
+            X = np.empty(r.y_rows.shape + (len(rows),))
+            for k, col in enumerate(rows):
+                X[:, k] = col
             if tau > 0:                       # the lag is linear: lag the columns at once
                 X = first_order_lag(X, t, tau)
             keep = r.cid >= 0
@@ -367,13 +370,30 @@ class CampaignModel:
                 J[:, c] = np.bincount(r.cid[keep], weights=X[keep, k], minlength=r.ncell) / r.n
         return J
 
+    #: unwhitened Jacobians kept per model (the most recent ones): a fit asks for the same
+    #: one again at the same point (model selection, then the Gauss–Newton start; the last
+    #: step, then the selection and the start after the noise model is refitted)
+    JACOBIAN_CACHE = 2
+
     def jacobian(self, p: np.ndarray, params: Sequence[int] | None = None) -> np.ndarray:
         """Whitened Jacobian over all cells (rows) and ``params`` (default all) columns."""
         cols = list(range(len(self.params))) if params is None else list(params)
-        J = np.zeros((self.N, len(cols)))
-        for j in range(len(self.runs)):
-            sl = self.rows(j)
-            J[sl] = self.jacobian_run(p, j, cols)
+        # keyed by value: the point (bytes), the columns and their difference steps (the
+        # parameters' scales), which is all jacobian_run depends on besides the runs' cells,
+        # which do not change while a model lives on them
+        pa = np.asarray(p)
+        key = (pa.dtype.str, pa.shape, pa.tobytes(), tuple(cols), tuple(self.params[i].scale for i in cols))
+        cache = self.__dict__.setdefault("_jacobians", {})
+        J = cache.get(key)
+        if J is None:
+            J = np.zeros((self.N, len(cols)))
+            for j in range(len(self.runs)):
+                sl = self.rows(j)
+                J[sl] = self.jacobian_run(p, j, cols)
+            J.setflags(write=False)
+            cache[key] = J
+            while len(cache) > self.JACOBIAN_CACHE:
+                del cache[next(iter(cache))]
         return J / self.sig[:, None]
 
     def signature(self, p: np.ndarray, effect: str, h: float | None = None) -> np.ndarray:
