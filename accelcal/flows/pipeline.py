@@ -12,6 +12,7 @@ current is not recomputed.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import time
@@ -525,6 +526,32 @@ def _task_runner(name: str):
         raise PipelineError(str(e)) from None
 
 
+@contextlib.contextmanager
+def _api_for_local_workers(task_runner: str):
+    """With a local Dask cluster and no Prefect API configured, start the flow's temporary
+    Prefect server first and hand its address to the workers (PREFECT_API_URL, inherited
+    when the cluster spawns them).  Otherwise every worker process started a temporary
+    server of its own: seconds of CPU per worker at start (taken from the science on a
+    machine with a worker per core), task runs reported to a server the flow never sees,
+    and a server left running whenever the nanny killed its worker at close."""
+    from prefect.settings import PREFECT_API_URL, PREFECT_SERVER_EPHEMERAL_ENABLED
+    if task_runner != "dask" or PREFECT_API_URL.value() or not PREFECT_SERVER_EPHEMERAL_ENABLED.value():
+        yield
+        return
+    from prefect.server.api.server import SubprocessASGIServer
+    server = SubprocessASGIServer()      # the one the flow's client would start (one a process)
+    server.start()
+    before = os.environ.get("PREFECT_API_URL")
+    os.environ["PREFECT_API_URL"] = server.api_url
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop("PREFECT_API_URL", None)
+        else:
+            os.environ["PREFECT_API_URL"] = before
+
+
 def run_pipeline(drops: list[str], warehouse: str | Path, *, engine: str = "prefect",
                  lock_timeout: float = 60.0, parameters: dict[str, Any] | None = None,
                  task_runner: str = "thread", settle: float | None = None,
@@ -552,7 +579,7 @@ def run_pipeline(drops: list[str], warehouse: str | Path, *, engine: str = "pref
         # Fail fast (before the Prefect server starts) when the warehouse is busy.
         wh = Warehouse(warehouse, lock_timeout=lock_timeout)
         runner = _task_runner(task_runner)
-        with wh.lock():
+        with wh.lock(), _api_for_local_workers(task_runner):
             fl = pipeline_flow()
             if runner is not None:
                 fl = fl.with_options(task_runner=runner)
