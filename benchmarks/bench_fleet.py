@@ -2,7 +2,8 @@
 """Fleet benchmark (issue 5): many simulated campaigns through the pipeline.
 
     python benchmarks/bench_fleet.py --campaigns 20 100 [--per-drop 50] [--engine local]
-                                     [--task-runner thread|dask] [--out bench-out/fleet]
+                                     [--task-runner thread|dask] [--workers N]
+                                     [--out bench-out/fleet]
                                      [--readme README.md]
 
 For each size N (a fresh child process, so peak memory is per size):
@@ -159,10 +160,16 @@ def child(args) -> dict:
     from accelcal.flows.pipeline import run_pipeline
     from accelcal.ops.fleet import ensure_views
     wh = root / "lab.duckdb"
+    cpu0 = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     s = run_pipeline([str(d) for d in drops], wh, engine=engine, task_runner=runner,
                      allow_simulated=True)
     t_pipe = time.perf_counter() - t0
+    cpu1 = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    # CPU seconds of the flow process and of the ended children (Dask workers): on a busy
+    # machine they say more than wall times
+    cpu_flow, cpu_children = ((b.ru_utime + b.ru_stime) - (a.ru_utime + a.ru_stime)
+                              for a, b in zip(cpu0, cpu1))
     rss_peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     rss_children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss   # Dask workers, ended
     statuses: dict[str, int] = {}
@@ -203,6 +210,7 @@ def child(args) -> dict:
             "commit": commit(), "load_before": load_before, "load_after": os.getloadavg()[0],
             "task_runner": runner, "simulate_s": t_sim, "pipeline_s": t_pipe,
             "runs_per_s": n_runs / t_pipe, "timings": s["timings"], "statuses": statuses,
+            "cpu_flow_s": cpu_flow, "cpu_children_s": cpu_children,
             "peak_rss_mb": rss_peak / 1024, "rss_before_pipeline_mb": rss_before / 1024,
             "peak_rss_children_mb": rss_children / 1024,
             "batch_files": int(os.environ.get("ACCELCAL_BATCH_FILES", 0)) or None,
@@ -220,6 +228,9 @@ def main(argv=None) -> int:
     ap.add_argument("--per-drop", type=int, default=50)
     ap.add_argument("--engine", default="local", choices=("local", "prefect"))
     ap.add_argument("--task-runner", default="thread", choices=("thread", "dask"))
+    ap.add_argument("--workers", type=int, default=None,
+                    help="Dask worker processes (one thread each) for --task-runner dask; "
+                         "sets ACCELCAL_DASK_WORKERS (default: one per core)")
     ap.add_argument("--out", default=str(ROOT / "bench-out" / "fleet"))
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--n", type=int, help=argparse.SUPPRESS)
@@ -233,6 +244,10 @@ def main(argv=None) -> int:
     if args.child:
         print("RESULT " + json.dumps(child(args), default=str))
         return 0
+    if args.workers is not None:
+        if args.task_runner != "dask":
+            ap.error("--workers needs --task-runner dask")
+        os.environ["ACCELCAL_DASK_WORKERS"] = str(max(1, args.workers))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     results = []
@@ -248,7 +263,11 @@ def main(argv=None) -> int:
         r = json.loads(line[7:])
         results.append(r)
         print(f"{n} campaigns: {r['runs']} runs in {r['pipeline_s']:.1f} s "
-              f"({r['runs_per_s']:.1f} runs/s), peak RSS {r['peak_rss_mb']:.0f} MB", flush=True)
+              f"({r['runs_per_s']:.1f} runs/s), peak RSS {r['peak_rss_mb']:.0f} MB; CPU s "
+              f"flow {r['cpu_flow_s']:.1f} + ended children {r['cpu_children_s']:.1f}; load "
+              f"{r['load_before']:.1f} -> {r['load_after']:.1f}", flush=True)
+        st = stage_times(r)
+        print("  " + ", ".join(f"{k} {v:.1f}" for k, v in st.items()), flush=True)
     meta = {"python": sys.version.split()[0], "machine": platform.machine(),
             "cpus": os.cpu_count()}
     (out / "bench-fleet.json").write_text(json.dumps({"meta": meta, "results": results},
@@ -267,10 +286,12 @@ def report(results: list[dict], args) -> str:
     workers = os.environ.get("ACCELCAL_DASK_WORKERS")
     if args.task_runner == "dask":
         engine += f" ({workers or os.cpu_count()} workers)"
+    flag = f" --workers {workers}" if args.task_runner == "dask" and workers else ""
     r0 = results[0]
     lines = [f"Fleet benchmark (`python benchmarks/bench_fleet.py --campaigns "
              f"{' '.join(str(r['campaigns']) for r in results)} --engine {args.engine}"
              + (f" --task-runner {args.task_runner}" if args.task_runner != "thread" else "")
+             + flag
              + f"`), commit {r0['commit']}, {time.strftime('%Y-%m-%d')}, {os.cpu_count()} cores "
              f"(load average {r0['load_before']:.1f} at the start), engine {engine}.",
              "",

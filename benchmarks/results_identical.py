@@ -9,12 +9,13 @@ table by table, before and after")
         --sim-dir /tmp/ri-sim --out /tmp/ri-new.json
     python benchmarks/results_identical.py compare /tmp/ri-base.json /tmp/ri-new.json
 
-``dump`` runs the pipeline (engine local, settle 0, simulated files allowed) on the sample
-drops (``../shared/examples/drop-*``, drop-bad included) and on N simulated campaigns
-(scenario snj103-lxj100, as benchmarks/bench_fleet.py makes them; written once to
-``--sim-dir`` and reused, so both versions read the very same files at the same paths),
-into a fresh warehouse, then writes every warehouse table and every Parquet file
-canonically: rows sorted, floats as ``float.hex`` (bit-exact), one sha256 per table.
+``dump`` runs the pipeline (engine local unless --engine / --task-runner say otherwise,
+settle 0, simulated files allowed) on the sample drops (``../shared/examples/drop-*``,
+drop-bad included) and on N simulated campaigns (scenario snj103-lxj100, as
+benchmarks/bench_fleet.py makes them; written once to ``--sim-dir`` and reused, so both
+versions read the very same files at the same paths), into a fresh warehouse, then writes
+every warehouse table and every Parquet file canonically: rows sorted, floats as
+``float.hex`` (bit-exact), one sha256 per table.
 
 Columns left out, and why (they differ between any two runs, or by definition between two
 versions of the code, whatever the results):
@@ -144,7 +145,8 @@ def cmd_dump(args) -> int:
     try:
         db = work / "lab.duckdb"
         t0 = time.perf_counter()
-        s = run_pipeline(samples + sim, db, engine="local", settle=0, allow_simulated=True)
+        s = run_pipeline(samples + sim, db, engine=args.engine, task_runner=args.task_runner,
+                         settle=0, allow_simulated=True)
         secs = time.perf_counter() - t0
         tables = dump_warehouse(db)
         pq_root = next((p for p in work.iterdir() if p.is_dir() and any(p.rglob("*.parquet"))),
@@ -243,6 +245,10 @@ def main(argv=None) -> int:
     d.add_argument("--campaigns", type=int, default=20)
     d.add_argument("--sim-dir", default=str(Path(tempfile.gettempdir()) / "results-identical-sim"))
     d.add_argument("--out", required=True)
+    d.add_argument("--engine", default="local", choices=("local", "prefect"),
+                   help="the engine that runs the pipeline (default local)")
+    d.add_argument("--task-runner", default="thread",
+                   help="with --engine prefect: thread, dask or a scheduler address")
     c = sub.add_parser("compare")
     c.add_argument("a")
     c.add_argument("b")

@@ -7,6 +7,8 @@ measured in benchmarks/bench_fleet.py, not here.
 """
 from __future__ import annotations
 
+import os
+
 import pytest
 
 from accelcal.flows.pipeline import quiet_prefect, run_pipeline
@@ -46,3 +48,19 @@ def test_flow_on_an_existing_dask_scheduler_equals_local_run(tmp_path, examples,
     assert all(n > 0 for n in seen.values()), seen
     assert {c["status"] for c in s["campaigns"]} == {"new"}
     assert warehouse_contents(on_dask) == warehouse_contents(local)
+
+
+def test_local_dask_workers_share_the_flows_prefect_server(monkeypatch):
+    """A local cluster's workers inherit the address of the flow's temporary Prefect server
+    (PREFECT_API_URL) instead of each starting a server of their own; the variable is put
+    back afterwards, and nothing is set for the thread runner."""
+    from prefect.server.api.server import SubprocessASGIServer
+
+    from accelcal.flows.pipeline import _api_for_local_workers
+    monkeypatch.delenv("PREFECT_API_URL", raising=False)
+    with _api_for_local_workers("thread"):
+        assert "PREFECT_API_URL" not in os.environ
+    with _api_for_local_workers("dask"):
+        server = SubprocessASGIServer()
+        assert server.running and os.environ["PREFECT_API_URL"] == server.api_url
+    assert "PREFECT_API_URL" not in os.environ

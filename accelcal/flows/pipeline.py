@@ -12,6 +12,7 @@ current is not recomputed.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import time
@@ -64,14 +65,21 @@ def _local_steps() -> SimpleNamespace:
 
 
 def _prefect_steps() -> SimpleNamespace:
+    """The steps as Prefect tasks.  The two that run in the flow process (record, store)
+    get their large arguments (a batch's records, computed results) under ``quote``:
+    Prefect otherwise walks every nested object of a task's arguments twice (resolving
+    futures, collecting task inputs) -- 15-19 s of the flow process's CPU at 200
+    campaigns, taken from the workers on a machine with as many workers as cores."""
+    from prefect.utilities.annotations import quote
+
     from ..tasks import prefect_tasks
     t = prefect_tasks()
     return SimpleNamespace(
         known_keys=t.known_keys,
         submit_intake=lambda *a: t.intake_batch.submit(*a),
-        record_drop=t.record_drop,
+        record_drop=lambda wh, ing, fid: t.record_drop(wh, quote(ing), fid),
         submit_campaigns=lambda *a: t.load_and_process.submit(*a),
-        store_campaigns=t.store_campaigns)
+        store_campaigns=lambda wh, items, **kw: t.store_campaigns(wh, quote(items), **kw))
 
 
 def check_drops(drops: list[str]) -> list[str]:
@@ -543,6 +551,32 @@ def _task_runner(name: str):
         raise PipelineError(str(e)) from None
 
 
+@contextlib.contextmanager
+def _api_for_local_workers(task_runner: str):
+    """With a local Dask cluster and no Prefect API configured, start the flow's temporary
+    Prefect server first and hand its address to the workers (PREFECT_API_URL, inherited
+    when the cluster spawns them).  Otherwise every worker process started a temporary
+    server of its own: seconds of CPU per worker at start (taken from the science on a
+    machine with a worker per core), task runs reported to a server the flow never sees,
+    and a server left running whenever the nanny killed its worker at close."""
+    from prefect.settings import PREFECT_API_URL, PREFECT_SERVER_EPHEMERAL_ENABLED
+    if task_runner != "dask" or PREFECT_API_URL.value() or not PREFECT_SERVER_EPHEMERAL_ENABLED.value():
+        yield
+        return
+    from prefect.server.api.server import SubprocessASGIServer
+    server = SubprocessASGIServer()      # the one the flow's client would start (one a process)
+    server.start()
+    before = os.environ.get("PREFECT_API_URL")
+    os.environ["PREFECT_API_URL"] = server.api_url
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop("PREFECT_API_URL", None)
+        else:
+            os.environ["PREFECT_API_URL"] = before
+
+
 def run_pipeline(drops: list[str], warehouse: str | Path, *, engine: str = "prefect",
                  lock_timeout: float = 60.0, parameters: dict[str, Any] | None = None,
                  task_runner: str = "thread", settle: float | None = None,
@@ -570,7 +604,7 @@ def run_pipeline(drops: list[str], warehouse: str | Path, *, engine: str = "pref
         # Fail fast (before the Prefect server starts) when the warehouse is busy.
         wh = Warehouse(warehouse, lock_timeout=lock_timeout)
         runner = _task_runner(task_runner)
-        with wh.lock():
+        with wh.lock(), _api_for_local_workers(task_runner):
             fl = pipeline_flow()
             if runner is not None:
                 fl = fl.with_options(task_runner=runner)
