@@ -159,6 +159,15 @@ def campaigns_per_store() -> int:
     return _env_int("ACCELCAL_CAMPAIGNS_PER_STORE", CAMPAIGNS_PER_STORE)
 
 
+#: Campaigns planned (their input runs read from the warehouse) at a time: the plans of
+#: a whole fleet would be held for the whole science stage (~10 KB a campaign).
+CAMPAIGNS_PER_PLAN = 256
+
+
+def campaigns_per_plan() -> int:
+    return _env_int("ACCELCAL_CAMPAIGNS_PER_PLAN", CAMPAIGNS_PER_PLAN)
+
+
 def in_flight() -> int:
     """Tasks submitted ahead of the one the flow waits for (feeds several workers; bounds
     memory to this many batches / campaigns at a time)."""
@@ -324,8 +333,14 @@ def _body(wh, drops, summary, steps, flow_run_id, parameters, cv, settle, B, W, 
         by_drop = {d: [ready_at[e.path] for e in scanned[d] if e.path in ready_at] for d in drops}
         held_by = {d: [f"{path_text(e.path)}: {held_at[e.path]}" for e in scanned[d]
                        if e.path in held_at] for d in drops}
+        empty = {d for d in drops if not scanned[d]}
+        # only by_drop is kept, and each drop's list is let go once it is submitted: what
+        # the run holds of the listing shrinks as it goes (a fleet's drops list ~10 files
+        # a campaign)
+        del scanned, unique, ready, held_all, ready_at, held_at
         tick("discover", t0)
-        for drop in drops:
+        last = {d: i for i, d in enumerate(drops)}
+        for i, drop in enumerate(drops):
             sess.touch()
             known = steps.known_keys(wh, drop)
             entry = {"drop": Path(drop).name, "path": drop, "files": 0, "accepted": 0,
@@ -333,9 +348,9 @@ def _body(wh, drops, summary, steps, flow_run_id, parameters, cv, settle, B, W, 
                      "errors": [], "held": held_by[drop], "warnings": [], "docs": None,
                      "simulated_held": []}
             summary["drops"].append(entry)
-            if not scanned[drop]:
+            if drop in empty:
                 entry["warnings"].append(f"drop {drop} holds no *.csv file: nothing to do")
-            paths = by_drop[drop]
+            paths = by_drop.pop(drop) if last[drop] == i else by_drop[drop]
             progress.stage("ingest", len(paths))
             batches = file_batches(paths, B, batch_bytes()) or [[]]
             nb = len(batches)
@@ -361,11 +376,7 @@ def _body(wh, drops, summary, steps, flow_run_id, parameters, cv, settle, B, W, 
         campaigns = sorted(touched)
         progress.stage("science", len(campaigns))
         progress.stage("store", len(campaigns))
-        t0 = time.perf_counter()
-        sess.touch()
-        plans = wh.campaign_plans(campaigns)
-        left_out = wh.simulated_left_out(campaigns)
-        tick("plan", t0)
+        P = campaigns_per_plan()
 
         # -- 5-8: load + science, a few campaigns per task; store each chunk's results
         inflight: deque = deque()
@@ -414,6 +425,9 @@ def _body(wh, drops, summary, steps, flow_run_id, parameters, cv, settle, B, W, 
 
         C = campaigns_per_task()
         chunk: list = []
+        plans: dict = {}
+        left_out: dict = {}
+        first = len(summary["campaigns"])
 
         def submit(chunk) -> None:
             t0 = time.perf_counter()
@@ -424,7 +438,20 @@ def _body(wh, drops, summary, steps, flow_run_id, parameters, cv, settle, B, W, 
                 store_next()
 
         for camp in campaigns:
-            inputs, current = plans[camp]
+            if camp not in plans:
+                # the next window of campaigns: its runs and current results (one plan
+                # per campaign, whatever window it is asked in), so what the run holds
+                # of the plans is bounded by the window, not the fleet
+                k = len(summary["campaigns"]) - first
+                window = campaigns[k:k + P]
+                plans.clear()
+                left_out.clear()
+                t0 = time.perf_counter()
+                sess.touch()
+                plans.update(wh.campaign_plans(window))
+                left_out.update(wh.simulated_left_out(window))
+                tick("plan", t0)
+            inputs, current = plans.pop(camp)
             rid = _result_id(camp, [i["sha256"] for i in inputs], cv, parameters)
             entry = {"campaign": camp, "result_id": rid, "n_runs": len(inputs), "status": None,
                      "error": None, "simulated_left_out": left_out.get(camp, 0)}
