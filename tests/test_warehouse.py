@@ -252,3 +252,23 @@ def test_result_id_is_deterministic():
     assert r1 == result_id("C", ["a", "b", "a"], "v", {"y": [1, 2], "x": 1})
     assert r1 != result_id("C", ["a", "b"], "v2", {"x": 1, "y": [1, 2]})
     assert r1 != result_id("C", ["a"], "v", {"x": 1, "y": [1, 2]})
+
+
+def test_roomy_raises_the_memory_limit_for_its_statements_then_sets_it_back(monkeypatch):
+    """The write connection's cap (64 MB) is too small for the plan query of a large
+    warehouse (2,000 campaigns: 'could not allocate block'); roomy lifts it for those
+    statements and puts it back."""
+    import duckdb
+    from accelcal.warehouse.db import roomy
+    monkeypatch.setenv("ACCELCAL_DUCKDB_MEMORY", "64MB")
+    monkeypatch.setenv("ACCELCAL_DUCKDB_QUERY_MEMORY", "1GB")
+    con = duckdb.connect()
+    con.execute("SET memory_limit = '64MB'").fetchall()
+
+    def limit():
+        return con.execute("SELECT current_setting('memory_limit')").fetchall()[0][0]
+    before = limit()
+    with roomy(con):
+        inside = limit()
+    assert (before, inside) == ("61.0 MiB", "953.6 MiB")    # 64 MB, 1 GB in MiB
+    assert limit() == before

@@ -28,7 +28,7 @@ from ..tasks import science as _science
 from ..tasks import store as _store
 from ..tasks import validate as _validate
 from ..fileio import StoreError, os_error_text, path_text
-from ..warehouse.db import Warehouse, WarehouseError
+from ..warehouse.db import Warehouse, WarehouseError, roomy
 from ..warehouse.lineage import code_version as _code_version
 from ..warehouse.lineage import result_id as _result_id
 
@@ -485,7 +485,7 @@ SUMMARY_DETAIL_MAX = 50
 
 
 def _fill_campaigns(wh: Warehouse, entries: list[dict[str, Any]]) -> None:
-    with wh.connect() as con:
+    with wh.connect() as con, roomy(con):
         camps = [e["campaign"] for e in entries]
         current = {c: rest for c, *rest in con.execute(
             "SELECT campaign, result_id, unit_serial, completeness, completeness_reasons, "

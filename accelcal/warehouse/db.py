@@ -371,9 +371,39 @@ _PLAN_RUNS = """
 WRITE_MEMORY_LIMIT = "64MB"
 
 
+#: ... raised to this (``ACCELCAL_DUCKDB_QUERY_MEMORY``) for the statements whose working
+#: set grows with the warehouse (the plan of which campaigns to compute, the run summary):
+#: at 2,000 campaigns the plan query needed more than 64 MB and the run stopped with
+#: "Out of Memory Error: could not allocate block".  The limit is set back afterwards,
+#: which drops the cached blocks beyond it, so memory between those statements stays flat.
+QUERY_MEMORY_LIMIT = "2GB"
+
+
+def _memory_setting(name: str, default: str) -> str:
+    v = os.environ.get(name, default).strip()
+    return v if re.fullmatch(r"\d+(\.\d+)?\s*[KMGT]i?B", v, re.I) else default
+
+
 def write_memory_limit() -> str:
-    v = os.environ.get("ACCELCAL_DUCKDB_MEMORY", WRITE_MEMORY_LIMIT).strip()
-    return v if re.fullmatch(r"\d+(\.\d+)?\s*[KMGT]i?B", v, re.I) else WRITE_MEMORY_LIMIT
+    return _memory_setting("ACCELCAL_DUCKDB_MEMORY", WRITE_MEMORY_LIMIT)
+
+
+def query_memory_limit() -> str:
+    return _memory_setting("ACCELCAL_DUCKDB_QUERY_MEMORY", QUERY_MEMORY_LIMIT)
+
+
+@contextlib.contextmanager
+def roomy(con: duckdb.DuckDBPyConnection) -> Iterator[duckdb.DuckDBPyConnection]:
+    """``con`` with DuckDB's memory limit raised to :func:`query_memory_limit` for the
+    statements inside, then set back to :func:`write_memory_limit`."""
+    con.execute(f"SET memory_limit = '{query_memory_limit()}'").fetchall()
+    try:
+        yield con
+    finally:
+        try:
+            con.execute(f"SET memory_limit = '{write_memory_limit()}'").fetchall()
+        except duckdb.Error:        # cannot free down to it now: keep the larger limit
+            pass
 
 
 # ----------------------------------------------------------------- schema --
@@ -821,7 +851,7 @@ class Warehouse:
         out: dict[str, tuple[list[dict[str, Any]], str | None]] = {c: ([], None) for c in campaigns}
         if not campaigns:
             return out
-        with self.connect() as con:
+        with self.connect() as con, roomy(con):
             cur = con.execute(
                 f"""SELECT campaign, run_id, revision, sha256, test, rig_id, source_path,
                           parquet_path, simulated
@@ -840,7 +870,7 @@ class Warehouse:
         """Simulated runs under the label (or run id) of a campaign's real runs: not used."""
         if not campaigns:
             return {}
-        with self.connect() as con:
+        with self.connect() as con, roomy(con):
             return dict(con.execute(
                 f"""SELECT campaign, count(DISTINCT run_id) FROM run_revisions
                     WHERE list_contains(?, campaign) AND simulated AND status = 'accepted'
