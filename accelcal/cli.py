@@ -219,7 +219,9 @@ def print_summary(summary: dict[str, Any], console=None) -> None:
             say(con, f, "flag", "yellow", "  ")
     con.print()
     tm = summary.get("timings", {})
-    say(con, f"warehouse {wh}  ·  {summary.get('engine', '')} engine  ·  "
+    n = summary.get("workers") or 1
+    procs = f" ({n} worker processes)" if n > 1 else ""
+    say(con, f"warehouse {wh}  ·  {summary.get('engine', '')} engine{procs}  ·  "
              f"{tm.get('total', 0):.1f} s  ·  flow run {summary['flow_run_id']}")
 
 
@@ -283,7 +285,8 @@ def _execute(drops: list[str], warehouse: str, args, console, create: bool = Fal
                                    lock_timeout=args.lock_timeout,
                                    task_runner=args.task_runner, settle=args.settle,
                                    create=create, snapshot=not args.no_snapshot,
-                                   allow_simulated=allow_simulated)
+                                   allow_simulated=allow_simulated,
+                                   workers=args.workers)
     except (PipelineError, WarehouseError, StoreError) as e:
         raise CliError(str(e)) from None
     finally:
@@ -313,6 +316,10 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
                         "without Prefect (no server start-up)")
     p.add_argument("--task-runner", default="thread",
                    help="Prefect task runner for ingest/validate batches and campaign science: thread, dask (local cluster) or tcp://HOST:PORT (an existing Dask scheduler)")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="local engine: N processes for the ingest/validate batches and the "
+                        "campaign science (default $ACCELCAL_WORKERS or 1; the warehouse "
+                        "writes stay in one process)")
     p.add_argument("--settle", type=float, default=None, metavar="S",
                    help="read a file only when its size and mtime have been stable for S "
                         "seconds (default $ACCELCAL_SETTLE_S or 2); one still changing is "

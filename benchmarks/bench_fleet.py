@@ -145,6 +145,20 @@ def stage_times(r: dict) -> dict[str, float]:
     return out
 
 
+def worker_count(summary: dict, runner: str) -> int:
+    """Worker processes besides the flow process: the local engine's pool, or Dask's."""
+    if runner == "dask":
+        return int(os.environ.get("ACCELCAL_DASK_WORKERS") or os.cpu_count() or 1)
+    n = int(summary.get("workers") or 1)
+    return n if n > 1 else 0
+
+
+def peak_rss_total(r: dict) -> float:
+    """Peak RSS of the flow process plus, for each worker process, the largest peak any
+    ended child had (an upper bound of what the workers held at once) [MB]."""
+    return r["peak_rss_mb"] + (r.get("workers") or 0) * (r.get("peak_rss_children_mb") or 0.0)
+
+
 def child(args) -> dict:
     n, per_drop, engine, runner, keep = args.n, args.per_drop, args.engine, args.task_runner, args.keep
     os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")
@@ -212,7 +226,7 @@ def child(args) -> dict:
             "runs_per_s": n_runs / t_pipe, "timings": s["timings"], "statuses": statuses,
             "cpu_flow_s": cpu_flow, "cpu_children_s": cpu_children,
             "peak_rss_mb": rss_peak / 1024, "rss_before_pipeline_mb": rss_before / 1024,
-            "peak_rss_children_mb": rss_children / 1024,
+            "peak_rss_children_mb": rss_children / 1024, "workers": worker_count(s, runner),
             "batch_files": int(os.environ.get("ACCELCAL_BATCH_FILES", 0)) or None,
             "in_flight": int(os.environ.get("ACCELCAL_IN_FLIGHT", 0)) or None,
             "query_latency_s": lat, "coefficient_rows": n_coef, "changes": n_chg,
@@ -229,8 +243,10 @@ def main(argv=None) -> int:
     ap.add_argument("--engine", default="local", choices=("local", "prefect"))
     ap.add_argument("--task-runner", default="thread", choices=("thread", "dask"))
     ap.add_argument("--workers", type=int, default=None,
-                    help="Dask worker processes (one thread each) for --task-runner dask; "
-                         "sets ACCELCAL_DASK_WORKERS (default: one per core)")
+                    help="worker processes: for --engine local, the local engine's pool "
+                         "(sets ACCELCAL_WORKERS; default 1, the flow process itself); for "
+                         "--task-runner dask, Dask workers of one thread each (sets "
+                         "ACCELCAL_DASK_WORKERS; default one per core)")
     ap.add_argument("--out", default=str(ROOT / "bench-out" / "fleet"))
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--n", type=int, help=argparse.SUPPRESS)
@@ -245,9 +261,12 @@ def main(argv=None) -> int:
         print("RESULT " + json.dumps(child(args), default=str))
         return 0
     if args.workers is not None:
-        if args.task_runner != "dask":
-            ap.error("--workers needs --task-runner dask")
-        os.environ["ACCELCAL_DASK_WORKERS"] = str(max(1, args.workers))
+        if args.task_runner == "dask":
+            os.environ["ACCELCAL_DASK_WORKERS"] = str(max(1, args.workers))
+        elif args.engine == "local":
+            os.environ["ACCELCAL_WORKERS"] = str(max(1, args.workers))
+        else:
+            ap.error("--workers needs --engine local or --task-runner dask")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     results = []
@@ -287,6 +306,10 @@ def report(results: list[dict], args) -> str:
     if args.task_runner == "dask":
         engine += f" ({workers or os.cpu_count()} workers)"
     flag = f" --workers {workers}" if args.task_runner == "dask" and workers else ""
+    if args.engine == "local" and int(os.environ.get("ACCELCAL_WORKERS") or 1) > 1:
+        n = os.environ["ACCELCAL_WORKERS"]
+        engine += f" ({n} worker processes + the flow process, which writes the warehouse)"
+        flag = f" --workers {n}"
     r0 = results[0]
     lines = [f"Fleet benchmark (`python benchmarks/bench_fleet.py --campaigns "
              f"{' '.join(str(r['campaigns']) for r in results)} --engine {args.engine}"
@@ -308,7 +331,10 @@ def report(results: list[dict], args) -> str:
     for r in results:
         st = stage_times(r)
         rss = f"{r['peak_rss_mb']:.0f}"
-        if r.get("peak_rss_children_mb"):
+        if r.get("workers") and r.get("peak_rss_children_mb"):
+            rss += (f" + {r['workers']} × {r['peak_rss_children_mb']:.0f} workers "
+                    f"= {peak_rss_total(r):.0f}")
+        elif r.get("peak_rss_children_mb"):
             rss += f" + {r['peak_rss_children_mb']:.0f} workers"
         lines.append(
             f"| {r['campaigns']} | {r['runs']} | {r['pipeline_s']:.1f} | {r['runs_per_s']:.1f} "
@@ -324,8 +350,9 @@ def report(results: list[dict], args) -> str:
                                              for r in results) + " |")
     if len(results) >= 2:
         a, b = results[0], results[-1]
-        lines += ["", f"Peak RSS {b['campaigns']} / {a['campaigns']} campaigns: "
-                      f"{b['peak_rss_mb'] / a['peak_rss_mb']:.2f}×; time per campaign "
+        lines += ["", f"Peak RSS {b['campaigns']} / {a['campaigns']} campaigns"
+                      + (" (flow process + workers)" if a.get("workers") else "") + ": "
+                      f"{peak_rss_total(b) / peak_rss_total(a):.2f}×; time per campaign "
                       f"{a['pipeline_s'] / a['campaigns']:.3f} → "
                       f"{b['pipeline_s'] / b['campaigns']:.3f} s."]
     return "\n".join(lines)

@@ -55,13 +55,51 @@ class _Done:
         return self._value
 
 
-def _local_steps() -> SimpleNamespace:
+def _local_steps(pool=None) -> SimpleNamespace:
+    """The plain functions; with ``pool`` (a process pool) the two heavy steps -- a
+    batch's ingest + validate, a chunk's load + science -- run in its worker processes,
+    the rest (every warehouse write) in the flow process."""
+    submit = _Done if pool is None else pool.submit
     return SimpleNamespace(
         known_keys=_store.known_keys,
-        submit_intake=lambda *a: _Done(_validate.intake_batch, *a),
+        submit_intake=lambda *a: submit(_validate.intake_batch, *a),
         record_drop=_store.record_drop,
-        submit_campaigns=lambda *a: _Done(_science.load_and_process, *a),
+        submit_campaigns=lambda *a: submit(_science.load_and_process, *a),
         store_campaigns=_store.store_campaigns)
+
+
+def local_workers() -> int:
+    """Worker processes of the local engine ($ACCELCAL_WORKERS, default 1: the steps run
+    in the flow process itself)."""
+    return _env_int("ACCELCAL_WORKERS", 1)
+
+
+def _worker_init() -> None:
+    """A local worker leaves Ctrl-C to the flow process, which stops the pool (a worker
+    killed mid-task would cost the batch it held, not the run)."""
+    import signal
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _quiet_libraries()
+
+
+@contextlib.contextmanager
+def _local_pool(workers: int):
+    """None for one worker; else a pool of ``workers`` processes, started fresh (spawn:
+    the flow process holds the warehouse connection and threads, which a fork would copy)
+    and stopped with the run, whatever ends it."""
+    if workers <= 1:
+        yield None
+        return
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+    pool = ProcessPoolExecutor(max_workers=workers, initializer=_worker_init,
+                               mp_context=multiprocessing.get_context("spawn"))
+    try:
+        yield pool
+    except BaseException:
+        pool.shutdown(wait=True, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
 
 
 def _prefect_steps() -> SimpleNamespace:
@@ -608,10 +646,13 @@ def run_pipeline(drops: list[str], warehouse: str | Path, *, engine: str = "pref
                  lock_timeout: float = 60.0, parameters: dict[str, Any] | None = None,
                  task_runner: str = "thread", settle: float | None = None,
                  create: bool = True, snapshot: bool = True,
-                 allow_simulated: bool = False) -> dict[str, Any]:
+                 allow_simulated: bool = False, workers: int | None = None) -> dict[str, Any]:
     """Process drops into a warehouse.  Raises PipelineError / WarehouseError / StoreError
     (one line each) when it cannot work.  ``create``: make the warehouse's folder if it
-    does not exist (the CLI asks for ``--create``)."""
+    does not exist (the CLI asks for ``--create``).  ``workers`` (local engine; default
+    $ACCELCAL_WORKERS or 1): processes that run the ingest/validate batches and the
+    campaign science, so a fleet uses every core; the warehouse writes stay in the flow
+    process (one writer), and the results are the same whatever the number."""
     drops = check_drops(list(drops))
     if not drops:
         raise PipelineError("no drop given")
@@ -625,9 +666,17 @@ def run_pipeline(drops: list[str], warehouse: str | Path, *, engine: str = "pref
     if engine == "local":
         if task_runner != "thread":
             raise PipelineError("--task-runner needs the prefect engine")
-        summary = pipeline_body(drops, warehouse, steps=_local_steps(),
-                                flow_run_id=f"local-{uuid.uuid4()}", **kw)
+        n = local_workers() if workers is None else workers
+        if n < 1:
+            raise PipelineError(f"--workers must be at least 1, not {n}")
+        with _local_pool(n) as pool:
+            summary = pipeline_body(drops, warehouse, steps=_local_steps(pool),
+                                    flow_run_id=f"local-{uuid.uuid4()}", **kw)
+        summary["workers"] = n
     elif engine == "prefect":
+        if workers not in (None, 1):
+            raise PipelineError("--workers is for the local engine (the prefect engine's "
+                                "dask runner takes $ACCELCAL_DASK_WORKERS)")
         # Fail fast (before the Prefect server starts) when the warehouse is busy.
         wh = Warehouse(warehouse, lock_timeout=lock_timeout)
         runner = _task_runner(task_runner)
