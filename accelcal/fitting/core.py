@@ -205,7 +205,10 @@ def lstsq_svd(J: np.ndarray, z: np.ndarray, rcond: float = RCOND) -> LinearSolut
     xs = V @ ((U[:, keep].T @ z) / S[keep])
     x[act] = xs / norm[act]
     C = (V / S[keep] ** 2) @ V.T
-    cov[np.ix_(act, act)] = C / np.outer(norm[act], norm[act])
+    if act.all():                     # every column: the same values without the fancy index
+        cov[:, :] = C / np.outer(norm, norm)
+    else:
+        cov[np.ix_(act, act)] = C / np.outer(norm[act], norm[act])
     Vn = Vt[~keep]
     if Vn.size:
         est[act] = np.linalg.norm(Vn, axis=0) < 1e-6

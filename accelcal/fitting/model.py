@@ -335,8 +335,9 @@ class CampaignModel:
         base = None
         lin: list[int] = []
         rows: list[np.ndarray] = []
+        acting = self._acting(j)
         for c, i in enumerate(cols):
-            if i not in self.run_params[j]:
+            if i not in acting:
                 continue
             role = self.roles[i]
             if role.kind in ("coef", "bias") and role.key in instrument.DEFAULTS:
@@ -366,9 +367,20 @@ class CampaignModel:
             if tau > 0:                       # the lag is linear: lag the columns at once
                 X = first_order_lag(X, t, tau)
             keep = r.cid >= 0
+            if keep.all():                    # no dropped readings: the same rows, unindexed
+                cid, Xk = r.cid, X
+            else:
+                cid, Xk = r.cid[keep], X[keep]
             for k, c in enumerate(lin):
-                J[:, c] = np.bincount(r.cid[keep], weights=X[keep, k], minlength=r.ncell) / r.n
+                J[:, c] = np.bincount(cid, weights=Xk[:, k], minlength=r.ncell) / r.n
         return J
+
+    def _acting(self, j: int) -> frozenset[int]:
+        """The parameters acting on run j (:attr:`run_params` as a set, for membership)."""
+        sets = self.__dict__.get("_acting_sets")
+        if sets is None or sets[0] is not self.run_params:
+            sets = self.__dict__["_acting_sets"] = (self.run_params, [frozenset(ps) for ps in self.run_params])
+        return sets[1][j]
 
     #: unwhitened Jacobians kept per model (the most recent ones): a fit asks for the same
     #: one again at the same point (model selection, then the Gauss–Newton start; the last

@@ -393,7 +393,11 @@ def rig_output(test: str, meta: Mapping, data, coeffs: Mapping[str, float],
             c[name] = float(c.get(name, 0.0)) + float(effects[eid])
     F = specific_force(test, meta, data, effects, **kw)
     n = F.shape[0]
-    temp = _col(data, "temp_c", n, np.nan) if ("temp_c" in getattr(data, "keys", lambda: [])()) else None
+    # the temperature only enters through K0T and K1T (instrument.output): not read without them
+    temp = None
+    if ((float(c.get("K0T", 0.0)) != 0.0 or float(c.get("K1T", 0.0)) != 0.0)
+            and "temp_c" in getattr(data, "keys", lambda: [])()):
+        temp = _col(data, "temp_c", n, np.nan)
     if temp is not None:
         temp = np.where(np.isfinite(temp), temp, T_REF_C)
     t = _col(data, "time_s", n)
