@@ -236,6 +236,19 @@ def fitted_drive(t: np.ndarray, logged: np.ndarray, f: float, harmonics: int = 3
     return X @ b, D @ b
 
 
+def _float_columns(data, names: Sequence[str]) -> dict[str, np.ndarray]:
+    """``{c: np.asarray(data[c], float)}`` of every column but ``line``.
+
+    A DataFrame of plain numpy float and int columns (unique names) is converted at once
+    (``to_numpy(dtype=float)``: the same float64 values, at a tenth of the cost of pandas'
+    column access, ~15 us a column) into one block whose rows are the columns."""
+    if (hasattr(data, "to_numpy") and hasattr(data, "dtypes") and data.columns.is_unique
+            and all(isinstance(dt, np.dtype) and dt.kind in "fi" for dt in data.dtypes)):
+        block = np.ascontiguousarray(data.to_numpy(dtype=float).T)
+        return {c: block[k] for k, c in enumerate(names) if c != "line"}
+    return {c: np.asarray(data[c], float) for c in names if c != "line"}
+
+
 def make_run(meta: Mapping, data, index: int = 0, sha256: str = "", sine_segments: int = 1) -> RunCells:
     """Cells, levels and labels of one run (typed meta and its columns).
 
@@ -255,7 +268,7 @@ def make_run(meta: Mapping, data, index: int = 0, sha256: str = "", sine_segment
     test = str(meta["test"])
     geo = geometry_of(meta)
     all_names = list(data.columns if hasattr(data, "columns") else data.keys())
-    cols = {c: np.asarray(data[c], float) for c in all_names if c != "line"}
+    cols = _float_columns(data, all_names)
     nrow = len(cols["output"])
     t = cols.get("time_s", np.arange(nrow, dtype=float))
     lines = np.asarray(data["line"], float) if "line" in all_names else np.zeros(nrow)
