@@ -165,9 +165,21 @@ class RunCells:
     def ncell(self) -> int:
         return int(self.n.size)
 
+    def _kept_mask(self) -> np.ndarray | None:
+        """``cid >= 0`` (the readings kept), None when every reading is: worked out once per
+        ``cid`` array (the model takes thousands of cell means per campaign; ``cid`` is only
+        ever replaced, never changed in place)."""
+        memo = self.__dict__.get("_keep_memo")
+        if memo is None or memo[0] is not self.cid:
+            keep = self.cid >= 0
+            memo = self.__dict__["_keep_memo"] = (self.cid, None if keep.all() else keep)
+        return memo[1]
+
     def cell_mean(self, rows: np.ndarray) -> np.ndarray:
         """Mean over each cell of a per-reading quantity (rows of dropped cells ignored)."""
-        keep = self.cid >= 0
+        keep = self._kept_mask()
+        if keep is None:              # every reading: the same sums without indexing
+            return np.bincount(self.cid, weights=np.asarray(rows, float), minlength=self.ncell) / self.n
         return np.bincount(self.cid[keep], weights=np.asarray(rows, float)[keep],
                            minlength=self.ncell) / self.n
 
