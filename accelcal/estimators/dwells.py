@@ -12,7 +12,7 @@ from collections.abc import Mapping
 import numpy as np
 import pandas as pd
 
-from ..fitting.core import lstsq_svd
+from ..fitting.core import lstsq_svd_x
 from ..physics.rigs import omega_z
 
 
@@ -187,7 +187,7 @@ def noise_model(level: np.ndarray, var: np.ndarray, n: np.ndarray) -> tuple[floa
     beta = np.array([np.median(v[a2 == a2.min()]) if np.any(a2 == a2.min()) else v.min(), 0.0])
     for _ in range(3):
         sw = np.sqrt(w)
-        beta = lstsq_svd(X * sw[:, None], v * sw).x
+        beta = lstsq_svd_x(X * sw[:, None], v * sw)
         beta = np.maximum(beta, [max(v.min() * 1e-3, 1e-300), 0.0])
         pred = X @ beta
         w = dof / pred**2

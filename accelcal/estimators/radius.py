@@ -330,7 +330,12 @@ class PairData:
 
     def input_columns(self) -> tuple[np.ndarray, np.ndarray]:
         """d a / d R and d a / d r of every row (:func:`radial_input_columns`): a is the
-        specific force along :attr:`direction`, positive for the '+' run, negative for '-'."""
+        specific force along :attr:`direction`, positive for the '+' run, negative for '-'.
+        Computed once (read-only arrays): the iterative radius asks for them at every order
+        and g range, and the table and metadata do not change after the pair is built."""
+        taken = self.__dict__.get("_input_columns")
+        if taken is not None:
+            return taken
         pol = self.column("pol")
         rate = self.column("rate").astype(float, copy=False)
         dR, dr = np.zeros(len(pol)), np.zeros(len(pol))
@@ -338,6 +343,9 @@ class PairData:
         for p, meta in self.metas.items():
             k = pol == p
             dR[k], dr[k] = radial_input_columns(meta, rate[k], u)
+        dR.setflags(write=False)
+        dr.setflags(write=False)
+        self.__dict__["_input_columns"] = (dR, dr)
         return dR, dr
 
     def inputs(self, R: float | Mapping[int, float], r: float = 0.0) -> np.ndarray:

@@ -186,26 +186,18 @@ def lstsq_svd(J: np.ndarray, z: np.ndarray, rcond: float = RCOND) -> LinearSolut
     Passes the NIST StRD linear problems (Pontius, Longley, Wampler 1–5) to the certified
     digits; see ``tests/test_fitting_core.py``.
     """
-    J = np.asarray(J, float)
-    z = np.asarray(z, float)
-    n, p = J.shape
-    norm = np.sqrt(np.einsum("ij,ij->j", J, J))
-    act = norm > 0
-    if act.any():
-        act &= norm > norm[act].max() * 1e-300
-    x = np.zeros(p)
+    x, norm, act, svd = _svd_solve(J, z, rcond)
+    p = x.size
     cov = np.zeros((p, p))
     est = np.zeros(p, bool)
-    if not act.any():
+    if svd is None:
         return LinearSolution(x, cov, 0, np.zeros(0), est, norm)
-    Js = J[:, act] / norm[act]
-    U, S, Vt = np.linalg.svd(Js, full_matrices=False)
-    keep = S > S[0] * rcond
-    V = Vt[keep].T
-    xs = V @ ((U[:, keep].T @ z) / S[keep])
-    x[act] = xs / norm[act]
+    S, Vt, keep, V = svd
     C = (V / S[keep] ** 2) @ V.T
-    cov[np.ix_(act, act)] = C / np.outer(norm[act], norm[act])
+    if act.all():                     # every column: the same values without the fancy index
+        cov[:, :] = C / np.outer(norm, norm)
+    else:
+        cov[np.ix_(act, act)] = C / np.outer(norm[act], norm[act])
     Vn = Vt[~keep]
     if Vn.size:
         est[act] = np.linalg.norm(Vn, axis=0) < 1e-6
@@ -214,6 +206,34 @@ def lstsq_svd(J: np.ndarray, z: np.ndarray, rcond: float = RCOND) -> LinearSolut
     null = np.zeros((p, Vn.shape[0]))
     null[act] = Vn.T
     return LinearSolution(x, cov, int(keep.sum()), S, est, norm, null)
+
+
+def _svd_solve(J: np.ndarray, z: np.ndarray, rcond: float):
+    """x of :func:`lstsq_svd` with the column norms, the active columns and (S, Vt, keep, V)
+    of the SVD (None when no column is active)."""
+    J = np.asarray(J, float)
+    z = np.asarray(z, float)
+    n, p = J.shape
+    norm = np.sqrt(np.einsum("ij,ij->j", J, J))
+    act = norm > 0
+    if act.any():
+        act &= norm > norm[act].max() * 1e-300
+    x = np.zeros(p)
+    if not act.any():
+        return x, norm, act, None
+    Js = J[:, act] / norm[act]
+    U, S, Vt = np.linalg.svd(Js, full_matrices=False)
+    keep = S > S[0] * rcond
+    V = Vt[keep].T
+    xs = V @ ((U[:, keep].T @ z) / S[keep])
+    x[act] = xs / norm[act]
+    return x, norm, act, (S, Vt, keep, V)
+
+
+def lstsq_svd_x(J: np.ndarray, z: np.ndarray, rcond: float = RCOND) -> np.ndarray:
+    """The solution x of :func:`lstsq_svd` alone (the same values), without its covariance
+    and null space, for the many small solves that use nothing else."""
+    return _svd_solve(J, z, rcond)[0]
 
 
 def separable_columns(J: np.ndarray, order: Sequence[int], tol: float = 1e-6) -> list[int]:

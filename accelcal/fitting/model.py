@@ -301,8 +301,32 @@ class CampaignModel:
             kw["rate_derivative"] = rotation_sign(r.meta) * (1.0 + eps) * r.rate_derivative
         return co, eff, kw
 
+    #: points whose model outputs are kept (the most recent): a fit evaluates the model at
+    #: its solution again and again (its last step, the noise refit, the next fit's start,
+    #: the pure error), each time at the same point
+    PREDICTION_CACHE = 8
+
     def predict_rows(self, p: np.ndarray, j: int, extra: Mapping[str, float] | None = None) -> np.ndarray:
-        """The model's output at every reading of run j [output_unit]."""
+        """The model's output at every reading of run j [output_unit] (read-only when kept)."""
+        if extra or type(p) is not np.ndarray or p.dtype != np.float64:
+            return self._rows(p, j, extra)
+        # keyed by value: the point (bytes) is all the output depends on besides the runs'
+        # metadata and columns, which do not change while a model lives on them
+        cache = self.__dict__.setdefault("_predictions", {})
+        key = (p.shape, p.tobytes())
+        rows = cache.get(key)
+        if rows is None:
+            rows = cache[key] = {}
+            while len(cache) > self.PREDICTION_CACHE:
+                del cache[next(iter(cache))]
+        E = rows.get(j)
+        if E is None:
+            E = rows[j] = self._rows(p, j)
+            E.setflags(write=False)
+        return E
+
+    def _rows(self, p: np.ndarray, j: int, extra: Mapping[str, float] | None = None) -> np.ndarray:
+        """:meth:`predict_rows` itself: ``rig_output`` at the inputs of run j."""
         r = self.runs[j]
         co, eff, kw = self.inputs(p, j, extra)
         return rig_output(r.test, r.meta, r.cols, co, eff, **kw)
@@ -335,8 +359,9 @@ class CampaignModel:
         base = None
         lin: list[int] = []
         rows: list[np.ndarray] = []
+        acting = self._acting(j)
         for c, i in enumerate(cols):
-            if i not in self.run_params[j]:
+            if i not in acting:
                 continue
             role = self.roles[i]
             if role.kind in ("coef", "bias") and role.key in instrument.DEFAULTS:
@@ -351,13 +376,14 @@ class CampaignModel:
             h = 1e-3 * self.params[i].scale
             pp, pm = p.copy(), p.copy()
             pp[i] += h
+            # the points of the differences are not kept (each is used once)
             if role.key == "sensor_lag" and p[i] - h < 0:
                 if base is None:
                     base = self.predict_run(p, j)
-                J[:, c] = (self.predict_run(pp, j) - base) / h
+                J[:, c] = (r.cell_mean(self._rows(pp, j)) - base) / h
                 continue
             pm[i] -= h
-            J[:, c] = (self.predict_run(pp, j) - self.predict_run(pm, j)) / (2 * h)
+            J[:, c] = (r.cell_mean(self._rows(pp, j)) - r.cell_mean(self._rows(pm, j))) / (2 * h)
         if lin:
             # the columns side by side (a scalar column, K0 at a constant K1, fills its column)
             X = np.empty(r.y_rows.shape + (len(rows),))
@@ -366,9 +392,20 @@ class CampaignModel:
             if tau > 0:                       # the lag is linear: lag the columns at once
                 X = first_order_lag(X, t, tau)
             keep = r.cid >= 0
+            if keep.all():                    # no dropped readings: the same rows, unindexed
+                cid, Xk = r.cid, X
+            else:
+                cid, Xk = r.cid[keep], X[keep]
             for k, c in enumerate(lin):
-                J[:, c] = np.bincount(r.cid[keep], weights=X[keep, k], minlength=r.ncell) / r.n
+                J[:, c] = np.bincount(cid, weights=Xk[:, k], minlength=r.ncell) / r.n
         return J
+
+    def _acting(self, j: int) -> frozenset[int]:
+        """The parameters acting on run j (:attr:`run_params` as a set, for membership)."""
+        sets = self.__dict__.get("_acting_sets")
+        if sets is None or sets[0] is not self.run_params:
+            sets = self.__dict__["_acting_sets"] = (self.run_params, [frozenset(ps) for ps in self.run_params])
+        return sets[1][j]
 
     #: unwhitened Jacobians kept per model (the most recent ones): a fit asks for the same
     #: one again at the same point (model selection, then the Gauss–Newton start; the last

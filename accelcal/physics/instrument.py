@@ -21,6 +21,48 @@ DEFAULTS = {"K0": 0.0, "K1": 1.0, "K2": 0.0, "K3": 0.0, "Koq": 0.0, "Kp": 0.0, "
             "Kip": 0.0, "Kio": 0.0, "Kpo": 0.0, "Kpp": 0.0, "Koo": 0.0, "K0T": 0.0, "K1T": 0.0}
 
 
+#: |specific force| [m/s^2] below which a term of A whose coefficient is 0 is exactly +-0:
+#: a product of up to three such factors stays finite (< 1e300), and 0 times it is +-0
+_SKIP_BELOW = 1e100
+
+
+def _sum_nonzero_terms(c: Mapping[str, float], ai: np.ndarray, ap: np.ndarray, ao: np.ndarray
+                       ) -> np.ndarray:
+    """A of :func:`indicated_acceleration` without the K0T and drift terms, summed over the
+    terms whose coefficient is not 0, in the same order and with the same operations as the
+    full sum (the fits evaluate the model thousands of times per campaign, mostly at
+    coefficients that are 0).
+
+    Exact when every factor is finite and below :data:`_SKIP_BELOW` (the caller checks) and
+    K0 is not -0: a term of coefficient +-0 is then +-0, and adding +-0 to a partial sum s
+    leaves s unchanged unless s is -0; K0 + a_i is not -0 unless K0 is, and a sum s + t with
+    s not -0 is not -0 either (IEEE 754, rounding to nearest), so no partial sum ever is."""
+    A = c["K0"] + ai
+    K2, K3, Koq, Kp, Ko = c["K2"], c["K3"], c["Koq"], c["Kp"], c["Ko"]
+    Kip, Kio, Kpo, Kpp, Koo = c["Kip"], c["Kio"], c["Kpo"], c["Kpp"], c["Koo"]
+    if K2 != 0.0:
+        A += K2 * ai**2
+    if K3 != 0.0:
+        A += K3 * ai**3
+    if Koq != 0.0:
+        A += Koq * ai * np.abs(ai)
+    if Kp != 0.0:
+        A += Kp * ap
+    if Ko != 0.0:
+        A += Ko * ao
+    if Kip != 0.0:
+        A += Kip * ai * ap
+    if Kio != 0.0:
+        A += Kio * ai * ao
+    if Kpo != 0.0:
+        A += Kpo * ap * ao
+    if Kpp != 0.0:
+        A += Kpp * ap**2
+    if Koo != 0.0:
+        A += Koo * ao**2
+    return A
+
+
 def indicated_acceleration(coeffs: Mapping[str, float], f: np.ndarray,
                            temp_c: np.ndarray | None = None,
                            time_s: np.ndarray | None = None,
@@ -53,11 +95,20 @@ def indicated_acceleration(coeffs: Mapping[str, float], f: np.ndarray,
     ndarray
         A [m/s2].
     """
-    c = {**DEFAULTS, **{k: float(v) for k, v in coeffs.items() if k in DEFAULTS}}
+    c = dict(DEFAULTS)
+    for k, v in coeffs.items():
+        if k in DEFAULTS:
+            c[k] = float(v)
     ai, ap, ao = f[..., 0], f[..., 1], f[..., 2]
-    A = (c["K0"] + ai + c["K2"] * ai**2 + c["K3"] * ai**3 + c["Koq"] * ai * np.abs(ai)
-         + c["Kp"] * ap + c["Ko"] * ao + c["Kip"] * ai * ap + c["Kio"] * ai * ao
-         + c["Kpo"] * ap * ao + c["Kpp"] * ap**2 + c["Koo"] * ao**2)
+    if (0.0 in (c["K2"], c["K3"], c["Koq"], c["Kp"], c["Ko"], c["Kip"], c["Kio"], c["Kpo"],
+                c["Kpp"], c["Koo"])
+            and (c["K0"] != 0.0 or math.copysign(1.0, c["K0"]) > 0.0)
+            and f.size and np.maximum.reduce(np.abs(f), axis=None) < _SKIP_BELOW):
+        A = _sum_nonzero_terms(c, ai, ap, ao)
+    else:
+        A = (c["K0"] + ai + c["K2"] * ai**2 + c["K3"] * ai**3 + c["Koq"] * ai * np.abs(ai)
+             + c["Kp"] * ap + c["Ko"] * ao + c["Kip"] * ai * ap + c["Kio"] * ai * ao
+             + c["Kpo"] * ap * ao + c["Kpp"] * ap**2 + c["Koo"] * ao**2)
     if temp_c is not None and c["K0T"] != 0.0:
         A = A + c["K0T"] * (np.asarray(temp_c, float) - T_REF_C)
     if time_s is not None and bias_drift != 0.0:

@@ -17,7 +17,9 @@ plus g on "up".
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
+from functools import lru_cache
 
 import numpy as np
 
@@ -98,8 +100,21 @@ def omega_z(meta: Mapping, rate: np.ndarray, effects: Mapping[str, float] | None
     effects = effects or {}
     eps = float(effects.get("rate_scale_error", 0.0))
     scale = float(effects.get("earth_rate", 0.0))
-    lat = np.radians(float(meta["site_latitude_deg"]))
-    return rotation_sign(meta) * (1.0 + eps) * np.asarray(rate, float) + scale * OMEGA_EARTH * np.sin(lat)
+    return (rotation_sign(meta) * (1.0 + eps) * np.asarray(rate, float)
+            + scale * OMEGA_EARTH * _sin_latitude(float(meta["site_latitude_deg"])))
+
+
+def _sin_latitude(lat_deg: float) -> np.float64:
+    """sin(Phi) of a site latitude Phi [deg], as :func:`omega_z` computes it (a few sites,
+    many calls); 0 and -0 (equal keys, different sines) are not memoised."""
+    if lat_deg == 0.0:
+        return np.sin(np.radians(lat_deg))
+    return _sin_latitude_memo(lat_deg)
+
+
+@lru_cache(maxsize=256)
+def _sin_latitude_memo(lat_deg: float) -> np.float64:
+    return np.sin(np.radians(lat_deg))
 
 
 def sine_rate_derivative(meta: Mapping, time_s: np.ndarray, effects: Mapping[str, float] | None = None) -> np.ndarray:
@@ -186,18 +201,29 @@ def centrifuge_specific_force(meta: Mapping, data, effects: Mapping[str, float] 
     if rate_derivative is None:
         if str(meta.get("test")) == "sine_centrifuge" and "rate_amplitude_rad_s" in meta:
             rate_derivative = sine_rate_derivative(meta, _col(data, "time_s", n), effects)
-        else:
-            rate_derivative = np.zeros(n)
-    wdot = np.asarray(rate_derivative, float)
+    if rate_derivative is None:
+        # 0 on every row: a scalar 0 makes every product and sum below the same, element for
+        # element, as a column of zeros would (the fits evaluate this model thousands of
+        # times per campaign)
+        wdot = 0.0
+    else:
+        wdot = np.asarray(rate_derivative, float)
 
-    R = R0 * (1.0 + kappa * wz**2)
+    w2 = wz**2
+    # without arm stretch, R0 (1 + 0 w_z^2) is R0 on every row where w_z^2 is finite (then the
+    # sum of the w_z^2 >= 0 is finite too)
+    if kappa == 0.0 and math.isfinite(np.add.reduce(w2)):
+        R = R0
+    else:
+        R = R0 * (1.0 + kappa * w2)
     ux, uy = np.cos(phi), np.sin(phi)
     # position of the effective mass centre from the spindle, in (e1, e2) coordinates
     p1 = -R * ux + r
     p2 = -R * uy
-    f1 = -wz**2 * p1 + wdot * h * (-p2)
-    f2 = -wz**2 * p2 + wdot * h * p1
-    fup = np.full(n, g * np.cos(beta))
+    nw2 = -w2
+    f1 = nw2 * p1 + wdot * h * (-p2)
+    f2 = nw2 * p2 + wdot * h * p1
+    fup = g * np.cos(beta)          # the same value on every row
     if beta != 0.0:
         # effects.md spindle_tilt: g sin(beta) cos(alpha) along the inward radial u and
         # g sin(beta) sin(alpha) along the ccw direction of motion h (sin phi e1 - cos phi e2)
@@ -367,7 +393,11 @@ def rig_output(test: str, meta: Mapping, data, coeffs: Mapping[str, float],
             c[name] = float(c.get(name, 0.0)) + float(effects[eid])
     F = specific_force(test, meta, data, effects, **kw)
     n = F.shape[0]
-    temp = _col(data, "temp_c", n, np.nan) if ("temp_c" in getattr(data, "keys", lambda: [])()) else None
+    # the temperature only enters through K0T and K1T (instrument.output): not read without them
+    temp = None
+    if ((float(c.get("K0T", 0.0)) != 0.0 or float(c.get("K1T", 0.0)) != 0.0)
+            and "temp_c" in getattr(data, "keys", lambda: [])()):
+        temp = _col(data, "temp_c", n, np.nan)
     if temp is not None:
         temp = np.where(np.isfinite(temp), temp, T_REF_C)
     t = _col(data, "time_s", n)
