@@ -266,13 +266,13 @@ def _segments(values: np.ndarray) -> np.ndarray:
 def _derive(test: str, run: RunFile) -> dict[str, np.ndarray]:
     """The run's columns plus the derived columns the suite checks, as numpy arrays of the
     run's length (no DataFrame per run: the batch is one table, made once).  The run's
-    columns are taken out of its DataFrame once: a pandas column lookup costs more than
-    most of the arithmetic here."""
-    d = {c: run.data[c].to_numpy() for c in run.data.columns}
-    d.setdefault("line", np.full(len(run.data), -1))
+    columns are its arrays (RunFile.arrays): a pandas column lookup costs more than most
+    of the arithmetic here."""
+    d = dict(run.arrays)
+    n = run.n_rows
+    d.setdefault("line", np.full(n, -1))
     cols = [c for c in COLUMNS[test] if c in d]
     out: dict[str, np.ndarray] = {c: d[c] for c in cols}
-    n = len(run.data)
     meta = run.meta
     nullable = NULLABLE_COLUMNS[test]
     bad = np.zeros(n, np.int64)
@@ -574,7 +574,7 @@ def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
             refusals[r.path].append(Refusal(r.path, r.meta_lines.get("test"), "unknown-test",
                                             f"test {test!r} is not one of {', '.join(TESTS)}"))
             continue
-        miss = [c for c in list(COLUMNS[test]) + ["line"] if c not in r.data.columns]
+        miss = [c for c in list(COLUMNS[test]) + ["line"] if c not in r.arrays]
         if miss:
             refusals[r.path].append(Refusal(r.path, r.header_line, "missing-column",
                                             f"columns missing: {', '.join(miss)}"))
