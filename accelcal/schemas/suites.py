@@ -537,7 +537,7 @@ def _batch_table(items: list[tuple[RunFile, str, dict]]) -> tuple[dict[str, pd.D
     n = int(lens.sum())
     run_ix = np.repeat(np.arange(len(items)), lens)
     line = np.concatenate([d["line"] if "line" in d else
-                           (r.data["line"].to_numpy(np.int64) if "line" in r.data
+                           (np.asarray(r.arrays["line"], dtype=np.int64) if "line" in r.arrays
                             else np.full(lens[j], -1)) for j, (r, _, d) in enumerate(items)])
     columns: dict[str, set[str]] = {}
     names: dict[str, None] = {}
