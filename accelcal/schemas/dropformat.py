@@ -172,6 +172,27 @@ class Refusal:
         return f"{where}: {self.rule}: {self.detail}"
 
 
+class _Frame:
+    """``RunFile.data``: given as a DataFrame, or as a dict of column arrays (what the
+    parser makes) from which the DataFrame is made when first asked for.  Ingest and
+    validation read the arrays (:attr:`RunFile.arrays`) and never need the DataFrame:
+    making it, and looking its columns up, cost about a tenth of a file's ingest."""
+
+    def __get__(self, run, owner=None):
+        if run is None:          # no default value for the dataclass field
+            raise AttributeError("data")
+        d = run.__dict__
+        if d.get("_data") is None:
+            d["_data"] = pd.DataFrame(d["_arrays"], copy=False)  # in one go: adding a column copies
+        return d["_data"]
+
+    def __set__(self, run, value) -> None:
+        if isinstance(value, pd.DataFrame):
+            run.__dict__.update(_data=value, _arrays=None)
+        else:
+            run.__dict__.update(_data=None, _arrays=dict(value))
+
+
 @dataclass(frozen=True, eq=False)
 class RunFile:
     """One parsed run file (docs/design.md, schemas.dropformat).
@@ -179,9 +200,10 @@ class RunFile:
     ``meta``: typed metadata (FLOAT_KEYS float, ``positions`` int, the rest str);
     ``meta_raw``: the values exactly as written (stripped); ``data``: the test's
     columns in COLUMNS order (float64, ``step``/``position`` int64, empty cells NaN)
-    plus ``line`` (int64), the 1-based line number of each row; ``header_line``: the
-    line number of the CSV header; ``meta_lines``: the line of each metadata key
-    (so later checks can name it; empty when unknown).
+    plus ``line`` (int64), the 1-based line number of each row (a DataFrame; may be
+    given as a dict of arrays, see :attr:`arrays`); ``header_line``: the line number
+    of the CSV header; ``meta_lines``: the line of each metadata key (so later checks
+    can name it; empty when unknown).
     """
 
     path: str
@@ -192,6 +214,19 @@ class RunFile:
     data: pd.DataFrame = field(repr=False)
     header_line: int
     meta_lines: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The columns of ``data`` as numpy arrays, in its order (the parser's own arrays,
+        without making the DataFrame; else taken out of the DataFrame once)."""
+        d = self.__dict__
+        if d.get("_arrays") is None:
+            d["_arrays"] = {c: self._data[c].to_numpy() for c in self._data.columns}
+        return d["_arrays"]
+
+    @property
+    def n_rows(self) -> int:
+        return len(next(iter(self.arrays.values()), ()))
 
     @property
     def test(self) -> str:
@@ -214,6 +249,9 @@ class RunFile:
 
     def __hash__(self) -> int:
         return hash((self.path, self.sha256))
+
+
+RunFile.data = _Frame()     # after the dataclass is made: the field keeps no default
 
 
 @dataclass(frozen=True)
@@ -745,7 +783,7 @@ def parse_run(fh, path) -> RunFile:
             body.add(chunk, first, offset, last)
     if body.n_rows == 0:
         raise DropFormatError(spath, header_line, "no-data", "a header but no data rows")
-    data = body.frame()
+    data = body.columns()       # RunFile.data makes the DataFrame when it is asked for
     return RunFile(path=spath, sha256=st.hash.hexdigest(), size_bytes=st.size, meta=meta,
                    meta_raw=raw_meta, data=data, header_line=header_line, meta_lines=key_line)
 
@@ -968,8 +1006,9 @@ class _Body:
         return pa.table(cols, names=self.names)
 
     # -- the run ----------------------------------------------------------------------
-    def frame(self) -> pd.DataFrame:
+    def columns(self) -> dict[str, np.ndarray]:
+        """The run's columns (COLUMNS order, then ``line``), each an array of n_rows."""
         n = self.n_rows
         cols = {c: self.cols[c][:n] for c in (*COLUMNS[self.test], "line")}
         self.cols = {}
-        return pd.DataFrame(cols, copy=False)       # in one go: adding a column copies
+        return cols

@@ -263,16 +263,17 @@ def _segments(values: np.ndarray) -> np.ndarray:
     return np.cumsum(change)
 
 
-def _derive(test: str, run: RunFile) -> dict[str, np.ndarray]:
+def _derive(test: str, run: RunFile, step_means: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """The run's columns plus the derived columns the suite checks, as numpy arrays of the
     run's length (no DataFrame per run: the batch is one table, made once).  The run's
-    columns are taken out of its DataFrame once: a pandas column lookup costs more than
-    most of the arithmetic here."""
-    d = {c: run.data[c].to_numpy() for c in run.data.columns}
-    d.setdefault("line", np.full(len(run.data), -1))
+    columns are its arrays (RunFile.arrays): a pandas column lookup costs more than most
+    of the arithmetic here.  ``step_means``: for a centrifuge run, its mean turning rate
+    per step when already known (:func:`_turning_step_means`)."""
+    d = dict(run.arrays)
+    n = run.n_rows
+    d.setdefault("line", np.full(n, -1))
     cols = [c for c in COLUMNS[test] if c in d]
     out: dict[str, np.ndarray] = {c: d[c] for c in cols}
-    n = len(run.data)
     meta = run.meta
     nullable = NULLABLE_COLUMNS[test]
     bad = np.zeros(n, np.int64)
@@ -304,7 +305,7 @@ def _derive(test: str, run: RunFile) -> dict[str, np.ndarray]:
             out["angle_dev_deg"] = np.abs(ang - med)
         if test == "centrifuge" and {"step", "table_rate_rad_s", "table_angle_deg"} <= d.keys():
             out["rest_dwell_error_deg"] = _first_only(n, _rest_dwell_error(d))
-            out["one_g_error"] = _one_g(d, meta, n)
+            out["one_g_error"] = _one_g(d, meta, n, step_means)
         if test == "tilt_rotation" and {"temp_set_c", "rotation_deg"} <= d.keys():
             npos = int(meta.get("positions", 0) or 0)
             rot = d["rotation_deg"].astype(np.float64, copy=False)
@@ -334,10 +335,11 @@ def _rest_dwell_error(d: dict[str, np.ndarray]) -> float:
     rate = d["table_rate_rad_s"].astype(np.float64, copy=False)
     step = d["step"]
     ang = d["table_angle_deg"].astype(np.float64, copy=False)
-    seg = _segments(step)
+    # the dwells (runs of equal steps) as slices: the same rows, in order, as a mask each
+    edges = np.flatnonzero(np.r_[True, step[1:] != step[:-1], True]) if len(step) else []
     az = []
-    for s in range(int(seg[-1]) + 1 if len(seg) else 0):
-        m = seg == s
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        m = slice(lo, hi)
         if not np.all(np.abs(rate[m]) < REST_RATE):
             break
         a = ang[m]
@@ -352,8 +354,11 @@ def _rest_dwell_error(d: dict[str, np.ndarray]) -> float:
     return float(np.max(np.abs(gaps - 360.0 / len(az))))
 
 
-def _one_g(d: dict[str, np.ndarray], meta: dict, n: int) -> np.ndarray:
-    """min over turning dwells of |omega^2 R / g - 1|, placed on the first turning row."""
+def _one_g(d: dict[str, np.ndarray], meta: dict, n: int,
+           means: np.ndarray | None = None) -> np.ndarray:
+    """min over turning dwells of |omega^2 R / g - 1|, placed on the first turning row.
+    ``means``: the mean turning rate [rad/s] per step, ascending steps (see
+    :func:`_turning_step_means`), or None to compute them here."""
     rate = d["table_rate_rad_s"].astype(np.float64, copy=False)
     R = float(meta.get("arm_radius_m", np.nan))
     g = float(meta.get("g_local_m_s2", np.nan))
@@ -362,9 +367,49 @@ def _one_g(d: dict[str, np.ndarray], meta: dict, n: int) -> np.ndarray:
     if not turning.any() or not (R > 0 and g > 0):
         out[0] = 999.0 if n else np.nan
         return out
-    means = pd.Series(rate[turning]).groupby(d["step"][turning]).mean().to_numpy()
+    if means is None:
+        means = pd.Series(rate[turning]).groupby(d["step"][turning]).mean().to_numpy()
     err = np.abs(means ** 2 * R / g - 1.0)
     out[int(np.flatnonzero(turning)[0])] = float(np.nanmin(err)) if np.isfinite(err).any() else 999.0
+    return out
+
+
+def _turning_step_means(runs: list[RunFile]) -> dict[int, np.ndarray]:
+    """What :func:`_one_g` needs of each centrifuge run ``runs[j]`` -- the mean rate [rad/s]
+    of its turning rows per step, ascending steps -- for all of them in one pandas groupby
+    (one per run cost a quarter of a run's derived columns).  The same numbers as a
+    groupby per run, bit for bit: each group here is one run's step, its rows in the run's
+    order, and pandas sums a group from its values alone -- but how depends on the whole
+    key: rows sorted by group (and no NaN) are summed with ``np.add.reduceat``, others by
+    a compensated sum.  So only runs whose turning steps never go down are taken (the
+    batch is then sorted too, as each of them is alone; a turning rate is never NaN);
+    the others, and runs whose columns are not the parser's dtypes, are left out
+    (computed per run)."""
+    rates, steps, js = [], [], []
+    for j, r in enumerate(runs):
+        a = r.arrays
+        if r.test != "centrifuge" or not {"step", "table_rate_rad_s", "table_angle_deg"} <= a.keys():
+            continue
+        rate, step = a["table_rate_rad_s"], a["step"]
+        if rate.dtype != np.float64 or step.dtype != np.int64:
+            continue
+        turning = rate >= REST_RATE
+        s = step[turning]
+        if len(s) > 1 and not (s[1:] >= s[:-1]).all():
+            continue
+        rates.append(rate[turning])
+        steps.append(s)
+        js.append(np.full(len(rates[-1]), j, np.int64))
+    if not rates:
+        return {}
+    means = pd.Series(np.concatenate(rates)).groupby([np.concatenate(js),
+                                                      np.concatenate(steps)]).mean()
+    run_of = means.index.get_level_values(0).to_numpy()
+    values = means.to_numpy()
+    out: dict[int, np.ndarray] = {}
+    bounds = np.flatnonzero(np.r_[True, run_of[1:] != run_of[:-1], True])
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        out[int(run_of[a])] = values[a:b]
     return out
 
 
@@ -492,7 +537,7 @@ def _batch_table(items: list[tuple[RunFile, str, dict]]) -> tuple[dict[str, pd.D
     n = int(lens.sum())
     run_ix = np.repeat(np.arange(len(items)), lens)
     line = np.concatenate([d["line"] if "line" in d else
-                           (r.data["line"].to_numpy(np.int64) if "line" in r.data
+                           (np.asarray(r.arrays["line"], dtype=np.int64) if "line" in r.arrays
                             else np.full(lens[j], -1)) for j, (r, _, d) in enumerate(items)])
     columns: dict[str, set[str]] = {}
     names: dict[str, None] = {}
@@ -568,19 +613,26 @@ def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
     suite_results: list[tuple[str, dict]] = []
     refusals: dict[str, list[Refusal]] = {r.path: [] for r in runs}
     items: list[tuple[RunFile, str, dict]] = []
+    todo: list[tuple[RunFile, str]] = []
     for r in runs:
         test = str(r.meta.get("test", ""))
         if test not in TESTS:
             refusals[r.path].append(Refusal(r.path, r.meta_lines.get("test"), "unknown-test",
                                             f"test {test!r} is not one of {', '.join(TESTS)}"))
             continue
-        miss = [c for c in list(COLUMNS[test]) + ["line"] if c not in r.data.columns]
+        miss = [c for c in list(COLUMNS[test]) + ["line"] if c not in r.arrays]
         if miss:
             refusals[r.path].append(Refusal(r.path, r.header_line, "missing-column",
                                             f"columns missing: {', '.join(miss)}"))
             continue
+        todo.append((r, test))
+    try:
+        step_means = _turning_step_means([r for r, _ in todo])
+    except Exception:       # then each run's own, so that only its run is refused
+        step_means = {}
+    for j, (r, test) in enumerate(todo):
         try:
-            items.append((r, test, _derive(test, r)))
+            items.append((r, test, _derive(test, r, step_means.get(j))))
         except Exception as e:  # a bug or data beyond the checks: refuse, don't stop the drop
             refusals[r.path].append(Refusal(r.path, None, "validation-error",
                                             f"{type(e).__name__}: {e}"[:300]))

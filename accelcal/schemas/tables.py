@@ -94,17 +94,15 @@ def _row_group_rows(run: RunFile) -> int:
 
 
 def _batches(run: RunFile, schema: pa.Schema):
-    n = len(run.data)
+    cols = run.arrays
+    n = run.n_rows
     step = _row_group_rows(run)
-    cols = {f.name: run.data[f.name].to_numpy() for f in schema if f.name not in ("run_id", "sha256")}
     for a in range(0, max(n, 1), step):
         b = min(a + step, n)
         arrays = []
         for f in schema:
-            if f.name == "run_id":
-                arrays.append(pa.array([run.run_id] * (b - a), pa.string()))
-            elif f.name == "sha256":
-                arrays.append(pa.array([run.sha256] * (b - a), pa.string()))
+            if f.name in ("run_id", "sha256"):      # a constant: repeated in Arrow, no Python list
+                arrays.append(pa.repeat(pa.scalar(getattr(run, f.name), pa.string()), b - a))
             else:
                 arrays.append(pa.array(cols[f.name][a:b], type=f.type))
         yield pa.RecordBatch.from_arrays(arrays, schema=schema)
@@ -134,7 +132,7 @@ def write_run_parquet(run: RunFile, root: Path) -> Path:
     schema = _schema_with_metadata(run)
 
     def write(fh):
-        if len(run.data) <= _row_group_rows(run):
+        if run.n_rows <= _row_group_rows(run):
             pq.write_table(pa.Table.from_batches(list(_batches(run, schema)), schema=schema), fh,
                            compression="zstd")
             return

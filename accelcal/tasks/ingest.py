@@ -279,7 +279,7 @@ def _ingest_open_file(fd, e, src, out, known, vv, parquet_root, warehouse_root,
         unit_serial=str(m["unit_serial"]), unit_model=str(m.get("unit_model", "")),
         campaign=str(m["campaign"]), rig_id=str(m.get("rig_id", "")),
         started_at=str(run.meta_raw.get("started_at", m.get("started_at", ""))),
-        n_rows=int(len(run.data)))
+        n_rows=run.n_rows)
     # the Parquet file is written beside the next files' reading; its path is filled in
     # when it is in place, before the batch returns (_finish_writes)
     fut = pool.submit(contracts.write_run_parquet, run, parquet_root)
