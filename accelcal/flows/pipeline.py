@@ -652,7 +652,10 @@ def run_pipeline(drops: list[str], warehouse: str | Path, *, engine: str = "pref
     does not exist (the CLI asks for ``--create``).  ``workers`` (local engine; default
     $ACCELCAL_WORKERS or 1): processes that run the ingest/validate batches and the
     campaign science, so a fleet uses every core; the warehouse writes stay in the flow
-    process (one writer), and the results are the same whatever the number."""
+    process (one writer), and the results are the same whatever the number.  The
+    worker processes are spawned, so a script that calls this with workers > 1 must
+    guard its entry point (``if __name__ == "__main__":``), as for any spawned pool:
+    each worker imports the script's main module."""
     drops = check_drops(list(drops))
     if not drops:
         raise PipelineError("no drop given")
