@@ -293,3 +293,16 @@ def test_error_is_picklable_value_error():
     assert (e2.path, e2.line, e2.rule, e2.detail) == ("x.csv", 3, "bad-value", "why")
     assert str(DropFormatError("x.csv", None, "empty-file", "0 bytes")) == "x.csv: empty-file: 0 bytes"
     assert str(e.as_refusal()) == str(e)
+
+
+@pytest.mark.parametrize("drop", GOOD_DROPS)
+def test_parsed_columns_hold_only_their_rows(drop):
+    """A parsed run's arrays are exactly its rows: the parser sizes its buffers from an
+    estimate plus 1,024 rows, and a view into them would keep the whole buffer alive for
+    as long as the batch holds the run (a worker's peak grew by ~60 MB over 550-file
+    batches)."""
+    for p in discover(EXAMPLES / drop):
+        r = read_run(p)
+        for name, a in r.arrays.items():
+            held = a.base if a.base is not None else a
+            assert held.nbytes == a.nbytes == r.n_rows * a.itemsize, (p.name, name)
