@@ -26,40 +26,42 @@ DEFAULTS = {"K0": 0.0, "K1": 1.0, "K2": 0.0, "K3": 0.0, "Koq": 0.0, "Kp": 0.0, "
 _SKIP_BELOW = 1e100
 
 
-def _sum_nonzero_terms(c: Mapping[str, float], ai: np.ndarray, ap: np.ndarray, ao: np.ndarray
-                       ) -> np.ndarray:
-    """A of :func:`indicated_acceleration` without the K0T and drift terms, summed over the
-    terms whose coefficient is not 0, in the same order and with the same operations as the
-    full sum (the fits evaluate the model thousands of times per campaign, mostly at
-    coefficients that are 0).
+#: The terms of A after K0 + a_i, in the order of effects.md's sum, each as its
+#: coefficient times its factors, multiplied left to right as written there (K a_i a_p is
+#: (K a_i) a_p: :data:`COEFFICIENT_TERMS` gives the factors alone, rounded otherwise).
+_TERMS = (
+    ("K2", lambda K, ai, ap, ao: K * ai**2),
+    ("K3", lambda K, ai, ap, ao: K * ai**3),
+    ("Koq", lambda K, ai, ap, ao: K * ai * np.abs(ai)),
+    ("Kp", lambda K, ai, ap, ao: K * ap),
+    ("Ko", lambda K, ai, ap, ao: K * ao),
+    ("Kip", lambda K, ai, ap, ao: K * ai * ap),
+    ("Kio", lambda K, ai, ap, ao: K * ai * ao),
+    ("Kpo", lambda K, ai, ap, ao: K * ap * ao),
+    ("Kpp", lambda K, ai, ap, ao: K * ap**2),
+    ("Koo", lambda K, ai, ap, ao: K * ao**2),
+)
 
-    Exact when every factor is finite and below :data:`_SKIP_BELOW` (the caller checks) and
-    K0 is not -0: a term of coefficient +-0 is then +-0, and adding +-0 to a partial sum s
-    leaves s unchanged unless s is -0; K0 + a_i is not -0 unless K0 is, and a sum s + t with
-    s not -0 is not -0 either (IEEE 754, rounding to nearest), so no partial sum ever is."""
+
+def _sum_terms(c: Mapping[str, float], ai: np.ndarray, ap: np.ndarray, ao: np.ndarray,
+               skip_zero: bool) -> np.ndarray:
+    """A of :func:`indicated_acceleration` without the K0T and drift terms: the terms added
+    one by one, left to right (the same operations, in the same order, as the written-out
+    sum of effects.md).  With ``skip_zero``, a term whose coefficient is 0 is left out (the
+    fits evaluate the model thousands of times per campaign, mostly at coefficients that
+    are 0).
+
+    Leaving them out is exact when every factor is finite and below :data:`_SKIP_BELOW`
+    (the caller checks) and K0 is not -0: a term of coefficient +-0 is then +-0, and adding
+    +-0 to a partial sum s leaves s unchanged unless s is -0; K0 + a_i is not -0 unless K0
+    is, and a sum s + t with s not -0 is not -0 either (IEEE 754, rounding to nearest), so
+    no partial sum ever is."""
     A = c["K0"] + ai
-    K2, K3, Koq, Kp, Ko = c["K2"], c["K3"], c["Koq"], c["Kp"], c["Ko"]
-    Kip, Kio, Kpo, Kpp, Koo = c["Kip"], c["Kio"], c["Kpo"], c["Kpp"], c["Koo"]
-    if K2 != 0.0:
-        A += K2 * ai**2
-    if K3 != 0.0:
-        A += K3 * ai**3
-    if Koq != 0.0:
-        A += Koq * ai * np.abs(ai)
-    if Kp != 0.0:
-        A += Kp * ap
-    if Ko != 0.0:
-        A += Ko * ao
-    if Kip != 0.0:
-        A += Kip * ai * ap
-    if Kio != 0.0:
-        A += Kio * ai * ao
-    if Kpo != 0.0:
-        A += Kpo * ap * ao
-    if Kpp != 0.0:
-        A += Kpp * ap**2
-    if Koo != 0.0:
-        A += Koo * ao**2
+    for name, term in _TERMS:
+        K = c[name]
+        if skip_zero and K == 0.0:
+            continue
+        A = A + term(K, ai, ap, ao)
     return A
 
 
@@ -100,15 +102,10 @@ def indicated_acceleration(coeffs: Mapping[str, float], f: np.ndarray,
         if k in DEFAULTS:
             c[k] = float(v)
     ai, ap, ao = f[..., 0], f[..., 1], f[..., 2]
-    if (0.0 in (c["K2"], c["K3"], c["Koq"], c["Kp"], c["Ko"], c["Kip"], c["Kio"], c["Kpo"],
-                c["Kpp"], c["Koo"])
-            and (c["K0"] != 0.0 or math.copysign(1.0, c["K0"]) > 0.0)
-            and f.size and np.maximum.reduce(np.abs(f), axis=None) < _SKIP_BELOW):
-        A = _sum_nonzero_terms(c, ai, ap, ao)
-    else:
-        A = (c["K0"] + ai + c["K2"] * ai**2 + c["K3"] * ai**3 + c["Koq"] * ai * np.abs(ai)
-             + c["Kp"] * ap + c["Ko"] * ao + c["Kip"] * ai * ap + c["Kio"] * ai * ao
-             + c["Kpo"] * ap * ao + c["Kpp"] * ap**2 + c["Koo"] * ao**2)
+    skip_zero = bool(any(c[name] == 0.0 for name, _ in _TERMS)
+                     and (c["K0"] != 0.0 or math.copysign(1.0, c["K0"]) > 0.0)
+                     and f.size and np.maximum.reduce(np.abs(f), axis=None) < _SKIP_BELOW)
+    A = _sum_terms(c, ai, ap, ao, skip_zero)
     if temp_c is not None and c["K0T"] != 0.0:
         A = A + c["K0T"] * (np.asarray(temp_c, float) - T_REF_C)
     if time_s is not None and bias_drift != 0.0:
