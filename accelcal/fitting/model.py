@@ -391,13 +391,8 @@ class CampaignModel:
                 X[:, k] = col
             if tau > 0:                       # the lag is linear: lag the columns at once
                 X = first_order_lag(X, t, tau)
-            keep = r.cid >= 0
-            if keep.all():                    # no dropped readings: the same rows, unindexed
-                cid, Xk = r.cid, X
-            else:
-                cid, Xk = r.cid[keep], X[keep]
             for k, c in enumerate(lin):
-                J[:, c] = np.bincount(cid, weights=Xk[:, k], minlength=r.ncell) / r.n
+                J[:, c] = r.cell_mean(X[:, k])
         return J
 
     def _acting(self, j: int) -> frozenset[int]:
