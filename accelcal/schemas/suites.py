@@ -263,6 +263,14 @@ def _segments(values: np.ndarray) -> np.ndarray:
     return np.cumsum(change)
 
 
+def _run_edges(values: np.ndarray) -> np.ndarray:
+    """Where each run of equal consecutive values starts, then the end: run k is
+    ``values[edges[k]:edges[k + 1]]`` (the slices of :func:`_segments`' labels)."""
+    if len(values) == 0:
+        return np.zeros(0, np.int64)
+    return np.flatnonzero(np.r_[True, values[1:] != values[:-1], True])
+
+
 def _derive(test: str, run: RunFile, step_means: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """The run's columns plus the derived columns the suite checks, as numpy arrays of the
     run's length (no DataFrame per run: the batch is one table, made once).  The run's
@@ -336,7 +344,7 @@ def _rest_dwell_error(d: dict[str, np.ndarray]) -> float:
     step = d["step"]
     ang = d["table_angle_deg"].astype(np.float64, copy=False)
     # the dwells (runs of equal steps) as slices: the same rows, in order, as a mask each
-    edges = np.flatnonzero(np.r_[True, step[1:] != step[:-1], True]) if len(step) else []
+    edges = _run_edges(step)
     az = []
     for lo, hi in zip(edges[:-1], edges[1:]):
         m = slice(lo, hi)
@@ -407,7 +415,7 @@ def _turning_step_means(runs: list[RunFile]) -> dict[int, np.ndarray]:
     run_of = means.index.get_level_values(0).to_numpy()
     values = means.to_numpy()
     out: dict[int, np.ndarray] = {}
-    bounds = np.flatnonzero(np.r_[True, run_of[1:] != run_of[:-1], True])
+    bounds = _run_edges(run_of)
     for a, b in zip(bounds[:-1], bounds[1:]):
         out[int(run_of[a])] = values[a:b]
     return out
