@@ -9,6 +9,11 @@
 
 The science tasks receive RunFiles (pandas DataFrames), which Dask pickles to
 the workers; the warehouse writes stay in the flow process (one writer).
+
+A standing cluster (the nightly case) should start its workers with
+``dask worker tcp://HOST:PORT --nthreads 1 --preload accelcal.ops.dask_preload``: each
+worker then imports and warms great-expectations and the science once, at start,
+instead of inside the first batch of every run (benchmarks/bench_dask_scaling.py).
 """
 from __future__ import annotations
 
