@@ -491,6 +491,18 @@ def _batch_definition(table: str):
     return defs[table]
 
 
+def _forget_batches() -> None:
+    """Let go of the batches this thread's data source holds (its execution engine keeps
+    every batch it loaded, and with it the batch's table): the table of a batch is
+    freed when the batch is done, not when the next batch replaces it."""
+    defs = getattr(_GE, "defs", None)
+    if defs is None:
+        return
+    manager = defs[""].get_execution_engine().batch_manager
+    manager.reset_batch_cache()
+    manager.batch_data_cache.clear()
+
+
 #: Set (to a dict) while this thread runs a validation: see _memoized_configuration.
 _MEMO = threading.local()
 
@@ -803,9 +815,12 @@ def _validate_batch(tables: dict[str, pd.DataFrame], specs: list,
         # here is stored (that cost a serialisation of every expectation per batch)
         suite = gx.ExpectationSuite(name=name, expectations=exps)
         batch = _batch_definition(table).get_batch(batch_parameters={"dataframe": tables[table]})
-        with warnings.catch_warnings(), _configurations_memo():
-            warnings.simplefilter("ignore")
-            return batch.validate(suite, result_format=result_format)
+        try:
+            with warnings.catch_warnings(), _configurations_memo():
+                warnings.simplefilter("ignore")
+                return batch.validate(suite, result_format=result_format)
+        finally:
+            _forget_batches()
 
     def key(er) -> int:
         return int(er.expectation_config.meta["i"])
