@@ -27,6 +27,11 @@ versions of the code, whatever the results):
   changes;
 * ``validator_version`` (run_verdicts, refusals): the digest of the parser + suites
   source, likewise;
+* ``schema_info`` rows ``schema_version`` and ``extras_dir`` (``SCHEMA_KEYS_EXCLUDED``):
+  the layout of the warehouse, not its results; left out of both sides by ``compare``;
+* ``results.extras_sha256`` (schema 3) is replaced by ``extras``: the JSON text of the file
+  it names, read (and checked against the sha256) -- the very text schema 2 stored in the
+  ``extras`` column, so a dump compares with one made before the extras became files;
 * ``result_id`` is *not* left out but replaced by ``<campaign>#<k>`` (k: its rank among
   the campaign's results by the sorted input hashes): it is a hash over code_version, so
   it differs whenever code_version does; the campaign and the inputs it names do not.
@@ -55,6 +60,8 @@ EXAMPLES = ROOT.parent / "shared" / "examples"
 #: columns never compared (see the module docstring for why)
 EXCLUDED = {"ingested_at", "checked_at", "computed_at", "activated_at", "acted_at",
             "flow_run_id", "code_version", "validator_version"}
+#: schema_info keys never compared (see the module docstring)
+SCHEMA_KEYS_EXCLUDED = {"schema_version", "extras_dir"}
 _META_EXCLUDED = {b"validator_version", b"code_version", b"accelcal_validator_version",
                   b"accelcal_code_version"}
 
@@ -99,6 +106,15 @@ def dump_warehouse(db: Path) -> dict:
     for c, lst in by_camp.items():
         for k, (_, r) in enumerate(sorted(lst)):
             rid[r] = f"{c}#{k}"
+    extras_text = None
+    if "extras_sha256" in {c for (c,) in con.execute(
+            "SELECT column_name FROM information_schema.columns WHERE table_name = 'results'"
+            ).fetchall()}:
+        from accelcal.warehouse.db import extras_root_of, read_extras_text
+        root = extras_root_of(con, db)
+
+        def extras_text(sha):
+            return None if sha is None else read_extras_text(root, sha)
     out = {}
     for t in tables:
         cur = con.execute(f'SELECT * FROM "{t}"')
@@ -111,10 +127,14 @@ def dump_warehouse(db: Path) -> dict:
                 v = row[i]
                 if cols[i] == "result_id" and v in rid:
                     v = rid[v]
+                if cols[i] == "extras_sha256" and extras_text is not None:
+                    rec["extras"] = extras_text(v)
+                    continue
                 rec[cols[i]] = _cell(v)
             rows.append(rec)
         rows.sort(key=lambda r: json.dumps(r, sort_keys=True))
-        out[t] = {"columns": [cols[i] for i in keep],
+        out[t] = {"columns": [c if c != "extras_sha256" or extras_text is None else "extras"
+                              for c in (cols[i] for i in keep)],
                   "excluded": [c for c in cols if c in EXCLUDED], "rows": rows}
     con.close()
     return out
@@ -190,6 +210,13 @@ def _floats_only_diff(a: dict, b: dict):
     return worst_abs, worst_rel, cols
 
 
+def _comparable(table: str, rows: list | None) -> list | None:
+    """The rows compared: schema_info without the layout keys (SCHEMA_KEYS_EXCLUDED)."""
+    if table != "schema_info" or rows is None:
+        return rows
+    return [r for r in rows if r.get("key") not in SCHEMA_KEYS_EXCLUDED]
+
+
 def cmd_compare(args) -> int:
     A = json.loads(Path(args.a).read_text())
     B = json.loads(Path(args.b).read_text())
@@ -198,8 +225,8 @@ def cmd_compare(args) -> int:
     print(f"excluded columns: {', '.join(A['excluded_columns'])}")
     same = True
     for t in sorted(set(A["tables"]) | set(B["tables"])):
-        ra = A["tables"].get(t, {}).get("rows")
-        rb = B["tables"].get(t, {}).get("rows")
+        ra = _comparable(t, A["tables"].get(t, {}).get("rows"))
+        rb = _comparable(t, B["tables"].get(t, {}).get("rows"))
         if ra == rb:
             print(f"  {t:24s} identical ({len(ra)} rows)")
             continue

@@ -120,6 +120,7 @@ def test_missing_config_gives_marked_placeholders(tmp_path, lab, monkeypatch, ex
     import shutil as sh
     wh = tmp_path / "lab.duckdb"
     sh.copy(lab, wh)
+    sh.copytree(lab.parent / "lab-extras", tmp_path / "lab-extras")   # the results' extras
     monkeypatch.chdir(tmp_path)
     html = build_report(wh, CAMPS["thermal"], tmp_path / "out").read_text()
     assert "DRAFT — not valid as a certificate" in html

@@ -8,6 +8,7 @@ runs two real ``accelcal run`` processes.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -51,7 +52,24 @@ def warehouse_contents(path: Path) -> dict[str, list]:
     pq = path.parent / f"{path.stem}-parquet"
     out["parquet_files"] = sorted(str(p.relative_to(pq)) for p in pq.rglob("*.parquet")
                                   if not p.name.startswith("."))
+    # the results' extras files: every one a results row names, and no other (a killed
+    # run leaves at most a file the re-run names), each holding the bytes its name says
+    ex = path.parent / f"{path.stem}-extras"
+    out["extras_files"] = sorted(str(p.relative_to(ex)) for p in ex.rglob("*.json")
+                                 if not p.name.startswith("."))
+    assert all(hashlib.sha256(p.read_bytes()).hexdigest() == p.stem for p in ex.rglob("*.json")
+               if not p.name.startswith("."))
+    named = {f"{s[:2]}/{s}.json" for (s,) in con_rows(path, "SELECT extras_sha256 FROM results")}
+    assert named == set(out["extras_files"])
     return out
+
+
+def con_rows(path: Path, sql: str) -> list:
+    con = duckdb.connect(str(path), read_only=True)
+    try:
+        return con.execute(sql).fetchall()
+    finally:
+        con.close()
 
 
 def _norm(v):

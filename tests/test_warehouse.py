@@ -163,7 +163,7 @@ def test_earlier_identical_result_is_reactivated_not_duplicated(wh):
     assert wh.counts()["results"] == 2 and wh.counts()["result_activations"] == 3
 
 
-@pytest.mark.parametrize("step", ["results", "lineage", "coefficients", "radii", "details",
+@pytest.mark.parametrize("step", ["extras", "results", "lineage", "coefficients", "radii", "details",
                                   "activate", "commit"])
 def test_exception_between_statements_leaves_warehouse_as_before(wh, step):
     wh.record_runs([rec("a" * 64, "/d/x.csv")])
@@ -177,6 +177,39 @@ def test_exception_between_statements_leaves_warehouse_as_before(wh, step):
     assert wh.counts() == before
     assert wh.query("SELECT count(*) AS n FROM coefficients")[0]["n"] == 0
     assert store(wh, result())[1] == "new"
+
+
+def test_extras_are_a_content_addressed_file_the_row_names(wh):
+    """results.extras_sha256 names <stem>-extras/<sha[:2]>/<sha>.json (schema_info.extras_dir),
+    whose bytes are the canonical JSON; a missing or altered file is one ExtrasError line."""
+    import hashlib
+    import json
+
+    from accelcal.warehouse.db import ExtrasError, extras_file, load_extras, write_extras
+    wh.record_runs([rec("a" * 64, "/d/x.csv")])
+    store(wh, result())
+    sha = wh.query("SELECT extras_sha256 FROM results")[0]["extras_sha256"]
+    assert wh.query("SELECT value FROM schema_info WHERE key = 'extras_dir'")[0]["value"] == \
+        "lab-extras"
+    f = extras_file(wh.root / "lab-extras", sha)
+    assert f.read_bytes() == b'{"x":[1,2]}' and hashlib.sha256(f.read_bytes()).hexdigest() == sha
+    assert load_extras(wh.extras_root, sha) == {"x": [1, 2]}
+    # SQL reads it too (the path from schema_info and the sha)
+    got = wh.query("SELECT content FROM read_text(?)", [str(f)])[0]["content"]
+    assert json.loads(got) == {"x": [1, 2]}
+    os.chmod(f, 0o644)
+    f.write_bytes(b'{"x":[1,3]}')
+    with pytest.raises(ExtrasError, match="does not hold the bytes"):
+        load_extras(wh.extras_root, sha)
+    f.unlink()
+    with pytest.raises(ExtrasError, match="cannot read the extras") as e:
+        load_extras(wh.extras_root, sha)
+    assert "\n" not in str(e.value)
+    # writing the same extras again (a re-run after a kill) puts the right bytes back
+    f.parent.mkdir(exist_ok=True)
+    f.write_bytes(b'{"x":')
+    assert write_extras(wh.extras_root, ['{"x":[1,2]}']) == [sha]
+    assert load_extras(wh.extras_root, sha) == {"x": [1, 2]}
 
 
 _KILL_SCRIPT = textwrap.dedent("""
@@ -195,7 +228,7 @@ _KILL_SCRIPT = textwrap.dedent("""
 """)
 
 
-@pytest.mark.parametrize("step", ["lineage", "details", "commit", "run:0"])
+@pytest.mark.parametrize("step", ["extras", "lineage", "details", "commit", "run:0"])
 def test_sigkill_mid_write_leaves_warehouse_as_before(wh, step):
     wh.record_runs([rec("a" * 64, "/d/x.csv")])
     before = wh.counts()

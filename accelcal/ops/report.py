@@ -118,7 +118,7 @@ def load_report_data(warehouse: str | Path, campaign: str | None, result_id: str
                      lock_timeout: float = 60.0) -> dict[str, Any]:
     """Everything the certificate shows, as plain Python objects.  ``result_id`` may be
     the short id the CLI prints (a unique prefix); ``campaign`` may then be omitted."""
-    d = _read(warehouse, lambda con, path: _load(con, campaign, result_id), lock_timeout)
+    d = _read(warehouse, lambda con, path: _load(con, campaign, result_id, path), lock_timeout)
     d["runs"] = run_conditions(Path(warehouse).expanduser().resolve().parent, d["lineage"])
     return d
 
@@ -147,7 +147,8 @@ def resolve_result(con, campaign: str | None, result_id: str | None) -> tuple[st
     return hit["campaign"], hit["result_id"]
 
 
-def _load(con, campaign: str | None, result_id: str | None) -> dict[str, Any]:
+def _load(con, campaign: str | None, result_id: str | None, path: Path) -> dict[str, Any]:
+    from ..warehouse.db import extras_root_of, load_extras
     campaign, rid = resolve_result(con, campaign, result_id)
     acts = _rows(con, "SELECT seq, result_id, activated_at, flow_run_id FROM result_activations "
                       "WHERE campaign = ? ORDER BY seq", [campaign])
@@ -171,12 +172,14 @@ def _load(con, campaign: str | None, result_id: str | None) -> dict[str, Any]:
     d: dict[str, Any] = {"campaign": campaign, "result": r, "result_id": rid,
                          "is_current": rid == current, "current_result_id": current,
                          "activations": acts}
-    for key in ("tests", "rig_ids", "science_parameters", "parameters", "extras", "input_sha256",
+    for key in ("tests", "rig_ids", "science_parameters", "parameters", "input_sha256",
                 "completeness_reasons"):
         try:
             d[key] = json.loads(r.get(key) or "null")
         except (TypeError, ValueError):
             d[key] = None
+    # a file beside the warehouse, its bytes checked against the sha256 (WarehouseError)
+    d["extras"] = load_extras(extras_root_of(con, path), r.get("extras_sha256"))
     d["coefficients"] = _rows(con, "SELECT * FROM coefficient_history WHERE result_id = ? "
                                    "ORDER BY seq", [rid])
     d["radii"] = _rows(con, "SELECT * FROM radius_history WHERE result_id = ? ORDER BY seq", [rid])

@@ -21,6 +21,8 @@ from __future__ import annotations
 import contextlib
 import errno
 import fcntl
+import hashlib
+import json
 import os
 import re
 import shutil
@@ -35,10 +37,13 @@ from typing import Any, Callable, Iterator
 
 import duckdb
 
-from ..fileio import atomic_write, os_error_text, path_text, remove_stale_temps
+from ..fileio import (StoreError, atomic_write, os_error_text, path_text, remove_stale_temps,
+                      sync_files)
 from .lineage import canonical_json
 
-SCHEMA_VERSION = "2"
+#: 3: results.extras (the JSON the certificate's plots and checks read, ~48 KB a result)
+#: moved out of the table into content-addressed files; results.extras_sha256 names one.
+SCHEMA_VERSION = "3"
 
 Checkpoint = Callable[[str], None] | None
 
@@ -49,6 +54,10 @@ class WarehouseError(RuntimeError):
 
 class WarehouseBusy(WarehouseError):
     """Another process holds the warehouse lock."""
+
+
+class ExtrasError(WarehouseError):
+    """A result's extras file is missing or its bytes are not the ones its sha256 names."""
 
 
 _DUCKDB_HINTS = (
@@ -427,13 +436,107 @@ def check_schema_version(con, path) -> None:
                 "it was written by a newer accelcal; upgrade accelcal to read it"))
 
 
+# ----------------------------------------------------------------- extras --
+#
+# A result's extras (per-pair fits, residual series, the Monte Carlo check: what the
+# certificate's plots and checks read, ~48 KB of JSON a result) are files, not a column.
+# In the results table they made the flow process's memory grow with the fleet: DuckDB
+# rewrites a table's whole row group at a checkpoint, and with 91 MB of extras at 2,000
+# campaigns, appending 32 results and checkpointing took the process from 167 to 334 MB.
+# One immutable file per distinct extras, named by the sha256 of its bytes, costs the same
+# at any fleet size; ``results.extras_sha256`` names it, and anyone can check the bytes
+# (``sha256sum``) against it.
+
+#: schema_info key: the folder of the extras files, relative to the warehouse's folder.
+#: The snapshot (same folder, a copy of schema_info) finds them through it too.
+EXTRAS_DIR_KEY = "extras_dir"
+
+
+def extras_file(extras_root: str | Path, sha256: str) -> Path:
+    """``<extras_root>/<sha256[:2]>/<sha256>.json``: where the extras of that sha256 are."""
+    return Path(extras_root) / sha256[:2] / f"{sha256}.json"
+
+
+def _holds(path: Path, data: bytes) -> bool:
+    """The file exists with exactly these bytes (a file a power loss cut short does not)."""
+    try:
+        if os.stat(path).st_size != len(data):
+            return False
+        with open(path, "rb") as f:
+            return f.read() == data
+    except OSError:
+        return False
+
+
+def write_extras(extras_root: str | Path, texts: list[str]) -> list[str]:
+    """Store each JSON text as the UTF-8 file :func:`extras_file` names by the sha256 of
+    its bytes, unless that file already holds them; return the sha256s, in order.
+
+    Each file is written atomically (temporary file + rename) and the batch made durable
+    by one flush before returning: the caller commits the rows naming them afterwards, so
+    a run killed at any point leaves at most a file nothing names yet, with the content
+    its name says, which the next run finds in place.  Raises StoreError (one line).
+    """
+    root = Path(extras_root)
+    shas: list[str] = []
+    written: list[Path] = []
+    try:
+        for text in texts:
+            data = text.encode("utf-8")
+            sha = hashlib.sha256(data).hexdigest()
+            shas.append(sha)
+            target = extras_file(root, sha)
+            if _holds(target, data):
+                continue
+            target.parent.mkdir(parents=True, exist_ok=True)
+            atomic_write(target, lambda fh, data=data: fh.write(data), "wb")
+            written.append(target)
+        sync_files(written)
+    except OSError as e:        # name the store, not our temporary file in it
+        raise StoreError(os_error_text(OSError(e.errno, e.strerror, str(root)),
+                                       "cannot write the extras store")) from None
+    return shas
+
+
+def read_extras_text(extras_root: str | Path, sha256: str) -> str:
+    """The JSON text of the extras ``sha256`` names, its bytes checked against it.
+    Raises ExtrasError (one line) when the file is missing, unreadable or altered."""
+    path = extras_file(extras_root, sha256)
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise ExtrasError(os_error_text(e, f"cannot read the extras {sha256[:12]} of a result")
+                          + " (restore the warehouse's extras folder from a backup)") from None
+    if hashlib.sha256(data).hexdigest() != sha256:
+        raise ExtrasError(f"extras file {path_text(path)} does not hold the bytes its name "
+                          "(results.extras_sha256) says: restore it from a backup")
+    return data.decode("utf-8")
+
+
+def load_extras(extras_root: str | Path, sha256: str | None) -> Any:
+    """A result's extras (``CampaignResult.extras``) from its ``results.extras_sha256``;
+    None for None.  ExtrasError when the file is missing or its bytes are not these."""
+    if sha256 is None:
+        return None
+    return json.loads(read_extras_text(extras_root, sha256))
+
+
+def extras_root_of(con, db_path: str | Path) -> Path:
+    """The extras folder of the warehouse (or snapshot) open on ``con`` at ``db_path``:
+    schema_info's ``extras_dir`` under the file's folder."""
+    db_path = Path(db_path).expanduser().resolve()
+    row = con.execute("SELECT value FROM schema_info WHERE key = ?", [EXTRAS_DIR_KEY]).fetchall()
+    return db_path.parent / (row[0][0] if row else f"{db_path.stem}-extras")
+
+
 # -------------------------------------------------------------- warehouse --
 
 class Warehouse:
     """A DuckDB warehouse file plus its Parquet store and Data Docs, side by side.
 
     ``lab.duckdb`` -> ``lab-parquet/`` (run data), ``lab-datadocs/<drop>/`` (GE docs),
-    ``lab.duckdb.lock`` (writer lock).
+    ``lab-extras/`` (results' extras, :func:`write_extras`), ``lab.duckdb.lock`` (writer
+    lock).
     """
 
     def __init__(self, path: str | Path, lock_timeout: float = 60.0):
@@ -441,6 +544,7 @@ class Warehouse:
         self.root = self.path.parent
         self.parquet_root = self.root / f"{self.path.stem}-parquet"
         self.docs_root = self.root / f"{self.path.stem}-datadocs"
+        self.extras_root = self.root / f"{self.path.stem}-extras"   # or schema_info's
         self.snapshot_path = self.root / f"{self.path.stem}-snapshot.duckdb"
         self.lock_timeout = lock_timeout
         self._schema_ok = False
@@ -674,7 +778,7 @@ class Warehouse:
         if not holds_lock(self.path):
             raise RuntimeError("remove_stale_temps needs the warehouse lock")
         return (remove_stale_temps(self.root, recursive=False)
-                + remove_stale_temps(self.parquet_root))
+                + remove_stale_temps(self.parquet_root) + remove_stale_temps(self.extras_root))
 
     def publish_snapshot(self) -> Path:
         """Copy the warehouse to ``<stem>-snapshot.duckdb`` (checkpointed first, written
@@ -704,6 +808,9 @@ class Warehouse:
                 con.execute(views.read_text())
             con.execute("INSERT INTO schema_info VALUES ('schema_version', ?) "
                         "ON CONFLICT DO NOTHING", [SCHEMA_VERSION])
+            con.execute("INSERT INTO schema_info VALUES (?, ?) ON CONFLICT DO NOTHING",
+                        [EXTRAS_DIR_KEY, self.extras_root.name])
+        self.extras_root = extras_root_of(con, self.path)
         self._schema_ok = True
 
     def init(self) -> None:
@@ -907,11 +1014,11 @@ class Warehouse:
         params_json = canonical_json(parameters)
         with self.connect() as con, _transaction(con):
             return self._store_results(con, items, code_version, params_json, flow_run_id,
-                                       checkpoint)
+                                       checkpoint, self.extras_root)
 
     @staticmethod
     def _store_results(con, items, code_version, params_json, flow_run_id,
-                       checkpoint) -> list[str]:
+                       checkpoint, extras_root) -> list[str]:
         if not items:
             return []
         camps = sorted({r.campaign for r, _, _ in items})
@@ -945,7 +1052,8 @@ class Warehouse:
             current[result.campaign] = rid
             statuses.append("reactivated" if exists else "new")
         if fresh:
-            _insert_results(con, fresh, code_version, params_json, flow_run_id, checkpoint)
+            _insert_results(con, fresh, code_version, params_json, flow_run_id, checkpoint,
+                            extras_root)
         if activate:
             _cp(checkpoint, "activate")
             _insert(con, "result_activations", {
@@ -1031,10 +1139,14 @@ def _rows(fresh, attr: str, row) -> dict[str, list]:
     return out
 
 
-def _insert_results(con, fresh, code_version, params_json, flow_run_id, checkpoint) -> None:
+def _insert_results(con, fresh, code_version, params_json, flow_run_id, checkpoint,
+                    extras_root) -> None:
     """The rows of new results (results, lineage, coefficients, radii, adequacy, budget,
-    alignment, flags): one Arrow insert per table, values as the row-wise inserts had."""
+    alignment, flags): one Arrow insert per table, values as the row-wise inserts had.
+    The extras files are written (and flushed) first: a row never names a missing file."""
     n = len(fresh)
+    extras = write_extras(extras_root, [canonical_json(r.extras) for r, _, _, _ in fresh])
+    _cp(checkpoint, "extras")
     _insert(con, "results", {
         "result_id": [rid for _, rid, _, _ in fresh],
         "campaign": [r.campaign for r, _, _, _ in fresh],
@@ -1049,7 +1161,7 @@ def _insert_results(con, fresh, code_version, params_json, flow_run_id, checkpoi
         "science_parameters": [canonical_json(r.parameters) for r, _, _, _ in fresh],
         "input_sha256": [canonical_json(sorted(i["sha256"] for i in inputs))
                          for _, _, inputs, _ in fresh],
-        "extras": [canonical_json(r.extras) for r, _, _, _ in fresh],
+        "extras_sha256": extras,
         "simulated": [bool(s) for _, _, _, s in fresh],
         "completeness": [_completeness(r) for r, _, _, _ in fresh],
         "completeness_reasons": [

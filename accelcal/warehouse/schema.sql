@@ -14,8 +14,11 @@
 --     current for a unit that has a complete real result.
 --   * Schema version 2 (schema_info): run_files.simulated, results.simulated /
 --     completeness / completeness_reasons, coefficient_history.adopted,
---     campaign_actions.  A version-1 warehouse is refused with a one-line message
---     (accelcal.warehouse.db): reprocess its drops into a new warehouse.
+--     campaign_actions.  Schema version 3: results.extras (~48 KB of JSON a result,
+--     rewritten whole at every checkpoint) became results.extras_sha256, naming an
+--     immutable file in the folder schema_info.extras_dir.  An older warehouse is refused
+--     with a one-line message (accelcal.warehouse.db): reprocess its drops into a new
+--     warehouse.
 
 CREATE TABLE IF NOT EXISTS schema_info (
     key   VARCHAR PRIMARY KEY,
@@ -92,7 +95,8 @@ CREATE TABLE IF NOT EXISTS results (
     parameters     VARCHAR NOT NULL, -- JSON: pipeline parameters (enter result_id)
     science_parameters VARCHAR,      -- JSON: CampaignResult.parameters
     input_sha256   VARCHAR NOT NULL, -- JSON sorted list
-    extras         VARCHAR,          -- JSON: CampaignResult.extras
+    extras_sha256  VARCHAR,          -- sha256 of CampaignResult.extras as canonical JSON: the
+                                     -- file <extras_dir>/<sha[:2]>/<sha>.json (schema_info)
     simulated      BOOLEAN NOT NULL DEFAULT false,  -- computed from simulated runs
     completeness   VARCHAR NOT NULL DEFAULT 'complete'
                    CHECK (completeness IN ('complete', 'incomplete')),
