@@ -144,3 +144,32 @@ def test_variant_refused_with_rule_and_line(variant_results, name):
         assert {g[0] for g in got} == {rule for rule, _ in expect[path]}, [str(r) for r in res[path]]
     for r in res[path]:
         assert r.rule and r.detail and r.path == path
+
+
+def test_configuration_memo_changes_no_verdict(variant_results, monkeypatch, tmp_path):
+    """suites._configurations_memo (each expectation's GE configuration computed once per
+    validation, a CPU saving) must leave every verdict as great-expectations' own code
+    gives it: the same variants validated without the memo give the same refusals."""
+    import contextlib
+
+    from accelcal.schemas import suites
+    res, _ = variant_results
+    monkeypatch.setattr(suites, "_configurations_memo", contextlib.nullcontext)
+    runs = [read_run(p) for p in sorted(res)]
+    plain = validate_runs(runs, None, "variants")
+    key = lambda d: {p: [(r.rule, r.line, r.detail) for r in v] for p, v in d.items()}  # noqa: E731
+    assert key(plain) == key(res)
+
+
+def test_configuration_memo_is_off_outside_a_validation():
+    """Outside accelcal's own validation GE's property runs as shipped: a new
+    configuration object on every access; inside, one per expectation."""
+    import great_expectations as gx
+
+    from accelcal.schemas import suites
+    suites._memoize_configurations()
+    e = gx.expectations.ExpectColumnValuesToNotBeNull(column="output")
+    assert e.configuration is not e.configuration
+    with suites._configurations_memo():
+        assert e.configuration is e.configuration
+    assert e.configuration is not e.configuration
