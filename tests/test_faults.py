@@ -22,6 +22,8 @@ import duckdb
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from accelcal.warehouse.db import extras_root_of
+
 REPO = Path(__file__).resolve().parents[1]
 
 #: Columns that legitimately differ between two runs of the same inputs.
@@ -47,6 +49,7 @@ def warehouse_contents(path: Path) -> dict[str, list]:
             order = "seq" if t in SEQ_EVENT else ", ".join(keep)
             rows = con.execute(f"SELECT {', '.join(keep)} FROM {t} ORDER BY {order}").fetchall()
             out[t] = [tuple(_norm(v) for v in r) for r in rows]
+        ex = extras_root_of(con, path)      # a snapshot names its warehouse's folder
     finally:
         con.close()
     pq = path.parent / f"{path.stem}-parquet"
@@ -54,7 +57,6 @@ def warehouse_contents(path: Path) -> dict[str, list]:
                                   if not p.name.startswith("."))
     # the results' extras files: every one a results row names, and no other (a killed
     # run leaves at most a file the re-run names), each holding the bytes its name says
-    ex = path.parent / f"{path.stem}-extras"
     out["extras_files"] = sorted(str(p.relative_to(ex)) for p in ex.rglob("*.json")
                                  if not p.name.startswith("."))
     assert all(hashlib.sha256(p.read_bytes()).hexdigest() == p.stem for p in ex.rglob("*.json")
