@@ -61,6 +61,7 @@ def _local_steps(pool=None) -> SimpleNamespace:
     the rest (every warehouse write) in the flow process."""
     submit = _Done if pool is None else pool.submit
     return SimpleNamespace(
+        engine="local",
         known_keys=_store.known_keys,
         submit_intake=lambda *a: submit(_validate.intake_batch, *a),
         record_drop=_store.record_drop,
@@ -113,6 +114,7 @@ def _prefect_steps() -> SimpleNamespace:
     from ..tasks import prefect_tasks
     t = prefect_tasks()
     return SimpleNamespace(
+        engine="prefect",
         known_keys=t.known_keys,
         submit_intake=lambda *a: t.intake_batch.submit(*a),
         record_drop=lambda wh, ing, fid: t.record_drop(wh, quote(ing), fid),
@@ -180,12 +182,18 @@ def file_batches(entries: list, files: int, nbytes: int) -> list[list]:
     return out
 
 
-#: Campaigns computed per task (orchestration costs ~0.1 s per Prefect task).
-CAMPAIGNS_PER_TASK = 4
+#: Campaigns computed per task, by engine.  A Prefect task run costs ~0.1-0.2 s of
+#: bookkeeping (flow process, Prefect server, worker), which is taken from the workers when
+#: they fill the cores: under the prefect engine a task carries ~25 campaigns (~3 s of
+#: science), so that is a few per cent (200 campaigns on 2 Dask workers: 1.53x the 1-worker
+#: speed with 4 a task, 1.72x with 25, benchmarks/bench_dask_scaling.py).  The local
+#: engine's process pool costs next to nothing a task and keeps them small.
+CAMPAIGNS_PER_TASK = {"local": 4, "prefect": 25}
 
 
-def campaigns_per_task() -> int:
-    return _env_int("ACCELCAL_CAMPAIGNS_PER_TASK", CAMPAIGNS_PER_TASK)
+def campaigns_per_task(engine: str = "local") -> int:
+    """$ACCELCAL_CAMPAIGNS_PER_TASK, else the engine's default (CAMPAIGNS_PER_TASK)."""
+    return _env_int("ACCELCAL_CAMPAIGNS_PER_TASK", CAMPAIGNS_PER_TASK[engine])
 
 
 #: Computed campaigns stored per warehouse transaction (columnar inserts; all or none of
@@ -461,7 +469,7 @@ def _body(wh, drops, summary, steps, flow_run_id, parameters, cv, settle, B, W, 
                 entry["status"] = st
             tick("store", t0)
 
-        C = campaigns_per_task()
+        C = campaigns_per_task(getattr(steps, "engine", "local"))
         chunk: list = []
         plans: dict = {}
         left_out: dict = {}
