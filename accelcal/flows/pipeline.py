@@ -185,8 +185,9 @@ def file_batches(entries: list, files: int, nbytes: int) -> list[list]:
 #: Campaigns computed per task, by engine.  A Prefect task run costs ~0.1-0.2 s of
 #: bookkeeping (flow process, Prefect server, worker), which is taken from the workers when
 #: they fill the cores: under the prefect engine a task carries ~25 campaigns (~3 s of
-#: science), so that is a few per cent (200 campaigns on 2 Dask workers: 1.53x the 1-worker
-#: speed with 4 a task, 1.72x with 25, benchmarks/bench_dask_scaling.py).  The local
+#: science), so that is a few per cent (200 campaigns on a standing cluster of 2 Dask
+#: workers, benchmarks/bench_dask_scaling.py: 1.53x the 1-worker speed with 4 a task;
+#: 1.72x and 1.56x in two runs with 25).  The local
 #: engine's process pool costs next to nothing a task and keeps them small.
 CAMPAIGNS_PER_TASK = {"local": 4, "prefect": 25}
 
