@@ -187,8 +187,8 @@ def file_batches(entries: list, files: int, nbytes: int) -> list[list]:
 #: they fill the cores: under the prefect engine a task carries ~25 campaigns (~3 s of
 #: science), so that is a few per cent (200 campaigns on a standing cluster of 2 Dask
 #: workers, benchmarks/bench_dask_scaling.py: 1.53x the 1-worker speed with 4 a task;
-#: 1.72x and 1.56x in two runs with 25).  The local
-#: engine's process pool costs next to nothing a task and keeps them small.
+#: 1.72x and 1.56x in two runs with 25).  The local engine's process pool costs next to
+#: nothing a task and keeps them small.
 CAMPAIGNS_PER_TASK = {"local": 4, "prefect": 25}
 
 
@@ -470,7 +470,7 @@ def _body(wh, drops, summary, steps, flow_run_id, parameters, cv, settle, B, W, 
                 entry["status"] = st
             tick("store", t0)
 
-        C = campaigns_per_task(getattr(steps, "engine", "local"))
+        C = campaigns_per_task(steps.engine)
         chunk: list = []
         plans: dict = {}
         left_out: dict = {}

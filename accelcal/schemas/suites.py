@@ -474,36 +474,36 @@ def _new_context():
     return ctx
 
 
-#: Per thread: the ephemeral context, its pandas data source and one whole-dataframe batch
-#: definition per table, made once and reused by every batch (each batch still gets its own
-#: Batch of its own dataframe).  Per thread, as GE's objects are not made to be shared.
+#: Per thread: ``source``, the pandas data source of an ephemeral context, and ``defs``, one
+#: whole-dataframe batch definition per table, made once and reused by every batch (each
+#: batch still gets its own Batch of its own dataframe).  Per thread, as GE's objects are
+#: not made to be shared.
 _GE = threading.local()
 
 
 def _batch_definition(table: str):
     """The batch definition of ``table`` ('rows' or 'meta') in this thread's context."""
-    defs = getattr(_GE, "defs", None)
-    if defs is None:
-        ds = _new_context().data_sources.add_pandas("accelcal")
-        defs = _GE.defs = {"": ds}
-    if table not in defs:
-        defs[table] = defs[""].add_dataframe_asset(table).add_batch_definition_whole_dataframe("all")
-    return defs[table]
+    if getattr(_GE, "source", None) is None:
+        _GE.source = _new_context().data_sources.add_pandas("accelcal")
+        _GE.defs = {}
+    if table not in _GE.defs:
+        _GE.defs[table] = _GE.source.add_dataframe_asset(table) \
+            .add_batch_definition_whole_dataframe("all")
+    return _GE.defs[table]
 
 
 def _forget_batches() -> None:
     """Let go of the batches this thread's data source holds (its execution engine keeps
     every batch it loaded, and with it the batch's table): the table of a batch is
     freed when the batch is done, not when the next batch replaces it."""
-    defs = getattr(_GE, "defs", None)
-    if defs is None:
+    if getattr(_GE, "source", None) is None:
         return
-    manager = defs[""].get_execution_engine().batch_manager
+    manager = _GE.source.get_execution_engine().batch_manager
     manager.reset_batch_cache()
     manager.batch_data_cache.clear()
 
 
-#: Set (to a dict) while this thread runs a validation: see _memoized_configuration.
+#: Set (to a dict) while this thread runs a validation: see _configurations_memo.
 _MEMO = threading.local()
 
 
