@@ -92,7 +92,7 @@ def standing_cluster(n: int, env: dict):
     addr = f"tcp://127.0.0.1:{port}"
     logs = tempfile.mkdtemp(prefix="bench-dask-cluster-")
     sch = subprocess.Popen(["dask", "scheduler", "--host", "127.0.0.1", "--port", str(port),
-                            "--no-dashboard"], env=env,
+                            "--no-dashboard", "--preload", "accelcal.ops.dask_preload"], env=env,
                            stdout=open(Path(logs) / "scheduler.log", "w"), stderr=subprocess.STDOUT)
     wk = None
     try:

@@ -1,16 +1,20 @@
-"""Dask worker preload: make a standing worker ready for accelcal's tasks at start.
+"""Dask preload: make a standing cluster ready for accelcal's tasks at start.
 
 A lab that processes drops every night keeps a Dask cluster running and points the
-pipeline at it (``accelcal run --task-runner tcp://HOST:PORT``).  Start its workers with
+pipeline at it (``accelcal run --task-runner tcp://HOST:PORT``).  Start it with
 
+    dask scheduler --preload accelcal.ops.dask_preload
     dask worker tcp://HOST:PORT --nthreads 1 --preload accelcal.ops.dask_preload
 
-and each worker, once, when it starts (not inside the first run's first batch):
-imports great-expectations and the science, and validates two of the bundled demo
-runs (a tumble and a centrifuge run) without writing anything, which builds
-great-expectations' context and the suites' expectation specs (~3 s of CPU a
-process, paid by every fresh worker).  A failure here is logged and the worker
-starts anyway: the tasks then do the same work on first use.
+Each worker, once, when it starts (not inside the first run's first batch): imports
+great-expectations, Prefect's task engine and the science, and validates two of the
+bundled demo runs (a tumble and a centrifuge run) without writing anything, which builds
+great-expectations' context and the suites' expectation specs (~3 s of CPU a process,
+paid by every fresh worker).  The scheduler only imports Prefect and accelcal's tasks:
+Dask's scheduler unpickles every task it is sent, and the first one made it import them
+(~1.2 s between a run's first submit and its first task's start, measured on a fresh
+cluster).  A failure here is logged and the process starts anyway: the tasks then do
+the same work on first use.
 """
 from __future__ import annotations
 
@@ -31,16 +35,33 @@ def warm() -> float:
     from ..estimators import campaign  # noqa: F401  (the science, imported once)
     from ..schemas.dropformat import read_run
     from ..schemas.suites import validate_report
-    from ..tasks import science, validate  # noqa: F401
+    from ..tasks import prefect_tasks, science, validate  # noqa: F401
+    import prefect.task_engine  # noqa: F401  (what runs a Prefect task run in this worker)
+    prefect_tasks()
     demo = Path(__file__).resolve().parents[1] / "demo_data" / "drop-demo"
     validate_report([read_run(demo / name) for name in WARM_RUNS], None, "warm-up")
     return time.perf_counter() - t0
 
 
-def dask_setup(worker=None) -> None:
-    """Called by ``dask worker --preload accelcal.ops.dask_preload`` at worker start."""
+def warm_scheduler() -> float:
+    """Import what the scheduler needs to unpickle accelcal's task graphs: Dask's
+    scheduler unpickles each submitted task (the Prefect task run and its arguments), and
+    the first one imported Prefect and accelcal's tasks there, ~1.2 s between the flow's
+    first submit and the first task's start.  Returns the seconds it took."""
+    t0 = time.perf_counter()
+    import prefect.task_engine  # noqa: F401
+    from ..tasks import prefect_tasks, science, store, validate  # noqa: F401
+    from ..schemas import dropformat  # noqa: F401  (the drop listing's entries)
+    return time.perf_counter() - t0
+
+
+def dask_setup(server=None) -> None:
+    """Called at start by ``dask worker ... --preload accelcal.ops.dask_preload`` (warms
+    the worker: :func:`warm`) and by ``dask scheduler --preload accelcal.ops.dask_preload``
+    (imports only: :func:`warm_scheduler`)."""
     try:
-        seconds = warm()
+        from distributed import Scheduler
+        seconds = warm_scheduler() if isinstance(server, Scheduler) else warm()
     except Exception as e:      # never stop a worker from starting over a warm-up
         log.warning("accelcal warm-up failed (%s: %s); tasks will warm on first use",
                     type(e).__name__, e)

@@ -10,10 +10,12 @@
 The science tasks receive RunFiles (pandas DataFrames), which Dask pickles to
 the workers; the warehouse writes stay in the flow process (one writer).
 
-A standing cluster (the nightly case) should start its workers with
+A standing cluster (the nightly case) should start its scheduler with
+``dask scheduler --preload accelcal.ops.dask_preload`` and its workers with
 ``dask worker tcp://HOST:PORT --nthreads 1 --preload accelcal.ops.dask_preload``: each
-worker then imports and warms great-expectations and the science once, at start,
-instead of inside the first batch of every run (benchmarks/bench_dask_scaling.py).
+worker then imports and warms great-expectations and the science once, at start, and
+the scheduler imports what it needs to unpickle the tasks, instead of inside the first
+batch of every run (benchmarks/bench_dask_scaling.py).
 """
 from __future__ import annotations
 
