@@ -95,3 +95,26 @@ def test_parsed_runs_alive_at_once_bounded_by_batch_not_drop(tmp_path, examples,
           f"{whole.peak} in one batch")
     assert streamed.peak <= 11 + 1, streamed.peak
     assert whole.peak >= 88, whole.peak
+
+
+def _chunks(total: int, most: int, in_flight: int) -> list[int]:
+    from accelcal.flows.pipeline import guided_chunk
+    out = []
+    while sum(out) < total:
+        out.append(min(guided_chunk(total - sum(out), most, in_flight), total - sum(out)))
+    return out
+
+
+def test_guided_chunks_shrink_toward_the_end_and_cover_every_campaign():
+    """Science tasks carry ``most`` campaigns, then fewer as the run nears its end
+    (remaining / in-flight, never below the local engine's 4), so the workers finish
+    together; the local engine's 4 a task is left as it was."""
+    sizes = _chunks(200, 25, 4)
+    assert sum(sizes) == 200
+    assert sizes[0] == 25 and sizes == sorted(sizes, reverse=True)
+    assert min(sizes[:-1]) >= 4 and sizes[-1] <= 4
+    # by hand: 200 -> 25 x 5 (ceil(remaining / 4) >= 25 until 100 are left), then
+    # ceil(75/4) = 19, ceil(56/4) = 14, ceil(42/4) = 11, 8, 6, 5, 4, 4, 4
+    assert sizes == [25, 25, 25, 25, 25, 19, 14, 11, 8, 6, 5, 4, 4, 4]
+    assert set(_chunks(200, 4, 4)) == {4}
+    assert _chunks(3, 25, 4) == [3]
