@@ -1,4 +1,5 @@
-"""CLI for operations: ``accelcal serve``, ``report``, ``campaign`` and ``status``.
+"""CLI for operations: ``accelcal serve``, ``report``, ``campaign``, ``status`` and
+``migrate``.
 
 ``register_cli(subparsers)`` (alias ``register``) adds the sub-commands; heavy
 imports happen only when a command runs.  Text that comes from files (campaign labels,
@@ -97,6 +98,17 @@ def register_cli(sub) -> None:
         q.add_argument("--warehouse", "-w", default=_default_warehouse())
         q.set_defaults(func=_cmd_campaign)
 
+    m = sub.add_parser(
+        "migrate", help="upgrade a warehouse written by an older accelcal (schema 2 -> 3)",
+        description="Bring a warehouse to this accelcal's schema in place, keeping every row "
+                    "and the activation history. The file is first copied, untouched, to "
+                    "<stem>.schema-<old>.duckdb beside it. Schema 2 -> 3 writes each result's "
+                    "extras as the file <stem>-extras/<sha[:2]>/<sha>.json its "
+                    "results.extras_sha256 names. Safe to run again after an interruption.")
+    m.add_argument("--warehouse", "-w", default=_default_warehouse())
+    m.add_argument("--lock-timeout", type=float, default=60.0, metavar="S")
+    m.set_defaults(func=_cmd_migrate)
+
 
 register = register_cli
 
@@ -132,6 +144,25 @@ def _need_warehouse(path: str) -> None:
     from pathlib import Path
     if not Path(path).expanduser().exists():
         _fail(f"warehouse {path} does not exist")
+
+
+def _cmd_migrate(args) -> int:
+    from ..cli import _console, say
+    from ..warehouse.db import WarehouseError
+    from ..warehouse.migrate import migrate
+    _need_warehouse(args.warehouse)
+    try:
+        out = migrate(args.warehouse, lock_timeout=args.lock_timeout)
+    except WarehouseError as e:
+        _fail(str(e))
+    con = _console()
+    if out["from"] == out["to"]:
+        say(con, f"{out['warehouse']}: schema {out['to']} already; nothing to do")
+        return 0
+    say(con, f"{out['warehouse']}: schema {out['from']} -> {out['to']}; {out['results']} "
+             f"results, {out['extras_files']} extras files; the schema-{out['from']} file is "
+             f"kept as {out['backup']}")
+    return 0
 
 
 def _cmd_status(args) -> int:

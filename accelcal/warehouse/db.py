@@ -431,8 +431,11 @@ def check_schema_version(con, path) -> None:
         raise WarehouseError(
             f"warehouse {path} has schema version {row[0][0]}, this accelcal uses "
             f"{SCHEMA_VERSION}: " + (
-                "process its drops again into a new warehouse (the raw drops are never "
-                "changed; results are recomputed exactly)" if older else
+                ("upgrade it with `accelcal migrate -w WAREHOUSE` (it keeps a copy of the "
+                 "old file), or process its drops again into a new warehouse"
+                 if row[0][0] == "2" else
+                 "process its drops again into a new warehouse (the raw drops are never "
+                 "changed; results are recomputed exactly)") if older else
                 "it was written by a newer accelcal; upgrade accelcal to read it"))
 
 
