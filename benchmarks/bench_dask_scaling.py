@@ -7,14 +7,18 @@
 
 Each timed run is ``run_pipeline(drops, <fresh warehouse>, engine='prefect',
 task_runner=...)`` in a fresh child process, on the same drops (bench_fleet's simulated
-fleet, scenario snj103-lxj100, 11 runs a campaign).  Two ways to have a Dask cluster:
+fleet, scenario snj103-lxj100, 11 runs a campaign).  The child first imports what
+run_pipeline imports on first use (Prefect's flow engine, prefect-dask: ~1.2 s), timed
+apart as ``imports_s``: a served run's process has them loaded; the table shows the
+speed-up with and without them.  Two ways to have a Dask cluster:
 
 ``per-run``   ``--task-runner dask``: the flow starts a local cluster of N one-thread
               workers and stops it at the end, so each run pays the workers' start and
               their first imports (great-expectations, ~3 s a process).
 ``standing``  a cluster that stays up, as a lab processing drops every night runs it:
-              ``dask scheduler`` + ``dask worker --nworkers N --nthreads 1 --preload
-              accelcal.ops.dask_preload``, started before the timed run and waited for
+              ``dask scheduler --preload accelcal.ops.dask_preload`` + ``dask worker
+              --nworkers N --nthreads 1 --preload accelcal.ops.dask_preload``, started
+              before the timed run and waited for
               (all N workers connected and warmed), then ``--task-runner tcp://...``.
 
 Both use a running Prefect server: $PREFECT_API_URL if set, else one the benchmark
@@ -122,6 +126,15 @@ def child(args) -> dict:
     from accelcal.flows.pipeline import run_pipeline
     drops, n_runs = cached_fleet(args.n, args.per_drop, Path(args.sim_cache))
     wh = Path(tempfile.mkdtemp(prefix="bench-dask-wh-")) / "lab.duckdb"
+    # what run_pipeline imports on first use (Prefect, its Dask runner), timed apart: a
+    # served run (accelcal serve: flow runs in a process that has Prefect loaded) does
+    # not pay it, a first `accelcal run` in a fresh process does (imports_s)
+    t0 = time.perf_counter()
+    import prefect.flow_engine  # noqa: F401
+    import prefect_dask  # noqa: F401
+    from accelcal.flows.pipeline import pipeline_flow
+    pipeline_flow()
+    imports = time.perf_counter() - t0
     t0 = time.perf_counter()
     s = run_pipeline([str(d) for d in drops], wh, engine="prefect", task_runner=args.runner,
                      allow_simulated=True)
@@ -129,7 +142,7 @@ def child(args) -> dict:
     statuses: dict[str, int] = {}
     for c in s["campaigns"]:
         statuses[c["status"]] = statuses.get(c["status"], 0) + 1
-    return {"pipeline_s": wall, "runs": n_runs, "statuses": statuses,
+    return {"pipeline_s": wall, "imports_s": imports, "runs": n_runs, "statuses": statuses,
             "timings": s["timings"], "load_before": os.getloadavg()[0]}
 
 
@@ -196,20 +209,28 @@ def report(runs: list[dict], args) -> str:
              f"{args.campaigns} --pairs {args.pairs} --cluster {' '.join(args.cluster)}`), "
              f"commit {commit()}, {time.strftime('%Y-%m-%d')}, {os.cpu_count()} cores, "
              f"{args.campaigns} campaigns ({runs[0]['runs']} runs), a running Prefect server. "
-             "Pipeline wall time in s, each run in a fresh process on a fresh warehouse; "
-             "the 1- and 2-worker runs alternate.",
+             "Pipeline wall time in s (`run_pipeline`, Prefect and its Dask runner already "
+             "imported, as in a served run), each run in a fresh process on a fresh "
+             "warehouse; the 1- and 2-worker runs alternate. The last column adds each "
+             "run's own imports (a first `accelcal run` in a fresh process).",
              "",
-             "| cluster | 1 worker (s) | 2 workers (s) | speed-up (medians) | pairs |",
-             "|---|---|---|---|---|"]
+             "| cluster | 1 worker (s) | 2 workers (s) | speed-up (medians) | pairs | "
+             "with the imports |",
+             "|---|---|---|---|---|---|"]
     for mode in dict.fromkeys(r["cluster"] for r in runs):
-        one = [r["pipeline_s"] for r in runs if r["cluster"] == mode and r["workers"] == 1]
-        two = [r["pipeline_s"] for r in runs if r["cluster"] == mode and r["workers"] == 2]
+        sel = [r for r in runs if r["cluster"] == mode]
+        one = [r["pipeline_s"] for r in sel if r["workers"] == 1]
+        two = [r["pipeline_s"] for r in sel if r["workers"] == 2]
+        one_i = [r["pipeline_s"] + r["imports_s"] for r in sel if r["workers"] == 1]
+        two_i = [r["pipeline_s"] + r["imports_s"] for r in sel if r["workers"] == 2]
         pairs = " ".join(f"{a / b:.2f}×" for a, b in zip(one, two))
         what = ("standing (started and warmed before the run)" if mode == "standing"
                 else "per run (`--task-runner dask`, started by the flow)")
         lines.append(f"| {what} | {' / '.join(f'{x:.1f}' for x in one)} | "
                      f"{' / '.join(f'{x:.1f}' for x in two)} | "
-                     f"**{statistics.median(one) / statistics.median(two):.2f}×** | {pairs} |")
+                     f"**{statistics.median(one) / statistics.median(two):.2f}×** | {pairs} | "
+                     f"{statistics.median(one_i):.1f} / {statistics.median(two_i):.1f} s: "
+                     f"{statistics.median(one_i) / statistics.median(two_i):.2f}× |")
     return "\n".join(lines)
 
 
