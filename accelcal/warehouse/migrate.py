@@ -10,8 +10,8 @@ same code would write.
 
 What the migration keeps: every row of every table, the activation history (which result
 was current when) included -- the thing re-processing the drops into a new warehouse
-would not give back.  Before it touches the warehouse it copies the file, untouched, to
-``<stem>.schema-<old>.duckdb`` beside it.  The extras files are written (and flushed)
+would not give back.  Before it changes the warehouse it copies the file (with its
+write-ahead log, if any, folded in) to ``<stem>.schema-<old>.duckdb`` beside it.  The extras files are written (and flushed)
 first; the table change is then one transaction: a run killed at any point leaves the
 schema-2 warehouse as it was (plus, at most, extras files nothing names yet), and
 ``accelcal migrate`` again finishes the job.
@@ -96,7 +96,12 @@ def migrate(path: str | Path, *, lock_timeout: float = 60.0) -> dict:
                 f"upgrades schema 2 to {SCHEMA_VERSION} only: process its drops again into "
                 "a new warehouse")
         backup = path.with_name(f"{path.stem}.schema-{have}{path.suffix}")
-        if not backup.exists():
+        if not backup.exists():         # else the interrupted migration's copy is the original
+            con = duckdb.connect(str(path))
+            try:                        # fold a write-ahead log into the file it copies
+                con.execute("CHECKPOINT")
+            finally:
+                con.close()
             try:
                 tmp = backup.with_name(backup.name + ".part")
                 shutil.copyfile(path, tmp)
