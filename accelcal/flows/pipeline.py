@@ -186,9 +186,9 @@ def file_batches(entries: list, files: int, nbytes: int) -> list[list]:
 #: bookkeeping (flow process, Prefect server, worker), which is taken from the workers when
 #: they fill the cores: under the prefect engine a task carries ~25 campaigns (~3 s of
 #: science), so that is a few per cent (200 campaigns on a standing cluster of 2 Dask
-#: workers, benchmarks/bench_dask_scaling.py: 1.53x the 1-worker speed with 4 a task;
-#: 1.72x and 1.56x in two runs with 25).  The local engine's process pool costs next to
-#: nothing a task and keeps them small.
+#: workers, benchmarks/bench_dask_scaling.py: 1.53x the 1-worker speed with 4 a task,
+#: 1.56x with 25).  Toward the end of a run the chunks shrink (:func:`guided_chunk`).
+#: The local engine's process pool costs next to nothing a task and keeps them small.
 CAMPAIGNS_PER_TASK = {"local": 4, "prefect": 25}
 
 
