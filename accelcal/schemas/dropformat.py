@@ -880,15 +880,27 @@ def _plain_rows(body: bytes) -> bool:
 def _rows_of(names: list[str], buf: bytes) -> pa.Table:
     """The rows of files sharing a header, read as parse_run reads them (float64, empty
     cells null), in one call."""
-    return pacsv.read_csv(
-        pa.py_buffer(buf),
-        read_options=pacsv.ReadOptions(column_names=names, use_threads=False,
-                                       block_size=max(len(buf), 1) + 1),
-        parse_options=pacsv.ParseOptions(quote_char=False, double_quote=False,
-                                         escape_char=False, ignore_empty_lines=False),
-        convert_options=pacsv.ConvertOptions(
-            column_types={c: pa.float64() for c in names}, null_values=[""],
-            strings_can_be_null=False, quoted_strings_can_be_null=False, check_utf8=False))
+    return pacsv.read_csv(pa.py_buffer(buf),
+                          read_options=_csv_read_options(names, max(len(buf), 1) + 1),
+                          parse_options=_CSV_PARSE,
+                          convert_options=_csv_convert_options(names, pa.float64()))
+
+
+#: How a run file's rows are split into cells: no quoting or escapes (drop-format.md), and
+#: an empty line is a row (refused as such), not skipped.  parse_run and parse_runs alike.
+_CSV_PARSE = pacsv.ParseOptions(quote_char=False, double_quote=False, escape_char=False,
+                                ignore_empty_lines=False)
+
+
+def _csv_read_options(names: list[str], block_size: int) -> pacsv.ReadOptions:
+    return pacsv.ReadOptions(column_names=names, use_threads=False, block_size=block_size)
+
+
+def _csv_convert_options(names: list[str], typ, columns=None) -> pacsv.ConvertOptions:
+    """Every column as ``typ``, an empty cell null and nothing else."""
+    return pacsv.ConvertOptions(
+        column_types={c: typ for c in names}, include_columns=columns, null_values=[""],
+        strings_can_be_null=False, quoted_strings_can_be_null=False, check_utf8=False)
 
 
 def _plain_arrays(test, whole, cols, nullable, start: int, m: int) -> dict | None:
@@ -937,10 +949,7 @@ class _Body:
         self.cols: dict[str, np.ndarray] = {}
         self.n_rows = 0
         self.bytes_seen = 0
-        self._read = pacsv.ReadOptions(column_names=names, use_threads=False,
-                                       block_size=CHUNK_BYTES + LINE_MAX + 1)
-        self._parse = pacsv.ParseOptions(quote_char=False, double_quote=False,
-                                         escape_char=False, ignore_empty_lines=False)
+        self._read = _csv_read_options(names, CHUNK_BYTES + LINE_MAX + 1)
 
     # -- one chunk --------------------------------------------------------------------
     def add(self, chunk: bytes, first: int, offset: int, last: bool) -> None:
@@ -1097,12 +1106,8 @@ class _Body:
         self.n_rows = n + m
 
     def _csv(self, buf, typ, columns=None) -> pa.Table:
-        return pacsv.read_csv(
-            buf, read_options=self._read, parse_options=self._parse,
-            convert_options=pacsv.ConvertOptions(
-                column_types={c: typ for c in self.names}, include_columns=columns,
-                null_values=[""], strings_can_be_null=False, quoted_strings_can_be_null=False,
-                check_utf8=False))
+        return pacsv.read_csv(buf, read_options=self._read, parse_options=_CSV_PARSE,
+                              convert_options=_csv_convert_options(self.names, typ, columns))
 
     def _floats_via_text(self, buf, rlines, last_row) -> pa.Table:
         """When pyarrow refuses a cell: find the first cell that is not a number in the
