@@ -101,8 +101,8 @@ def register_cli(sub) -> None:
     m = sub.add_parser(
         "migrate", help="upgrade a warehouse written by an older accelcal (schema 2 -> 3)",
         description="Bring a warehouse to this accelcal's schema in place, keeping every row "
-                    "and the activation history. The file is first copied, untouched, to "
-                    "<stem>.schema-<old>.duckdb beside it. Schema 2 -> 3 writes each result's "
+                    "and the activation history. The file is first copied (its write-ahead log "
+                    "folded in) to <stem>.schema-<old>.duckdb beside it. Schema 2 -> 3 writes each result's "
                     "extras as the file <stem>-extras/<sha[:2]>/<sha>.json its "
                     "results.extras_sha256 names. Safe to run again after an interruption.")
     m.add_argument("--warehouse", "-w", default=_default_warehouse())

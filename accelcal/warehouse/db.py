@@ -417,23 +417,30 @@ def roomy(con: duckdb.DuckDBPyConnection) -> Iterator[duckdb.DuckDBPyConnection]
 
 # ----------------------------------------------------------------- schema --
 
+def schema_version(con) -> str | None:
+    """The schema version the warehouse open on ``con`` says it has (None: no
+    schema_info table or no version in it, i.e. an empty warehouse)."""
+    have = con.execute("SELECT count(*) FROM information_schema.tables "
+                       "WHERE table_name = 'schema_info'").fetchall()[0][0]
+    if not have:
+        return None
+    row = con.execute("SELECT value FROM schema_info WHERE key = 'schema_version'").fetchall()
+    return row[0][0] if row else None
+
+
 def check_schema_version(con, path) -> None:
     """Raise WarehouseError (one line) unless the open warehouse is empty or written with
     this SCHEMA_VERSION.  Every reader and writer calls it before touching tables, so an
     old warehouse gets a sentence, never a traceback about a missing column."""
-    have = con.execute("SELECT count(*) FROM information_schema.tables "
-                       "WHERE table_name = 'schema_info'").fetchall()[0][0]
-    if not have:
-        return
-    row = con.execute("SELECT value FROM schema_info WHERE key = 'schema_version'").fetchall()
-    if row and row[0][0] != SCHEMA_VERSION:
-        older = row[0][0] < SCHEMA_VERSION
+    have = schema_version(con)
+    if have is not None and have != SCHEMA_VERSION:
+        older = have < SCHEMA_VERSION
         raise WarehouseError(
-            f"warehouse {path} has schema version {row[0][0]}, this accelcal uses "
+            f"warehouse {path} has schema version {have}, this accelcal uses "
             f"{SCHEMA_VERSION}: " + (
                 ("upgrade it with `accelcal migrate -w WAREHOUSE` (it keeps a copy of the "
                  "old file), or process its drops again into a new warehouse"
-                 if row[0][0] == "2" else
+                 if have == "2" else
                  "process its drops again into a new warehouse (the raw drops are never "
                  "changed; results are recomputed exactly)") if older else
                 "it was written by a newer accelcal; upgrade accelcal to read it"))

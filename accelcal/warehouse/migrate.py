@@ -27,7 +27,7 @@ import duckdb
 
 from ..fileio import os_error_text, path_text
 from .db import (EXTRAS_DIR_KEY, SCHEMA_VERSION, Warehouse, WarehouseError, _arrow,
-                 _registered, _transaction, write_extras)
+                 _registered, _transaction, schema_version, write_extras)
 
 #: Results whose extras are read and written as files at a time (~48 KB each).
 ROWS_PER_BATCH = 200
@@ -56,20 +56,14 @@ def schema_version_of(path: str | Path) -> str | None:
     """The schema version a warehouse file says it has (None: no schema_info table)."""
     con = duckdb.connect(str(path), read_only=True)
     try:
-        have = con.execute("SELECT count(*) FROM information_schema.tables "
-                           "WHERE table_name = 'schema_info'").fetchall()[0][0]
-        if not have:
-            return None
-        row = con.execute("SELECT value FROM schema_info "
-                          "WHERE key = 'schema_version'").fetchall()
-        return row[0][0] if row else None
+        return schema_version(con)
     finally:
         con.close()
 
 
 def migrate(path: str | Path, *, lock_timeout: float = 60.0) -> dict:
     """Bring the warehouse at ``path`` to this accelcal's schema, in place, after copying
-    it untouched to ``<stem>.schema-<old>.duckdb``.
+    it (checkpointed) to ``<stem>.schema-<old>.duckdb``.
 
     Returns ``{"warehouse", "from", "to", "results", "extras_files", "backup"}``; a
     warehouse already at this schema is left alone (``from == to``, no backup).  Raises
