@@ -32,11 +32,11 @@ def warm() -> float:
     """Import and exercise what the ingest/validate and science tasks use; returns the
     seconds it took.  Writes nothing."""
     t0 = time.perf_counter()
+    warm_scheduler()            # Prefect's task engine and accelcal's tasks
     from ..estimators import campaign  # noqa: F401  (the science, imported once)
     from ..schemas.dropformat import read_run
     from ..schemas.suites import validate_report
-    from ..tasks import prefect_tasks, science, validate  # noqa: F401
-    import prefect.task_engine  # noqa: F401  (what runs a Prefect task run in this worker)
+    from ..tasks import prefect_tasks
     prefect_tasks()
     demo = Path(__file__).resolve().parents[1] / "demo_data" / "drop-demo"
     validate_report([read_run(demo / name) for name in WARM_RUNS], None, "warm-up")
