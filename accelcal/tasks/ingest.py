@@ -246,7 +246,7 @@ def _forget(out: DropIngest, src: str) -> None:
 
 
 def _ingest_entry(e, out, known, vv, parquet_root, warehouse_root, DropFormatError, refuse,
-                  allow_simulated, pool, writes, pending=None) -> None:
+                  allow_simulated, pool, writes, pending: "_Pending") -> None:
     src = path_text(e.path)
     name = os.path.basename(src)
     try:
@@ -265,14 +265,12 @@ def _ingest_entry(e, out, known, vv, parquet_root, warehouse_root, DropFormatErr
         finally:
             os.close(fd)
     except _Held as h:
-        if pending is not None:
-            pending.flush()
+        pending.flush()
         out.held.append(f"{src}: {h}")
     except StoreError:
         raise
     except Exception as err:   # a bug in the parser or here: report, record no verdict
-        if pending is not None:
-            pending.flush()
+        pending.flush()
         _forget(out, src)
         out.errors.append(f"{src}: not ingested: {type(err).__name__}: {err}")
     progress.advance("ingest", note=name)
@@ -286,8 +284,8 @@ def _open_refusal(err: OSError) -> tuple[str, str]:
 
 
 def _ingest_open_file(fd, e, src, out, known, vv, parquet_root, warehouse_root,
-                      DropFormatError, refuse, allow_simulated: bool = False, pool=None,
-                      writes=None, pending=None) -> None:
+                      DropFormatError, refuse, allow_simulated: bool, pool, writes,
+                      pending: "_Pending") -> None:
     st = os.fstat(fd)
     if not stat.S_ISREG(st.st_mode):
         detail = "not a regular file (it changed after the drop was listed)"
@@ -310,20 +308,18 @@ def _ingest_open_file(fd, e, src, out, known, vv, parquet_root, warehouse_root,
         return
     _check_unchanged(fd, st, size)
     if known.get((sha, src)) == vv:
-        if pending is not None:
-            pending.flush()
+        pending.flush()
         out.keys.append((sha, src))
         out.known += 1
         return
     sim_line = simulated_line(head)
     if sim_line is not None and not allow_simulated:
-        if pending is not None:
-            pending.flush()
+        pending.flush()
         out.simulated_held.append({"path": src, "line": sim_line})
         return
     base = dict(sha256=sha, source_path=src, drop_name=out.drop_name, drop_path=out.drop_path,
                 size_bytes=size, validator_version=vv, simulated=sim_line is not None)
-    if raw is not None and pending is not None:
+    if raw is not None:
         # the bytes are what was hashed, and the file did not change while read: its
         # parse can wait for the next files' (parsed together, _take_parsed)
         pending.add((src, raw, head, base))
