@@ -488,7 +488,6 @@ def _body(wh, drops, summary, steps, flow_run_id, parameters, cv, settle, B, W, 
         chunk: list = []
         plans: dict = {}
         left_out: dict = {}
-        first = len(summary["campaigns"])
 
         def submit(chunk) -> None:
             t0 = time.perf_counter()
@@ -500,12 +499,11 @@ def _body(wh, drops, summary, steps, flow_run_id, parameters, cv, settle, B, W, 
             while sum(len(c) for c, _ in inflight) >= W * C:
                 store_next()
 
-        for k_done, camp in enumerate(campaigns):
+        for k, camp in enumerate(campaigns):
             if camp not in plans:
                 # the next window of campaigns: its runs and current results (one plan
                 # per campaign, whatever window it is asked in), so what the run holds
                 # of the plans is bounded by the window, not the fleet
-                k = len(summary["campaigns"]) - first
                 window = campaigns[k:k + P]
                 plans.clear()
                 left_out.clear()
@@ -525,7 +523,7 @@ def _body(wh, drops, summary, steps, flow_run_id, parameters, cv, settle, B, W, 
                 progress.advance("store", note=camp)
                 continue
             if not chunk:
-                size = guided_chunk(len(campaigns) - k_done, C, W)
+                size = guided_chunk(len(campaigns) - k, C, W)
             chunk.append((entry, inputs))
             if len(chunk) >= size:
                 submit(chunk)
