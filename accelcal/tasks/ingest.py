@@ -201,11 +201,15 @@ def _take_parsed(items, out, refuse, parquet_root, pool, writes) -> None:
 
 
 #: Parquet files of a batch written at once, beside the parsing of the next files (pyarrow
-#: writes without the GIL).  Each is renamed into place when written (fileio.atomic_write);
-#: the batch's files are then made durable by one flush (fileio.sync_files) before the
-#: batch's verdicts are returned, so nothing the warehouse records refers to a file that a
-#: power loss could take back.  (An fsync per file cost ~3.5 ms a file here.)
-PARQUET_WRITERS = 8
+#: encodes and compresses without the GIL).  Each is renamed into place when written
+#: (fileio.atomic_write); the batch's files are then made durable by one flush
+#: (fileio.sync_files) before the batch's verdicts are returned, so nothing the warehouse
+#: records refers to a file that a power loss could take back.  (An fsync per file cost
+#: ~3.5 ms a file here.)  Two threads: building a run's Arrow table holds the GIL, and with
+#: 8 writers the threads queued for it cost more CPU and more wall time than 2
+#: (intake_batch on 550 simulated files, 2 cores, two runs: 2.7 and 3.0 ms of CPU a file
+#: with 2 writers, 3.1 and 3.3 with 8; wall 2.0 and 2.3 against 2.5 and 2.6 ms).
+PARQUET_WRITERS = 2
 
 
 def _finish_writes(out: DropIngest, writes: list, parquet_root: str, warehouse_root: str) -> None:
