@@ -15,7 +15,9 @@ same files, in this process, imports done, each part alone and single-threaded, 
 * **sha256**: reading each file's bytes and hashing them (what lineage needs);
 * **parse**: the drop-format parser on those bytes (dropformat.parse_runs, one joint call
   per batch, as ingest does);
-* **Parquet**: one content-addressed Parquet file per run (tables.write_run_parquet);
+* **Parquet**: one content-addressed Parquet file per run (tables.write_run_parquet); and,
+  for comparison only, the same rows as one file per batch and test kind (what a layout
+  without a file per run would cost; the pipeline does not write it);
 * **derived columns + batch table**: what the suites check besides the raw columns;
 * **great-expectations**: the batch's suite, BOOLEAN_ONLY, on its two tables; and the same
   suite on one row of each table: the part of its cost that does not depend on the data
@@ -123,6 +125,32 @@ def measure(drop: str, repeat: int) -> dict:
                     contracts.write_run_parquet(r, root)
         out["parquet"] = _cpu_best(parquet, repeat)
 
+        def parquet_per_batch(row_group_per_run: bool):
+            """Not what the pipeline writes: the same runs as one file per batch and test
+            kind (the per-run metadata left out), to show what that layout would cost."""
+            import pyarrow as pa
+            import pyarrow.parquet as pq
+
+            from accelcal.schemas import tables as T
+
+            def write():
+                root = Path(tempfile.mkdtemp(dir=tmp))
+                for k, b in enumerate(runs):
+                    kinds: dict = {}
+                    for r in b:
+                        kinds.setdefault(r.test, []).append(T.run_table(r).replace_schema_metadata(None))
+                    for test, ts in kinds.items():
+                        path = root / f"{k}-{test}.parquet"
+                        if row_group_per_run:
+                            with pq.ParquetWriter(path, ts[0].schema, compression="zstd") as w:
+                                for t in ts:
+                                    w.write_table(t)
+                        else:
+                            pq.write_table(pa.concat_tables(ts), path, compression="zstd")
+            return _cpu_best(write, repeat)
+        out["parquet_batch"] = parquet_per_batch(False)
+        out["parquet_batch_rg"] = parquet_per_batch(True)
+
         def derive_and_table():
             made = []
             for b in runs:
@@ -173,6 +201,8 @@ def table(res: dict) -> list[str]:
     row("read + sha256", per("sha256"))
     row("parse (drop format, joint per batch)", per("parse"))
     row("Parquet, one file per run", per("parquet"))
+    row("(not written: one file per batch and kind, one row group)", per("parquet_batch"))
+    row("(not written: the same, a row group per run)", per("parquet_batch_rg"))
     row("validation, with Data Docs (suites.validate_report)", per("validate_docs"))
     row("… of which derived columns + batch table", per("derive_table"))
     row("… of which the great-expectations suite (BOOLEAN_ONLY)", per("ge"))
