@@ -105,20 +105,30 @@ def _local_pool(workers: int):
 
 def _prefect_steps() -> SimpleNamespace:
     """The steps as Prefect tasks.  The two that run in the flow process (record, store)
-    get their large arguments (a batch's records, computed results) under ``quote``:
-    Prefect otherwise walks every nested object of a task's arguments twice (resolving
-    futures, collecting task inputs) -- 15-19 s of the flow process's CPU at 200
-    campaigns, taken from the workers on a machine with as many workers as cores."""
+    get their large arguments (a batch's records, computed results) under ``quote``, the
+    two submitted to workers theirs in a ``Sealed`` (accelcal.tasks): Prefect otherwise
+    walks every nested object of a task's arguments twice (resolving futures, collecting
+    task inputs) -- 15-19 s of the flow process's CPU at 200 campaigns for record and
+    store, ~1 s for the submitted tasks, taken from the workers on a machine with as many
+    workers as cores."""
     from prefect.utilities.annotations import quote
 
-    from ..tasks import prefect_tasks
+    from ..tasks import Sealed, prefect_tasks
     t = prefect_tasks()
+
+    def submit_intake(drop, batch, pq_root, root, known, docs, part, allow_simulated):
+        return t.intake_batch.submit(drop, Sealed(batch), pq_root, root, Sealed(known), docs,
+                                     part, allow_simulated)
+
     return SimpleNamespace(
         engine="prefect",
         known_keys=t.known_keys,
-        submit_intake=lambda *a: t.intake_batch.submit(*a),
+        submit_intake=submit_intake,
         record_drop=lambda wh, ing, fid: t.record_drop(wh, quote(ing), fid),
-        submit_campaigns=lambda *a: t.load_and_process.submit(*a),
+        # the submitted tasks' large arguments are Sealed, not quoted: they travel to
+        # the workers through Dask, which would unmake a quote
+        submit_campaigns=lambda root, chunks, parameters: t.load_and_process.submit(
+            root, Sealed(chunks), Sealed(parameters)),
         store_campaigns=lambda wh, items, **kw: t.store_campaigns(wh, quote(items), **kw))
 
 
