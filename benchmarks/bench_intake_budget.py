@@ -41,7 +41,6 @@ import shutil
 import sys
 import tempfile
 import time
-import warnings
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -63,23 +62,13 @@ def _cpu_best(fn, repeat: int) -> float:
 def _ge_suite_seconds(tables: dict, specs: list, repeat: int) -> float:
     """The batch's suite on ``tables``, BOOLEAN_ONLY, as suites._validate_batch runs it
     first (no re-run of failures: a clean batch has none)."""
-    import great_expectations as gx
-
     from accelcal.schemas import suites
 
     def once():
         for table, df in tables.items():
             which = [i for i, sp in enumerate(specs) if sp[1] == table]
-            exps = [suites._expectation(specs[i][0], table=specs[i][1], kinds=specs[i][2], i=i)
-                    for i in which]
-            suite = gx.ExpectationSuite(name=f"budget.{table}", expectations=exps)
-            batch = suites._batch_definition(table).get_batch(batch_parameters={"dataframe": df})
-            try:
-                with warnings.catch_warnings(), suites._configurations_memo():
-                    warnings.simplefilter("ignore")
-                    batch.validate(suite, result_format={"result_format": "BOOLEAN_ONLY"})
-            finally:
-                suites._forget_batches()
+            suites.run_suite(f"budget.{table}", table, df, specs, which,
+                             {"result_format": "BOOLEAN_ONLY"})
     once()
     return _cpu_best(once, repeat)
 
@@ -115,7 +104,7 @@ def measure(drop: str, repeat: int) -> dict:
         by_batch.append([(raws[k + i], p) for i, p in enumerate(b)])
         k += len(b)
     out["parse"] = _cpu_best(lambda: [contracts.parse_runs(x) for x in by_batch], repeat)
-    runs = [[r for r in contracts.parse_runs(x)] for x in by_batch]
+    runs = [contracts.parse_runs(x) for x in by_batch]
     tmp = Path(tempfile.mkdtemp(prefix="bench-intake-budget-"))
     try:
         def parquet():

@@ -796,6 +796,25 @@ def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
     return ValidationReport(refusals, time.perf_counter() - t0, per_kind, index)
 
 
+def run_suite(name: str, table: str, df: pd.DataFrame, specs: list, which: list[int],
+              result_format: dict):
+    """The expectations ``specs[i]`` (i in ``which``) of ``table`` ('rows' or 'meta') as one
+    suite on ``df``, in this thread's context: GE's validation result.  Each expectation
+    carries its index ``i`` in its meta."""
+    import great_expectations as gx
+    exps = [_expectation(specs[i][0], table=specs[i][1], kinds=specs[i][2], i=i) for i in which]
+    # validated as is: a suite is added to a context only to be stored, and nothing here
+    # is stored (that cost a serialisation of every expectation per batch)
+    suite = gx.ExpectationSuite(name=name, expectations=exps)
+    batch = _batch_definition(table).get_batch(batch_parameters={"dataframe": df})
+    try:
+        with warnings.catch_warnings(), _configurations_memo():
+            warnings.simplefilter("ignore")
+            return batch.validate(suite, result_format=result_format)
+    finally:
+        _forget_batches()
+
+
 def _validate_batch(tables: dict[str, pd.DataFrame], specs: list,
                     want_json: bool) -> tuple[list, dict | None]:
     """The batch's suite on its tables (``rows`` and ``meta``, each expectation on the
@@ -807,20 +826,8 @@ def _validate_batch(tables: dict[str, pd.DataFrame], specs: list,
     (their file and line: WHERE_COLUMNS) and the observed values.  A clean batch costs one
     validation per table; the failures' results replace theirs, so the Data Docs show them
     whole."""
-    import great_expectations as gx
-
     def run(name: str, table: str, which: list[int], result_format: dict):
-        exps = [_expectation(specs[i][0], table=specs[i][1], kinds=specs[i][2], i=i) for i in which]
-        # validated as is: a suite is added to a context only to be stored, and nothing
-        # here is stored (that cost a serialisation of every expectation per batch)
-        suite = gx.ExpectationSuite(name=name, expectations=exps)
-        batch = _batch_definition(table).get_batch(batch_parameters={"dataframe": tables[table]})
-        try:
-            with warnings.catch_warnings(), _configurations_memo():
-                warnings.simplefilter("ignore")
-                return batch.validate(suite, result_format=result_format)
-        finally:
-            _forget_batches()
+        return run_suite(name, table, tables[table], specs, which, result_format)
 
     def key(er) -> int:
         return int(er.expectation_config.meta["i"])
