@@ -113,3 +113,71 @@ def lab_config(explicit: str | Path | None = None,
         customer=_str(cert, "customer", "certificate", path),
         traceability=_str(tr, "statement", "traceability", path),
         rig_traceability={str(k): v.strip() for k, v in rigs.items() if v.strip()})
+
+
+# ------------------------------------------------------------ drift forecast ----
+
+#: The lab's acceptable probability of a unit being out of tolerance at its due date.
+DEFAULT_RISK = 0.05
+
+
+@dataclass
+class ForecastConfig:
+    """What ``accelcal due`` / ``history`` and the certificate's due-date sentence read
+    from ``accelcal.toml`` (issue 29)::
+
+        [tolerance."QA-2000"]            # per unit model, SI units (effects.md)
+        K1 = { relative = 2.0e-4 }       # |K1 - K1 in use| <= 2e-4 |K1 in use|
+        K0 = { absolute = 5.0e-4 }       # m/s2
+        [forecast]
+        risk = 0.05                      # acceptable probability of out of tolerance
+        [certificate]
+        state_due_date = false           # ISO/IEC 17025 7.8.6: only when agreed
+    """
+    path: Path | None = None
+    tolerances: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
+    risk: float = DEFAULT_RISK
+    state_due_date: bool = False
+
+    def tolerance(self, unit_model: str | None, name: str) -> dict[str, float] | None:
+        return (self.tolerances.get(unit_model or "") or {}).get(name)
+
+
+def forecast_config(explicit: str | Path | None = None,
+                    warehouse: str | Path | None = None) -> ForecastConfig:
+    """Tolerances, risk and ``state_due_date`` from the config file (same look-up as
+    :func:`lab_config`); a bad entry is one :class:`ConfigError` line naming it."""
+    path = find_config(explicit, warehouse)
+    if path is None:
+        return ForecastConfig()
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError(f"cannot read config {path}: {e}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"config {path} is not valid TOML: {e}") from None
+    tol = raw.get("tolerance") or {}
+    if not isinstance(tol, dict):
+        raise ConfigError(f"{path}: [tolerance] must be a table of unit models")
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    for model, coefs in tol.items():
+        if not isinstance(coefs, dict):
+            raise ConfigError(f'{path}: [tolerance."{model}"] must be a table of coefficients')
+        for name, spec in coefs.items():
+            where = f'{path}: [tolerance."{model}"] {name}'
+            if not isinstance(spec, dict) or len(spec) != 1 \
+                    or next(iter(spec)) not in ("relative", "absolute"):
+                raise ConfigError(f"{where} must be {{ relative = r }} or {{ absolute = T }}")
+            kind, val = next(iter(spec.items()))
+            if isinstance(val, bool) or not isinstance(val, (int, float)) or not val > 0:
+                raise ConfigError(f"{where}: {kind} must be a positive number")
+            out.setdefault(str(model), {})[str(name)] = {kind: float(val)}
+    fc = raw.get("forecast") or {}
+    risk = fc.get("risk", DEFAULT_RISK) if isinstance(fc, dict) else None
+    if isinstance(risk, bool) or not isinstance(risk, (int, float)) or not 0 < risk < 0.5:
+        raise ConfigError(f"{path}: [forecast] risk must be a number between 0 and 0.5")
+    cert = raw.get("certificate") or {}
+    state = cert.get("state_due_date", False) if isinstance(cert, dict) else False
+    if not isinstance(state, bool):
+        raise ConfigError(f"{path}: [certificate] state_due_date must be true or false")
+    return ForecastConfig(path, out, float(risk), state)
