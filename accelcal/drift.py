@@ -134,6 +134,7 @@ class FleetPrior:
     tau2 : pooled between-campaign variance [unit^2], eq (2) over the fleet's series
     dof : its degrees of freedom (sum of n - 2 over the series)
     slope_mean, slope_sd : mean and spread of the units' fitted drift rates [unit/a]
+        (the spread never below the root-mean-square uncertainty of one unit's rate)
     n_units : units with a drift fit behind slope_mean / slope_sd
     """
     tau2: float | None = None
@@ -141,7 +142,6 @@ class FleetPrior:
     slope_mean: float | None = None
     slope_sd: float | None = None
     n_units: int = 0
-    rel_slope_sd: float | None = None   # slope spread relative to |value| [1/a] (for K1)
 
 
 def fleet_prior(series: Sequence[tuple[Any, Any, Any]]) -> FleetPrior:
@@ -149,7 +149,7 @@ def fleet_prior(series: Sequence[tuple[Any, Any, Any]]) -> FleetPrior:
     each) into a :class:`FleetPrior`.  Series with fewer than three campaigns add nothing
     to tau^2; with two they add a drift rate."""
     Qs = dofs = cs = 0.0
-    slopes, rel = [], []
+    slopes, u_b2 = [], []
     for t, x, u in series:
         t, x, u = to_years(t), np.asarray(x, float), np.asarray(u, float)
         if len(t) < 2 or np.ptp(t) <= 0:
@@ -158,14 +158,14 @@ def fleet_prior(series: Sequence[tuple[Any, Any, Any]]) -> FleetPrior:
         if len(t) >= 3:
             Q, dof, c = scatter_moments(X, x, u)
             Qs, dofs, cs = Qs + Q, dofs + dof, cs + c
-        beta, _, _ = _wls(X, x, u ** 2)
+        beta, cov, _ = _wls(X, x, u ** 2)
         slopes.append(float(beta[1]))
-        if np.mean(np.abs(x)) > 0:
-            rel.append(float(beta[1] / np.mean(np.abs(x))))
+        u_b2.append(float(cov[1, 1]))
     tau2 = max(0.0, (Qs - dofs) / cs) if dofs > 0 and cs > 0 else None
     if len(slopes) >= MIN_FLEET_UNITS:
-        return FleetPrior(tau2, dofs, float(np.mean(slopes)), float(np.std(slopes, ddof=1)),
-                          len(slopes), float(np.std(rel, ddof=1)) if len(rel) >= 3 else None)
+        # spread of the units' rates, never below the typical uncertainty of one rate
+        sd = math.sqrt(max(float(np.var(slopes, ddof=1)), float(np.mean(u_b2))))
+        return FleetPrior(tau2, dofs, float(np.mean(slopes)), sd, len(slopes))
     return FleetPrior(tau2, dofs, n_units=len(slopes))
 
 

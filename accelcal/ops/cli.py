@@ -86,11 +86,13 @@ def register_cli(sub) -> None:
     for name, hlp in (("list", "every campaign's current result and status"),
                       ("show", "one campaign: status, reasons and its audit trail"),
                       ("exclude", "keep a campaign out of history, En, fleet and calibration"),
-                      ("include", "undo an exclusion")):
+                      ("include", "undo an exclusion"),
+                      ("adjust", "mark an adjustment: the unit's drift series starts anew there"),
+                      ("unadjust", "withdraw an adjustment mark")):
         q = csub.add_parser(name, help=hlp)
         if name != "list":
             q.add_argument("campaign", metavar="CAMPAIGN")
-        if name in ("exclude", "include"):
+        if name in ("exclude", "include", "adjust", "unadjust"):
             q.add_argument("--why", required=True, metavar="TEXT",
                            help="the reason, kept in the audit trail")
             q.add_argument("--by", default=None, help="who decides (default: the login name)")
@@ -181,6 +183,9 @@ def _cmd_campaign(args) -> int:
     from ..warehouse.db import WarehouseError
     from .campaigns import campaign_log, campaign_rows, set_campaign
     _need_warehouse(args.warehouse)
+    if args.action in ("adjust", "unadjust"):
+        from .due_cli import cmd_adjust
+        return cmd_adjust(args)
     con = _console()
     try:
         if args.action in ("exclude", "include"):

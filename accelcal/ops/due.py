@@ -1,0 +1,460 @@
+"""When must each unit come back: ``accelcal due``, ``accelcal history UNIT --html``,
+``accelcal campaign adjust`` (issue 29).
+
+Reads a unit's calibrations from the warehouse (``unit_history_as_of``: the adopted values
+of complete, real, non-excluded campaigns), the adjustments (``campaign_adjustments``) and
+the tolerances of ``accelcal.toml`` (:func:`accelcal.config.forecast_config`), and hands
+them to the science, :mod:`accelcal.drift`.  ``due --store`` appends the rows to
+``forecast_history``; the view ``recalibration_forecast`` is the latest batch
+(``warehouse/drift.sql``).
+"""
+from __future__ import annotations
+
+import contextlib
+import datetime as dt
+import hashlib
+import html
+import json
+import re
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .. import drift
+from ..config import ForecastConfig
+
+SECONDS_PER_YEAR = 86400.0 * drift.YEAR_DAYS
+
+_HISTORY_SQL = """
+SELECT h.unit_serial, h.unit_model, h.name, h.unit, h.campaign, h.calibrated_at, h.value,
+       h.std_uncertainty, h.expanded_uncertainty, h.method, h.rig_id, h.result_id,
+       r.code_version, h.calibration_no
+FROM unit_history_as_of(CAST(? AS TIMESTAMPTZ)) h JOIN results r USING (result_id)
+WHERE (CAST(? AS TIMESTAMPTZ) IS NULL OR h.calibrated_at <= CAST(? AS TIMESTAMPTZ))
+  AND h.value IS NOT NULL AND h.std_uncertainty > 0
+ORDER BY h.unit_serial, h.name, h.calibration_no
+"""
+
+
+class DueError(RuntimeError):
+    """One line: why the forecast cannot be made (bad option, unknown unit)."""
+
+
+# ------------------------------------------------------------------ options ----
+
+def parse_as_of(text: str | None) -> dt.datetime | None:
+    """``YYYY-MM-DD`` -> the end of that day, UTC (what the warehouse said that day)."""
+    if text is None:
+        return None
+    try:
+        d = dt.date.fromisoformat(text)
+    except ValueError:
+        raise DueError(f"--as-of {text!r}: give a date, YYYY-MM-DD") from None
+    return dt.datetime(d.year, d.month, d.day, 23, 59, 59, tzinfo=dt.timezone.utc)
+
+
+def parse_within(text: str | None) -> int | None:
+    """``90d``, ``12w``, ``6m`` (30-day months) or ``1y`` -> days."""
+    if text is None:
+        return None
+    m = re.fullmatch(r"\s*(\d+)\s*([dwmy]?)\s*", text)
+    if not m:
+        raise DueError(f"--within {text!r}: give a number of days, weeks, months or years, "
+                       "e.g. 90d, 12w, 6m, 1y")
+    return int(m.group(1)) * {"": 1, "d": 1, "w": 7, "m": 30, "y": 365}[m.group(2)]
+
+
+def _years(ts: dt.datetime) -> float:
+    if ts.tzinfo is None:
+        ts = ts.replace(tzinfo=dt.timezone.utc)
+    return ts.timestamp() / SECONDS_PER_YEAR
+
+
+def _date(years: float | None) -> str | None:
+    if years is None:
+        return None
+    return dt.datetime.fromtimestamp(years * SECONDS_PER_YEAR, dt.timezone.utc).date().isoformat()
+
+
+# ---------------------------------------------------------------- reading ----
+
+def _has_table(con, name: str) -> bool:
+    return bool(con.execute("SELECT count(*) FROM information_schema.tables "
+                            "WHERE table_name = ?", [name]).fetchall()[0][0])
+
+
+def load_history(warehouse: str | Path, as_of: dt.datetime | None = None,
+                 lock_timeout: float = 60.0) -> tuple[list[dict[str, Any]], set[str]]:
+    """The calibrations (unit_history as of ``as_of``, taken up to then) and the
+    campaigns marked as adjustments at that time."""
+    from ..warehouse.db import Warehouse, WarehouseError, warehouse_lock
+    wh = Warehouse(warehouse, lock_timeout=lock_timeout)
+    if not wh.path.exists():
+        raise DueError(f"warehouse {wh.path} does not exist")
+    try:
+        with warehouse_lock(wh.path, timeout=lock_timeout, shared=True), \
+                wh.connect(read_only=True) as con:
+            cur = con.execute(_HISTORY_SQL, [as_of, as_of, as_of])
+            cols = [d[0] for d in cur.description]
+            rows = [dict(zip(cols, r)) for r in cur.fetchall()]
+            adjusted: set[str] = set()
+            if _has_table(con, "campaign_adjustments"):
+                adjusted = {r[0] for r in con.execute(
+                    "SELECT campaign FROM adjusted_campaigns_as_of(CAST(? AS TIMESTAMPTZ))",
+                    [as_of]).fetchall()}
+    except WarehouseError as e:
+        raise DueError(str(e)) from None
+    return rows, adjusted
+
+
+def _series(rows: list[dict[str, Any]]) -> dict[tuple[str, str], list[dict[str, Any]]]:
+    out: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for r in rows:
+        out.setdefault((r["unit_serial"], r["name"]), []).append(r)
+    for lst in out.values():
+        lst.sort(key=lambda r: (r["calibrated_at"], r["calibration_no"]))
+    return out
+
+
+def _arrays(lst, adjusted):
+    t = np.array([_years(r["calibrated_at"]) for r in lst])
+    x = np.array([r["value"] for r in lst], float)
+    u = np.array([r["std_uncertainty"] for r in lst], float)
+    adj = [r["campaign"] in adjusted for r in lst]
+    return t, x, u, adj
+
+
+def compute(rows: list[dict[str, Any]], adjusted: set[str], cfg: ForecastConfig
+            ) -> list[tuple[list[dict[str, Any]], drift.Forecast]]:
+    """Every series' :class:`accelcal.drift.Forecast`, with the fleet prior of its unit
+    model and coefficient (from the other units' current series)."""
+    series = _series(rows)
+    first = {k: drift.forecast(*_arrays(v, adjusted)[:3], None, cfg.risk,
+                               adjusted=_arrays(v, adjusted)[3]) for k, v in series.items()}
+    pools: dict[tuple[Any, str], list] = {}
+    for (unit, name), lst in series.items():
+        t, x, u, _ = _arrays(lst, adjusted)
+        s = first[(unit, name)].series_start
+        pools.setdefault((lst[-1]["unit_model"], name), []).append((unit, (t[s:], x[s:], u[s:])))
+    out = []
+    for (unit, name), lst in sorted(series.items()):
+        t, x, u, adj = _arrays(lst, adjusted)
+        model = lst[-1]["unit_model"]
+        # the fleet: the other units of the model (a unit is not its own prior)
+        others = [s for uu, s in pools[(model, name)] if uu != unit]
+        prior = drift.fleet_prior(others) if others else None
+        f = drift.forecast(t, x, u, cfg.tolerance(model, name), cfg.risk, adjusted=adj,
+                           prior=prior)
+        versions = sorted({r["code_version"] for r in lst[len(lst) - len(f.fit.t):]}
+                          if f.fit is not None else {lst[-1]["code_version"]})
+        if len(versions) > 1:
+            f.basis += ("; mixed code versions (" + ", ".join(versions)
+                        + "): reprocess the campaigns with one to be sure a change is the unit's")
+        out.append((lst, f))
+    return out
+
+
+def forecast_row(lst: list[dict[str, Any]], f: drift.Forecast) -> dict[str, Any]:
+    """The issue's JSON row (plus what the row was computed from)."""
+    last = lst[-1]
+    return {
+        "unit_serial": last["unit_serial"], "unit_model": last["unit_model"],
+        "coefficient": last["name"], "n_campaigns": f.n_campaigns,
+        "last_calibrated": last["calibrated_at"].astimezone(dt.timezone.utc).date().isoformat(),
+        "drift_per_year": f.drift_per_year, "u_drift_per_year": f.u_drift_per_year,
+        "due_date": _date(f.due), "p_out_at_due": f.p_out_at_due, "basis": f.basis,
+        "unit": last["unit"], "n_total": f.n_total, "last_campaign": last["campaign"],
+        "value_in_use": f.value_in_use, "tolerance": f.tolerance,
+        "steps": [{"campaign": lst[s.at]["campaign"], "en": s.en} for s in f.steps],
+    }
+
+
+def due_rows(warehouse: str | Path, cfg: ForecastConfig, as_of: dt.datetime | None = None,
+             within_days: int | None = None, lock_timeout: float = 60.0) -> list[dict[str, Any]]:
+    """Rows of ``accelcal due``: every unit and coefficient, soonest due first; with
+    ``within_days`` only those due by then (overdue included)."""
+    rows, adjusted = load_history(warehouse, as_of, lock_timeout)
+    out = [forecast_row(lst, f) for lst, f in compute(rows, adjusted, cfg)]
+    if within_days is not None:
+        ref = (as_of or dt.datetime.now(dt.timezone.utc)).date()
+        limit = (ref + dt.timedelta(days=within_days)).isoformat()
+        out = [r for r in out if r["due_date"] is not None and r["due_date"] <= limit]
+    out.sort(key=lambda r: (r["due_date"] is None, r["due_date"] or "", r["unit_serial"],
+                            r["coefficient"]))
+    return out
+
+
+# ---------------------------------------------------------------- writing ----
+
+@contextlib.contextmanager
+def _write(warehouse: str | Path, lock_timeout: float):
+    """One write transaction (the warehouse lock held) with ``warehouse/drift.sql``
+    applied first; a warehouse error is one DueError line."""
+    from ..warehouse.db import Warehouse, WarehouseError
+    try:
+        with Warehouse(warehouse, lock_timeout=lock_timeout).connect() as con:
+            con.execute("BEGIN")
+            try:
+                con.execute(resources.files("accelcal.warehouse").joinpath("drift.sql").read_text())
+                yield con
+                con.execute("COMMIT")
+            except BaseException:
+                con.execute("ROLLBACK")
+                raise
+    except WarehouseError as e:
+        raise DueError(str(e)) from None
+
+
+def store_forecast(warehouse: str | Path, rows: list[dict[str, Any]], cfg: ForecastConfig,
+                   as_of: dt.datetime | None, lock_timeout: float = 60.0) -> int:
+    """Append ``rows`` as one batch of ``forecast_history``; returns the batch number."""
+    from ..warehouse.lineage import code_version
+    sha = (hashlib.sha256(cfg.path.read_bytes()).hexdigest()
+           if cfg.path is not None and cfg.path.is_file() else None)
+    with _write(warehouse, lock_timeout) as con:
+        batch = con.execute("SELECT nextval('forecast_batch_seq')").fetchall()[0][0]
+        now = dt.datetime.now(dt.timezone.utc)
+        cv = code_version()
+        for r in rows:
+            con.execute(
+                "INSERT INTO forecast_history VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, "
+                "?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                [batch, now, as_of, cv, None if cfg.path is None else str(cfg.path), sha,
+                 cfg.risk, r["unit_serial"], r["unit_model"], r["coefficient"],
+                 r["unit"], r["n_campaigns"], r["n_total"], r["last_campaign"],
+                 r["last_calibrated"], r["value_in_use"], r["tolerance"],
+                 r["drift_per_year"], r["u_drift_per_year"], r["due_date"],
+                 r["p_out_at_due"], r["basis"], json.dumps(r["steps"])])
+    return int(batch)
+
+
+def set_adjustment(warehouse: str | Path, campaign: str, why: str, by: str | None,
+                   undo: bool = False, lock_timeout: float = 60.0) -> dict[str, Any]:
+    """Mark a campaign as an adjustment (``undo``: withdraw the mark), appended to
+    ``campaign_adjustments`` with who, when and why.  Refused, one line: an unknown
+    campaign, no reason, a mark that changes nothing."""
+    action = "unadjust" if undo else "adjust"
+    if not (why or "").strip():
+        raise DueError("give a reason (--why): the audit trail needs one")
+    with _write(warehouse, lock_timeout) as con:
+        known = con.execute("SELECT count(*) FROM results WHERE campaign = ?",
+                            [campaign]).fetchall()[0][0]
+        if not known:
+            raise DueError(f"no campaign {campaign!r} in warehouse {warehouse}")
+        last = con.execute("SELECT action, acted_at, acted_by, why FROM "
+                           "campaign_adjustments WHERE campaign = ? ORDER BY seq DESC "
+                           "LIMIT 1", [campaign]).fetchall()
+        state = last[0][0] if last else "unadjust"
+        if state == action:
+            since = (f" since {last[0][1]:%Y-%m-%d %H:%M} by {last[0][2] or '?'}: "
+                     f"{last[0][3]}" if last else "")
+            raise DueError(f"campaign {campaign!r} is "
+                           f"{'already' if last else 'not'} marked as an adjustment"
+                           f"{since}; nothing recorded")
+        row = con.execute(
+            "INSERT INTO campaign_adjustments VALUES "
+            "(nextval('campaign_adjustment_seq'), ?, ?, ?, now(), ?) "
+            "RETURNING seq, acted_at", [campaign, action, why.strip(), by]).fetchall()
+    return {"seq": row[0][0], "acted_at": row[0][1], "campaign": campaign, "action": action,
+            "why": why.strip(), "by": by}
+
+
+# ------------------------------------------------------------------- display ----
+
+def display_rate(name: str, rate: float | None, u_rate: float | None,
+                 value_in_use: float) -> str:
+    """Drift rate ± u per year in display units, GUM-rounded (u to two digits); K1 in
+    ppm of the value in use."""
+    from ..effects import COEFFICIENTS, PRETTY_UNITS
+    from ..rounding import round_gum
+    if rate is None:
+        return "—"
+    spec = COEFFICIENTS.get(name.split("[", 1)[0])
+    if spec is not None and spec.name == "K1" and value_in_use:
+        f, unit = abs(value_in_use) * 1e-6, "ppm"
+    elif spec is not None:
+        f, unit = spec.display_factor, PRETTY_UNITS.get(spec.display_unit, spec.display_unit)
+    else:
+        f, unit = 1.0, ""
+    r = round_gum(rate / f, None if u_rate is None else u_rate / f)
+    return f"{r.value} ± {r.uncertainty} {unit}/a".replace("  ", " ")
+
+
+def text_lines(rows: list[dict[str, Any]], today: dt.date | None = None) -> list[str]:
+    """``accelcal due`` for people, 80 columns: one line per unit and coefficient, the
+    basis below it (wrapped); a due date before ``today`` is marked overdue."""
+    import textwrap
+
+    from ..rounding import format_sig
+    today = (today or dt.datetime.now(dt.timezone.utc).date()).isoformat()
+    out = [f"{'unit':<16} {'coef':<8} {'n':>2} {'last cal.':<10} {'due':<10}  drift (u, k=1)"]
+    for r in rows:
+        due = r["due_date"] or "—"
+        out.append(f"{r['unit_serial'][:16]:<16} {r['coefficient'][:8]:<8} "
+                   f"{r['n_campaigns']:>2} {r['last_calibrated']:<10} {due:<10}  "
+                   + display_rate(r["coefficient"], r["drift_per_year"],
+                                  r["u_drift_per_year"], r["value_in_use"]))
+        extra = "" if r["p_out_at_due"] is None else \
+            f" P(out) {format_sig(r['p_out_at_due'])} at due."
+        if r["due_date"] is not None and r["due_date"] < today:
+            extra += " OVERDUE."
+        out += textwrap.wrap(r["basis"] + "." + extra, 80, initial_indent="    ",
+                             subsequent_indent="    ")
+    return out
+
+
+# --------------------------------------------------------------- certificate ----
+
+def certificate_due_statement(warehouse: str | Path, unit_serial: str, campaign: str,
+                              config: str | Path | None = None) -> str | None:
+    """The certificate's due-date sentence for the unit (``[certificate] state_due_date``;
+    None when the lab has not agreed to state one).  The date is the earliest due date
+    of the unit's coefficients that have a tolerance, from the history up to and with
+    this campaign."""
+    from ..config import forecast_config
+    cfg = forecast_config(config, warehouse)
+    if not cfg.state_due_date:
+        return None
+    rows, adjusted = load_history(warehouse)
+    mine = [r for r in rows if r["unit_serial"] == unit_serial]
+    stop = {}
+    for r in mine:
+        if r["campaign"] == campaign:
+            stop[r["name"]] = r["calibration_no"]
+    mine = [r for r in mine if r["name"] in stop and r["calibration_no"] <= stop[r["name"]]]
+    # the fleet prior needs the other units: keep their rows as they are
+    fc = compute([r for r in rows if r["unit_serial"] != unit_serial] + mine, adjusted, cfg)
+    dated = [(f.due, lst[-1]["name"], f.basis) for lst, f in fc
+             if lst[-1]["unit_serial"] == unit_serial and f.due is not None]
+    if not dated:
+        bases = sorted({f.basis.split(";")[0] for lst, f in fc
+                        if lst[-1]["unit_serial"] == unit_serial})
+        return drift.due_date_statement(None, "; ".join(bases) or "no calibration history",
+                                        cfg.risk, True)
+    due, name, basis = min(dated)
+    return drift.due_date_statement(_date(due), f"{name}, {basis}", cfg.risk, True)
+
+
+# ---------------------------------------------------------------- history ----
+
+def _chart(lst, f: drift.Forecast, en: np.ndarray) -> str:
+    """One control chart (base64 PNG): value ± U per campaign, the drift line with its
+    95 % prediction band (a new campaign's value), the tolerance band around the value in
+    use, the due date, En between consecutive campaigns."""
+    from ..effects import COEFFICIENTS, PRETTY_UNITS
+    from .plots import _plt, _png
+    plt = _plt()
+    name = lst[-1]["name"]
+    spec = COEFFICIENTS.get(name.split("[", 1)[0])
+    if spec is not None and spec.name == "K1":
+        v0 = f.value_in_use
+        scale, off, unit = abs(v0) * 1e-6, v0, "ppm from the value in use"
+    elif spec is not None:
+        scale, off = spec.display_factor, 0.0
+        unit = PRETTY_UNITS.get(spec.display_unit, spec.display_unit)
+    else:
+        scale, off, unit = 1.0, 0.0, lst[-1]["unit"] or ""
+    tt = np.array([_years(r["calibrated_at"]) for r in lst])
+    x = (np.array([r["value"] for r in lst]) - off) / scale
+    U = np.array([r["expanded_uncertainty"] for r in lst]) / scale
+    yr = lambda y: 1970 + y  # noqa: E731  (decimal calendar year)
+    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(8.4, 5.2), sharex=True,
+                                  gridspec_kw={"height_ratios": [3, 1]})
+    end = max(tt[-1] + 1.0, (f.due + 0.5) if f.due is not None else tt[-1] + 2.0)
+    end = min(end, tt[-1] + 5.0)
+    if f.predict is not None:
+        start = tt[f.series_start] if f.fit is None else min(tt[f.series_start], tt[-1])
+        grid = np.linspace(start, end, 200)
+        m, s, nu = f.predict(grid)
+        lo, hi = f.interval(grid, u_new=float(np.mean(f.fit.u)) if f.fit is not None else 0.0)
+        ax.fill_between(yr(grid), (lo - off) / scale, (hi - off) / scale, color="#cfe3f5",
+                        label="95 % prediction band (next campaign)")
+        ax.plot(yr(grid), (m - off) / scale, color="#1f5fa0", lw=1.2, label="drift line")
+    if f.tolerance is not None:
+        for sgn in (-1, 1):
+            ax.axhline((f.value_in_use + sgn * f.tolerance - off) / scale, color="#b03030",
+                       lw=0.9, ls="--", label="tolerance around the value in use" if sgn > 0 else None)
+    ax.axhline((f.value_in_use - off) / scale, color="#b03030", lw=0.5)
+    old = np.arange(len(lst)) < f.series_start
+    ax.errorbar(yr(tt[~old]), x[~old], U[~old], fmt="o", color="#222", ms=4, capsize=3,
+                label="calibration ± U (k = 2)")
+    if old.any():
+        ax.errorbar(yr(tt[old]), x[old], U[old], fmt="o", color="#999", ms=4, capsize=3,
+                    mfc="white", label="earlier series")
+    for s in f.steps:
+        ax.axvline(yr(tt[s.at]), color="#d08000", lw=1, ls=":", label="flagged step")
+    if f.series_start and not any(s.at == f.series_start for s in f.steps):
+        ax.axvline(yr(tt[f.series_start]), color="#666", lw=1, ls="-.", label="adjustment")
+    if f.due is not None:
+        ax.axvline(yr(f.due), color="#b03030", lw=1.4)
+        ax.annotate(f"due {_date(f.due)}", (yr(f.due), ax.get_ylim()[1]), fontsize=8,
+                    color="#b03030", ha="right", va="top", rotation=90,
+                    bbox={"fc": "white", "ec": "none", "pad": 1})
+    ax.set_ylabel(f"{name} [{unit}]", fontsize=8)
+    ax.tick_params(labelsize=7)
+    ax.legend(fontsize=7, loc="best")
+    if len(en):
+        mid = yr((tt[1:] + tt[:-1]) / 2)
+        ax2.bar(mid, en, width=0.15, color=["#b03030" if abs(e) > 1 else "#1f5fa0" for e in en])
+        for lim in (-1, 1):
+            ax2.axhline(lim, color="#888", lw=0.6, ls="--")
+        ax2.axhline(0, color="#444", lw=0.6)
+    ax2.set_ylabel("En consecutive", fontsize=8)
+    ax2.set_xlabel("year", fontsize=8)
+    ax2.tick_params(labelsize=7)
+    fig.tight_layout()
+    return _png(fig)
+
+
+def history_html(warehouse: str | Path, unit_serial: str, out_dir: str | Path,
+                 cfg: ForecastConfig, as_of: dt.datetime | None = None,
+                 lock_timeout: float = 60.0) -> Path:
+    """``accelcal history UNIT --html DIR``: one control chart per coefficient; returns
+    the page's path (``DIR/<unit>-history.html``)."""
+    from ..fileio import atomic_write
+    from ..rounding import format_sig
+    rows, adjusted = load_history(warehouse, as_of, lock_timeout)
+    fc = [(lst, f) for lst, f in compute(rows, adjusted, cfg)
+          if lst[-1]["unit_serial"] == unit_serial]
+    if not fc:
+        raise DueError(f"no calibrations of unit {unit_serial!r} in warehouse {warehouse}"
+                       + ("" if as_of is None else f" as of {as_of:%Y-%m-%d}"))
+    e = html.escape
+    parts = [f"<h1>Recalibration history of {e(unit_serial)}</h1>",
+             f"<p>Unit model {e(str(fc[0][0][-1]['unit_model']))}; due when the probability of "
+             f"being out of tolerance reaches {cfg.risk * 100:g} %; as of "
+             f"{e(as_of.date().isoformat() if as_of else 'now')}; tolerances from "
+             f"{e(str(cfg.path) if cfg.path else 'no config file')}.</p>"]
+    for lst, f in fc:
+        r = forecast_row(lst, f)
+        en = drift.en_consecutive([q["value"] for q in lst],
+                                  [q["expanded_uncertainty"] for q in lst])
+        steps = ", ".join(f"{s['campaign']} (En {format_sig(s['en'])})" for s in r["steps"])
+        parts.append(
+            f"<h2>{e(r['coefficient'])}</h2><p>due <b>{e(r['due_date'] or '—')}</b>; drift "
+            f"{e(display_rate(r['coefficient'], r['drift_per_year'], r['u_drift_per_year'], r['value_in_use']))}"
+            f" (u, k = 1); {r['n_campaigns']} of {r['n_total']} calibrations in the current "
+            f"series; {e(r['basis'])}." + (f" Steps flagged: {e(steps)}." if steps else "")
+            + f"</p><img alt='{e(r['coefficient'])} control chart' "
+            f"src='data:image/png;base64,{_chart(lst, f, en)}'>")
+    page = ("<!doctype html><html><head><meta charset='utf-8'><title>"
+            f"{e(unit_serial)} history</title><style>body{{font-family:sans-serif;"
+            "max-width:960px;margin:2em auto;font-size:14px}}img{{width:100%}}</style></head>"
+            "<body>" + "\n".join(parts) + "</body></html>")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    safe = re.sub(r"[^A-Za-z0-9._-]+", "_", unit_serial)
+    path = out / f"{safe}-history.html"
+    atomic_write(path, lambda fh: fh.write(page), "w", encoding="utf-8")
+    _follow_umask(path)
+    return path
+
+
+def _follow_umask(path: Path) -> None:
+    """A temporary file is made 0600; what we write follows the umask."""
+    import os
+    mask = os.umask(0)
+    os.umask(mask)
+    os.chmod(path, 0o666 & ~mask)
