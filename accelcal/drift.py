@@ -548,5 +548,5 @@ def due_date_statement(due_date: str | None, basis: str, risk: float,
     if due_date:
         return (f"Recommended recalibration by {due_date}: the date on which the predicted "
                 f"probability of this unit being outside its tolerance reaches "
-                f"{risk * 100:g} % ({basis}).")
+                f"{risk * 100:g} %. Basis: {basis}.")
     return f"No recalibration date is stated: {basis}."

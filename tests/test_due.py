@@ -158,3 +158,15 @@ def test_certificate_states_the_due_date_only_when_agreed(fleet):
     assert s23 != s and "3 calibrations" in s23
     s0 = certificate_due_statement(wh, "QA-0", "QA-0/2026", cfg)
     assert s0.startswith("No recalibration date is stated")
+
+
+def test_mixed_code_versions_are_named_in_the_basis(fleet):
+    from accelcal.config import forecast_config
+    from accelcal.ops.due import due_rows
+    wh = str(fleet / "lab.duckdb")
+    with Warehouse(wh).connect() as con:
+        con.execute("UPDATE results SET code_version = '9.9+src.other' WHERE campaign = 'QA-2/2025'")
+    rows = due_rows(wh, forecast_config(fleet / "accelcal.toml"))
+    row = next(r for r in rows if r["unit_serial"] == "QA-2" and r["coefficient"] == "K1")
+    assert "mixed code versions (9.9+src.other, test+views)" in row["basis"]
+    assert row["due_date"] is not None       # still a date, with its qualification stated
