@@ -409,8 +409,12 @@ class Forecast:
     predict: Any = None              # t -> (mean, sd, dof) of the coefficient
 
     def interval(self, t, u_new=0.0, level=0.95):
-        m, s, nu = self.predict(np.asarray(t, float))
-        if u_new:
+        """Prediction interval [unit] at t [a]: of the coefficient (u_new = 0) or of a new
+        campaign's value with standard uncertainty u_new."""
+        if self.fit is not None and self.predict == self.fit.predictive:
+            m, s, nu = self.fit.predictive(np.asarray(t, float), u_new)
+        else:
+            m, s, nu = self.predict(np.asarray(t, float))
             s = np.sqrt(s ** 2 + np.asarray(u_new, float) ** 2)
         k = stats.t.ppf(0.5 + level / 2, nu)
         return m - k * s, m + k * s
@@ -477,7 +481,7 @@ def forecast(t, x, u, tol_spec: dict[str, float] | None, risk: float,
         why.append("series since " + ("adjustment" if adj[start] else "flagged step")
                    + f" at calibration {start + 1}")
     fit, own_only = None, False
-    p_change = slope_change_p(t, x, u, start, prior, bounds[:-1]) if bounds else None
+    p_change = slope_change_p(t, x, u, start, prior, bounds) if bounds else None
     if p_change is not None and p_change < STEP_ALPHA:
         own_only = True
         why.append("drift rate changed at the new series: fitted to it alone")
