@@ -456,7 +456,8 @@ def forecast(t, x, u, tol_spec: dict[str, float] | None, risk: float,
 
     * "drift fit": eq (1) (with tau^2 of eq 3);
     * "fleet prior": no drift rate in the unit's history (one campaign, or one per
-      series): the fleet's drift-rate spread and scatter, from the value in use;
+      series), or one less certain than the spread of the fleet's rates (two campaigns
+      a day apart): the fleet's drift-rate spread and scatter, from the value in use;
     * no date, and the basis says why: no tolerance in the config, too little history
       and no fleet of the model.
     """
@@ -491,6 +492,10 @@ def forecast(t, x, u, tol_spec: dict[str, float] | None, risk: float,
         else:
             fit = fit_drift(t, x, u, prior, segments=bounds)
     except (ValueError, np.linalg.LinAlgError):
+        fit = None
+    if (fit is not None and prior is not None and prior.slope_sd is not None
+            and fit.u_b > prior.slope_sd):
+        why.append("its own drift rate is less certain than the spread of the fleet's")
         fit = None
     if fit is not None:
         out.fit, out.drift_per_year, out.u_drift_per_year = fit, fit.b, fit.u_b

@@ -81,6 +81,16 @@ def test_one_campaign_with_a_fleet_prior_says_so():
     assert 2 * stats.t.sf(2e-4 / s, 5) == pytest.approx(0.05, abs=2e-3)
 
 
+def test_two_campaigns_a_day_apart_borrow_the_fleets_drift_rate():
+    # the sample drops' case: one unit on two centrifuges on consecutive days
+    prior = drift.FleetPrior(tau2=1e-12, dof=10, slope_mean=0.0, slope_sd=5e-5, n_units=6)
+    t = np.array([2026.0, 2026.0 + 1 / 365.25])
+    f = drift.forecast(t, [1.0, 1.0 + 1e-6], [5e-6, 5e-6], {"relative": 2e-4}, 0.05,
+                       prior=prior)
+    assert f.basis.startswith(drift.BASIS_FLEET) and "less certain" in f.basis
+    assert f.drift_per_year == 0.0 and f.u_drift_per_year == 5e-5
+
+
 def test_missing_tolerance_gives_no_date():
     t = np.arange(5.0)
     f = drift.forecast(t, 1 + 1e-4 * t, np.full(5, 1e-6), None, 0.05)

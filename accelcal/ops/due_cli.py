@@ -67,7 +67,9 @@ def _cmd_due(args) -> int:
         return 0
     con = _console()
     if not rows:
-        say(con, "nothing due" + (f" within {args.within}" if args.within else ""))
+        say(con, f"nothing due within {args.within}" if args.within else
+            "no calibrations (complete, real, not excluded campaigns) in the warehouse")
+        return 0
     for line in text_lines(rows, None if as_of is None else as_of.date()):
         say(con, line)
     return 0
