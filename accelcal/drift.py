@@ -59,6 +59,9 @@ STEP_EN = 2.0
 STEP_ALPHA = 0.01
 #: How far ahead a due date is looked for [a].
 HORIZON_YEARS = 10.0
+#: A unit's own drift rate gives way to the fleet's spread of rates when its standard
+#: uncertainty is more than this many times that spread (two campaigns a day apart).
+OWN_RATE_FACTOR = 2.0
 #: Fewest units with a drift fit that make a fleet prior for the drift rate.
 MIN_FLEET_UNITS = 3
 
@@ -456,8 +459,8 @@ def forecast(t, x, u, tol_spec: dict[str, float] | None, risk: float,
 
     * "drift fit": eq (1) (with tau^2 of eq 3);
     * "fleet prior": no drift rate in the unit's history (one campaign, or one per
-      series), or one less certain than the spread of the fleet's rates (two campaigns
-      a day apart): the fleet's drift-rate spread and scatter, from the value in use;
+      series), or one over ``OWN_RATE_FACTOR`` times less certain than the spread of
+      the fleet's rates (two campaigns a day apart): the fleet's drift-rate spread and scatter, from the value in use;
     * no date, and the basis says why: no tolerance in the config, too little history
       and no fleet of the model.
     """
@@ -494,8 +497,9 @@ def forecast(t, x, u, tol_spec: dict[str, float] | None, risk: float,
     except (ValueError, np.linalg.LinAlgError):
         fit = None
     if (fit is not None and prior is not None and prior.slope_sd is not None
-            and fit.u_b > prior.slope_sd):
-        why.append("its own drift rate is less certain than the spread of the fleet's")
+            and fit.u_b > OWN_RATE_FACTOR * prior.slope_sd):
+        why.append(f"its own drift rate is over {OWN_RATE_FACTOR:g} times less certain than "
+                   "the spread of the fleet's")
         fit = None
     if fit is not None:
         out.fit, out.drift_per_year, out.u_drift_per_year = fit, fit.b, fit.u_b

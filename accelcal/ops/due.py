@@ -359,7 +359,9 @@ def _chart(lst, f: drift.Forecast, en: np.ndarray) -> str:
     tt = np.array([_years(r["calibrated_at"]) for r in lst])
     x = (np.array([r["value"] for r in lst]) - off) / scale
     U = np.array([r["expanded_uncertainty"] for r in lst]) / scale
-    yr = lambda y: 1970 + y  # noqa: E731  (decimal calendar year)
+    def yr(y):       # years since 1970 [a] -> dates on the axis
+        return np.array([dt.datetime.fromtimestamp(float(v) * SECONDS_PER_YEAR, dt.timezone.utc)
+                         .replace(tzinfo=None) for v in np.atleast_1d(y)], dtype="datetime64[s]")
     fig, (ax, ax2) = plt.subplots(2, 1, figsize=(8.4, 5.2), sharex=True,
                                   gridspec_kw={"height_ratios": [3, 1]})
     end = max(tt[-1] + 1.0, (f.due + 0.5) if f.due is not None else tt[-1] + 2.0)
@@ -384,25 +386,27 @@ def _chart(lst, f: drift.Forecast, en: np.ndarray) -> str:
         ax.errorbar(yr(tt[old]), x[old], U[old], fmt="o", color="#999", ms=4, capsize=3,
                     mfc="white", label="earlier series")
     for s in f.steps:
-        ax.axvline(yr(tt[s.at]), color="#d08000", lw=1, ls=":", label="flagged step")
+        ax.axvline(yr(tt[s.at])[0], color="#d08000", lw=1, ls=":", label="flagged step")
     if f.series_start and not any(s.at == f.series_start for s in f.steps):
-        ax.axvline(yr(tt[f.series_start]), color="#666", lw=1, ls="-.", label="adjustment")
+        ax.axvline(yr(tt[f.series_start])[0], color="#666", lw=1, ls="-.", label="adjustment")
     if f.due is not None:
-        ax.axvline(yr(f.due), color="#b03030", lw=1.4)
-        ax.annotate(f"due {_date(f.due)}", (yr(f.due), ax.get_ylim()[1]), fontsize=8,
+        ax.axvline(yr(f.due)[0], color="#b03030", lw=1.4)
+        ax.annotate(f"due {_date(f.due)}", (yr(f.due)[0], ax.get_ylim()[1]), fontsize=8,
                     color="#b03030", ha="right", va="top", rotation=90,
                     bbox={"fc": "white", "ec": "none", "pad": 1})
+    ax.set_xlim(yr(tt[0] - 0.25)[0], yr(end)[0])
     ax.set_ylabel(f"{name} [{unit}]", fontsize=8)
     ax.tick_params(labelsize=7)
     ax.legend(fontsize=7, loc="best")
     if len(en):
         mid = yr((tt[1:] + tt[:-1]) / 2)
-        ax2.bar(mid, en, width=0.15, color=["#b03030" if abs(e) > 1 else "#1f5fa0" for e in en])
+        ax2.bar(mid, en, width=np.timedelta64(int(0.02 * (end - tt[0] + 0.25) * 365.25), "D"),
+                color=["#b03030" if abs(e) > 1 else "#1f5fa0" for e in en])
         for lim in (-1, 1):
             ax2.axhline(lim, color="#888", lw=0.6, ls="--")
         ax2.axhline(0, color="#444", lw=0.6)
     ax2.set_ylabel("En consecutive", fontsize=8)
-    ax2.set_xlabel("year", fontsize=8)
+    ax2.set_xlabel("date", fontsize=8)
     ax2.tick_params(labelsize=7)
     fig.tight_layout()
     return _png(fig)
@@ -435,7 +439,8 @@ def history_html(warehouse: str | Path, unit_serial: str, out_dir: str | Path,
         parts.append(
             f"<h2>{e(r['coefficient'])}</h2><p>due <b>{e(r['due_date'] or '—')}</b>; drift "
             f"{e(display_rate(r['coefficient'], r['drift_per_year'], r['u_drift_per_year'], r['value_in_use']))}"
-            f" (u, k = 1); {r['n_campaigns']} of {r['n_total']} calibrations in the current "
+            + (" (u, k = 1)" if r["drift_per_year"] is not None else "")
+            + f"; {r['n_campaigns']} of {r['n_total']} calibrations in the current "
             f"series; {e(r['basis'])}." + (f" Steps flagged: {e(steps)}." if steps else "")
             + f"</p><img alt='{e(r['coefficient'])} control chart' "
             f"src='data:image/png;base64,{_chart(lst, f, en)}'>")
