@@ -36,8 +36,8 @@ stated basis instead of a date; a prior from the fleet is used and said so.
 
 A step the line cannot explain (a shock, a repair) is tested by adding an offset at each
 campaign (``x_i += delta [i >= k]``): the step is flagged when its normalised error
-``En = delta / U(delta)`` (U = 2 u) exceeds ``STEP_EN`` and its t test survives a
-Bonferroni correction over the candidate places.  A flagged step, like an adjustment,
+``En = delta / U(delta)`` (U = 2 u) exceeds ``STEP_EN``, or its t test survives a
+Bonferroni correction over the candidate places (``STEP_ALPHA``).  A flagged step, like an adjustment,
 starts a new series: it is never smoothed over.
 """
 from __future__ import annotations
@@ -55,8 +55,11 @@ YEAR_DAYS = 365.25
 PRIOR_DOF = 4.0
 #: En of a step above which (with the t test below) a step is flagged.
 STEP_EN = 2.0
-#: Family-wise false-alarm probability of the step test over a series' candidate places.
-STEP_ALPHA = 0.01
+#: Family-wise false-alarm probability of the step test over a series' candidate places
+#: (a missed shock costs wrong due dates, a false flag a look at the unit's history).
+STEP_ALPHA = 0.05
+#: Significance of a new series' own drift rate differing from the unit's earlier rate.
+SLOPE_CHANGE_ALPHA = 0.01
 #: How far ahead a due date is looked for [a].
 HORIZON_YEARS = 10.0
 #: A unit's own drift rate gives way to the fleet's spread of rates when its standard
@@ -310,7 +313,7 @@ def find_steps(t, x, u, prior: FleetPrior | None = None, en_limit: float = STEP_
     At each candidate place k = 1 .. n-1 the line gets an offset from campaign k on
     (eq 1 plus ``delta [i >= k]``, tau^2 re-estimated under that model and shrunk to the
     fleet's).  The most significant place is flagged when ``|En| > en_limit`` (En =
-    delta / U(delta), U = 2u, the ISO 13528 form) and its two-sided t test is below
+    delta / U(delta), U = 2u, the ISO 13528 form) or its two-sided t test is below
     ``alpha / (n - 1)`` (Bonferroni over the places).  Needs three campaigns.
     """
     t, x, u = to_years(t), np.asarray(x, float), np.asarray(u, float)
@@ -454,7 +457,7 @@ def forecast(t, x, u, tol_spec: dict[str, float] | None, risk: float,
     line drawn through the jump.  The drift rate is the unit's own, common to its series
     (a shock or an adjustment moves the coefficient, not the mechanism that drifts it),
     unless the current series has three campaigns or more and its own rate differs
-    significantly (t test, p < ``STEP_ALPHA``): then the current series alone is used.
+    significantly (t test, p < ``SLOPE_CHANGE_ALPHA``): then the current series alone is used.
     Basis:
 
     * "drift fit": eq (1) (with tau^2 of eq 3);
@@ -486,7 +489,7 @@ def forecast(t, x, u, tol_spec: dict[str, float] | None, risk: float,
                    + f" at calibration {start + 1}")
     fit, own_only = None, False
     p_change = slope_change_p(t, x, u, start, prior, bounds) if bounds else None
-    if p_change is not None and p_change < STEP_ALPHA:
+    if p_change is not None and p_change < SLOPE_CHANGE_ALPHA:
         own_only = True
         why.append("drift rate changed at the new series: fitted to it alone")
     try:
