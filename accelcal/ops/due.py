@@ -89,7 +89,7 @@ def load_history(warehouse: str | Path, as_of: dt.datetime | None = None,
                  lock_timeout: float = 60.0) -> tuple[list[dict[str, Any]], set[str]]:
     """The calibrations (unit_history as of ``as_of``, taken up to then) and the
     campaigns marked as adjustments at that time."""
-    from ..warehouse.db import Warehouse, WarehouseError, warehouse_lock
+    from ..warehouse import Warehouse, WarehouseError, warehouse_lock
     wh = Warehouse(warehouse, lock_timeout=lock_timeout)
     if not wh.path.exists():
         raise DueError(f"warehouse {wh.path} does not exist")
@@ -192,7 +192,7 @@ def due_rows(warehouse: str | Path, cfg: ForecastConfig, as_of: dt.datetime | No
 def _write(warehouse: str | Path, lock_timeout: float):
     """One write transaction (the warehouse lock held) with ``warehouse/drift.sql``
     applied first; a warehouse error is one DueError line."""
-    from ..warehouse.db import Warehouse, WarehouseError
+    from ..warehouse import Warehouse, WarehouseError
     try:
         with Warehouse(warehouse, lock_timeout=lock_timeout).connect() as con:
             con.execute("BEGIN")
@@ -210,7 +210,7 @@ def _write(warehouse: str | Path, lock_timeout: float):
 def store_forecast(warehouse: str | Path, rows: list[dict[str, Any]], cfg: ForecastConfig,
                    as_of: dt.datetime | None, lock_timeout: float = 60.0) -> int:
     """Append ``rows`` as one batch of ``forecast_history``; returns the batch number."""
-    from ..warehouse.lineage import code_version
+    from ..warehouse import code_version
     sha = (hashlib.sha256(cfg.path.read_bytes()).hexdigest()
            if cfg.path is not None and cfg.path.is_file() else None)
     with _write(warehouse, lock_timeout) as con:
