@@ -3,6 +3,7 @@ view (issue 29) on hand-made warehouses (tests/test_views.add_campaign)."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 
@@ -133,6 +134,9 @@ def test_history_page_has_one_chart_per_coefficient(fleet, capsys, tmp_path):
     assert main(["history", "QA-2", "--html", str(out), "-w", wh,
                  "--config", str(fleet / "accelcal.toml")]) == 0
     page = (out / "QA-2-history.html").read_text()
+    mask = os.umask(0)
+    os.umask(mask)
+    assert (out / "QA-2-history.html").stat().st_mode & 0o777 == 0o666 & ~mask
     assert page.count("<img") == 2 and "control chart" in page and "due <b>20" in page
     assert main(["history", "NOPE", "--html", str(out), "-w", wh]) == 1
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
