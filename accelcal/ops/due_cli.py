@@ -9,8 +9,8 @@ from .cli import _default_warehouse
 def register(sub) -> None:
     d = sub.add_parser(
         "due", help="when each unit must come back: drift, due date and its basis",
-        description="Per unit and coefficient: the drift line over its calibrations (since "
-                    "the last adjustment or flagged step), the date on which the probability "
+        description="Per unit and coefficient: the drift line over its calibrations (a "
+                    "new level after each adjustment or flagged step), the date on which the probability "
                     "of being out of tolerance around the value in use reaches the lab's risk "
                     "([tolerance.\"MODEL\"] and [forecast] risk in accelcal.toml), and the "
                     "basis of that date. A unit with too little history, no tolerance or "
