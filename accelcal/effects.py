@@ -15,30 +15,84 @@ TESTS = ("tumble", "centrifuge", "tilt_rotation", "sine_centrifuge")
 
 @dataclass(frozen=True)
 class Coefficient:
+    """One instrument coefficient: every per-parameter fact the code needs.
+
+    Attributes
+    ----------
+    name : str
+        effects.md symbol.
+    unit : str
+        SI unit; "out" stands for the run's output_unit.
+    display_unit, display_factor : str, float
+        Display = SI / display_factor, in ``display_unit`` (effects.md "usual display").
+    typical : float
+        Typical size [SI]: the scale of its parameter (finite-difference steps, solver
+        scaling, a paper method's "weakly determined" test).
+    plausible : float or None
+        Largest plausible size [SI] of an ordinary unit; a term whose design uncertainty
+        exceeds it is held as weakly determined.  None for the coefficients every design
+        is built to determine (never held on that ground).
+    """
     name: str
-    unit: str              # SI unit ("out" stands for the run's output_unit)
+    unit: str
     display_unit: str
-    display_factor: float  # display = SI / display_factor
+    display_factor: float
+    typical: float = 1.0
+    plausible: float | None = None
 
 
 #: Instrument-model coefficients (effects.md, "Instrument model"), plus theta0 of the tumble.
 COEFFICIENTS: dict[str, Coefficient] = {c.name: c for c in [
-    Coefficient("K0", "m/s2", "ug", 1e-6 * G_STANDARD),
-    Coefficient("K1", "out/(m/s2)", "out/g", 1.0 / G_STANDARD),
-    Coefficient("Kp", "rad", "urad", 1e-6),
-    Coefficient("Ko", "rad", "urad", 1e-6),
-    Coefficient("K2", "s2/m", "ug/g2", 1e-6 / G_STANDARD),
-    Coefficient("Koq", "s2/m", "ug/g2", 1e-6 / G_STANDARD),
-    Coefficient("Kip", "s2/m", "ug/g2", 1e-6 / G_STANDARD),
-    Coefficient("Kio", "s2/m", "ug/g2", 1e-6 / G_STANDARD),
-    Coefficient("Kpo", "s2/m", "ug/g2", 1e-6 / G_STANDARD),
-    Coefficient("Kpp", "s2/m", "ug/g2", 1e-6 / G_STANDARD),
-    Coefficient("Koo", "s2/m", "ug/g2", 1e-6 / G_STANDARD),
-    Coefficient("K3", "s4/m2", "ug/g3", 1e-6 / G_STANDARD ** 2),
-    Coefficient("K0T", "m/s2/degC", "ug/degC", 1e-6 * G_STANDARD),
-    Coefficient("K1T", "1/degC", "ppm/degC", 1e-6),
-    Coefficient("theta0", "rad", "deg", 3.141592653589793 / 180.0),
+    Coefficient("K0", "m/s2", "ug", 1e-6 * G_STANDARD, typical=0.001, plausible=None),
+    Coefficient("K1", "out/(m/s2)", "out/g", 1.0 / G_STANDARD, typical=1, plausible=None),
+    Coefficient("Kp", "rad", "urad", 1e-6, typical=0.0001, plausible=0.05),
+    Coefficient("Ko", "rad", "urad", 1e-6, typical=0.0001, plausible=0.05),
+    Coefficient("K2", "s2/m", "ug/g2", 1e-6 / G_STANDARD, typical=1e-6, plausible=0.0001),
+    Coefficient("Koq", "s2/m", "ug/g2", 1e-6 / G_STANDARD, typical=1e-7, plausible=1e-5),
+    Coefficient("Kip", "s2/m", "ug/g2", 1e-6 / G_STANDARD, typical=1e-6, plausible=1e-5),
+    Coefficient("Kio", "s2/m", "ug/g2", 1e-6 / G_STANDARD, typical=1e-6, plausible=1e-5),
+    Coefficient("Kpo", "s2/m", "ug/g2", 1e-6 / G_STANDARD, typical=1e-6, plausible=1e-5),
+    Coefficient("Kpp", "s2/m", "ug/g2", 1e-6 / G_STANDARD, typical=1e-6, plausible=1e-5),
+    Coefficient("Koo", "s2/m", "ug/g2", 1e-6 / G_STANDARD, typical=1e-6, plausible=1e-5),
+    Coefficient("K3", "s4/m2", "ug/g3", 1e-6 / G_STANDARD ** 2, typical=1e-9, plausible=1e-7),
+    Coefficient("K0T", "m/s2/degC", "ug/degC", 1e-6 * G_STANDARD, typical=1e-5, plausible=0.001),
+    Coefficient("K1T", "1/degC", "ppm/degC", 1e-6, typical=0.0001, plausible=0.01),
+    Coefficient("theta0", "rad", "deg", 3.141592653589793 / 180.0, typical=0.001, plausible=None),
 ]}
+
+#: Paper 002's extra third-order terms KPPP·a_P³, KOOO·a_O³ (methods.md, paper 002 eq 1):
+#: not in the effects.md model; the sinusoidal method may add them (its F test).
+PAPER_TERMS: dict[str, Coefficient] = {c.name: c for c in [
+    Coefficient("Kppp", "s4/m2", "ug/g3", 1e-6 / G_STANDARD ** 2, typical=1e-9, plausible=1e-7),
+    Coefficient("Kooo", "s4/m2", "ug/g3", 1e-6 / G_STANDARD ** 2, typical=1e-9, plausible=1e-7),
+]}
+
+#: The instrument coefficients by the input axis they belong to (0 IA, 1 PA, 2 OA; effects.md
+#: model): the cross-axis sensitivity of an axis (IA has none) and its square term.
+CROSS_AXIS_TERM: tuple[str | None, str, str] = (None, "Kp", "Ko")
+SQUARE_TERM: tuple[str, str, str] = ("K2", "Kpp", "Koo")
+
+#: Rig quantities fitted beside the instrument: name -> (SI unit, typical size [SI]).
+RIG_QUANTITIES: dict[str, tuple[str, float]] = {"radius": ("m", 1.0)}
+
+
+def coefficient_spec(name: str) -> Coefficient | None:
+    """The catalogue row of a coefficient name (``"K2"``, ``"K0[run]"``, ``"Kppp"``), or None."""
+    base = name.split("[", 1)[0]
+    return COEFFICIENTS.get(base) or PAPER_TERMS.get(base)
+
+
+def si_unit(name: str, output_unit: str = "out") -> str:
+    """SI unit of a coefficient or effect parameter [text], "out" replaced by the run's
+    output unit; "s2/m" for a name the catalogue does not know (a second-order term)."""
+    spec = coefficient_spec(name)
+    if spec is not None:
+        unit = spec.unit
+    elif name.split("[", 1)[0] in EFFECTS:
+        unit = EFFECTS[name.split("[", 1)[0]].unit
+    else:
+        unit = "s2/m"
+    return output_unit + unit[3:] if unit.startswith("out/") else unit
 
 #: How display units are printed (effects.md notation -> symbols).
 PRETTY_UNITS = {"ug": "µg", "ug/g2": "µg/g²", "ug/g3": "µg/g³", "urad": "µrad",
@@ -89,52 +143,96 @@ SECOND_ORDER = ("K2", "Koq", "Kip", "Kio", "Kpo", "Kpp", "Koo")
 
 @dataclass(frozen=True)
 class Effect:
+    """One effects.md effect.
+
+    Attributes
+    ----------
+    id, tests, parameter, unit, definition : str
+        As in effects.md (``unit`` of the parameter, SI).
+    typical : float
+        Typical size of the parameter [unit]: difference steps (1e-3 of it), parameter
+        scaling, the size of an "unobservable" benchmark case.
+    plausible : float
+        Largest plausible size [unit]: a larger estimate is not a credible finding.
+    coefficient : str or None
+        The instrument-model coefficient it is, if any.
+    """
     id: str
     tests: tuple[str, ...]
     parameter: str
     unit: str
     definition: str
-    coefficient: str | None = None  # the instrument-model coefficient it is, if any
+    typical: float
+    plausible: float
+    coefficient: str | None = None
 
 
 EFFECTS: dict[str, Effect] = {e.id: e for e in [
     Effect("earth_rate", ("centrifuge", "sine_centrifuge"), "scale", "1",
-           "the Omega_e*sin(latitude) part of omega_z; 1 means the physical size"),
+           "the Omega_e*sin(latitude) part of omega_z; 1 means the physical size", typical=1.0, plausible=3.0),
     Effect("ia_tilt", ("centrifuge", "sine_centrifuge"), "lambda", "rad",
-           "first plane axis tilted out of the table plane by lambda, positive towards up"),
+           "first plane axis tilted out of the table plane by lambda, positive towards up", typical=0.0001, plausible=0.01),
     Effect("mass_centre_offset", ("centrifuge", "sine_centrifuge"), "r", "m",
-           "effective mass centre r from the turning centre along the first plane axis"),
+           "effective mass centre r from the turning centre along the first plane axis", typical=0.001, plausible=0.02),
     Effect("mount_angle_error", ("centrifuge",), "dphi", "rad",
-           "true mount angle is phi + dphi, same for both polarities"),
+           "true mount angle is phi + dphi, same for both polarities", typical=0.001, plausible=0.02),
     Effect("arm_stretch", ("centrifuge", "sine_centrifuge"), "kappa", "s2",
-           "turning centre sits at R*(1 + kappa*omega_z^2)"),
+           "turning centre sits at R*(1 + kappa*omega_z^2)", typical=1e-06, plausible=1e-05),
     Effect("rate_scale_error", ("centrifuge", "sine_centrifuge"), "epsilon", "1",
-           "true rate is (1 + epsilon) times the logged table_rate_rad_s"),
+           "true rate is (1 + epsilon) times the logged table_rate_rad_s", typical=1e-05, plausible=0.01),
     Effect("spindle_tilt", ("sine_centrifuge",), "beta", "rad",
            "table plane tilted by beta: gravity adds g*sin(beta)*cos(alpha) along the inward radial "
-           "and g*sin(beta)*sin(alpha) along the ccw direction of motion; vertical g*cos(beta)"),
+           "and g*sin(beta)*sin(alpha) along the ccw direction of motion; vertical g*cos(beta)", typical=0.0001, plausible=0.01),
     Effect("sensor_lag", ("sine_centrifuge",), "tau", "s",
-           "output follows the input through a first-order lag with time constant tau"),
+           "output follows the input through a first-order lag with time constant tau", typical=0.001, plausible=0.05),
     Effect("initial_misalignment", ("tumble",), "theta0", "rad",
-           "true head angle is theta + theta0"),
+           "true head angle is theta + theta0", typical=0.001, plausible=0.05),
     Effect("fixture_thermal_tilt", ("tilt_rotation",), "c", "rad/degC",
-           "IA tilts out of the table plane by c*(T - T_ref), positive towards the normal axis"),
+           "IA tilts out of the table plane by c*(T - T_ref), positive towards the normal axis", typical=1e-06, plausible=0.0001),
     Effect("base_tilt_drift", ("tilt_rotation",), "dgamma_dt", "rad/s",
-           "the tilt gamma grows linearly in time from the run start"),
+           "the tilt gamma grows linearly in time from the run start", typical=1e-09, plausible=1e-07),
     Effect("tilt_tide", ("tilt_rotation",), "amplitude", "rad",
-           "gamma gains A*sin(2*pi*t/44712 s)"),
-    Effect("bias_temperature", TESTS, "K0T", "m/s2/degC", "as in the instrument model", "K0T"),
-    Effect("scale_temperature", TESTS, "K1T", "1/degC", "as in the instrument model", "K1T"),
-    Effect("bias_drift", TESTS, "d", "m/s2/s", "K0 grows by d*t, t = time_s"),
+           "gamma gains A*sin(2*pi*t/44712 s)", typical=1e-06, plausible=0.0001),
+    Effect("bias_temperature", TESTS, "K0T", "m/s2/degC", "as in the instrument model", typical=1e-05, plausible=0.001, coefficient="K0T"),
+    Effect("scale_temperature", TESTS, "K1T", "1/degC", "as in the instrument model", typical=1e-05, plausible=0.001, coefficient="K1T"),
+    Effect("bias_drift", TESTS, "d", "m/s2/s", "K0 grows by d*t, t = time_s", typical=1e-08, plausible=1e-05),
     Effect("odd_quadratic", ("centrifuge", "sine_centrifuge"), "Koq", "s2/m",
-           "instrument term, when the baseline model omits it", "Koq"),
+           "instrument term, when the baseline model omits it", typical=1e-07, plausible=0.0001, coefficient="Koq"),
     Effect("cubic", ("centrifuge", "sine_centrifuge"), "K3", "s4/m2",
-           "instrument term, when the baseline model omits it", "K3"),
+           "instrument term, when the baseline model omits it", typical=1e-09, plausible=1e-07, coefficient="K3"),
     Effect("cross_coupling", ("centrifuge", "sine_centrifuge"), "Kip", "s2/m",
-           "instrument term, when the baseline model omits it", "Kip"),
+           "instrument term, when the baseline model omits it", typical=1e-06, plausible=0.0001, coefficient="Kip"),
 ]}
 
 
 def effects_for(test: str) -> list[str]:
     """Effect ids that apply to a test kind (effects.md, column 'tests')."""
     return [e.id for e in EFFECTS.values() if test in e.tests]
+
+
+def typical_size(key: str) -> float:
+    """Typical size [SI] of a coefficient (``"K2"``, ``"K0[run]"``), an effect's parameter
+    (``"sensor_lag"``) or a rig quantity (``"radius"``): the catalogue's one value.
+
+    Raises
+    ------
+    KeyError
+        For a name the catalogue does not know.
+    """
+    spec = coefficient_spec(key)
+    if spec is not None:
+        return spec.typical
+    base = key.split("[", 1)[0]
+    if base in EFFECTS:
+        return EFFECTS[base].typical
+    return RIG_QUANTITIES[base][1]
+
+
+def plausible_size(key: str) -> float | None:
+    """Largest plausible size [SI] of a coefficient or effect parameter, or None (the
+    coefficients every design determines, rig quantities, names the catalogue lacks)."""
+    spec = coefficient_spec(key)
+    if spec is not None:
+        return spec.plausible
+    base = key.split("[", 1)[0]
+    return EFFECTS[base].plausible if base in EFFECTS else None

@@ -81,6 +81,7 @@ from typing import Any
 import numpy as np
 
 from .constants import T_REF_C
+from .effects import CROSS_AXIS_TERM, SQUARE_TERM, plausible_size, typical_size
 from .physics.axes import parse_signed_axis
 from .physics.rigs import INSTRUMENT_EFFECTS, rig_output, specific_force
 
@@ -93,14 +94,7 @@ MAIN = {"centrifuge_eq9": ("K2", "Kip", "Kpp", "Koq", "K3"),
         "sine_ls": ("K2", "Kip"),
         "joint_ml": ("K2", "K3", "Koq", "Kip", "Kio", "Kpo", "Kpp", "Koo", "K0T", "K1T")}
 
-_AXIS_CROSS = {1: "Kp", 2: "Ko"}          # cross-axis sensitivity of PA, OA
-_AXIS_SQUARE = {0: "K2", 1: "Kpp", 2: "Koo"}
 _ALL_COEFFS = ("K0", "K1", "K2", "K3", "Koq", "Kp", "Ko", "Kip", "Kio", "Kpo", "Kpp", "Koo", "K0T", "K1T")
-#: typical sizes, used as central-difference steps (exact for the linear coefficients)
-_STEP = {"K0": 1e-4, "K1": None, "K2": 1e-7, "K3": 1e-9, "Koq": 1e-7, "Kp": 1e-5, "Ko": 1e-5,
-         "Kip": 1e-7, "Kio": 1e-7, "Kpo": 1e-7, "Kpp": 1e-7, "Koo": 1e-7, "K0T": 1e-6, "K1T": 1e-5,
-         "initial_misalignment": 1e-6, "spindle_tilt": 1e-6, "mass_centre_offset": 1e-5,
-         "rate_scale_error": 1e-7, "sensor_lag": 1e-6, "mount_angle_error": 1e-6}
 SINE_TOOL_ERRORS = ("spindle_tilt", "mass_centre_offset", "rate_scale_error", "sensor_lag")
 
 
@@ -208,8 +202,8 @@ def truth_table(scenario, notes: Mapping[tuple[str, str, str], str] | None = Non
             if ci != 0:
                 continue
             dT = float(t.get("temp_c", 23.0)) - T_REF_C
-            Kss, Ks = c[_AXIS_SQUARE[si]], c[_AXIS_CROSS[si]]
-            sq, cr = _AXIS_SQUARE[si], _AXIS_CROSS[si]
+            Kss, Ks = c[SQUARE_TERM[si]], c[CROSS_AXIS_TERM[si]]
+            sq, cr = SQUARE_TERM[si], CROSS_AXIS_TERM[si]
             out[("K0", "tumble_lm", rig)] = (c["K0"] + c["K0T"] * dT + Kss * g * g,
                                              f"K0(T) + {sq} g^2 (apparent bias of a tumble)")
             out[("K1", "tumble_lm", rig)] = (c["K1"] * (1 + c["K1T"] * dT), "K1(T)")
@@ -226,9 +220,9 @@ def truth_table(scenario, notes: Mapping[tuple[str, str, str], str] | None = Non
             ci, _ = parse_signed_axis(t.get("cos_axis", "+PA"))
             if ni == 0 or ci == 0:
                 continue
-            K0app = (c["K0"] + ns * c[_AXIS_CROSS[ni]] * g * math.cos(gam)
-                     + c[_AXIS_SQUARE[ni]] * (g * math.cos(gam)) ** 2
-                     + (c["K2"] + c[_AXIS_SQUARE[ci]]) * (g * math.sin(gam)) ** 2 / 2)
+            K0app = (c["K0"] + ns * c[CROSS_AXIS_TERM[ni]] * g * math.cos(gam)
+                     + c[SQUARE_TERM[ni]] * (g * math.cos(gam)) ** 2
+                     + (c["K2"] + c[SQUARE_TERM[ci]]) * (g * math.sin(gam)) ** 2 / 2)
             cf = eff.get("fixture_thermal_tilt", 0.0)
             out[("K0", "tilt_rotation_ls", rig)] = (K0app, "apparent bias at 20 degC (normal-axis terms)")
             out[("K1", "tilt_rotation_ls", rig)] = (c["K1"], "K1 at 20 degC")
@@ -302,12 +296,13 @@ def _reading_variance(kind: str, meta, data, coeffs, effects, noise) -> np.ndarr
 def _column(kind, meta, data, coeffs, effects, name) -> np.ndarray:
     """d E / d name at the truth (central differences; forward for sensor_lag >= 0)."""
     if name in _ALL_COEFFS:
-        h = _STEP[name] or 1e-3 * abs(coeffs["K1"])
+        # exact for the coefficients, in which the output is linear; K1 relative to its value
+        h = 1e-3 * abs(coeffs["K1"]) if name == "K1" else typical_size(name)
         up, dn = dict(coeffs), dict(coeffs)
         up[name] += h
         dn[name] -= h
         return (rig_output(kind, meta, data, up, effects) - rig_output(kind, meta, data, dn, effects)) / (2 * h)
-    h = _STEP[name]
+    h = 1e-3 * typical_size(name)      # as the campaign model's difference steps
     up, dn = dict(effects), dict(effects)
     v = float(effects.get(name, 0.0))
     up[name] = v + h
@@ -388,7 +383,7 @@ def _crb_selection(J: np.ndarray, names: Sequence[str]) -> list[int]:
     without the extension terms whose bound exceeds their plausible size (they are held,
     as the estimator holds them).  accelcal.fitting.model documents the rule."""
     from .fitting.core import lstsq_svd, separable_columns
-    from .fitting.model import ALIAS_TOL, BASE, EFFECT_PLAUSIBLE, PLAUSIBLE, PRIORITY
+    from .fitting.model import ALIAS_TOL, BASE, PRIORITY
 
     def kind(n):
         b = n.split("[", 1)[0]
@@ -404,7 +399,7 @@ def _crb_selection(J: np.ndarray, names: Sequence[str]) -> list[int]:
             k, b = kind(names[i]), names[i].split("[", 1)[0]
             if k in BASE:
                 continue
-            lim = PLAUSIBLE.get(b) or EFFECT_PLAUSIBLE.get(b)
+            lim = plausible_size(b)
             if lim and u[c] / lim > ratio:
                 worst, ratio = c, u[c] / lim
         if worst is None:

@@ -227,8 +227,7 @@ def simulated_cases(quick: bool, seeds: int, n_clean: int, rng_seed: int = 20261
 
 
 def _typical(e: str) -> float:
-    from ..fitting.model import EFFECT_SCALE
-    return EFFECT_SCALE[e]
+    return EFFECTS[e].typical
 
 
 def _lag_for(per: float, k: float, dt: float = 0.02) -> float:

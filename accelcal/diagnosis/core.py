@@ -43,7 +43,6 @@ from ..effects import EFFECTS
 from ..estimators.joint import processing_effects
 from ..fitting.data import (RunCells, drop_duplicate_cells, fit_noise, make_run, pool_missing_noise,
                             reject_spikes)
-from ..fitting.model import EFFECT_PLAUSIBLE
 from ..physics.rigs import INSTRUMENT_EFFECTS, specific_force
 from ._blas import single_thread
 from .fits import (GAP_ALPHA, NON_CATALOGUE, Fit, Fitter, folds, gap_rms, gap_test, heldout_gap, lr_test,
@@ -197,7 +196,7 @@ class _Diagnosis:
         return est * est * n2, est, 1.0 / math.sqrt(n2), sp
 
     def trial(self, f: Fit, effect: str, est: float) -> Fit:
-        lim = EFFECT_PLAUSIBLE[effect]
+        lim = EFFECTS[effect].plausible
         vals = {} if effect == "sensor_lag" else self.param_values(
             self.F.model(f.effects + [effect]), effect, float(np.clip(est, -lim, lim)))
         return self.F.fit(f.effects + [effect], start=f, values=vals)
@@ -235,9 +234,9 @@ class _Diagnosis:
             # against the noise, not the gap: the gap is what a candidate may explain
             md = zthr / float(np.linalg.norm(sp))
             o["min_detectable"] = md
-            if md > EFFECT_PLAUSIBLE[c]:
+            if md > EFFECTS[c].plausible:
                 o["note"] = (f"weakly observable: the smallest size these runs could detect ({md:.3g} "
-                             f"{EFFECTS[c].unit}) exceeds its largest plausible size ({EFFECT_PLAUSIBLE[c]:.3g})")
+                             f"{EFFECTS[c].unit}) exceeds its largest plausible size ({EFFECTS[c].plausible:.3g})")
                 obs[c] = o
                 continue
             o["observable"] = True

@@ -22,7 +22,7 @@ from ..estimators.joint import _pure_error
 from ..fitting.core import (LackOfFit, ParameterSet, gauss_newton, lack_of_fit, lstsq_svd,
                             separable_columns)
 from ..fitting.data import RunCells, fit_noise, pool_missing_noise
-from ..fitting.model import ALIAS_TOL, EFFECT_SCALE, PRIORITY, CampaignModel
+from ..fitting.model import ALIAS_TOL, PRIORITY, CampaignModel
 
 #: Instrument coefficients that are not catalogue effects.  A candidate effect they would
 #: absorb claims its direction first: the bare model holds them and the diagnosis names
@@ -163,7 +163,7 @@ class Fitter:
         if effect == "sensor_lag":
             dts = [self.sample_period[j] for j, r in enumerate(self.cells) if r.test in EFFECTS[effect].tests]
             return 0.5 * float(np.median(dts)) if dts else 1e-3
-        return 1e-3 * EFFECT_SCALE[effect]
+        return 1e-3 * EFFECTS[effect].typical
 
     def signature(self, model: CampaignModel, p: np.ndarray, effect: str) -> np.ndarray:
         """Whitened derivative of the model with respect to a candidate effect."""

@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from ..constants import MOUNT_ANGLE_TOLERANCE_RAD
+from ..effects import si_unit
 from ..fitting.core import (FitResult, LackOfFit, finish_fit, gauss_newton, lack_of_fit, lstsq_svd,
                             normalised_error)
 from ..fitting.data import RunCells, drop_duplicate_cells, fit_noise, make_run, pool_missing_noise
@@ -167,12 +168,6 @@ def prepare(runs) -> tuple[list[RunCells], list[str]]:
 
 
 # ----------------------------------------------------------------------------- results
-
-def _coefficient_unit(name: str, out_unit: str) -> str:
-    from ..fitting.model import COEFFICIENT_UNIT
-    u = COEFFICIENT_UNIT.get(name, "s2/m")
-    return u.replace("out", out_unit) if name == "K1" else u
-
 
 def _alias_note(jf: JointFit, name: str) -> str:
     """What the design leaves in a coefficient: the held parameters it is aliased with."""
@@ -355,7 +350,7 @@ def _records(jf: JointFit, cells: list[RunCells]) -> dict[str, Any]:
             u = float("nan")
         note = "; ".join(x for x in ("joint ML fit of every reading through the forward model",
                                      NOTES.get(name, ""), _alias_note(jf, prm.name)) if x)
-        coefficients.append(CoefficientResult(name, float(fit.values[i]), float(u), _coefficient_unit(name, out_unit),
+        coefficients.append(CoefficientResult(name, float(fit.values[i]), float(u), si_unit(name, out_unit),
                                               METHOD, rig_of.get(prm.name, rig_label), float(dof), note,
                                               adopted=True, coverage_factor=k))
         budget.append(BudgetTerm(name, "readings: joint fit through the forward model (noise model per run, "

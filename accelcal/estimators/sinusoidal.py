@@ -72,6 +72,7 @@ import numpy as np
 import pandas as pd
 from scipy.stats import f as f_dist
 
+from ..effects import si_unit, typical_size
 from ..fitting.core import FitResult, LackOfFit, Parameter, ParameterSet, gauss_newton, lstsq_svd
 from ..fitting.data import fitted_drive
 from ..physics import instrument, rigs
@@ -89,27 +90,13 @@ EXTRA_TERMS = ("Kppp", "Kooo")
 DEFAULT_TOOL_ERRORS: dict[str, str] = {"spindle_tilt": "shared", "mass_centre_offset": "shared",
                                         "rate_scale_error": "shared", "sensor_lag": "shared"}
 
-_UNITS = {"K0": "m/s2", "K1": "<output_unit>/(m/s2)", "Kp": "rad", "Ko": "rad", "K3": "s4/m2",
-          "Kppp": "s4/m2", "Kooo": "s4/m2",
-          "spindle_tilt": "rad", "mass_centre_offset": "m", "rate_scale_error": "1",
-          "sensor_lag": "s", "ia_tilt": "rad", "arm_stretch": "s2"}
-#: Typical magnitudes (parameter scaling of the solver, finite-difference steps).
-_SCALE = {"K0": 1e-3, "Kp": 1e-4, "Ko": 1e-4, "K3": 1e-9, "Kppp": 1e-9, "Kooo": 1e-9,
-          "spindle_tilt": 1e-4, "mass_centre_offset": 1e-3, "rate_scale_error": 1e-4,
-          "sensor_lag": 1e-4, "ia_tilt": 1e-4, "arm_stretch": 1e-6}
-_SECOND = 1e-7
-
 #: Relative singular value below which a direction of the column-scaled design is aliased.
 ALIAS_RTOL = 1e-4
 
 
 def _unit(name: str, output_unit: str = "") -> str:
-    u = _UNITS.get(name, "s2/m")
-    return u.replace("<output_unit>", output_unit) if output_unit else u
-
-
-def _scale(name: str) -> float:
-    return _SCALE.get(name, _SECOND)
+    """SI unit of a parameter (catalogue, :func:`accelcal.effects.si_unit`)."""
+    return si_unit(name, output_unit or "<output_unit>")
 
 
 # --------------------------------------------------------------------------- inputs
@@ -227,15 +214,15 @@ def _build_params(prep: list[_Run], per_run_bias: bool, extra_terms: Sequence[st
     ps = []
     for c in COEFFS:
         if c == "K0" and per_run_bias:
-            ps += [_param(f"K0[{r.label}]", "K0", "coef", i, _scale("K0")) for i, r in enumerate(prep)]
+            ps += [_param(f"K0[{r.label}]", "K0", "coef", i, typical_size("K0")) for i, r in enumerate(prep)]
         else:
-            ps.append(_param(c, c, "coef", None, K1_scale if c == "K1" else _scale(c)))
-    ps += [_param(e, e, "extra", None, _scale(e)) for e in extra_terms]
+            ps.append(_param(c, c, "coef", None, K1_scale if c == "K1" else typical_size(c)))
+    ps += [_param(e, e, "extra", None, typical_size(e)) for e in extra_terms]
     for eid, scope in tool_errors.items():
         if scope == "shared":
-            ps.append(_param(eid, eid, "tool", None, _scale(eid)))
+            ps.append(_param(eid, eid, "tool", None, typical_size(eid)))
         elif scope == "per_run":
-            ps += [_param(f"{eid}[{r.label}]", eid, "tool", i, _scale(eid)) for i, r in enumerate(prep)]
+            ps += [_param(f"{eid}[{r.label}]", eid, "tool", i, typical_size(eid)) for i, r in enumerate(prep)]
         else:
             raise ValueError(f"tool-error scope {scope!r} (use 'shared' or 'per_run')")
     return ps

@@ -39,6 +39,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
+
+from ..effects import si_unit
 from ..fitting.core import (FitResult, GaussNewton, LackOfFit, Parameter, ParameterSet, birge_ratio,
                             finish_fit, gauss_newton, lstsq_svd)
 from ..physics.axes import AXES, parse_signed_axis
@@ -192,7 +194,7 @@ def separable_extra_terms(meta: Mapping) -> dict[str, str]:
     _ia_phase_deg(meta)
     other = {parse_signed_axis(meta[k])[0] for k in ("cos_axis", "sin_axis")} - {0}
     cross = {1: "Kip", 2: "Kio"}[other.pop()]
-    return {"K3": "s4/m2", "Koq": "s2/m", cross: "s2/m"}
+    return {k: si_unit(k) for k in ("K3", "Koq", cross)}
 
 
 def tumble_jacobian(meta: Mapping, df: pd.DataFrame, p: np.ndarray,
@@ -345,9 +347,8 @@ def fit_tumble(meta: Mapping, data, extra_terms: tuple[str, ...] | list[str] = (
                          f"{npar - 1} head angles, got {len(df)} readings at {n_ang} angles")
     y = df["output"].to_numpy(float)
     p0 = np.r_[_start(meta, df, g), np.zeros(len(extras))]
-    units = {"K0": "m/s2", "K1": f"{meta.get('output_unit', 'out')}/(m/s2)", "K2": "s2/m", "theta0": "rad",
-             "K3": "s4/m2"}
-    params = ParameterSet(Parameter(nm, nm, units.get(nm, "s2/m"), value=float(v)) for nm, v in zip(names, p0))
+    out_unit = str(meta.get("output_unit", "out"))
+    params = ParameterSet(Parameter(nm, nm, si_unit(nm, out_unit), value=float(v)) for nm, v in zip(names, p0))
 
     # the model reads the same columns as numpy arrays, taken once (not per evaluation)
     cols = {k: df[k].to_numpy() for k in df.columns}
@@ -518,8 +519,6 @@ def tumble_coefficients(fit: TumbleFit, rig_id: str, covariance: str = "readings
         dof = float(fit.lack_of_fit["dof_lof"]) if fit.lack_of_fit else float(len(fit.position_means) - len(fit.param_names))
     else:
         raise ValueError(f"covariance {covariance!r} is not 'readings' or 'positions'")
-    units = {"K0": "m/s2", "K1": f"{fit.output_unit or 'out'}/(m/s2)", "K2": "s2/m", "theta0": "rad",
-             "K3": "s4/m2", "Koq": "s2/m", "Kio": "s2/m", "Kip": "s2/m"}
     notes = {"theta0": _ALIAS_NOTE, "K2": "a single tumble gives K2 - Koo (Koo aliases)"}
     lof = ""
     if fit.lack_of_fit and fit.lack_of_fit["p"] < 0.01:
@@ -528,7 +527,8 @@ def tumble_coefficients(fit: TumbleFit, rig_id: str, covariance: str = "readings
     for k in fit.param_names:
         note = "; ".join(x for x in (notes.get(k, ""), f"covariance from {covariance}", lof) if x)
         out.append(CoefficientResult(name=k, value=fit.values[k], std_uncertainty=float(sd[k]),
-                                     unit=units[k], method="tumble_lm", rig_id=rig_id, dof=dof, note=note))
+                                     unit=si_unit(k, fit.output_unit or "out"), method="tumble_lm",
+                                     rig_id=rig_id, dof=dof, note=note))
     return out
 
 
@@ -723,7 +723,6 @@ def k1_correction(g: float, koq: tuple[float, float], k3: tuple[float, float] | 
     return delta, math.hypot(koq[1] * a, (k3[1] * b) if k3 else 0.0)
 
 
-_UNITS = {"K0": "m/s2", "K2": "s2/m", "theta0": "rad", "K3": "s4/m2", "Koq": "s2/m", "Kio": "s2/m", "Kip": "s2/m"}
 _NOTES = {"theta0": _ALIAS_NOTE, "K2": "a single tumble gives K2 - Koo (Koo aliases)"}
 
 
@@ -765,7 +764,7 @@ def tumble_records(pooled: Mapping[str, Pooled], *, square_terms: Mapping[str, t
     for name, q in items:
         terms, note = _fit_terms(q), []
         value = q.value
-        unit = _UNITS.get(q.key, f"{out_unit}/(m/s2)")
+        unit = si_unit(q.key, out_unit)
         if q.key == "K2":
             adds = {}
             for r in q.runs:

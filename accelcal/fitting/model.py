@@ -42,7 +42,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..effects import EFFECTS
+from ..effects import EFFECTS, plausible_size, si_unit, typical_size
 from ..physics import instrument
 from ..physics.geometry import CentrifugeMount, TumbleHead
 from ..physics.instrument import first_order_lag
@@ -62,35 +62,9 @@ DESIGNED: dict[str, tuple[str, ...]] = {
     "sine_centrifuge": ("K0", "K1", "K2", "K3", "Koq", "Kp", "Ko", "Kip", "Kio", "Kpo", "Kpp", "Koo"),
     "tilt_rotation": ("K0", "K1", "K0T", "K1T", "Kp", "Ko"),
 }
-#: SI unit of each coefficient ('out' stands for the output unit)
-COEFFICIENT_UNIT = {"K0": "m/s2", "K1": "out/(m/s2)", "Kp": "rad", "Ko": "rad", "K3": "s4/m2",
-                    "K0T": "m/s2/degC", "K1T": "1/degC"}
-#: typical size [SI] (difference steps, scaling) and the largest plausible size (a term
-#: whose design uncertainty exceeds it is weakly determined and held)
-TYPICAL = {"K0": 1e-3, "K1": 1.0, "K2": 1e-6, "K3": 1e-9, "Koq": 1e-7, "Kp": 1e-4, "Ko": 1e-4,
-           "Kip": 1e-6, "Kio": 1e-6, "Kpo": 1e-6, "Kpp": 1e-6, "Koo": 1e-6, "K0T": 1e-5, "K1T": 1e-4,
-           "radius": 1.0, "bias": 1e-3}
-PLAUSIBLE = {"K2": 1e-4, "K3": 1e-7, "Koq": 1e-5, "Kp": 0.05, "Ko": 0.05, "Kip": 1e-5, "Kio": 1e-5,
-             "Kpo": 1e-5, "Kpp": 1e-5, "Koo": 1e-5, "K0T": 1e-3, "K1T": 1e-2}
 #: A parameter whose Jacobian column (unit-scaled) has less than this relative norm outside
 #: the span of the parameters before it is aliased: its variance would be inflated 1e6-fold.
 ALIAS_TOL = 1e-3
-#: typical size of each effect's parameter (effects.md units): difference steps
-EFFECT_SCALE = {
-    "earth_rate": 1.0, "ia_tilt": 1e-4, "mass_centre_offset": 1e-3, "mount_angle_error": 1e-3,
-    "arm_stretch": 1e-6, "rate_scale_error": 1e-5, "spindle_tilt": 1e-4, "sensor_lag": 1e-3,
-    "initial_misalignment": 1e-3, "fixture_thermal_tilt": 1e-6, "base_tilt_drift": 1e-9,
-    "tilt_tide": 1e-6, "bias_temperature": 1e-5, "scale_temperature": 1e-5, "bias_drift": 1e-8,
-    "odd_quadratic": 1e-7, "cubic": 1e-9, "cross_coupling": 1e-6,
-}
-#: largest plausible size of each effect (effects.md units)
-EFFECT_PLAUSIBLE = {
-    "earth_rate": 3.0, "ia_tilt": 0.01, "mass_centre_offset": 0.02, "mount_angle_error": 0.02,
-    "arm_stretch": 1e-5, "rate_scale_error": 1e-2, "spindle_tilt": 0.01, "sensor_lag": 0.05,
-    "initial_misalignment": 0.05, "fixture_thermal_tilt": 1e-4, "base_tilt_drift": 1e-7,
-    "tilt_tide": 1e-4, "bias_temperature": 1e-3, "scale_temperature": 1e-3, "bias_drift": 1e-5,
-    "odd_quadratic": 1e-4, "cubic": 1e-7, "cross_coupling": 1e-4,
-}
 #: order in which parameters claim directions of the design (higher first)
 #: Kpo, Kp and Ko come after the mount angles: without a PA-OA mount (or a tumble turning PA
 #: and OA) they only enter linearly in one centripetal component, as an angle error does.
@@ -177,12 +151,11 @@ class CampaignModel:
                     continue
                 name = f"{k}[{c}]" if multi else k
                 coef_names[(c, k)] = name
-                unit = COEFFICIENT_UNIT.get(k, "s2/m")
-                add(name, k, unit, TYPICAL[k], acts, "instrument", Role("coef", k), k,
+                add(name, k, si_unit(k), typical_size(k), acts, "instrument", Role("coef", k), k,
                     1.0 if k == "K1" else 0.0)
             for j in sorted(bias_runs):
                 r = self.runs[j]
-                add(f"K0[{r.run_id}]", "K0", "m/s2", TYPICAL["bias"], [j], "per-run bias",
+                add(f"K0[{r.run_id}]", "K0", "m/s2", typical_size("K0"), [j], "per-run bias",
                     Role("bias", "K0"), "bias")
             if per_run_scale:
                 for j in idx[1:]:
@@ -195,7 +168,7 @@ class CampaignModel:
                 rigs.setdefault(r.rig_id, []).append(j)
         for rig, idx in rigs.items():
             R0 = float(np.median([self.runs[j].geometry.arm_radius_m for j in idx]))
-            add(f"R[{rig}]", "radius", "m", TYPICAL["radius"], idx, "turning-centre radius",
+            add(f"R[{rig}]", "radius", "m", typical_size("radius"), idx, "turning-centre radius",
                 Role("radius", "radius"), "radius", R0)
         # effects
         for e in self.effects:
@@ -209,7 +182,7 @@ class CampaignModel:
                 name = f"{e}[{label}]" if label else e
                 if e == "initial_misalignment":
                     prio = "theta0"
-                add(name, e, EFFECTS[e].unit, EFFECT_SCALE[e], group, f"effect {e}", Role("effect", e), prio)
+                add(name, e, EFFECTS[e].unit, typical_size(e), group, f"effect {e}", Role("effect", e), prio)
         self.params = ps
         #: every candidate parameter, before :meth:`select` held any
         self.candidates = ps
@@ -431,7 +404,7 @@ class CampaignModel:
     def signature(self, p: np.ndarray, effect: str, h: float | None = None) -> np.ndarray:
         """Whitened derivative of the model with respect to an effect *not* in it (a
         candidate of the diagnosis): central differences of ``rig_output``."""
-        h = h or 1e-3 * EFFECT_SCALE[effect]
+        h = h or 1e-3 * typical_size(effect)
         out = np.zeros(self.N)
         for j, r in enumerate(self.runs):
             if r.test not in EFFECTS[effect].tests:
@@ -446,7 +419,7 @@ class CampaignModel:
     def held_direction(self, p: np.ndarray, effect: str, runs: Sequence[int], h: float | None = None) -> np.ndarray:
         """Whitened derivative of the model with respect to an effect acting on ``runs`` only,
         on top of the model's own value (for a parameter the design cannot separate)."""
-        h = h or 1e-3 * EFFECT_SCALE[effect]
+        h = h or 1e-3 * typical_size(effect)
         out = np.zeros(self.N)
         for j in runs:
             sl = self.rows(j)
@@ -544,7 +517,7 @@ class CampaignModel:
                     role.key if role.kind in ("coef", "bias", "radius") else "effect")
                 if kind in BASE or prm.name in keep:
                     continue
-                lim = PLAUSIBLE.get(role.key) if role.kind == "coef" else EFFECT_PLAUSIBLE.get(role.key)
+                lim = plausible_size(role.key)
                 if lim is None:
                     continue
                 if u[c] / lim > ratio:
