@@ -12,14 +12,40 @@ from pathlib import Path
 from typing import IO, Any
 
 
+def current_umask() -> int:
+    """The process's file-mode creation mask, read without changing it.
+
+    Linux gives it in ``/proc/self/status``; elsewhere it is read by setting and restoring
+    it, which is not safe while other threads create files, so it is read once and kept.
+    """
+    global _UMASK
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    if _UMASK is None:
+        _UMASK = os.umask(0o022)
+        os.umask(_UMASK)
+    return _UMASK
+
+
+_UMASK: int | None = None
+
+
 def atomic_write(target: str | Path, write: Callable[[IO[Any]], None], mode: str = "wb",
                  fsync: bool = False, **open_kw) -> Path:
     """Call ``write(fh)`` on a temporary file in the target's folder, then ``os.replace``
     it onto ``target`` (atomic on one file system).  The temporary file is removed if
-    anything fails.  fsync: flush to disk before the rename."""
+    anything fails.  fsync: flush to disk before the rename.  The file gets the mode an
+    ordinary ``open`` would give it (0666 less the umask): a lab shares what we write,
+    where ``mkstemp`` alone would leave it 0600."""
     target = Path(target)
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
     try:
+        os.fchmod(fd, 0o666 & ~current_umask())
         with os.fdopen(fd, mode, **open_kw) as fh:
             write(fh)
             if fsync:

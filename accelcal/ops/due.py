@@ -453,13 +453,4 @@ def history_html(warehouse: str | Path, unit_serial: str, out_dir: str | Path,
     safe = re.sub(r"[^A-Za-z0-9._-]+", "_", unit_serial)
     path = out / f"{safe}-history.html"
     atomic_write(path, lambda fh: fh.write(page), "w", encoding="utf-8")
-    _follow_umask(path)
     return path
-
-
-def _follow_umask(path: Path) -> None:
-    """A temporary file is made 0600; what we write follows the umask."""
-    import os
-    mask = os.umask(0)
-    os.umask(mask)
-    os.chmod(path, 0o666 & ~mask)

@@ -37,8 +37,8 @@ from typing import Any, Callable, Iterator
 
 import duckdb
 
-from ..fileio import (StoreError, atomic_write, os_error_text, path_text, remove_stale_temps,
-                      sync_files)
+from ..fileio import (StoreError, atomic_write, current_umask, os_error_text, path_text,
+                      remove_stale_temps, sync_files)
 from .lineage import canonical_json
 
 #: 3: results.extras (the JSON the certificate's plots and checks read, ~48 KB a result)
@@ -802,7 +802,7 @@ class Warehouse:
                 with open(self.path, "rb") as src:
                     shutil.copyfileobj(src, fh, 1 << 20)
             atomic_write(self.snapshot_path, copy, "wb", fsync=True)
-            os.chmod(self.snapshot_path, 0o444)
+            os.chmod(self.snapshot_path, 0o444 & ~current_umask())
         except OSError as e:
             raise WarehouseError(os_error_text(e, f"cannot publish the snapshot {self.snapshot_path}")) from None
         return self.snapshot_path
