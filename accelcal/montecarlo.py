@@ -82,6 +82,7 @@ import numpy as np
 
 from .constants import T_REF_C
 from .effects import CROSS_AXIS_TERM, SQUARE_TERM, plausible_size, typical_size
+from .fitting.core import thin_svd
 from .physics.axes import parse_signed_axis
 from .physics.rigs import INSTRUMENT_EFFECTS, rig_output, specific_force
 
@@ -316,7 +317,7 @@ def _bound(J: np.ndarray, names: Sequence[str], rtol: float = 1e-10) -> dict[str
     """diag(F^+) for the estimable parameters of the whitened Jacobian J (None if aliased)."""
     scale = np.linalg.norm(J, axis=0)
     scale[scale == 0] = 1.0
-    _, s, Vt = np.linalg.svd(J / scale, full_matrices=False)
+    _, s, Vt = thin_svd(J / scale)
     keep = s > rtol * s[0]
     V, sk = Vt[keep].T, s[keep]
     Vnull = Vt[~keep].T

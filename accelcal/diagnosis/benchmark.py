@@ -34,7 +34,7 @@ import numpy as np
 from scipy import stats
 
 from ..effects import EFFECTS
-from ..estimators.joint import processing_effects
+from ..fitting.model import processing_effects
 from ..montecarlo import SimRunFile
 from ..simulate import load_scenario, simulate_campaign
 from ._blas import single_thread

@@ -40,9 +40,10 @@ import numpy as np
 from scipy import stats
 
 from ..effects import EFFECTS
-from ..estimators.joint import processing_effects
+from ..fitting.core import lstsq_min_norm
 from ..fitting.data import (RunCells, drop_duplicate_cells, fit_noise, make_run, pool_missing_noise,
                             reject_spikes)
+from ..fitting.model import processing_effects
 from ..physics.rigs import INSTRUMENT_EFFECTS, specific_force
 from ._blas import single_thread
 from .fits import (GAP_ALPHA, NON_CATALOGUE, Fit, Fitter, folds, gap_rms, gap_test, heldout_gap, lr_test,
@@ -247,7 +248,7 @@ class _Diagnosis:
         """The bare model's parameters that take up a signature, by their share of it."""
         idx = np.flatnonzero(f.free)
         J = f.J[:, idx]
-        x = np.linalg.lstsq(J / np.linalg.norm(J, axis=0), s, rcond=1e-10)[0] / np.linalg.norm(J, axis=0)
+        x = lstsq_min_norm(J / np.linalg.norm(J, axis=0), s, rcond=1e-10) / np.linalg.norm(J, axis=0)
         n2 = float(s @ s)
         out = [{"parameter": f.model.params[i].name, "share": float((J[:, k] * x[k]) @ s / n2)}
                for k, i in enumerate(idx)]

@@ -18,11 +18,10 @@ import numpy as np
 from scipy import stats
 
 from ..effects import EFFECTS
-from ..estimators.joint import _pure_error
-from ..fitting.core import (LackOfFit, ParameterSet, gauss_newton, lack_of_fit, lstsq_svd,
-                            separable_columns)
+from ..fitting.core import (LackOfFit, ParameterSet, column_space_basis, gauss_newton, lack_of_fit,
+                            lstsq_svd, separable_columns, thin_svd)
 from ..fitting.data import RunCells, fit_noise, pool_missing_noise
-from ..fitting.model import ALIAS_TOL, PRIORITY, CampaignModel
+from ..fitting.model import ALIAS_TOL, PRIORITY, CampaignModel, pure_error
 
 #: Instrument coefficients that are not catalogue effects.  A candidate effect they would
 #: absorb claims its direction first: the bare model holds them and the diagnosis names
@@ -91,7 +90,7 @@ class Fit:
 
     def basis(self) -> np.ndarray:
         """Orthonormal basis of the span of the free columns (whitened)."""
-        return _basis(self.J[:, self.free])
+        return column_space_basis(self.J[:, self.free])
 
     def effect_parameters(self, effect: str) -> list[str]:
         """Names of the free parameters of an effect in this model (theta0 per head, ...)."""
@@ -111,15 +110,6 @@ class Fit:
             names = [prm.name for prm, role in zip(self.model.params, self.model.roles)
                      if role.kind == "coef" and role.key == coef and prm.vary]
         return names[0] if len(names) == 1 else None
-
-
-def _basis(J: np.ndarray, rcond: float = 1e-10) -> np.ndarray:
-    norm = np.linalg.norm(J, axis=0)
-    act = norm > 0
-    if not act.any():
-        return np.zeros((J.shape[0], 0))
-    U, S, _ = np.linalg.svd(J[:, act] / norm[act], full_matrices=False)
-    return U[:, S > S[0] * rcond]
 
 
 def project_out(U: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -236,7 +226,7 @@ class Fitter:
         free = m.params.free() & (np.linalg.norm(gn.J, axis=0) > 0)
         sol = lstsq_svd(gn.J[:, free], np.zeros(m.N))
         rank = sol.rank
-        chi_pe, dof_pe = _pure_error(m, gn.p)
+        chi_pe, dof_pe = pure_error(m, gn.p)
         lof = lack_of_fit(gn.chi2, m.N - rank, chi_pe if dof_pe > 0 else None, dof_pe, alpha=GAP_ALPHA)
         return Fit(m, list(effects), gn.p, gn.z, gn.J, free, float(gn.chi2), rank, lof, dict(held), gn.converged)
 
@@ -326,7 +316,7 @@ def heldout_gap(f: Fit, fold: np.ndarray, tol: float = 1e-6) -> float | None:
         if not act.any():
             continue
         Js = J[T][:, act] / norm[act]
-        U, S, Vt = np.linalg.svd(Js, full_matrices=False)
+        U, S, Vt = thin_svd(Js)
         keep = S > S[0] * 1e-10
         V = Vt[keep].T
         JH = J[H][:, act] / norm[act]

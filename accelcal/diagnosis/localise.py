@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import stats
 
+from ..fitting.core import lstsq_min_norm
 from ..physics.rigs import specific_force
 from .fits import Fit
 
@@ -167,7 +168,7 @@ def _forms(lab: dict, f: Fit) -> list[tuple[str, str, np.ndarray]]:
         for P in np.geomspace(max(3 * dt, span / 200), span, 80):
             X = np.column_stack([np.cos(2 * np.pi * t / P), np.sin(2 * np.pi * t / P)])
             Xw = X / f.model.sig[:, None]
-            c = np.linalg.lstsq(Xw, f.z, rcond=None)[0]
+            c = lstsq_min_norm(Xw, f.z)
             gain = float(f.z @ (Xw @ c))
             if best is None or gain > best[0]:
                 best = (gain, P, X)
@@ -193,7 +194,7 @@ def shape(f: Fit, top: int = 3) -> list[dict]:
         k = int(np.linalg.matrix_rank(Xp)) + (1 if words.startswith("periodic") else 0)
         if k > f.dof - 2:
             continue
-        c = np.linalg.lstsq(Xp, f.z, rcond=1e-10)[0]
+        c = lstsq_min_norm(Xp, f.z, rcond=1e-10)
         gain = float(f.z @ (Xp @ c)) - k
         out.append({"dimension": dim, "form": words, "parameters": k,
                     "explained_fraction": float(max(gain, 0.0) / excess)})

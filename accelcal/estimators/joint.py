@@ -39,7 +39,8 @@ from ..effects import si_unit
 from ..fitting.core import (FitResult, LackOfFit, finish_fit, gauss_newton, lack_of_fit, lstsq_svd,
                             normalised_error)
 from ..fitting.data import RunCells, drop_duplicate_cells, fit_noise, make_run, pool_missing_noise
-from ..fitting.model import CampaignModel, head_runs, mount_runs
+from ..fitting.model import (PROCESSING_EFFECTS, CampaignModel, head_runs, mount_runs,  # noqa: F401
+                             processing_effects, pure_error)
 from ..physics.axes import AXES
 from ..physics.geometry import CentrifugeMount
 from ..results import AdequacyResult, BudgetTerm, CoefficientResult, RadiusResult
@@ -48,16 +49,6 @@ from ..fitting.distributions import chi2_sf, t_ppf
 
 METHOD = "joint_ml"
 
-#: Effects the lab's processing models, per test kind (the default model; the diagnosis
-#: uses the same list as its default baseline).
-PROCESSING_EFFECTS: dict[str, tuple[str, ...]] = {
-    "tumble": ("initial_misalignment",),
-    "centrifuge": ("earth_rate", "odd_quadratic", "cubic", "cross_coupling", "mass_centre_offset",
-                   "mount_angle_error"),
-    "sine_centrifuge": ("earth_rate", "odd_quadratic", "cubic", "cross_coupling", "mass_centre_offset",
-                        "spindle_tilt", "sensor_lag"),
-    "tilt_rotation": ("bias_temperature", "scale_temperature"),
-}
 #: Reported coefficients and what an aliased design leaves in them
 NOTES = {
     "K0T": ("apparent bias TC: includes g c cos(gamma) of any fixture thermal tilt c "
@@ -71,16 +62,6 @@ def coverage_factor(dof: float, p: float = 0.95) -> float:
     if not dof or not math.isfinite(dof) or dof >= 30:
         return 2.0
     return float(t_ppf(0.5 + p / 2, dof))
-
-
-def processing_effects(tests: Sequence[str]) -> list[str]:
-    """The union of :data:`PROCESSING_EFFECTS` over the test kinds present."""
-    out: list[str] = []
-    for t in sorted(set(tests)):
-        for e in PROCESSING_EFFECTS.get(t, ()):
-            if e not in out:
-                out.append(e)
-    return out
 
 
 @dataclass
@@ -98,23 +79,6 @@ class JointFit:
 
     def std(self, name: str) -> float:
         return self.fit.std(name)
-
-
-def _pure_error(model: CampaignModel, p: np.ndarray) -> tuple[float, int]:
-    """Weighted pure-error chi-square and dof: the within-cell scatter of the residuals
-    against each run's noise model (AR(1)-corrected)."""
-    from ..fitting.data import ar1_variance_factor
-    chi, dof = 0.0, 0
-    for j, r in enumerate(model.runs):
-        res = r.y_rows - model.predict_rows(p, j)
-        s2, _ = r.cell_scatter(res)
-        ok = (r.n >= 2) & np.isfinite(s2)
-        if not ok.any() or r.noise is None or not math.isfinite(r.noise.a):
-            continue
-        sig2 = r.noise.reading_variance(r.x[ok]) * ar1_variance_factor(r.n[ok], r.noise.rho)
-        chi += float(np.sum((r.n[ok] - 1) * s2[ok] / sig2))
-        dof += int(np.sum(r.n[ok] - 1))
-    return chi, dof
 
 
 def fit_campaign_model(runs: Sequence[RunCells], effects: Sequence[str], *, shared: Sequence[str] = (),
@@ -149,7 +113,7 @@ def fit_campaign_model(runs: Sequence[RunCells], effects: Sequence[str], *, shar
                 gn = replace(gn, p=np.where(free, gn.p, model.params.values()))
         gn = gauss_newton(model.residual, model.jacobian, gn.p, free, max_iter=40, lower=lower)
         its += gn.iterations
-    chi_pe, dof_pe = _pure_error(model, gn.p)
+    chi_pe, dof_pe = pure_error(model, gn.p)
     rank_fit = finish_fit(model.params, gn)          # to get the rank
     dof_lof = model.N - rank_fit.rank
     lof = lack_of_fit(gn.chi2, dof_lof, chi_pe if dof_pe > 0 else None, dof_pe)

@@ -73,7 +73,7 @@ import pandas as pd
 from scipy.stats import f as f_dist
 
 from ..effects import si_unit, typical_size
-from ..fitting.core import FitResult, LackOfFit, Parameter, ParameterSet, gauss_newton, lstsq_svd
+from ..fitting.core import FitResult, LackOfFit, Parameter, ParameterSet, gauss_newton, lstsq_gram, lstsq_svd
 from ..fitting.data import fitted_drive
 from ..physics import instrument, rigs
 from ..physics.geometry import geometry_of
@@ -340,46 +340,13 @@ def _jacobian_run(params: list[Parameter], x: np.ndarray, run: _Run, i: int,
 
 # --------------------------------------------------------------------------- diagnostics
 
-def _small(J: np.ndarray, z: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The (p, p) least-squares problem equivalent to a tall one, to hand to the core's solver.
-
-    With J = Js diag(c) (columns scaled to unit norm) and Js^T Js = V diag(s^2) V^T, the
-    matrix M = diag(s) V^T diag(c) has M^T M = J^T J and the same column norms, so
-    :func:`accelcal.fitting.core.lstsq_svd` (M, b) with b = diag(1/s) V^T Js^T z returns the
-    solution, covariance, singular values, rank and null space of (J, z).  The Gram matrix
-    is formed by one matrix product; no LAPACK routine runs on the tall matrix (a 3000 x 16
-    SVD takes 14-150 ms under threaded OpenBLAS on a loaded 2-core machine, 0.9 ms with one
-    thread; the product and a 16 x 16 eigen-decomposition take 0.1 ms).  Precision is that of
-    the normal equations, ~1e-8 relative singular value, far below :data:`ALIAS_RTOL`.
-    """
-    c = np.linalg.norm(J, axis=0)
-    c = np.where(c > 0, c, 1.0)
-    Js = J / c
-    lam, V = np.linalg.eigh(Js.T @ Js)
-    order = np.argsort(lam)[::-1]
-    sv = np.sqrt(np.clip(lam[order], 0.0, None))
-    V = V[:, order]
-    M = (sv[:, None] * V.T) * c[None, :]
-    b = np.zeros(sv.size)
-    if z is not None:
-        ok = sv > 0
-        b[ok] = (V.T @ (Js.T @ z))[ok] / sv[ok]
-    return M, b
-
-
-def _lstsq(J: np.ndarray, z: np.ndarray | None = None, rcond: float = 1e-9):
-    """:func:`accelcal.fitting.core.lstsq_svd` of a tall (J, z) through :func:`_small`."""
-    M, b = _small(J, z)
-    return lstsq_svd(M, b, rcond)
-
-
 def _svd(J: np.ndarray, rtol: float) -> tuple[np.ndarray, np.ndarray, int]:
     """(relative singular values, null directions (k, p), rank) of the column-scaled design at
     the relative cut ``rtol``, through the core's SVD (:func:`accelcal.fitting.core.lstsq_svd`).
     A column that is identically zero counts as one zero singular value with its unit
     vector as a null direction."""
     p = J.shape[1]
-    sol = _lstsq(J, None, rtol)
+    sol = lstsq_gram(J, None, rtol)
     S = sol.singular_values
     zero = np.flatnonzero(sol.column_norm <= 0)
     rel = S / S[0] if S.size and S[0] > 0 else S
@@ -457,7 +424,7 @@ def _collinearity(J: np.ndarray, j: int) -> float:
     (1/sqrt(VIF)); ~0 means the parameter is aliased with the others."""
     Js = J / np.where(np.linalg.norm(J, axis=0) > 0, np.linalg.norm(J, axis=0), 1.0)
     others = np.delete(Js, j, axis=1)
-    b = _lstsq(others, Js[:, j]).x
+    b = lstsq_gram(others, Js[:, j]).x
     return float(np.linalg.norm(Js[:, j] - others @ b))
 
 
@@ -532,7 +499,7 @@ def _linear_start(params: list[Parameter], prep: list[_Run], w: np.ndarray, tau:
     lin = [j for j, p in enumerate(params) if _kind(p) != "tool"]
     J1 = np.vstack([w[i] * _jacobian_run(params, x1, r, i, lin) for i, r in enumerate(prep)])[:, lin]
     y = np.concatenate([w[i] * r.y for i, r in enumerate(prep)])
-    b = _lstsq(J1, y).x
+    b = lstsq_gram(J1, y).x
     if rss is not None:
         rss.append(float(np.sum((y - J1 @ b) ** 2)))
     K1 = float(b[[params[j].key for j in lin].index("K1")])
@@ -628,7 +595,7 @@ def identify_sine_campaign(runs: Sequence, *, tool_errors: Mapping[str, str] | N
     -----
     The design columns are derivatives of the forward model (:func:`_jacobian_run`); every
     solve is the fitting core's: :func:`accelcal.fitting.core.lstsq_svd` (on the equivalent
-    small problem, :func:`_small`) for the linear start (the model is linear in (K1, K1 Kj)
+    small problem, :func:`accelcal.fitting.core.lstsq_gram`) for the linear start (the model is linear in (K1, K1 Kj)
     with the tool errors at zero), the identifiability checks and the covariance, and
     :func:`accelcal.fitting.core.gauss_newton` when tool errors are fitted.  The result
     carries the core's :class:`~accelcal.fitting.core.FitResult`.
@@ -677,10 +644,10 @@ def identify_sine_campaign(runs: Sequence, *, tool_errors: Mapping[str, str] | N
     optional = [j for j, p in enumerate(params) if _kind(p) != "coef"]
     if optional:
         r0 = np.concatenate([r.y - model_output(r, *_run_values(params, x0, i)) for i, r in enumerate(prep)])
-        r0 = r0 - J0 @ _lstsq(J0, r0).x
+        r0 = r0 - J0 @ lstsq_gram(J0, r0).x
         s2_0 = float(r0 @ r0 / max(r0.size - len(params), 1))
     while optional:
-        sd0 = np.sqrt(s2_0 * np.clip(np.diag(_lstsq(J0).cov), 0.0, None))
+        sd0 = np.sqrt(s2_0 * np.clip(np.diag(lstsq_gram(J0).cov), 0.0, None))
         ratio = [(sd0[j] / p.scale, j) for j, p in enumerate(params) if _kind(p) != "coef"]
         if not ratio or max(ratio)[0] <= 1.0:
             break
@@ -724,9 +691,9 @@ def identify_sine_campaign(runs: Sequence, *, tool_errors: Mapping[str, str] | N
     dof = n_obs - p_n
     s2 = float(rw @ rw / dof)
     # the fit in the core's terms: residual-scaled covariance s^2 (J^T W J)^+ (the core's
-    # solver on the equivalent small problem, :func:`_small`)
+    # solver on the equivalent small problem, :func:`accelcal.fitting.core.lstsq_gram`)
     pset = ParameterSet(replace(p, value=float(v)) for p, v in zip(params, x))
-    sol = _lstsq(Jw)
+    sol = lstsq_gram(Jw)
     lof = LackOfFit("adequate", s2, None, dof, 0, math.sqrt(s2),
                     "covariance scaled by the residual variance (paper 002's LS)")
     result = FitResult(pset, x, sol.cov, sol.cov * s2, sol.estimable, float(rw @ rw), dof, n_obs, sol.rank, lof,

@@ -49,7 +49,7 @@ from ..physics.instrument import first_order_lag
 from ..physics.rigs import INSTRUMENT_EFFECTS, rig_output, rotation_sign, specific_force
 from ..constants import T_REF_C
 from .core import Parameter, ParameterSet, lstsq_svd, separable_columns
-from .data import RunCells
+from .data import RunCells, ar1_variance_factor
 
 CENTRIFUGES = ("centrifuge", "sine_centrifuge")
 #: coefficient -> the catalogue effect that is it (effects.md)
@@ -72,6 +72,27 @@ PRIORITY = ("K1", "K0", "theta0", "K2", "bias", "radius", "K3", "Koq", "Kip", "K
             "K0T", "K1T", "mass_centre_offset", "mount_angle_error", "Kpo", "effect", "Kp", "Ko")
 #: coefficients never held for being weakly determined (the base of every design)
 BASE = ("K0", "K1", "K2", "theta0", "bias", "radius")
+
+
+#: Effects the lab's processing models, per test kind (the default model; the diagnosis
+#: uses the same list as its default baseline).
+PROCESSING_EFFECTS: dict[str, tuple[str, ...]] = {
+    "tumble": ("initial_misalignment",),
+    "centrifuge": ("earth_rate", "odd_quadratic", "cubic", "cross_coupling", "mass_centre_offset",
+                   "mount_angle_error"),
+    "sine_centrifuge": ("earth_rate", "odd_quadratic", "cubic", "cross_coupling", "mass_centre_offset",
+                        "spindle_tilt", "sensor_lag"),
+    "tilt_rotation": ("bias_temperature", "scale_temperature"),
+}
+def processing_effects(tests: Sequence[str]) -> list[str]:
+    """The union of :data:`PROCESSING_EFFECTS` over the test kinds present."""
+    out: list[str] = []
+    for t in sorted(set(tests)):
+        for e in PROCESSING_EFFECTS.get(t, ()):
+            if e not in out:
+                out.append(e)
+    return out
+
 
 
 @dataclass(frozen=True)
@@ -570,3 +591,31 @@ def mount_runs(model: CampaignModel) -> dict[tuple[str, str, float], list[int]]:
         if isinstance(r.geometry, CentrifugeMount):
             out.setdefault((r.rig_id, *r.geometry.mount_key), []).append(j)
     return out
+
+
+def pure_error(model: "CampaignModel", p: np.ndarray) -> tuple[float, int]:
+    """Weighted pure-error chi-square and its degrees of freedom (Draper & Smith §2.1).
+
+    Parameters
+    ----------
+    model : CampaignModel
+    p : ndarray
+        Parameter vector [parameter units].
+
+    Returns
+    -------
+    (chi2, dof) : (float [1], int)
+        The within-cell scatter of the residuals against each run's noise model
+        (reading variance times the AR(1) factor of a cell of n readings).
+    """
+    chi, dof = 0.0, 0
+    for j, r in enumerate(model.runs):
+        res = r.y_rows - model.predict_rows(p, j)
+        s2, _ = r.cell_scatter(res)
+        ok = (r.n >= 2) & np.isfinite(s2)
+        if not ok.any() or r.noise is None or not math.isfinite(r.noise.a):
+            continue
+        sig2 = r.noise.reading_variance(r.x[ok]) * ar1_variance_factor(r.n[ok], r.noise.rho)
+        chi += float(np.sum((r.n[ok] - 1) * s2[ok] / sig2))
+        dof += int(np.sum(r.n[ok] - 1))
+    return chi, dof

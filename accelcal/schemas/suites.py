@@ -51,6 +51,7 @@ from .dropformat import (COLUMNS, FLOAT_KEYS, FORMAT, INT_COLUMNS, INT_KEYS, NUL
                          OUTPUT_UNITS, REQUIRED_KEYS, ROTATION_SENSES, Refusal,
                          RunFile)
 from ..effects import TESTS
+from ..fitting.core import lstsq_min_norm
 
 os.environ.setdefault("GX_ANALYTICS_ENABLED", "False")
 
@@ -432,7 +433,7 @@ def _sine_fit(t: np.ndarray, rate: np.ndarray, meta: dict) -> tuple[float, float
     w = 2 * np.pi * f * t[ok]
     A = np.column_stack([np.sin(w), np.cos(w), np.ones_like(w)])
     try:
-        coef, *_ = np.linalg.lstsq(A, rate[ok], rcond=None)
+        coef = lstsq_min_norm(A, rate[ok])
     except np.linalg.LinAlgError:
         return np.nan, np.nan
     resid = rate[ok] - A @ coef
