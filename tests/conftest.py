@@ -9,6 +9,20 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 SHARED = Path(os.environ.get("ACCELCAL_SHARED", REPO.parent / "shared"))
 EXAMPLES = SHARED / "examples"
+#: Why a test that reads the lab's samples is skipped when they are absent (README, "Tests").
+NO_SHARED = (f"needs the lab's sample data at {SHARED} (the shared/ folder beside this checkout; "
+             "or set ACCELCAL_SHARED)")
+
+
+#: Marks a test that reads the lab's samples: skipped, with :data:`NO_SHARED`, without them.
+needs_shared = pytest.mark.skipif(not EXAMPLES.is_dir(), reason=NO_SHARED)
+
+
+def require_shared() -> None:
+    """Skip the calling test module, with :data:`NO_SHARED` as the reason, when the lab's
+    sample drops are not there (call it at module level, before reading them)."""
+    if not EXAMPLES.is_dir():
+        pytest.skip(NO_SHARED, allow_module_level=True)
 
 #: Truth behind ../shared/examples/drop-2026-11-20 (quoted in issues 2 and 4).
 TRUTH_20 = {"K2": 3.94e-7, "Kpp": 4.7e-8, "Kip": 7.1e-7, "Kio": 2.0e-7, "Koo": 3.0e-8, "Koq": 3.0e-8,
@@ -18,5 +32,5 @@ TRUTH_20 = {"K2": 3.94e-7, "Kpp": 4.7e-8, "Kip": 7.1e-7, "Kio": 2.0e-7, "Koo": 3
 @pytest.fixture(scope="session")
 def examples() -> Path:
     if not EXAMPLES.is_dir():
-        pytest.skip(f"example drops not found at {EXAMPLES}")
+        pytest.skip(NO_SHARED)
     return EXAMPLES

@@ -34,7 +34,7 @@ def test_subcommand_registry_is_open():
 
 def test_demo_runs_on_the_shipped_drops(tmp_path, capsys):
     drops = cli.demo_drops()
-    assert {d.name for d in drops} == {"drop-demo", "drop-bad"}
+    assert {d.name for d in drops} == {"drop-demo", "drop-bad", "drop-2026-11-20", "drop-2026-11-21"}
     rc = cli.main(["demo", "--dir", str(tmp_path / "demo"), "--engine", "local", "-q"])
     out = capsys.readouterr().out
     assert rc == 0
@@ -42,7 +42,7 @@ def test_demo_runs_on_the_shipped_drops(tmp_path, capsys):
     assert "refused drop-bad/nan-output.csv" in out
     wh = Warehouse(tmp_path / "demo" / "lab.duckdb")
     st = {r["status"]: r["n"] for r in wh.query("SELECT status, count(*) AS n FROM runs GROUP BY 1")}
-    assert st == {"accepted": 12, "refused": 3}
+    assert st == {"accepted": 30, "refused": 3}
     # again, as JSON: nothing new
     rc = cli.main(["demo", "--dir", str(tmp_path / "demo"), "--engine", "local", "--json"])
     summary = json.loads(capsys.readouterr().out)
@@ -97,3 +97,24 @@ def test_python_m_accelcal_usage_error():
     p = subprocess.run([sys.executable, "-m", "accelcal", "run"], capture_output=True, text=True,
                        timeout=60)
     assert p.returncode == 2 and "DROP" in p.stderr
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["diagnose", "{tmp}/nothing-here", "--baseline", "none"], "no readable run files"),
+    (["diagnose", "{tmp}", "--baseline", "not_an_effect"], "no readable run files"),
+])
+def test_diagnose_errors_in_the_one_form(tmp_path, capsys, argv, says):
+    """Every subcommand fails as 'accelcal: error: ...' with exit 1 (issue 28: diagnose
+    printed 'diagnose:' and exited 2)."""
+    rc = cli.main([a.replace("{tmp}", str(tmp_path)) for a in argv])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == cli.EXIT_FAIL
+    assert err[-1].startswith("accelcal: error: diagnose: ") and says in err[-1]
+
+
+def test_diagnose_unknown_baseline_effect_is_one_line(capsys, examples):
+    rc = cli.main(["diagnose", str(examples / "drop-2026-11-20" / "DH1-20261120-0001.csv"),
+                   "--baseline", "not_an_effect"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == cli.EXIT_FAIL and len(err) == 1
+    assert err[0].startswith("accelcal: error: diagnose: unknown effect id 'not_an_effect'")

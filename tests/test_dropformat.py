@@ -12,7 +12,9 @@ import pytest
 from accelcal.schemas.dropformat import (COLUMNS, REQUIRED_KEYS, DropFormatError, RunFile, discover,
                                          read_run)
 
-from conftest import EXAMPLES  # ../shared/examples relative to the repository root
+from conftest import EXAMPLES, require_shared  # ../shared/examples relative to the repository root
+
+require_shared()
 BAD = EXAMPLES / "drop-bad"
 GOOD_DROPS = ["drop-2026-11-18-thermal", "drop-2026-11-19-sine", "drop-2026-11-20", "drop-2026-11-21"]
 

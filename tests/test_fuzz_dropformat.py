@@ -14,7 +14,9 @@ from hypothesis import strategies as st
 from accelcal.schemas.dropformat import COLUMNS, DropFormatError, RunFile, read_run
 from accelcal.schemas.suites import Refusal, validate_runs
 
-from conftest import EXAMPLES  # ../shared/examples relative to the repository root
+from conftest import EXAMPLES, require_shared  # ../shared/examples relative to the repository root
+
+require_shared()
 
 
 def _head(p: Path, rows: int) -> bytes:

@@ -13,6 +13,7 @@ from accelcal.schemas.dropformat import DETAIL_MAX, LINE_MAX, DropFormatError, p
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared" / "examples"
+from conftest import needs_shared  # noqa: E402
 OK = (REPO / "accelcal" / "demo_data" / "drop-bad" / "ok-small.csv").read_bytes()
 _LINES = OK.split(b"\n")
 HEADER = next(i for i, s in enumerate(_LINES) if s and not s.startswith(b"#"))
@@ -50,6 +51,7 @@ def test_long_metadata_value_is_refused_and_capped():
     assert e.rule == "line-too-long" and len(e.detail) <= DETAIL_MAX
 
 
+@needs_shared
 def test_chunk_size_does_not_change_the_result(monkeypatch):
     """The stream is cut into chunks; where the cuts fall must not matter (values, line
     numbers, the first refusal)."""

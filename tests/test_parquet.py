@@ -12,7 +12,9 @@ from accelcal.schemas.dropformat import COLUMNS, discover, read_run
 from accelcal.schemas.tables import (META_KEY, SCHEMAS, parquet_path, read_run_parquet,
                                      write_run_parquet)
 
-from conftest import EXAMPLES  # ../shared/examples relative to the repository root
+from conftest import EXAMPLES, require_shared  # ../shared/examples relative to the repository root
+
+require_shared()
 ALL = [p for d in ("drop-2026-11-18-thermal", "drop-2026-11-19-sine", "drop-2026-11-20",
                    "drop-2026-11-21") for p in discover(EXAMPLES / d)] + [EXAMPLES / "drop-bad/nan-output.csv"]
 

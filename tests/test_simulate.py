@@ -12,7 +12,7 @@ import pytest
 from accelcal.simulate import (SCENARIO_DIR, ScenarioError, load_scenario, simulate_campaign,
                                simulate_to_drop, write_drop)
 
-from conftest import EXAMPLES  # ../shared/examples relative to the repository root
+from conftest import EXAMPLES, needs_shared  # ../shared/examples relative to the repository root
 OMEGA_E = 7.292115e-5
 G = 9.80122
 LAT = 39.9
@@ -307,6 +307,7 @@ def _level_sd(runs, R, g=G):
 
 @pytest.mark.parametrize("name,pattern", [("snj103-lxj100", "drop-2026-11-20/**/LXJ*.csv"),
                                           ("snj103-lxj200", "drop-2026-11-21/LXJ*.csv")])
+@needs_shared
 def test_centrifuge_sample_reproduced(name, pattern):
     sc = load_scenario(SCENARIO_DIR / f"{name}.toml")
     sims = [r for r in simulate_campaign(sc, seed=1) if r.meta["test"] == "centrifuge"]
@@ -340,6 +341,7 @@ def test_centrifuge_sample_reproduced(name, pattern):
         assert 1 / 1.5 < sd_sim[L] / sd_smp[L] < 1.5, (L, sd_sim[L], sd_smp[L])
 
 
+@needs_shared
 def test_tumble_sample_reproduced():
     sc = load_scenario(SCENARIO_DIR / "snj103-lxj100.toml")
     sim = [r for r in simulate_campaign(sc, seed=1) if r.meta["test"] == "tumble"][0]
@@ -355,6 +357,7 @@ def test_tumble_sample_reproduced():
         assert sim.meta[k] == meta[k]
 
 
+@needs_shared
 def test_thermal_sample_reproduced():
     sc = load_scenario(SCENARIO_DIR / "hust-m07-thermal.toml")
     sim, = simulate_campaign(sc, seed=1)
@@ -385,6 +388,7 @@ def test_thermal_sample_reproduced():
     assert (ratio > 1 / 1.5).all() and (ratio < 1.5).all()
 
 
+@needs_shared
 def test_sine_sample_reproduced():
     from accelcal.physics import rig_output
     sc = load_scenario(SCENARIO_DIR / "qa5512-sine.toml")

@@ -20,7 +20,7 @@ from accelcal.estimators import thermal as th
 from accelcal.physics import rig_output
 from accelcal.results import CoefficientResult
 
-from conftest import EXAMPLES  # noqa: E402  (../shared relative to the repository root)
+from conftest import EXAMPLES, needs_shared  # noqa: E402  (../shared relative to the repository root)
 
 SAMPLE = EXAMPLES / "drop-2026-11-18-thermal" / "TT1-20261118-0001.csv"
 G = 9.7936
@@ -122,6 +122,7 @@ def sample():
     return meta, data, coeffs, extras
 
 
+@needs_shared
 def test_sample_truth(sample):
     meta, data, coeffs, extras = sample
     c = coeff_map(coeffs)
@@ -137,6 +138,7 @@ def test_sample_truth(sample):
     json.dumps(extras, allow_nan=False)
 
 
+@needs_shared
 def test_sample_structure(sample):
     meta, data, coeffs, extras = sample
     pts = extras["points"]

@@ -16,7 +16,7 @@ import pytest
 from accelcal.estimators.tumble import fit_tumble, tumble_coefficients, two_position
 from accelcal.physics import rig_output
 
-from conftest import EXAMPLES  # ../shared/examples relative to the repository root
+from conftest import EXAMPLES, needs_shared  # ../shared/examples relative to the repository root
 G = 9.80122
 # Truth close to the SNJ-1-03 of paper 000 (K2 3.94e-7 s2/m) with a mA output.
 TRUTH = {"K0": 4.0e-4, "K1": 0.1325, "K2": 3.94e-7}
@@ -186,6 +186,7 @@ def test_ia_on_head_axis_is_refused():
         fit_tumble(meta, d)
 
 
+@needs_shared
 def test_sample_run_k2_matches_truth_of_the_drop():
     meta, d = read_run(EXAMPLES / "drop-2026-11-20" / "DH1-20261120-0001.csv")
     fit = fit_tumble(meta, d)
@@ -207,6 +208,7 @@ def test_sample_run_k2_matches_truth_of_the_drop():
     assert "lack of fit" in res[2].note
 
 
+@needs_shared
 def test_small_run_fits_without_error():
     meta, d = read_run(EXAMPLES / "drop-bad" / "ok-small.csv")
     fit = fit_tumble(meta, d)

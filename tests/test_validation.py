@@ -8,7 +8,9 @@ import pytest
 from accelcal.schemas.dropformat import DropFormatError, discover, read_run
 from accelcal.schemas.suites import Refusal, validate_report, validate_runs
 
-from conftest import EXAMPLES  # ../shared/examples relative to the repository root
+from conftest import EXAMPLES, require_shared  # ../shared/examples relative to the repository root
+
+require_shared()
 BAD = EXAMPLES / "drop-bad"
 GOOD_DROPS = ["drop-2026-11-18-thermal", "drop-2026-11-19-sine", "drop-2026-11-20", "drop-2026-11-21"]
 

@@ -6,6 +6,8 @@ import argparse
 import json
 import sys
 
+from ..textout import warn
+
 
 def read_paths(paths) -> list:
     """Run files or folders -> parsed runs (drop format); a file the parser refuses is
@@ -22,22 +24,21 @@ def read_paths(paths) -> list:
         try:
             out.append(read_run(f))
         except Exception as e:  # noqa: BLE001 - a refused file: say so, diagnose the rest
-            print(f"diagnose: skipping {f}: {e}", file=sys.stderr)
+            warn(f"diagnose: skipping {f}: {e}")
     return out
 
 
 def _diagnose(args) -> int:
     from .core import diagnose, public
     from .report import _jd, clean_json, html_report, text_report
+    from ..cli import CliError            # the CLI's one error form: "accelcal: error: ..." and exit 1
     runs = read_paths(args.paths)
     if not runs:
-        print("diagnose: no readable run files", file=sys.stderr)
-        return 2
+        raise CliError("diagnose: no readable run files in " + ", ".join(map(str, args.paths)))
     try:
         res = diagnose(runs, args.baseline)
     except ValueError as e:
-        print(f"diagnose: {e}", file=sys.stderr)
-        return 2
+        raise CliError(f"diagnose: {e}") from None
     if args.report:
         p = html_report(res, args.report)
         print(f"report: {p}", file=sys.stderr)
@@ -107,12 +108,11 @@ def register_cli(subparsers) -> None:
     b.set_defaults(func=_benchmark)
 
 
-def main(argv=None) -> int:     # standalone use: python -m accelcal.diagnosis.cli ...
-    ap = argparse.ArgumentParser(prog="accelcal")
-    sp = ap.add_subparsers(dest="cmd", required=True)
-    register_cli(sp)
-    a = ap.parse_args(argv)
-    return a.func(a)
+def main(argv=None) -> int:
+    """Standalone use, ``python -m accelcal.diagnosis.cli diagnose ...``: the accelcal CLI
+    itself, so errors and exit codes are the same."""
+    from ..cli import main as accelcal_main
+    return accelcal_main(argv)
 
 
 if __name__ == "__main__":
