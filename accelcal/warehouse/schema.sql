@@ -296,7 +296,8 @@ CREATE OR REPLACE VIEW excluded_campaigns AS
 SELECT * FROM excluded_campaigns_as_of(NULL);
 
 CREATE OR REPLACE VIEW coefficients AS
-SELECT h.unit_serial, h.campaign, h.name, h.value, h.std_uncertainty, h.unit, h.method,
+SELECT h.unit_serial, h.campaign, h.name, h.value, h.std_uncertainty,
+       h.coverage_factor * h.std_uncertainty AS expanded_uncertainty, h.unit, h.method,
        h.result_id, h.rig_id, h.dof, h.note, h.adopted, h.coverage_factor, c.completeness, c.simulated
 FROM coefficient_history h JOIN results_current c USING (result_id)
 ORDER BY h.campaign, h.seq;
@@ -332,7 +333,8 @@ WHERE v.valid_from <= ts AND (v.valid_to IS NULL OR v.valid_to > ts)
       AND computed_at <= ts));
 
 CREATE OR REPLACE MACRO coefficients_as_of(ts) AS TABLE
-SELECT h.unit_serial, h.campaign, h.name, h.value, h.std_uncertainty, h.unit, h.method,
+SELECT h.unit_serial, h.campaign, h.name, h.value, h.std_uncertainty,
+       h.coverage_factor * h.std_uncertainty AS expanded_uncertainty, h.unit, h.method,
        h.result_id, h.adopted
 FROM coefficient_history h
 WHERE h.result_id IN (SELECT result_id FROM results_as_of(ts));
