@@ -54,6 +54,56 @@ def test_plan_pass_waits_for_partial_and_growing_files(tmp_path):
     assert p.ready == [] and p.unchanged == [str(watch / "d1")]
 
 
+def test_a_stale_part_file_is_logged_once_and_does_not_hold_its_drop(tmp_path):
+    """A copy that died leaves a .part for ever: `run` ignores it, so serve must too once
+    it has been unchanged for part_stale seconds (issue 28); a fresh one still holds."""
+    watch = tmp_path / "w"
+    (watch / "d1").mkdir(parents=True)
+    (watch / "d1" / "a.csv").write_text("x")
+    part = watch / "d1" / "copy.csv.part"
+    part.write_text("half")
+    two_hours_ago = time.time() - 7200
+    os.utime(part, (two_hours_ago, two_hours_ago))
+    st = load_state(tmp_path / "none.json")
+    p = plan_pass(watch, st, settle=0, part_stale=3600)
+    assert p.ready == [str(watch / "d1")] and list(p.stale) == [str(part)]
+    p = plan_pass(watch, st, settle=0, part_stale=3600)
+    assert p.ready == [str(watch / "d1")] and p.stale == {}          # logged once
+    p = plan_pass(watch, st, settle=0, part_stale=3 * 3600)            # not stale at this limit
+    assert p.ready == [] and ".part" in p.waiting[str(watch / "d1")]
+    part.write_text("more")                                            # a live copy again
+    p = plan_pass(watch, st, settle=0, part_stale=3600)
+    assert p.ready == [] and ".part" in p.waiting[str(watch / "d1")]
+
+
+def test_status_compares_the_watch_folder_with_the_warehouse(tmp_path, examples):
+    """Drops stored by `accelcal run` are not 'would be processed' (issue 28)."""
+    from accelcal.flows.pipeline import run_pipeline
+    watch = tmp_path / "w"
+    shutil.copytree(examples / "drop-2026-11-21", watch / "d21")
+    db = tmp_path / "lab.duckdb"
+    run_pipeline([watch / "d21"], db, engine="local", settle=0)
+    lines = status_lines(db, watch_dir=watch, settle=0)
+    assert "a pass now would process 0 drop(s)" in lines
+    assert any("already in the warehouse" in x and "d21" in x for x in lines)
+    shutil.copytree(examples / "drop-2026-11-20", watch / "d20")
+    lines = status_lines(db, watch_dir=watch, settle=0)
+    assert "a pass now would process 1 drop(s): d20" in lines
+
+
+def test_serve_once_prints_no_json_unless_asked(tmp_path, examples):
+    watch = tmp_path / "w"
+    shutil.copytree(examples / "drop-2026-11-21", watch / "d21")
+    db = tmp_path / "lab.duckdb"
+    args = [sys.executable, "-c", SERVE_MAIN, "serve", "--watch", str(watch), "-w", str(db),
+            "--once", "--settle", "0"]
+    p = subprocess.run(args, capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    assert p.stdout == "" and "pass: 1 drop(s) seen, 1 processed" in p.stderr
+    p = subprocess.run(args + ["--json"], capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0 and json.loads(p.stdout)["unchanged"] == 1
+
+
 def test_a_pass_logs_what_it_saw_held_refused_and_computed(tmp_path, examples, caplog):
     watch = tmp_path / "w"
     shutil.copytree(examples / "drop-bad", watch / "bad",

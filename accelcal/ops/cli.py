@@ -34,8 +34,12 @@ def register_cli(sub) -> None:
     p.add_argument("--name", default="accelcal-watch", help="deployment name")
     p.add_argument("--task-runner", choices=("thread", "dask"), default="thread")
     p.add_argument("--lock-timeout", type=float, default=600.0, metavar="S")
+    p.add_argument("--part-stale", type=float, default=3600.0, metavar="SECONDS",
+                   help="a *.part file unchanged this long is a stopped copy: logged once, and "
+                        "the rest of its drop goes ahead (default 3600)")
     p.add_argument("--once", action="store_true",
                    help="run one pass in this process (no Prefect server, local engine) and exit")
+    p.add_argument("--json", action="store_true", help="with --once: print the pass record as JSON")
     p.set_defaults(func=_cmd_serve)
 
     r = sub.add_parser(
@@ -73,6 +77,7 @@ def register_cli(sub) -> None:
     st.add_argument("--watch", default=None, metavar="DIR",
                     help="also look at the watched folder now (records nothing)")
     st.add_argument("--settle", type=float, default=30.0, metavar="SECONDS")
+    st.add_argument("--part-stale", type=float, default=3600.0, metavar="SECONDS")
     st.set_defaults(func=_cmd_status)
 
     c = sub.add_parser(
@@ -173,7 +178,7 @@ def _cmd_status(args) -> int:
     _need_warehouse(args.warehouse)
     con = _console()
     for line in status_lines(args.warehouse, n=max(1, args.passes), watch_dir=args.watch,
-                             settle=args.settle):
+                             settle=args.settle, part_stale=args.part_stale):
         say(con, line)
     return 0
 
@@ -233,15 +238,17 @@ def _cmd_serve(args) -> int:
         from .serve import setup_logging, watch_pass
         setup_logging()
         out = watch_pass(args.watch, args.warehouse, settle=args.settle, engine="local",
-                         lock_timeout=args.lock_timeout)
-        print(json.dumps(out, indent=1, default=str))
+                         lock_timeout=args.lock_timeout, part_stale=args.part_stale)
+        if args.json:                   # the pass's lines went to the log (stderr) already
+            print(json.dumps(out, indent=1, default=str))
         return 1 if out.get("error") else 0
     if not args.cron and not args.poll:
         _fail("give --cron and/or --poll (or --once)")
     from .serve import serve
     try:
         serve(args.watch, args.warehouse, cron=args.cron, poll=args.poll, settle=args.settle,
-              name=args.name, lock_timeout=args.lock_timeout, task_runner=args.task_runner)
+              name=args.name, lock_timeout=args.lock_timeout, task_runner=args.task_runner,
+              part_stale=args.part_stale)
     except KeyboardInterrupt:
         pass
     print("accelcal serve: stopped", file=sys.stderr)

@@ -10,6 +10,9 @@ When is a drop processed
     new or changed ``*.csv`` files and all its files are *settled*: no
     ``*.part`` file in it, and every ``*.csv`` has the same (size, mtime) as at
     the previous look (or was last modified more than ``settle`` seconds ago).
+    A ``*.part`` file unchanged for longer than ``part_stale`` seconds (default an
+    hour) is a copy that died, not one under way: it is logged once and the rest
+    of the drop goes ahead, as ``accelcal run`` (which reads only ``*.csv``) does.
     A file still being written therefore holds its drop back to the next pass
     (the pipeline works per drop; computing a campaign from half its runs would
     only add a result superseded minutes later).  Each file is processed once:
@@ -72,6 +75,8 @@ def setup_logging() -> None:
 FLOW_NAME = "accelcal-watch"
 DEFAULT_DEPLOYMENT = "accelcal-watch"
 DEFAULT_SETTLE_S = 30.0
+#: A *.part file unchanged for this long [s] no longer holds its drop back.
+DEFAULT_PART_STALE_S = 3600.0
 
 
 # ------------------------------------------------------------------ scanning --
@@ -135,17 +140,40 @@ class PassPlan:
     ready: list[str] = field(default_factory=list)              # drops to process now
     waiting: dict[str, str] = field(default_factory=dict)       # drop -> reason
     unchanged: list[str] = field(default_factory=list)          # drops with nothing new
+    stale: dict[str, float] = field(default_factory=dict)        # stale *.part -> age [s], new
     files: dict[str, dict[str, list[int]]] = field(default_factory=dict)
 
 
+def _fresh_partials(drop: Path, partial: list[str], now: float, part_stale: float,
+                    st: dict[str, Any], plan: PassPlan) -> list[str]:
+    """The partial files that still hold the drop back; stale ones (unchanged for
+    ``part_stale`` s) are noted in ``plan.stale`` the first time they are seen stale."""
+    fresh = []
+    logged = st.setdefault("stale_parts", {})
+    for p in partial:
+        try:
+            mtime = os.lstat(p).st_mtime if p != str(drop) else now
+        except OSError:
+            continue                        # gone since the look: it holds nothing back
+        age = now - mtime
+        if age < part_stale:
+            fresh.append(p)
+        elif logged.get(p) != mtime:
+            logged[p] = mtime
+            plan.stale[p] = age
+    return fresh
+
+
 def plan_pass(watch_dir: str | Path, st: dict[str, Any], settle: float = DEFAULT_SETTLE_S,
-              now: float | None = None) -> PassPlan:
-    """Decide which drops are ready; updates st['seen'] (the look) in place."""
+              now: float | None = None, part_stale: float = DEFAULT_PART_STALE_S) -> PassPlan:
+    """Decide which drops are ready; updates st['seen'] (the look) and st['stale_parts']
+    (stale partial files already logged) in place."""
     now = time.time() if now is None else now
     plan = PassPlan()
     seen_all: dict[str, list[int]] = {}
     for drop in find_drops(watch_dir):
         files, partial = snapshot(drop)
+        partial = _fresh_partials(drop, partial, now, part_stale, st, plan)
         plan.files[str(drop)] = files
         new = {p: sig for p, sig in files.items() if st["processed"].get(p) != sig}
         if not new:
@@ -201,6 +229,9 @@ def pass_lines(out: dict[str, Any]) -> list[str]:
              + f" ({out.get('seconds', 0):.1f} s)"]
     for drop, why in sorted((out.get("waiting") or {}).items()):
         lines.append(f"held back {Path(drop).name}: {why}")
+    for part, age in sorted((out.get("stale_parts") or {}).items()):
+        lines.append(f"ignored {part}: a partial file unchanged for {age / 3600:.1f} h (a copy that "
+                     "stopped); the rest of its drop goes ahead")
     for d in summ.get("drops", []):
         det = (summ.get("details") or {}).get(d["drop"]) or {}
         lines.append(f"processed {d['drop']}: {d['files']} file(s), {d['accepted']} accepted, "
@@ -231,7 +262,7 @@ def log_pass(out: dict[str, Any]) -> None:
 
 def watch_pass(watch_dir: str, warehouse: str, settle: float = DEFAULT_SETTLE_S,
                engine: str = "local", lock_timeout: float = 600.0,
-               task_runner: str = "thread") -> dict[str, Any]:
+               task_runner: str = "thread", part_stale: float = DEFAULT_PART_STALE_S) -> dict[str, Any]:
     """One pass: plan, run the pipeline on ready drops, remember what was processed, log
     what happened (:func:`pass_lines`) and keep the record in the state file."""
     from ..flows.pipeline import run_pipeline
@@ -242,9 +273,10 @@ def watch_pass(watch_dir: str, warehouse: str, settle: float = DEFAULT_SETTLE_S,
     # The state file is guarded by the warehouse lock: one pass at a time.
     with warehouse_lock(Path(warehouse).expanduser().resolve(), timeout=lock_timeout):
         st = load_state(sp)
-        plan = plan_pass(watch_dir, st, settle=settle)
+        plan = plan_pass(watch_dir, st, settle=settle, part_stale=part_stale)
         out: dict[str, Any] = {"started": t0, "watch": str(Path(watch_dir).expanduser().resolve()),
                                "ready": plan.ready, "waiting": plan.waiting,
+                               "stale_parts": {p: round(a, 1) for p, a in plan.stale.items()},
                                "unchanged": len(plan.unchanged), "summary": None, "error": None}
         if plan.ready:
             try:
@@ -270,13 +302,14 @@ def _make_flow():
 
     @flow(name=FLOW_NAME, persist_result=False, validate_parameters=False, log_prints=False)
     def accelcal_watch(watch_dir: str, warehouse: str, settle: float = DEFAULT_SETTLE_S,
-                       lock_timeout: float = 600.0, task_runner: str = "thread") -> dict:
+                       lock_timeout: float = 600.0, task_runner: str = "thread",
+                       part_stale: float = DEFAULT_PART_STALE_S) -> dict:
         """Process the settled new drops of watch_dir into the warehouse (one pass)."""
         from ..flows.pipeline import quiet_prefect
         quiet_prefect(os.environ.get("PREFECT_LOGGING_LEVEL", "WARNING"))
         setup_logging()
         return watch_pass(watch_dir, warehouse, settle=settle, engine="prefect",
-                          lock_timeout=lock_timeout, task_runner=task_runner)
+                          lock_timeout=lock_timeout, task_runner=task_runner, part_stale=part_stale)
 
     return accelcal_watch
 
@@ -347,7 +380,8 @@ def _stop_on_sigterm() -> None:
 def serve(watch_dir: str, warehouse: str, *, cron: str | None = None,
           poll: float | None = None, settle: float = DEFAULT_SETTLE_S,
           name: str = DEFAULT_DEPLOYMENT, lock_timeout: float = 600.0,
-          task_runner: str = "thread", limit: int | None = 1) -> None:
+          task_runner: str = "thread", limit: int | None = 1,
+          part_stale: float = DEFAULT_PART_STALE_S) -> None:
     """Serve the watch flow as a deployment from this process until interrupted."""
     from prefect.settings import PREFECT_API_URL
     if watch_flow is None:
@@ -361,7 +395,7 @@ def serve(watch_dir: str, warehouse: str, *, cron: str | None = None,
                     "the cron %r will not fire (start `prefect server start` and set "
                     "PREFECT_API_URL); file watching (--poll) still works", cron)
     params = {"watch_dir": watch, "warehouse": wh, "settle": settle,
-              "lock_timeout": lock_timeout, "task_runner": task_runner}
+              "lock_timeout": lock_timeout, "task_runner": task_runner, "part_stale": part_stale}
     stop = threading.Event()
     poller = None
     if poll:
@@ -398,7 +432,8 @@ def _holder(warehouse: str | Path) -> str | None:
 
 
 def status_lines(warehouse: str | Path, n: int = 5, watch_dir: str | Path | None = None,
-                 settle: float = DEFAULT_SETTLE_S) -> list[str]:
+                 settle: float = DEFAULT_SETTLE_S,
+                 part_stale: float = DEFAULT_PART_STALE_S) -> list[str]:
     """What ``accelcal status`` prints: who holds the warehouse, the last ``n`` passes
     (the lines each logged), and what waits: the last pass's held-back drops, the files
     seen but not yet processed and, with ``watch_dir``, a fresh look (nothing recorded)."""
@@ -434,8 +469,35 @@ def status_lines(warehouse: str | Path, n: int = 5, watch_dir: str | Path | None
         out.append("seen but not processed yet:")
         out.extend(f"  {k}: {v} file(s)" for k, v in sorted(pending.items()))
     if watch_dir is not None:
-        plan = plan_pass(watch_dir, copy.deepcopy(st), settle=settle)
-        out.append(f"a pass now would process {len(plan.ready)} drop(s)"
-                   + (": " + ", ".join(Path(d).name for d in plan.ready) if plan.ready else ""))
+        plan = plan_pass(watch_dir, copy.deepcopy(st), settle=settle, part_stale=part_stale)
+        stored = _stored_files(warehouse)
+        if stored is None:
+            ready, known = plan.ready, []
+            out.append("(the warehouse is busy: the watch folder is not compared with it)")
+        else:
+            known = [d for d in plan.ready
+                     if all((p, sig[0]) in stored for p, sig in plan.files[d].items())]
+            ready = [d for d in plan.ready if d not in known]
+        out.append(f"a pass now would process {len(ready)} drop(s)"
+                   + (": " + ", ".join(Path(d).name for d in ready) if ready else ""))
+        if known:
+            out.append(f"  already in the warehouse (every file, same path and size): "
+                       + ", ".join(Path(d).name for d in known))
         out.extend(f"  held back {Path(d).name}: {why}" for d, why in sorted(plan.waiting.items()))
+        out.extend(f"  ignored {p}: a partial file unchanged for {a / 3600:.1f} h"
+                   for p, a in sorted(plan.stale.items()))
     return out
+
+
+def _stored_files(warehouse: str | Path) -> set[tuple[str, int]] | None:
+    """(source path, size) of every file the warehouse holds, or None when it cannot be
+    read now (a run holds it)."""
+    import duckdb
+
+    from ..warehouse.db import Warehouse, WarehouseError
+    try:                                    # DuckDB refuses a reader while a writer has it
+        rows = Warehouse(Path(warehouse).expanduser().resolve()).query(
+            "SELECT DISTINCT source_path, size_bytes FROM run_files")
+    except (WarehouseError, OSError, duckdb.Error):
+        return None
+    return {(r["source_path"], int(r["size_bytes"])) for r in rows}
