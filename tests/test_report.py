@@ -50,15 +50,17 @@ def test_report_contents(lab, tmp_path):
                  "Model adequacy", "Alignment analysis", "Lineage", "NOT adequate", "adequate"):
         assert text in html, text
     # every input run with its sha256, and the result id
+    def grouped(token):              # long ids are printed in groups of 16, to break between
+        return " ".join(token[i:i + 16] for i in range(0, len(token), 16))
     camp = next(c for c in summary["campaigns"] if c["campaign"] == CAMP)
-    assert camp["current_result_id"] in html
+    assert grouped(camp["current_result_id"]) in html
     for d in summary["drops"]:
         assert d["files"] == 11
     import duckdb
     con = duckdb.connect(str(wh), read_only=True)
     shas = [r[0] for r in con.execute("SELECT sha256 FROM lineage").fetchall()]
     con.close()
-    assert len(shas) == 11 and all(s in html for s in shas)
+    assert len(shas) == 11 and all(grouped(s) in html for s in shas)
     # K2 of the centrifuge shown in µg/g² with its U: 3.84 +- 0.031
     assert re.search(r"<td>K2</td><td class=\"num\">3\.84\d*</td><td class=\"num\">0\.03\d*</td>",
                      html)
@@ -127,3 +129,51 @@ def test_report_renders_in_headless_chromium(lab, tmp_path):
     keep = os.environ.get("ACCELCAL_KEEP_SCREENSHOT")
     if keep:
         shutil.copy(shot, keep)
+
+
+def _cells(html: str) -> list[list[str]]:
+    """Table rows of an HTML page as lists of cell texts."""
+    import html as h
+    rows = []
+    for tr in re.findall(r"<tr[^>]*>(.*?)</tr>", html, re.S):
+        cells = re.findall(r"<t[dh][^>]*>(.*?)</t[dh]>", tr, re.S)
+        rows.append([h.unescape(re.sub(r"<[^>]+>", "", c)).strip() for c in cells])
+    return rows
+
+
+def _decimals(s: str) -> int:
+    m = re.fullmatch(r"-?\d+(?:\.(\d+))?(?:e-?\d+)?", s)
+    assert m, s
+    return len(m.group(1) or "")
+
+
+def _sig(s: str) -> int:
+    digits = re.sub(r"e-?\d+$", "", s).replace("-", "").replace(".", "").lstrip("0")
+    return len(digits)
+
+
+def test_certificate_numbers_are_rounded_as_it_promises(lab, tmp_path):
+    """GUM 7.2.6 as the certificate states it (issue 27): U to at most two significant
+    digits, the value to U's last digit; budgets' uc and U likewise, in the results' unit;
+    no number anywhere with float noise (12 or more significant digits)."""
+    wh, _ = lab
+    html = build_report(wh, CAMP, tmp_path / "out").read_text()
+    text = re.sub(r"<[^>]+>", " ", re.sub(r"data:image/png;base64,[A-Za-z0-9+/=]+", "", html))
+    for num in re.findall(r"(?<![\w.])-?\d+\.\d+(?:e-?\d+)?", text):
+        assert _sig(num) < 12, num
+    head = None
+    checked = 0
+    for row in _cells(html):
+        if row[:3] == ["coefficient", "value", "U (k=2)"]:
+            head = row
+            continue
+        if head and len(row) == len(head) and row[1] not in ("—", "") and row[2] not in ("—", ""):
+            U = row[2]
+            assert _sig(U.replace(" ppm", "")) <= 2, row
+            if not U.endswith("ppm"):               # K1: U relative, value to its absolute digit
+                assert _decimals(row[1]) == _decimals(U), row
+            checked += 1
+        if row and row[0].startswith(("combined standard uncertainty", "expanded uncertainty U")):
+            assert _sig(row[4]) <= 2, row
+    assert checked >= 10
+    assert "0.0002908882086657216" not in html and "budgets in SI units" not in html

@@ -192,8 +192,12 @@ def _load(con, campaign: str | None, result_id: str | None, path: Path) -> dict[
         con, "SELECT flag FROM flag_history WHERE result_id = ? ORDER BY seq", [rid])]
     d["lineage"] = _rows(con, """
         SELECT l.run_id, l.revision, l.sha256, l.source_path, l.parquet_path, l.flow_run_id,
-               l.code_version, f.test, f.rig_id, f.started_at, f.size_bytes, f.simulated
+               l.code_version, f.test, f.rig_id, f.started_at, f.size_bytes, f.simulated,
+               g.drop_name, g.drop_path
         FROM lineage l
+        LEFT JOIN (SELECT source_path, any_value(drop_name) AS drop_name,
+                          any_value(drop_path) AS drop_path
+                   FROM run_files GROUP BY source_path) g USING (source_path)
         LEFT JOIN (SELECT sha256, any_value(test) AS test, any_value(rig_id) AS rig_id,
                           any_value(started_at) AS started_at, any_value(size_bytes) AS size_bytes,
                           bool_or(simulated) AS simulated
@@ -267,6 +271,56 @@ def display_value(name: str, value: float | None, std_u: float | None,
 def _k(c) -> float:
     k = c.get("coverage_factor")
     return float(k) if k is not None and math.isfinite(float(k)) else K_COVERAGE
+
+
+def _coefficient_scale(name: str, unit: str | None) -> tuple[float, str]:
+    """(factor, display unit) of a coefficient: display value = SI value / factor, the unit
+    of the results table (effects.md "usual display"; K1 in <output unit>/g)."""
+    from ..effects import PRETTY_UNITS, coefficient_spec
+    spec = coefficient_spec(name)
+    if spec is None:
+        return 1.0, unit or ""
+    if spec.name == "K1":
+        out = (unit or "out").split("/", 1)[0]
+        return spec.display_factor, f"{out}/g"
+    return spec.display_factor, PRETTY_UNITS.get(spec.display_unit, spec.display_unit)
+
+
+def _at_digit(x: float | None, exp: int | None) -> str:
+    """x written to the decimal place 10**exp (a GUM-rounded quantity's last digit)."""
+    from decimal import ROUND_HALF_UP, Decimal
+    if x is None or not math.isfinite(x):
+        return "—"
+    if exp is None:
+        return _fmt(x, ".6g")
+    s = format(Decimal(repr(float(x))).quantize(Decimal(1).scaleb(exp), rounding=ROUND_HALF_UP), "f")
+    return s[1:] if s.startswith("-") and float(s) == 0 else s
+
+
+def _sci_pair(value: float | None, u: float | None) -> tuple[str, str]:
+    """(value, u) as people read them: u to two significant digits, the value to u's last
+    digit (GUM 7.2.6); outside 0.001-99999 both in powers of ten with the value's exponent."""
+    from ..rounding import format_sig, round_gum
+    if value is None or not math.isfinite(value):
+        return "—", format_sig(u)
+    if value == 0:
+        return "0", _sig_text(u)
+    ref = abs(value)
+    e = math.floor(math.log10(ref)) if ref and math.isfinite(ref) else 0
+    if -3 <= e <= 4:
+        r = round_gum(value, u)
+        return r.value, r.uncertainty
+    r = round_gum(value / 10 ** e, None if u is None else u / 10 ** e)
+    return f"{r.value}e{e}", "—" if r.uncertainty == "—" else f"{r.uncertainty}e{e}"
+
+
+def _sig_text(x: float | None, sig: int = 2) -> str:
+    """x to ``sig`` significant digits; outside 0.001-99999 in powers of ten."""
+    from ..rounding import format_sig
+    if x is None or not math.isfinite(x) or x == 0:
+        return format_sig(x, sig)
+    e = math.floor(math.log10(abs(x)))
+    return format_sig(x, sig) if -3 <= e <= 4 else f"{format_sig(x / 10 ** e, sig)}e{e}"
 
 
 def _u_unknown(c) -> bool:
@@ -364,7 +418,7 @@ th,td{border:1px solid #bbb;padding:3px 6px;text-align:left;vertical-align:top}
 th{background:#e9eef5;font-weight:600}
 td.nw{white-space:nowrap} td.num{text-align:right;font-variant-numeric:tabular-nums;white-space:nowrap}
 td.ok{color:#176b2c;font-weight:600} td.bad{color:#a61b1b;font-weight:600}
-td.mono,.mono{font-family:"DejaVu Sans Mono",monospace;font-size:10px;word-break:break-all}
+td.mono,.mono{font-family:"DejaVu Sans Mono",monospace;font-size:10px;word-break:normal}
 tr.total td{font-weight:700;background:#f3f5f8}
 table.kv{width:auto;min-width:60%} table.kv th{width:210px}
 .flag{background:#fff4d6;border-left:4px solid #e0a800;padding:4px 8px;margin:4px 0}
@@ -469,9 +523,19 @@ def _sec_method(d) -> str:
               if PARAMETER_TESTS.get(k, None) in (None, *(d.get("tests") or []))}
     if params:
         out += ("<p class='note'>Processing parameters: "
-                + _e(", ".join(f"{k} = {json.dumps(v)}" for k, v in sorted(params.items())))
+                + _e(", ".join(f"{k} = {_setting(v)}" for k, v in sorted(params.items())))
                 + "</p>")
     return out
+
+
+def _setting(v: Any) -> str:
+    """A processing setting as written: floats to six significant digits (a setting has
+    no uncertainty; its stored float's last digits are noise of a conversion)."""
+    if isinstance(v, float):
+        return format(v, ".6g")
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_setting(x) for x in v) + "]"
+    return json.dumps(v)
 
 
 def _label_date(campaign: str) -> str | None:
@@ -620,49 +684,72 @@ def _sec_budgets(d) -> str:
                 and ((b.get("method") or "") == meth or (not b.get("method") and meth != "joint_ml"))]
         k = _k(c)
         unit = c.get("unit") or ""
+        f, dunit = _coefficient_scale(name, unit)
         body = []
+        n_zero = 0
         for b in rows:
+            bu, contrib = b.get("std_uncertainty"), b.get("contribution")
+            if not bu and not contrib:              # a term of zero size is no term
+                n_zero += 1
+                continue
+            v_text, u_text = _sci_pair(b.get("value"), bu)
+            sens = b.get("sensitivity")
             body.append("<tr>" + "".join(f"<td{cls}>{_e(v)}</td>" for cls, v in (
-                ("", b.get("quantity")), (" class='num'", _fmt(b.get("value"), ".4g")),
-                (" class='num'", _fmt(b.get("std_uncertainty"), ".3g")),
-                (" class='num'", _fmt(b.get("sensitivity"), ".3g")),
-                (" class='num'", _fmt(b.get("contribution"), ".3g")),
+                ("", b.get("quantity")), (" class='num'", v_text), (" class='num'", u_text),
+                (" class='num'", "—" if sens is None else _sig_text(sens / f, 3)),
+                (" class='num'", "—" if contrib is None else _sig_text(contrib / f)),
                 ("", b.get("type")), ("", b.get("distribution")))) + "</tr>")
         if not rows:
             body.append("<tr><td colspan='7' class='note'>budget not itemised: no "
                         "input-quantity breakdown is stored for this coefficient</td></tr>")
+        if n_zero:
+            body.append(f"<tr><td colspan='7' class='note'>{n_zero} term(s) of zero size not "
+                        "listed</td></tr>")
+        uc = None if u is None else u / f
         body.append(f"<tr class='total'><td>combined standard uncertainty u<sub>c</sub></td>"
-                    f"<td></td><td></td><td></td><td class='num'>{_e(_fmt(u, '.3g'))}</td>"
-                    f"<td colspan='2'>{_e(unit)}</td></tr>")
-        _, U_disp, dunit = display_value(name, c.get("value"), u, unit, k)
-        U_disp = U_disp if U_disp.endswith("ppm") else f"{U_disp} {dunit}"
+                    f"<td></td><td></td><td></td><td class='num'>{_e(_sig_text(uc))}</td>"
+                    f"<td colspan='2'>{_e(dunit)}</td></tr>")
+        _, U_disp, _ = display_value(name, c.get("value"), u, unit, k)
+        ppm = f" (= {U_disp})" if U_disp.endswith("ppm") else ""
         body.append(f"<tr class='total'><td>expanded uncertainty U, k = {k:.3g}, p {COVERAGE_PROBABILITY}"
                     f"</td><td></td><td></td><td></td>"
-                    f"<td class='num'>{_e(_fmt(None if u is None else k * u, '.3g'))}</td>"
-                    f"<td colspan='2'>{_e(unit)} (= {_e(U_disp)})</td></tr>")
+                    f"<td class='num'>{_e(_sig_text(None if uc is None else k * uc))}</td>"
+                    f"<td colspan='2'>{_e(dunit)}{_e(ppm)}</td></tr>")
         out.append(f"<div class='keep'><h3>{_e(name)} ({_e(c.get('method'))}, "
                    f"{_e(c.get('rig_id'))})</h3><table><thead><tr><th>quantity</th><th>value</th>"
-                   f"<th>u</th><th>sensitivity c</th><th>|c|·u</th><th>type</th>"
+                   f"<th>u</th><th>sensitivity c / ({_e(dunit)} per unit)</th>"
+                   f"<th>|c|·u / {_e(dunit)}</th><th>type</th>"
                    f"<th>distribution</th></tr></thead><tbody>{''.join(body)}</tbody></table></div>")
     if not out:
         return "<p>No adopted value, no budget.</p>"
-    return ("<p class='note'>GUM (JCGM 100) budgets in SI units; u<sub>c</sub> is the stored "
-            "standard uncertainty of the adopted value.</p>" + "".join(out))
+    return ("<p class='note'>GUM (JCGM 100) budgets. Each input quantity in its own SI unit, "
+            "its value to the last digit of its u; sensitivities, contributions, u<sub>c</sub> and "
+            "U in the unit of the results table (section 4). u<sub>c</sub> is the stored standard "
+            "uncertainty of the adopted value.</p>" + "".join(out))
 
 
 def _sec_mc(d) -> str:
     mc = (d.get("extras") or {}).get("mc_check") or {}
     adopted = {(c.get("method"), c.get("rig_id") or "", c["name"]) for c in _adopted(d)}
+    from ..rounding import format_sig, round_sig
+    units = {c["name"]: c.get("unit") for c in d["coefficients"]}
     rows = []
     for key, m in sorted(mc.items()):
         if not isinstance(m, dict):
             continue
         ok = bool(m.get("validated"))
         mine = (m.get("method"), m.get("rig_id") or "", m.get("coefficient")) in adopted
+        f, dunit = _coefficient_scale(m.get("coefficient") or "", units.get(m.get("coefficient")))
+        mc_u, delta = m.get("mc_u"), m.get("delta")
+        # the interval's end points to the digit of the numerical tolerance (JCGM 101 7.9.2),
+        # else to the last digit of u(MC) at two significant digits
+        exp = (round_sig(delta / f, 1)[1] if delta else
+               round_sig(mc_u / f)[1] if mc_u else None)
+        lo, hi = (None if m.get(x) is None else m[x] / f for x in ("mc_low", "mc_high"))
         rows.append([(key, "nw"), ("yes" if mine else "", "nw"),
-                     (_fmt(m.get("gum_u"), ".4g"), "num"), (_fmt(m.get("mc_u"), ".4g"), "num"),
-                     (f"[{_fmt(m.get('mc_low'), '.6g')}, {_fmt(m.get('mc_high'), '.6g')}]", "nw"),
-                     (_fmt(m.get("delta"), ".2g"), "num"),
+                     (_u_text(m.get("gum_u"), f), "num"), (_u_text(mc_u, f), "num"),
+                     (f"[{_at_digit(lo, exp)}, {_at_digit(hi, exp)}]", "nw"),
+                     ("—" if not delta else format_sig(delta / f, 1), "num"), (dunit, "nw"),
                      ("PASS" if ok else "FAIL", "ok" if ok else "bad")])
     methods = sorted({c.get("method") for c in _adopted(d)})
     if not rows:
@@ -678,7 +765,12 @@ def _sec_mc(d) -> str:
                  "Monte Carlo interval by more than δ: the stated U rests on the GUM "
                  "approximation for that coefficient.</div>")
     return head + _table(["budget", "adopted", "u (GUM)", "u (Monte Carlo)",
-                          "95 % interval (Monte Carlo)", "δ", "result"], rows)
+                          "95 % interval (Monte Carlo)", "δ", "unit", "result"], rows)
+
+
+def _u_text(u: float | None, f: float) -> str:
+    from ..rounding import format_sig
+    return format_sig(None if u is None else u / f)
 
 
 def _fit_statistics(d) -> list[list[Any]]:
@@ -823,13 +915,16 @@ _GEOMETRY_DISPLAY = {"m": ("mm", 1e3, "µm", 1e6), "rad": ("mrad", 1e3, "µrad",
 def _joint_geometry(a: dict) -> str:
     """The joint fit's rig-geometry and effect parameters (radii, mass-centre offset, mount
     angle errors) as a table: value, U (k = 2), and what was held and why."""
+    from ..rounding import format_sig, round_gum
     rows = []
     for name, prm in (a.get("parameters") or {}).items():
         vu, vf, uu, uf = _GEOMETRY_DISPLAY.get(prm.get("unit"), (prm.get("unit") or "", 1.0, prm.get("unit") or "", 1.0))
         u = prm.get("u")
         held = prm.get("held")
-        rows.append([name, (f"{_fmt(_mul(prm.get('value'), vf), '.6g')} {vu}", "num"),
-                     (f"{_fmt(2 * u * uf, '.2g')} {uu}" if u is not None else "—", "num"),
+        v, U = _mul(prm.get("value"), vf), None if u is None else 2 * u * vf
+        # the value to the last digit of U (both in the value's unit), U shown in its own
+        rows.append([name, (f"{round_gum(v, U).value} {vu}", "num"),
+                     (f"{format_sig(2 * u * uf)} {uu}" if u is not None else "—", "num"),
                      "" if not held else f"held: {held}"])
     return (_table(["joint-fit parameter", "value", "U (k=2)", "note"], rows)
             + "<p class='note'>Rig geometry fitted with the coefficients in the joint maximum-likelihood "
@@ -864,14 +959,33 @@ def _annex_other(d) -> str:
             + _table(_COEF_HEAD, _coef_rows(d, others)))
 
 
+def _grouped(token: str | None, n: int = 16) -> str:
+    """A long id in groups of n characters, so a line breaks between groups, never inside."""
+    if not token:
+        return ""
+    return " ".join(token[i:i + n] for i in range(0, len(token), n))
+
+
+def _in_drop(x: dict) -> str:
+    """The raw file as the lab names it: drop name / path inside the drop (not a path of
+    the processing machine), with break opportunities after each '/'."""
+    src, root = x.get("source_path") or "", x.get("drop_path") or ""
+    try:
+        rel = Path(src).relative_to(root).as_posix() if root else Path(src).name
+    except ValueError:
+        rel = Path(src).name
+    name = f"{x['drop_name']}/{rel}" if x.get("drop_name") else rel
+    return name.replace("/", "/\u200b")
+
+
 def _annex_lineage(d) -> str:
     rows = [[(x.get("run_id"), "nw"), _fmt(x.get("revision")), x.get("test"),
-             (x.get("rig_id"), "nw"), (x.get("started_at"), "nw"), (x.get("sha256"), "mono"),
-             (x.get("source_path"), "mono"), (x.get("flow_run_id"), "mono")]
+             (x.get("rig_id"), "nw"), (x.get("started_at"), "nw"), (_grouped(x.get("sha256")), "mono"),
+             (_in_drop(x), "mono"), (x.get("flow_run_id"), "mono")]
             for x in d["lineage"]]
-    out = _table(["run id", "rev", "test", "rig", "started", "sha256", "raw file",
+    out = _table(["run id", "rev", "test", "rig", "started", "sha256", "raw file (drop / path)",
                   "ingest flow run"], rows)
-    acts = [[a["seq"], (a["result_id"], "mono"), a["activated_at"], (a.get("flow_run_id"), "mono")]
+    acts = [[a["seq"], (_grouped(a["result_id"]), "mono"), a["activated_at"], (a.get("flow_run_id"), "mono")]
             for a in d["activations"]]
     out += ("<p class='note'>Result history of this campaign (append-only; the last activation "
             "is current):</p>")
@@ -881,7 +995,7 @@ def _annex_lineage(d) -> str:
         out += _table(["#", "action", "why", "when", "by"],
                       [[a["seq"], a["action"], a["why"], a["acted_at"], a["acted_by"]]
                        for a in d["audit"]])
-    out += (f"<p class='note'>Result id <span class='mono'>{_e(d['result_id'])}</span>; code "
+    out += (f"<p class='note'>Result id <span class='mono'>{_e(_grouped(d['result_id']))}</span>; code "
             f"version {_e(d['result'].get('code_version'))}; pipeline parameters "
             f"<span class='mono'>{_e(json.dumps(d.get('parameters'), sort_keys=True))}</span>.</p>")
     return out
@@ -943,7 +1057,7 @@ def render_html(d: dict[str, Any], plots: bool = True, config=None,
             f"<style>{page}{_CSS}</style></head><body>")
     title = (f"<h1>Calibration Certificate</h1><div class='certno'>No. {_e(number)}</div>"
              f"<div class='sub'>{_e(r.get('unit_model'))} serial {_e(r.get('unit_serial'))} · "
-             f"campaign {_e(camp)} · result <span class='mono'>{_e(d['result_id'])}</span></div>")
+             f"campaign {_e(camp)} · result <span class='mono'>{_e(_grouped(d['result_id']))}</span></div>")
     sign = ("<div class='sign'>" + (_e(cfg.approver) if cfg.approver else
                                      _ph("approver not configured")) + "</div>"
             "<p class='note'>Signature of the person authorising this certificate.</p>")
