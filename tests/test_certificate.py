@@ -30,6 +30,9 @@ customer = "Example Customer Ltd"
 statement = "Traceable to the SI through the national standards of length, time and angle."
 [traceability.rigs]
 "LXJ-100" = "arm radius cert. R-1"
+"DH-1" = "dividing head angle cert. A-7"
+"TT-1" = "tilt table angle cert. T-2; chamber thermometer cert. C-9"
+"DC-1" = "disc centrifuge radius cert. R-4"
 """
 #: 7.8.2.1 / 7.8.4 elements, as the certificate words them (in every certificate).
 ELEMENTS = ["Calibration Certificate", "Certificate No. IML-", LAB["name"], LAB["address"],
@@ -186,3 +189,13 @@ def test_pdf_has_every_element_page_numbers_and_no_gap(lab, tmp_path, kind):
     nums = [int(n) for n in re.findall(r"(?m)^\s*(\d{1,2}) [A-Z][a-z]", text)]
     heads = sorted(set(nums))
     assert heads == list(range(1, len(heads) + 1)) and len(heads) >= 9, heads
+
+
+def test_a_rig_without_traceability_keeps_the_certificate_draft(lab, tmp_path):
+    """Issue 27: with the README's one-rig accelcal.toml the certificate was final while
+    DH-1 showed the traceability placeholder; any placeholder left means DRAFT."""
+    cfg = tmp_path / "one-rig.toml"
+    cfg.write_text(CONFIG.split('"DH-1"')[0])
+    html = build_report(lab, CAMPS["centrifuge"], tmp_path / "out", config=cfg).read_text()
+    draft = re.search(r"DRAFT — not valid as a certificate: ([^<]*)", html)
+    assert draft and "reference standards of this rig" in draft.group(1)

@@ -486,7 +486,7 @@ def _sec_item(d) -> str:
     return _kv([("Item", f"accelerometer, model {_e(r.get('unit_model'))}"),
                 ("Serial number", f"<b>{_e(r.get('unit_serial'))}</b>"),
                 ("Campaign", _e(d["campaign"])),
-                ("Condition on receipt", _ph("not recorded in the data drop")),
+                ("Condition on receipt", "<i>not recorded in the data drop</i>"),
                 ("Runs", f"{len(d['lineage'])} ({', '.join(sorted({str(x.get('test')) for x in d['lineage']}))})")])
 
 
@@ -1048,9 +1048,17 @@ def render_html(d: dict[str, Any], plots: bool = True, config=None,
         x = d["excluded"]
         banners.append(f"<div class='banner'>EXCLUDED by {_e(x.get('acted_by'))} on "
                        f"{_e(x.get('acted_at'))}: {_e(x.get('why'))}</div>")
-    if cfg.missing:
+    body = doc.html()
+    # DRAFT whenever any placeholder remains for anything the certificate uses (a rig's
+    # traceability, the customer, ...), not only the [lab] keys config.missing knows
+    placeholders = [html.unescape(x) for x in
+                    re.findall(rf"<span class='{PLACEHOLDER_CLASS}'>\[(.*?)\]</span>", body)]
+    missing = list(cfg.missing) + [x.split(":", 1)[0] for x in placeholders
+                                   if x.split(":", 1)[0] not in " ".join(cfg.missing)]
+    if missing:
         banners.append("<div class='draft'>DRAFT — not valid as a certificate: "
-                       + _e(", ".join(cfg.missing)) + " not configured (accelcal.toml).</div>")
+                       + _e(", ".join(dict.fromkeys(missing))) + " not configured "
+                       "(accelcal.toml); the marked placeholders show where.</div>")
     page = _page_css(cfg.name or "[laboratory not configured]", number)
     head = (f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
             f"<title>Calibration certificate {_e(number)} — {_e(camp)}</title>"
@@ -1064,7 +1072,7 @@ def render_html(d: dict[str, Any], plots: bool = True, config=None,
     foot = (f"<footer>Certificate No. {_e(number)} · issued {_e(issued)} by accelcal "
             f"{_e(r.get('code_version'))} from the warehouse; self-contained (no external "
             f"resources). End of certificate.</footer></body></html>")
-    return head + title + "".join(banners) + doc.html() + sign + foot
+    return head + title + "".join(banners) + body + sign + foot
 
 
 # ------------------------------------------------------------------- output --
