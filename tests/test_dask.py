@@ -32,6 +32,7 @@ def test_task_runner_specs(monkeypatch):
         task_runner_for("ray")
 
 
+@pytest.mark.slow
 def test_flow_on_an_existing_dask_scheduler_equals_local_run(tmp_path, examples, monkeypatch):
     distributed = pytest.importorskip("distributed")
     drops = [examples / "drop-2026-11-20", examples / "drop-bad", examples / "drop-2026-11-21"]
@@ -50,6 +51,7 @@ def test_flow_on_an_existing_dask_scheduler_equals_local_run(tmp_path, examples,
     assert warehouse_contents(on_dask) == warehouse_contents(local)
 
 
+@pytest.mark.slow
 def test_local_dask_workers_share_the_flows_prefect_server(monkeypatch):
     """A local cluster's workers inherit the address of the flow's temporary Prefect server
     (PREFECT_API_URL) instead of each starting a server of their own; the variable is put

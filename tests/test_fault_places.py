@@ -278,6 +278,7 @@ def test_an_unexpected_exception_is_one_line_exit_3_with_the_traceback_saved(cap
     Path(path).unlink()
 
 
+@pytest.mark.slow
 def test_sigkill_under_prefect_leaves_no_process_and_a_rerun_equals_a_clean_run(tmp_path, clean):
     """`accelcal run` (Prefect engine) killed with SIGKILL once its ephemeral Prefect server
     is up: the process guard stops the server (no process carrying this run's environment

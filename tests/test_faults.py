@@ -19,6 +19,7 @@ import textwrap
 from pathlib import Path
 
 import duckdb
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -146,6 +147,7 @@ HARNESS = textwrap.dedent(r'''
 ''')
 
 
+@pytest.mark.slow
 def test_sigkill_at_random_points_then_rerun_equals_clean_run(tmp_path, examples):
     drops = [str(examples / "drop-2026-11-20"), str(examples / "drop-2026-11-21")]
     p = subprocess.run([sys.executable, "-c", HARNESS,
@@ -176,6 +178,7 @@ def _accelcal(*args, cwd) -> subprocess.Popen:
                             env={**os.environ, "PREFECT_LOGGING_LEVEL": "ERROR"})
 
 
+@pytest.mark.slow
 def test_two_runs_at_once_wait_or_fail_clearly_never_corrupt(tmp_path, examples):
     drop = str(examples / "drop-2026-11-20")
     waitd, faildir, cleand = (tmp_path / n for n in ("wait", "fail", "clean"))

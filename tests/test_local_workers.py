@@ -16,6 +16,7 @@ from accelcal.flows.pipeline import PipelineError, _local_pool, run_pipeline
 from test_faults import warehouse_contents
 
 
+@pytest.mark.slow
 def test_two_worker_processes_leave_the_same_warehouse(tmp_path, examples, monkeypatch):
     drops = [examples / "drop-2026-11-20", examples / "drop-bad", examples / "drop-2026-11-21"]
     one = tmp_path / "one" / "lab.duckdb"

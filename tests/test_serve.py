@@ -181,6 +181,7 @@ def _passes(state: Path) -> list[dict]:
         return []
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(shutil.which("prefect") is None, reason="prefect CLI not installed")
 def test_serve_processes_new_drops_once_and_leaves_partial_files(tmp_path, examples):
     t_start = time.monotonic()

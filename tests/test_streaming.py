@@ -74,6 +74,7 @@ class _LiveRuns:
             self.contracts._OVERRIDES.pop(n, None)
 
 
+@pytest.mark.slow
 def test_parsed_runs_alive_at_once_bounded_by_batch_not_drop(tmp_path, examples, monkeypatch):
     """At most one batch of parsed files (plus a campaign's runs) is in memory at a time,
     whatever the drop's size; without batching, the whole drop is (the control, so this
