@@ -177,3 +177,15 @@ def test_certificate_numbers_are_rounded_as_it_promises(lab, tmp_path):
             assert _sig(row[4]) <= 2, row
     assert checked >= 10
     assert "0.0002908882086657216" not in html and "budgets in SI units" not in html
+
+
+def test_a_monte_carlo_fail_says_what_it_means_for_U():
+    """JCGM 101 §8 (issue 27): a FAIL is said in words. A budget dominated by one uniform
+    term: its 95 % interval is +-0.95*sqrt(3) u = +-1.645 u, narrower than the normal +-1.96 u,
+    so U is conservative; a heavier-tailed output would make U too small."""
+    from accelcal.ops.report import mc_meaning
+    flat = {"validated": False, "gum_u": 1.0, "mc_low": -0.95 * 3 ** 0.5, "mc_high": 0.95 * 3 ** 0.5}
+    assert mc_meaning(flat).startswith("U is conservative")
+    heavy = {"validated": False, "gum_u": 1.0, "mc_low": -2.3, "mc_high": 2.3}
+    assert mc_meaning(heavy).startswith("U covers less than 95 %")
+    assert mc_meaning({**flat, "validated": True}) == ""

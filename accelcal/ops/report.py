@@ -750,22 +750,37 @@ def _sec_mc(d) -> str:
                      (_u_text(m.get("gum_u"), f), "num"), (_u_text(mc_u, f), "num"),
                      (f"[{_at_digit(lo, exp)}, {_at_digit(hi, exp)}]", "nw"),
                      ("—" if not delta else format_sig(delta / f, 1), "num"), (dunit, "nw"),
-                     ("PASS" if ok else "FAIL", "ok" if ok else "bad")])
+                     ("PASS" if ok else "FAIL", "ok" if ok else "bad"), mc_meaning(m)])
     methods = sorted({c.get("method") for c in _adopted(d)})
     if not rows:
         return (f"<p>No Monte Carlo check is stored for this result (methods "
                 f"{_e(', '.join(methods) or '—')}): the GUM uncertainty is not validated by "
                 f"JCGM 101 here.</p>")
-    n_fail = sum(1 for r in rows if r[-1][0] == "FAIL")
+    n_fail = sum(1 for r in rows if r[-2][0] == "FAIL")
     head = (f"<p><b>{len(rows) - n_fail} of {len(rows)} budgets pass</b> the JCGM 101 check "
             "(GUM interval end points within the numerical tolerance δ of the Monte Carlo "
             "ones).</p>")
     if n_fail:
-        head += ("<div class='flag'>A FAIL means the GUM (linearised) interval differs from the "
-                 "Monte Carlo interval by more than δ: the stated U rests on the GUM "
-                 "approximation for that coefficient.</div>")
+        head += ("<div class='flag'>A FAIL means the GUM interval y ± U (normal, k for 95 %) and "
+                 "the 95 % interval of the propagated distributions differ by more than δ at the "
+                 "digits stated. The value is unaffected; what changes is what U covers: the "
+                 "last column says which way. Where U covers less than 95 %, quote the Monte "
+                 "Carlo interval.</div>")
     return head + _table(["budget", "adopted", "u (GUM)", "u (Monte Carlo)",
-                          "95 % interval (Monte Carlo)", "δ", "unit", "result"], rows)
+                          "95 % interval (Monte Carlo)", "δ", "unit", "result", "what it means"], rows)
+
+
+def mc_meaning(m: dict) -> str:
+    """In words, what a JCGM 101 check says of the stated U (empty for a PASS)."""
+    from scipy.stats import norm
+    if m.get("validated") or None in (m.get("gum_u"), m.get("mc_low"), m.get("mc_high")):
+        return ""
+    half_gum = float(norm.ppf(0.975)) * m["gum_u"]
+    half_mc = (m["mc_high"] - m["mc_low"]) / 2
+    if half_mc < half_gum:
+        return ("U is conservative: the output is flatter than normal (uniform type-B terms "
+                "dominate), so y ± U covers more than 95 %")
+    return "U covers less than 95 %: the Monte Carlo interval is the 95 % coverage interval"
 
 
 def _u_text(u: float | None, f: float) -> str:
@@ -944,6 +959,12 @@ def _ug_g2(x) -> str:
 
 def _sec_flags(d) -> str:
     items = [f"<div class='flag'>{_e(f)}</div>" for f in d["flags"]]
+    mc = (d.get("extras") or {}).get("mc_check") or {}
+    for c in _adopted(d):
+        m = mc.get(f"{c.get('method')}:{c.get('rig_id') or ''}:{c['name']}")
+        if isinstance(m, dict) and not m.get("validated"):
+            items.append(f"<div class='flag'>Monte Carlo check FAIL for the adopted {_e(c['name'])}: "
+                         f"{_e(mc_meaning(m))} (see Monte Carlo check of the uncertainty).</div>")
     if d["result"].get("completeness") == "incomplete":
         items.append("<div class='flag'>Incomplete campaign: "
                      + _e("; ".join(d.get("completeness_reasons") or [])) + "</div>")
