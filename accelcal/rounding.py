@@ -74,3 +74,27 @@ def round_gum(value: float | None, U: float | None, sig: int = SIG_DIGITS,
     except InvalidOperation:        # more than 28 digits between value and U: not a result
         return Rounded(_plain(round_sig(value, fallback_sig)[0]), _plain(Ur), None)
     return Rounded(_plain(v), _plain(Ur), exp)
+
+
+def round_gum_sci(value: float | None, u: float | None) -> tuple[str, str]:
+    """(value, u) as people read them: u to two significant digits, the value to u's last
+    digit (GUM 7.2.6); outside 0.001-99999 both in powers of ten with the value's exponent."""
+    if value is None or not math.isfinite(value):
+        return "—", format_sig(u)
+    if value == 0:
+        return "0", format_sig_sci(u)
+    ref = abs(value)
+    e = math.floor(math.log10(ref)) if ref and math.isfinite(ref) else 0
+    if -3 <= e <= 4:
+        r = round_gum(value, u)
+        return r.value, r.uncertainty
+    r = round_gum(value / 10 ** e, None if u is None else u / 10 ** e)
+    return f"{r.value}e{e}", "—" if r.uncertainty == "—" else f"{r.uncertainty}e{e}"
+
+
+def format_sig_sci(x: float | None, sig: int = SIG_DIGITS) -> str:
+    """x to ``sig`` significant digits; outside 0.001-99999 in powers of ten (``1.7e-4``)."""
+    if not _finite(x) or x == 0:
+        return format_sig(x, sig)
+    e = math.floor(math.log10(abs(x)))
+    return format_sig(x, sig) if -3 <= e <= 4 else f"{format_sig(x / 10 ** e, sig)}e{e}"

@@ -212,3 +212,25 @@ def test_heldout_gap_cache_never_answers_for_a_collected_fit(monkeypatch):
     d._ho, d.fold = {}, None
     for k in range(2000):               # CPython reuses a freed object's address at once
         assert d.ho(FakeFit(k)) == k
+
+
+def test_diagnose_report_is_a_page_an_engineer_reads(tmp_path):
+    """Issue 28: the verdict and why, residual plots, the ranked table with aliases, the
+    shrink, what cannot be seen, and the JSON as a linked file (not dumped in the page)."""
+    from accelcal.cli import main
+    import json as _json
+    import re as _re
+    case = DEV / "cases" / "cent-koq-d0"
+    if not case.is_dir():
+        pytest.skip("needs the lab's diagnosis-dev cases at ../shared (see README)")
+    out = tmp_path / "rep"
+    assert main(["diagnose", str(case), "--baseline", "earth_rate,mass_centre_offset",
+                 "--report", str(out)]) == 0
+    page = (out / "diagnosis.html").read_text(encoding="utf-8")
+    data = _json.loads((out / "diagnosis.json").read_text(encoding="utf-8"))
+    assert data["verdict"] == "odd_quadratic"
+    assert "Verdict: odd_quadratic" in page and "was selected by forward selection" in page
+    assert "href='diagnosis.json'" in page and '"ranking"' not in page
+    assert len(_re.findall(r"data:image/png;base64,", page)) == 2       # residuals, shrink
+    assert "arm_stretch" in page and "residual [µg]" not in page         # labels are in the PNG
+    assert "<script" not in page and not _re.search(r"(src|href)=['\"]https?:", page)

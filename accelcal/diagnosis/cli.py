@@ -2,7 +2,6 @@
 ``accelcal diagnose-benchmark [--quick] [--json] [--markdown FILE]``."""
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 

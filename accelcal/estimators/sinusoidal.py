@@ -73,7 +73,7 @@ import pandas as pd
 from scipy.stats import f as f_dist
 
 from ..effects import si_unit, typical_size
-from ..fitting.core import FitResult, LackOfFit, Parameter, ParameterSet, gauss_newton, lstsq_gram, lstsq_svd
+from ..fitting.core import FitResult, LackOfFit, Parameter, ParameterSet, gauss_newton, lstsq_gram
 from ..fitting.data import fitted_drive
 from ..physics import instrument, rigs
 from ..physics.geometry import geometry_of

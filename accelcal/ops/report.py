@@ -297,32 +297,6 @@ def _at_digit(x: float | None, exp: int | None) -> str:
     return s[1:] if s.startswith("-") and float(s) == 0 else s
 
 
-def _sci_pair(value: float | None, u: float | None) -> tuple[str, str]:
-    """(value, u) as people read them: u to two significant digits, the value to u's last
-    digit (GUM 7.2.6); outside 0.001-99999 both in powers of ten with the value's exponent."""
-    from ..rounding import format_sig, round_gum
-    if value is None or not math.isfinite(value):
-        return "—", format_sig(u)
-    if value == 0:
-        return "0", _sig_text(u)
-    ref = abs(value)
-    e = math.floor(math.log10(ref)) if ref and math.isfinite(ref) else 0
-    if -3 <= e <= 4:
-        r = round_gum(value, u)
-        return r.value, r.uncertainty
-    r = round_gum(value / 10 ** e, None if u is None else u / 10 ** e)
-    return f"{r.value}e{e}", "—" if r.uncertainty == "—" else f"{r.uncertainty}e{e}"
-
-
-def _sig_text(x: float | None, sig: int = 2) -> str:
-    """x to ``sig`` significant digits; outside 0.001-99999 in powers of ten."""
-    from ..rounding import format_sig
-    if x is None or not math.isfinite(x) or x == 0:
-        return format_sig(x, sig)
-    e = math.floor(math.log10(abs(x)))
-    return format_sig(x, sig) if -3 <= e <= 4 else f"{format_sig(x / 10 ** e, sig)}e{e}"
-
-
 def _u_unknown(c) -> bool:
     u = c.get("std_uncertainty")
     return u is None or (isinstance(u, float) and math.isnan(u))
@@ -675,6 +649,7 @@ def _sec_radius(d, plots) -> str:
 
 
 def _sec_budgets(d) -> str:
+    from ..rounding import format_sig_sci, round_gum_sci
     budget = d["budget"]
     out = []
     for c in _adopted(d):
@@ -692,12 +667,12 @@ def _sec_budgets(d) -> str:
             if not bu and not contrib:              # a term of zero size is no term
                 n_zero += 1
                 continue
-            v_text, u_text = _sci_pair(b.get("value"), bu)
+            v_text, u_text = round_gum_sci(b.get("value"), bu)
             sens = b.get("sensitivity")
             body.append("<tr>" + "".join(f"<td{cls}>{_e(v)}</td>" for cls, v in (
                 ("", b.get("quantity")), (" class='num'", v_text), (" class='num'", u_text),
-                (" class='num'", "—" if sens is None else _sig_text(sens / f, 3)),
-                (" class='num'", "—" if contrib is None else _sig_text(contrib / f)),
+                (" class='num'", "—" if sens is None else format_sig_sci(sens / f, 3)),
+                (" class='num'", "—" if contrib is None else format_sig_sci(contrib / f)),
                 ("", b.get("type")), ("", b.get("distribution")))) + "</tr>")
         if not rows:
             body.append("<tr><td colspan='7' class='note'>budget not itemised: no "
@@ -707,13 +682,13 @@ def _sec_budgets(d) -> str:
                         "listed</td></tr>")
         uc = None if u is None else u / f
         body.append(f"<tr class='total'><td>combined standard uncertainty u<sub>c</sub></td>"
-                    f"<td></td><td></td><td></td><td class='num'>{_e(_sig_text(uc))}</td>"
+                    f"<td></td><td></td><td></td><td class='num'>{_e(format_sig_sci(uc))}</td>"
                     f"<td colspan='2'>{_e(dunit)}</td></tr>")
         _, U_disp, _ = display_value(name, c.get("value"), u, unit, k)
         ppm = f" (= {U_disp})" if U_disp.endswith("ppm") else ""
         body.append(f"<tr class='total'><td>expanded uncertainty U, k = {k:.3g}, p {COVERAGE_PROBABILITY}"
                     f"</td><td></td><td></td><td></td>"
-                    f"<td class='num'>{_e(_sig_text(None if uc is None else k * uc))}</td>"
+                    f"<td class='num'>{_e(format_sig_sci(None if uc is None else k * uc))}</td>"
                     f"<td colspan='2'>{_e(dunit)}{_e(ppm)}</td></tr>")
         out.append(f"<div class='keep'><h3>{_e(name)} ({_e(c.get('method'))}, "
                    f"{_e(c.get('rig_id'))})</h3><table><thead><tr><th>quantity</th><th>value</th>"

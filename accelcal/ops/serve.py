@@ -481,7 +481,7 @@ def status_lines(warehouse: str | Path, n: int = 5, watch_dir: str | Path | None
         out.append(f"a pass now would process {len(ready)} drop(s)"
                    + (": " + ", ".join(Path(d).name for d in ready) if ready else ""))
         if known:
-            out.append(f"  already in the warehouse (every file, same path and size): "
+            out.append("  already in the warehouse (every file, same path and size): "
                        + ", ".join(Path(d).name for d in known))
         out.extend(f"  held back {Path(d).name}: {why}" for d, why in sorted(plan.waiting.items()))
         out.extend(f"  ignored {p}: a partial file unchanged for {a / 3600:.1f} h"
