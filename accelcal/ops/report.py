@@ -344,12 +344,27 @@ def _kv(pairs: list[tuple[str, str]]) -> str:
         f"<tr><th>{_e(k)}</th><td>{v}</td></tr>" for k, v in pairs) + "</table>"
 
 
-def _when(t: _dt.datetime | None) -> str:
+def _when(t: _dt.datetime | None, seconds: bool = False) -> str:
+    """A time as the certificate prints it, to the minute (to the second with ``seconds``),
+    with its UTC offset."""
     if t is None:
         return "—"
     off = t.strftime("%z")
     off = f"UTC{off[:3]}:{off[3:]}" if off else "no offset"
-    return f"{t:%Y-%m-%d %H:%M} ({off})"
+    return f"{t:%Y-%m-%d %H:%M:%S} ({off})" if seconds else f"{t:%Y-%m-%d %H:%M} ({off})"
+
+
+def _same_minute(a, b) -> bool:
+    return a is not None and b is not None and a.replace(second=0, microsecond=0) == b.replace(
+        second=0, microsecond=0)
+
+
+#: A section body shorter than this [characters of HTML, no image] is kept on one page.
+KEEP_SECTION_CHARS = 4000
+
+
+def _keep(body: str) -> str:
+    return " class='keep'" if len(body) < KEEP_SECTION_CHARS and "<img" not in body else ""
 
 
 def _img(b64: str | None, alt: str) -> str:
@@ -420,7 +435,8 @@ class _Doc:
         self.annexes.append((title, body))
 
     def html(self) -> str:
-        out = [f"<section><h2>{k} {_e(t)}</h2>{b}</section>"
+        # a short section is kept on one page (its heading never parted from its table)
+        out = [f"<section{_keep(b)}><h2>{k} {_e(t)}</h2>{b}</section>"
                for k, (t, b) in enumerate(self.sections, start=1)]
         out += [f"<section><h2>Annex {chr(ord('A') + k)} {_e(t)}</h2>{b}</section>"
                 for k, (t, b) in enumerate(self.annexes)]
@@ -533,8 +549,9 @@ def _sec_dates(d, issued) -> str:
     rows = []
     for x in runs:
         tc, ts = x.get("temp_c"), x.get("temp_set_c")
+        sec = _same_minute(x.get("start"), x.get("end"))     # a short run: to the second
         rows.append([(x.get("run_id"), "nw"), x.get("test"), (x.get("rig_id"), "nw"),
-                     (_when(x.get("start")), "nw"), (_when(x.get("end")), "nw"),
+                     (_when(x.get("start"), sec), "nw"), (_when(x.get("end"), sec), "nw"),
                      ("—" if not tc else f"{tc[0]:.2f} / {tc[1]:.2f} / {tc[2]:.2f}", "num"),
                      ("—" if not ts else f"{ts[0]:.1f} to {ts[2]:.1f}", "num"),
                      ("not recorded" if x.get("ambient") is None else f"{x['ambient']:.1f}", "num"),
@@ -834,7 +851,7 @@ def _sec_adequacy(d, plots) -> str:
                          (_fmt(a.get("trend_p"), ".3g"), "num"), (_fmt(a.get("sweep_p"), ".3g"), "num"),
                          (_fmt(a.get("runs_p"), ".3g"), "num"),
                          ("adequate" if ok else "NOT adequate", "ok" if ok else "bad"),
-                         "✔" if a.get("chosen") else ""])
+                         ("✔" if ok else "used: no order tested is adequate") if a.get("chosen") else ""])
         out.append("<h3>Regressions: lack-of-fit F test and residual checks</h3>")
         out.append(_table(["rig", "fit", "order", "g max", "F", "p (lack of fit)", "dof lof/pe",
                            "trend p", "sweep p", "runs p", "verdict", "chosen"], rows))
@@ -1062,12 +1079,12 @@ def render_html(d: dict[str, Any], plots: bool = True, config=None,
     title = (f"<h1>Calibration Certificate</h1><div class='certno'>No. {_e(number)}</div>"
              f"<div class='sub'>{_e(r.get('unit_model'))} serial {_e(r.get('unit_serial'))} · "
              f"campaign {_e(camp)} · result <span class='mono'>{_e(_grouped(d['result_id']))}</span></div>")
-    sign = ("<div class='sign'>" + (_e(cfg.approver) if cfg.approver else
+    sign = ("<div class='keep'><div class='sign'>" + (_e(cfg.approver) if cfg.approver else
                                      _ph("approver not configured")) + "</div>"
             "<p class='note'>Signature of the person authorising this certificate.</p>")
     foot = (f"<footer>Certificate No. {_e(number)} · issued {_e(issued)} by accelcal "
             f"{_e(r.get('code_version'))} from the warehouse; self-contained (no external "
-            f"resources). End of certificate.</footer></body></html>")
+            f"resources). End of certificate.</footer></div></body></html>")
     return head + title + "".join(banners) + body + sign + foot
 
 
