@@ -28,7 +28,7 @@ def rec(sha, path, run_id="R-1", status="accepted", campaign="C/1", **kw) -> Run
                      status=status, run_id=run_id, test="tumble", unit_serial="SN-1",
                      campaign=campaign, rig_id="DH-1", parquet_path=f"pq/{sha}.parquet",
                      validator_version=kw.pop("vv", "val.1"),
-                     refusals=[Refusal("bad-thing", "detail", 3, path)] if status == "refused" else [],
+                     refusals=[Refusal(path, 3, "bad-thing", "detail")] if status == "refused" else [],
                      **kw)
 
 

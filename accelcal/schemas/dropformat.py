@@ -146,7 +146,7 @@ class DropFormatError(ValueError):
 
     def __str__(self) -> str:
         where = self.path if self.line is None else f"{self.path}:{self.line}"
-        return f"{where}: {self.rule}: {self.detail}"
+        return f"{where}: {self.rule}: {self.detail}" if self.detail else f"{where}: {self.rule}"
 
     def __reduce__(self):  # picklable across process/task boundaries
         return (type(self), (self.path, self.line, self.rule, self.detail))

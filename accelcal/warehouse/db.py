@@ -39,6 +39,7 @@ import duckdb
 
 from ..fileio import (StoreError, atomic_write, current_umask, os_error_text, path_text,
                       remove_stale_temps, sync_files)
+from ..schemas.dropformat import Refusal  # the one Refusal (drop format and warehouse)
 from .lineage import canonical_json
 
 #: 3: results.extras (the JSON the certificate's plots and checks read, ~48 KB a result)
@@ -245,19 +246,6 @@ def holds_lock(db_path: str | Path) -> bool:
 
 
 # ---------------------------------------------------------------- records --
-
-@dataclass
-class Refusal:
-    """A broken rule (mirrors schemas' Refusal; line may be None)."""
-    rule: str
-    detail: str = ""
-    line: int | None = None
-    path: str = ""
-
-    def __str__(self) -> str:
-        where = f"{self.path}:{self.line}" if self.line is not None else f"{self.path}"
-        return f"{where}: {self.rule}: {self.detail}" if self.detail else f"{where}: {self.rule}"
-
 
 @dataclass
 class RunRecord:
