@@ -189,3 +189,25 @@ def test_a_monte_carlo_fail_says_what_it_means_for_U():
     heavy = {"validated": False, "gum_u": 1.0, "mc_low": -2.3, "mc_high": 2.3}
     assert mc_meaning(heavy).startswith("U covers less than 95 %")
     assert mc_meaning({**flat, "validated": True}) == ""
+
+
+def test_cross_checks_beyond_their_combined_U_are_flagged(lab, tmp_path):
+    """Issue 27: a cross-check more than its combined U from the adopted value (|En| > 1,
+    ISO 13528 9.7) is flagged; En computed here from the stored values."""
+    import duckdb
+    wh, _ = lab
+    con = duckdb.connect(str(wh), read_only=True)
+    rows = con.execute("SELECT name, method, rig_id, value, std_uncertainty, coverage_factor, adopted "
+                       "FROM coefficients WHERE campaign = ? AND name = 'K0'", [CAMP]).fetchall()
+    con.close()
+    adopted = next(r for r in rows if r[6])
+    html = build_report(wh, CAMP, tmp_path / "out").read_text()
+    flags = re.findall(r"<div class='flag'>([^<]*)</div>", html)
+    for name, method, rig, v, u, k, ad in rows:
+        if ad:
+            continue
+        en = (v - adopted[3]) / ((k * u) ** 2 + (adopted[5] * adopted[4]) ** 2) ** 0.5
+        said = [f for f in flags if f.startswith(f"cross-check K0 by {method} ({rig})")]
+        assert bool(said) == (abs(en) > 1), (method, en, said)
+        if said:
+            assert f"En = {en:.2f}" in said[0]

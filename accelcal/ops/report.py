@@ -652,14 +652,17 @@ def _sec_radius(d, plots) -> str:
     for x in d["radii"]:
         u = x.get("std_uncertainty_m")
         U = None if u is None else K_COVERAGE * u
+        en = radius_en(d, x)
         rows.append([(x.get("rig_id"), "nw"), x.get("polarity"), x.get("method"),
                      _fmt(x.get("model_order")), (_fmt(x.get("g_max"), ".1f"), "num"),
                      (round_gum(x.get("radius_m"), U).value, "num"),
-                     (format_sig(None if U is None else 1e6 * U), "num"), x.get("note") or ""])
+                     (format_sig(None if U is None else 1e6 * U), "num"),
+                     ("—" if en is None else f"{en:.2f}", "bad" if en is not None and abs(en) > 1 else "num"),
+                     x.get("note") or ""])
     out = ("<p class='note'>The centrifuge's test radius, measured with the item (a rig "
            "parameter, not a result for the item).</p>")
     out += _table(["rig", "polarity", "method", "order", "g max / g", "radius / m",
-                   "U (k=2) / µm", "note"], rows)
+                   "U (k=2) / µm", "En vs joint fit", "note"], rows)
     if plots:
         out += _img(radius_plot(d["radii"]), "radius plot")
     return out
@@ -950,7 +953,7 @@ def _ug_g2(x) -> str:
 
 
 def _sec_flags(d) -> str:
-    items = [f"<div class='flag'>{_e(f)}</div>" for f in d["flags"]]
+    items = [f"<div class='flag'>{_e(f)}</div>" for f in d["flags"] + _cross_check_flags(d)]
     mc = (d.get("extras") or {}).get("mc_check") or {}
     for c in _adopted(d):
         m = mc.get(f"{c.get('method')}:{c.get('rig_id') or ''}:{c['name']}")
@@ -963,13 +966,73 @@ def _sec_flags(d) -> str:
     return "".join(items) or "<p>None: the method was applied without deviation.</p>"
 
 
+def en_against_adopted(d, c) -> float | None:
+    """En = (x - x_adopted) / sqrt(U^2 + U_adopted^2) of a cross-check ``c`` against the
+    adopted value of the same coefficient (same rig if there is one), U = k u (ISO 13528
+    §9.7); None without an adopted value or an uncertainty."""
+    same = [a for a in _adopted(d) if a["name"] == c["name"]]
+    a = next((a for a in same if a.get("rig_id") == c.get("rig_id")), same[0] if same else None)
+    if a is None or _u_unknown(a) or _u_unknown(c) or c.get("value") is None:
+        return None
+    U1, U2 = _k(c) * c["std_uncertainty"], _k(a) * a["std_uncertainty"]
+    den = math.hypot(U1, U2)
+    return (c["value"] - a["value"]) / den if den > 0 else None
+
+
+def _cross_check_flags(d) -> list[str]:
+    """Cross-checks more than their combined U from the adopted value (|En| > 1)."""
+    out = []
+    for c in d["coefficients"]:
+        if c.get("adopted"):
+            continue
+        en = en_against_adopted(d, c)
+        if en is not None and abs(en) > 1:
+            out.append(f"cross-check {c['name']} by {c.get('method')} ({c.get('rig_id') or ''}) "
+                       f"differs from the adopted value by En = {en:.2f} (|En| > 1; Annex A)")
+    # radii: the row of each method and order over the widest g range (its final value;
+    # narrower ranges are the iterative method's steps, shown in the table)
+    widest: dict[tuple, float] = {}
+    for x in d["radii"]:
+        key = (x.get("rig_id"), x.get("polarity"), x.get("method"), x.get("model_order"))
+        widest[key] = max(widest.get(key, -math.inf), x.get("g_max") or 0.0)
+    for x in d["radii"]:
+        key = (x.get("rig_id"), x.get("polarity"), x.get("method"), x.get("model_order"))
+        if (x.get("g_max") or 0.0) < widest[key]:
+            continue
+        en = radius_en(d, x)
+        if en is not None and abs(en) > 1:
+            out.append(f"test radius of {x.get('rig_id')} {x.get('polarity')} by {x.get('method')} "
+                       f"differs from the joint fit's by En = {en:.2f} (|En| > 1; section Test radius)")
+    return out
+
+
+def radius_en(d, x) -> float | None:
+    """En of a paper-method test radius against the joint fit's for the same rig and
+    polarity (None for the joint fit's own row or without uncertainties)."""
+    if x.get("method") == "joint_ml":
+        return None
+    j = next((y for y in d["radii"] if y.get("method") == "joint_ml"
+              and y.get("rig_id") == x.get("rig_id") and y.get("polarity") == x.get("polarity")), None)
+    if j is None or not x.get("std_uncertainty_m") or not j.get("std_uncertainty_m"):
+        return None
+    den = K_COVERAGE * math.hypot(x["std_uncertainty_m"], j["std_uncertainty_m"])
+    return (x["radius_m"] - j["radius_m"]) / den if den > 0 else None
+
+
 def _annex_other(d) -> str:
     others = [c for c in d["coefficients"] if not c.get("adopted")]
     if not others:
         return "<p>None: every value computed is adopted.</p>"
+    rows = _coef_rows(d, others)
+    for r, c in zip(rows, others):
+        en = en_against_adopted(d, c)
+        r.insert(-1, ("—" if en is None else f"{en:.2f}", "bad" if en is not None and abs(en) > 1 else "num"))
+    head = _COEF_HEAD[:-1] + ["En vs adopted", _COEF_HEAD[-1]]
     return ("<p class='note'>Values of the same coefficients by the other methods, kept as "
-            "cross-checks; they are not the certified values.</p>"
-            + _table(_COEF_HEAD, _coef_rows(d, others)))
+            "cross-checks; they are not the certified values. En = (x − x<sub>adopted</sub>) / "
+            "√(U² + U<sub>adopted</sub>²); both come from the same readings, so they are "
+            "correlated and |En| > 1 is a disagreement worth a look (flagged in section "
+            "Flags).</p>" + _table(head, rows))
 
 
 def _grouped(token: str | None, n: int = 16) -> str:
