@@ -181,3 +181,10 @@ def forecast_config(explicit: str | Path | None = None,
     if not isinstance(state, bool):
         raise ConfigError(f"{path}: [certificate] state_due_date must be true or false")
     return ForecastConfig(path, out, float(risk), state)
+
+
+def default_warehouse() -> str:
+    """The warehouse a command uses when none is given: $ACCELCAL_WAREHOUSE, else
+    ./lab.duckdb."""
+    import os
+    return os.environ.get("ACCELCAL_WAREHOUSE", "lab.duckdb")

@@ -172,7 +172,7 @@ def child(args) -> dict:
     rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     load_before = os.getloadavg()[0]
     from accelcal.flows.pipeline import run_pipeline
-    from accelcal.ops.fleet import ensure_views
+    from accelcal.warehouse import ensure_views
     wh = root / "lab.duckdb"
     cpu0 = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()

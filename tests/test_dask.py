@@ -12,7 +12,7 @@ import os
 import pytest
 
 from accelcal.flows.pipeline import quiet_prefect, run_pipeline
-from accelcal.ops.runners import RunnerError, task_runner_for
+from accelcal.flows.runners import RunnerError, task_runner_for
 
 from test_faults import warehouse_contents
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from accelcal.cli import main
-from accelcal.ops.fleet import ensure_views
+from accelcal.warehouse import ensure_views
 from accelcal.warehouse import Warehouse
 from test_views import add_campaign
 

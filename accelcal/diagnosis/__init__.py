@@ -6,7 +6,8 @@ and held out; or that a gap remains that no catalogue effect explains.
     diagnose_paths(paths, baseline) -> dict              (run files or folders)
     register_cli(subparsers)                             # `diagnose`, `diagnose-benchmark`
 """
-from .cli import read_paths, register_cli  # noqa: F401
+from .cli import register_cli  # noqa: F401
+from .runfiles import read_paths  # noqa: F401
 from .core import diagnose, public  # noqa: F401
 
 

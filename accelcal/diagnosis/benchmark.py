@@ -270,7 +270,7 @@ def dev_root() -> Path | None:
 
 
 def run_section2(root: Path | None = None, log=print, only: str = "*") -> list[dict]:
-    from .cli import read_paths
+    from .runfiles import read_paths
     root = root or dev_root()
     if root is None:
         return []
@@ -297,7 +297,7 @@ def run_section2(root: Path | None = None, log=print, only: str = "*") -> list[d
 def run_section3(log=print) -> list[dict]:
     """The real hand-held IMU session (../shared/real/imucal-ferraris): per campaign with
     baseline initial_misalignment, and one run alone."""
-    from .cli import read_paths
+    from .runfiles import read_paths
     root = dev_root()
     real = root.parent / "real" / "imucal-ferraris" if root is not None else None
     if real is None or not real.is_dir():

@@ -655,8 +655,8 @@ def _quiet_libraries() -> None:
 
 def _task_runner(name: str):
     """'thread' (Prefect's default), 'dask' (a local Dask cluster) or a Dask scheduler
-    address tcp://HOST:PORT (accelcal.ops.runners)."""
-    from ..ops.runners import RunnerError, task_runner_for
+    address tcp://HOST:PORT (accelcal.flows.runners)."""
+    from .runners import RunnerError, task_runner_for
     try:
         return task_runner_for(name)
     except RunnerError as e:

@@ -7,12 +7,9 @@ run ids, reasons) is printed through :func:`accelcal.cli.say`, escaped.
 """
 from __future__ import annotations
 
-import os
 import sys
 
-
-def _default_warehouse() -> str:
-    return os.environ.get("ACCELCAL_WAREHOUSE", "lab.duckdb")
+from ..config import default_warehouse
 
 
 def register_cli(sub) -> None:
@@ -23,7 +20,7 @@ def register_cli(sub) -> None:
                     "a *.part or a growing file waits for the next pass).  Schedules need a "
                     "Prefect server: set PREFECT_API_URL (see accelcal/warehouse/README.md).")
     p.add_argument("--watch", required=True, metavar="DIR", help="folder whose sub-folders are drops")
-    p.add_argument("--warehouse", "-w", default=_default_warehouse(),
+    p.add_argument("--warehouse", "-w", default=default_warehouse(),
                    help="DuckDB warehouse file (default: $ACCELCAL_WAREHOUSE or ./lab.duckdb)")
     p.add_argument("--cron", default=None, help='cron schedule of passes, e.g. "0 2 * * *"')
     p.add_argument("--poll", type=float, default=None, metavar="SECONDS",
@@ -52,7 +49,7 @@ def register_cli(sub) -> None:
                     "warehouse); missing ones are marked placeholders.")
     r.add_argument("campaign", nargs="?", help="campaign label (omit with --all or --result)")
     r.add_argument("--out", required=True, metavar="DIR", help="output folder")
-    r.add_argument("--warehouse", "-w", default=_default_warehouse())
+    r.add_argument("--warehouse", "-w", default=default_warehouse())
     r.add_argument("--result", default=None, metavar="RESULT_ID",
                    help="report this (possibly superseded) result; the short id the CLI prints "
                         "is enough")
@@ -72,7 +69,7 @@ def register_cli(sub) -> None:
                     "(drops seen, processed, held back and why, refusals, results), the drops "
                     "held back at the last pass and the files seen but not processed. Read from "
                     "<warehouse>-watch.json, so it answers while a pass holds the warehouse.")
-    st.add_argument("--warehouse", "-w", default=_default_warehouse())
+    st.add_argument("--warehouse", "-w", default=default_warehouse())
     st.add_argument("--passes", type=int, default=5, metavar="N", help="how many passes (default 5)")
     st.add_argument("--watch", default=None, metavar="DIR",
                     help="also look at the watched folder now (records nothing)")
@@ -102,7 +99,7 @@ def register_cli(sub) -> None:
                            help="the reason, kept in the audit trail")
             q.add_argument("--by", default=None, help="who decides (default: the login name)")
             q.add_argument("--lock-timeout", type=float, default=60.0, metavar="S")
-        q.add_argument("--warehouse", "-w", default=_default_warehouse())
+        q.add_argument("--warehouse", "-w", default=default_warehouse())
         q.set_defaults(func=_cmd_campaign)
 
     m = sub.add_parser(
@@ -112,7 +109,7 @@ def register_cli(sub) -> None:
                     "folded in) to <stem>.schema-<old>.duckdb beside it. Schema 2 -> 3 writes each result's "
                     "extras as the file <stem>-extras/<sha[:2]>/<sha>.json its "
                     "results.extras_sha256 names. Safe to run again after an interruption.")
-    m.add_argument("--warehouse", "-w", default=_default_warehouse())
+    m.add_argument("--warehouse", "-w", default=default_warehouse())
     m.add_argument("--lock-timeout", type=float, default=60.0, metavar="S")
     m.set_defaults(func=_cmd_migrate)
 

@@ -3,7 +3,7 @@
 Registration is cheap; the science is imported when a command runs."""
 from __future__ import annotations
 
-from .cli import _default_warehouse
+from ..config import default_warehouse
 
 
 def register(sub) -> None:
@@ -15,7 +15,7 @@ def register(sub) -> None:
                     "([tolerance.\"MODEL\"] and [forecast] risk in accelcal.toml), and the "
                     "basis of that date. A unit with too little history, no tolerance or "
                     "mixed code versions says so instead of inventing a date.")
-    d.add_argument("--warehouse", "-w", default=_default_warehouse())
+    d.add_argument("--warehouse", "-w", default=default_warehouse())
     d.add_argument("--config", default=None, metavar="TOML",
                    help="accelcal.toml (default: ./accelcal.toml, then beside the warehouse)")
     d.add_argument("--within", default=None, metavar="SPAN",
@@ -35,7 +35,7 @@ def register(sub) -> None:
                     "in use, the due date, En between consecutive campaigns.")
     h.add_argument("unit", metavar="UNIT", help="unit serial")
     h.add_argument("--html", required=True, metavar="DIR", help="output folder")
-    h.add_argument("--warehouse", "-w", default=_default_warehouse())
+    h.add_argument("--warehouse", "-w", default=default_warehouse())
     h.add_argument("--config", default=None, metavar="TOML")
     h.add_argument("--as-of", default=None, metavar="DATE")
     h.add_argument("--lock-timeout", type=float, default=60.0, metavar="S")

@@ -41,6 +41,7 @@ from ..fileio import (StoreError, atomic_write, current_umask, os_error_text, pa
                       remove_stale_temps, sync_files)
 from ..schemas.dropformat import Refusal  # the one Refusal (drop format and warehouse)
 from .lineage import canonical_json
+from .views import apply_views
 
 #: 3: results.extras (the JSON the certificate's plots and checks read, ~48 KB a result)
 #: moved out of the table into content-addressed files; results.extras_sha256 names one.
@@ -801,9 +802,7 @@ class Warehouse:
         with _transaction(con):
             con.execute(sql)
             # operations views (fleet, history, rig comparison): read history tables only
-            views = resources.files("accelcal.warehouse").joinpath("views.sql")
-            if views.is_file():
-                con.execute(views.read_text())
+            apply_views(con)
             con.execute("INSERT INTO schema_info VALUES ('schema_version', ?) "
                         "ON CONFLICT DO NOTHING", [SCHEMA_VERSION])
             con.execute("INSERT INTO schema_info VALUES (?, ?) ON CONFLICT DO NOTHING",
@@ -1229,3 +1228,11 @@ def _f(x) -> float | None:
         return float(x)
     except (TypeError, ValueError):
         return None
+
+
+def ensure_views(warehouse: str | Path, lock_timeout: float = 60.0) -> None:
+    """Apply the registered views (:mod:`accelcal.warehouse.views`) to a warehouse file
+    (write connection, holds the lock)."""
+    wh = Warehouse(warehouse, lock_timeout=lock_timeout)
+    with wh.connect() as con:
+        apply_views(con)

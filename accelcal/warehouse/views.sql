@@ -1,6 +1,6 @@
 -- accelcal operations views (issue 5): recalibration history, fleet SQL, rig comparisons.
 --
--- Applied idempotently after schema.sql (accelcal.ops.fleet.apply_views); every
+-- Applied idempotently after schema.sql (accelcal.warehouse.views.apply_views); every
 -- statement is CREATE OR REPLACE and only reads the append-only history tables
 -- of schema.sql, so applying it never changes data.
 --

@@ -1,0 +1,33 @@
+"""The runs a diagnosis reads: run files or folders of them, in the drop format."""
+from __future__ import annotations
+
+from ..textout import warn
+
+
+def read_paths(paths) -> list:
+    """Run files or folders -> parsed runs (drop format); a file the parser refuses is
+    skipped with its reason on stderr (it is not ours to diagnose).
+
+    Parameters
+    ----------
+    paths : iterable of str or Path
+        Run files (``*.csv``) or folders (every run file in them, as a drop is read).
+
+    Returns
+    -------
+    list of RunFile
+    """
+    from pathlib import Path
+
+    from ..schemas.dropformat import discover, read_run
+    files: list[Path] = []
+    for p in paths:
+        p = Path(p)
+        files += discover(p) if p.is_dir() else [p]
+    out = []
+    for f in files:
+        try:
+            out.append(read_run(f))
+        except Exception as e:  # noqa: BLE001 - a refused file: say so, diagnose the rest
+            warn(f"diagnose: skipping {f}: {e}")
+    return out
