@@ -49,8 +49,6 @@ from typing import Any, Sequence
 import numpy as np
 from scipy import stats
 
-from .fitting.core import lstsq_svd
-
 #: Days of a year of the drift rates [d/a] (Julian year).
 YEAR_DAYS = 365.25
 #: Degrees of freedom the fleet's between-campaign scatter counts for in eq (3).
@@ -98,11 +96,12 @@ def from_years(y: float) -> np.datetime64:
 # ------------------------------------------------------------- the line fit ----
 
 def _wls(X: np.ndarray, x: np.ndarray, var: np.ndarray):
-    """Weighted least squares (the fitting core's column-scaled SVD): coefficients,
-    covariance (X'WX)^-1 with W = 1/var, residuals."""
-    w = 1.0 / np.sqrt(var)
-    sol = lstsq_svd(X * w[:, None], x * w)
-    return sol.x, sol.cov, x - X @ sol.x
+    """Weighted least squares: coefficients, covariance (X'WX)^-1, residuals."""
+    w = 1.0 / var
+    A = X.T @ (X * w[:, None])
+    cov = np.linalg.inv(A)
+    beta = cov @ (X.T @ (w * x))
+    return beta, cov, x - X @ beta
 
 
 def scatter_moments(X: np.ndarray, x: np.ndarray, u: np.ndarray) -> tuple[float, float, float]:
@@ -332,8 +331,9 @@ def _find_steps(t, x, u, prior, en_limit, alpha, offset) -> list[Step]:
         except (ValueError, np.linalg.LinAlgError):
             continue
         X = _design(t, f.t_ref, k)
-        beta, cov, _ = _wls(X, x, u ** 2 + f.tau2)
-        delta = float(beta[2])
+        _, cov, _ = _wls(X, x, u ** 2 + f.tau2)
+        delta = float(np.linalg.lstsq(X * (1 / np.sqrt(u ** 2 + f.tau2))[:, None],
+                                      x / np.sqrt(u ** 2 + f.tau2), rcond=None)[0][2])
         sd = math.sqrt(cov[2, 2])
         z = abs(delta) / sd
         p = 2 * stats.t.sf(z, f.dof)
