@@ -153,7 +153,7 @@ def print_summary(summary: dict[str, Any], console=None) -> None:
             say(con, e, "not ingested", "yellow", "  ")
         if d.get("docs"):
             say(con, f"Data Docs: {d['docs']}", indent="  ")
-    from .flows.pipeline import SUMMARY_DETAIL_MAX
+    from .warehouse.summary import SUMMARY_DETAIL_MAX
     for k, c in enumerate(summary["campaigns"]):
         if k == SUMMARY_DETAIL_MAX:
             rest = summary["campaigns"][k:]

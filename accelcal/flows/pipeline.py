@@ -13,7 +13,6 @@ current is not recomputed.
 from __future__ import annotations
 
 import contextlib
-import json
 import os
 import time
 import uuid
@@ -28,7 +27,8 @@ from ..tasks import science as _science
 from ..tasks import store as _store
 from ..tasks import validate as _validate
 from ..fileio import StoreError, os_error_text, path_text
-from ..warehouse.db import Warehouse, WarehouseError, roomy
+from ..warehouse.db import Warehouse, WarehouseError
+from ..warehouse.summary import fill_campaigns
 from ..warehouse.lineage import code_version as _code_version
 from ..warehouse.lineage import result_id as _result_id
 
@@ -547,62 +547,8 @@ def _body(wh, drops, summary, steps, flow_run_id, parameters, cv, settle, B, W, 
         # -- what the warehouse now says about these campaigns
         t0 = time.perf_counter()
         sess.touch()
-        _fill_campaigns(wh, summary["campaigns"])
+        fill_campaigns(wh, summary["campaigns"])
         tick("summary", t0)
-
-
-#: Campaigns whose coefficients, radii and flags the run summary carries (the CLI prints
-#: them); beyond this only status and result id, so a fleet run's summary stays small.
-#: Everything is in the warehouse (unit_history, accelcal report).
-SUMMARY_DETAIL_MAX = 50
-
-
-def _fill_campaigns(wh: Warehouse, entries: list[dict[str, Any]]) -> None:
-    with wh.connect() as con, roomy(con):
-        camps = [e["campaign"] for e in entries]
-        current = {c: rest for c, *rest in con.execute(
-            "SELECT campaign, result_id, unit_serial, completeness, completeness_reasons, "
-            "simulated FROM results_current WHERE list_contains(?, campaign)", [camps]).fetchall()}
-        excluded = dict(con.execute(
-            "SELECT campaign, why FROM excluded_campaigns WHERE list_contains(?, campaign)",
-            [camps]).fetchall())
-        serials = dict(con.execute(
-            "SELECT result_id, unit_serial FROM results WHERE list_contains(?, result_id)",
-            [[e["result_id"] for e in entries]]).fetchall())
-        detail: list[dict[str, Any]] = []
-        for k, e in enumerate(entries):
-            e["excluded"] = excluded.get(e["campaign"])
-            if e["campaign"] not in current:
-                e.update(unit_serial=serials.get(e["result_id"]), current_result_id=None,
-                         coefficients=[], radii=[], flags=[])
-                continue
-            rid, serial, completeness, reasons, simulated = current[e["campaign"]]
-            e["current_result_id"], e["unit_serial"] = rid, serial
-            e["completeness"], e["simulated"] = completeness, bool(simulated)
-            e["completeness_reasons"] = json.loads(reasons or "[]")
-            if k < SUMMARY_DETAIL_MAX:
-                e.update(coefficients=[], radii=[], flags=[])
-                detail.append(e)
-        if not detail:
-            return
-        # three queries for the detailed entries, not three each: rows keep the order a
-        # query per result gave (the tables' insertion order; no ORDER BY in either)
-        by_rid: dict[str, list[dict[str, Any]]] = {}
-        for e in detail:
-            by_rid.setdefault(e["current_result_id"], []).append(e)
-        rids = list(by_rid)
-        for key, sql in (
-                ("coefficients", "SELECT result_id, name, value, std_uncertainty, unit, method, "
-                                 "rig_id, adopted FROM coefficients"),
-                ("radii", "SELECT result_id, rig_id, polarity, method, model_order, g_max, "
-                          "radius_m, std_uncertainty_m FROM radii"),
-                ("flags", "SELECT result_id, flag FROM flags")):
-            q = con.execute(sql + " WHERE list_contains(?, result_id)", [rids])
-            cols = [d[0] for d in q.description][1:]
-            for rid, *row in q.fetchall():
-                item = row[0] if key == "flags" else dict(zip(cols, row))
-                for e in by_rid[rid]:
-                    e[key].append(item)
 
 
 # ------------------------------------------------------------------ prefect --
