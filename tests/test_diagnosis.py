@@ -171,7 +171,7 @@ def test_realistic_noise_clean_tumble_and_withheld_k1t():
     ("tilt_rotation", {"bias_temp_quadratic_m_s2_c2": 4e-9}),
 ])
 def test_gap_outside_the_catalogue_is_said_unexplained(kind, dist):
-    from accelcal.estimators.joint import processing_effects
+    from accelcal.fitting.model import processing_effects
     res = diagnose(_sim(kind, {}, dist), processing_effects([kind]))
     assert res["explained"] is False
     assert res["gap"]["significant_after"]["significant"] is True

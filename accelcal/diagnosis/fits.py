@@ -12,16 +12,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import numpy as np
 from scipy import stats
 
 from ..effects import EFFECTS
-from ..fitting.core import (LackOfFit, ParameterSet, column_space_basis, gauss_newton, lack_of_fit,
-                            lstsq_svd, separable_columns, thin_svd)
-from ..fitting.data import RunCells, fit_noise, pool_missing_noise
-from ..fitting.model import ALIAS_TOL, PRIORITY, CampaignModel, pure_error
+from ..fitting.core import (LackOfFit, ParameterSet, column_space_basis, separable_columns,
+                            thin_svd)
+from ..fitting.data import RunCells
+from ..fitting.model import ALIAS_TOL, PRIORITY, CampaignModel
+from ..fitting.procedure import ModelFit, fit_model
 
 #: Instrument coefficients that are not catalogue effects.  A candidate effect they would
 #: absorb claims its direction first: the bare model holds them and the diagnosis names
@@ -36,28 +37,58 @@ DESIGNED_TERMS = ("K0T", "K1T")
 GAP_ALPHA = 0.001
 
 
-@dataclass
-class Fit:
-    """A fitted model: values, whitened residual z and Jacobian J (free columns), chi-square,
-    rank, lack of fit against the pure error."""
-    model: CampaignModel
-    effects: list[str]
-    p: np.ndarray
-    z: np.ndarray
-    J: np.ndarray
-    free: np.ndarray
-    chi2: float
-    rank: int
-    lof: LackOfFit
-    held: dict[str, str] = field(default_factory=dict)
-    converged: bool = True
+class Fit(ModelFit):
+    """A fitted model of the diagnosis: a :class:`~accelcal.fitting.procedure.ModelFit`
+    read the way the diagnosis compares fits (values, whitened residual and Jacobian of
+    the active columns, chi-square, rank, lack of fit against the pure error)."""
+
+    @property
+    def p(self) -> np.ndarray:
+        """Parameter vector [parameter units]."""
+        return self.fit.values
+
+    @property
+    def z(self) -> np.ndarray:
+        """Whitened cell residuals [1]."""
+        return self.fit.z
+
+    @property
+    def J(self) -> np.ndarray:
+        """Whitened Jacobian, all columns [1 / parameter unit]."""
+        return self.fit.J
+
+    @property
+    def free(self) -> np.ndarray:
+        """Free parameters whose column acts on the data (:attr:`ModelFit.active`)."""
+        return self.active
+
+    @property
+    def chi2(self) -> float:
+        """Whitened chi-square at the solution [1]."""
+        return float(self.fit.chi2)
+
+    @property
+    def rank(self) -> int:
+        """Rank of the free columns."""
+        return self.fit.rank
+
+    @property
+    def lof(self) -> LackOfFit:
+        """Lack of fit of the cell means against the pure error."""
+        return self.fit.lof
+
+    @property
+    def converged(self) -> bool:
+        return self.fit.converged
 
     @property
     def N(self) -> int:
+        """Number of cells."""
         return int(self.z.size)
 
     @property
     def dof(self) -> int:
+        """N - rank."""
         return self.N - self.rank
 
     @property
@@ -75,7 +106,7 @@ class Fit:
     def cov(self) -> tuple[np.ndarray, np.ndarray]:
         """(free column indices, covariance (J^T J)^+ of them) under the noise model."""
         idx = np.flatnonzero(self.free)
-        return idx, lstsq_svd(self.J[:, idx], np.zeros(self.N)).cov
+        return idx, self.fit.cov_noise[np.ix_(idx, idx)]
 
     def std(self, name: str) -> float | None:
         """Standard uncertainty under the noise model, scaled by sqrt(chi2/dof) when the
@@ -185,15 +216,9 @@ class Fitter:
         m.params = ParameterSet(replace(prm, vary=prm.name not in held) for prm in m.params)
         for k in held:                           # at their held value, whatever a start said
             p[m.params.index[k]] = m.params[k].value
-        free = m.params.free()
-        gn = gauss_newton(m.residual, m.jacobian, p, free, max_iter=max_iter)
-        for _ in range(noise_passes):
-            for j, r in enumerate(m.runs):
-                fit_noise(r, r.y_rows - m.predict_rows(gn.p, j), use_level=bool(r.x.size and np.ptp(r.x) > 0))
-            pool_missing_noise(m.runs)
-            m.refresh_noise()
-            gn = gauss_newton(m.residual, m.jacobian, gn.p, free, max_iter=max_iter)
-        return self._finish(m, effects, gn, held)
+        mf = fit_model(m, p, held, noise_passes=noise_passes, reselect=False, bounded=False,
+                       noise_level="spread", max_iter=max_iter, alpha=GAP_ALPHA, effects=effects)
+        return Fit(**vars(mf))
 
     @staticmethod
     def _nested(m: CampaignModel, p: np.ndarray, held: dict[str, str], start: Fit) -> dict[str, str]:
@@ -221,14 +246,6 @@ class Fitter:
             if why.startswith("weakly"):
                 out[m.params[i].name] = why
         return out
-
-    def _finish(self, m: CampaignModel, effects, gn, held) -> Fit:
-        free = m.params.free() & (np.linalg.norm(gn.J, axis=0) > 0)
-        sol = lstsq_svd(gn.J[:, free], np.zeros(m.N))
-        rank = sol.rank
-        chi_pe, dof_pe = pure_error(m, gn.p)
-        lof = lack_of_fit(gn.chi2, m.N - rank, chi_pe if dof_pe > 0 else None, dof_pe, alpha=GAP_ALPHA)
-        return Fit(m, list(effects), gn.p, gn.z, gn.J, free, float(gn.chi2), rank, lof, dict(held), gn.converged)
 
     # ------------------------------------------------------------------ bare model
     def bare(self, candidates: Sequence[str]) -> tuple[Fit, dict[str, np.ndarray]]:

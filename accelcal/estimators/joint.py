@@ -29,20 +29,17 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from ..constants import MOUNT_ANGLE_TOLERANCE_RAD
 from ..effects import si_unit
-from ..fitting.core import (FitResult, LackOfFit, finish_fit, gauss_newton, lack_of_fit, lstsq_svd,
-                            normalised_error)
+from ..fitting.core import lstsq_svd, normalised_error
 from ..fitting.data import RunCells, drop_duplicate_cells, fit_noise, make_run, pool_missing_noise
-from ..fitting.model import (PROCESSING_EFFECTS, CampaignModel, head_runs, mount_runs,  # noqa: F401
-                             processing_effects, pure_error)
+from ..fitting.model import CampaignModel, mount_runs, processing_effects
+from ..fitting.procedure import ModelFit, fit_model
 from ..physics.axes import AXES
-from ..physics.geometry import CentrifugeMount
 from ..results import AdequacyResult, BudgetTerm, CoefficientResult, RadiusResult
 from .adequacy import runs_test, trend_test
 from ..fitting.distributions import chi2_sf, t_ppf
@@ -64,61 +61,39 @@ def coverage_factor(dof: float, p: float = 0.95) -> float:
     return float(t_ppf(0.5 + p / 2, dof))
 
 
-@dataclass
-class JointFit:
-    """A fitted campaign model with what the pipeline stores of it."""
-    model: CampaignModel
-    fit: FitResult
-    held: dict[str, str]
-    iterations: int
-    notes: list[str] = field(default_factory=list)
-    pure_error: dict[str, float] = field(default_factory=dict)
-
-    def value(self, name: str) -> float:
-        return self.fit.value(name)
-
-    def std(self, name: str) -> float:
-        return self.fit.std(name)
+#: The adopted calibration's fit of a campaign model (:class:`accelcal.fitting.procedure.ModelFit`).
+JointFit = ModelFit
 
 
 def fit_campaign_model(runs: Sequence[RunCells], effects: Sequence[str], *, shared: Sequence[str] = (),
                        per_run_bias: bool | None = None, per_run_scale: bool = False,
                        noise_passes: int = 1, keep: Sequence[str] = ()) -> JointFit:
-    """Fit a campaign model to runs whose cells are built (:func:`prepare`).
+    """Fit a campaign model to runs whose cells are built (:func:`prepare`), through the one
+    fit procedure (:func:`accelcal.fitting.procedure.fit_model`): the design judged at the
+    start and again after the first noise pass, a time constant bounded at 0.
 
-    The noise model of each run is first fitted to its outputs, then refitted to the
-    residuals of the fit (``noise_passes`` times), so that regressor noise and the
-    lack of fit of nothing but noise are told apart.
+    Parameters
+    ----------
+    runs : sequence of RunCells
+    effects : sequence of str
+        effects.md ids in the model.
+    shared, per_run_bias, per_run_scale
+        :class:`~accelcal.fitting.model.CampaignModel`.
+    noise_passes : int
+        Times the noise model of each run is refitted to the residuals of the fit.
+    keep : sequence of str
+        Parameters never held for being weakly determined.
+
+    Returns
+    -------
+    JointFit
     """
     model = CampaignModel(runs, effects, shared=shared, per_run_bias=per_run_bias,
                           per_run_scale=per_run_scale)
     p = model.start()
     held = model.select(p, keep=keep)
-    free = model.params.free()
-    lower = model.lower_bounds()
-    gn = gauss_newton(model.residual, model.jacobian, p, free, max_iter=40, lower=lower)
-    its = gn.iterations
-    for k in range(noise_passes):
-        for j, r in enumerate(model.runs):
-            fit_noise(r, r.y_rows - model.predict_rows(gn.p, j))
-        pool_missing_noise(model.runs)
-        model.refresh_noise()
-        if k == 0:
-            # what the design determines, judged again at the estimate: terms that act only
-            # through the instrument coefficients (second-order geometry) are 0 at the start
-            held2 = model.select(gn.p, keep=keep)
-            if set(held2) != set(held):
-                held = held2
-                free = model.params.free()
-                gn = replace(gn, p=np.where(free, gn.p, model.params.values()))
-        gn = gauss_newton(model.residual, model.jacobian, gn.p, free, max_iter=40, lower=lower)
-        its += gn.iterations
-    chi_pe, dof_pe = pure_error(model, gn.p)
-    rank_fit = finish_fit(model.params, gn)          # to get the rank
-    dof_lof = model.N - rank_fit.rank
-    lof = lack_of_fit(gn.chi2, dof_lof, chi_pe if dof_pe > 0 else None, dof_pe)
-    fit = finish_fit(model.params, gn, lof)
-    return JointFit(model, fit, held, its, pure_error={"chi2": chi_pe, "dof": dof_pe})
+    return fit_model(model, p, held, keep=keep, noise_passes=noise_passes, reselect=True,
+                     bounded=True, max_iter=40, effects=effects)
 
 
 def prepare(runs) -> tuple[list[RunCells], list[str]]:

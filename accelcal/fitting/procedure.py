@@ -1,0 +1,157 @@
+"""The one fit procedure of a campaign model: start -> Gauss–Newton -> noise-model refit ->
+(re-selection) -> Gauss–Newton -> pure error -> lack of fit.
+
+Both the adopted calibration (:func:`accelcal.estimators.joint.fit_campaign_model`) and the
+sim-to-real diagnosis (:class:`accelcal.diagnosis.fits.Fitter`) fit a
+:class:`~accelcal.fitting.model.CampaignModel` through :func:`fit_model`; what differs
+between them is a handful of options, named here, not a second driver:
+
+* ``bounded``: a time constant (``sensor_lag``) is kept >= 0 (the adopted fit); the
+  diagnosis compares nested models and leaves it unbounded;
+* ``reselect``: after the first noise pass the design is judged again at the estimate
+  (terms that act only through the instrument coefficients are 0 at the start);
+* ``noise_level``: which runs fit the rate-proportional noise term (``"design"``:
+  centrifuge mounts whose rate varies, :func:`accelcal.fitting.data.fit_noise`;
+  ``"spread"``: every run whose regressor varies);
+* ``alpha``: level of the lack-of-fit test.
+
+References: Draper & Smith, *Applied Regression Analysis*, §2.1 (pure error, lack of fit);
+Marquardt 1963 (the damped Gauss–Newton step).
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .core import ALPHA, FitResult, finish_fit, gauss_newton, lack_of_fit
+from .data import fit_noise, pool_missing_noise
+from .model import CampaignModel, pure_error
+
+
+@dataclass
+class ModelFit:
+    """A fitted campaign model: the model, its :class:`~accelcal.fitting.core.FitResult`
+    and what the procedure decided on the way.
+
+    Attributes
+    ----------
+    model : CampaignModel
+        The model at the solution (its parameters carry the holds).
+    fit : FitResult
+        Values [parameter units], covariance, chi-square [1], dof, lack of fit, whitened
+        residual and Jacobian, Fisher information.
+    held : dict
+        Parameter name -> why it is held (aliased, not excited, weakly determined).
+    iterations : int
+        Gauss–Newton iterations over all passes.
+    pure_error : dict
+        ``{"chi2": [1], "dof": int}`` of the within-cell scatter (:func:`pure_error`).
+    active : ndarray of bool
+        Free parameters whose Jacobian column acts on the data at the solution.
+    effects : list of str
+        The effects.md ids the model was built with.
+    notes : list of str
+        What a reader of the result should know (duplicate cells dropped, ...).
+    """
+    model: CampaignModel
+    fit: FitResult
+    held: dict[str, str]
+    iterations: int
+    pure_error: dict[str, float] = field(default_factory=dict)
+    active: np.ndarray | None = None
+    effects: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    def value(self, name: str) -> float:
+        """Estimate of parameter ``name`` [its unit]."""
+        return self.fit.value(name)
+
+    def std(self, name: str) -> float:
+        """Standard uncertainty of ``name`` [its unit], lack-of-fit scaled (nan when not
+        estimable)."""
+        return self.fit.std(name)
+
+
+def refit_noise(model: CampaignModel, p: np.ndarray, noise_level: str = "design") -> None:
+    """Refit every run's noise model to the residual readings of the model at ``p`` and
+    whiten the model again (:func:`accelcal.fitting.data.fit_noise`).
+
+    Parameters
+    ----------
+    model : CampaignModel
+    p : ndarray
+        Parameter vector [parameter units].
+    noise_level : {'design', 'spread'}
+        Runs that fit the rate-proportional term b x^2: ``'design'`` leaves the choice to
+        :func:`~accelcal.fitting.data.fit_noise` (centrifuge mounts whose rate varies);
+        ``'spread'``: every run whose regressor x varies.
+    """
+    for j, r in enumerate(model.runs):
+        level = None if noise_level == "design" else bool(r.x.size and np.ptp(r.x) > 0)
+        fit_noise(r, r.y_rows - model.predict_rows(p, j), use_level=level)
+    pool_missing_noise(model.runs)
+    model.refresh_noise()
+
+
+def fit_model(model: CampaignModel, p: np.ndarray, held: dict[str, str], *,
+              keep: Sequence[str] = (), noise_passes: int = 1, reselect: bool = True,
+              bounded: bool = True, noise_level: str = "design", max_iter: int = 40,
+              alpha: float = ALPHA, effects: Sequence[str] = ()) -> ModelFit:
+    """Fit a campaign model whose holds are decided (:meth:`CampaignModel.select`).
+
+    Parameters
+    ----------
+    model : CampaignModel
+        With ``model.params`` holding what ``held`` names.
+    p : ndarray
+        Start [parameter units] (:meth:`CampaignModel.start`), held parameters at their
+        held values.
+    held : dict
+        Name -> reason of the parameters held.
+    keep : sequence of str
+        Names never held for being weakly determined (at the re-selection).
+    noise_passes : int
+        Times the noise model is refitted to the residuals and the model fitted again, so
+        that regressor noise and a lack of fit of nothing but noise are told apart.
+    reselect : bool
+        Judge what the design determines again at the estimate after the first noise pass.
+    bounded : bool
+        Project each trial point onto the lower bounds (:meth:`CampaignModel.lower_bounds`).
+    noise_level : {'design', 'spread'}
+        :func:`refit_noise`.
+    max_iter : int
+        Gauss–Newton iterations per pass.
+    alpha : float
+        Level of the lack-of-fit test (:func:`accelcal.fitting.core.lack_of_fit`).
+    effects : sequence of str
+        Kept in the result (the effects.md ids the model was built with).
+
+    Returns
+    -------
+    ModelFit
+        The covariance is the noise-model covariance scaled by the lack-of-fit factor; the
+        lack of fit tests the cell means against the pure error (Draper & Smith §2.1).
+    """
+    free = model.params.free()
+    lower = model.lower_bounds() if bounded else None
+    gn = gauss_newton(model.residual, model.jacobian, p, free, max_iter=max_iter, lower=lower)
+    its = gn.iterations
+    for k in range(noise_passes):
+        refit_noise(model, gn.p, noise_level)
+        if k == 0 and reselect:
+            held2 = model.select(gn.p, keep=keep)
+            if set(held2) != set(held):
+                held = held2
+                free = model.params.free()
+                gn = replace(gn, p=np.where(free, gn.p, model.params.values()))
+        gn = gauss_newton(model.residual, model.jacobian, gn.p, free, max_iter=max_iter, lower=lower)
+        its += gn.iterations
+    chi_pe, dof_pe = pure_error(model, gn.p)
+    rank = finish_fit(model.params, gn).rank
+    lof = lack_of_fit(gn.chi2, model.N - rank, chi_pe if dof_pe > 0 else None, dof_pe, alpha=alpha)
+    fit = finish_fit(model.params, gn, lof)
+    active = model.params.free() & (np.linalg.norm(gn.J, axis=0) > 0)
+    return ModelFit(model, fit, dict(held), its, {"chi2": chi_pe, "dof": dof_pe}, active, list(effects))
+
