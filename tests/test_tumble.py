@@ -299,7 +299,7 @@ def test_theta0_is_never_pooled_across_heads():
 def test_real_imucal_heads_untestable_and_disagreeing(examples):
     """../shared/real/imucal-ferraris: four positions per run (untestable, flagged), theta0 per
     head equal in size to imucal's misalignment terms, K0 of the two heads flagged."""
-    from accelcal.estimators.campaign import tumble_step
+    from accelcal.estimators.tumble import tumble_step
     from accelcal.schemas.dropformat import discover, read_run as read_drop
     real = examples.parent / "real" / "imucal-ferraris"
     if not real.is_dir():

@@ -13,113 +13,11 @@ sinusoidal-centrifuge campaigns (paper 002) -> the adopted values of the joint f
 from __future__ import annotations
 
 from collections import defaultdict
-from collections.abc import Sequence
-from dataclasses import dataclass
 
-from ..constants import G_STANDARD, MOUNT_ANGLE_TOLERANCE_RAD
-from ..results import BudgetTerm, CampaignResult, CoefficientResult
-from .centrifuge import RADIUS_ORDERS, RADIUS_RANGES, Reference, RigOutcome, process_rig, rig_records
-from .crosscoupling import SQUARE
-from .records import Records
-from .tumble import TumbleRun, fit_tumble_run, k1_correction, pool_runs, pooling_flags, tumble_records
-
-
-# ------------------------------------------------------------------ tumble (paper 003)
-
-@dataclass(frozen=True)
-class TumbleStep:
-    """The campaign's tumble runs, fitted and pooled (:func:`tumble_step`).
-
-    Attributes
-    ----------
-    runs : tuple of TumbleRun
-    pooled : dict
-        Record name -> :class:`.tumble.Pooled`.
-    flags : tuple of str
-    """
-    runs: tuple[TumbleRun, ...]
-    pooled: dict
-    flags: tuple[str, ...]
-
-    @property
-    def reference(self) -> Reference:
-        """K0, K1 (pooled over the runs, as fitted) and K2 for the centrifuge radius."""
-        k2 = next(q for q in self.pooled.values() if q.key == "K2")
-        K0, K1 = self.pooled["K0"], self.pooled["K1"]
-        return Reference(K0.value, K1.value, K0.u, K1.u, k2.value, k2.u)
-
-    @property
-    def g(self) -> float:
-        return float(self.runs[0].fit.g_local_m_s2)
-
-
-def tumble_step(runs: Sequence) -> TumbleStep | None:
-    """The campaign's tumble runs (Zhan & Cai, paper 003).
-
-    Parameters
-    ----------
-    runs : sequence
-        RunFile-like tumble runs.
-
-    Returns
-    -------
-    TumbleStep or None
-        Every run fitted (:func:`.tumble.fit_tumble_run`) and pooled
-        (:func:`.tumble.pool_runs`: weighted means with the Birge ratio applied and a flag
-        when the runs disagree; K2 and theta0 per head axis); None when no run could be fitted.
-    """
-    fitted, flags = [], []
-    for run in runs:
-        try:
-            tr = fit_tumble_run(run.meta, run.data)
-        except Exception as exc:  # a fit that cannot run is a flag, not a crash
-            flags.append(f"tumble {run.meta.get('run_id')}: fit failed: {exc}")
-            continue
-        fitted.append(tr)
-        flags += tr.flags
-    if not fitted:
-        return None
-    pooled = pool_runs(fitted)
-    return TumbleStep(tuple(fitted), pooled, tuple(flags + pooling_flags(pooled)))
-
-
-def _tumble_extras(step: TumbleStep) -> dict:
-    out = {"tumble": [{"run_id": r.run_id, "values": r.fit.values, "std": r.fit.std_uncertainties,
-                       "residual_rms": r.fit.residual_rms, "dof": r.fit.dof, "lack_of_fit": r.fit.lack_of_fit,
-                       "adequacy": r.fit.adequacy.status if r.fit.adequacy else None,
-                       "two_position": r.two_position, "note": r.fit.note} for r in step.runs]}
-    choices = [r.model_choice for r in step.runs if r.model_choice]
-    if choices:
-        out["tumble_model_choice"] = choices
-    if len(step.runs) > 1:
-        out["tumble_pooling"] = {n: {"value": q.value, "u": q.u, "u_internal": q.u_internal, "birge": q.birge,
-                                     "p": q.p_value, "disagree": q.disagree,
-                                     "runs": [r.run_id for r in q.runs]} for n, q in step.pooled.items()}
-    return out
-
-
-# ------------------------------------------------------------------ corrections between methods
-
-def _square_terms(rigs: Sequence[RigOutcome]) -> dict[str, tuple[float, float]]:
-    """Kpp, Koo (value, u) of the first rig that gives each: what one tumble aliases into K2."""
-    out: dict[str, tuple[float, float]] = {}
-    for rig in rigs:
-        for name in SQUARE.values():
-            c = rig.coefficient(name)
-            if c is not None and name not in out:
-                out[name] = (c.value, float(c.budget.u_c))
-    return out
-
-
-def _k1_correction(tumble: TumbleStep, rigs: Sequence[RigOutcome]) -> tuple[float, float] | None:
-    """(delta, u_delta) of the tumble K1 from the first rig's Koq and K3 (.tumble.k1_correction)."""
-    for rig in rigs:
-        koq = rig.coefficient("Koq")
-        if koq is not None:
-            k3 = rig.coefficient("K3")
-            return k1_correction(tumble.g, (koq.value, float(koq.budget.u_c)),
-                                 (k3.value, float(k3.budget.u_c)) if k3 is not None else None)
-    return None
+from ..constants import MOUNT_ANGLE_TOLERANCE_RAD
+from ..results import CampaignResult, CoefficientResult
+from . import registry
+from .centrifuge import RADIUS_ORDERS, RADIUS_RANGES
 
 
 # ------------------------------------------------------------------ entry point
@@ -157,37 +55,16 @@ def _process_campaign(runs) -> CampaignResult:
     for r in sorted(runs, key=lambda r: str(r.meta.get("run_id"))):
         by_test[str(r.meta["test"])].append(r)
 
-    tumble = tumble_step(by_test["tumble"]) if by_test.get("tumble") else None
-    rigs, rig_flags = [], []
-    by_rig = defaultdict(list)
-    for r in by_test.get("centrifuge", []):
-        by_rig[str(r.meta["rig_id"])].append(r)
-    for rig_runs in by_rig.values():
-        try:
-            out = process_rig(rig_runs, tumble.reference if tumble is not None else None)
-        except Exception as exc:  # never lose the rest of the campaign
-            rig_flags.append(f"centrifuge {rig_runs[0].meta.get('rig_id')}: processing failed: "
-                             f"{type(exc).__name__}: {exc}")
-            continue
-        if isinstance(out, RigOutcome):
-            rigs.append(out)
-        else:
-            rig_flags += list(out)
-
-    # records, built once from the steps' results
-    k1 = _k1_correction(tumble, rigs) if tumble is not None else None
-    if tumble is not None:
-        coeffs, budget = tumble_records(tumble.pooled, square_terms=_square_terms(rigs), k1=k1, g=tumble.g,
-                                        out_unit=str(by_test["tumble"][0].meta.get("output_unit", "out")))
-        Records(coefficients=coeffs, budget=budget, extras=_tumble_extras(tumble),
-                flags=list(tumble.flags)).checked().add_to(res)
-    for out in rigs:
-        rig_records(out, k1).checked().add_to(res)
-    res.flags += rig_flags
-    if by_test.get("tilt_rotation"):
-        _thermal(by_test["tilt_rotation"], res)
-    if by_test.get("sine_centrifuge"):
-        _sine(by_test["sine_centrifuge"], res)
+    # the paper methods, as the registry declares them: first passes, then records in order
+    steps: dict = {}
+    taken = {e.method: [r for t in e.tests for r in by_test.get(t, [])] for e in registry.estimators()}
+    for est in registry.estimators():
+        if taken[est.method] and est.prepare is not None:
+            steps[est.method] = est.prepare(taken[est.method], steps)
+    for est in registry.estimators():
+        if taken[est.method]:
+            for rec in est.records(taken[est.method], steps):
+                rec.add_to(res)
     _joint(runs, res)
     _mark_adopted(res)
     _assess_completeness(res)
@@ -218,15 +95,11 @@ def _joint(runs, res: CampaignResult) -> None:
     res.parameters["joint_effects"] = out["extras"]["effects"]
 
 
-#: Which method's value is adopted when several give the same coefficient: the joint fit
-#: (issue 9); the paper methods only when the joint fit could not run.
-ADOPTION_ORDER = ("joint_ml", "centrifuge_eq9", "sine_ls", "tilt_rotation_ls",
-                  "tilt_rotation_two_position", "tumble_lm")
-
-
 def _mark_adopted(res: CampaignResult) -> None:
-    """One adopted value per coefficient: the first method of ADOPTION_ORDER."""
-    rank = {m: i for i, m in enumerate(ADOPTION_ORDER)}
+    """One adopted value per coefficient: the joint fit's, or where it could not run the
+    first method of :func:`.registry.adoption_order` (the paper methods in the order a
+    value is adopted from them: paper 000, 002, 001, 003)."""
+    rank = {m: i for i, m in enumerate(registry.adoption_order())}
     best: dict[str, CoefficientResult] = {}
     if any(c.method == "joint_ml" for c in res.coefficients):
         # the joint fit ran: its values are the calibration (theta0 per head included);
@@ -263,40 +136,4 @@ def _assess_completeness(res: CampaignResult) -> None:
     res.completeness_reasons = reasons
 
 
-def _thermal(runs, res: CampaignResult) -> None:
-    """Paper 001 on every tilt_rotation run, with the GUM budgets of its coefficients."""
-    try:
-        from .thermal import budget_terms, process_thermal_run
-    except ImportError as exc:
-        res.flags.append(f"thermal method unavailable: {exc}")
-        return
-    for run in runs:
-        try:
-            coeffs, extras = process_thermal_run(run.meta, run.data, str(run.meta.get("rig_id", "")))
-        except Exception as exc:
-            res.flags.append(f"tilt_rotation {run.meta.get('run_id')}: {type(exc).__name__}: {exc}")
-            continue
-        Records(coefficients=coeffs, budget=budget_terms(coeffs, extras["temperature_model"]),
-                extras={"thermal": {str(run.meta.get("run_id")): extras}}).checked().add_to(res)
-
-
-def _sine(runs, res: CampaignResult) -> None:
-    """Paper 002 on the sinusoidal-centrifuge runs of each rig, with the budgets."""
-    try:
-        from .sinusoidal import budget_terms, process_sine_campaign
-    except ImportError as exc:
-        res.flags.append(f"sinusoidal method unavailable: {exc}")
-        return
-    by_rig = defaultdict(list)
-    for r in runs:
-        by_rig[str(r.meta.get("rig_id", ""))].append(r)
-    for rig, rr in by_rig.items():
-        try:
-            coeffs, extras = process_sine_campaign([(r.meta, r.data) for r in rr], rig)
-        except Exception as exc:
-            res.flags.append(f"sine_centrifuge {rig}: {type(exc).__name__}: {exc}")
-            continue
-        Records(coefficients=coeffs, budget=budget_terms(coeffs), extras={"sine": {rig: extras}}).checked().add_to(res)
-
-
-__all__ = ["process_campaign", "tumble_step", "G_STANDARD", "SQUARE", "BudgetTerm", "CoefficientResult"]
+__all__ = ["process_campaign", "CampaignResult", "CoefficientResult"]

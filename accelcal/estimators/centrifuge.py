@@ -42,6 +42,7 @@ from .crosscoupling import CROSS, Combination, PairFit, combine_second_order, de
 from .radius import (IterativeRadius, PairData, StaticRadius, g_levels, geometric_static_radius,
                      test_radius_iterative, test_radius_static)
 from .records import Records
+from .registry import Estimator, register
 
 METHOD = "centrifuge_eq9"
 #: g ranges of the radius table, in g (paper 000 Table 2), plus the full range.
@@ -635,3 +636,62 @@ def rig_records(out: RigOutcome, k1_correction: tuple[float, float] | None = Non
                                       note="eq 6 radius with K2, Koq, K3 and the cross-coupling with gravity removed"))
     rec.flags += list(out.flags)
     return rec
+
+
+# ------------------------------------------------------------------ the campaign's centrifuge step
+
+def campaign_rigs(runs: Sequence, steps) -> tuple[list[RigOutcome], list[str]]:
+    """Paper 000 on every centrifuge rig of a campaign (:func:`process_rig`), with the
+    campaign's tumble as the reference scale where it has one.
+
+    Returns
+    -------
+    (rigs, flags)
+        The rigs processed, and one flag per rig that could not be (no IA pair, a failure):
+        a rig never costs the rest of the campaign.
+    """
+    tumble = steps.get("tumble_lm")
+    rigs, flags = [], []
+    by_rig = defaultdict(list)
+    for r in runs:
+        by_rig[str(r.meta["rig_id"])].append(r)
+    for rig_runs in by_rig.values():
+        try:
+            out = process_rig(rig_runs, tumble.reference if tumble is not None else None)
+        except Exception as exc:  # never lose the rest of the campaign
+            flags.append(f"centrifuge {rig_runs[0].meta.get('rig_id')}: processing failed: "
+                         f"{type(exc).__name__}: {exc}")
+            continue
+        if isinstance(out, RigOutcome):
+            rigs.append(out)
+        else:
+            flags += list(out)
+    return rigs, flags
+
+
+def campaign_records(runs: Sequence, steps) -> list[Records]:
+    """The records of every rig (:func:`rig_records`, geometric radii with the tumble K1
+    correction), then the rigs' flags."""
+    from .tumble import campaign_k1_correction
+    rigs, flags = steps.get(METHOD, ((), ()))
+    k1 = campaign_k1_correction(steps)
+    return [rig_records(out, k1).checked() for out in rigs] + [Records(flags=list(flags))]
+
+
+def mc_truth(c, eff, test, g, notes) -> dict[tuple[str, str], tuple[float, str]]:
+    """What each paper-000 coefficient estimates in a simulated test: the instrument values
+    of K2, Kpp, Koo, Kip, Kio, Kpo, Koq, K3 (signature of
+    :data:`accelcal.estimators.registry.TruthMapping`)."""
+    rig = str(test["rig_id"])
+    return {(k, rig): (c[k], "instrument value") for k in ("K2", "Kpp", "Koo", "Kip", "Kio", "Kpo", "Koq", "K3")}
+
+
+ESTIMATOR = register(Estimator(
+    method=METHOD, tests=("centrifuge",),
+    certificate=("paper 000 (He & Yin, 2017): test radius by static back-calculation "
+                 "(eqs 4–6) and iterative regression (eq 7); second-order and cross-coupling "
+                 "coefficients from the mount pairs (eq 9) combined by weighted least squares "
+                 "(eqs 2–3); alignment analysis (eq 8); GUM budgets with a JCGM 101 Monte Carlo "
+                 "check"),
+    prepare=campaign_rigs, records=campaign_records, truth=mc_truth, adoption=1,
+    main=("K2", "Kip", "Kpp", "Koq", "K3"), order=1))

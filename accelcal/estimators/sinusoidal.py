@@ -79,6 +79,10 @@ from ..physics import instrument, rigs
 from ..physics.geometry import geometry_of
 from ..results import BudgetTerm, CoefficientResult
 from . import uncertainty as unc
+from .registry import Estimator, register
+
+#: Method id of paper 002's records.
+METHOD = "sine_ls"
 
 TEST = "sine_centrifuge"
 
@@ -919,14 +923,14 @@ def process_sine_campaign(runs: Sequence, rig_id: str = "", *, tool_errors: Mapp
         if p_kind == "tool":
             continue
         results.append(CoefficientResult(
-            name=n, value=fit.values[n], std_uncertainty=fit.std[n], unit=_unit(n, out_unit), method="sine_ls",
+            name=n, value=fit.values[n], std_uncertainty=fit.std[n], unit=_unit(n, out_unit), method=METHOD,
             rig_id=rig_id, dof=float(fit.dof),
             note="paper 002 joint 3-attitude LS, tool errors identified and compensated; "
                  "residual-scaled covariance"))
     alias = aliasing_report(fit)
     alias_nominal = aliasing_report(f1)
     extras = {
-        "method": "sine_ls",
+        "method": METHOD,
         "aliasing": [{k: v for k, v in a.items()} for a in alias],
         "aliasing_coefficients_only": alias_nominal,
         "tool_errors": cmp["tool_errors"],
@@ -973,3 +977,42 @@ def budget_terms(coefficients: Sequence[CoefficientResult]) -> list[BudgetTerm]:
                   1.0, "A", "normal")]
         out += unc.linear_budget(c.name, terms, method=c.method, rig_id=c.rig_id, value=c.value).terms
     return out
+
+
+# ----------------------------------------------------------------------------- the campaign's sine step
+
+def campaign_records(runs: Sequence, steps: Mapping[str, Any]) -> list:
+    """Paper 002 on the sinusoidal-centrifuge runs of each rig of a campaign
+    (:func:`process_sine_campaign`), with the budgets; a rig that fails is a flag."""
+    from collections import defaultdict
+
+    from .records import Records
+    by_rig = defaultdict(list)
+    for r in runs:
+        by_rig[str(r.meta.get("rig_id", ""))].append(r)
+    out = []
+    for rig, rr in by_rig.items():
+        try:
+            coeffs, extras = process_sine_campaign([(r.meta, r.data) for r in rr], rig)
+        except Exception as exc:
+            out.append(Records(flags=[f"sine_centrifuge {rig}: {type(exc).__name__}: {exc}"]))
+            continue
+        out.append(Records(coefficients=coeffs, budget=budget_terms(coeffs), extras={"sine": {rig: extras}}).checked())
+    return out
+
+
+def mc_truth(c, eff, test, g, notes) -> dict[tuple[str, str], tuple[float, str]]:
+    """What each paper-002 coefficient estimates in a simulated test: the instrument values
+    of the 12 coefficients (K0 shared by the attitudes, K1 at the run temperature)
+    (signature of :data:`accelcal.estimators.registry.TruthMapping`)."""
+    rig = str(test["rig_id"])
+    return {(k, rig): (c[k], "instrument value")
+            for k in ("K0", "K1", "Kp", "Ko", "K2", "K3", "Koq", "Kip", "Kio", "Kpo", "Kpp", "Koo")}
+
+
+ESTIMATOR = register(Estimator(
+    method=METHOD, tests=("sine_centrifuge",),
+    certificate=("paper 002 (Sun, Ren & Wang): joint least squares of the instrument "
+                 "model with the rig's tool errors through the forward model, with an "
+                 "aliasing analysis"),
+    records=campaign_records, truth=mc_truth, adoption=2, main=("K2", "Kip"), order=3))

@@ -49,6 +49,7 @@ from ..physics.instrument import indicated_acceleration, output_derivative
 from ..physics.rigs import tilt_rotation_specific_force
 from ..results import BudgetTerm, CoefficientResult
 from . import uncertainty as unc
+from .registry import Estimator, register
 
 METHOD = "tilt_rotation_ls"
 METHOD_TWO_POSITION = "tilt_rotation_two_position"
@@ -911,3 +912,55 @@ def budget_terms(coefficients: Sequence[CoefficientResult], model: Mapping[str, 
                           u0 * math.sqrt(birge * birge - 1.0), 1.0, "A", "normal"))
         out += unc.linear_budget(c.name, terms, method=c.method, rig_id=c.rig_id, value=c.value).terms
     return out
+
+
+# --------------------------------------------------------------------------- the campaign's thermal step
+
+def campaign_records(runs: Sequence, steps: Mapping[str, Any]) -> list:
+    """Paper 001 on every tilt_rotation run of a campaign (:func:`process_thermal_run`),
+    with the GUM budgets of its coefficients; a run that fails is a flag."""
+    from .records import Records
+    out = []
+    for run in runs:
+        try:
+            coeffs, extras = process_thermal_run(run.meta, run.data, str(run.meta.get("rig_id", "")))
+        except Exception as exc:
+            out.append(Records(flags=[f"tilt_rotation {run.meta.get('run_id')}: {type(exc).__name__}: {exc}"]))
+            continue
+        out.append(Records(coefficients=coeffs, budget=budget_terms(coeffs, extras["temperature_model"]),
+                           extras={"thermal": {str(run.meta.get("run_id")): extras}}).checked())
+    return out
+
+
+def mc_truth(c: Mapping[str, float], eff: Mapping[str, float], test: Mapping[str, Any], g: float,
+             notes: Mapping[str, str]) -> dict[tuple[str, str], tuple[float, str]]:
+    """What each paper-001 coefficient estimates in a simulated test (tilt gamma, normal axis
+    n with sign ns, cos axis c): K0 -> the apparent bias at 20 degC with the normal axis'
+    cross and square terms and the mean centripetal-free square term of the tilt plane;
+    K1 -> K1; K0T -> K0T + g c cos(gamma) of a fixture thermal tilt c (aliased, paper 001
+    §3.2); K1T -> K1T (signature of :data:`accelcal.estimators.registry.TruthMapping`)."""
+    from ..effects import CROSS_AXIS_TERM, SQUARE_TERM
+    from ..physics.axes import parse_signed_axis
+    rig = str(test["rig_id"])
+    gam = math.radians(float(test["tilt_deg"]))
+    ni, ns = parse_signed_axis(test.get("normal_axis", "+OA"))
+    ci, _ = parse_signed_axis(test.get("cos_axis", "+PA"))
+    if ni == 0 or ci == 0:
+        return {}
+    K0app = (c["K0"] + ns * c[CROSS_AXIS_TERM[ni]] * g * math.cos(gam)
+             + c[SQUARE_TERM[ni]] * (g * math.cos(gam)) ** 2
+             + (c["K2"] + c[SQUARE_TERM[ci]]) * (g * math.sin(gam)) ** 2 / 2)
+    cf = eff.get("fixture_thermal_tilt", 0.0)
+    return {("K0", rig): (K0app, "apparent bias at 20 degC (normal-axis terms)"),
+            ("K1", rig): (c["K1"], "K1 at 20 degC"),
+            ("K0T", rig): (c["K0T"] + g * cf * math.cos(gam), "K0T + g c cos(gamma) (fixture thermal tilt)"),
+            ("K1T", rig): (c["K1T"], "instrument value")}
+
+
+ESTIMATOR = register(Estimator(
+    method=METHOD, tests=("tilt_rotation",),
+    certificate=("paper 001 (Zhang et al., 2021): least squares of K0 and K1 over the "
+                 "table positions at each temperature point, and a linear temperature model "
+                 "for K0T and K1T (T_ref = 20 °C)"),
+    records=campaign_records, truth=mc_truth, methods=(METHOD, METHOD_TWO_POSITION), adoption=3,
+    main=("K0T", "K1T"), order=2))

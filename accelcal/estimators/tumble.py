@@ -35,12 +35,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from typing import Any
 from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 
-from ..effects import si_unit
+from ..effects import CROSS_AXIS_TERM, SQUARE_TERM, si_unit
 from ..fitting.core import (FitResult, GaussNewton, LackOfFit, Parameter, ParameterSet, birge_ratio,
                             finish_fit, gauss_newton, lstsq_svd)
 from ..physics.axes import AXES, parse_signed_axis
@@ -49,8 +50,12 @@ from ..physics.instrument import output_derivative
 from ..physics.rigs import rig_output, tumble_specific_force
 from ..results import BudgetTerm, CoefficientResult
 from . import uncertainty as unc
+from .registry import Estimator, register
 from .adequacy import pure_error_test
 from ..fitting.distributions import chi2_sf
+
+#: Method id of the tumble fit's records (paper 003).
+METHOD = "tumble_lm"
 
 #: Parameters of the tumble fit, in order (effects.md names; theta0 = ``initial_misalignment``).
 PARAMS = ("K0", "K1", "K2", "theta0")
@@ -527,7 +532,7 @@ def tumble_coefficients(fit: TumbleFit, rig_id: str, covariance: str = "readings
     for k in fit.param_names:
         note = "; ".join(x for x in (notes.get(k, ""), f"covariance from {covariance}", lof) if x)
         out.append(CoefficientResult(name=k, value=fit.values[k], std_uncertainty=float(sd[k]),
-                                     unit=si_unit(k, fit.output_unit or "out"), method="tumble_lm",
+                                     unit=si_unit(k, fit.output_unit or "out"), method=METHOD,
                                      rig_id=rig_id, dof=dof, note=note))
     return out
 
@@ -728,7 +733,7 @@ _NOTES = {"theta0": _ALIAS_NOTE, "K2": "a single tumble gives K2 - Koo (Koo alia
 
 def tumble_records(pooled: Mapping[str, Pooled], *, square_terms: Mapping[str, tuple[float, float]] | None = None,
                    k1: tuple[float, float] | None = None, g: float = 9.80665, out_unit: str = "out",
-                   method: str = "tumble_lm") -> tuple[list[CoefficientResult], list[BudgetTerm]]:
+                   method: str = METHOD) -> tuple[list[CoefficientResult], list[BudgetTerm]]:
     """Coefficient records and GUM budgets of the campaign's tumble quantities (paper 003).
 
     Parameters
@@ -872,3 +877,177 @@ def pooling_flags(pooled: Mapping[str, Pooled]) -> list[str]:
             out.append(f"tumble runs disagree on {name}: {vals} (Birge ratio {q.birge:.3g}, p = {q.p_value:.2g}); "
                        f"not averaged silently: weighted mean {q.value:.6g} with u scaled by the Birge ratio")
     return out
+
+
+# ------------------------------------------------------------------ the campaign's tumble step
+
+@dataclass(frozen=True)
+class TumbleStep:
+    """The campaign's tumble runs, fitted and pooled (:func:`tumble_step`).
+
+    Attributes
+    ----------
+    runs : tuple of TumbleRun
+    pooled : dict
+        Record name -> :class:`Pooled`.
+    flags : tuple of str
+    """
+    runs: tuple[TumbleRun, ...]
+    pooled: dict
+    flags: tuple[str, ...]
+
+    @property
+    def reference(self):
+        """K0, K1 (pooled over the runs, as fitted) and K2 for the centrifuge radius
+        (:class:`accelcal.estimators.centrifuge.Reference`)."""
+        from .centrifuge import Reference
+        k2 = next(q for q in self.pooled.values() if q.key == "K2")
+        K0, K1 = self.pooled["K0"], self.pooled["K1"]
+        return Reference(K0.value, K1.value, K0.u, K1.u, k2.value, k2.u)
+
+    @property
+    def g(self) -> float:
+        """Local gravity of the tumble [m/s2]."""
+        return float(self.runs[0].fit.g_local_m_s2)
+
+
+def tumble_step(runs: Sequence) -> TumbleStep | None:
+    """The campaign's tumble runs (Zhan & Cai, paper 003).
+
+    Parameters
+    ----------
+    runs : sequence
+        RunFile-like tumble runs.
+
+    Returns
+    -------
+    TumbleStep or None
+        Every run fitted (:func:`fit_tumble_run`) and pooled (:func:`pool_runs`: weighted
+        means with the Birge ratio applied and a flag when the runs disagree; K2 and theta0
+        per head axis); None when no run could be fitted.
+    """
+    fitted, flags = [], []
+    for run in runs:
+        try:
+            tr = fit_tumble_run(run.meta, run.data)
+        except Exception as exc:  # a fit that cannot run is a flag, not a crash
+            flags.append(f"tumble {run.meta.get('run_id')}: fit failed: {exc}")
+            continue
+        fitted.append(tr)
+        flags += tr.flags
+    if not fitted:
+        return None
+    pooled = pool_runs(fitted)
+    return TumbleStep(tuple(fitted), pooled, tuple(flags + pooling_flags(pooled)))
+
+
+def _tumble_extras(step: TumbleStep) -> dict:
+    out = {"tumble": [{"run_id": r.run_id, "values": r.fit.values, "std": r.fit.std_uncertainties,
+                       "residual_rms": r.fit.residual_rms, "dof": r.fit.dof, "lack_of_fit": r.fit.lack_of_fit,
+                       "adequacy": r.fit.adequacy.status if r.fit.adequacy else None,
+                       "two_position": r.two_position, "note": r.fit.note} for r in step.runs]}
+    choices = [r.model_choice for r in step.runs if r.model_choice]
+    if choices:
+        out["tumble_model_choice"] = choices
+    if len(step.runs) > 1:
+        out["tumble_pooling"] = {n: {"value": q.value, "u": q.u, "u_internal": q.u_internal, "birge": q.birge,
+                                     "p": q.p_value, "disagree": q.disagree,
+                                     "runs": [r.run_id for r in q.runs]} for n, q in step.pooled.items()}
+    return out
+
+
+def _square_terms(rigs: Sequence) -> dict[str, tuple[float, float]]:
+    """Kpp, Koo (value, u) of the first centrifuge rig that gives each: what one tumble
+    aliases into K2."""
+    out: dict[str, tuple[float, float]] = {}
+    for rig in rigs:
+        for name in SQUARE_TERM:
+            c = rig.coefficient(name)
+            if c is not None and name not in out:
+                out[name] = (c.value, float(c.budget.u_c))
+    return out
+
+
+def campaign_k1_correction(steps: Mapping[str, Any]) -> tuple[float, float] | None:
+    """(delta, u_delta) of the tumble K1 from the first centrifuge rig's Koq and K3
+    (:func:`k1_correction`); None without a tumble or a rig that gives Koq."""
+    tumble = steps.get(METHOD)
+    if tumble is None:
+        return None
+    for rig in steps.get("centrifuge_eq9", ((), ()))[0]:
+        koq = rig.coefficient("Koq")
+        if koq is not None:
+            k3 = rig.coefficient("K3")
+            return k1_correction(tumble.g, (koq.value, float(koq.budget.u_c)),
+                                 (k3.value, float(k3.budget.u_c)) if k3 is not None else None)
+    return None
+
+
+def campaign_records(runs: Sequence, steps: Mapping[str, Any]) -> list:
+    """The tumble's records of a campaign: the pooled values with the centrifuge's square
+    terms and K1 correction where the campaign has them (:func:`tumble_records`)."""
+    from .records import Records
+    tumble = steps.get(METHOD)
+    if tumble is None:
+        return []
+    rigs = steps.get("centrifuge_eq9", ((), ()))[0]
+    coeffs, budget = tumble_records(tumble.pooled, square_terms=_square_terms(rigs),
+                                    k1=campaign_k1_correction(steps), g=tumble.g,
+                                    out_unit=str(runs[0].meta.get("output_unit", "out")))
+    return [Records(coefficients=coeffs, budget=budget, extras=_tumble_extras(tumble),
+                    flags=list(tumble.flags)).checked()]
+
+
+def mc_truth(c: Mapping[str, float], eff: Mapping[str, float], test: Mapping[str, Any], g: float,
+             notes: Mapping[str, str]) -> dict[tuple[str, str], tuple[float, str]]:
+    """What each tumble coefficient estimates in a simulated test (cos_axis = +-IA, sin
+    axis s with sign ss, cos sign cs, temperature T): K0 -> K0(T) + K_ss g^2; K1 -> K1(T);
+    K2 -> K2 when the centrifuge's K_ss was added, else K2 - K_ss; theta0 ->
+    initial_misalignment - cs ss K_s; the cross term -> the instrument value.
+
+    Parameters
+    ----------
+    c : mapping
+        Instrument coefficients of the test [SI].
+    eff : mapping
+        Effect sizes of the test [effects.md units].
+    test : mapping
+        The scenario's test (``heads``, ``temp_c``, ``rig_id``).
+    g : float
+        Local gravity [m/s2].
+    notes : mapping
+        Coefficient name -> note of the processed campaign (whether K2 was corrected).
+
+    Returns
+    -------
+    dict
+        (name, rig_id) -> (truth [SI], how it was mapped).
+    """
+    from ..constants import T_REF_C
+    rig = str(test["rig_id"])
+    head = test["heads"][0]
+    ci, cs = parse_signed_axis(head["cos_axis"])
+    si, ss = parse_signed_axis(head["sin_axis"])
+    if ci != 0:
+        return {}
+    dT = float(test.get("temp_c", 23.0)) - T_REF_C
+    Kss, Ks = c[SQUARE_TERM[si]], c[CROSS_AXIS_TERM[si]]
+    sq, cr = SQUARE_TERM[si], CROSS_AXIS_TERM[si]
+    corrected = "from the centrifuge added" in notes.get("K2", "")
+    cross = {1: "Kip", 2: "Kio"}[si]
+    return {("K0", rig): (c["K0"] + c["K0T"] * dT + Kss * g * g, f"K0(T) + {sq} g^2 (apparent bias of a tumble)"),
+            ("K1", rig): (c["K1"] * (1 + c["K1T"] * dT), "K1(T)"),
+            ("K2", rig): ((c["K2"], "K2 (centrifuge " + sq + " added)") if corrected
+                          else (c["K2"] - Kss, f"K2 - {sq} (aliased in one tumble)")),
+            ("theta0", rig): (eff.get("initial_misalignment", 0.0) - cs * ss * Ks,
+                              f"initial_misalignment - {cr} (aliased)"),
+            (cross, rig): (c[cross], "instrument value")}
+
+
+ESTIMATOR = register(Estimator(
+    method=METHOD, tests=("tumble",),
+    certificate=("paper 003 (Zhan & Cai): Levenberg–Marquardt fit of K0, K1, K2 and the head's "
+                 "initial misalignment through the forward model, with a lack-of-fit test; "
+                 "two-position values for comparison"),
+    prepare=lambda runs, steps: tumble_step(runs), records=campaign_records, truth=mc_truth,
+    adoption=5, crb=False, order=0))

@@ -52,27 +52,23 @@ from .plots import (K_COVERAGE, radius_plot, residual_plot, series_residual_plot
 #: Coverage probability of U = 2u for a normal distribution (EA-4/02 wording).
 COVERAGE_PROBABILITY = "≈ 95 %"
 
-#: What each test kind is, in the certificate's words (../shared/docs/methods.md).
-TEST_METHODS = {
-    "tumble": ("Multi-position tumble in the gravity field on a dividing head",
-               "paper 003 (Zhan & Cai): Levenberg–Marquardt fit of K0, K1, K2 and the head's "
-               "initial misalignment through the forward model, with a lack-of-fit test; "
-               "two-position values for comparison"),
-    "centrifuge": ("Precision centrifuge at stepped constant rates",
-                   "paper 000 (He & Yin, 2017): test radius by static back-calculation "
-                   "(eqs 4–6) and iterative regression (eq 7); second-order and cross-coupling "
-                   "coefficients from the mount pairs (eq 9) combined by weighted least squares "
-                   "(eqs 2–3); alignment analysis (eq 8); GUM budgets with a JCGM 101 Monte Carlo "
-                   "check"),
-    "tilt_rotation": ("Tilted rotary table in a thermal chamber",
-                      "paper 001 (Zhang et al., 2021): least squares of K0 and K1 over the "
-                      "table positions at each temperature point, and a linear temperature model "
-                      "for K0T and K1T (T_ref = 20 °C)"),
-    "sine_centrifuge": ("Disc centrifuge at a sinusoidal rate",
-                        "paper 002 (Sun, Ren & Wang): joint least squares of the instrument "
-                        "model with the rig's tool errors through the forward model, with an "
-                        "aliasing analysis"),
+#: What each test kind is, in the certificate's words (../shared/docs/methods.md); how each
+#: is evaluated is the method's own text (:mod:`accelcal.estimators.registry`).
+TEST_TITLES = {
+    "tumble": "Multi-position tumble in the gravity field on a dividing head",
+    "centrifuge": "Precision centrifuge at stepped constant rates",
+    "tilt_rotation": "Tilted rotary table in a thermal chamber",
+    "sine_centrifuge": "Disc centrifuge at a sinusoidal rate",
 }
+
+
+def method_text(test: str) -> tuple[str, str]:
+    """(what the test is, how its runs are evaluated) for the certificate's method section:
+    the texts of the registered estimators that take the test, joined."""
+    from ..estimators import registry
+    return TEST_TITLES.get(test, test), "; ".join(e.certificate for e in registry.for_test(test))
+
+
 #: Science parameters that belong to one test kind (others apply to every certificate).
 PARAMETER_TESTS = {"radius_orders": "centrifuge", "radius_ranges_g": "centrifuge",
                    "mount_angle_tolerance_rad": "centrifuge"}
@@ -483,7 +479,7 @@ def _sec_item(d) -> str:
 def _sec_method(d) -> str:
     rows = []
     for test in d.get("tests") or []:
-        name, how = TEST_METHODS.get(test, (test, ""))
+        name, how = method_text(test)
         rigs = sorted({str(x.get("rig_id")) for x in d["lineage"] if x.get("test") == test})
         n = sum(1 for x in d["lineage"] if x.get("test") == test)
         rows.append([name, ", ".join(rigs), (str(n), "num"), how])
