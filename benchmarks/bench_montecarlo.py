@@ -6,7 +6,7 @@ For each scenario one campaign is timed first; n is then the largest number of c
 that fits the time budget (seconds of wall time on ``--workers`` processes), clipped to
 [--n-min, --n-max] (default 200..1000; n stays 200 when the budget allows fewer, which is
 then said in the output).  Writes benchmarks/results/montecarlo-<scenario>.md (markdown
-table, module accelcal.montecarlo), with --json also a .json next to it.  Not part of CI.
+table, module accelcal.validation.montecarlo), with --json also a .json next to it.  Not part of CI.
 """
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from accelcal import montecarlo as mc
+from accelcal.validation import montecarlo as mc
 from accelcal.simulate import load_scenario
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

@@ -151,14 +151,14 @@ def test_cli_json(tmp_path, capsys):
 
 # ----------------------------------------------------------------- our simulator, realistic DAQ noise
 def _sim(kind, effects, disturbance=None, seed=11):
-    from accelcal.diagnosis.benchmark import runs_of, scenario
+    from accelcal.validation.diagnosis_benchmark import runs_of, scenario
     return runs_of(scenario(kind, effects, disturbance), seed)
 
 
 def test_realistic_noise_clean_tumble_and_withheld_k1t():
     """What real DAQs add (logged-angle noise, counts, spikes, bias walk) gives no verdict on
     clean data; a withheld K1T is found with the scenario's size."""
-    from accelcal.diagnosis.benchmark import DEV_BASELINE
+    from accelcal.validation.diagnosis_benchmark import DEV_BASELINE
     res = diagnose(_sim("tumble", {}), DEV_BASELINE["tumble"])
     assert res["verdict"] is None and res["explained"] is True
     res = diagnose(_sim("tumble", {"scale_temperature": 1e-4}), DEV_BASELINE["tumble"])
@@ -181,7 +181,7 @@ def test_gap_outside_the_catalogue_is_said_unexplained(kind, dist):
 
 
 def test_wilson_interval():
-    from accelcal.diagnosis.benchmark import wilson
+    from accelcal.validation.diagnosis_benchmark import wilson
     lo, hi = wilson(0, 200)
     assert lo == pytest.approx(0.0, abs=1e-12) and hi == pytest.approx(0.01885, abs=1e-4)  # (z^2/n)/(1+z^2/n)
     lo, hi = wilson(10, 200)
@@ -189,7 +189,7 @@ def test_wilson_interval():
 
 
 def test_readme_section_replaced_between_markers(tmp_path):
-    from accelcal.diagnosis.benchmark import README_END, README_START, write_readme
+    from accelcal.validation.diagnosis_benchmark import README_END, README_START, write_readme
     p = tmp_path / "README.md"
     p.write_text(f"intro\n{README_START}\nold\n{README_END}\ntail\n")
     write_readme(p, "new table")

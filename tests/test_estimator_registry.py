@@ -46,7 +46,7 @@ def test_paper_methods_in_run_and_adoption_order():
 
 
 def test_toy_estimator_reaches_result_study_and_certificate():
-    from accelcal.montecarlo import run_study
+    from accelcal.validation.montecarlo import run_study
     from accelcal.ops.report import method_text
     from accelcal.simulate.scenario import load_scenario
 
@@ -64,7 +64,7 @@ def test_toy_estimator_reaches_result_study_and_certificate():
 
 
 def test_toy_estimator_in_campaign_result():
-    from accelcal.montecarlo import _campaign
+    from accelcal.validation.montecarlo import _campaign
     from accelcal.simulate.scenario import load_scenario
 
     with registry.registered(TOY_ESTIMATOR):

@@ -1,4 +1,4 @@
-"""Smoke tests of the Monte Carlo study (accelcal.montecarlo, issue 3): the machinery, the
+"""Smoke tests of the Monte Carlo study (accelcal.validation.montecarlo, issue 3): the machinery, the
 truth mapping, and the Cramér–Rao bound on a case checkable in closed form."""
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import tomllib
 import numpy as np
 import pytest
 
-from accelcal import montecarlo as mc
+from accelcal.validation import montecarlo as mc
 from accelcal.simulate import SCENARIO_DIR, load_scenario, simulate_campaign
 
 
@@ -95,7 +95,8 @@ def test_smoke_demo_and_cli(tmp_path):
     """The demo campaign (tumble + 10 centrifuge mounts), n = 3, through the CLI."""
     ap = argparse.ArgumentParser()
     sub = ap.add_subparsers()
-    mc.register_cli(sub)
+    from accelcal.validation.cli import register_cli
+    register_cli(sub)
     out = tmp_path / "mc.json"
     args = ap.parse_args(["montecarlo", "demo", "--n", "3", "--seed", "5", "--json", "--out", str(out)])
     assert args.func(args) == 0

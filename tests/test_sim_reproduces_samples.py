@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from accelcal.estimators.campaign import process_campaign
-from accelcal.montecarlo import SimRunFile
+from accelcal.validation.simruns import SimRunFile
 from accelcal.schemas.dropformat import discover, read_run
 from accelcal.simulate import load_scenario, simulate_campaign
 

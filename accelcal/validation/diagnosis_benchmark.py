@@ -35,11 +35,11 @@ from scipy import stats
 
 from ..effects import EFFECTS
 from ..fitting.model import processing_effects
-from ..montecarlo import SimRunFile
 from ..simulate import load_scenario, simulate_campaign
-from ._blas import single_thread
-from .core import diagnose, prepare_cells
-from .fits import Fitter, project_out
+from ..diagnosis._blas import single_thread
+from ..diagnosis.core import diagnose, prepare_cells
+from ..diagnosis.fits import Fitter, project_out
+from .simruns import SimRunFile
 
 KINDS = ("centrifuge", "tumble", "tilt_rotation", "sine_centrifuge")
 SNR_RANGE = (12.0, 60.0)
@@ -270,7 +270,7 @@ def dev_root() -> Path | None:
 
 
 def run_section2(root: Path | None = None, log=print, only: str = "*") -> list[dict]:
-    from .runfiles import read_paths
+    from ..diagnosis.runfiles import read_paths
     root = root or dev_root()
     if root is None:
         return []
@@ -297,7 +297,7 @@ def run_section2(root: Path | None = None, log=print, only: str = "*") -> list[d
 def run_section3(log=print) -> list[dict]:
     """The real hand-held IMU session (../shared/real/imucal-ferraris): per campaign with
     baseline initial_misalignment, and one run alone."""
-    from .runfiles import read_paths
+    from ..diagnosis.runfiles import read_paths
     root = dev_root()
     real = root.parent / "real" / "imucal-ferraris" if root is not None else None
     if real is None or not real.is_dir():

@@ -1,5 +1,7 @@
 """Monte Carlo validity study of the estimators (issue 3): ``accelcal montecarlo SCENARIO --n 200``.
 
+Part of the validation wing (:mod:`accelcal.validation`).
+
 For i = 0 .. n-1 the scenario is simulated in memory with seed ``seed + i``
 (:func:`accelcal.simulate.simulate_campaign`), every run is wrapped as a RunFile-like
 object (``meta``, ``data``, ``sha256`` of its content) and the whole campaign goes through
@@ -66,10 +68,7 @@ bound also for estimators with more nuisance parameters than it has.
 """
 from __future__ import annotations
 
-import argparse
 import copy
-import hashlib
-import json
 import math
 import time
 from collections import defaultdict
@@ -80,11 +79,12 @@ from typing import Any
 
 import numpy as np
 
-from .constants import T_REF_C
-from .effects import plausible_size, typical_size
-from .estimators import registry
-from .fitting.core import thin_svd
-from .physics.rigs import INSTRUMENT_EFFECTS, rig_output
+from ..constants import T_REF_C
+from ..effects import plausible_size, typical_size
+from ..estimators import registry
+from .simruns import SimRunFile
+from ..fitting.core import thin_svd
+from ..physics.rigs import INSTRUMENT_EFFECTS, rig_output
 
 #: coverage target of issue 3 (95 % +- 3 %) and the coverage factor of the intervals
 TARGET, TARGET_TOL, K_COVER = 0.95, 0.03, 1.96
@@ -104,24 +104,8 @@ SINE_TOOL_ERRORS = ("spindle_tilt", "mass_centre_offset", "rate_scale_error", "s
 
 # ---------------------------------------------------------------- runs and scenarios
 
-@dataclass
-class SimRunFile:
-    """A simulated run as process_campaign sees a parsed file: meta, data, sha256."""
-    meta: dict
-    data: Any
-    sha256: str
-
-    @classmethod
-    def from_simrun(cls, run) -> "SimRunFile":
-        h = hashlib.sha256()
-        h.update(json.dumps(run.meta, sort_keys=True, default=str).encode())
-        h.update(",".join(map(str, run.data.columns)).encode())
-        h.update(np.ascontiguousarray(run.data.to_numpy(dtype=float)).tobytes())
-        return cls(meta=run.meta, data=run.data, sha256=h.hexdigest())
-
-
 def _scenario(scenario):
-    from .simulate import Scenario, load_scenario
+    from ..simulate import Scenario, load_scenario
     return scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
 
 
@@ -139,8 +123,8 @@ def _noise_free(sc):
 
 
 def _campaign(sc, seed: int):
-    from .estimators.campaign import process_campaign
-    from .simulate import simulate_campaign
+    from ..estimators.campaign import process_campaign
+    from ..simulate import simulate_campaign
     runs = simulate_campaign(sc, seed)
     return process_campaign([SimRunFile.from_simrun(r) for r in runs])
 
@@ -163,7 +147,7 @@ def _one(args) -> list[tuple[str, str, str, float, float, str]] | str:
 
 def _coeffs_for(sc, test: Mapping) -> dict[str, float]:
     """Instrument coefficients seen by the runs of one test (instrument-term effects added)."""
-    from .effects import EFFECTS
+    from ..effects import EFFECTS
     c = {k: 0.0 for k in _ALL_COEFFS}
     c["K1"] = 1.0
     c.update(sc.coefficients)
@@ -175,7 +159,7 @@ def _coeffs_for(sc, test: Mapping) -> dict[str, float]:
 
 
 def _effects_for(sc, test: Mapping) -> dict[str, float]:
-    from .effects import EFFECTS
+    from ..effects import EFFECTS
     eff = {**sc.effects, **test.get("effects", {})}
     return {k: float(v) for k, v in eff.items() if test["kind"] in EFFECTS[k].tests}
 
@@ -241,7 +225,7 @@ def _joint_truth(sc, per_method: Mapping) -> dict[tuple[str, str, str], tuple[fl
 
 def _reading_variance(kind: str, meta, data, coeffs, effects, noise) -> np.ndarray:
     """Variance of each reading's output (output_unit^2), the simulator's noise model."""
-    from .physics import scale_factor
+    from ..physics import scale_factor
     temp = np.asarray(data["temp_c"], float) if "temp_c" in data.columns else None
     K1 = np.broadcast_to(np.asarray(scale_factor(coeffs, temp), float), (len(data),))
     var = (K1 * float(noise.get("white_m_s2", 0.0))) ** 2
@@ -256,7 +240,7 @@ def _reading_variance(kind: str, meta, data, coeffs, effects, noise) -> np.ndarr
         var = var + (dEdw * w / 2 * jit) ** 2
     cen = float(noise.get("centripetal_rel", 0.0))
     if cen > 0 and "table_rate_rad_s" in data.columns:
-        from .physics.rigs import omega_z
+        from ..physics.rigs import omega_z
         level = omega_z(meta, np.asarray(data["table_rate_rad_s"], float), {"earth_rate": 1.0}) ** 2 * float(
             meta["arm_radius_m"])
         var = var + (K1 * cen * level) ** 2
@@ -308,7 +292,7 @@ def _crb_parameters(kind: str, run, j: int, campaign_rigs) -> list[tuple[str, st
     turning-centre radius per centrifuge rig, the mass-centre offset, one mount-angle error
     per centrifuge mount (both polarities), theta0 per dividing head, and for the sine
     centrifuge the tool errors spindle_tilt and sensor_lag."""
-    from .physics.geometry import geometry_of
+    from ..physics.geometry import geometry_of
     meta = run.meta
     rig = str(meta["rig_id"])
     out: list[tuple[str, str, object]] = []
@@ -351,8 +335,8 @@ def _crb_selection(J: np.ndarray, names: Sequence[str]) -> list[int]:
     whose column adds a new direction (an aliased combination is counted once), then
     without the extension terms whose bound exceeds their plausible size (they are held,
     as the estimator holds them).  accelcal.fitting.model documents the rule."""
-    from .fitting.core import lstsq_svd, separable_columns
-    from .fitting.model import ALIAS_TOL, BASE, PRIORITY
+    from ..fitting.core import lstsq_svd, separable_columns
+    from ..fitting.model import ALIAS_TOL, BASE, PRIORITY
 
     def kind(n):
         b = n.split("[", 1)[0]
@@ -385,11 +369,11 @@ def cramer_rao(scenario, seed: int | None = None) -> dict[tuple[str, str, str], 
     nuisance parameters of :func:`_crb_parameters` free.  The same bound applies to every
     method that estimates the same quantity; it is reported for the rows whose truth is the
     instrument value (and for K0T/K1T of a tilt-rotation campaign)."""
-    from .simulate import simulate_campaign
+    from ..simulate import simulate_campaign
     sc = _scenario(scenario)
     runs = simulate_campaign(sc, sc.seed if seed is None else seed)
     tests = {(t["kind"], str(t["rig_id"])): t for t in sc.tests}
-    from .fitting.model import DESIGNED
+    from ..fitting.model import DESIGNED
     designed = {k for r in runs for k in DESIGNED[str(r.meta["test"])]}
     blocks, names = [], {}
     per_run = []
@@ -569,7 +553,7 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
                                         (m - 1) * sd**2 / _st.chi2.ppf(0.025, m - 1) / b)
         stats.append(cs)
     order = registry.display_order()
-    from .effects import COEFFICIENTS
+    from ..effects import COEFFICIENTS
     cnames = list(COEFFICIENTS)
     stats.sort(key=lambda s: (order.get(s.method, 9), s.rig_id,
                               cnames.index(s.name) if s.name in cnames else 99, s.name))
@@ -617,34 +601,5 @@ def study_markdown(res: StudyResult) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _run(args: argparse.Namespace) -> int:
-    res = run_study(args.scenario, n=args.n, seed=args.seed, workers=args.workers)
-    text = json.dumps(res.to_dict(), indent=1, default=str) if args.json else res.to_markdown()
-    if args.out:
-        with open(args.out, "w", encoding="utf-8") as fh:
-            fh.write(text)
-    else:
-        print(text)
-    return 0
-
-
-def register_cli(subparsers) -> argparse.ArgumentParser:
-    """Add ``montecarlo SCENARIO [--n 200] [--seed S] [--workers W] [--json] [--out FILE]``."""
-    p = subparsers.add_parser("montecarlo", help="Monte Carlo validity study of the estimators",
-                              description="Simulate N campaigns of a scenario, process each and report "
-                              "bias, sd against the stated u, coverage of the 95 % intervals and "
-                              "var/CRB per coefficient. A bare name means a shipped scenario.")
-    p.add_argument("scenario", help="scenario TOML file (or the name of a shipped scenario)")
-    p.add_argument("--n", type=int, default=200, help="number of campaigns (default 200)")
-    p.add_argument("--seed", type=int, default=0, help="first seed (campaign i uses seed + i)")
-    p.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
-    p.add_argument("--json", action="store_true", help="write JSON instead of markdown")
-    p.add_argument("--out", default=None, help="write to this file instead of stdout")
-    p.set_defaults(func=_run)
-    return p
-
-
-register = register_cli
-
-__all__ = ["run_study", "StudyResult", "CoefficientStats", "truth_table", "cramer_rao", "register_cli",
+__all__ = ["run_study", "StudyResult", "CoefficientStats", "truth_table", "cramer_rao",
            "study_markdown", "SimRunFile", "main_coefficients"]
