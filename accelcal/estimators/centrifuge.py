@@ -43,6 +43,7 @@ from .radius import (IterativeRadius, PairData, StaticRadius, g_levels, geometri
                      test_radius_iterative, test_radius_static)
 from .records import Records
 from .registry import Estimator, register
+from .tumble import Reference, campaign_k1_correction
 
 METHOD = "centrifuge_eq9"
 #: g ranges of the radius table, in g (paper 000 Table 2), plus the full range.
@@ -72,19 +73,6 @@ class Mounts:
     ia_key: tuple | None
     run_plus: Any = None
     run_minus: Any = None
-
-
-@dataclass(frozen=True)
-class Reference:
-    """K0 [m/s2], K1 [output_unit/(m/s2)] and K2 [s2/m] with their standard uncertainties,
-    from the tumble (``from_tumble``) or from the IA pair at the nominal arm radius."""
-    K0: float
-    K1: float
-    u_K0: float
-    u_K1: float
-    K2: float
-    u_K2: float
-    from_tumble: bool = True
 
 
 @dataclass(frozen=True)
@@ -672,7 +660,6 @@ def campaign_rigs(runs: Sequence, steps) -> tuple[list[RigOutcome], list[str]]:
 def campaign_records(runs: Sequence, steps) -> list[Records]:
     """The records of every rig (:func:`rig_records`, geometric radii with the tumble K1
     correction), then the rigs' flags."""
-    from .tumble import campaign_k1_correction
     rigs, flags = steps.get(METHOD, ((), ()))
     k1 = campaign_k1_correction(steps)
     return [rig_records(out, k1).checked() for out in rigs] + [Records(flags=list(flags))]

@@ -882,6 +882,20 @@ def pooling_flags(pooled: Mapping[str, Pooled]) -> list[str]:
 # ------------------------------------------------------------------ the campaign's tumble step
 
 @dataclass(frozen=True)
+class Reference:
+    """K0 [m/s2], K1 [output_unit/(m/s2)] and K2 [s2/m] with their standard uncertainties,
+    the scale reference of the centrifuge's radius (paper 000 §2.1): from the tumble
+    (``from_tumble``) or from the IA pair at the nominal arm radius."""
+    K0: float
+    K1: float
+    u_K0: float
+    u_K1: float
+    K2: float
+    u_K2: float
+    from_tumble: bool = True
+
+
+@dataclass(frozen=True)
 class TumbleStep:
     """The campaign's tumble runs, fitted and pooled (:func:`tumble_step`).
 
@@ -899,8 +913,7 @@ class TumbleStep:
     @property
     def reference(self):
         """K0, K1 (pooled over the runs, as fitted) and K2 for the centrifuge radius
-        (:class:`accelcal.estimators.centrifuge.Reference`)."""
-        from .centrifuge import Reference
+        (:class:`Reference`)."""
         k2 = next(q for q in self.pooled.values() if q.key == "K2")
         K0, K1 = self.pooled["K0"], self.pooled["K1"]
         return Reference(K0.value, K1.value, K0.u, K1.u, k2.value, k2.u)
