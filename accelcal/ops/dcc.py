@@ -149,7 +149,9 @@ def dsi_unit(name: str, unit: str | None) -> tuple[str, float]:
     if spec is None:
         raise DccError(f"no D-SI unit known for coefficient {name!r}")
     if spec.name == "K1":
-        out = (unit or "").split("/", 1)[0]
+        unit = unit or ""
+        # "<output unit>/(m/s2)" (effects.si_unit); the output unit may itself hold a '/'
+        out = unit[:-len("/(m/s2)")] if unit.endswith("/(m/s2)") else unit.split("/", 1)[0]
         if out not in OUTPUT_TO_DSI:
             raise DccError(f"no D-SI unit known for the output unit {out!r} of {name}")
         if out == "m/s2":
@@ -645,5 +647,6 @@ def verify_dcc(path: str | Path, cert_pem: bytes | None = None) -> Verified:
     signed = res.signed_xml
     if signed is None or signed.tag != root.tag or signed.get("schemaVersion") != version:
         raise DccError("the signature does not cover the whole DCC")
-    subject = res.signing_cert.subject.rfc4514_string() if res.signing_cert is not None else None
+    from cryptography import x509
+    subject = x509.load_pem_x509_certificate(cert_pem).subject.rfc4514_string()
     return Verified(version, True, subject)
