@@ -171,16 +171,19 @@ def _self_signed(tmp: Path) -> tuple[Path, Path]:
     return kp, cp
 
 
-def test_signed_dcc_verifies_and_one_changed_byte_fails(lab, tmp_path, capsys):
+@pytest.mark.parametrize("fmt", ["xades", "xmldsig"])
+def test_signed_dcc_verifies_and_one_changed_byte_fails(lab, tmp_path, capsys, fmt):
     kp, cp = _self_signed(tmp_path)
     cfg = tmp_path / "signing.toml"
-    cfg.write_text(CONFIG + f'key_file = "{kp.name}"\ncert_file = "{cp.name}"\n')
+    cfg.write_text(CONFIG + f'key_file = "{kp.name}"\ncert_file = "{cp.name}"\nsignature = "{fmt}"\n')
     html = build_report(lab, CAMPS["thermal"], tmp_path / "out", config=cfg, dcc=True)
     path = dccmod.dcc_path(html)
     root = _root(path)
     assert root.find(f"{DCC}comment/{{http://www.w3.org/2000/09/xmldsig#}}Signature") is not None
     assert cli.main(["verify", str(path), "--cert", str(cp)]) == 0
-    assert "signature verified" in capsys.readouterr().out
+    assert f"{'XAdES-BES' if fmt == 'xades' else 'XML-DSig'} signature verified" in capsys.readouterr().out
+    has_xades = b"QualifyingProperties" in path.read_bytes()
+    assert has_xades == (fmt == "xades")
     assert cli.main(["verify", str(path), "--config", str(cfg)]) == 0     # [dcc] cert_file
     capsys.readouterr()
     assert cli.main(["verify", str(path)]) == 1          # signed, nothing to check it with
@@ -194,6 +197,12 @@ def test_signed_dcc_verifies_and_one_changed_byte_fails(lab, tmp_path, capsys):
     assert cli.main(["verify", str(bad), "--cert", str(cp)]) == 1
     err = capsys.readouterr().err.strip()
     assert "signature does not verify" in err and len(err.splitlines()) == 1, err
+
+    if fmt == "xades":   # the signing time is signed too
+        t = re.sub(rb"(<xades:SigningTime>\d)\d", rb"\g<1>9", data, count=1)
+        assert t != data
+        bad.write_bytes(t)
+        assert cli.main(["verify", str(bad), "--cert", str(cp)]) == 1
 
     # another key's certificate does not verify it either
     (tmp_path / "other").mkdir()

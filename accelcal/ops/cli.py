@@ -183,7 +183,7 @@ def _cmd_verify(args) -> int:
     except (DccError, ConfigError) as e:
         _fail(f"{args.file}: {e}")
     print(f"{args.file}: valid DCC {v.schema_version}; "
-          + (f"signature verified ({v.signer})" if v.signed else "not signed"))
+          + (f"{v.signature_format} signature verified ({v.signer})" if v.signed else "not signed"))
     return 0
 
 

@@ -20,9 +20,9 @@ one.  The DCC is built from the same data the certificate shows
 Every DCC is validated on write against the schema its ``schemaVersion`` names, from the
 copies shipped in ``accelcal/schemas/dcc`` (no network; :func:`load_schema`), and an
 invalid one is refused with a one-line :class:`DccError`.  With ``[dcc] key_file`` and
-``cert_file`` in accelcal.toml the DCC carries an enveloped XML-DSig signature
-(``ds:Signature`` inside ``dcc:comment``, the one place DCC 3.1.2 admits foreign
-elements), checked by :func:`verify_dcc` against the lab's certificate.
+``cert_file`` in accelcal.toml the DCC carries an enveloped XML signature
+(XAdES-BES by default; ``ds:Signature`` inside ``dcc:comment``, the one place DCC 3.1.2
+admits foreign elements), checked by :func:`verify_dcc` against the lab's certificate.
 """
 from __future__ import annotations
 
@@ -82,6 +82,7 @@ class DccConfig:
         key_file = "keys/lab.key"    # PEM private key: the DCC is signed (XML-DSig)
         cert_file = "keys/lab.pem"   # PEM X.509 certificate of that key
         key_password_env = "ACCELCAL_DCC_KEY_PASSWORD"   # env var holding the key's password
+        signature = "xades"          # XAdES-BES (default) or "xmldsig" (plain XML-DSig)
 
     Relative paths are relative to the config file.
     """
@@ -91,6 +92,13 @@ class DccConfig:
     key_file: Path | None = None
     cert_file: Path | None = None
     key_password_env: str | None = None
+    signature: str = "xades"
+
+
+#: Signature formats: XAdES-BES (ETSI EN 319 132: XML-DSig plus signed signing time and
+#: signing-certificate digest) or plain XML-DSig.
+SIGNATURE_FORMATS = ("xades", "xmldsig")
+XADES_NS = "http://uri.etsi.org/01903/v1.3.2#"
 
 
 def dcc_config(path: Path | None) -> DccConfig:
@@ -112,6 +120,9 @@ def dcc_config(path: Path | None) -> DccConfig:
     lang = (raw.get("language") or "en").strip().lower()
     if not (len(lang) == 2 and lang.isascii() and lang.isalpha()):
         raise DccError(f"{path}: [dcc] language must be two letters (ISO 639-1), not {lang!r}")
+    fmt = (raw.get("signature") or "xades").strip().lower()
+    if fmt not in SIGNATURE_FORMATS:
+        raise DccError(f"{path}: [dcc] signature must be one of {', '.join(SIGNATURE_FORMATS)}, not {fmt!r}")
     base = Path(path).expanduser().resolve().parent
 
     def _file(key):
@@ -119,7 +130,8 @@ def dcc_config(path: Path | None) -> DccConfig:
         return (base / Path(v).expanduser()) if v else None
     return DccConfig(country_code=cc, language=lang, email=(raw.get("email") or "").strip() or None,
                      key_file=_file("key_file"), cert_file=_file("cert_file"),
-                     key_password_env=(raw.get("key_password_env") or "").strip() or None)
+                     key_password_env=(raw.get("key_password_env") or "").strip() or None,
+                     signature=fmt)
 
 
 # ------------------------------------------------------------------- units --
@@ -497,9 +509,12 @@ def _k_text(k: float) -> str:
 
 # ----------------------------------------------------------------- signing --
 
-def sign_dcc(root, key_pem: bytes, cert_pem: bytes, password: bytes | None = None):
-    """Sign a DCC with an enveloped XML-DSig signature (SHA-256; RSA or ECDSA by the key),
-    the ``ds:Signature`` placed in ``dcc:comment`` (before ``dcc:document``).
+def sign_dcc(root, key_pem: bytes, cert_pem: bytes, password: bytes | None = None,
+             fmt: str = "xades"):
+    """Sign a DCC with an enveloped signature (SHA-256; RSA or ECDSA by the key), the
+    ``ds:Signature`` placed in ``dcc:comment`` (before ``dcc:document``): XAdES-BES
+    (``fmt="xades"``: the signing time and the signing certificate's digest are signed
+    too) or plain XML-DSig (``fmt="xmldsig"``).
 
     Parameters
     ----------
@@ -509,6 +524,8 @@ def sign_dcc(root, key_pem: bytes, cert_pem: bytes, password: bytes | None = Non
         The lab's PEM private key and its X.509 certificate.
     password : bytes, optional
         The key's password.
+    fmt : {"xades", "xmldsig"}
+        Signature format.
 
     Returns
     -------
@@ -535,9 +552,16 @@ def sign_dcc(root, key_pem: bytes, cert_pem: bytes, password: bytes | None = Non
     rp = root.find(f"{{{DCC_NS}}}administrativeData/{{{DCC_NS}}}respPersons/{{{DCC_NS}}}respPerson")
     if rp is not None and rp.find(f"{{{DCC_NS}}}cryptElectronicSignature") is None:
         _el(rp, DCC_NS, "cryptElectronicSignature", "true")
+    args = dict(signature_algorithm=algo, digest_algorithm=DigestAlgorithm.SHA256)
     try:
-        return XMLSigner(signature_algorithm=algo, digest_algorithm=DigestAlgorithm.SHA256).sign(
-            root, key=key, cert=cert_pem.decode("ascii"))
+        if fmt == "xades":
+            from signxml.xades import XAdESDataObjectFormat, XAdESSigner
+            signer = XAdESSigner(claimed_roles=["calibration laboratory"], data_object_format=
+                                 XAdESDataObjectFormat(Description="Digital Calibration Certificate",
+                                                       MimeType="text/xml"), **args)
+        else:
+            signer = XMLSigner(**args)
+        return signer.sign(root, key=key, cert=cert_pem.decode("ascii"))
     except Exception as e:          # signxml raises several kinds; the CLI shows one line
         raise DccError(f"cannot sign the DCC: {type(e).__name__}: {e}") from None
 
@@ -583,7 +607,7 @@ def write_dcc(d: dict[str, Any], cfg, html_path: Path, pdf: bool = False,
         pw = os.environ.get(dcfg.key_password_env) if dcfg.key_password_env else None
         root = sign_dcc(root, _read(dcfg.key_file, "[dcc] key_file"),
                         _read(dcfg.cert_file, "[dcc] cert_file"),
-                        None if pw is None else pw.encode("utf-8"))
+                        None if pw is None else pw.encode("utf-8"), dcfg.signature)
     data = serialize(root)
     try:
         validate(_parse(data))
@@ -610,6 +634,7 @@ class Verified:
     schema_version: str
     signed: bool
     signer: str | None = None
+    signature_format: str | None = None
 
 
 def verify_dcc(path: str | Path, cert_pem: bytes | None = None) -> Verified:
@@ -638,15 +663,21 @@ def verify_dcc(path: str | Path, cert_pem: bytes | None = None) -> Verified:
     if cert_pem is None:
         raise DccError("signed, but no certificate to check it with: give --cert or set "
                        "[dcc] cert_file in accelcal.toml")
+    xades = root.find(f".//{{{XADES_NS}}}QualifyingProperties") is not None
     try:
-        res = XMLVerifier().verify(data, x509_cert=cert_pem.decode("ascii"))
+        if xades:   # three references: the document, the signed properties, the key info
+            from signxml.xades import XAdESVerifier
+            results = XAdESVerifier().verify(data, x509_cert=cert_pem.decode("ascii"),
+                                             expect_references=3)
+        else:
+            results = [XMLVerifier().verify(data, x509_cert=cert_pem.decode("ascii"))]
     except (InvalidSignature, InvalidInput) as e:
         raise DccError(f"signature does not verify: {' '.join(str(e).split())}") from None
     except Exception as e:
         raise DccError(f"signature cannot be checked: {type(e).__name__}: {e}") from None
-    signed = res.signed_xml
-    if signed is None or signed.tag != root.tag or signed.get("schemaVersion") != version:
+    if not any(r.signed_xml is not None and r.signed_xml.tag == root.tag
+               and r.signed_xml.get("schemaVersion") == version for r in results):
         raise DccError("the signature does not cover the whole DCC")
     from cryptography import x509
     subject = x509.load_pem_x509_certificate(cert_pem).subject.rfc4514_string()
-    return Verified(version, True, subject)
+    return Verified(version, True, subject, "XAdES-BES" if xades else "XML-DSig")
