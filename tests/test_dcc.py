@@ -227,3 +227,19 @@ def test_verify_refuses_a_file_that_is_not_a_valid_dcc(tmp_path, capsys):
     assert "invalid against dcc.xsd 3.1.2" in capsys.readouterr().err
     f.write_text("<not-closed>")
     assert cli.main(["verify", str(f)]) == 1
+
+
+def test_with_pdf_the_pdf_is_the_embedded_document(lab, tmp_path):
+    """``report --pdf --dcc`` embeds the PDF printed just now (chromium is not needed here:
+    a stand-in PDF is put where the print goes)."""
+    import base64
+
+    from accelcal.config import lab_config
+    html = build_report(lab, CAMPS["thermal"], tmp_path)
+    pdf = b"%PDF-1.4 stand-in\n%%EOF\n"
+    html.with_suffix(".pdf").write_bytes(pdf)
+    d = load_report_data(lab, CAMPS["thermal"])
+    path = dccmod.write_dcc(d, lab_config(None, lab), html, pdf=True)
+    doc = _root(path).find(f"{DCC}document")
+    assert doc.findtext(f"{DCC}mimeType") == "application/pdf"
+    assert base64.b64decode(doc.findtext(f"{DCC}dataBase64")) == pdf
