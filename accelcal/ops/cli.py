@@ -1,5 +1,5 @@
-"""CLI for operations: ``accelcal serve``, ``report``, ``campaign``, ``status`` and
-``migrate``.
+"""CLI for operations: ``accelcal serve``, ``report``, ``verify``, ``campaign``, ``status``
+and ``migrate``.
 
 ``register_cli(subparsers)`` (alias ``register``) adds the sub-commands; heavy
 imports happen only when a command runs.  Text that comes from files (campaign labels,
@@ -60,8 +60,26 @@ def register_cli(sub) -> None:
                    help="the lab's accelcal.toml (default: ./accelcal.toml, then beside the "
                         "warehouse)")
     r.add_argument("--customer", default=None, help="customer name and address for this certificate")
+    r.add_argument("--dcc", action="store_true",
+                   help="also write the PTB Digital Calibration Certificate (XML, DCC 3.1.2) beside "
+                        "it, validated against the shipped schema; signed with [dcc] key_file and "
+                        "cert_file of accelcal.toml when set")
     r.add_argument("--lock-timeout", type=float, default=60.0, metavar="S")
     r.set_defaults(func=_cmd_report)
+
+    v = sub.add_parser(
+        "verify", help="check a DCC file: schema validity and, if signed, its signature",
+        description="Validate a Digital Calibration Certificate (XML) against the schema of its "
+                    "schemaVersion shipped with accelcal (no network) and, if it carries an "
+                    "XML-DSig signature, verify it with the lab's certificate (--cert, else "
+                    "[dcc] cert_file of accelcal.toml). Exit 0 when it holds, 1 with one line "
+                    "saying what fails.")
+    v.add_argument("file", metavar="FILE", help="the DCC XML file")
+    v.add_argument("--cert", default=None, metavar="PEM",
+                   help="the signer's X.509 certificate (PEM) to check the signature with")
+    v.add_argument("--config", default=None, metavar="TOML",
+                   help="accelcal.toml whose [dcc] cert_file to use (default: ./accelcal.toml)")
+    v.set_defaults(func=_cmd_verify)
 
     st = sub.add_parser(
         "status", help="the last passes of `accelcal serve` and what waits",
@@ -134,12 +152,38 @@ def _cmd_report(args) -> int:
         for c in camps:
             path = build_report(args.warehouse, c, args.out, result_id=args.result,
                                 lock_timeout=args.lock_timeout, config=args.config,
-                                pdf=args.pdf, customer=args.customer)
+                                pdf=args.pdf, customer=args.customer, dcc=args.dcc)
             print(path)
             if args.pdf:
                 print(path.with_suffix(".pdf"))
+            if args.dcc:
+                print(path.with_suffix(".dcc.xml"))
     except ReportError as e:
         _fail(str(e))
+    return 0
+
+
+def _cmd_verify(args) -> int:
+    from pathlib import Path
+
+    from ..config import ConfigError, find_config
+    from .dcc import DccError, dcc_config, verify_dcc
+    try:
+        if args.cert:
+            cert_file = Path(args.cert).expanduser()
+        else:
+            cert_file = dcc_config(find_config(args.config)).cert_file
+        cert = None
+        if cert_file is not None:
+            try:
+                cert = cert_file.read_bytes()
+            except OSError as e:
+                raise DccError(f"cannot read certificate {cert_file}: {e.strerror}") from None
+        v = verify_dcc(args.file, cert)
+    except (DccError, ConfigError) as e:
+        _fail(f"{args.file}: {e}")
+    print(f"{args.file}: valid DCC {v.schema_version}; "
+          + (f"{v.signature_format} signature verified ({v.signer})" if v.signed else "not signed"))
     return 0
 
 

@@ -1200,9 +1200,10 @@ def render_pdf(html_path: Path, pdf_path: Path, timeout: float = 180.0) -> Path:
 def build_report(warehouse: str | Path, campaign: str | None, out_dir: str | Path,
                  result_id: str | None = None, lock_timeout: float = 60.0,
                  config: str | Path | None = None, pdf: bool = False,
-                 customer: str | None = None) -> Path:
+                 customer: str | None = None, dcc: bool = False) -> Path:
     """Write the certificate of a campaign's current result (or of ``result_id``, a unique
-    prefix); returns the HTML path (the PDF, with ``pdf``, is beside it)."""
+    prefix); returns the HTML path (the PDF, with ``pdf``, and the DCC XML, with ``dcc``
+    (:func:`accelcal.ops.dcc.write_dcc`), are beside it)."""
     from ..config import ConfigError, lab_config
     try:
         cfg = lab_config(config, warehouse)
@@ -1228,6 +1229,9 @@ def build_report(warehouse: str | Path, campaign: str | None, out_dir: str | Pat
         raise ReportError(f"cannot write report to {out}: {e.strerror}") from None
     if pdf:
         render_pdf(path, path.with_suffix(".pdf"))
+    if dcc:
+        from .dcc import write_dcc
+        write_dcc(d, cfg, path, pdf=pdf, customer=customer)
     return path
 
 

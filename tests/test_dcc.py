@@ -1,0 +1,245 @@
+"""The Digital Calibration Certificate (issue 27): ``accelcal report --dcc`` writes a PTB DCC
+that validates offline against the shipped XSD of its schemaVersion, whose units are D-SI,
+whose numbers follow GUM 7.2.6 (checked here independently of accelcal.rounding), and
+whose XML-DSig signature ``accelcal verify`` checks (a changed byte fails)."""
+from __future__ import annotations
+
+import datetime as dt
+import math
+import re
+import socket
+import warnings
+from decimal import Decimal
+from pathlib import Path
+
+import pytest
+
+from accelcal import cli
+from accelcal.ops import dcc as dccmod
+from accelcal.ops.report import build_report, load_report_data
+
+CAMPS = {"thermal": "HUST-M-07/2026-11-18", "centrifuge": "SNJ-1-03/2026-11-20"}
+SI = "{https://ptb.de/si}"
+DCC = "{https://ptb.de/dcc}"
+CONFIG = """
+[lab]
+name = "Inertial Metrology Lab of Example"
+address = "12 Example Road, Wuhan"
+[certificate]
+number_prefix = "IML"
+approver = "Dr A. Approver"
+customer = "Example Customer Ltd"
+[traceability]
+statement = "Traceable to the SI."
+[dcc]
+country_code = "CN"
+email = "lab@example.org"
+"""
+#: SI value of one D-SI unit of the DCC, written here from the SI brochure, not from accelcal.
+SCALE = {r"\micro\metre\second\tothe{-2}": 1e-6, r"\micro\radian": 1e-6, r"\degree": math.pi / 180,
+         r"\micro\metre\second\tothe{-2}\degreecelsius\tothe{-1}": 1e-6,
+         r"\ppm\degreecelsius\tothe{-1}": 1e-6}
+
+
+@pytest.fixture(scope="module")
+def lab(tmp_path_factory, examples):
+    from accelcal.flows.pipeline import run_pipeline
+    d = tmp_path_factory.mktemp("dcc")
+    run_pipeline([str(examples / x) for x in ("drop-2026-11-18-thermal", "drop-2026-11-20")],
+                 d / "lab.duckdb", engine="local")
+    (d / "accelcal.toml").write_text(CONFIG)
+    return d / "lab.duckdb"
+
+
+@pytest.fixture(scope="module")
+def dccs(lab, tmp_path_factory):
+    out = tmp_path_factory.mktemp("out")
+    return {k: dccmod.dcc_path(build_report(lab, c, out, dcc=True)) for k, c in CAMPS.items()}
+
+
+def _root(path: Path):
+    from lxml import etree
+    return etree.parse(str(path)).getroot()
+
+
+@pytest.fixture
+def no_network(monkeypatch):
+    """Any attempt to open a connection fails the test."""
+    def refuse(*a, **k):
+        raise AssertionError("network access attempted")
+    monkeypatch.setattr(socket.socket, "connect", refuse)
+    monkeypatch.setattr(socket, "create_connection", refuse)
+
+
+def test_shipped_schemas_import_only_local_files():
+    folder = dccmod.SCHEMA_DIRS[dccmod.SCHEMA_VERSION]
+    for xsd in folder.glob("*.xsd"):
+        for loc in re.findall(r'schemaLocation="([^"]*)"', xsd.read_text(encoding="utf-8")):
+            assert "://" not in loc and (folder / loc).is_file(), (xsd.name, loc)
+    assert (folder / "COPYING.LESSER").is_file() and "LESSER" in (folder / "COPYING.LESSER").read_text()
+
+
+@pytest.mark.parametrize("kind", sorted(CAMPS))
+def test_dcc_validates_offline_against_its_declared_schema(dccs, kind, no_network):
+    import xmlschema
+    root = _root(dccs[kind])
+    version = root.get("schemaVersion")
+    folder = dccmod.SCHEMA_DIRS[version]             # the XSD of the version it declares
+    schema = xmlschema.XMLSchema(str(folder / "dcc.xsd"), allow="sandbox")
+    assert schema.version == version
+    schema.validate(xmlschema.XMLResource(root, allow="none"))   # no hint of the file followed
+    assert root.findtext(f"{DCC}administrativeData/{DCC}coreData/{DCC}uniqueIdentifier").startswith("IML-")
+    # the lineage: every input run's sha256
+    refs = [e.text for e in root.iter(f"{DCC}reference") if e.text.startswith("sha256:")]
+    assert refs and all(re.fullmatch(r"sha256:[0-9a-f]{64}", r) for r in refs)
+    doc = root.find(f"{DCC}document")
+    assert doc.findtext(f"{DCC}mimeType") == "text/html" and len(doc.findtext(f"{DCC}dataBase64")) > 1000
+    assert "DRAFT" not in "".join(root.itertext())
+    assert cli.main(["verify", str(dccs[kind])]) == 0
+
+
+def test_every_unit_parses_with_dsiunits(dccs):
+    from dsi_unit import DsiUnit
+    units = {e.text for p in dccs.values() for e in _root(p).iter(f"{SI}unit")}
+    assert len(units) >= 4, units
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        bad = {u: DsiUnit(u).warnings for u in units if not DsiUnit(u).valid}
+    assert not bad
+
+
+def test_every_unit_the_catalogue_can_need_is_d_si():
+    from accelcal.effects import COEFFICIENTS, PAPER_TERMS
+    for name in list(COEFFICIENTS) + list(PAPER_TERMS):
+        for out in ("mA", "V", "count", "m/s2"):
+            unit, f = dccmod.dsi_unit(name, f"{out}/(m/s2)")
+            dccmod.check_dsi_unit(unit)
+            assert f > 0
+
+
+def _ulp(s: str) -> Decimal:
+    return Decimal(1).scaleb(Decimal(s).as_tuple().exponent)
+
+
+@pytest.mark.parametrize("kind", sorted(CAMPS))
+def test_values_and_u_follow_gum_rounding(lab, dccs, kind):
+    """U has at most two significant digits, the value ends at U's last digit, and both are
+    the stored numbers correctly rounded (half a unit of the last place)."""
+    d = load_report_data(lab, CAMPS[kind])
+    adopted = {c["name"]: c for c in d["coefficients"] if c.get("adopted")}
+    n = 0
+    for real in _root(dccs[kind]).iter(f"{SI}real"):
+        v, unit = real.findtext(f"{SI}value"), real.findtext(f"{SI}unit")
+        eu = real.find(f"{SI}expandedUnc")
+        if eu is None:
+            continue
+        U, k = eu.findtext(f"{SI}uncertainty"), float(eu.findtext(f"{SI}coverageFactor"))
+        Ud = Decimal(U)
+        assert Ud > 0 and len(Ud.as_tuple().digits) <= 2, U           # <= 2 significant digits
+        assert Decimal(v).as_tuple().exponent == Ud.as_tuple().exponent, (v, U)
+        c = adopted[real.findtext(f"{SI}label")]
+        scale = SCALE.get(unit, 1.0)
+        true_v, true_U = c["value"] / scale, k * c["std_uncertainty"] / scale
+        assert abs(Decimal(v) - Decimal(repr(true_v))) <= _ulp(v) / 2 * Decimal("1.000001"), (v, true_v)
+        assert abs(Ud - Decimal(repr(true_U))) <= _ulp(U) / 2 * Decimal("1.000001"), (U, true_U)
+        assert eu.findtext(f"{SI}coverageProbability") == "0.95"
+        n += 1
+    assert n >= 3
+
+
+def _self_signed(tmp: Path) -> tuple[Path, Path]:
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import rsa
+    from cryptography.x509.oid import NameOID
+    key = rsa.generate_private_key(public_exponent=65537, key_size=2048)
+    name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "Example Lab DCC signer")])
+    now = dt.datetime.now(dt.timezone.utc)
+    cert = (x509.CertificateBuilder().subject_name(name).issuer_name(name)
+            .public_key(key.public_key()).serial_number(x509.random_serial_number())
+            .not_valid_before(now - dt.timedelta(days=1)).not_valid_after(now + dt.timedelta(days=30))
+            .add_extension(x509.BasicConstraints(ca=True, path_length=None), critical=True)
+            .add_extension(x509.KeyUsage(digital_signature=True, content_commitment=True,
+                                         key_encipherment=False, data_encipherment=False,
+                                         key_agreement=False, key_cert_sign=True, crl_sign=False,
+                                         encipher_only=False, decipher_only=False), critical=True)
+            .sign(key, hashes.SHA256()))
+    kp, cp = tmp / "lab.key", tmp / "lab.pem"
+    kp.write_bytes(key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+                                     serialization.NoEncryption()))
+    cp.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+    return kp, cp
+
+
+@pytest.mark.parametrize("fmt", ["xades", "xmldsig"])
+def test_signed_dcc_verifies_and_one_changed_byte_fails(lab, tmp_path, capsys, fmt):
+    kp, cp = _self_signed(tmp_path)
+    cfg = tmp_path / "signing.toml"
+    cfg.write_text(CONFIG + f'key_file = "{kp.name}"\ncert_file = "{cp.name}"\nsignature = "{fmt}"\n')
+    html = build_report(lab, CAMPS["thermal"], tmp_path / "out", config=cfg, dcc=True)
+    path = dccmod.dcc_path(html)
+    root = _root(path)
+    assert root.find(f"{DCC}comment/{{http://www.w3.org/2000/09/xmldsig#}}Signature") is not None
+    assert cli.main(["verify", str(path), "--cert", str(cp)]) == 0
+    assert f"{'XAdES-BES' if fmt == 'xades' else 'XML-DSig'} signature verified" in capsys.readouterr().out
+    has_xades = b"QualifyingProperties" in path.read_bytes()
+    assert has_xades == (fmt == "xades")
+    assert cli.main(["verify", str(path), "--config", str(cfg)]) == 0     # [dcc] cert_file
+    capsys.readouterr()
+    assert cli.main(["verify", str(path)]) == 1          # signed, nothing to check it with
+
+    data = path.read_bytes()
+    m = re.search(rb"<si:value>-?(\d)", data)
+    i = m.start(1)
+    bad = tmp_path / "tampered.dcc.xml"
+    bad.write_bytes(data[:i] + (b"1" if data[i:i + 1] != b"1" else b"2") + data[i + 1:])
+    capsys.readouterr()
+    assert cli.main(["verify", str(bad), "--cert", str(cp)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "signature does not verify" in err and len(err.splitlines()) == 1, err
+
+    if fmt == "xades":   # the signing time is signed too
+        t = re.sub(rb"(<xades:SigningTime>\d)\d", rb"\g<1>9", data, count=1)
+        assert t != data
+        bad.write_bytes(t)
+        assert cli.main(["verify", str(bad), "--cert", str(cp)]) == 1
+
+    # another key's certificate does not verify it either
+    (tmp_path / "other").mkdir()
+    _, other = _self_signed(tmp_path / "other")
+    assert cli.main(["verify", str(path), "--cert", str(other)]) == 1
+
+
+def test_an_invalid_dcc_is_refused_in_one_line_and_not_written(lab, tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(dccmod, "COVERAGE_PROBABILITY", "95 %")     # not a probability in [0, 1]
+    out = tmp_path / "out"
+    rc = cli.main(["report", CAMPS["thermal"], "-w", str(lab), "--out", str(out), "--dcc"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 1 and "DCC not written" in err and len(err.splitlines()) == 1, err
+    assert not list(out.glob("*.dcc.xml"))
+
+
+def test_verify_refuses_a_file_that_is_not_a_valid_dcc(tmp_path, capsys):
+    f = tmp_path / "x.xml"
+    f.write_text('<dcc:digitalCalibrationCertificate xmlns:dcc="https://ptb.de/dcc" '
+                 'schemaVersion="3.1.2"/>')
+    assert cli.main(["verify", str(f)]) == 1
+    assert "invalid against dcc.xsd 3.1.2" in capsys.readouterr().err
+    f.write_text("<not-closed>")
+    assert cli.main(["verify", str(f)]) == 1
+
+
+def test_with_pdf_the_pdf_is_the_embedded_document(lab, tmp_path):
+    """``report --pdf --dcc`` embeds the PDF printed just now (chromium is not needed here:
+    a stand-in PDF is put where the print goes)."""
+    import base64
+
+    from accelcal.config import lab_config
+    html = build_report(lab, CAMPS["thermal"], tmp_path)
+    pdf = b"%PDF-1.4 stand-in\n%%EOF\n"
+    html.with_suffix(".pdf").write_bytes(pdf)
+    d = load_report_data(lab, CAMPS["thermal"])
+    path = dccmod.write_dcc(d, lab_config(None, lab), html, pdf=True)
+    doc = _root(path).find(f"{DCC}document")
+    assert doc.findtext(f"{DCC}mimeType") == "application/pdf"
+    assert base64.b64decode(doc.findtext(f"{DCC}dataBase64")) == pdf
