@@ -320,7 +320,7 @@ def build_dcc(d: dict[str, Any], cfg, dcfg: DccConfig | None = None,
     from lxml import etree
 
     from .report import COVERAGE_PROBABILITY as _CP_TEXT
-    from .report import TEST_METHODS, _adopted, _k, _u_unknown, certificate_number
+    from .report import _adopted, _k, _u_unknown, certificate_number, method_text
     dcfg = dcfg or DccConfig()
     lang = dcfg.language
     r = d["result"]
@@ -426,7 +426,7 @@ def build_dcc(d: dict[str, Any], cfg, dcfg: DccConfig | None = None,
     _text(mr, "name", "Calibrated coefficients of the instrument model (IEEE Std 1293 form)", lang)
     methods = _el(mr, DCC_NS, "usedMethods")
     for test in d.get("tests") or []:
-        name, how = TEST_METHODS.get(test, (test, ""))
+        name, how = method_text(test)
         m = _el(methods, DCC_NS, "usedMethod", refType=f"accelcal_test_{test}")
         _text(m, "name", name, lang)
         if how:
