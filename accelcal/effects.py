@@ -111,7 +111,8 @@ def to_display(name: str, value: float, std_u: float | None, unit: str,
         return value, U, unit, False
     val = value / spec.display_factor
     if spec.name == "K1":
-        out_unit = unit.split("/")[0] if "/" in unit else "out"
+        # the SI unit is "<output unit>/(m/s2)" (si_unit); the output unit may hold a "/"
+        out_unit = unit[:-len("/(m/s2)")] if unit.endswith("/(m/s2)") else (unit.split("/")[0] if "/" in unit else "out")
         rel = None if U is None or value == 0 else U / abs(value) * 1e6
         return val, rel, f"{out_unit}/g", True
     return (val, None if U is None else U / spec.display_factor,

@@ -41,3 +41,11 @@ def test_display_units_follow_the_rule():
     assert unit == "mA/g" and U == "0.11 ppm" and v == "1.29999992"   # U = 1.4e-7 mA/g
     v, U, unit = display_coefficient("K1T", -1.1998690608e-4, 1.4994932768e-8, "1/degC")
     assert (v, U, unit) == ("-119.987", "0.030", "ppm/°C")
+
+
+def test_k1_display_unit_keeps_an_output_unit_with_a_slash():
+    """K1 of a run whose output is already an acceleration (m/s2): its display unit is the
+    output unit per g, not the first token of the SI unit."""
+    from accelcal.effects import si_unit, to_display
+    assert to_display("K1", 1.0, 1e-6, si_unit("K1", "m/s2"))[2] == "m/s2/g"
+    assert to_display("K1", 0.13, 1e-9, si_unit("K1", "mA"))[2] == "mA/g"
