@@ -49,6 +49,11 @@ from typing import Any, Sequence
 import numpy as np
 from scipy import stats
 
+from .fitting.core import lstsq_svd
+
+#: Two step positions whose p values agree to this relative tolerance are a tie (the data
+#: cannot place the step); the later one is taken.
+STEP_TIE_RTOL = 1e-9
 #: Days of a year of the drift rates [d/a] (Julian year).
 YEAR_DAYS = 365.25
 #: Degrees of freedom the fleet's between-campaign scatter counts for in eq (3).
@@ -96,12 +101,15 @@ def from_years(y: float) -> np.datetime64:
 # ------------------------------------------------------------- the line fit ----
 
 def _wls(X: np.ndarray, x: np.ndarray, var: np.ndarray):
-    """Weighted least squares: coefficients, covariance (X'WX)^-1, residuals."""
-    w = 1.0 / var
-    A = X.T @ (X * w[:, None])
-    cov = np.linalg.inv(A)
-    beta = cov @ (X.T @ (w * x))
-    return beta, cov, x - X @ beta
+    """Weighted least squares through the fitting core (:func:`accelcal.fitting.core.
+    lstsq_svd`, W = 1/var): coefficients, covariance (X'WX)^-1, residuals.  A design the
+    data cannot determine (rank below its columns) raises ``LinAlgError``, as the callers
+    expect of a step position or segment with no calibration of its own."""
+    w = 1.0 / np.sqrt(var)
+    sol = lstsq_svd(X * w[:, None], x * w)
+    if sol.rank < X.shape[1]:
+        raise np.linalg.LinAlgError("singular design: a parameter of the drift line is not determined")
+    return sol.x, sol.cov, x - X @ sol.x
 
 
 def scatter_moments(X: np.ndarray, x: np.ndarray, u: np.ndarray) -> tuple[float, float, float]:
@@ -331,13 +339,15 @@ def _find_steps(t, x, u, prior, en_limit, alpha, offset) -> list[Step]:
         except (ValueError, np.linalg.LinAlgError):
             continue
         X = _design(t, f.t_ref, k)
-        _, cov, _ = _wls(X, x, u ** 2 + f.tau2)
-        delta = float(np.linalg.lstsq(X * (1 / np.sqrt(u ** 2 + f.tau2))[:, None],
-                                      x / np.sqrt(u ** 2 + f.tau2), rcond=None)[0][2])
+        beta, cov, _ = _wls(X, x, u ** 2 + f.tau2)
+        delta = float(beta[2])
         sd = math.sqrt(cov[2, 2])
         z = abs(delta) / sd
         p = 2 * stats.t.sf(z, f.dof)
-        if best is None or p < best.p:
+        # positions the data cannot tell apart (three calibrations: a step after the first
+        # or after the second fits them equally, to the last digit) go to the later one:
+        # the current series then holds only calibrations certainly after the step
+        if best is None or p <= best.p * (1 + STEP_TIE_RTOL):
             best = Step(offset + k, delta, sd, delta / (2 * sd), float(p))
     if best is None or (abs(best.en) <= en_limit and best.p >= alpha / (n - 1)):
         return []
