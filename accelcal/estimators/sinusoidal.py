@@ -176,12 +176,12 @@ def prepare_runs(runs: Sequence, rate_source: str = "drive", rate_derivative: st
                                                                   "table_angle_deg", "output")})
         t = d["time_s"].to_numpy()
         w = d["table_rate_rad_s"].to_numpy()
-        Om, f = float(meta["rate_amplitude_rad_s"]), float(meta["rate_frequency_hz"])
+        f = float(meta["rate_frequency_hz"])
         fit_w, fit_d = fitted_drive(t, w, f, n_harmonics)
         if rate_source == "fitted":
             d["table_rate_rad_s"] = fit_w
         elif rate_source == "drive":
-            d["table_rate_rad_s"] = Om * np.sin(2 * np.pi * f * t)
+            d["table_rate_rad_s"] = rigs.sine_drive(meta, t)
         elif rate_source != "logged":
             raise ValueError(f"rate_source {rate_source!r}")
         deriv = rate_derivative or ("fitted" if rate_source == "fitted" else "drive")

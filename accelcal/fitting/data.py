@@ -36,7 +36,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from ..physics.geometry import CentrifugeMount, geometry_of
-from ..physics.rigs import omega_z
+from ..physics.rigs import centripetal_level, sine_drive
 from .distributions import f_sf
 
 #: a logged head/table angle that moves less than this within one position [deg] is reading
@@ -315,7 +315,7 @@ def make_run(meta: Mapping, data, index: int = 0, sha256: str = "", sine_segment
     np.minimum.at(first_line, cid, lines)
     x_rows = np.zeros(nrow)
     if isinstance(geo, CentrifugeMount):
-        x_rows = omega_z(meta, cols["table_rate_rad_s"], {"earth_rate": 1.0}) ** 2 * geo.arm_radius_m
+        x_rows = centripetal_level(meta, cols["table_rate_rad_s"], geo.arm_radius_m)
     run = RunCells(index=index, meta=meta, geometry=geo, cols=cols, rate_derivative=wdot, cid=cid, n=n,
                    y_rows=y_rows, y=y, x_rows=x_rows, x=np.bincount(cid, weights=x_rows, minlength=k) / n,
                    lines=np.where(np.isfinite(first_line), first_line, 0).astype(int), sha256=sha256)
@@ -344,8 +344,8 @@ def drive_rate(meta: Mapping, t: np.ndarray, logged: np.ndarray, alpha: float = 
     -------
     rate [rad/s], rate_derivative [rad/s^2] or None, note
     """
-    Om, f = float(meta["rate_amplitude_rad_s"]), float(meta["rate_frequency_hz"])
-    nominal = Om * np.sin(2 * np.pi * f * np.asarray(t, float))
+    f = float(meta["rate_frequency_hz"])
+    nominal = sine_drive(meta, t)
     fit, dfit = fitted_drive(t, logged, f, harmonics)
     q = 2 * harmonics + 1
     rss1 = float(np.sum((logged - fit) ** 2))

@@ -24,7 +24,6 @@ from functools import lru_cache
 import numpy as np
 
 from ..constants import M2_PERIOD_S, OMEGA_EARTH, T_REF_C
-from .axes import parse_plane, parse_signed_axis, plane_handedness  # noqa: F401 (re-exported)
 from .geometry import geometry_of
 from .instrument import first_order_lag, output
 
@@ -115,6 +114,74 @@ def _sin_latitude(lat_deg: float) -> np.float64:
 @lru_cache(maxsize=256)
 def _sin_latitude_memo(lat_deg: float) -> np.float64:
     return np.sin(np.radians(lat_deg))
+
+
+def sine_drive(meta: Mapping, time_s: np.ndarray) -> np.ndarray:
+    """Commanded rate of the sinusoidal drive (Sun, Ren & Wang, paper 002).
+
+    .. math::
+
+        \\omega(t) = \\Omega \\sin(2 \\pi f t)
+
+    Parameters
+    ----------
+    meta : mapping
+        ``rate_amplitude_rad_s`` (Omega [rad/s]), ``rate_frequency_hz`` (f [Hz]).
+    time_s : ndarray
+        Time [s].
+
+    Returns
+    -------
+    ndarray
+        Table rate [rad/s], unsigned (the rotation sense is applied by :func:`omega_z`).
+    """
+    Om, f = float(meta["rate_amplitude_rad_s"]), float(meta["rate_frequency_hz"])
+    return Om * np.sin(2 * np.pi * f * np.asarray(time_s, float))
+
+
+def sine_drive_angle(meta: Mapping, time_s: np.ndarray) -> np.ndarray:
+    """Table angle of the sinusoidal drive, the integral of :func:`sine_drive` from 0.
+
+    .. math::
+
+        \\theta(t) = \\frac{\\Omega}{2 \\pi f} (1 - \\cos(2 \\pi f t))
+
+    Parameters
+    ----------
+    meta : mapping
+        ``rate_amplitude_rad_s`` [rad/s], ``rate_frequency_hz`` [Hz].
+    time_s : ndarray
+        Time [s].
+
+    Returns
+    -------
+    ndarray
+        Table angle [deg].
+    """
+    Om, f = float(meta["rate_amplitude_rad_s"]), float(meta["rate_frequency_hz"])
+    t = np.asarray(time_s, float)
+    return np.degrees(Om / (2 * np.pi * f) * (1.0 - np.cos(2 * np.pi * f * t)))
+
+
+def centripetal_level(meta: Mapping, rate: np.ndarray, radius_m: float) -> np.ndarray:
+    """Centripetal acceleration at the arm radius, omega_z^2 R, with the earth rate in
+    omega_z (paper 000 §2.1: the g level of a centrifuge dwell).
+
+    Parameters
+    ----------
+    meta : mapping
+        Run metadata (``rotation_sense``, ``latitude_deg``: :func:`omega_z`).
+    rate : ndarray
+        Table rate [rad/s].
+    radius_m : float
+        Arm radius [m].
+
+    Returns
+    -------
+    ndarray
+        [m/s2].
+    """
+    return omega_z(meta, rate, {"earth_rate": 1.0}) ** 2 * radius_m
 
 
 def sine_rate_derivative(meta: Mapping, time_s: np.ndarray, effects: Mapping[str, float] | None = None) -> np.ndarray:

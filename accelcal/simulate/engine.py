@@ -41,7 +41,7 @@ import pandas as pd
 from ..constants import OMEGA_EARTH, T_REF_C
 from ..effects import EFFECTS
 from ..physics import rig_output, scale_factor
-from ..physics.rigs import INSTRUMENT_EFFECTS
+from ..physics.rigs import INSTRUMENT_EFFECTS, centripetal_level, sine_drive, sine_drive_angle
 from .scenario import DISTURBANCE_DEFAULTS, Scenario, load_scenario
 
 COLUMNS = {
@@ -216,12 +216,6 @@ def _frame_phys(cols: dict) -> pd.DataFrame:
                          for k, v in cols.items()})
 
 
-def _centripetal(meta: dict, rate: np.ndarray, radius: float) -> np.ndarray:
-    """omega_z^2 R of each reading, m/s^2 (earth rate included)."""
-    from ..physics.rigs import omega_z
-    return omega_z(meta, rate, {"earth_rate": 1.0}) ** 2 * radius
-
-
 def level_rates(levels, g: float, radius: float, latitude_deg: float, sense: str,
                 earth: bool = True) -> np.ndarray:
     """Logged table rate of each g level: omega with omega_z^2 R = L g (earth rate included
@@ -279,7 +273,7 @@ def _centrifuge_run(sc, t, mount, meta, effects, noise, rng):
     phys = _frame_phys({**cols, "table_rate_rad_s": true_rate})
     cols["table_angle_deg"] = _logged_angle(angle, noise, rng)
     E, E0 = _finish("centrifuge", meta, phys, sc.coefficients, effects, noise, rng, None,
-                    level=_centripetal(meta, true_rate, R))
+                    level=centripetal_level(meta, true_rate, R))
     cols["output"] = E
     return cols, {"noise_free_output": E0, "true_rate_rad_s": true_rate, "g_levels": seq}
 
@@ -330,8 +324,8 @@ def _sine_run(sc, t, att, meta, effects, noise, rng):
     fs = float(t.get("sample_rate_hz", 50.0))
     n = int(t.get("samples", 1000))
     time = quantize(np.arange(n) / fs, DIGITS["time_s"])
-    drive = Om * np.sin(2 * np.pi * f * time)
-    angle = np.degrees(Om / (2 * np.pi * f) * (1.0 - np.cos(2 * np.pi * f * time)))
+    drive = sine_drive(t, time)
+    angle = sine_drive_angle(t, time)
     logged = (drive * (1.0 + noise["rate_log_rel"] * rng.standard_normal(n))
               + noise["rate_log_abs"] * rng.standard_normal(n))
     delta = noise["rate_jitter_rel"] * rng.standard_normal(n)
@@ -344,7 +338,7 @@ def _sine_run(sc, t, att, meta, effects, noise, rng):
     phys = _frame_phys({**cols, "table_rate_rad_s": true_rate})
     cols["table_angle_deg"] = _logged_angle(angle, noise, rng)
     E, E0 = _finish("sine_centrifuge", meta, phys, sc.coefficients, effects, noise, rng, None,
-                    level=_centripetal(meta, true_rate, float(t["arm_radius_m"])))
+                    level=centripetal_level(meta, true_rate, float(t["arm_radius_m"])))
     cols["output"] = E
     return cols, {"noise_free_output": E0, "true_rate_rad_s": true_rate}
 

@@ -84,7 +84,7 @@ from ..effects import plausible_size, typical_size
 from ..estimators import registry
 from .simruns import SimRunFile
 from ..fitting.core import thin_svd
-from ..physics.rigs import INSTRUMENT_EFFECTS, rig_output
+from ..physics.rigs import INSTRUMENT_EFFECTS, rig_output, sine_drive
 
 #: coverage target of issue 3 (95 % +- 3 %) and the coverage factor of the intervals
 TARGET, TARGET_TOL, K_COVER = 0.95, 0.03, 1.96
@@ -384,9 +384,7 @@ def cramer_rao(scenario, seed: int | None = None) -> dict[tuple[str, str, str], 
         eff = dict(r.truth["effects"])
         data = r.data.copy()
         if kind == "sine_centrifuge":           # the expectation of the true rate: the drive
-            f = float(r.meta["rate_frequency_hz"])
-            data["table_rate_rad_s"] = float(r.meta["rate_amplitude_rad_s"]) * np.sin(
-                2 * np.pi * f * data["time_s"].to_numpy(float))
+            data["table_rate_rad_s"] = sine_drive(r.meta, data["time_s"].to_numpy(float))
         plist = _crb_parameters(kind, r, j, designed)
         R0 = float(r.meta.get("arm_radius_m", 1.0))
         cols = {}
