@@ -316,8 +316,7 @@ def clean_json(o):
     -------
     object
         The same values with tuples and arrays as lists, numpy floats and integers as Python
-        ones and
-        nan/inf as None; other objects unchanged.
+        ones and nan/inf as None; other objects unchanged.
     """
     if isinstance(o, dict):
         return {k: clean_json(v) for k, v in o.items()}
