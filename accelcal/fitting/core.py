@@ -239,14 +239,14 @@ def lstsq_svd(J: np.ndarray, z: np.ndarray, rcond: float = RCOND) -> LinearSolut
     J : (n, p) ndarray
         Whitened design (Jacobian) [whitened output per parameter unit].
     z : (n,) ndarray
-        Whitened right-hand side (residual).
+        Whitened right-hand side (residual) [1].
     rcond : float
-        Relative singular-value cut (:data:`RCOND`).
+        Relative singular-value cut [1] (:data:`RCOND`).
 
     Returns
     -------
     LinearSolution
-        Columns that are identically zero get x = 0, zero covariance and
+        x [parameter units], cov [parameter unit_i * parameter unit_j].  Columns that are identically zero get x = 0, zero covariance and
         ``estimable = False``.
 
     Notes
@@ -341,7 +341,10 @@ def gram_reduce(J: np.ndarray, z: np.ndarray | None = None) -> tuple[np.ndarray,
 
     Returns
     -------
-    M : (p, p) ndarray, b : (p,) ndarray
+    M : (p, p) ndarray
+        Reduced design [1 per parameter unit], same J^T J and column norms as J.
+    b : (p,) ndarray
+        Reduced right-hand side [1].
     """
     c = np.linalg.norm(J, axis=0)
     c = np.where(c > 0, c, 1.0)
@@ -374,6 +377,7 @@ def lstsq_gram(J: np.ndarray, z: np.ndarray | None = None, rcond: float = 1e-9) 
     Returns
     -------
     LinearSolution
+        As :func:`lstsq_svd` of (J, z), to normal-equation precision.
     """
     M, b = gram_reduce(J, z)
     return lstsq_svd(M, b, rcond)
