@@ -1,5 +1,7 @@
-"""CLI: ``accelcal diagnose PATH... --baseline ID[,ID...]|none [--json] [--report DIR]`` and
-``accelcal diagnose-benchmark [--quick] [--json] [--markdown FILE]``."""
+"""CLI: ``accelcal diagnose PATH... [--baseline ID[,ID...]|none] [--json [--all-segments]]
+[--report DIR]``.
+
+``accelcal diagnose-benchmark`` is registered by :mod:`accelcal.validation.cli`."""
 from __future__ import annotations
 
 import json
@@ -33,6 +35,18 @@ def _diagnose(args) -> int:
 
 
 def register_cli(subparsers) -> None:
+    """Add the ``diagnose`` subcommand to the accelcal CLI.
+
+    ``diagnose`` reads run files or folders, runs :func:`accelcal.diagnosis.core.diagnose`
+    with ``--baseline`` and prints the text report, or one JSON object with ``--json``
+    (the localisation of every segment only with ``--all-segments``); ``--report DIR``
+    also writes ``DIR/diagnosis.html``.
+
+    Parameters
+    ----------
+    subparsers : argparse._SubParsersAction
+        The ``add_subparsers()`` object of the accelcal parser.
+    """
     p = subparsers.add_parser("diagnose", help="diagnose the sim-to-real gap of one or more campaigns")
     p.add_argument("paths", nargs="+", metavar="PATH", help="run files or folders")
     p.add_argument("--baseline", default=None,
@@ -46,7 +60,19 @@ def register_cli(subparsers) -> None:
 
 def main(argv=None) -> int:
     """Standalone use, ``python -m accelcal.diagnosis.cli diagnose ...``: the accelcal CLI
-    itself, so errors and exit codes are the same."""
+    itself, so errors and exit codes are the same.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        Command line without the program name (default ``sys.argv[1:]``).
+
+    Returns
+    -------
+    int
+        Exit code of :func:`accelcal.cli.main` (0 done, 1 failed with a one-line
+        reason, 2 usage error, 3 internal error, 130 interrupted).
+    """
     from ..cli import main as accelcal_main
     return accelcal_main(argv)
 

@@ -69,7 +69,29 @@ SINE_SEGMENTS = 4
 
 
 def resolve_baseline(baseline, tests: Sequence[str]) -> tuple[list[str], str]:
-    """(effects, label): None -> the pipeline's processing model; 'none' -> the bare model."""
+    """The effects the diagnosis' forward model includes from the start.
+
+    Parameters
+    ----------
+    baseline : None, str or sequence of str
+        None: the pipeline's processing model for the tests
+        (:func:`accelcal.fitting.model.processing_effects`); 'none' (any case): the bare
+        model; otherwise effects.md ids, as a list or comma-separated.
+    tests : sequence of str
+        Test kinds present ('centrifuge', 'sine_centrifuge', 'tumble', 'tilt_rotation').
+
+    Returns
+    -------
+    effects : list of str
+        Effect ids, duplicates dropped, order kept.
+    label : str
+        'default' for None, else the ids joined by commas, or 'none'.
+
+    Raises
+    ------
+    ValueError
+        When an id is not in the effects catalogue.
+    """
     if baseline is None:
         return processing_effects(tests), "default"
     if isinstance(baseline, str):
@@ -82,7 +104,20 @@ def resolve_baseline(baseline, tests: Sequence[str]) -> tuple[list[str], str]:
 
 
 def candidates_for(tests: Sequence[str], baseline: Sequence[str]) -> list[str]:
-    """Catalogue effects that apply to the tests present and are not in the baseline."""
+    """Catalogue effects that apply to the tests present and are not in the baseline.
+
+    Parameters
+    ----------
+    tests : sequence of str
+        Test kinds present.
+    baseline : sequence of str
+        Effect ids already in the model.
+
+    Returns
+    -------
+    list of str
+        Effect ids (effects.md) in catalogue order.
+    """
     return [e for e, d in EFFECTS.items() if e not in baseline and any(t in d.tests for t in tests)]
 
 
@@ -90,7 +125,26 @@ def prepare_cells(runs) -> tuple[list[RunCells], list[str]]:
     """RunFile-like objects (meta, data) -> cells as :func:`accelcal.estimators.joint.prepare`
     makes them, but with sine cells per stretch of time (:data:`SINE_SEGMENTS`) and rare
     spikes dropped before the noise model is fitted
-    (:func:`accelcal.fitting.data.reject_spikes`); RunCells pass through."""
+    (:func:`accelcal.fitting.data.reject_spikes`).
+
+    Per run, in order: cells (:func:`~accelcal.fitting.data.make_run`), duplicate cells
+    across runs dropped, spikes rejected, the noise level variable of gravity tests set
+    (:func:`angle_level`), the noise model fitted to the outputs' within-cell scatter; then
+    runs without replicates take a pooled noise model.
+
+    Parameters
+    ----------
+    runs : iterable of RunFile-like or of RunCells
+        Parsed runs (``meta``, ``data``, optionally ``sha256``); a list made only of
+        RunCells is returned as it is.
+
+    Returns
+    -------
+    cells : list of RunCells
+        With noise models and ``var_mean`` [output_unit^2].
+    notes : list of str
+        Duplicate-cell and spike notes for the report.
+    """
     runs = list(runs)
     if runs and all(isinstance(r, RunCells) for r in runs):
         return runs, []
@@ -111,7 +165,17 @@ def angle_level(run: RunCells) -> None:
     sensitivity of the IA input to the logged angle, |d a_i / d theta| [m/s^2 per rad]: the
     reading noise of a logged head or table angle enters the residuals as much as the input
     moves with the angle (none at IA up or down, most at IA horizontal), as the logged rate's
-    noise grows with the centripetal level on a centrifuge."""
+    noise grows with the centripetal level on a centrifuge.
+
+    The derivative is a central difference of the specific force along IA over +-1e-3 deg of
+    ``angle_deg`` (tumble) or ``rotation_deg`` (tilt-rotation); other test kinds are left
+    alone.
+
+    Parameters
+    ----------
+    run : RunCells
+        The run; ``x_rows`` and ``x`` [m/s^2 per rad] are replaced in place.
+    """
     col = {"tumble": "angle_deg", "tilt_rotation": "rotation_deg"}.get(run.test)
     if col is None:
         return
@@ -125,7 +189,18 @@ def angle_level(run: RunCells) -> None:
 
 
 def noise_grows(run: RunCells) -> bool:
-    """Whether the run's noise model has its level term (the level varies between cells)."""
+    """Whether the run's noise model has its level term (the level varies between cells).
+
+    Parameters
+    ----------
+    run : RunCells
+        The run, with its cell levels ``x`` [m/s^2, or m/s^2 per rad on gravity tests].
+
+    Returns
+    -------
+    bool
+        True when ``x`` is not constant over the cells.
+    """
     return bool(run.x.size and np.ptp(run.x) > 0)
 
 
@@ -140,13 +215,29 @@ def diagnose(runs, baseline=None, alpha: float = 0.05, *, max_effects: int = 8, 
         Effects the model already includes: None = the pipeline's processing model for the
         tests present, 'none' = the bare model, or effects.md ids.
     alpha : float
-        Family-wise significance of the selection (Bonferroni over the candidates).
+        Family-wise significance of the selection [1] (Bonferroni over the candidates and
+        steps).
+    max_effects : int
+        Most effects the forward selection takes [1].
+    refit_top : int
+        Candidates refitted (nonlinear) per selection step, best scores first; the others
+        are ranked by their linear estimate [1].
 
     Returns
     -------
     dict
         The JSON contract (:func:`public` drops the private ``_fits``): verdict, explained,
         ranking, gap (with significant_before/after), where, unexplained, ...
+
+    Raises
+    ------
+    ValueError
+        When there are no runs, or the baseline names an unknown effect.
+
+    References
+    ----------
+    Draper & Smith, *Applied Regression Analysis*, 3rd ed., §2.1 (lack of fit with pure
+    error, the ``explained`` test).
     """
     with single_thread():
         return _Diagnosis(runs, baseline, alpha, max_effects, refit_top).run()
@@ -541,7 +632,18 @@ def _bare_text(f: Fit) -> str:
 
 
 def public(result: dict) -> dict:
-    """The JSON-able part of a diagnosis."""
+    """The JSON-able part of a diagnosis.
+
+    Parameters
+    ----------
+    result : dict
+        Result of :func:`diagnose`.
+
+    Returns
+    -------
+    dict
+        A shallow copy without the private keys (those starting with ``_``, e.g. ``_fits``).
+    """
     return {k: v for k, v in result.items() if not k.startswith("_")}
 
 

@@ -72,13 +72,49 @@ def _bins(dim: str, v: np.ndarray) -> np.ndarray:
 
 
 def leverages(f: Fit) -> np.ndarray:
+    """Leverage h_ii of each cell in a fit.
+
+    Parameters
+    ----------
+    f : Fit
+        The fit; its whitened Jacobian over the free columns defines the hat matrix.
+
+    Returns
+    -------
+    (N,) ndarray
+        Diagonal of the hat matrix U U^T, U an orthonormal basis of the free columns' span
+        [1]; it sums to the rank, and 1 - h_ii is the expected z_i^2 of a right model.
+    """
     U = f.basis()
     return np.sum(U * U, axis=1)
 
 
 def localise(f: Fit, alpha: float = 0.05) -> list[dict]:
     """Every segment of every dimension with its chi-square, expectation, Holm-adjusted
-    p-value, share of its dimension's excess and mean residual (whitened and SI)."""
+    p-value, share of its dimension's excess and mean residual (whitened and SI).
+
+    Parameters
+    ----------
+    f : Fit
+        The fit whose whitened cell residuals are localised.
+    alpha : float
+        Family-wise significance level of the Holm procedure over all segments [1].
+
+    Returns
+    -------
+    list of dict
+        One per segment (dimensions with one segment are skipped, except ``run``), with
+        ``dimension``, ``segment``, ``cells``, ``chi2`` (sum z^2) [1], ``expected``
+        (sum 1 - h_ii) [1], ``p_value`` (chi-square, 1 when ``expected`` is below
+        :data:`MIN_EXPECTED`), ``p_holm``, ``significant``, ``share`` of the dimension's
+        excess [1], ``mean_z`` [1], ``mean_residual_m_s2`` and ``rms_residual_m_s2``
+        [m/s^2].
+
+    References
+    ----------
+    Holm, S., A simple sequentially rejective multiple test procedure, Scand. J. Statist.
+    6, 65-70 (1979).
+    """
     z = f.z
     e = 1.0 - leverages(f)
     lab = _labels(f)
@@ -116,7 +152,19 @@ def localise(f: Fit, alpha: float = 0.05) -> list[dict]:
 
 
 def residual_si(f: Fit) -> np.ndarray:
-    """Cell residuals in m/s^2 of input (whitened residual x sigma / K1 of the campaign)."""
+    """Cell residuals in m/s^2 of input (whitened residual x sigma / K1 of the campaign).
+
+    Parameters
+    ----------
+    f : Fit
+        The fit; |K1| of each run's campaign [output_unit per m/s^2] converts its cells
+        (1 when the model has no K1).
+
+    Returns
+    -------
+    (N,) ndarray
+        Residual of each cell mean, referred to the input [m/s^2].
+    """
     out = np.zeros(f.N)
     for j, r in enumerate(f.model.runs):
         sl = f.model.rows(j)
@@ -127,7 +175,20 @@ def residual_si(f: Fit) -> np.ndarray:
 
 
 def where(rows: list[dict]) -> list[dict]:
-    """The Holm-significant segments, largest share first."""
+    """The Holm-significant segments, largest share first.
+
+    Parameters
+    ----------
+    rows : list of dict
+        Segments from :func:`localise`.
+
+    Returns
+    -------
+    list of dict
+        The significant ones, with ``dimension``, ``segment``, ``share`` [1], ``chi2`` [1],
+        ``expected`` [1], ``p_holm`` [1], ``significant``, ``mean_residual_m_s2`` [m/s^2]
+        and ``cells``; ties in share by dimension name.
+    """
     keep = [{k: r[k] for k in ("dimension", "segment", "share", "chi2", "expected", "p_holm", "significant",
                                "mean_residual_m_s2", "cells")} for r in rows if r["significant"]]
     keep.sort(key=lambda w: (-w["share"], w["dimension"]))
@@ -179,7 +240,25 @@ def _forms(lab: dict, f: Fit) -> list[tuple[str, str, np.ndarray]]:
 
 def shape(f: Fit, top: int = 3) -> list[dict]:
     """The simple forms that explain most of the excess of the residual (share of
-    sum z^2 - dof explained by each, after projecting the form off the model's columns)."""
+    sum z^2 - dof explained by each, after projecting the form off the model's columns).
+
+    Each form's gain in chi-square, less its number of parameters (one more for a
+    periodic form, whose period was searched), is divided by the excess chi2 - dof.
+
+    Parameters
+    ----------
+    f : Fit
+        The fit whose whitened residual is examined.
+    top : int
+        Most forms returned [1].
+
+    Returns
+    -------
+    list of dict
+        ``dimension``, ``form`` (words), ``parameters`` [1] and ``explained_fraction`` [1]
+        of the forms explaining more than 5 %, the simplest first among those within 5 %
+        of each other; empty when there is no excess or dof < 3.
+    """
     excess = f.chi2 - f.dof
     if excess <= 0 or f.dof < 3:      # a gap with one or two degrees of freedom has no shape
         return []
@@ -204,7 +283,23 @@ def shape(f: Fit, top: int = 3) -> list[dict]:
 
 
 def summary(rows: list[dict], forms: list[dict]) -> str:
-    """One sentence: where most of the gap is and its shape."""
+    """One sentence: where most of the gap is and its shape.
+
+    Parameters
+    ----------
+    rows : list of dict
+        Segments from :func:`localise`.
+    forms : list of dict
+        Forms from :func:`shape`, best first.
+
+    Returns
+    -------
+    str
+        The significant segments (at least 10 % share each, up to four) of up to three
+        dimensions, the largest share first; a dimension is named when its segments hold
+        half its excess or more, or always for position, IA input and g level.  Then the
+        best form with its explained percentage.
+    """
     sig = [r for r in rows if r["significant"] and r["dimension"] not in ("campaign", "test")]
     parts = []
     by_dim: dict[str, list[dict]] = {}

@@ -15,6 +15,24 @@ def _f(v, fmt="{:.4g}"):
 
 
 def text_report(res: dict) -> str:
+    """The diagnosis as plain text for the terminal.
+
+    Baseline, gap before and after (whitened rms [1] and in SI [m/s^2]), shrink in sample
+    and held out, status, verdict and whether the gap is explained, the ranked effects
+    (estimate and u in the effect's effects.md unit, z, delta chi2, shrinks, observable
+    fraction, aliases), the unobservable effects, coefficient aliases, the Holm-significant
+    segments (first 15) and the shape of the gap.
+
+    Parameters
+    ----------
+    res : dict
+        Result of :func:`accelcal.diagnosis.core.diagnose`.
+
+    Returns
+    -------
+    str
+        Lines joined by newlines, no trailing newline.
+    """
     L = []
     g = res["gap"]
     L.append(f"baseline: {res['baseline']['label']} ({', '.join(res['baseline']['effects']) or 'bare model'})")
@@ -185,7 +203,21 @@ def html_report(res: dict, out_dir) -> Path:
     """A page an engineer reads (issue 28): the verdict and why, where the gap lies (residual
     plots per run in µg against each run's own axis), the ranked effects with aliases, how
     far the gap shrinks in sample and held out, what cannot be seen; the full result as
-    ``diagnosis.json`` beside it.  Self-contained (PNGs embedded), no scripts."""
+    ``diagnosis.json`` beside it.  Self-contained (PNGs embedded), no scripts.
+
+    Parameters
+    ----------
+    res : dict
+        Result of :func:`accelcal.diagnosis.core.diagnose`.
+    out_dir : str or Path
+        Folder to write into (created if missing); ``diagnosis.html`` and
+        ``diagnosis.json`` there are replaced atomically.
+
+    Returns
+    -------
+    Path
+        Path of ``diagnosis.html``.
+    """
     import matplotlib
     matplotlib.use("Agg")
 
@@ -273,7 +305,19 @@ def html_report(res: dict, out_dir) -> Path:
 
 
 def clean_json(o):
-    """The same structure with non-finite floats as None (strict JSON)."""
+    """The same structure with non-finite floats as None (strict JSON).
+
+    Parameters
+    ----------
+    o : object
+        Nested dicts, lists, tuples, numpy arrays and scalars.
+
+    Returns
+    -------
+    object
+        The same values with tuples and arrays as lists, numpy floats and integers as Python
+        ones and nan/inf as None; other objects unchanged.
+    """
     if isinstance(o, dict):
         return {k: clean_json(v) for k, v in o.items()}
     if isinstance(o, (list, tuple)):

@@ -16,6 +16,9 @@ def read_paths(paths) -> list:
     Returns
     -------
     list of RunFile
+        Parsed runs (typed ``meta`` and ``data`` columns), files in the order given and,
+        within a folder, sorted (:func:`accelcal.schemas.dropformat.discover`); empty when
+        nothing could be read.
     """
     from pathlib import Path
 

@@ -32,6 +32,23 @@ _FUNCS = _lib()
 
 @contextlib.contextmanager
 def single_thread():
+    """Context manager that runs the enclosed block with OpenBLAS on one thread.
+
+    On entry the current OpenBLAS thread count is read and set to 1; on exit
+    (also on an exception) the previous count is restored.  When numpy's
+    bundled OpenBLAS or its thread functions cannot be found, or the current
+    count cannot be read, the block runs unchanged (a no-op).
+
+    Yields
+    ------
+    None
+        Control passes to the ``with`` block.
+
+    Notes
+    -----
+    The thread count is process-wide, not thread-local: other threads doing
+    linear algebra inside the block also run on one thread.
+    """
     if _FUNCS is None:
         yield
         return

@@ -77,6 +77,18 @@ class Parameter:
     value: float = 0.0
 
     def acts_on(self, run: int) -> bool:
+        """Whether the parameter enters the model of run ``run``.
+
+        Parameters
+        ----------
+        run : int
+            Run index (block of observations) [1].
+
+        Returns
+        -------
+        bool
+            True when ``runs`` is None (every run) or contains ``run``.
+        """
         return self.runs is None or run in self.runs
 
 
@@ -90,6 +102,23 @@ class ParameterSet:
             self.add(p)
 
     def add(self, p: Parameter) -> int:
+        """Append a parameter at the end of the set.
+
+        Parameters
+        ----------
+        p : Parameter
+            The parameter; its name must be new to the set.
+
+        Returns
+        -------
+        int
+            Its index (column of the Jacobian) [1].
+
+        Raises
+        ------
+        ValueError
+            When a parameter of that name is already in the set.
+        """
         if p.name in self.index:
             raise ValueError(f"parameter {p.name!r} defined twice")
         self.index[p.name] = len(self._p)
@@ -110,24 +139,63 @@ class ParameterSet:
 
     @property
     def names(self) -> list[str]:
+        """Parameter names, in set order."""
         return [p.name for p in self._p]
 
     def values(self) -> np.ndarray:
-        """Start/held values [SI]."""
+        """Start/held values of the parameters.
+
+        Returns
+        -------
+        (p,) ndarray
+            ``Parameter.value`` of each, in set order [parameter units, SI].
+        """
         return np.array([p.value for p in self._p], float)
 
     def free(self) -> np.ndarray:
-        """Boolean mask of the parameters that vary."""
+        """Mask of the parameters that vary.
+
+        Returns
+        -------
+        (p,) ndarray of bool
+            ``Parameter.vary`` of each, in set order.
+        """
         return np.array([p.vary for p in self._p], bool)
 
     def held(self, names: Iterable[str], values: Sequence[float] | None = None) -> "ParameterSet":
-        """A copy with ``names`` held (at ``values`` if given)."""
+        """A copy of the set with some parameters held.
+
+        Parameters
+        ----------
+        names : iterable of str
+            Parameters to hold (``vary=False``); names not in the set are ignored.
+        values : sequence of float, optional
+            Held values, paired with ``names`` [parameter units]; None keeps each
+            parameter's current ``value``.
+
+        Returns
+        -------
+        ParameterSet
+            New set in the same order; the original is unchanged.
+        """
         names = list(names)
         vals = dict(zip(names, values)) if values is not None else {}
         return ParameterSet(replace(p, vary=False, value=vals.get(p.name, p.value)) if p.name in names else p
                             for p in self._p)
 
     def subset(self, names: Iterable[str]) -> "ParameterSet":
+        """The parameters named, as a new set.
+
+        Parameters
+        ----------
+        names : iterable of str
+            Names to keep; names not in the set are ignored.
+
+        Returns
+        -------
+        ParameterSet
+            The kept parameters in this set's order (not the order of ``names``).
+        """
         keep = set(names)
         return ParameterSet(p for p in self._p if p.name in keep)
 
@@ -171,14 +239,14 @@ def lstsq_svd(J: np.ndarray, z: np.ndarray, rcond: float = RCOND) -> LinearSolut
     J : (n, p) ndarray
         Whitened design (Jacobian) [whitened output per parameter unit].
     z : (n,) ndarray
-        Whitened right-hand side (residual).
+        Whitened right-hand side (residual) [1].
     rcond : float
-        Relative singular-value cut (:data:`RCOND`).
+        Relative singular-value cut [1] (:data:`RCOND`).
 
     Returns
     -------
     LinearSolution
-        Columns that are identically zero get x = 0, zero covariance and
+        x [parameter units], cov [parameter unit_i * parameter unit_j].  Columns that are identically zero get x = 0, zero covariance and
         ``estimable = False``.
 
     Notes
@@ -232,7 +300,22 @@ def _svd_solve(J: np.ndarray, z: np.ndarray, rcond: float):
 
 def lstsq_svd_x(J: np.ndarray, z: np.ndarray, rcond: float = RCOND) -> np.ndarray:
     """The solution x of :func:`lstsq_svd` alone (the same values), without its covariance
-    and null space, for the many small solves that use nothing else."""
+    and null space, for the many small solves that use nothing else.
+
+    Parameters
+    ----------
+    J : (n, p) ndarray
+        Whitened design (Jacobian) [1 per parameter unit].
+    z : (n,) ndarray
+        Whitened right-hand side (residual) [1].
+    rcond : float
+        Relative singular-value cut [1] (:data:`RCOND`).
+
+    Returns
+    -------
+    (p,) ndarray
+        Minimum-norm solution [parameter units]; 0 for identically zero columns.
+    """
     return _svd_solve(J, z, rcond)[0]
 
 
@@ -258,7 +341,10 @@ def gram_reduce(J: np.ndarray, z: np.ndarray | None = None) -> tuple[np.ndarray,
 
     Returns
     -------
-    M : (p, p) ndarray, b : (p,) ndarray
+    M : (p, p) ndarray
+        Reduced design [1 per parameter unit], same J^T J and column norms as J.
+    b : (p,) ndarray
+        Reduced right-hand side [1].
     """
     c = np.linalg.norm(J, axis=0)
     c = np.where(c > 0, c, 1.0)
@@ -291,6 +377,7 @@ def lstsq_gram(J: np.ndarray, z: np.ndarray | None = None, rcond: float = 1e-9) 
     Returns
     -------
     LinearSolution
+        As :func:`lstsq_svd` of (J, z), to normal-equation precision.
     """
     M, b = gram_reduce(J, z)
     return lstsq_svd(M, b, rcond)
@@ -378,10 +465,11 @@ def separable_columns(J: np.ndarray, order: Sequence[int], tol: float = 1e-6) ->
     Parameters
     ----------
     J : (n, p) ndarray
+        Design [any unit per parameter unit]; zero columns are never kept.
     order : sequence of int
         Column indices, highest priority first.
     tol : float
-        Relative norm of the new direction below which a column is aliased.
+        Relative norm of the new direction below which a column is aliased [1].
 
     Returns
     -------
@@ -438,12 +526,13 @@ def gauss_newton(residual: Callable[[np.ndarray], np.ndarray],
     free : ndarray of bool, optional
         Which parameters vary (default all).
     max_iter : int
+        Maximum number of accepted steps [1].
     rtol : float
-        Stop when the chi-square decreases by less than ``rtol`` relative.
+        Stop when the chi-square decreases by less than ``rtol`` relative [1].
     rcond : float
-        Rank rule of each step (:func:`lstsq_svd`).
+        Rank rule of each step [1] (:func:`lstsq_svd`).
     lower : ndarray, optional
-        Lower bounds (-inf for none): each trial point is projected onto them (a time
+        Lower bounds [parameter units] (-inf for none): each trial point is projected onto them (a time
         constant cannot be negative).
 
     Returns
@@ -510,6 +599,8 @@ def gauss_newton(residual: Callable[[np.ndarray], np.ndarray],
 class LackOfFit:
     """Result of :func:`lack_of_fit`.
 
+    Attributes
+    ----------
     status : 'adequate' | 'inadequate' | 'untestable'
         'untestable' when the model has no spare degrees of freedom (as many parameters
         as distinct inputs) or there is no independent estimate of the noise.
@@ -519,8 +610,10 @@ class LackOfFit:
     dof_lof, dof_pe : int
         Lack-of-fit and pure-error degrees of freedom (dof_pe 0 when the noise is known).
     factor : float
-        Factor to apply to standard uncertainties: sqrt(statistic) when inadequate
+        Factor to apply to standard uncertainties [1]: sqrt(statistic) when inadequate
         (Birge ratio), else 1.
+    note : str
+        Why the test is untestable, or how the covariance was scaled; may be empty.
     """
     status: str
     statistic: float | None
@@ -532,6 +625,7 @@ class LackOfFit:
 
     @property
     def adequate(self) -> bool:
+        """True when ``status`` is 'adequate' (False also when untestable)."""
         return self.status == "adequate"
 
 
@@ -584,13 +678,13 @@ def birge_ratio(values: Sequence[float], u: Sequence[float]) -> tuple[float, flo
 
     Parameters
     ----------
-    values, u : sequences
-        Results and their standard uncertainties (same unit).
+    values, u : sequence of float
+        Results and their standard uncertainties [same unit].
 
     Returns
     -------
-    mean, u_mean, birge, dof
-        ``u_mean`` is the internal uncertainty 1/sqrt(sum w); ``birge`` = sqrt(chi2/(N-1))
+    mean, u_mean, birge, dof : float, float, float, int
+        Weighted mean [unit of values]; ``u_mean`` is the internal uncertainty 1/sqrt(sum w); ``birge`` = sqrt(chi2/(N-1))
         (Birge 1932); dof = N - 1.
     """
     x = np.asarray(values, float)
@@ -603,7 +697,26 @@ def birge_ratio(values: Sequence[float], u: Sequence[float]) -> tuple[float, flo
 
 
 def normalised_error(x1: float, U1: float, x2: float, U2: float) -> float:
-    """En = (x1 - x2) / sqrt(U1^2 + U2^2) with expanded uncertainties (ISO 13528 §9.7)."""
+    """Normalised error En of two results (ISO 13528 §9.7).
+
+    Parameters
+    ----------
+    x1, x2 : float
+        The two results [same unit].
+    U1, U2 : float
+        Their expanded uncertainties [same unit as x1].
+
+    Returns
+    -------
+    float
+        En = (x1 - x2) / sqrt(U1^2 + U2^2) [1]; |En| <= 1 is agreement.  With
+        U1 = U2 = 0: +-inf by the sign of x1 - x2 (nan when x1 == x2).
+
+    References
+    ----------
+    ISO 13528:2015, Statistical methods for use in proficiency testing by
+    interlaboratory comparison, §9.7.
+    """
     d = math.sqrt(U1 * U1 + U2 * U2)
     return (x1 - x2) / d if d > 0 else float("inf") * np.sign(x1 - x2)
 
@@ -650,21 +763,74 @@ class FitResult:
 
     @property
     def names(self) -> list[str]:
+        """Parameter names, in the order of ``values`` and of the covariance."""
         return self.params.names
 
     def value(self, name: str) -> float:
+        """Estimate of one parameter.
+
+        Parameters
+        ----------
+        name : str
+            Parameter name.
+
+        Returns
+        -------
+        float
+            Estimate (or held value) [parameter unit].
+        """
         return float(self.values[self.params.index[name]])
 
     def std(self, name: str) -> float:
+        """Reported standard uncertainty of one parameter, from ``cov``.
+
+        Parameters
+        ----------
+        name : str
+            Parameter name.
+
+        Returns
+        -------
+        float
+            sqrt of the diagonal of ``cov`` (lack-of-fit factor included) [parameter
+            unit]; nan when the parameter is held or not estimable.
+        """
         i = self.params.index[name]
         return float(math.sqrt(max(self.cov[i, i], 0.0))) if self.estimable[i] else float("nan")
 
     def std_noise(self, name: str) -> float:
+        """Standard uncertainty of one parameter from the noise model alone.
+
+        Parameters
+        ----------
+        name : str
+            Parameter name.
+
+        Returns
+        -------
+        float
+            sqrt of the diagonal of ``cov_noise`` (no lack-of-fit factor) [parameter
+            unit]; nan when the parameter is held or not estimable.
+        """
         i = self.params.index[name]
         return float(math.sqrt(max(self.cov_noise[i, i], 0.0))) if self.estimable[i] else float("nan")
 
     def correlation(self, names: Sequence[str] | None = None) -> tuple[list[str], np.ndarray]:
-        """Correlation matrix of ``names`` (default: every estimable parameter)."""
+        """Correlation matrix of some parameters, from ``cov``.
+
+        Parameters
+        ----------
+        names : sequence of str, optional
+            Parameters to include (default: every estimable parameter).
+
+        Returns
+        -------
+        names : list of str
+            The parameters, in the order of the matrix rows.
+        R : (k, k) ndarray
+            Correlation coefficients [1]; nan in rows and columns of parameters with
+            zero variance (held or not estimable).
+        """
         if names is None:
             names = [n for n, e in zip(self.names, self.estimable) if e]
         idx = [self.params.index[n] for n in names]
@@ -708,9 +874,26 @@ def finish_fit(params: ParameterSet, gn: GaussNewton, lof: LackOfFit | None = No
                rcond: float = RCOND) -> FitResult:
     """Covariance and result of a converged problem (:func:`gauss_newton` outcome).
 
-    ``lof`` defaults to the chi-square test of the whitened residuals with dof = n - rank
-    (noise known).  The reported covariance is the noise-model covariance times
-    ``lof.factor ** 2``.
+    The noise-model covariance is ``(J^T J)^+`` over the free parameters from the
+    column-scaled SVD of the whitened Jacobian at the solution; held parameters get zero
+    covariance and ``estimable = False``.
+
+    Parameters
+    ----------
+    params : ParameterSet
+        The parameters, in the order of ``gn.p`` and of the Jacobian columns.
+    gn : GaussNewton
+        Solution with its whitened residual [1] and Jacobian [1 per parameter unit].
+    lof : LackOfFit, optional
+        Adequacy test to apply; default: the chi-square test of the whitened residuals
+        with dof = n - rank (noise known), :func:`lack_of_fit`.
+    rcond : float
+        Relative singular-value cut [1] (:data:`RCOND`).
+
+    Returns
+    -------
+    FitResult
+        Reported covariance = noise-model covariance times ``lof.factor ** 2``.
     """
     free = params.free()
     J = gn.J
@@ -740,17 +923,22 @@ def linear_fit(X: np.ndarray, y: np.ndarray, sigma: np.ndarray | float = 1.0,
     X : (n, p) ndarray
         Design [output unit per parameter unit].
     y : (n,) ndarray
+        Observations [output unit].
     sigma : ndarray or float
         Standard deviation of each observation [output unit].
     params : ParameterSet or list of names, optional
+        Names of the p columns (default ``b0``, ``b1``, ...).
     residual_scale : bool
         True (the classical regression covariance, NIST StRD): cov = s^2 (X^T W X)^+ with
         s^2 = chi2 / (n - rank). False: cov = (X^T W X)^+ (sigma known), and the lack-of-fit
         factor applies when the chi-square test fails.
+    rcond : float
+        Relative singular-value cut [1] (:data:`RCOND`).
 
     Returns
     -------
     FitResult
+        Estimates [parameter units] with covariance, chi-square and adequacy.
     """
     X = np.asarray(X, float)
     y = np.asarray(y, float)

@@ -53,10 +53,22 @@ RHO_SIGNIFICANCE = 3.0
 
 @dataclass
 class NoiseModel:
-    """sigma^2(x) = a + b x^2 per reading [output_unit^2], x [m/s^2]; lag-1 autocorrelation rho.
+    """Noise of one run's readings: variance sigma^2(x) = a + b x^2 and AR(1) correlation.
 
-    ``dof`` is the pure-error degrees of freedom it rests on; ``source`` says what it was
-    estimated from ('residuals', 'outputs', 'pooled', 'fit residuals')."""
+    Attributes
+    ----------
+    a : float
+        White-noise variance of one reading [output_unit^2]; nan when not estimable.
+    b : float
+        Rate-dependent part [output_unit^2 / (m/s^2)^2], x the centripetal level [m/s^2].
+    rho : float
+        Lag-1 autocorrelation of the readings inside a cell [1].
+    dof : int
+        Pure-error degrees of freedom it rests on [1].
+    source : str
+        What it was estimated from: 'residuals', 'outputs', 'pooled', 'fit residuals'
+        ('none' when nothing could be).
+    """
     a: float
     b: float = 0.0
     rho: float = 0.0
@@ -64,11 +76,37 @@ class NoiseModel:
     source: str = "outputs"
 
     def reading_variance(self, x: np.ndarray) -> np.ndarray:
+        """Variance of one reading at centripetal level x.
+
+        Parameters
+        ----------
+        x : array_like
+            Centripetal level omega_z^2 R [m/s^2] (0 off centrifuges).
+
+        Returns
+        -------
+        ndarray
+            a + b x^2 [output_unit^2], shape of x.
+        """
         return self.a + self.b * np.asarray(x, float) ** 2
 
 
 def ar1_mean_factor(n: np.ndarray, rho: float) -> np.ndarray:
-    """Var(mean of n AR(1) readings) / (sigma^2 / n) = 1 + 2 sum_{k=1}^{n-1} (1 - k/n) rho^k."""
+    """Variance inflation of the mean of n AR(1) readings.
+
+    Parameters
+    ----------
+    n : array_like
+        Readings per cell [1].
+    rho : float
+        Lag-1 autocorrelation [1].
+
+    Returns
+    -------
+    ndarray
+        Var(mean) / (sigma^2 / n) = 1 + 2 sum_{k=1}^{n-1} (1 - k/n) rho^k [1], shape of n
+        (1 where rho = 0 or n <= 1).
+    """
     n = np.asarray(n, float)
     if rho == 0.0:
         return np.ones_like(n)
@@ -80,7 +118,21 @@ def ar1_mean_factor(n: np.ndarray, rho: float) -> np.ndarray:
 
 
 def ar1_variance_factor(n: np.ndarray, rho: float) -> np.ndarray:
-    """E[s^2] / sigma^2 for n AR(1) readings: 1 - 2/(n(n-1)) sum_{k=1}^{n-1} (n-k) rho^k."""
+    """Bias of the sample variance of n AR(1) readings.
+
+    Parameters
+    ----------
+    n : array_like
+        Readings per cell [1].
+    rho : float
+        Lag-1 autocorrelation [1].
+
+    Returns
+    -------
+    ndarray
+        E[s^2] / sigma^2 = 1 - 2/(n(n-1)) sum_{k=1}^{n-1} (n-k) rho^k [1], shape of n;
+        1 where rho = 0 or n < 2, and at least 0.05.
+    """
     n = np.asarray(n, float)
     if rho == 0.0:
         return np.ones_like(n)
@@ -104,6 +156,7 @@ class RunCells:
     meta : dict
         Typed metadata (drop format).
     geometry : CentrifugeMount | TumbleHead | TiltTable
+        Mounting of the instrument on the rig (:func:`accelcal.physics.geometry.geometry_of`).
     cols : dict of ndarray
         The columns the forward model reads, one value per reading (for a sine run the
         logged rate is replaced by the drive fitted to it, see :func:`fitted_drive`).
@@ -122,10 +175,14 @@ class RunCells:
     attrs : dict of ndarray
         Labels per cell for localisation: time, time_frac, position, g_level, polarity,
         sweep, temperature, mount.
-    noise : NoiseModel
-    var_mean : ndarray
+    noise : NoiseModel or None
+        Set by :func:`fit_noise` or :func:`pool_missing_noise`.
+    var_mean : ndarray or None
         Variance of each cell mean [output_unit^2].
+    sha256 : str
+        Hash of the source file ('' when unknown).
     notes : list of str
+        What was done to the run (drive model, spikes, duplicates), for reports.
     """
     index: int
     meta: dict
@@ -147,22 +204,27 @@ class RunCells:
 
     @property
     def test(self) -> str:
+        """Test kind: 'centrifuge', 'sine_centrifuge', 'tumble' or 'tilt_rotation'."""
         return str(self.meta["test"])
 
     @property
     def run_id(self) -> str:
+        """The run's ``run_id`` (``'run<index>'`` when the metadata has none)."""
         return str(self.meta.get("run_id", f"run{self.index}"))
 
     @property
     def campaign(self) -> str:
+        """The run's campaign id ('' when none)."""
         return str(self.meta.get("campaign", ""))
 
     @property
     def rig_id(self) -> str:
+        """The rig's id ('' when none)."""
         return str(self.meta.get("rig_id", ""))
 
     @property
     def ncell(self) -> int:
+        """Number of cells kept [1]."""
         return int(self.n.size)
 
     def _kept_mask(self) -> np.ndarray | None:
@@ -176,7 +238,18 @@ class RunCells:
         return memo[1]
 
     def cell_mean(self, rows: np.ndarray) -> np.ndarray:
-        """Mean over each cell of a per-reading quantity (rows of dropped cells ignored)."""
+        """Mean over each cell of a per-reading quantity.
+
+        Parameters
+        ----------
+        rows : (nrow,) array_like
+            One value per reading [any unit]; readings with cid -1 are ignored.
+
+        Returns
+        -------
+        (ncell,) ndarray
+            Cell means [unit of rows].
+        """
         keep = self._kept_mask()
         if keep is None:              # every reading: the same sums without indexing
             return np.bincount(self.cid, weights=np.asarray(rows, float), minlength=self.ncell) / self.n
@@ -184,8 +257,23 @@ class RunCells:
                            minlength=self.ncell) / self.n
 
     def cell_scatter(self, rows: np.ndarray) -> tuple[np.ndarray, float]:
-        """Within-cell sample variance of a per-reading quantity (nan for 1-reading cells)
-        and the pooled lag-1 autocorrelation of its deviations inside cells."""
+        """Within-cell sample variance of a per-reading quantity and the pooled lag-1
+        autocorrelation of its deviations inside cells.
+
+        Parameters
+        ----------
+        rows : (nrow,) array_like
+            One value per reading [any unit]; readings with cid -1 are ignored.
+
+        Returns
+        -------
+        s2 : (ncell,) ndarray
+            Sample variance in each cell [unit of rows ^2]; nan for 1-reading cells.
+        rho : float
+            Lag-1 autocorrelation of consecutive readings of one cell [1], corrected by
+            +1/n for the deviations' own correlation, 0 when within its sampling noise
+            (:data:`RHO_SIGNIFICANCE`), clipped to :data:`RHO_BOUNDS`.
+        """
         keep = self.cid >= 0
         r = np.asarray(rows, float)
         dev = np.zeros_like(r)
@@ -232,10 +320,26 @@ def fitted_drive(t: np.ndarray, logged: np.ndarray, f: float, harmonics: int = 3
     fit of a constant and ``harmonics`` harmonics of f to the logged rate recovers it
     with the noise averaged over the whole run.
 
+    Parameters
+    ----------
+    t : (n,) ndarray
+        Reading times [s].
+    logged : (n,) ndarray
+        Logged table rate [rad/s].
+    f : float
+        Drive frequency [Hz].
+    harmonics : int
+        Number of harmonics of f fitted besides the constant [1].
+
     Returns
     -------
     rate, rate_derivative : ndarray
         [rad/s], [rad/s^2] at the times t.
+
+    References
+    ----------
+    Sun, Ren & Wang, sinusoidal-rate disc centrifuge (paper 002,
+    ../shared/docs/methods.md).
     """
     t = np.asarray(t, float)
     cols, dcols = [np.ones_like(t)], [np.zeros_like(t)]
@@ -270,11 +374,29 @@ def make_run(meta: Mapping, data, index: int = 0, sha256: str = "", sine_segment
         Typed metadata of the drop format.
     data : DataFrame or mapping of arrays
         The run's columns (drop format), optionally with ``line`` (file line numbers).
+    index : int
+        Position of the run in its campaign list [1].
+    sha256 : str
+        Hash of the source file, kept on the run.
     sine_segments : int
         A sine run's cells are the phases of the drive within each of this many equal
         stretches of time (default 1: across the whole run).  With one, whatever changes
         slowly in time (a bias drift) lands inside the cells, in the noise; the diagnosis
         uses several, keeping at least five periods per cell.
+
+    Returns
+    -------
+    RunCells
+        Cells of the run: centrifuge dwells by ``step``; tumble positions by
+        (``position``, ``angle_deg`` within :data:`ANGLE_TOL_DEG`); tilt-rotation dwells
+        by (``temp_set_c``, ``rotation_deg``); sine runs by drive phase, with the table
+        rate replaced by :func:`drive_rate` (the logged one kept as
+        ``logged_rate_rad_s``).  No noise model yet (see :func:`fit_noise`).
+
+    Raises
+    ------
+    ValueError
+        When ``meta['test']`` is not a known test kind.
     """
     meta = dict(meta)
     test = str(meta["test"])
@@ -340,9 +462,34 @@ def drive_rate(meta: Mapping, t: np.ndarray, logged: np.ndarray, alpha: float = 
     constant variance does not know; a table that does not follow its command by the paper's
     5e-5 rad/s gives F in the thousands.
 
+    Parameters
+    ----------
+    meta : mapping
+        Typed metadata with ``rate_amplitude_rad_s`` (Omega) [rad/s] and
+        ``rate_frequency_hz`` (f) [Hz].
+    t : (n,) ndarray
+        Reading times [s].
+    logged : (n,) ndarray
+        Logged table rate [rad/s].
+    alpha : float
+        Significance level of the F test [1].
+    harmonics : int
+        Number of harmonics of f in the fitted drive [1].
+
     Returns
     -------
-    rate [rad/s], rate_derivative [rad/s^2] or None, note
+    rate : (n,) ndarray
+        Table rate for the model [rad/s].
+    rate_derivative : (n,) ndarray or None
+        Its time derivative [rad/s^2]; None when the nominal drive is used (the model
+        differentiates the nominal drive itself).
+    note : str
+        Which drive was chosen, with F and p, for the run's notes.
+
+    References
+    ----------
+    Sun, Ren & Wang, sinusoidal-rate disc centrifuge (paper 002,
+    ../shared/docs/methods.md).
     """
     f = float(meta["rate_frequency_hz"])
     nominal = sine_drive(meta, t)
@@ -398,12 +545,25 @@ def _labels(run: RunCells, t: np.ndarray) -> dict:
 
 def reject_spikes(run: RunCells, k: float = SPIKE_SIGMAS) -> int:
     """Drop the readings further than ``k`` robust sigmas from their cell's median (rare
-    spikes of a DAQ); returns how many, with a note on the run.
+    spikes of a DAQ), in place, with a note on the run.
 
     The robust sigma of a cell is 1.4826 times its median absolute deviation, but at least
     half the median of the run's cells (a cell of a few equal readings has none) and twice
     the output's count size when the output is quantised.  Cells of fewer than four readings
-    are left alone."""
+    are left alone.  Dropped readings get cid -1 and ``n``, ``y``, ``x`` are recomputed.
+
+    Parameters
+    ----------
+    run : RunCells
+        The run, changed in place.
+    k : float
+        Threshold in robust sigmas [1].
+
+    Returns
+    -------
+    int
+        Number of readings dropped [1].
+    """
     keep = run.cid >= 0
     y = run.y_rows
     k_cells = run.ncell
@@ -441,7 +601,19 @@ def reject_spikes(run: RunCells, k: float = SPIKE_SIGMAS) -> int:
 def drop_duplicate_cells(runs: Sequence[RunCells]) -> list[str]:
     """Cells whose readings (time and output, to the last digit) already appear in an
     earlier run are dropped from the later one: the same recording counted twice would
-    halve its uncertainty.  Returns a note per run affected."""
+    halve its uncertainty.
+
+    Parameters
+    ----------
+    runs : sequence of RunCells
+        Runs in campaign order; later runs lose their duplicate cells, in place (cells
+        renumbered, their readings given cid -1, a note added to the run).
+
+    Returns
+    -------
+    list of str
+        One note per run affected.
+    """
     seen: dict[str, tuple[str, int]] = {}
     notes = []
     for run in runs:
@@ -490,10 +662,25 @@ def fit_noise(run: RunCells, residual_rows: np.ndarray | None = None, *, use_lev
     (output minus model per reading; default the outputs themselves) and set
     ``run.var_mean``.
 
+    The within-cell variances are corrected for the AR(1) bias
+    (:func:`ar1_variance_factor`) and a + b x^2 is fitted to them by the Gamma (chi-square)
+    likelihood; ``run.var_mean`` = sigma^2(x) times :func:`ar1_mean_factor` over n.
+
     Parameters
     ----------
+    run : RunCells
+        The run; ``run.noise`` and ``run.var_mean`` are set in place.
+    residual_rows : (nrow,) ndarray, optional
+        Output minus model per reading [output_unit]; None uses the outputs.
     use_level : bool, optional
-        Fit the b x^2 term (default: for centrifuge runs, whose noise grows with rate).
+        Fit the b x^2 term (default: for centrifuge runs whose level x varies, as their
+        noise grows with rate).
+
+    Returns
+    -------
+    NoiseModel
+        a [output_unit^2], b [output_unit^2/(m/s^2)^2], rho [1]; a = nan and source
+        'none' when no cell has two readings.
     """
     rows = run.y_rows if residual_rows is None else residual_rows
     s2, rho = run.cell_scatter(rows)
@@ -564,7 +751,16 @@ def _fit_variance_function(S: np.ndarray, nu: np.ndarray, X: np.ndarray, use_lev
 
 def pool_missing_noise(runs: Sequence[RunCells]) -> None:
     """Runs without replicates (no noise estimate) take the median reading variance of the
-    runs of the same test kind that have one."""
+    runs of the same test kind that have one.
+
+    Without such peers the variance of the run's outputs is used (1 if that is 0).  The
+    pooled model is white (b = 0, rho = 0), source 'pooled'.
+
+    Parameters
+    ----------
+    runs : sequence of RunCells
+        Runs, changed in place (``noise`` and ``var_mean`` of those without an estimate).
+    """
     for run in runs:
         if run.noise is not None and math.isfinite(run.noise.a):
             continue
