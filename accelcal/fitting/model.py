@@ -85,7 +85,20 @@ PROCESSING_EFFECTS: dict[str, tuple[str, ...]] = {
     "tilt_rotation": ("bias_temperature", "scale_temperature"),
 }
 def processing_effects(tests: Sequence[str]) -> list[str]:
-    """The union of :data:`PROCESSING_EFFECTS` over the test kinds present."""
+    """The union of :data:`PROCESSING_EFFECTS` over the test kinds present.
+
+    Parameters
+    ----------
+    tests : sequence of str
+        Test kinds of the runs (``'centrifuge'``, ``'sine_centrifuge'``, ``'tumble'``,
+        ``'tilt_rotation'``); repeats are allowed, unknown kinds add nothing.
+
+    Returns
+    -------
+    list of str
+        effects.md ids, each once: the test kinds in sorted order, each kind's effects in
+        :data:`PROCESSING_EFFECTS` order.
+    """
     out: list[str] = []
     for t in sorted(set(tests)):
         for e in PROCESSING_EFFECTS.get(t, ()):
@@ -257,15 +270,71 @@ class CampaignModel:
             self.sig = np.ones(self.N)
 
     def rows(self, j: int) -> slice:
+        """Rows of run j in the stacked cell vectors (``y``, ``sig``, :meth:`predict`,
+        :meth:`residual`, :meth:`jacobian`).
+
+        Parameters
+        ----------
+        j : int
+            Index of the run in the model.
+
+        Returns
+        -------
+        slice
+            ``offsets[j]:offsets[j + 1]``, one row per cell of the run.
+        """
         return slice(int(self.offsets[j]), int(self.offsets[j + 1]))
 
     def name(self, campaign: str, coefficient: str) -> str | None:
+        """Name of the parameter of an instrument coefficient of one campaign.
+
+        Parameters
+        ----------
+        campaign : str
+            Campaign id (``RunCells.campaign``).
+        coefficient : str
+            Instrument coefficient, effects.md notation (``'K1'``, ``'Kip'``, ...).
+
+        Returns
+        -------
+        str or None
+            ``'K1'``, or ``'K1[<campaign>]'`` when the model has more than one campaign
+            (held or not); None when the model has no such candidate for the campaign (not
+            designed for its tests nor added by an effect, or K0 replaced by a per-run bias
+            in every run).
+        """
         return self.coef_names.get((campaign, coefficient))
 
     # ----------------------------------------------------------------- evaluation
     def inputs(self, p: np.ndarray, j: int, extra: Mapping[str, float] | None = None
                ) -> tuple[dict, dict, dict]:
-        """(coefficients, effects, keyword arguments) of ``rig_output`` for run j."""
+        """Inputs of ``rig_output`` for run j at the parameter vector p.
+
+        Parameters
+        ----------
+        p : ndarray
+            Parameter vector [parameter units].
+        j : int
+            Index of the run in the model.
+        extra : mapping of str to float, optional
+            Effects (effects.md ids) added on top of the model's own values [effect unit];
+            an instrument-term effect (``odd_quadratic``, ...) adds to its coefficient
+            [coefficient unit]; effects that do not apply to the run's test are ignored.
+
+        Returns
+        -------
+        coefficients : dict of str to float
+            Instrument coefficients acting on the run [effects.md units]: K1 [output_unit
+            per m/s2] (1 when it is not a parameter of the run, times 1 + dK1 with a per-run
+            scale), K0 (the campaign's, or the run's own bias) [m/s2], ...
+        effects : dict of str to float
+            effects.md id -> parameter [effect unit]: the fixed ones (``earth_rate`` at 1)
+            and the fitted ones acting on the run.
+        kwargs : dict
+            ``radius_m``: the rig's turning-centre radius R [m] (centrifuge runs);
+            ``rate_derivative``: d(omega)/dt of a sine run's drive [rad/s2], times the
+            rotation sign and 1 + ``rate_scale_error``.
+        """
         r = self.runs[j]
         co: dict[str, float] = {"K1": 1.0}
         eff: dict[str, float] = dict(self._fixed_of[j])
@@ -301,7 +370,23 @@ class CampaignModel:
     PREDICTION_CACHE = 8
 
     def predict_rows(self, p: np.ndarray, j: int, extra: Mapping[str, float] | None = None) -> np.ndarray:
-        """The model's output at every reading of run j [output_unit] (read-only when kept)."""
+        """The model's output at every reading of run j.
+
+        Parameters
+        ----------
+        p : ndarray
+            Parameter vector [parameter units].
+        j : int
+            Index of the run in the model.
+        extra : mapping of str to float, optional
+            Effects added on top of the model's values [effect unit] (:meth:`inputs`).
+
+        Returns
+        -------
+        (nrow,) ndarray
+            ``rig_output`` at each reading [output_unit]; read-only when kept in the
+            prediction cache (:attr:`PREDICTION_CACHE`: a float64 ``p`` and no ``extra``).
+        """
         if extra or type(p) is not np.ndarray or p.dtype != np.float64:
             return self._rows(p, j, extra)
         # keyed by value: the point (bytes) is all the output depends on besides the runs'
@@ -326,13 +411,54 @@ class CampaignModel:
         return rig_output(r.test, r.meta, r.cols, co, eff, **kw)
 
     def predict_run(self, p: np.ndarray, j: int, extra: Mapping[str, float] | None = None) -> np.ndarray:
+        """Cell means of the model's output for run j.
+
+        Parameters
+        ----------
+        p : ndarray
+            Parameter vector [parameter units].
+        j : int
+            Index of the run in the model.
+        extra : mapping of str to float, optional
+            Effects added on top of the model's values [effect unit] (:meth:`inputs`).
+
+        Returns
+        -------
+        (ncell,) ndarray
+            :meth:`predict_rows` averaged over each cell of the run [output_unit].
+        """
         return self.runs[j].cell_mean(self.predict_rows(p, j, extra))
 
     def predict(self, p: np.ndarray) -> np.ndarray:
+        """Cell means of the model's output over all runs.
+
+        Parameters
+        ----------
+        p : ndarray
+            Parameter vector [parameter units].
+
+        Returns
+        -------
+        (N,) ndarray
+            :meth:`predict_run` of every run, stacked in run order [output_unit].
+        """
         return np.concatenate([self.predict_run(p, j) for j in range(len(self.runs))])
 
     def residual(self, p: np.ndarray) -> np.ndarray:
-        """Whitened cell residuals z = (ybar - model) / sigma_mean."""
+        """Whitened cell residuals z = (ybar - model) / sigma_mean.
+
+        Parameters
+        ----------
+        p : ndarray
+            Parameter vector [parameter units].
+
+        Returns
+        -------
+        (N,) ndarray
+            z [1]: sigma_mean is the standard deviation of each cell mean from its run's
+            noise model (``var_mean``, :meth:`refresh_noise`); 1 [output_unit] for every
+            cell while a run has no noise model.
+        """
         return (self.y - self.predict(p)) / self.sig
 
     def _temp(self, r: RunCells):
@@ -342,7 +468,27 @@ class CampaignModel:
         return np.where(np.isfinite(T), T, T_REF_C)
 
     def jacobian_run(self, p: np.ndarray, j: int, params: Sequence[int] | None = None) -> np.ndarray:
-        """d(cell-mean model)/dp of run j, not whitened, columns for ``params`` (default all)."""
+        """Jacobian of the cell means of run j, not whitened.
+
+        Parameters
+        ----------
+        p : ndarray
+            Parameter vector [parameter units].
+        j : int
+            Index of the run in the model.
+        params : sequence of int, optional
+            Parameter indices of the columns; None = every parameter.
+
+        Returns
+        -------
+        (ncell, len(params)) ndarray
+            d(cell-mean model)/dp [output_unit per parameter unit]; 0 in the columns of
+            parameters that do not act on the run.  Instrument coefficients and run biases
+            are exact (:func:`accelcal.physics.instrument.output_derivative`, lagged like the
+            output when the run has a sensor lag); every other column is a central difference
+            of ``rig_output`` with step 1e-3 ``Parameter.scale`` (a forward one for a sensor
+            lag the backward point would make negative).
+        """
         r = self.runs[j]
         cols = list(range(len(self.params))) if params is None else list(params)
         J = np.zeros((r.ncell, len(cols)))
@@ -402,7 +548,22 @@ class CampaignModel:
     JACOBIAN_CACHE = 2
 
     def jacobian(self, p: np.ndarray, params: Sequence[int] | None = None) -> np.ndarray:
-        """Whitened Jacobian over all cells (rows) and ``params`` (default all) columns."""
+        """Whitened Jacobian over all cells.
+
+        Parameters
+        ----------
+        p : ndarray
+            Parameter vector [parameter units].
+        params : sequence of int, optional
+            Parameter indices of the columns; None = every parameter.
+
+        Returns
+        -------
+        (N, len(params)) ndarray
+            :meth:`jacobian_run` of every run stacked, each row divided by its cell's sigma
+            [1 per parameter unit].  The unwhitened matrix is kept (:attr:`JACOBIAN_CACHE`)
+            by the point, the columns and their difference steps.
+        """
         cols = list(range(len(self.params))) if params is None else list(params)
         # keyed by value: the point (bytes), the columns and their difference steps (the
         # parameters' scales), which is all jacobian_run depends on besides the runs' cells,
@@ -424,7 +585,26 @@ class CampaignModel:
 
     def signature(self, p: np.ndarray, effect: str, h: float | None = None) -> np.ndarray:
         """Whitened derivative of the model with respect to an effect *not* in it (a
-        candidate of the diagnosis): central differences of ``rig_output``."""
+        candidate of the diagnosis): central differences of ``rig_output``.
+
+        Parameters
+        ----------
+        p : ndarray
+            Parameter vector [parameter units].
+        effect : str
+            effects.md id of the candidate.
+        h : float, optional
+            Difference step [effect unit]; None (or 0) = 1e-3 times the effect's typical
+            size.
+
+        Returns
+        -------
+        (N,) ndarray
+            Difference of the cell means (:meth:`predict_run` with the effect at +-h on top
+            of the model) divided by sigma [1 per effect unit]; a forward difference for
+            ``sensor_lag`` (a time constant is >= 0); 0 in the runs whose test the effect
+            does not apply to.
+        """
         h = h or 1e-3 * typical_size(effect)
         out = np.zeros(self.N)
         for j, r in enumerate(self.runs):
@@ -439,7 +619,27 @@ class CampaignModel:
 
     def held_direction(self, p: np.ndarray, effect: str, runs: Sequence[int], h: float | None = None) -> np.ndarray:
         """Whitened derivative of the model with respect to an effect acting on ``runs`` only,
-        on top of the model's own value (for a parameter the design cannot separate)."""
+        on top of the model's own value (for a parameter the design cannot separate, e.g.
+        the angle of a radial mount, :attr:`unseparable_angles`: a type-B term).
+
+        Parameters
+        ----------
+        p : ndarray
+            Parameter vector [parameter units].
+        effect : str
+            effects.md id.
+        runs : sequence of int
+            Indices of the runs in the model the effect acts on.
+        h : float, optional
+            Difference step [effect unit]; None (or 0) = 1e-3 times the effect's typical
+            size.
+
+        Returns
+        -------
+        (N,) ndarray
+            Central difference of the cell means of ``runs`` divided by sigma, 0 in every
+            other row [1 per effect unit].
+        """
         h = h or 1e-3 * typical_size(effect)
         out = np.zeros(self.N)
         for j in runs:
@@ -448,7 +648,14 @@ class CampaignModel:
         return out / self.sig
 
     def lower_bounds(self) -> np.ndarray:
-        """Lower bound of each parameter: 0 for a time constant (sensor_lag), else -inf."""
+        """Lower bound of each parameter.
+
+        Returns
+        -------
+        (p,) ndarray
+            0 for a time constant (``sensor_lag``) [s], -inf for every other parameter, in
+            parameter order.
+        """
         return np.array([0.0 if r.key == "sensor_lag" else -np.inf for r in self.roles])
 
     # ----------------------------------------------------------------- start, selection
@@ -456,7 +663,23 @@ class CampaignModel:
         """Start values: K1 by regression of each campaign's outputs on the nominal input
         (the amplitude of the data, paper 003 starts from the nominal sensitivity), K0 and
         the run biases from the mean residual, radii at the nominal arm radius; a sensor lag
-        profiled (:meth:`start_lag`) unless ``profile_lag`` is False (a start given)."""
+        profiled (:meth:`start_lag`) unless ``profile_lag`` is False (a start given).
+
+        The nominal input is the model's cell means at the parameters' start values (K1 = 1,
+        the other coefficients and the effects 0); the regression is of the centred outputs
+        on it (K1 = 1 when it has no amplitude).  Each K1 parameter's ``scale`` is set to
+        the size of its start, in place.
+
+        Parameters
+        ----------
+        profile_lag : bool
+            Profile the start of ``sensor_lag`` (:meth:`start_lag`).
+
+        Returns
+        -------
+        (p,) ndarray
+            Start vector [parameter units].
+        """
         p = self.params.values()
         for c in self.campaigns:
             i1 = self.params.index.get(self.name(c, "K1"))
@@ -493,7 +716,23 @@ class CampaignModel:
         nothing of a tau far below the sample period, its derivative vanishing at 0
         (:func:`accelcal.physics.instrument.first_order_lag`); the start is the best of 0 and
         lags whose delays dt a / (1 - a) span 1e-8 to 3 sample periods, by the weighted
-        residual of a linear refit of the instrument coefficients."""
+        residual of a linear refit of the instrument coefficients.
+
+        dt is the median sample period of the runs the lag acts on, a = exp(-dt / tau); 12
+        delays are tried, spaced geometrically; the refit is one linear least-squares step
+        on the instrument coefficients and run biases.
+
+        Parameters
+        ----------
+        p : ndarray
+            Start vector [parameter units].
+
+        Returns
+        -------
+        ndarray
+            The best trial: a copy of ``p`` with tau [s] and the refitted coefficients; ``p``
+            itself when the model has no sensor lag.
+        """
         i = next((k for k, r in enumerate(self.roles) if r.key == "sensor_lag"), None)
         if i is None:
             return p
@@ -515,7 +754,30 @@ class CampaignModel:
         """Hold the parameters the design cannot determine at p (module docstring); returns
         {name: reason} of those held.  ``keep`` names are never held for being weak.  Every
         candidate is considered afresh (a parameter held at the start, where the instrument
-        coefficients are still 0, may be determined at the estimate)."""
+        coefficients are still 0, may be determined at the estimate).
+
+        In :data:`PRIORITY` order, a parameter whose unit-scaled Jacobian column adds less
+        than ``tol`` of new direction is held as aliased (or not excited); then, one at a
+        time, the kept parameter outside :data:`BASE` whose design uncertainty most exceeds
+        its plausible size (:func:`accelcal.effects.plausible_size`) is held as weakly
+        determined.  ``params`` becomes :attr:`candidates` with those held.
+
+        Parameters
+        ----------
+        p : ndarray
+            Point at which the design is judged [parameter units].
+        tol : float
+            Relative norm of a column outside the span of those before it below which it
+            is aliased [1] (:data:`ALIAS_TOL`).
+        keep : sequence of str
+            Parameter names never held for being weakly determined.
+
+        Returns
+        -------
+        dict of str to str
+            Name -> reason of each parameter held (``'aliased with ...'``, ``'not excited by
+            these runs'``, ``'weakly determined: ...'``).
+        """
         self.params = self.candidates
         n = len(self.params)
         J = self.jacobian(p)
@@ -565,7 +827,21 @@ class CampaignModel:
     # ----------------------------------------------------------------- derived geometry
     def polarity_radius(self, p: np.ndarray, j: int) -> float:
         """Distance [m] of the effective mass centre from the spindle in run j (a centrifuge
-        run): |R u - r e1| for its mount (effects.md mass_centre_offset)."""
+        run): |R u - r e1| for its mount (effects.md mass_centre_offset).
+
+        Parameters
+        ----------
+        p : ndarray
+            Parameter vector [parameter units].
+        j : int
+            Index of the run in the model (a centrifuge run).
+
+        Returns
+        -------
+        float
+            rho [m], with R the rig's turning-centre radius, u at the mount angle phi plus
+            ``mount_angle_error`` and r the ``mass_centre_offset`` (paper 000 §2.2).
+        """
         r = self.runs[j]
         g = r.geometry
         co, eff, kw = self.inputs(p, j)
@@ -576,7 +852,18 @@ class CampaignModel:
 
 
 def head_runs(model: CampaignModel) -> dict[str, list[int]]:
-    """Tumble runs grouped by dividing head (rig and axis assignment)."""
+    """Tumble runs grouped by dividing head (rig and axis assignment).
+
+    Parameters
+    ----------
+    model : CampaignModel
+        The model whose runs are grouped.
+
+    Returns
+    -------
+    dict of str to list of int
+        ``'<rig_id> <head label>'`` -> indices of its runs in the model, in run order.
+    """
     out: dict[str, list[int]] = {}
     for j, r in enumerate(model.runs):
         if isinstance(r.geometry, TumbleHead):
@@ -585,7 +872,19 @@ def head_runs(model: CampaignModel) -> dict[str, list[int]]:
 
 
 def mount_runs(model: CampaignModel) -> dict[tuple[str, str, float], list[int]]:
-    """Centrifuge runs grouped by (rig, plane, phi mod 180)."""
+    """Centrifuge runs grouped by (rig, plane, phi mod 180).
+
+    Parameters
+    ----------
+    model : CampaignModel
+        The model whose runs are grouped.
+
+    Returns
+    -------
+    dict of tuple to list of int
+        ``(rig_id, plane, phi mod 180 [deg])`` -> indices of its runs in the model (both
+        polarities of a mount), in run order.
+    """
     out: dict[tuple[str, str, float], list[int]] = {}
     for j, r in enumerate(model.runs):
         if isinstance(r.geometry, CentrifugeMount):
