@@ -65,12 +65,35 @@ class ModelFit:
     notes: list[str] = field(default_factory=list)
 
     def value(self, name: str) -> float:
-        """Estimate of parameter ``name`` [its unit]."""
+        """Estimate of one parameter (:meth:`accelcal.fitting.core.FitResult.value`).
+
+        Parameters
+        ----------
+        name : str
+            Parameter name.
+
+        Returns
+        -------
+        float
+            Estimate, or the held value when held [parameter unit].
+        """
         return self.fit.value(name)
 
     def std(self, name: str) -> float:
-        """Standard uncertainty of ``name`` [its unit], lack-of-fit scaled (nan when not
-        estimable)."""
+        """Standard uncertainty of one parameter, lack-of-fit scaled
+        (:meth:`accelcal.fitting.core.FitResult.std`).
+
+        Parameters
+        ----------
+        name : str
+            Parameter name.
+
+        Returns
+        -------
+        float
+            sqrt of the diagonal of ``fit.cov`` [parameter unit]; nan when the parameter is
+            held or not estimable.
+        """
         return self.fit.std(name)
 
 
