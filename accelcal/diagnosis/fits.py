@@ -79,6 +79,7 @@ class Fit(ModelFit):
 
     @property
     def converged(self) -> bool:
+        """Whether the last Gauss–Newton pass converged (``FitResult.converged``)."""
         return self.fit.converged
 
     @property
@@ -97,20 +98,68 @@ class Fit(ModelFit):
         return max(1.0, self.chi2 / self.dof) if self.dof > 0 else math.inf
 
     def index(self, name: str) -> int | None:
+        """Position of a parameter in this fit's model.
+
+        Parameters
+        ----------
+        name : str
+            Parameter name.
+
+        Returns
+        -------
+        int or None
+            Its index in ``model.params``, :attr:`p` and the columns of :attr:`J`; None when
+            the model has no such parameter.
+        """
         return self.model.params.index.get(name)
 
     def value(self, name: str) -> float | None:
+        """Estimate of one parameter, None when the model lacks it.
+
+        Parameters
+        ----------
+        name : str
+            Parameter name.
+
+        Returns
+        -------
+        float or None
+            Estimate, or the held value when held [parameter unit]; None when the model has
+            no such parameter.
+        """
         i = self.index(name)
         return None if i is None else float(self.p[i])
 
     def cov(self) -> tuple[np.ndarray, np.ndarray]:
-        """(free column indices, covariance (J^T J)^+ of them) under the noise model."""
+        """(free column indices, covariance (J^T J)^+ of them) under the noise model.
+
+        Returns
+        -------
+        idx : ndarray of int
+            Indices of the free parameters whose column acts on the data (:attr:`free`).
+        C : (len(idx), len(idx)) ndarray
+            Their block of ``fit.cov_noise`` [parameter units squared]: not scaled for a
+            lack of fit.
+        """
         idx = np.flatnonzero(self.free)
         return idx, self.fit.cov_noise[np.ix_(idx, idx)]
 
     def std(self, name: str) -> float | None:
         """Standard uncertainty under the noise model, scaled by sqrt(chi2/dof) when the
-        model leaves a gap (None when held or not determined)."""
+        model leaves a gap (None when held or not determined).
+
+        Parameters
+        ----------
+        name : str
+            Parameter name.
+
+        Returns
+        -------
+        float or None
+            sqrt(C_ii * :attr:`scale2`) from :meth:`cov` [parameter unit] (unscaled when no
+            degrees of freedom are left); None when the model has no such parameter, it is
+            held or inactive, or its variance is not positive.
+        """
         i = self.index(name)
         if i is None or not self.free[i]:
             return None
@@ -120,11 +169,32 @@ class Fit(ModelFit):
         return float(math.sqrt(v * (self.scale2 if math.isfinite(self.scale2) else 1.0))) if v > 0 else None
 
     def basis(self) -> np.ndarray:
-        """Orthonormal basis of the span of the free columns (whitened)."""
+        """Orthonormal basis of the span of the free columns (whitened).
+
+        Returns
+        -------
+        (N, r) ndarray
+            :func:`accelcal.fitting.core.column_space_basis` of ``J[:, free]`` [1]; r is the
+            rank.
+        """
         return column_space_basis(self.J[:, self.free])
 
     def effect_parameters(self, effect: str) -> list[str]:
-        """Names of the free parameters of an effect in this model (theta0 per head, ...)."""
+        """Names of the free parameters of an effect in this model (theta0 per head, ...).
+
+        Parameters
+        ----------
+        effect : str
+            effects.md id; an instrument-term effect (``odd_quadratic``, ``cubic``,
+            ``cross_coupling``, ``bias_temperature``, ``scale_temperature``) also names its
+            coefficient (Koq, K3, Kip, K0T, K1T; one per campaign).
+
+        Returns
+        -------
+        list of str
+            Names of the parameters that are the effect and free and active in this fit
+            (:attr:`free`), in model order; empty when there are none.
+        """
         coef = {"odd_quadratic": "Koq", "cubic": "K3", "cross_coupling": "Kip",
                 "bias_temperature": "K0T", "scale_temperature": "K1T"}.get(effect)
         return [prm.name for prm, role, v in zip(self.model.params, self.model.roles, self.free)
@@ -132,7 +202,20 @@ class Fit(ModelFit):
                                                                               and role.key == coef))]
 
     def effect_parameter(self, effect: str) -> str | None:
-        """Name of the (single) parameter of an effect in this model, if it has one."""
+        """Name of the (single) parameter of an effect in this model, if it has one.
+
+        Parameters
+        ----------
+        effect : str
+            effects.md id; an instrument-term effect without an effect parameter falls back
+            on its coefficient (Koq, K3, Kip, K0T, K1T).
+
+        Returns
+        -------
+        str or None
+            The name when exactly one varying (not held) parameter is the effect's; None
+            when there is none or several (one per head, mount or campaign).
+        """
         names = [prm.name for prm, role in zip(self.model.params, self.model.roles)
                  if role.kind == "effect" and role.key == effect and prm.vary]
         if not names:
@@ -144,7 +227,20 @@ class Fit(ModelFit):
 
 
 def project_out(U: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """v minus its part in the span of U (orthonormal columns)."""
+    """v minus its part in the span of U (orthonormal columns).
+
+    Parameters
+    ----------
+    U : (n, r) ndarray
+        Orthonormal columns, e.g. :meth:`Fit.basis` [1].
+    v : (n,) or (n, k) ndarray
+        Vector(s) to project [any unit].
+
+    Returns
+    -------
+    ndarray
+        ``v - U (U^T v)``, orthogonal to the columns of U [unit of v].
+    """
     return v - U @ (U.T @ v)
 
 
@@ -173,27 +269,98 @@ class Fitter:
     # ------------------------------------------------------------------ models
     def model(self, effects: Sequence[str]) -> CampaignModel:
         """The campaign model with ``effects``; the earth rate is held at its physical size
-        only when the baseline says it is there (as a candidate its scale is estimated)."""
+        only when the baseline says it is there (as a candidate its scale is estimated).
+
+        ``mount_angle_error`` is one shared angle unless the baseline has it (then one per
+        mount); the designed terms :attr:`include` are in wherever a test measures them.
+
+        Parameters
+        ----------
+        effects : sequence of str
+            effects.md ids in the model.
+
+        Returns
+        -------
+        CampaignModel
+            On the Fitter's cells, every candidate parameter free (nothing selected yet).
+        """
         return CampaignModel(self.cells, list(effects), include=self.include,
                              fixed=[e for e in ("earth_rate",) if e in self.baseline],
                              shared=[e for e in ("mount_angle_error",) if e not in self.baseline])
 
     def step(self, effect: str) -> float:
         """Difference step of an effect's signature: a sampled lag needs a finite one (a
-        fraction of the sample period: its derivative vanishes at 0)."""
+        fraction of the sample period: its derivative vanishes at 0).
+
+        Parameters
+        ----------
+        effect : str
+            effects.md id.
+
+        Returns
+        -------
+        float
+            Step [effect unit]: for ``sensor_lag`` half the median sample period of the runs
+            it applies to [s] (1e-3 s when there are none); else 1e-3 times the effect's
+            typical size.
+        """
         if effect == "sensor_lag":
             dts = [self.sample_period[j] for j, r in enumerate(self.cells) if r.test in EFFECTS[effect].tests]
             return 0.5 * float(np.median(dts)) if dts else 1e-3
         return 1e-3 * EFFECTS[effect].typical
 
     def signature(self, model: CampaignModel, p: np.ndarray, effect: str) -> np.ndarray:
-        """Whitened derivative of the model with respect to a candidate effect."""
+        """Whitened derivative of the model with respect to a candidate effect.
+
+        Parameters
+        ----------
+        model : CampaignModel
+            The fitted model (without the effect).
+        p : ndarray
+            Its parameter vector [parameter units].
+        effect : str
+            effects.md id of the candidate.
+
+        Returns
+        -------
+        (N,) ndarray
+            :meth:`CampaignModel.signature` with the step :meth:`step` [1 per effect unit].
+        """
         return model.signature(p, effect, self.step(effect))
 
     def fit(self, effects: Sequence[str], start: "Fit | None" = None, values: Mapping[str, float] | None = None,
             noise_passes: int = 0, max_iter: int = 30) -> Fit:
         """Fit the model with ``effects``; start from a previous fit's values (by name) and
-        ``values`` (e.g. a candidate's linear estimate)."""
+        ``values`` (e.g. a candidate's linear estimate).
+
+        The start is :meth:`CampaignModel.start` (the lag profiled unless ``start`` has a
+        lag parameter), overwritten by the parameters free in ``start`` and then by
+        ``values``.  The holds are :meth:`CampaignModel.select`'s, made nested in
+        ``start``'s when it is given (so that the chi-squares compare), plus
+        :attr:`extra_held`; held parameters sit at their held values.  The fit is
+        :func:`accelcal.fitting.procedure.fit_model` without re-selection or bounds, with
+        noise level ``'spread'`` and the lack of fit at :data:`GAP_ALPHA`.
+
+        Parameters
+        ----------
+        effects : sequence of str
+            effects.md ids in the model.
+        start : Fit, optional
+            Fit of a model this one extends.
+        values : mapping of str to float, optional
+            Parameter name -> start value [parameter unit]; names not in the model are
+            ignored.
+        noise_passes : int
+            Times the cells' noise model is refitted to the residuals and the model fitted
+            again (0: the current noise model, the weights of the fits it is compared with).
+        max_iter : int
+            Gauss–Newton iterations per pass.
+
+        Returns
+        -------
+        Fit
+            The fitted model.
+        """
         m = self.model(effects)
         given = start is not None and any(start.index(prm.name) is not None for prm, role in
                                           zip(m.params, m.roles) if role.key == "sensor_lag")
@@ -252,7 +419,22 @@ class Fitter:
         """The bare model (baseline effects) fitted, the noise model refitted to its residuals
         (twice), and the candidates' signatures at it.  A non-catalogue coefficient that a
         candidate would have to share its direction with is then held (:data:`NON_CATALOGUE`)
-        and the model refitted."""
+        and the model refitted.
+
+        The coefficients so held are kept in :attr:`extra_held` and held in every later fit.
+
+        Parameters
+        ----------
+        candidates : sequence of str
+            effects.md ids of the candidate effects.
+
+        Returns
+        -------
+        fit : Fit
+            The bare model's fit.
+        signatures : dict of str to ndarray
+            Candidate -> its whitened signature at that fit, (N,) [1 per effect unit].
+        """
         f = self.fit(self.baseline, noise_passes=2)
         sigs = {c: self.signature(f.model, f.p, c) for c in candidates}
         self.extra_held = self._competing(f, sigs)
@@ -298,12 +480,34 @@ class Fitter:
 
 # ----------------------------------------------------------------------------- statistics
 def gap_rms(f: Fit) -> float:
-    """rms excess of the whitened cell residuals over the noise: sqrt(max(0, (chi2 - dof) / N))."""
+    """rms excess of the whitened cell residuals over the noise: sqrt(max(0, (chi2 - dof) / N)).
+
+    Parameters
+    ----------
+    f : Fit
+        The fit.
+
+    Returns
+    -------
+    float
+        The gap [1, sigma of a cell mean]; 0 without cells.
+    """
     return float(math.sqrt(max(f.chi2 - f.dof, 0.0) / f.N)) if f.N else 0.0
 
 
 def shrink(before: float | None, after: float | None) -> float | None:
-    """1 - after / before (None when there was no gap to shrink)."""
+    """1 - after / before (None when there was no gap to shrink).
+
+    Parameters
+    ----------
+    before, after : float or None
+        Gap without and with the change (:func:`gap_rms`, :func:`heldout_gap`) [1].
+
+    Returns
+    -------
+    float or None
+        Fraction of the gap removed [1]; None when either is None or ``before`` <= 0.
+    """
     if before is None or after is None or before <= 0:
         return None
     return float(1.0 - after / before)
@@ -311,7 +515,18 @@ def shrink(before: float | None, after: float | None) -> float | None:
 
 def folds(cells: Sequence[RunCells]) -> np.ndarray:
     """Held-out fold (0/1) of every cell: alternate cells of each run, in the order of the
-    run's cells (dwells in time, head positions, phases of the drive)."""
+    run's cells (dwells in time, head positions, phases of the drive).
+
+    Parameters
+    ----------
+    cells : sequence of RunCells
+        The runs, in model order.
+
+    Returns
+    -------
+    (N,) ndarray of int
+        0 or 1 per cell, runs stacked in order (the rows of the model); each run starts at 0.
+    """
     return np.concatenate([np.arange(r.ncell) % 2 for r in cells]) if cells else np.zeros(0, int)
 
 
@@ -319,7 +534,25 @@ def heldout_gap(f: Fit, fold: np.ndarray, tol: float = 1e-6) -> float | None:
     """rms excess over the noise of the residuals of each fold predicted by the model fitted
     to the other fold (linearised at the solution), with the exact expectation of a model
     that is right: 1 + j (J_T^T J_T)^+ j^T per held-out cell.  Cells the training fold does
-    not determine (outside its row space) are not predicted; None when no cell is."""
+    not determine (outside its row space) are not predicted; None when no cell is.
+
+    Parameters
+    ----------
+    f : Fit
+        The fit (its whitened residual and the free columns of its Jacobian).
+    fold : (N,) ndarray of int
+        Fold of each cell, 0 or 1 (:func:`folds`).
+    tol : float
+        Relative distance of a held-out row from the training fold's row space (and norm of
+        its inactive columns) up to which the cell counts as determined [1].
+
+    Returns
+    -------
+    float or None
+        sqrt(max(0, sum of squared held-out residuals - their expectation) / n) over the n
+        predicted cells of both folds [1, sigma of a cell mean]; None when no cell is
+        predicted.
+    """
     J = f.J[:, f.free]
     z = f.z
     ss = ex = 0.0
@@ -358,7 +591,28 @@ def lr_test(before: Fit, after: Fit, m: int, alpha: float) -> dict:
     """Likelihood ratio of a nested model with q more parameters, the chi-square scaled by
     the larger model's chi2/dof when that exceeds 1 (F test against the residual that the gap
     leaves), Bonferroni over m candidates.  Untestable without degrees of freedom.
-    ``statistic`` is delta chi2 / q, divided by that chi2/dof when it exceeds 1."""
+    ``statistic`` is delta chi2 / q, divided by that chi2/dof when it exceeds 1.
+
+    Parameters
+    ----------
+    before : Fit
+        The smaller model.
+    after : Fit
+        The model with the candidate added (nested: it extends ``before``).
+    m : int
+        Number of candidates tested (Bonferroni).
+    alpha : float
+        Family-wise significance level [1].
+
+    Returns
+    -------
+    dict
+        ``delta_chi2`` [1]; ``scale`` (the larger model's :attr:`Fit.scale2`); ``statistic``;
+        ``p_value`` (F(q, dof) when scaled, else chi-square with q dof); ``threshold_p`` =
+        alpha / m; ``significant`` (delta chi2 > 0 and p below the threshold).  Without
+        degrees of freedom: ``scale``, ``statistic`` and ``p_value`` None, not significant,
+        and a ``note``.  q is the rank gained, at least 1.
+    """
     q = max(after.rank - before.rank, 1)
     dchi = float(before.chi2 - after.chi2)
     if after.dof <= 0:
@@ -376,7 +630,27 @@ def lr_test(before: Fit, after: Fit, m: int, alpha: float) -> dict:
 
 
 def gap_test(f: Fit) -> dict:
-    """The lack-of-fit test of a model against the pure error (the tests behind 'explained')."""
+    """The lack-of-fit test of a model against the pure error (the tests behind 'explained').
+
+    Parameters
+    ----------
+    f : Fit
+        The fit (its :attr:`Fit.lof`, tested at :data:`GAP_ALPHA`).
+
+    Returns
+    -------
+    dict
+        ``status`` ('significant gap', 'no significant gap' or 'untestable'),
+        ``significant`` (bool, None when untestable), ``p_value``, ``F`` (the F statistic
+        against the pure error, or chi2/dof against the noise model when there is no pure
+        error), ``dof_lof``, ``dof_pe``, ``alpha``; ``test`` naming the test, or ``note``
+        saying why it is untestable.
+
+    References
+    ----------
+    Draper & Smith, *Applied Regression Analysis*, 3rd ed., §2.1 (lack of fit with pure
+    error).
+    """
     lof = f.lof
     if lof.status == "untestable":
         return {"status": "untestable", "significant": None, "p_value": None, "F": None,
