@@ -4,7 +4,10 @@ and held out; or that a gap remains that no catalogue effect explains.
 
     diagnose(runs, baseline=None|'none'|[ids]) -> dict   (runs: RunFile-like or RunCells)
     diagnose_paths(paths, baseline) -> dict              (run files or folders)
-    register_cli(subparsers)                             # `diagnose`, `diagnose-benchmark`
+    register_cli(subparsers)                             # the `diagnose` subcommand
+
+``accelcal diagnose-benchmark`` (scoring the diagnosis on simulated campaigns) is not here:
+it is registered by :mod:`accelcal.validation.cli`.
 """
 from .cli import register_cli  # noqa: F401
 from .runfiles import read_paths  # noqa: F401
@@ -12,5 +15,24 @@ from .core import diagnose, public  # noqa: F401
 
 
 def diagnose_paths(paths, baseline=None, **kw):
-    """Read run files/folders (drop format) and diagnose them together."""
+    """Read run files/folders (drop format) and diagnose them together.
+
+    Parameters
+    ----------
+    paths : iterable of str or Path
+        Run files (``*.csv``) or folders (:func:`accelcal.diagnosis.runfiles.read_paths`;
+        a file the parser refuses is skipped with its reason on stderr).
+    baseline : None, 'none', str or list of str
+        Effects the model already includes: None = the pipeline's processing model for the
+        tests present, 'none' = the bare model, or effects.md ids.
+    **kw
+        Further options of :func:`accelcal.diagnosis.core.diagnose` (``alpha``,
+        ``max_effects``, ``refit_top``).
+
+    Returns
+    -------
+    dict
+        The diagnosis of all the runs read in one model
+        (:func:`~accelcal.diagnosis.core.diagnose`).
+    """
     return diagnose(read_paths(paths), baseline, **kw)
