@@ -402,6 +402,31 @@ def thin_svd(A: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.linalg.svd(A, full_matrices=False)
 
 
+def information_root(J: np.ndarray) -> np.ndarray:
+    """A square root R of the Fisher information J^T J of a whitened design, by the thin
+    SVD of the column-scaled J (not by forming J^T J, which would square its condition).
+
+    Stacking R over the whitened rows of more data gives the design of all of it
+    (R^T R + J2^T J2 = J^T J + J2^T J2): a proposed run is judged by
+    :func:`lstsq_svd` of ``vstack([R, J2])`` without the tall design of the runs made.
+
+    Parameters
+    ----------
+    J : (n, p) ndarray
+        Whitened design [1 per parameter unit].
+
+    Returns
+    -------
+    R : (k, p) ndarray
+        k = min(n, p); R^T R = J^T J [1 / (parameter unit_i parameter unit_j)].
+    """
+    J = np.asarray(J, float)
+    c = np.linalg.norm(J, axis=0)
+    c = np.where(c > 0, c, 1.0)
+    _, S, Vt = thin_svd(J / c)
+    return (S[:, None] * Vt) * c[None, :]
+
+
 def column_space_basis(J: np.ndarray, rcond: float = 1e-10) -> np.ndarray:
     """Orthonormal basis of the column space of J, columns scaled to unit norm first.
 

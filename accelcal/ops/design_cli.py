@@ -1,0 +1,142 @@
+"""CLI of issue 25: ``accelcal design RUNS...``: which run to add, and what it will buy
+(:mod:`accelcal.testdesign`).  Registration is cheap; the science is imported when the
+command runs."""
+from __future__ import annotations
+
+
+def register(sub) -> None:
+    """Add ``design``."""
+    d = sub.add_parser(
+        "design", help="which run to add to a campaign, and what it will buy",
+        description="From the campaign model's Fisher information: the runs the rigs of "
+                    "RUNS can make (other mount angles every 45 deg, planes, vertical axes, "
+                    "tumble heads, thermal set-points, repeats), ranked by the reduction of "
+                    "each target's variance (or of a pair's correlation) per minute of rig "
+                    "time. Every instrument coefficient is treated as unknown.")
+    d.add_argument("paths", nargs="+", metavar="RUNS", help="run files or folders, as for diagnose")
+    d.add_argument("--baseline", default=None,
+                   help="effects the model includes (comma-separated effects.md ids), or 'none'; "
+                        "default: the pipeline's own processing")
+    d.add_argument("--target", default=None, metavar="NAME[,NAME...]",
+                   help="coefficients (Kip, K2, ...) or effect ids (an effect the baseline leaves "
+                        "out: the advice is about seeing it); default every instrument coefficient")
+    d.add_argument("--separate", action="append", default=[], metavar="A,B",
+                   help="a pair whose correlation should fall below 0.9 (repeatable)")
+    d.add_argument("--max-runs", type=int, default=2, metavar="K", help="largest set of runs proposed (default 2)")
+    d.add_argument("--candidates", default=None, metavar="FILE.toml",
+                   help="the lab's own candidate runs ([[run]] tables in drop-format keys)")
+    d.add_argument("--config", default=None, metavar="TOML",
+                   help="accelcal.toml with [rigs.\"ID\"] max_g (default ./accelcal.toml)")
+    d.add_argument("--top", type=int, default=5, metavar="N", help="proposals shown (default 5)")
+    d.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    d.set_defaults(func=_cmd_design)
+
+
+def _fail(msg: str):
+    from ..cli import CliError
+    raise CliError(msg)
+
+
+def _rig_limits(path) -> dict[str, float]:
+    """Rig id -> max_g from ``[rigs."ID"]`` of accelcal.toml (absent file: none)."""
+    import tomllib
+    from pathlib import Path
+    p = Path(path) if path else Path("accelcal.toml")
+    if not p.is_file():
+        if path:
+            _fail(f"{p}: no such file")
+        return {}
+    try:
+        doc = tomllib.loads(p.read_text(encoding="utf-8"))
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        _fail(f"{p}: {exc}")
+    out = {}
+    for rig, v in (doc.get("rigs") or {}).items():
+        if isinstance(v, dict) and "max_g" in v:
+            out[str(rig)] = float(v["max_g"])
+    return out
+
+
+def _cmd_design(args) -> int:
+    import json
+
+    from ..diagnosis.core import prepare_cells, resolve_baseline
+    from ..diagnosis.runfiles import read_paths
+    from ..testdesign import DesignError, advise, load_candidates
+    runs = read_paths(args.paths)
+    if not runs:
+        _fail("no run file could be read from " + ", ".join(args.paths))
+    tests = sorted({str(r.meta["test"]) for r in runs})
+    try:
+        baseline, _ = resolve_baseline(args.baseline, tests)
+    except ValueError as exc:
+        _fail(str(exc))
+    pairs = []
+    for s in args.separate:
+        ab = [x.strip() for x in s.split(",") if x.strip()]
+        if len(ab) != 2:
+            _fail(f"--separate {s!r}: give two names, A,B")
+        pairs.append((ab[0], ab[1]))
+    targets = [t.strip() for t in (args.target or "").split(",") if t.strip()]
+    if args.max_runs < 1:
+        _fail("--max-runs must be 1 or more")
+    cells, _ = prepare_cells(runs)
+    try:
+        cands = (load_candidates(args.candidates, cells, _rig_limits(args.config))
+                 if args.candidates else None)
+        adv = advise(cells, baseline, targets or None, pairs, args.max_runs, cands, args.top)
+    except DesignError as exc:
+        _fail(str(exc))
+    if args.json:
+        print(json.dumps(adv.to_dict()))
+    else:
+        print(text_advice(adv))
+    return 0
+
+
+def _u(name: str, u: float | None, unit: str) -> str:
+    """A standard uncertainty for people: 2 significant digits in the display unit."""
+    from ..effects import to_display
+    from ..rounding import format_sig, format_sig_sci
+    if u is None:
+        return "not determined"
+    base = name.split("[", 1)[0]
+    v, _, dunit, _ = to_display(base, u, None, unit)
+    text = format_sig(v, 2) if 1e-3 <= abs(v) < 1e5 else format_sig_sci(v, 2)
+    return f"{text} {dunit}".strip()
+
+
+def _seen(name: str, u: float | None, plausible: float | None) -> str:
+    """For an effect target: how many u its plausible size is (how clearly it would show)."""
+    from ..effects import EFFECTS
+    if u is None or not plausible or name.split("[", 1)[0] not in EFFECTS:
+        return ""
+    return f" (plausible size {plausible / u:.0f} u)"
+
+
+def text_advice(adv) -> str:
+    """The advice as a short table an engineer reads in ten seconds (80 columns)."""
+    lines = []
+    names = list(adv.current.std_uncertainty)
+    cur = "; ".join(f"u({n}) {_u(n, adv.current.std_uncertainty[n], adv.units.get(n, ''))}"
+                    f"{_seen(n, adv.current.std_uncertainty[n], adv.plausible.get(n))}" for n in names)
+    lines.append(f"Now: {cur}")
+    for k, r in adv.current.corr.items():
+        lines.append(f"     corr({k.replace('|', ', ')}) " + ("not determined" if r is None else f"{r:.2f}"))
+    lines.append(f"{adv.candidates} candidate runs; best per minute of rig time:")
+    if not adv.proposals:
+        lines.append("  none improves the targets")
+    for i, p in enumerate(adv.proposals, 1):
+        lines.append(f"{i:>2}. {p.minutes:.0f} min: " + " + ".join(c.label for c in p.runs))
+        got = "; ".join(f"u({n}) {_u(n, p.predicted.std_uncertainty.get(n), adv.units.get(n, ''))}"
+                        f"{_seen(n, p.predicted.std_uncertainty.get(n), adv.plausible.get(n))}" for n in names)
+        corr = "; ".join(f"corr {('not determined' if r is None else f'{r:.2f}')}"
+                         for k, r in p.predicted.corr.items())
+        lines.append("    -> " + got + (f"; {corr}" if corr else ""))
+    for n in adv.notes:
+        lines.append(f"note: {n}")
+    import textwrap
+    out = []
+    for ln in lines:
+        out += textwrap.wrap(ln, 80, subsequent_indent="       ") or [""]
+    return "\n".join(out)

@@ -1,0 +1,530 @@
+"""Test-design advice (issue 25): which run to add to a campaign, and what it will buy.
+
+The answer follows from the campaign model (:class:`accelcal.fitting.model.CampaignModel`)
+and its Fisher information.  Every instrument coefficient the tests can touch is unknown
+(the catalogue's instrument terms K0T, K1T, Koq, K3 and Kip included, whatever the
+baseline), the baseline effects and any target effect are parameters, each run keeps
+its own nuisances (a centrifuge run's bias, a mount's angle).  For the runs made, the
+whitened Jacobian J gives the information J^T J; a proposed run adds the information of
+its own rows.  The predicted covariance of a set of runs is the pseudo-inverse of the
+sum (:func:`accelcal.fitting.core.lstsq_svd` of the stacked square roots, so what the
+runs cannot determine stays undetermined, never a number).
+
+A candidate run is one the rig can make, built from a run it made (its schedule, its
+cells and its noise model): the same rig and schedule at another mount angle (every
+45 deg), plane or vertical axis; a tumble on another head axis; a thermal run at
+set-points beyond the range; a repeat (more readings per level).  Its cost is the
+duration of the run it repeats.  A lab's own list replaces them
+(:func:`load_candidates`).
+
+Ranking: for each target, the expected reduction of its variance (1 when the target
+becomes determined), for a pair to separate the drop of |correlation| (and whether it
+falls below :data:`SEPARATED`), per minute of rig time; greedy up to ``max_runs``, with
+every pair of runs tried when no single run determines a target (45 deg and 135 deg
+separate Kip and Kpp; neither alone does).
+
+References: Fedorov, *Theory of Optimal Experiments* (1972), ch. 2 (information of
+independent observations is additive); JCGM 100:2008 §5 (the covariance it predicts).
+"""
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .effects import EFFECTS, coefficient_spec, plausible_size
+from .fitting.core import information_root, lstsq_svd
+from .fitting.data import RunCells
+from .fitting.model import CampaignModel
+from .physics.axes import AXES
+from .physics.geometry import geometry_of
+from .physics.rigs import INSTRUMENT_EFFECTS
+
+#: Instrument coefficients that are catalogue effects, unknown in every advice model.
+INSTRUMENT_TERMS = tuple(INSTRUMENT_EFFECTS.values())
+#: |correlation| below which a pair counts as separated.
+SEPARATED = 0.9
+#: Mount angles a candidate may take [deg].
+ANGLES_DEG = tuple(range(0, 360, 45))
+#: Planes a centrifuge candidate may use (first axis first, drop-format.md).
+PLANES = ("IA-PA", "IA-OA", "PA-OA")
+
+
+class DesignError(ValueError):
+    """Bad input to the advice (one line naming the target, effect or candidate)."""
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A run the rig can make.
+
+    Attributes
+    ----------
+    test, rig_id : str
+        Drop-format test kind and rig.
+    spec : dict
+        The run in drop-format terms (``mount_plane``, ``mount_angle_deg``,
+        ``vertical_axis``, ``g_levels`` [g], ``reads_per_level``; tumble ``head_axis``,
+        ``cos_axis``, ``sin_axis``, ``positions_deg`` [deg]; thermal ``temp_set_c`` [degC]).
+    minutes : float
+        Rig time [min].
+    meta : dict
+        Metadata of the run (the template's, with the spec's keys).
+    template : int
+        Index of the run whose schedule, cells and noise model it repeats.
+    temp_shift_c : float
+        Shift of the template's temperatures [degC] (thermal candidates).
+    """
+    test: str
+    rig_id: str
+    spec: dict
+    minutes: float
+    meta: dict
+    template: int
+    temp_shift_c: float = 0.0
+
+    @property
+    def label(self) -> str:
+        """One line in drop-format words."""
+        s = self.spec
+        if "mount_plane" in s:
+            return (f"{self.test} {self.rig_id} {s['mount_plane']} {s['mount_angle_deg']:g}° "
+                    f"{s['vertical_axis']}" + (" (repeat)" if s.get("repeat") else ""))
+        if "head_axis" in s:
+            return f"tumble {self.rig_id} head {s['head_axis']} cos {s['cos_axis']} sin {s['sin_axis']}"
+        if "temp_set_c" in s:
+            return f"tilt_rotation {self.rig_id} at {', '.join(f'{t:g}' for t in s['temp_set_c'])} °C"
+        return f"{self.test} {self.rig_id}"
+
+
+@dataclass
+class Prediction:
+    """Standard uncertainties [SI] (None: not determined) and correlations of the targets."""
+    std_uncertainty: dict[str, float | None]
+    corr: dict[str, float | None] = field(default_factory=dict)
+
+
+@dataclass
+class Proposal:
+    """Runs to add, what they are predicted to give, their cost and score."""
+    runs: list[Candidate]
+    predicted: Prediction
+    minutes: float
+    gain: float
+
+    @property
+    def score(self) -> float:
+        """Gain per minute of rig time [1/min]."""
+        return self.gain / max(self.minutes, 1e-9)
+
+
+@dataclass
+class Advice:
+    """The advice: targets, the current prediction, the proposals (best first), notes."""
+    targets: list[str]
+    separate: list[tuple[str, str]]
+    current: Prediction
+    proposals: list[Proposal]
+    units: dict[str, str]
+    plausible: dict[str, float | None]
+    notes: list[str] = field(default_factory=list)
+    candidates: int = 0
+
+    def to_dict(self) -> dict:
+        """The JSON form (issue 25): current, proposals with runs in drop-format keys."""
+        return {"targets": self.targets, "units": self.units,
+                "current": {"std_uncertainty": self.current.std_uncertainty, "corr": self.current.corr},
+                "proposals": [{"runs": [{"test": c.test, "rig_id": c.rig_id, **c.spec} for c in p.runs],
+                               "predicted": {"std_uncertainty": p.predicted.std_uncertainty,
+                                             "corr": p.predicted.corr},
+                               "minutes": round(p.minutes, 1), "gain": round(p.gain, 4)}
+                              for p in self.proposals],
+                "candidates": self.candidates, "notes": self.notes}
+
+
+# ----------------------------------------------------------------------------- candidates
+
+def _minutes(run: RunCells) -> float:
+    t = run.cols.get("time_s")
+    if t is None or t.size < 2:
+        return 1.0
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    return max((float(np.nanmax(t) - np.nanmin(t)) + dt) / 60.0, 1e-3)
+
+
+def _g_levels(run: RunCells) -> list[float]:
+    g = float(run.meta.get("g_local_m_s2") or 9.80665)
+    lv = sorted({round(float(v) / g, 1) for v in run.x if v > 0})
+    return lv
+
+
+def _reads(run: RunCells) -> int:
+    return int(np.median(run.n)) if run.n.size else 0
+
+
+def _mount_spec(plane: str, angle: float, vertical: str, run: RunCells) -> dict:
+    return {"mount_plane": plane, "mount_angle_deg": float(angle), "vertical_axis": vertical,
+            "g_levels": _g_levels(run), "reads_per_level": _reads(run)}
+
+
+def _verticals(plane: str) -> list[str]:
+    a, b = plane.split("-")
+    third = next(x for x in AXES if x not in (a, b))
+    return [f"+{third}", f"-{third}"]
+
+
+def candidate_runs(cells: Sequence[RunCells]) -> list[Candidate]:
+    """The runs each rig of ``cells`` can make (module docstring), from the first run of each
+    (rig, test) as template.
+
+    Parameters
+    ----------
+    cells : sequence of RunCells
+        The campaign's runs, with noise models.
+
+    Returns
+    -------
+    list of Candidate
+    """
+    out: list[Candidate] = []
+    made = {(r.rig_id, r.test, r.geometry.label) for r in cells}
+    seen: set[tuple[str, str]] = set()
+    for j, r in enumerate(cells):
+        key = (r.rig_id, r.test)
+        if key in seen:
+            continue
+        seen.add(key)
+        mins = _minutes(r)
+        if r.test in ("centrifuge", "sine_centrifuge"):
+            for plane in PLANES:
+                for vert in _verticals(plane):
+                    for ang in ANGLES_DEG:
+                        meta = {**r.meta, "mount_plane": plane, "mount_angle_deg": float(ang), "vertical_axis": vert}
+                        try:
+                            geo = geometry_of(meta)
+                        except ValueError:
+                            continue
+                        spec = _mount_spec(plane, ang, vert, r)
+                        if (r.rig_id, r.test, geo.label) in made:
+                            if (plane, float(ang)) != (r.meta.get("mount_plane"), float(r.meta.get("mount_angle_deg", 0))):
+                                continue
+                            spec["repeat"] = True
+                        out.append(Candidate(r.test, r.rig_id, spec, mins, meta, j))
+        elif r.test == "tumble":
+            for head in AXES:
+                others = [a for a in AXES if a != head]
+                for ca, sa in (others, others[::-1]):
+                    meta = {**r.meta, "head_axis": head, "cos_axis": f"+{ca}", "sin_axis": f"+{sa}"}
+                    try:
+                        geo = geometry_of(meta)
+                    except ValueError:
+                        continue
+                    spec = {"head_axis": head, "cos_axis": f"+{ca}", "sin_axis": f"+{sa}",
+                            "positions_deg": sorted({round(float(a), 3) for a in r.cols.get("angle_deg", [])}),
+                            "reads_per_level": _reads(r)}
+                    if (r.rig_id, r.test, geo.label) in made:
+                        spec["repeat"] = True
+                    out.append(Candidate(r.test, r.rig_id, spec, mins, meta, j))
+        elif r.test == "tilt_rotation":
+            sets = np.unique(r.cols.get("temp_set_c", np.zeros(0)))
+            span = float(np.ptp(sets)) if sets.size > 1 else 10.0
+            for shift in (-span, span):
+                spec = {"temp_set_c": [float(t + shift) for t in sets], "positions": int(r.meta.get("positions", 0))}
+                out.append(Candidate(r.test, r.rig_id, spec, mins, dict(r.meta), j, temp_shift_c=shift))
+    return out
+
+
+def load_candidates(path, cells: Sequence[RunCells], rig_max_g: Mapping[str, float] | None = None
+                    ) -> list[Candidate]:
+    """The lab's own candidate runs from a TOML file: ``[[run]]`` tables with ``test``,
+    ``rig_id``, the geometry keys of drop-format.md, optionally ``minutes``.
+
+    Parameters
+    ----------
+    path : str or Path
+        The TOML file.
+    cells : sequence of RunCells
+        The runs made: a candidate takes the schedule of a run of its rig and test.
+    rig_max_g : mapping, optional
+        Rig id -> highest g level it may run [g] (``accelcal.toml`` ``[rigs."ID"] max_g``).
+
+    Returns
+    -------
+    list of Candidate
+
+    Raises
+    ------
+    DesignError
+        One line naming the file, the run and the rule it breaks.
+    """
+    import tomllib
+    from pathlib import Path
+    p = Path(path)
+    try:
+        doc = tomllib.loads(p.read_text(encoding="utf-8"))
+    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raise DesignError(f"{p}: cannot read the candidates: {exc}") from None
+    out = []
+    for k, row in enumerate(doc.get("run", []), 1):
+        where = f"{p}: [[run]] {k}"
+        test, rig = str(row.get("test", "")), str(row.get("rig_id", ""))
+        tmpl = next((j for j, r in enumerate(cells) if r.test == test and r.rig_id == rig), None)
+        if tmpl is None:
+            raise DesignError(f"{where}: no {test or '(no test)'} run of rig {rig or '(no rig_id)'} in these data "
+                              "to take its schedule from")
+        r = cells[tmpl]
+        keys = {k2: v for k2, v in row.items() if k2 not in ("test", "rig_id", "minutes")}
+        meta = {**r.meta, **keys}
+        try:
+            geometry_of(meta)
+        except (ValueError, KeyError) as exc:
+            raise DesignError(f"{where}: {exc}") from None
+        levels = row.get("g_levels")
+        top = max(_g_levels(r), default=0.0)
+        lim = (rig_max_g or {}).get(rig)
+        if levels:
+            if lim is not None and max(levels) > lim:
+                raise DesignError(f"{where}: g level {max(levels):g} beyond rig {rig}'s limit {lim:g} g")
+            if max(levels) > top + 0.05:
+                raise DesignError(f"{where}: g level {max(levels):g} above the {top:g} g these runs reached "
+                                  "(no schedule to repeat)")
+        spec = {**keys}
+        if test in ("centrifuge", "sine_centrifuge"):
+            spec = {**_mount_spec(str(meta["mount_plane"]), float(meta["mount_angle_deg"]),
+                                  str(meta["vertical_axis"]), r), **keys}
+        out.append(Candidate(test, rig, spec, float(row.get("minutes", _minutes(r))), meta, tmpl))
+    if not out:
+        raise DesignError(f"{p}: no [[run]] table")
+    return out
+
+
+def candidate_cells(c: Candidate, cells: Sequence[RunCells], index: int) -> RunCells:
+    """The cells of a candidate: its template's schedule, cells and noise model on the
+    candidate's geometry (and temperatures)."""
+    r = cells[c.template]
+    meta = {**c.meta, "run_id": f"proposed-{index}"}
+    cols = r.cols
+    if c.temp_shift_c:
+        cols = dict(cols)
+        for k in ("temp_c", "temp_set_c"):
+            if k in cols:
+                cols[k] = cols[k] + c.temp_shift_c
+    return replace(r, index=index, meta=meta, geometry=geometry_of(meta), cols=cols, sha256="", notes=[])
+
+
+# ----------------------------------------------------------------------------- targets
+
+def _model(cells: Sequence[RunCells], effects: Sequence[str]) -> CampaignModel:
+    return CampaignModel(cells, effects, include=INSTRUMENT_TERMS)
+
+
+def resolve_targets(model: CampaignModel, targets: Sequence[str]) -> dict[str, list[int]]:
+    """Target name -> parameter indices: a coefficient (K2, Kip) or an effect id.
+
+    Raises
+    ------
+    DesignError
+        For a name the model does not know.
+    """
+    out: dict[str, list[int]] = {}
+    for t in targets:
+        eff = INSTRUMENT_EFFECTS.get(t)
+        if eff is not None:
+            t_coef = eff
+        else:
+            t_coef = t
+        idx = [i for i, (prm, role) in enumerate(zip(model.params, model.roles))
+               if (role.kind == "coef" and role.key == t_coef) or (role.kind == "effect" and role.key == t)]
+        if not idx:
+            if t not in EFFECTS and coefficient_spec(t) is None:
+                raise DesignError(f"target {t!r}: neither a coefficient nor an effects.md id")
+            raise DesignError(f"target {t!r}: not a parameter of these runs' model (tests: "
+                              f"{', '.join(sorted({r.test for r in model.runs}))})")
+        out[t] = idx
+    return out
+
+
+# ----------------------------------------------------------------------------- prediction
+
+class _Information:
+    """The information of the runs made (square root) and of each candidate (rows)."""
+
+    def __init__(self, model: CampaignModel, n_made: int, p: np.ndarray):
+        self.model = model
+        J = model.jacobian(p)
+        self.J = J
+        self.n_made = n_made
+        made_rows = slice(0, int(model.offsets[n_made]))
+        self.cols_made = sorted({i for j in range(n_made) for i in model.run_params[j]})
+        self.R0 = information_root(J[made_rows][:, self.cols_made])
+
+    def cols(self, runs: Sequence[int]) -> list[int]:
+        extra = {i for j in runs for i in self.model.run_params[j]}
+        return sorted(set(self.cols_made) | extra)
+
+    def solve(self, runs: Sequence[int]):
+        """(columns, lstsq_svd solution) of the runs made plus ``runs`` (model indices)."""
+        cols = self.cols(runs)
+        pos = {c: k for k, c in enumerate(cols)}
+        R = np.zeros((self.R0.shape[0], len(cols)))
+        for k, c in enumerate(self.cols_made):
+            R[:, pos[c]] = self.R0[:, k]
+        blocks = [R] + [self.J[self.model.rows(j)][:, cols] for j in runs]
+        A = np.vstack(blocks)
+        return cols, lstsq_svd(A, np.zeros(A.shape[0]))
+
+
+def _predict(info: _Information, runs: Sequence[int], targets: Mapping[str, list[int]],
+             pairs: Sequence[tuple[str, str]]) -> Prediction:
+    cols, sol = info.solve(runs)
+    pos = {c: k for k, c in enumerate(cols)}
+    names = info.model.params.names
+    std: dict[str, float | None] = {}
+    for t, idx in targets.items():
+        for i in idx:
+            k = pos.get(i)
+            u = math.sqrt(sol.cov[k, k]) if k is not None and sol.estimable[k] and sol.cov[k, k] > 0 else None
+            # determined as the model's own selection says (CampaignModel.select): an
+            # uncertainty beyond the parameter's plausible size is not a determination
+            lim = plausible_size(info.model.params[i].key)
+            std[names[i] if len(idx) > 1 else t] = u if u is not None and (lim is None or u <= lim) else None
+    corr: dict[str, float | None] = {}
+    for a, b in pairs:
+        ia, ib = targets[a][0], targets[b][0]
+        ka, kb = pos.get(ia), pos.get(ib)
+        if ka is None or kb is None or not (sol.estimable[ka] and sol.estimable[kb]):
+            corr[f"{a}|{b}"] = None
+            continue
+        d = math.sqrt(sol.cov[ka, ka] * sol.cov[kb, kb])
+        corr[f"{a}|{b}"] = float(sol.cov[ka, kb] / d) if d > 0 else None
+    return Prediction(std, corr)
+
+
+def _gain(cur: Prediction, new: Prediction) -> float:
+    g = 0.0
+    for k, u0 in cur.std_uncertainty.items():
+        u1 = new.std_uncertainty.get(k)
+        if u1 is None:
+            continue
+        g += 1.0 if u0 is None else max(0.0, 1.0 - (u1 / u0) ** 2)
+    for k, r0 in cur.corr.items():
+        r1 = new.corr.get(k)
+        if r1 is None:
+            continue
+        a0 = 1.0 if r0 is None else abs(r0)
+        g += max(0.0, a0 - abs(r1)) + (1.0 if abs(r1) < SEPARATED <= a0 else 0.0)
+    return g
+
+
+def _touches(info: _Information, j: int, targets: Mapping[str, list[int]]) -> bool:
+    rows = info.J[info.model.rows(j)]
+    return any(np.any(rows[:, i]) for idx in targets.values() for i in idx)
+
+
+def advise(cells: Sequence[RunCells], baseline: Sequence[str], targets: Sequence[str] | None = None,
+           separate: Sequence[tuple[str, str]] = (), max_runs: int = 2,
+           candidates: Sequence[Candidate] | None = None, top: int = 5) -> Advice:
+    """Which runs to add to ``cells`` for the targets, best first.
+
+    Parameters
+    ----------
+    cells : sequence of RunCells
+        The runs made, with noise models (:func:`accelcal.diagnosis.core.prepare_cells`).
+    baseline : sequence of str
+        Effects the model includes (effects.md ids).
+    targets : sequence of str, optional
+        Coefficients or effect ids; default every instrument coefficient of the model.
+    separate : sequence of (str, str)
+        Pairs whose correlation should fall below :data:`SEPARATED`.
+    max_runs : int
+        Largest set of runs proposed together.
+    candidates : sequence of Candidate, optional
+        Default :func:`candidate_runs`.
+    top : int
+        Proposals returned.
+
+    Returns
+    -------
+    Advice
+        Standard uncertainties in SI units of each target (None: not determined).
+
+    Raises
+    ------
+    DesignError
+        For an unknown target or effect id.
+    """
+    cells = list(cells)
+    for e in baseline:
+        if e not in EFFECTS:
+            raise DesignError(f"baseline effect {e!r}: not an effects.md id")
+    targets = list(targets or [])
+    for a, b in separate:
+        targets += [x for x in (a, b) if x not in targets]
+    extra = [t for t in targets if t in EFFECTS and t not in baseline and t not in INSTRUMENT_EFFECTS]
+    effects = list(baseline) + extra
+    cands = list(candidate_runs(cells) if candidates is None else candidates)
+    cand_cells = [candidate_cells(c, cells, len(cells) + k) for k, c in enumerate(cands)]
+    made = _model(cells, effects)
+    p_made = made.start()
+    model = _model(cells + cand_cells, effects)
+    p = model.params.values()
+    for i, prm in enumerate(model.params):
+        k = made.params.index.get(prm.name)
+        if k is not None:
+            p[i] = p_made[k]
+    if not targets:
+        targets = [prm.key for prm, role in zip(made.params, made.roles) if role.kind == "coef"]
+        targets = list(dict.fromkeys(targets))
+    tmap = resolve_targets(model, targets)
+    info = _Information(model, len(cells), p)
+    cur = _predict(info, [], tmap, separate)
+    n0 = len(cells)
+    singles = []
+    for k in range(len(cands)):
+        pred = _predict(info, [n0 + k], tmap, separate)
+        singles.append(Proposal([cands[k]], pred, cands[k].minutes, _gain(cur, pred)))
+    props = list(singles)
+    if max_runs >= 2 and cands:
+        best = max(singles, key=lambda s: s.score)
+        kb = cands.index(best.runs[0])
+        for k in range(len(cands)):
+            if k != kb:
+                pred = _predict(info, [n0 + kb, n0 + k], tmap, separate)
+                props.append(Proposal([cands[kb], cands[k]], pred, cands[kb].minutes + cands[k].minutes,
+                                      _gain(cur, pred)))
+        still = [t for t, u in cur.std_uncertainty.items() if u is None
+                 and all(s.predicted.std_uncertainty.get(t) is None for s in singles)]
+        if still or any(r is None or abs(r) >= SEPARATED for r in cur.corr.values()):
+            near = [k for k in range(len(cands)) if _touches(info, n0 + k, tmap)]
+            for a, b in itertools.combinations(near, 2):
+                if (cands[a].rig_id, cands[a].test) != (cands[b].rig_id, cands[b].test):
+                    continue
+                pred = _predict(info, [n0 + a, n0 + b], tmap, separate)
+                props.append(Proposal([cands[a], cands[b]], pred, cands[a].minutes + cands[b].minutes,
+                                      _gain(cur, pred)))
+    props = [q for q in props if q.gain > 1e-9]
+    props.sort(key=lambda q: (-q.score, q.minutes, [c.label for c in q.runs]))
+    out, seen = [], set()
+    for q in props:
+        key = frozenset(c.label for c in q.runs)
+        if key in seen:
+            continue
+        seen.add(key)
+        out.append(q)
+        if len(out) >= top:
+            break
+    names = list(cur.std_uncertainty)
+    units, plaus = {}, {}
+    for n in names:
+        base = n.split("[", 1)[0]
+        spec = coefficient_spec(base)
+        units[n] = spec.unit if spec is not None else (EFFECTS[base].unit if base in EFFECTS else "")
+        plaus[n] = plausible_size(base) if (base in EFFECTS or spec is not None) else None
+    notes = []
+    if not out:
+        notes.append("no candidate run improves the targets")
+    return Advice(targets=list(tmap), separate=list(separate), current=cur, proposals=out, units=units,
+                  plausible=plaus, notes=notes, candidates=len(cands))
