@@ -35,12 +35,14 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .effects import EFFECTS, coefficient_spec, plausible_size
+from .effects import EFFECTS, coefficient_spec, plausible_size, typical_size
+from .fitting.blas import single_thread
 from .fitting.core import information_root, lstsq_svd
-from .fitting.data import RunCells
+from .fitting.data import RunCells, mean_variance, pooled_noise
 from .fitting.model import CampaignModel
+from .fitting.procedure import fit_model
 from .physics.axes import AXES
-from .physics.geometry import geometry_of
+from .physics.geometry import CentrifugeMount, geometry_of
 from .physics.rigs import INSTRUMENT_EFFECTS
 
 #: Instrument coefficients that are catalogue effects, unknown in every advice model.
@@ -49,6 +51,9 @@ INSTRUMENT_TERMS = tuple(INSTRUMENT_EFFECTS.values())
 SEPARATED = 0.9
 #: Mount angles a candidate may take [deg].
 ANGLES_DEG = tuple(range(0, 360, 45))
+#: Share of a held (aliased) parameter's column that a free one must carry to count as
+#: mixed with it (as :meth:`CampaignModel.holds` names aliases).
+ALIAS_SHARE = 0.05
 #: Planes a centrifuge candidate may use (first axis first, drop-format.md).
 PLANES = ("IA-PA", "IA-OA", "PA-OA")
 
@@ -312,13 +317,46 @@ def candidate_cells(c: Candidate, cells: Sequence[RunCells], index: int) -> RunC
         for k in ("temp_c", "temp_set_c"):
             if k in cols:
                 cols[k] = cols[k] + c.temp_shift_c
-    return replace(r, index=index, meta=meta, geometry=geometry_of(meta), cols=cols, sha256="", notes=[])
+    out = replace(r, index=index, meta=meta, geometry=geometry_of(meta), cols=cols, sha256="", notes=[])
+    peers = [x for x in cells if x.test == r.test and x.rig_id == r.rig_id]
+    noise = pooled_noise(peers)
+    if noise is not None:               # the rig's noise, not one run's estimate of it
+        shares = [(_ia_share(x.geometry), x.noise) for x in peers if x.noise is not None
+                  and math.isfinite(x.noise.a) and _ia_share(x.geometry) > 0.3]
+        if shares and noise.b > 0:
+            # the rate-proportional part is rate jitter seen through IA's share of the
+            # centripetal direction: per unit share squared, then at the candidate's share
+            w = [max(m.dof, 1) for _, m in shares]
+            b1 = sum(wk * m.b / sh ** 2 for wk, (sh, m) in zip(w, shares)) / sum(w)
+            noise = replace(noise, b=b1 * _ia_share(out.geometry) ** 2)
+        out.noise, out.var_mean = noise, mean_variance(out, noise)
+    return out
+
+
+def _ia_share(geo) -> float:
+    """|IA component| of the unit vector towards the spindle of a centrifuge mount [1]
+    (drop-format.md: it makes angle phi with the first plane axis, towards the second);
+    1 for other rigs (their level noise does not depend on the mount)."""
+    if not isinstance(geo, CentrifugeMount):
+        return 1.0
+    c, s = math.cos(geo.phi_rad), math.sin(geo.phi_rad)
+    return abs(c) if geo.e1 == 0 else (abs(s) if geo.e2 == 0 else 0.0)
 
 
 # ----------------------------------------------------------------------------- targets
 
 def _model(cells: Sequence[RunCells], effects: Sequence[str]) -> CampaignModel:
     return CampaignModel(cells, effects, include=INSTRUMENT_TERMS)
+
+
+def _fit(model: CampaignModel):
+    """The model fitted as the joint fit fits it: what the runs cannot determine (aliased,
+    not excited, weaker than its plausible size) held at its start
+    (:meth:`CampaignModel.select`); a free undetermined coefficient would wander off and
+    bend the Jacobian the advice is computed from."""
+    p = model.start()
+    held = model.select(p)
+    return fit_model(model, p, held, noise_passes=1, reselect=True, bounded=True)
 
 
 def resolve_targets(model: CampaignModel, targets: Sequence[str]) -> dict[str, list[int]]:
@@ -350,43 +388,88 @@ def resolve_targets(model: CampaignModel, targets: Sequence[str]) -> dict[str, l
 # ----------------------------------------------------------------------------- prediction
 
 class _Information:
-    """The information of the runs made (square root) and of each candidate (rows)."""
+    """The information of the runs made (square root) and of each candidate (rows), at the
+    estimate and with the candidates' own unknown geometry (a new mount's angle, a new
+    head's misalignment) at plus and minus its typical size: a run whose information hinges
+    on a nuisance not yet measured is judged at the worse of the three."""
 
     def __init__(self, model: CampaignModel, n_made: int, p: np.ndarray):
         self.model = model
-        J = model.jacobian(p)
-        self.J = J
         self.n_made = n_made
         made_rows = slice(0, int(model.offsets[n_made]))
         self.cols_made = sorted({i for j in range(n_made) for i in model.run_params[j]})
+        J = model.jacobian(p)
         self.R0 = information_root(J[made_rows][:, self.cols_made])
+        new = [i for i, r in enumerate(model.roles) if r.kind == "effect" and i not in set(self.cols_made)]
+        self.Js = [J]
+        for sign in (1.0, -1.0):
+            if not new:
+                break
+            q = p.copy()
+            for i in new:
+                q[i] = p[i] + sign * typical_size(model.roles[i].key)
+            self.Js.append(model.jacobian(q))
 
     def cols(self, runs: Sequence[int]) -> list[int]:
         extra = {i for j in runs for i in self.model.run_params[j]}
         return sorted(set(self.cols_made) | extra)
 
-    def solve(self, runs: Sequence[int]):
-        """(columns, lstsq_svd solution) of the runs made plus ``runs`` (model indices)."""
+    def solve(self, runs: Sequence[int], J: np.ndarray):
+        """(columns, names held, lstsq_svd solution over the others) of the runs made plus
+        ``runs`` (model indices) with candidate rows from J: the parameters the joint fit of
+        those runs would hold (:meth:`CampaignModel.holds` on the stacked square root) are
+        held here too."""
         cols = self.cols(runs)
         pos = {c: k for k, c in enumerate(cols)}
         R = np.zeros((self.R0.shape[0], len(cols)))
         for k, c in enumerate(self.cols_made):
             R[:, pos[c]] = self.R0[:, k]
-        blocks = [R] + [self.J[self.model.rows(j)][:, cols] for j in runs]
+        blocks = [R] + [J[self.model.rows(j)][:, cols] for j in runs]
         A = np.vstack(blocks)
-        return cols, lstsq_svd(A, np.zeros(A.shape[0]))
+        held = self.model.holds(A, cols, reasons=False)
+        free = [c for c in cols if self.model.candidates[c].name not in held]
+        Af = A[:, [pos[c] for c in free]]
+        sol = lstsq_svd(Af, np.zeros(A.shape[0]))
+        # a free parameter that makes up a column held as aliased is that combination, not
+        # itself (one 45 deg mount: Kpp held, the Kip fitted is Kip + Kpp): not determined
+        ali = [c for c in cols if held.get(self.model.candidates[c].name) == "aliased"]
+        mixed: set[int] = set()
+        if ali:
+            Ah = A[:, [pos[c] for c in ali]]
+            X = sol.cov @ (Af.T @ Ah)
+            nf = np.linalg.norm(Af, axis=0)
+            nh = np.linalg.norm(Ah, axis=0)
+            share = np.abs(X) * nf[:, None] / np.where(nh > 0, nh, 1.0)[None, :]
+            mixed = {free[k] for k in np.flatnonzero((share > ALIAS_SHARE).any(axis=1))}
+        return free, mixed, sol
 
 
 def _predict(info: _Information, runs: Sequence[int], targets: Mapping[str, list[int]],
              pairs: Sequence[tuple[str, str]]) -> Prediction:
-    cols, sol = info.solve(runs)
+    """The prediction for the runs made plus ``runs``: the worst over the candidates'
+    unknown geometry (:class:`_Information`), by the number of targets left undetermined,
+    then the sum of the relative variances."""
+    preds = [_predict_at(info, runs, targets, pairs, J) for J in (info.Js if runs else info.Js[:1])]
+
+    def badness(pr: Prediction):
+        us = list(pr.std_uncertainty.values())
+        ref = preds[0].std_uncertainty
+        return (sum(u is None for u in us),
+                sum((u / ref[k]) ** 2 for k, u in pr.std_uncertainty.items() if u is not None and ref.get(k)))
+    return max(preds, key=badness)
+
+
+def _predict_at(info: _Information, runs: Sequence[int], targets: Mapping[str, list[int]],
+                pairs: Sequence[tuple[str, str]], J: np.ndarray) -> Prediction:
+    cols, mixed, sol = info.solve(runs, J)
     pos = {c: k for k, c in enumerate(cols)}
     names = info.model.params.names
     std: dict[str, float | None] = {}
     for t, idx in targets.items():
         for i in idx:
             k = pos.get(i)
-            u = math.sqrt(sol.cov[k, k]) if k is not None and sol.estimable[k] and sol.cov[k, k] > 0 else None
+            u = (math.sqrt(sol.cov[k, k]) if k is not None and i not in mixed and sol.estimable[k]
+                 and sol.cov[k, k] > 0 else None)
             # determined as the model's own selection says (CampaignModel.select): an
             # uncertainty beyond the parameter's plausible size is not a determination
             lim = plausible_size(info.model.params[i].key)
@@ -395,7 +478,7 @@ def _predict(info: _Information, runs: Sequence[int], targets: Mapping[str, list
     for a, b in pairs:
         ia, ib = targets[a][0], targets[b][0]
         ka, kb = pos.get(ia), pos.get(ib)
-        if ka is None or kb is None or not (sol.estimable[ka] and sol.estimable[kb]):
+        if ka is None or kb is None or ia in mixed or ib in mixed or not (sol.estimable[ka] and sol.estimable[kb]):
             corr[f"{a}|{b}"] = None
             continue
         d = math.sqrt(sol.cov[ka, ka] * sol.cov[kb, kb])
@@ -403,13 +486,21 @@ def _predict(info: _Information, runs: Sequence[int], targets: Mapping[str, list
     return Prediction(std, corr)
 
 
-def _gain(cur: Prediction, new: Prediction) -> float:
+def _gain(cur: Prediction, new: Prediction, prior: Mapping[str, float | None]) -> float:
+    """Sum over the targets of the relative variance reduction, a target not determined now
+    counting with its typical size as its uncertainty (what is known of it before any run,
+    the catalogue's :func:`accelcal.effects.typical_size`), plus for each pair the drop of |correlation| and 1 when it falls below
+    :data:`SEPARATED`."""
     g = 0.0
     for k, u0 in cur.std_uncertainty.items():
         u1 = new.std_uncertainty.get(k)
         if u1 is None:
             continue
-        g += 1.0 if u0 is None else max(0.0, 1.0 - (u1 / u0) ** 2)
+        if u0 is None:
+            u0 = prior.get(k)
+            g += 1.0 if not u0 else max(0.0, 1.0 - (u1 / u0) ** 2)
+        else:
+            g += max(0.0, 1.0 - (u1 / u0) ** 2)
     for k, r0 in cur.corr.items():
         r1 = new.corr.get(k)
         if r1 is None:
@@ -420,7 +511,7 @@ def _gain(cur: Prediction, new: Prediction) -> float:
 
 
 def _touches(info: _Information, j: int, targets: Mapping[str, list[int]]) -> bool:
-    rows = info.J[info.model.rows(j)]
+    rows = info.Js[0][info.model.rows(j)]
     return any(np.any(rows[:, i]) for idx in targets.values() for i in idx)
 
 
@@ -456,7 +547,11 @@ def advise(cells: Sequence[RunCells], baseline: Sequence[str], targets: Sequence
     DesignError
         For an unknown target or effect id.
     """
-    cells = list(cells)
+    with single_thread():            # many small dense solves: one BLAS thread is the fast one
+        return _advise(list(cells), baseline, targets, separate, max_runs, candidates, top)
+
+
+def _advise(cells, baseline, targets, separate, max_runs, candidates, top) -> Advice:
     for e in baseline:
         if e not in EFFECTS:
             raise DesignError(f"baseline effect {e!r}: not an effects.md id")
@@ -466,9 +561,12 @@ def advise(cells: Sequence[RunCells], baseline: Sequence[str], targets: Sequence
     extra = [t for t in targets if t in EFFECTS and t not in baseline and t not in INSTRUMENT_EFFECTS]
     effects = list(baseline) + extra
     cands = list(candidate_runs(cells) if candidates is None else candidates)
-    cand_cells = [candidate_cells(c, cells, len(cells) + k) for k, c in enumerate(cands)]
+    # the runs made, fitted as the advice model (noise refitted to its residuals, which is
+    # the noise a fit of the augmented campaign will see); copies, the caller's are kept
+    cells = [replace(c) for c in cells]
     made = _model(cells, effects)
-    p_made = made.start()
+    p_made = _fit(made).fit.values
+    cand_cells = [candidate_cells(c, cells, len(cells) + k) for k, c in enumerate(cands)]
     model = _model(cells + cand_cells, effects)
     p = model.params.values()
     for i, prm in enumerate(model.params):
@@ -482,10 +580,19 @@ def advise(cells: Sequence[RunCells], baseline: Sequence[str], targets: Sequence
     info = _Information(model, len(cells), p)
     cur = _predict(info, [], tmap, separate)
     n0 = len(cells)
+    names = list(cur.std_uncertainty)
+    units, plaus, prior = {}, {}, {}
+    for n in names:
+        base = n.split("[", 1)[0]
+        spec = coefficient_spec(base)
+        known = base in EFFECTS or spec is not None
+        units[n] = spec.unit if spec is not None else (EFFECTS[base].unit if base in EFFECTS else "")
+        plaus[n] = plausible_size(base) if known else None
+        prior[n] = typical_size(base) if known else None
     singles = []
     for k in range(len(cands)):
         pred = _predict(info, [n0 + k], tmap, separate)
-        singles.append(Proposal([cands[k]], pred, cands[k].minutes, _gain(cur, pred)))
+        singles.append(Proposal([cands[k]], pred, cands[k].minutes, _gain(cur, pred, prior)))
     props = list(singles)
     if max_runs >= 2 and cands:
         best = max(singles, key=lambda s: s.score)
@@ -494,7 +601,7 @@ def advise(cells: Sequence[RunCells], baseline: Sequence[str], targets: Sequence
             if k != kb:
                 pred = _predict(info, [n0 + kb, n0 + k], tmap, separate)
                 props.append(Proposal([cands[kb], cands[k]], pred, cands[kb].minutes + cands[k].minutes,
-                                      _gain(cur, pred)))
+                                      _gain(cur, pred, prior)))
         still = [t for t, u in cur.std_uncertainty.items() if u is None
                  and all(s.predicted.std_uncertainty.get(t) is None for s in singles)]
         if still or any(r is None or abs(r) >= SEPARATED for r in cur.corr.values()):
@@ -504,7 +611,7 @@ def advise(cells: Sequence[RunCells], baseline: Sequence[str], targets: Sequence
                     continue
                 pred = _predict(info, [n0 + a, n0 + b], tmap, separate)
                 props.append(Proposal([cands[a], cands[b]], pred, cands[a].minutes + cands[b].minutes,
-                                      _gain(cur, pred)))
+                                      _gain(cur, pred, prior)))
     props = [q for q in props if q.gain > 1e-9]
     props.sort(key=lambda q: (-q.score, q.minutes, [c.label for c in q.runs]))
     out, seen = [], set()
@@ -516,15 +623,62 @@ def advise(cells: Sequence[RunCells], baseline: Sequence[str], targets: Sequence
         out.append(q)
         if len(out) >= top:
             break
-    names = list(cur.std_uncertainty)
-    units, plaus = {}, {}
-    for n in names:
-        base = n.split("[", 1)[0]
-        spec = coefficient_spec(base)
-        units[n] = spec.unit if spec is not None else (EFFECTS[base].unit if base in EFFECTS else "")
-        plaus[n] = plausible_size(base) if (base in EFFECTS or spec is not None) else None
     notes = []
+    for n, u in cur.std_uncertainty.items():
+        if u is None and all(q.predicted.std_uncertainty.get(n) is None for q in props):
+            notes.append(f"{n}: no run these rigs can make determines it (with every instrument "
+                         "coefficient unknown)")
     if not out:
         notes.append("no candidate run improves the targets")
     return Advice(targets=list(tmap), separate=list(separate), current=cur, proposals=out, units=units,
                   plausible=plaus, notes=notes, candidates=len(cands))
+
+
+def fitted_uncertainty(cells: Sequence[RunCells], baseline: Sequence[str], targets: Sequence[str],
+                       separate: Sequence[tuple[str, str]] = ()) -> Prediction:
+    """The standard uncertainties the advice model gives when fitted to runs made: what a
+    prediction of :func:`advise` is checked against once its runs exist.
+
+    Parameters
+    ----------
+    cells : sequence of RunCells
+        The runs, with noise models.
+    baseline : sequence of str
+        Effects of the model (as given to :func:`advise`).
+    targets : sequence of str
+        Coefficients or effect ids.
+
+    separate : sequence of (str, str)
+        Pairs whose correlation is wanted.
+
+    Returns
+    -------
+    Prediction
+        Target -> standard uncertainty [SI] of the fit (noise model refitted to its
+        residuals, lack-of-fit scaled; :func:`accelcal.fitting.procedure.fit_model`), None
+        when not determined (as :func:`advise` says it); the pairs' correlations.
+    """
+    targets = list(targets) + [x for ab in separate for x in ab if x not in targets]
+    extra = [t for t in targets if t in EFFECTS and t not in baseline and t not in INSTRUMENT_EFFECTS]
+    model = _model(list(cells), list(baseline) + extra)
+    tmap = resolve_targets(model, targets)
+    mf = _fit(model)
+    out: dict[str, float | None] = {}
+    mixed = {n.strip() for why in mf.held.values() if why.startswith("aliased with ")
+             for n in why[len("aliased with "):].split(",")}
+    for t, idx in tmap.items():
+        for i in idx:
+            name = model.params.names[i]
+            u = mf.fit.std(name) if name not in mixed else float("nan")
+            lim = plausible_size(model.params[i].key)
+            ok = math.isfinite(u) and u > 0 and (lim is None or u <= lim)
+            out[name if len(idx) > 1 else t] = float(u) if ok else None
+    corr: dict[str, float | None] = {}
+    for a, b in separate:
+        na, nb = model.params.names[tmap[a][0]], model.params.names[tmap[b][0]]
+        if out.get(a) is None or out.get(b) is None:
+            corr[f"{a}|{b}"] = None
+            continue
+        _, R = mf.fit.correlation([na, nb])
+        corr[f"{a}|{b}"] = float(R[0, 1])
+    return Prediction(out, corr)

@@ -749,6 +749,48 @@ def _fit_variance_function(S: np.ndarray, nu: np.ndarray, X: np.ndarray, use_lev
     return NoiseModel(a=float(c * (1.0 - t)), b=float(c * t / sx ** 2))
 
 
+def pooled_noise(runs: Sequence[RunCells]) -> NoiseModel | None:
+    """One noise model for several runs of the same kind: a, b and rho averaged with their
+    pure-error degrees of freedom as weights (a run's own estimate rests on few replicates
+    per cell; what a run not yet made will show is better told by all of them).
+
+    Parameters
+    ----------
+    runs : sequence of RunCells
+        Runs with noise models (those without a finite estimate are left out).
+
+    Returns
+    -------
+    NoiseModel or None
+        a [output_unit^2], b [output_unit^2 / (m/s^2)^2], rho [1], source 'pooled'; None
+        when no run has an estimate.
+    """
+    ok = [r.noise for r in runs if r.noise is not None and math.isfinite(r.noise.a)]
+    if not ok:
+        return None
+    w = np.array([max(m.dof, 1) for m in ok], float)
+    avg = lambda v: float(np.sum(w * np.array(v, float)) / np.sum(w))  # noqa: E731
+    return NoiseModel(a=avg([m.a for m in ok]), b=avg([m.b for m in ok]), rho=avg([m.rho for m in ok]),
+                      dof=int(w.sum()), source="pooled")
+
+
+def mean_variance(run: RunCells, model: NoiseModel) -> np.ndarray:
+    """Variance of each cell mean of ``run`` under a noise model (as :func:`fit_noise` sets
+    ``var_mean``).
+
+    Parameters
+    ----------
+    run : RunCells
+    model : NoiseModel
+
+    Returns
+    -------
+    ndarray
+        [output_unit^2], one per cell.
+    """
+    return model.reading_variance(run.x) * ar1_mean_factor(run.n, model.rho) / run.n
+
+
 def pool_missing_noise(runs: Sequence[RunCells]) -> None:
     """Runs without replicates (no noise estimate) take the median reading variance of the
     runs of the same test kind that have one.

@@ -779,23 +779,57 @@ class CampaignModel:
             these runs'``, ``'weakly determined: ...'``).
         """
         self.params = self.candidates
-        n = len(self.params)
-        J = self.jacobian(p)
-        order = sorted(range(n), key=lambda i: (self.priority[i], i))
+        held = self.holds(self.jacobian(p), range(len(self.params)), tol, keep)
+        self.params = self.params.held(held)
+        return held
+
+    def holds(self, J: np.ndarray, cols: Sequence[int], tol: float = ALIAS_TOL,
+              keep: Sequence[str] = (), reasons: bool = True) -> dict[str, str]:
+        """What :meth:`select` holds, judged on a given design: aliased or not excited in
+        :data:`PRIORITY` order, then weakly determined one at a time.
+
+        Parameters
+        ----------
+        J : (m, k) ndarray
+            Whitened design whose columns are the candidate parameters ``cols``
+            [1 / parameter unit]; any matrix with the same J^T J judges the same (the
+            square root of the information of runs made, stacked over a proposed run's
+            rows: :mod:`accelcal.testdesign`).
+        cols : sequence of int
+            Indices into :attr:`candidates` of J's columns.
+        tol : float
+            :data:`ALIAS_TOL` [1].
+        keep : sequence of str
+            Names never held for being weakly determined.
+        reasons : bool
+            Name what an aliased parameter is aliased with (one more solve per parameter
+            held); False gives ``'aliased'``.
+
+        Returns
+        -------
+        dict of str to str
+            Name -> reason of each parameter held.
+        """
+        cols = list(cols)
+        prm_of = [self.candidates[i] for i in cols]
+        order = sorted(range(len(cols)), key=lambda c: (self.priority[cols[c]], cols[c]))
         kept = separable_columns(J, order, tol)
         held: dict[str, str] = {}
         kept_set = set(kept)
-        for i in range(n):
-            if i not in kept_set:
-                ali = self._aliased_with(J, i, kept)
-                held[self.params[i].name] = ("aliased with " + ", ".join(ali)) if ali else "not excited by these runs"
+        for c in range(len(cols)):
+            if c not in kept_set:
+                if not reasons:
+                    held[prm_of[c].name] = "aliased"
+                    continue
+                ali = [prm_of[k].name for k in self._aliased_with(J, c, kept)]
+                held[prm_of[c].name] = ("aliased with " + ", ".join(ali)) if ali else "not excited by these runs"
         # weakly determined extension terms
         while True:
-            sol = lstsq_svd(J[:, kept], np.zeros(self.N))
+            sol = lstsq_svd(J[:, kept], np.zeros(J.shape[0]))
             u = np.sqrt(np.clip(np.diag(sol.cov), 0, None))
             worst, ratio = None, 1.0
-            for c, i in enumerate(kept):
-                prm, role = self.params[i], self.roles[i]
+            for c, k in enumerate(kept):
+                prm, role = prm_of[k], self.roles[cols[k]]
                 kind = "theta0" if role.key == "initial_misalignment" else (
                     role.key if role.kind in ("coef", "bias", "radius") else "effect")
                 if kind in BASE or prm.name in keep:
@@ -807,14 +841,30 @@ class CampaignModel:
                     worst, ratio = c, u[c] / lim
             if worst is None:
                 break
-            i = kept.pop(worst)
-            held[self.params[i].name] = (f"weakly determined: design uncertainty {u[worst]:.2g} "
-                                         f"{self.params[i].unit} exceeds its plausible size")
-        self.params = self.params.held(held)
+            k = kept.pop(worst)
+            held[prm_of[k].name] = (f"weakly determined: design uncertainty {u[worst]:.2g} "
+                                    f"{prm_of[k].unit} exceeds its plausible size")
         return held
 
-    def _aliased_with(self, J: np.ndarray, i: int, kept: Sequence[int], share: float = 0.05) -> list[str]:
-        """Names of the kept parameters whose columns make up column i."""
+    def _aliased_with(self, J: np.ndarray, i: int, kept: Sequence[int], share: float = 0.05) -> list[int]:
+        """Positions (in J) of the kept columns that make up column i (at most four, by
+        their share of it).
+
+        Parameters
+        ----------
+        J : (m, k) ndarray
+            Whitened design [1 / parameter unit].
+        i : int
+            Position of the column held.
+        kept : sequence of int
+            Positions of the columns kept.
+        share : float
+            Smallest share of column i a kept column must carry [1].
+
+        Returns
+        -------
+        list of int
+        """
         if not kept or not np.any(J[:, i]):
             return []
         sol = lstsq_svd(J[:, list(kept)], J[:, i])
@@ -822,7 +872,7 @@ class CampaignModel:
         tot = contrib.sum()
         if tot == 0:
             return []
-        return [self.params[kept[c]].name for c in np.argsort(-contrib) if contrib[c] > share * tot][:4]
+        return [kept[c] for c in np.argsort(-contrib) if contrib[c] > share * tot][:4]
 
     # ----------------------------------------------------------------- derived geometry
     def polarity_radius(self, p: np.ndarray, j: int) -> float:
