@@ -132,3 +132,25 @@ def test_cli_prints_a_short_table_and_json(ia_pair, tmp_path, capsys):
     assert main(["design", str(drop), "--target", "Kxx"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "Kxx" in err[0]
+
+
+def test_diagnose_says_which_run_would_fix_what_it_cannot_see(ia_pair):
+    """An effect the runs cannot see gets the best single run to see it, or says that no
+    run of these rigs does (the rate scale error is one with the radius on a centrifuge)."""
+    from accelcal.diagnosis.cli import next_runs
+    res = {"unobservable": [{"effect": "cross_coupling"}, {"effect": "rate_scale_error"}], "ranking": [],
+           "baseline": {"effects": [e for e in BASE]}}
+    out = {f["to"]: f for f in next_runs_from_cells(ia_pair, res, next_runs)}
+    assert out["see cross_coupling"]["run"] and out["see cross_coupling"]["minutes"] > 0
+    assert out["see cross_coupling"]["predicted"]["cross_coupling"] is not None
+    assert "no single run" in out["see rate_scale_error"]["note"]
+
+
+def next_runs_from_cells(cells, res, fn):
+    """next_runs reads RunFile-like runs; RunCells carry the same meta and columns."""
+    import pandas as pd
+
+    class Run:
+        def __init__(self, c):
+            self.meta, self.data, self.sha256 = c.meta, pd.DataFrame(c.cols), c.sha256
+    return fn([Run(c) for c in cells], res)

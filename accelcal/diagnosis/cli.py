@@ -7,6 +7,8 @@ from __future__ import annotations
 import json
 import sys
 
+import numpy as np
+
 from .runfiles import read_paths
 
 
@@ -24,14 +26,67 @@ def _diagnose(args) -> int:
     if args.report:
         p = html_report(res, args.report)
         print(f"report: {p}", file=sys.stderr)
+    fixes = next_runs(runs, res)
     if args.json:
         pub = public(res)
         if not args.all_segments:
             pub.pop("where_all", None)
+        pub["next_runs"] = fixes
         print(json.dumps(clean_json(pub), default=_jd, allow_nan=False))
     else:
         print(text_report(res))
+        for f in fixes:
+            print(f"to {f['to']}: add {f['run']} ({f['minutes']:.0f} min)" if f.get("run")
+                  else f"to {f['to']}: {f['note']}")
     return 0
+
+
+def next_runs(runs, res) -> list[dict]:
+    """For each effect the runs cannot see and each alias the diagnosis names, the best
+    single run the rigs can make to fix it (:func:`accelcal.testdesign.advise`).
+
+    Parameters
+    ----------
+    runs : list of RunFile
+        The runs diagnosed.
+    res : dict
+        :func:`accelcal.diagnosis.core.diagnose`'s result (``unobservable``, ``ranking``
+        with ``aliases``, ``baseline``).
+
+    Returns
+    -------
+    list of dict
+        ``to`` (what it fixes), ``run`` (drop-format words) and ``runs`` (keys), ``minutes``
+        [min], ``predicted`` (standard uncertainties [SI]); or ``note`` when no single run
+        does.
+    """
+    from ..testdesign import DesignError, advise
+    from .core import prepare_cells
+    asks = [(f"see {u['effect']}", [u["effect"]], []) for u in res.get("unobservable") or []]
+    for r in res.get("ranking") or []:
+        for a in r.get("aliases") or []:
+            other = a if isinstance(a, str) else a.get("effect")
+            if other:
+                asks.append((f"separate {r['effect']} from {other}", [], [(r["effect"], other)]))
+    if not asks:
+        return []
+    cells, _ = prepare_cells(runs)
+    base = list((res.get("baseline") or {}).get("effects") or [])
+    out = []
+    for what, targets, pairs in asks:
+        try:
+            adv = advise(cells, base, targets or None, pairs, max_runs=1, top=1)
+        except (DesignError, ValueError, np.linalg.LinAlgError) as exc:
+            out.append({"to": what, "note": f"no advice: {exc}"})
+            continue
+        if not adv.proposals:
+            out.append({"to": what, "note": "no single run these rigs can make does it"})
+            continue
+        p = adv.proposals[0]
+        out.append({"to": what, "run": " + ".join(c.label for c in p.runs),
+                    "runs": [{"test": c.test, "rig_id": c.rig_id, **c.spec} for c in p.runs],
+                    "minutes": round(p.minutes, 1), "predicted": p.predicted.std_uncertainty})
+    return out
 
 
 def register_cli(subparsers) -> None:
