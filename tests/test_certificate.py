@@ -6,6 +6,7 @@ from __future__ import annotations
 import re
 import shutil
 import subprocess
+from decimal import Decimal
 
 import pytest
 
@@ -199,3 +200,89 @@ def test_a_rig_without_traceability_keeps_the_certificate_draft(lab, tmp_path):
     html = build_report(lab, CAMPS["centrifuge"], tmp_path / "out", config=cfg).read_text()
     draft = re.search(r"DRAFT — not valid as a certificate: ([^<]*)", html)
     assert draft and "reference standards of this rig" in draft.group(1)
+
+
+# ---------------------------------------------------------------- every number as rounded as it says
+
+TUMBLE = "IMUCAL-EXAMPLE-X/2021-01-03"      # a real hand-held tumble (../shared/real)
+
+
+def _place(tok: str) -> Decimal:
+    """Decimal place of the last digit of a printed number ('0.059e-4' -> 1e-7); trailing
+    zeros of an integer are not significant ('24000' -> 1000)."""
+    m = re.fullmatch(r"(-?)(\d+)(?:\.(\d+))?(?:e(-?\d+))?", tok)
+    assert m, tok
+    intp, frac, exp = m.group(2), m.group(3) or "", int(m.group(4) or 0)
+    if frac:
+        return Decimal(1).scaleb(-len(frac) + exp)
+    stripped = intp.rstrip("0") or "0"
+    return Decimal(1).scaleb(len(intp) - len(stripped) + exp)
+
+
+def _sig(tok: str) -> int:
+    digits = re.sub(r"e-?\d+$", "", tok).lstrip("-").replace(".", "").lstrip("0")
+    if "." not in tok:
+        digits = digits.rstrip("0")
+    return len(digits)
+
+
+def _value(tok: str) -> Decimal:
+    return Decimal(tok)
+
+
+def _check_pair(value: str, U: str, where: str) -> None:
+    """GUM 7.2.6: U with at most two significant digits, the value to U's last digit."""
+    assert _sig(U) <= 2, (where, value, U)
+    if _value(value) != 0:
+        assert _place(value) == _place(U), (where, value, U)
+
+
+@pytest.fixture(scope="module")
+def pdf_texts(lab, tmp_path_factory, examples):
+    from accelcal.flows.pipeline import run_pipeline
+    if _chromium() is None or shutil.which("pdftotext") is None:
+        pytest.skip("chromium and pdftotext (poppler-utils) are needed to read the PDFs")
+    run_pipeline([str(examples.parent / "real" / "imucal-ferraris")], lab, engine="local")
+    out = tmp_path_factory.mktemp("pdfnum")
+    texts = {}
+    for kind, camp in {**CAMPS, "tumble": TUMBLE}.items():
+        pdf = build_report(lab, camp, out / kind, pdf=True).with_suffix(".pdf")
+        texts[kind] = subprocess.run(["pdftotext", "-layout", str(pdf), "-"], capture_output=True,
+                                     text=True, check=True).stdout
+    return texts
+
+
+NUM = r"-?\d+(?:\.\d+)?(?:e-?\d+)?"
+
+
+@pytest.mark.parametrize("kind", sorted({*CAMPS, "tumble"}))
+def test_every_printed_value_is_rounded_to_its_uncertainty(pdf_texts, kind):
+    """Issue 27: every value in the results, cross-check and budget tables of the PDF
+    paired with its U (or u) and checked by the rule the certificate states; a K1 with a
+    relative U in ppm against its absolute U. No number carries float noise."""
+    text = pdf_texts[kind]
+    pairs = 0
+    # results table and Annex A: name, value, U [ppm], k, coverage
+    for m in re.finditer(rf"(?m)^\s*((?:K\w*|theta0)\S*)\s+({NUM})\s+({NUM})( ppm)?\s+({NUM})\s+≈ 95 %", text):
+        name, value, U, ppm = m.group(1), m.group(2), m.group(3), m.group(4)
+        assert _sig(U) <= 2, (kind, m.group(0))
+        if ppm:
+            absU = abs(_value(value)) * _value(U) * Decimal("1e-6")
+            lead = Decimal(1).scaleb(absU.adjusted() - 1)      # two significant digits of U
+            assert _place(value) <= lead * 10 and _place(value) >= lead / 10, (kind, m.group(0))
+        else:
+            _check_pair(value, U, f"{kind} {name}")
+        pairs += 1
+    # budget lines: quantity ... value u sensitivity contribution A|B
+    for m in re.finditer(rf"(?m)\s({NUM})\s+({NUM})\s+{NUM}\s+{NUM}\s+[AB]\s+(?:normal|uniform|triangular|U-shaped|rectangular)",
+                         text):
+        _check_pair(m.group(1), m.group(2), f"{kind} budget")
+        pairs += 1
+    # Monte Carlo intervals: [lo, hi] to the digit of delta
+    for m in re.finditer(rf"\[({NUM}), ({NUM})\]\s+({NUM})\s", text):
+        lo, hi, delta = m.groups()
+        assert _place(lo) == _place(hi) <= _place(delta), (kind, m.group(0))
+        pairs += 1
+    assert pairs >= 8, (kind, pairs)
+    for tok in re.findall(r"(?<![\w.])-?\d+\.\d+(?:e-?\d+)?(?![\w.])", text):
+        assert _sig(tok) < 12, (kind, tok)

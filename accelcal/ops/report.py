@@ -269,17 +269,22 @@ def _k(c) -> float:
     return float(k) if k is not None and math.isfinite(float(k)) else K_COVERAGE
 
 
+def _to_second(t) -> str:
+    """A stored timestamp as people read it: to the second, with its UTC offset."""
+    import datetime as _dt
+    if isinstance(t, _dt.datetime):
+        return t.replace(microsecond=0).isoformat(sep=" ")
+    return re.sub(r"(\d{2}:\d{2}:\d{2})\.\d+", r"\1", str(t))
+
+
 def _coefficient_scale(name: str, unit: str | None) -> tuple[float, str]:
     """(factor, display unit) of a coefficient: display value = SI value / factor, the unit
     of the results table (effects.md "usual display"; K1 in <output unit>/g)."""
-    from ..effects import PRETTY_UNITS, coefficient_spec
+    from ..effects import coefficient_spec, to_display
     spec = coefficient_spec(name)
     if spec is None:
         return 1.0, unit or ""
-    if spec.name == "K1":
-        out = (unit or "out").split("/", 1)[0]
-        return spec.display_factor, f"{out}/g"
-    return spec.display_factor, PRETTY_UNITS.get(spec.display_unit, spec.display_unit)
+    return spec.display_factor, to_display(name, 1.0, None, unit or "out")[2]
 
 
 def _at_digit(x: float | None, exp: int | None) -> str:
@@ -1057,7 +1062,8 @@ def _annex_lineage(d) -> str:
             for x in d["lineage"]]
     out = _table(["run id", "rev", "test", "rig", "started", "sha256", "raw file (drop / path)",
                   "ingest flow run"], rows)
-    acts = [[a["seq"], (_grouped(a["result_id"]), "mono"), a["activated_at"], (a.get("flow_run_id"), "mono")]
+    acts = [[a["seq"], (_grouped(a["result_id"]), "mono"), _to_second(a["activated_at"]),
+             (a.get("flow_run_id"), "mono")]
             for a in d["activations"]]
     out += ("<p class='note'>Result history of this campaign (append-only; the last activation "
             "is current):</p>")
