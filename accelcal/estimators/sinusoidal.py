@@ -442,11 +442,13 @@ class SineFit:
     Attributes
     ----------
     names, values, std, units : list, dict, dict, dict
-        Parameters with their values and standard uncertainties [SI, per ``units``].
+        Parameters with their values and standard uncertainties [SI, per ``units``]
+        (names, values and std read from ``result``).
     cov : ndarray
-        Residual-scaled s^2 (J^T W J)^+.
+        Residual-scaled s^2 (J^T W J)^+ (``result.cov``).
     sigma, dof, n_obs
-        Weighted pooled residual standard deviation [output_unit], dof and readings.
+        Weighted pooled residual standard deviation [output_unit], dof and readings (the
+        last two from ``result``).
     residual_rms, run_sigma : dict
         Per run label [output_unit]: RMS residual and the noise used as its weight.
     diagnostics : dict
@@ -458,14 +460,11 @@ class SineFit:
     result : FitResult
         The fitting core's result.
     """
-    names: list[str]
-    values: dict[str, float]
-    std: dict[str, float]
-    cov: np.ndarray
+    #: the fitting core's result (values, residual-scaled covariance, whitened design): names,
+    #: values, std, cov, dof, n_obs and the correlation are read from it, never restated
+    result: FitResult
     units: dict[str, str]
     sigma: float                          # residual standard deviation (output_unit), weighted pooled
-    dof: int
-    n_obs: int
     residual_rms: dict[str, float]        # per run label, output_unit
     run_sigma: dict[str, float]           # per-run noise used as weight
     diagnostics: dict[str, Any]           # rank / condition / aliasing of the joint design
@@ -473,14 +472,56 @@ class SineFit:
     tool_errors: dict[str, float]
     options: dict[str, Any]
     attitudes: dict[str, str]             # run label -> 'a' | 'b' | 'c'
-    success: bool = True
-    message: str = ""
-    correlation: np.ndarray | None = None
     rows: dict[str, tuple[int, int]] = field(default_factory=dict)   # run label -> rows of the Jacobian
     mounts: dict[str, str] = field(default_factory=dict)             # run label -> 'IA-PA@0 +OA'
-    _jac: np.ndarray | None = field(default=None, repr=False)
-    #: the fitting core's result (values, residual-scaled covariance, whitened design)
-    result: FitResult | None = field(default=None, repr=False)
+
+    @property
+    def names(self) -> list[str]:
+        """Parameter names, in the fit's order."""
+        return self.result.names
+
+    @property
+    def values(self) -> dict[str, float]:
+        """Estimates by name [SI, per ``units``]."""
+        return {n: float(v) for n, v in zip(self.result.names, self.result.values)}
+
+    @property
+    def cov(self) -> np.ndarray:
+        """Residual-scaled s^2 (J^T W J)^+ in ``names`` order."""
+        return self.result.cov
+
+    @property
+    def std(self) -> dict[str, float]:
+        """Standard uncertainties by name [SI]."""
+        return {n: float(v) for n, v in zip(self.result.names, np.sqrt(np.clip(np.diag(self.cov), 0.0, None)))}
+
+    @property
+    def correlation(self) -> np.ndarray:
+        """Correlation matrix in ``names`` order."""
+        sd = np.sqrt(np.clip(np.diag(self.cov), 0.0, None))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return self.cov / np.outer(sd, sd)
+
+    @property
+    def dof(self) -> int:
+        return int(self.result.dof)
+
+    @property
+    def n_obs(self) -> int:
+        return int(self.result.n_obs)
+
+    @property
+    def success(self) -> bool:
+        return bool(self.result.converged)
+
+    @property
+    def message(self) -> str:
+        return self.result.message
+
+    @property
+    def _jac(self) -> np.ndarray:
+        """The whitened (run-weighted) design at the solution."""
+        return self.result.J
 
     def value(self, name: str) -> float:
         return self.values[name]
@@ -702,18 +743,12 @@ def identify_sine_campaign(runs: Sequence, *, tool_errors: Mapping[str, str] | N
                     "covariance scaled by the residual variance (paper 002's LS)")
     result = FitResult(pset, x, sol.cov, sol.cov * s2, sol.estimable, float(rw @ rw), dof, n_obs, sol.rank, lof,
                        rw, Jw, bool(success), str(message))
-    cov = result.cov
-    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     names = [p.name for p in params]
     out_unit = str(prep[0].meta.get("output_unit", ""))
     diag = design_diagnostics(Jw, names, alias_rtol)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        corr = cov / np.outer(sd, sd)
     return SineFit(
-        names=names, values={n: float(v) for n, v in zip(names, x)},
-        std={n: float(v) for n, v in zip(names, sd)}, cov=cov,
-        units={p.name: _unit(p.key, out_unit) for p in params},
-        sigma=float(np.sqrt(s2) / np.exp(np.mean(np.log(w_run)))), dof=int(dof), n_obs=int(n_obs),
+        result=result, units={p.name: _unit(p.key, out_unit) for p in params},
+        sigma=float(np.sqrt(s2) / np.exp(np.mean(np.log(w_run)))),
         residual_rms={r.label: float(np.sqrt(np.mean(e ** 2))) for r, e in zip(prep, splits)},
         run_sigma={r.label: float(1.0 / w) * float(np.sqrt(s2)) for r, w in zip(prep, w_run)},
         diagnostics=diag, dropped=dropped,
@@ -722,8 +757,7 @@ def identify_sine_campaign(runs: Sequence, *, tool_errors: Mapping[str, str] | N
                  "rate_source": rate_source, "rate_derivative": rate_derivative or
                  ("fitted" if rate_source == "fitted" else "drive"), "n_harmonics": n_harmonics,
                  "reweight": reweight, "alias_rtol": alias_rtol},
-        attitudes={r.label: r.attitude for r in prep}, success=bool(success), message=str(message),
-        correlation=corr, _jac=Jw, result=result,
+        attitudes={r.label: r.attitude for r in prep},
         rows={r.label: (int(a), int(a + r.y.size)) for r, a in
               zip(prep, np.concatenate([[0], np.cumsum([q.y.size for q in prep])[:-1]]))},
         mounts={r.label: f"{r.meta['mount_plane']}@{float(r.meta['mount_angle_deg']):g} {r.meta['vertical_axis']}"

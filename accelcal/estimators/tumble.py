@@ -70,13 +70,13 @@ class TumbleFit:
 
     Attributes
     ----------
-    values, std_uncertainties : dict
+    values, std_uncertainties : dict (properties, read from ``result``)
         K0 [m/s2], K1 [output_unit/(m/s2)], K2 [s2/m], theta0 [rad] and the extra terms;
         std = sqrt(diag(cov)).
-    cov : (p, p) ndarray
+    cov : (p, p) ndarray (property)
         Covariance in ``param_names`` order: s^2 (J^T J)^+ (s^2 = RSS / dof, J the design at
         the solution, :func:`tumble_jacobian`), times F when the lack-of-fit test fails.
-    corr : (p, p) ndarray
+    corr : (p, p) ndarray (property)
     extras : tuple of str
         Extra instrument terms fitted (``extra_terms``), also in ``values``.
     lack_of_fit : dict or None
@@ -102,10 +102,9 @@ class TumbleFit:
     ia_phase_deg : float
         Head angle at which IA nominally points up [deg] (0 for +IA on cos_axis).
     """
-    values: dict[str, float]
-    std_uncertainties: dict[str, float]
-    cov: np.ndarray
-    corr: np.ndarray
+    #: the core's fit result (whitened by s; cov scaled by sqrt(F) when inadequate): values,
+    #: covariance and correlation are read from it, never restated
+    result: FitResult
     residuals: np.ndarray
     residual_rms: float
     s: float
@@ -126,8 +125,30 @@ class TumbleFit:
     param_names: tuple[str, ...] = PARAMS
     #: the core's lack-of-fit test ('adequate' / 'inadequate' / 'untestable')
     adequacy: LackOfFit | None = None
-    #: the core's fit result (whitened by s; cov scaled by sqrt(F) when inadequate)
-    result: FitResult | None = field(default=None, repr=False)
+
+    @property
+    def values(self) -> dict[str, float]:
+        """Estimates by name [SI units of each parameter]."""
+        return dict(zip(self.param_names, map(float, self.result.values)))
+
+    @property
+    def cov(self) -> np.ndarray:
+        """Covariance in ``param_names`` order (NaN without degrees of freedom)."""
+        n = len(self.param_names)
+        return self.result.cov if self.dof > 0 else np.full((n, n), np.nan)
+
+    @property
+    def std_uncertainties(self) -> dict[str, float]:
+        """sqrt(diag(cov)) by name [SI units]."""
+        return dict(zip(self.param_names, map(float, np.sqrt(np.diag(self.cov)))))
+
+    @property
+    def corr(self) -> np.ndarray:
+        """Correlation matrix in ``param_names`` order."""
+        cov = self.cov
+        sd = np.sqrt(np.diag(cov))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return cov / np.outer(sd, sd)
 
     @property
     def coeffs(self) -> dict[str, float]:
@@ -400,21 +421,15 @@ def fit_tumble(meta: Mapping, data, extra_terms: tuple[str, ...] | list[str] = (
     w = 1.0 / np.sqrt(s2) if np.isfinite(s2) and s2 > 0 else 1.0
     result = finish_fit(params, GaussNewton(p, r * w, gn.J * w, rss * w * w, gn.iterations, gn.converged,
                                             gn.message), test)
-    cov = result.cov if dof > 0 else np.full((npar, npar), np.nan)
-    sd = np.sqrt(np.diag(cov))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        corr = cov / np.outer(sd, sd)
     cov_pos = (ss_lof / dof_lof) * sol.cov if dof_lof > 0 else None
 
     return TumbleFit(
-        values=dict(zip(names, map(float, p))),
-        std_uncertainties=dict(zip(names, map(float, sd))),
-        cov=cov, corr=corr, residuals=r,
+        result=result, residuals=r,
         residual_rms=float(np.sqrt(rss / n)), s=float(np.sqrt(s2)), n=n, dof=dof,
         position_means=pm, output_unit=str(meta.get("output_unit", "")), g_local_m_s2=g,
         ia_phase_deg=phase, success=bool(gn.converged), message=str(gn.message),
         nfev=int(gn.iterations), start=dict(zip(names, map(float, p0))), extras=extras,
-        lack_of_fit=lof, cov_positions=cov_pos, param_names=names, adequacy=test, result=result)
+        lack_of_fit=lof, cov_positions=cov_pos, param_names=names, adequacy=test)
 
 
 def _position_means_fast(df: pd.DataFrame) -> pd.DataFrame | None:
