@@ -37,8 +37,10 @@ class DwellFit:
 
     Attributes
     ----------
-    names, beta, cov : list, ndarray, ndarray
-        Parameters, estimates and covariance (scaled by s2) [y unit per regressor unit].
+    names, beta : list, ndarray
+        Parameters and estimates [y unit per regressor unit], read from ``result``.
+    cov : ndarray
+        The core's noise covariance scaled by s2 (the method's covariance).
     s2 : float
         (SS_LOF + SS_PE) / (N - p); about 1 for an adequate model.
     yhat, std_resid : ndarray
@@ -48,9 +50,10 @@ class DwellFit:
     trend_p, sweep_p, runs_p : float
         The residual checks (Bonferroni-adjusted over groups).
     """
-    names: list[str]
-    beta: np.ndarray
-    cov: np.ndarray                 # scaled by the residual mean square s2
+    #: the fitting core's result of the solve (design, whitened residual, noise covariance):
+    #: the names and estimates are read from it
+    result: FitResult
+    cov: np.ndarray                 # the core's noise covariance scaled by the residual mean square s2
     s2: float                       # (SS_LOF + SS_PE) / (N - p); ~1 for an adequate model
     yhat: np.ndarray
     std_resid: np.ndarray           # (ybar - yhat) sqrt(W)
@@ -64,8 +67,16 @@ class DwellFit:
     sweep_p: float = 1.0
     runs_p: float = 1.0
     extra: dict = field(default_factory=dict)
-    #: the fitting core's result of the solve (design, whitened residual, covariance)
-    result: FitResult | None = field(default=None, repr=False)
+
+    @property
+    def names(self) -> list[str]:
+        """Parameter names, in the design's column order."""
+        return self.result.names
+
+    @property
+    def beta(self) -> np.ndarray:
+        """Estimates [y unit per regressor unit]."""
+        return self.result.values
 
     @property
     def adequate(self) -> bool:
@@ -297,9 +308,8 @@ def weighted_dwell_fit(X: np.ndarray, names: list[str], ybar: np.ndarray, n: np.
     s2 = (ss_lof + ss_pe) / max(N - X.shape[1], 1)
     cov = res.cov_noise * s2
     r = (ybar - yhat) * sw
-    fit = DwellFit(names=list(names), beta=beta, cov=cov, s2=float(s2), yhat=yhat, std_resid=r,
-                   ss_lof=ss_lof, ss_pe=ss_pe, dof_lof=dof_lof, dof_pe=dof_pe, f_statistic=F, p_value=p,
-                   result=res)
+    fit = DwellFit(result=res, cov=cov, s2=float(s2), yhat=yhat, std_resid=r,
+                   ss_lof=ss_lof, ss_pe=ss_pe, dof_lof=dof_lof, dof_pe=dof_pe, f_statistic=F, p_value=p)
     if time is not None:
         mv = np.ones(len(r), bool) if moving is None else np.asarray(moving, bool)
         grp = np.zeros(len(r), int) if group is None else np.asarray(group)
