@@ -475,6 +475,7 @@ class _Diagnosis:
             unobservable.append({k: e[k] for k in ("effect", "observable_fraction", "absorbed_fraction", "note")}
                                 | ({"absorbed_by": o["absorbed_by"]} if "absorbed_by" in o else {}))
         self.aliases(ranking, obs)
+        self.held_coefficient_aliases(ranking, obs, bare)
         # verdict: a selected effect that passes significance and the held-out gate
         # a gap worth naming: the bare model's lack of fit at 5 %, or a five-sigma effect of
         # its own (a two-sigma effect in a model that fits is not a diagnosis)
@@ -532,6 +533,55 @@ class _Diagnosis:
                 e["coefficient_aliases"] = [{"coefficient": k, "note": "instrument coefficient, not a catalogue "
                                              "effect: held in the bare model so that the effect can be seen; the "
                                              "runs cannot tell them apart"} for k in co]
+
+    def held_coefficient_aliases(self, ranking: list[dict], obs: dict, bare: Fit) -> None:
+        """Instrument coefficients the bare model holds because the runs cannot determine
+        them (:meth:`CampaignModel.select`: aliased, weakly determined) whose column,
+        projected off the bare model, an effect's projected signature matches (|cos| >
+        :data:`ALIAS_COS`): the effect's estimate is then that coefficient as much as the
+        effect (one 45 deg mount with Kip withheld: cross_coupling is Kip + Kpp), so the
+        coefficient is named among its ``aliases`` and in ``coefficient_aliases``.
+
+        Parameters
+        ----------
+        ranking : list of dict
+            Ranking rows, changed in place.
+        obs : dict
+            :meth:`observability` (``projected`` signatures [1]).
+        bare : Fit
+            The bare model (its Jacobian has every column, held ones included).
+        """
+        m = bare.model
+        held = [(k, why) for k, why in bare.held.items()
+                if k in m.params.index and m.roles[m.params.index[k]].kind == "coef"
+                and m.roles[m.params.index[k]].key in NON_CATALOGUE]
+        if not held:
+            return
+        U = bare.basis()
+        cols = {}
+        for k, why in held:
+            col = bare.J[:, m.params.index[k]]
+            v = project_out(U, col)
+            nv, nc = np.linalg.norm(v), np.linalg.norm(col)
+            # a column the bare model takes up (a mount angle takes Kp) is not what an
+            # effect's signature shows: only what is left of it counts
+            if nc > 0 and nv > UNOBSERVABLE_FRACTION * nc:
+                cols[k] = (v / nv, why)
+        for e in ranking:
+            a = obs.get(e["effect"], {}).get("projected")
+            if a is None or not np.any(a):
+                continue
+            a = a / np.linalg.norm(a)
+            for k, (v, why) in cols.items():
+                cs = float(a @ v)
+                if abs(cs) > ALIAS_COS and k not in e["aliases"]:
+                    e["aliases"].append(k)
+                    e.setdefault("alias_cos", {})[k] = cs
+                    if any(x["coefficient"] == k for x in e.get("coefficient_aliases", [])):
+                        continue                    # held for this effect already, and said so
+                    e.setdefault("coefficient_aliases", []).append(
+                        {"coefficient": k, "note": f"instrument coefficient the runs cannot determine ({why}; held "
+                                                   "at 0 in the bare model): the effect's estimate includes it"})
 
     def report(self, bare0: Fit, bare: Fit, final: Fit, sel, steps, ranking, unobservable, verdict) -> dict:
         """bare0: the bare model on its own noise model (its lack of fit is 'before'); bare:
