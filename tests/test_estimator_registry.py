@@ -47,7 +47,7 @@ def test_paper_methods_in_run_and_adoption_order():
 
 def test_toy_estimator_reaches_result_study_and_certificate():
     from accelcal.validation.montecarlo import run_study
-    from accelcal.ops.report import method_text
+    from accelcal.ops.certificate import method_text
     from accelcal.simulate.scenario import load_scenario
 
     sc = load_scenario("demo")

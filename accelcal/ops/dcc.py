@@ -36,7 +36,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
-from .report import ReportError
+from .certificate import ReportError
 
 #: The DCC schema version written, and the folder of each version's shipped schemas.
 SCHEMA_VERSION = "3.1.2"
@@ -319,8 +319,8 @@ def build_dcc(d: dict[str, Any], cfg, dcfg: DccConfig | None = None,
     """
     from lxml import etree
 
-    from .report import COVERAGE_PROBABILITY as _CP_TEXT
-    from .report import _adopted, _k, _u_unknown, certificate_number, method_text
+    from .certificate import COVERAGE_PROBABILITY as _CP_TEXT
+    from .certificate import _adopted, _k, _u_unknown, certificate_number, method_text
     dcfg = dcfg or DccConfig()
     lang = dcfg.language
     r = d["result"]

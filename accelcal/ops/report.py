@@ -46,38 +46,16 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
+from .certificate import (COVERAGE_PROBABILITY, ReportError, _adopted, _k,
+                          _u_unknown, certificate_number, method_text)
 from .plots import (K_COVERAGE, radius_plot, residual_plot, series_residual_plot,
                     sine_residual_plot, thermal_residual_plot)
-
-#: Coverage probability of U = 2u for a normal distribution (EA-4/02 wording).
-COVERAGE_PROBABILITY = "≈ 95 %"
-
-#: What each test kind is, in the certificate's words (../shared/docs/methods.md); how each
-#: is evaluated is the method's own text (:mod:`accelcal.estimators.registry`).
-TEST_TITLES = {
-    "tumble": "Multi-position tumble in the gravity field on a dividing head",
-    "centrifuge": "Precision centrifuge at stepped constant rates",
-    "tilt_rotation": "Tilted rotary table in a thermal chamber",
-    "sine_centrifuge": "Disc centrifuge at a sinusoidal rate",
-}
-
-
-def method_text(test: str) -> tuple[str, str]:
-    """(what the test is, how its runs are evaluated) for the certificate's method section:
-    the texts of the registered estimators that take the test, joined."""
-    from ..estimators import registry
-    return TEST_TITLES.get(test, test), "; ".join(e.certificate for e in registry.for_test(test))
-
 
 #: Science parameters that belong to one test kind (others apply to every certificate).
 PARAMETER_TESTS = {"radius_orders": "centrifuge", "radius_ranges_g": "centrifuge",
                    "mount_angle_tolerance_rad": "centrifuge"}
 
 PLACEHOLDER_CLASS = "placeholder"
-
-
-class ReportError(RuntimeError):
-    """The report cannot be made (one-line reason)."""
 
 
 # ------------------------------------------------------------------ reading --
@@ -264,11 +242,6 @@ def display_value(name: str, value: float | None, std_u: float | None,
     return display_coefficient(name, value, std_u, unit, k or K_COVERAGE)
 
 
-def _k(c) -> float:
-    k = c.get("coverage_factor")
-    return float(k) if k is not None and math.isfinite(float(k)) else K_COVERAGE
-
-
 def _to_second(t) -> str:
     """A stored timestamp as people read it: to the second, with its UTC offset."""
     import datetime as _dt
@@ -296,11 +269,6 @@ def _at_digit(x: float | None, exp: int | None) -> str:
         return _fmt(x, ".6g")
     s = format(Decimal(repr(float(x))).quantize(Decimal(1).scaleb(exp), rounding=ROUND_HALF_UP), "f")
     return s[1:] if s.startswith("-") and float(s) == 0 else s
-
-
-def _u_unknown(c) -> bool:
-    u = c.get("std_uncertainty")
-    return u is None or (isinstance(u, float) and math.isnan(u))
 
 
 def _fmt(x: Any, spec: str = ".4g") -> str:
@@ -372,12 +340,6 @@ def _img(b64: str | None, alt: str) -> str:
     return f"<img alt='{_e(alt)}' src='data:image/png;base64,{b64}'>" if b64 else ""
 
 
-def certificate_number(result_id: str, prefix: str) -> str:
-    """Unique per result: the lab's prefix and the first 12 hex of the result id (the id
-    the CLI prints).  A re-issue of the same result carries the same number."""
-    return f"{prefix}-{result_id[:12].upper()}"
-
-
 # ---------------------------------------------------------------- sections --
 
 def _css_string(s: str) -> str:
@@ -442,10 +404,6 @@ class _Doc:
         out += [f"<section><h2>Annex {chr(ord('A') + k)} {_e(t)}</h2>{b}</section>"
                 for k, (t, b) in enumerate(self.annexes)]
         return "".join(out)
-
-
-def _adopted(d) -> list[dict[str, Any]]:
-    return [c for c in d["coefficients"] if c.get("adopted")]
 
 
 def _sec_certificate(d, cfg, number, issued, customer) -> str:
