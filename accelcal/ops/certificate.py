@@ -1,10 +1,15 @@
-"""What a certificate and its machine-readable twin (the DCC) share: the coverage words,
-the method texts from the estimator registry, the certificate number, which values are
-adopted and how their coverage factor is read (:mod:`accelcal.ops.report` renders the HTML
+"""What a certificate and its machine-readable twin (the DCC) share: the data of a result
+read from the warehouse (:func:`load_report_data`), the coverage words, the method texts
+from the estimator registry, the certificate number, which values are adopted and how
+their coverage factor is read (:mod:`accelcal.ops.report` renders the HTML
 and PDF, :mod:`accelcal.ops.dcc` the DCC XML)."""
 from __future__ import annotations
 
+import datetime as _dt
+import json
 import math
+import re
+from pathlib import Path
 from typing import Any
 
 from .plots import K_COVERAGE
@@ -51,3 +56,177 @@ def certificate_number(result_id: str, prefix: str) -> str:
 
 def _adopted(d) -> list[dict[str, Any]]:
     return [c for c in d["coefficients"] if c.get("adopted")]
+
+
+# ------------------------------------------------------------------ reading --
+
+def _rows(con, sql: str, params: list | None = None) -> list[dict[str, Any]]:
+    cur = con.execute(sql, params or [])
+    cols = [d[0] for d in cur.description]
+    return [dict(zip(cols, r)) for r in cur.fetchall()]
+
+
+def _read(warehouse: str | Path, fn, lock_timeout: float = 60.0):
+    """Call fn(con, path) on a read-only connection, under the writer lock."""
+    import duckdb
+
+    from ..warehouse.db import WarehouseError, check_schema_version, warehouse_lock
+    path = Path(warehouse).expanduser().resolve()
+    if not path.exists():
+        raise ReportError(f"warehouse {path} does not exist")
+    try:
+        with warehouse_lock(path, timeout=lock_timeout):
+            con = duckdb.connect(str(path), read_only=True)
+            try:
+                check_schema_version(con, path)
+                return fn(con, path)
+            finally:
+                con.close()
+    except WarehouseError as e:
+        raise ReportError(str(e)) from None
+    except duckdb.Error as e:
+        raise ReportError(f"cannot read warehouse {path}: {str(e).splitlines()[0]}") from None
+
+
+def load_report_data(warehouse: str | Path, campaign: str | None, result_id: str | None = None,
+                     lock_timeout: float = 60.0) -> dict[str, Any]:
+    """Everything the certificate shows, as plain Python objects.  ``result_id`` may be
+    the short id the CLI prints (a unique prefix); ``campaign`` may then be omitted."""
+    d = _read(warehouse, lambda con, path: _load(con, campaign, result_id, path), lock_timeout)
+    d["runs"] = run_conditions(Path(warehouse).expanduser().resolve().parent, d["lineage"])
+    return d
+
+
+def resolve_result(con, campaign: str | None, result_id: str | None) -> tuple[str, str | None]:
+    """(campaign, full result id or None for the current one) from a campaign and/or an id
+    prefix; a one-line ReportError says what does not match."""
+    if result_id is None:
+        if not campaign:
+            raise ReportError("give a CAMPAIGN or --result")
+        return campaign, None
+    rid = result_id.strip().lower()
+    if not re.fullmatch(r"[0-9a-f]{4,64}", rid):
+        raise ReportError(f"result id {result_id!r} is not a (prefix of a) hexadecimal result id")
+    hits = _rows(con, "SELECT result_id, campaign FROM results WHERE starts_with(result_id, ?) "
+                      "ORDER BY result_id LIMIT 6", [rid])
+    if not hits:
+        raise ReportError(f"no result id starts with {rid!r}")
+    if len(hits) > 1:
+        raise ReportError(f"result id {rid!r} is ambiguous: "
+                          + ", ".join(f"{h['result_id'][:16]} ({h['campaign']})" for h in hits[:5]))
+    hit = hits[0]
+    if campaign and hit["campaign"] != campaign:
+        raise ReportError(f"result {hit['result_id'][:12]} is a result of campaign "
+                          f"{hit['campaign']!r}, not {campaign!r}")
+    return hit["campaign"], hit["result_id"]
+
+
+def _load(con, campaign: str | None, result_id: str | None, path: Path) -> dict[str, Any]:
+    from ..warehouse.db import extras_root_of, load_extras
+    campaign, rid = resolve_result(con, campaign, result_id)
+    acts = _rows(con, "SELECT seq, result_id, activated_at, flow_run_id FROM result_activations "
+                      "WHERE campaign = ? ORDER BY seq", [campaign])
+    cur = _rows(con, "SELECT result_id FROM results_current WHERE campaign = ?", [campaign])
+    current = cur[0]["result_id"] if cur else None
+    if rid is None:
+        if current is None:
+            known = [r["campaign"] for r in _rows(
+                con, "SELECT DISTINCT campaign FROM results_current ORDER BY campaign LIMIT 20")]
+            stored = _rows(con, "SELECT result_id FROM results WHERE campaign = ? "
+                                "ORDER BY computed_at DESC LIMIT 1", [campaign])
+            if stored:
+                raise ReportError(f"campaign {campaign!r} has no current result (simulated data "
+                                  f"for a unit with a real calibration); report it with --result "
+                                  f"{stored[0]['result_id'][:12]}")
+            hint = f" (known: {', '.join(known)})" if known else " (the warehouse holds no results)"
+            raise ReportError(f"no result for campaign {campaign!r}{hint}")
+        rid = current
+    res = _rows(con, "SELECT * FROM results WHERE result_id = ?", [rid])
+    r = res[0]
+    d: dict[str, Any] = {"campaign": campaign, "result": r, "result_id": rid,
+                         "is_current": rid == current, "current_result_id": current,
+                         "activations": acts}
+    for key in ("tests", "rig_ids", "science_parameters", "parameters", "input_sha256",
+                "completeness_reasons"):
+        try:
+            d[key] = json.loads(r.get(key) or "null")
+        except (TypeError, ValueError):
+            d[key] = None
+    # a file beside the warehouse, its bytes checked against the sha256 (WarehouseError)
+    d["extras"] = load_extras(extras_root_of(con, path), r.get("extras_sha256"))
+    d["coefficients"] = _rows(con, "SELECT * FROM coefficient_history WHERE result_id = ? "
+                                   "ORDER BY seq", [rid])
+    d["radii"] = _rows(con, "SELECT * FROM radius_history WHERE result_id = ? ORDER BY seq", [rid])
+    d["adequacy"] = _rows(con, "SELECT * FROM adequacy_history WHERE result_id = ? ORDER BY seq",
+                          [rid])
+    d["budget"] = _rows(con, "SELECT * FROM budget_history WHERE result_id = ? ORDER BY seq", [rid])
+    d["alignment"] = [json.loads(a["record"]) for a in _rows(
+        con, "SELECT record FROM alignment_history WHERE result_id = ? ORDER BY seq", [rid])]
+    d["flags"] = [f["flag"] for f in _rows(
+        con, "SELECT flag FROM flag_history WHERE result_id = ? ORDER BY seq", [rid])]
+    d["lineage"] = _rows(con, """
+        SELECT l.run_id, l.revision, l.sha256, l.source_path, l.parquet_path, l.flow_run_id,
+               l.code_version, f.test, f.rig_id, f.started_at, f.size_bytes, f.simulated,
+               g.drop_name, g.drop_path
+        FROM lineage l
+        LEFT JOIN (SELECT source_path, any_value(drop_name) AS drop_name,
+                          any_value(drop_path) AS drop_path
+                   FROM run_files GROUP BY source_path) g USING (source_path)
+        LEFT JOIN (SELECT sha256, any_value(test) AS test, any_value(rig_id) AS rig_id,
+                          any_value(started_at) AS started_at, any_value(size_bytes) AS size_bytes,
+                          bool_or(simulated) AS simulated
+                   FROM run_files GROUP BY sha256) f USING (sha256)
+        WHERE l.result_id = ? ORDER BY f.started_at, l.run_id""", [rid])
+    ex = _rows(con, "SELECT why, acted_at, acted_by FROM excluded_campaigns WHERE campaign = ?",
+               [campaign])
+    d["excluded"] = ex[0] if ex else None
+    d["audit"] = _rows(con, "SELECT seq, action, why, acted_at, acted_by FROM campaign_actions "
+                            "WHERE campaign = ? ORDER BY seq", [campaign])
+    return d
+
+
+def _parse_time(s: str | None) -> _dt.datetime | None:
+    try:
+        return _dt.datetime.fromisoformat(str(s)) if s else None
+    except ValueError:
+        return None
+
+
+def run_conditions(root: Path, lineage: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per input run, from its Parquet copy: when its data were taken (started_at to the
+    last reading) and the conditions it logged (temperatures, site).  A run whose copy is
+    gone keeps only what the warehouse row says."""
+    import numpy as np
+    import pyarrow.parquet as pq
+
+    from ..schemas.tables import META_KEY
+    out = []
+    for x in lineage:
+        start = _parse_time(x.get("started_at"))
+        row: dict[str, Any] = {"run_id": x.get("run_id"), "test": x.get("test"),
+                               "rig_id": x.get("rig_id"), "start": start, "end": None,
+                               "data": False}
+        pqp = root / x["parquet_path"] if x.get("parquet_path") else None
+        if pqp is not None and pqp.is_file():
+            try:
+                pf = pq.ParquetFile(pqp)
+                meta = json.loads((pf.schema_arrow.metadata or {})[META_KEY]).get("meta", {})
+                names = set(pf.schema_arrow.names)
+                cols = [c for c in ("time_s", "temp_c", "temp_set_c") if c in names]
+                t = pf.read(columns=cols)
+                tmax = float(np.nanmax(t.column("time_s").to_numpy(zero_copy_only=False)))
+                row.update(data=True, g_local=meta.get("g_local_m_s2"),
+                           latitude=meta.get("site_latitude_deg"),
+                           ambient=meta.get("ambient_temp_c"), operator=meta.get("operator"))
+                if start is not None and math.isfinite(tmax):
+                    row["end"] = start + _dt.timedelta(seconds=tmax)
+                for c in ("temp_c", "temp_set_c"):
+                    if c in cols:
+                        v = t.column(c).to_numpy(zero_copy_only=False).astype(float)
+                        v = v[np.isfinite(v)]
+                        if v.size:
+                            row[c] = (float(v.min()), float(v.mean()), float(v.max()))
+            except Exception as e:      # a damaged copy: say so, keep the certificate
+                row["error"] = f"{type(e).__name__}: {e}"[:200]
+        out.append(row)
+    return out

@@ -2,7 +2,7 @@
 
 ``accelcal report ... --dcc`` writes ``<report>.dcc.xml``; ``accelcal verify FILE`` checks
 one.  The DCC is built from the same data the certificate shows
-(:func:`accelcal.ops.report.load_report_data`) and the same lab facts (accelcal.toml):
+(:func:`accelcal.ops.certificate.load_report_data`) and the same lab facts (accelcal.toml):
 
 - administrativeData: software (accelcal and its version), core data (country, language,
   unique identifier = the certificate number, performance dates from the runs' data),
@@ -300,7 +300,7 @@ def build_dcc(d: dict[str, Any], cfg, dcfg: DccConfig | None = None,
     Parameters
     ----------
     d : dict
-        :func:`accelcal.ops.report.load_report_data` of the result.
+        :func:`accelcal.ops.certificate.load_report_data` of the result.
     cfg : accelcal.config.LabConfig
         The lab's facts (name, address, approver, customer, number prefix, traceability).
     dcfg : DccConfig, optional
