@@ -21,7 +21,7 @@ from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
-from ..tasks import contracts as _contracts
+from ..schemas import dropformat
 from ..tasks import progress
 from ..tasks import science as _science
 from ..tasks import store as _store
@@ -394,11 +394,11 @@ def _body(wh, drops, summary, steps, flow_run_id, parameters, cv, settle, B, W, 
         scanned: dict[str, list] = {}
         for drop in drops:
             try:
-                scanned[drop] = _contracts.scan_drop(drop)
+                scanned[drop] = dropformat.scan_drop(drop)
             except OSError as e:
                 raise PipelineError(os_error_text(e, "cannot list drop")) from None
         unique = {e.path: e for es in scanned.values() for e in es}
-        ready, held_all = _contracts.settle_wait(list(unique.values()), settle)
+        ready, held_all = dropformat.settle_wait(list(unique.values()), settle)
         ready_at = {e.path: e for e in ready}
         held_at = {e.path: why for e, why in held_all}
         by_drop = {d: [ready_at[e.path] for e in scanned[d] if e.path in ready_at] for d in drops}
