@@ -30,7 +30,8 @@ from typing import Any
 from ..schemas import dropformat
 from ..tasks import progress
 from ..fileio import StoreError, os_error_text, path_text
-from ..warehouse.db import Warehouse, WarehouseError
+from ..warehouse.db import Warehouse
+from ..warehouse.errors import WarehouseError
 from ..warehouse.summary import fill_campaigns
 from ..warehouse.lineage import code_version as _code_version
 from ..warehouse.lineage import result_id as _result_id
