@@ -257,7 +257,7 @@ def _execute(drops: list[str], warehouse: str, args, console, create: bool = Fal
              allow_simulated: bool = False) -> int:
     from .fileio import StoreError
     from .flows.pipeline import PipelineError, quiet_prefect
-    from .warehouse.db import WarehouseError
+    from .warehouse.errors import WarehouseError
     # Prefect logs a failed task or flow with its traceback; the CLI reports every failure
     # itself in one line, so Prefect's console says nothing unless asked (--log-level, or
     # PREFECT_LOGGING_LEVEL in the environment).

@@ -986,7 +986,7 @@ def p_readers(tmp, args):
         res.crashed += 1
         res.note(f"long reader: run exit {rc}, reader {rd.returncode}: {err.strip()[-200:]}")
     rd = _popen_accelcal("sql", SLOW_QUERY.format(n=args.slow_rows), "-w", wh, marker="q")
-    from accelcal.warehouse.db import lock_holders
+    from accelcal.warehouse.lock import lock_holders
     t_end = time.time() + 60
     while time.time() < t_end and not any(m == "READ" for _, m in lock_holders(str(wh) + ".lock")):
         time.sleep(0.05)

@@ -79,10 +79,11 @@ def measure(drop: str, repeat: int) -> dict:
 
     from accelcal.flows.pipeline import batch_bytes, batch_files, file_batches
     from accelcal.schemas import suites
-    from accelcal.tasks import contracts
+    from accelcal.schemas.dropformat import parse_runs, scan_drop
+    from accelcal.schemas.tables import write_run_parquet
     from accelcal.tasks.validate import intake_batch
 
-    entries = contracts.scan_drop(os.path.realpath(drop))
+    entries = scan_drop(os.path.realpath(drop))
     batches = file_batches(entries, batch_files(), batch_bytes())
     paths = [[e.path for e in b] for b in batches]
     out: dict = {"files": len(entries), "batches": len(batches)}
@@ -103,15 +104,15 @@ def measure(drop: str, repeat: int) -> dict:
     for b in paths:
         by_batch.append([(raws[k + i], p) for i, p in enumerate(b)])
         k += len(b)
-    out["parse"] = _cpu_best(lambda: [contracts.parse_runs(x) for x in by_batch], repeat)
-    runs = [contracts.parse_runs(x) for x in by_batch]
+    out["parse"] = _cpu_best(lambda: [parse_runs(x) for x in by_batch], repeat)
+    runs = [parse_runs(x) for x in by_batch]
     tmp = Path(tempfile.mkdtemp(prefix="bench-intake-budget-"))
     try:
         def parquet():
             root = Path(tempfile.mkdtemp(dir=tmp))
             for b in runs:
                 for r in b:
-                    contracts.write_run_parquet(r, root)
+                    write_run_parquet(r, root)
         out["parquet"] = _cpu_best(parquet, repeat)
 
         def parquet_per_batch(row_group_per_run: bool):

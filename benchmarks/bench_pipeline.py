@@ -135,11 +135,11 @@ def warm_intake(drops: list[str], repeat: int) -> dict:
     Parquet files are written in threads beside the parsing), so wall time gained by
     running two things at once is told apart from work saved."""
     from accelcal.flows.pipeline import batch_bytes, batch_files, file_batches
-    from accelcal.tasks import contracts
+    from accelcal.schemas.dropformat import scan_drop
     from accelcal.tasks.validate import intake_batch
     batches = []
     for d in drops:
-        bs = file_batches(contracts.scan_drop(os.path.realpath(d)), batch_files(), batch_bytes())
+        bs = file_batches(scan_drop(os.path.realpath(d)), batch_files(), batch_bytes())
         batches += [(d, es, None if len(bs) == 1 else k) for k, es in enumerate(bs)]
     best = None
     for _ in range(repeat):
@@ -165,8 +165,8 @@ def floor(drops: list[str], repeat: int) -> dict:
     import numpy as np
     import pyarrow.csv as pacsv
 
-    from accelcal.tasks import contracts
-    files = [e.path for d in drops for e in contracts.scan_drop(os.path.realpath(d))
+    from accelcal.schemas.dropformat import scan_drop
+    files = [e.path for d in drops for e in scan_drop(os.path.realpath(d))
              if e.refusal is None]
 
     def skip_rows(p: str) -> int:

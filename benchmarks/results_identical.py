@@ -110,7 +110,7 @@ def dump_warehouse(db: Path) -> dict:
     if "extras_sha256" in {c for (c,) in con.execute(
             "SELECT column_name FROM information_schema.columns WHERE table_name = 'results'"
             ).fetchall()}:
-        from accelcal.warehouse.db import extras_root_of, read_extras_text
+        from accelcal.warehouse.extras import extras_root_of, read_extras_text
         root = extras_root_of(con, db)
 
         def extras_text(sha):

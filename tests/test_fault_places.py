@@ -99,9 +99,9 @@ def test_disk_full_in_the_parquet_store_stops_the_run_then_a_rerun_equals_a_clea
     """A full disk is simulated where the Parquet store is written (the real tmpfs probe is
     in bench_faults): the run stops with StoreError, records no verdict for files it could
     not store, and after 'space is freed' a re-run leaves the clean run's warehouse."""
-    from accelcal.tasks import contracts
+    from accelcal.schemas import tables
     drop, _, want = clean
-    real = contracts.resolve("write_run_parquet")
+    real = tables.write_run_parquet
     calls = []
 
     def full(run, root):
@@ -110,12 +110,12 @@ def test_disk_full_in_the_parquet_store_stops_the_run_then_a_rerun_equals_a_clea
             raise OSError(errno.ENOSPC, "No space left on device", str(Path(root) / "x.parquet"))
         return real(run, root)
     wh = tmp_path / "lab.duckdb"
-    monkeypatch.setitem(contracts._OVERRIDES, "write_run_parquet", full)
+    monkeypatch.setattr(tables, "write_run_parquet", full)
     with pytest.raises(StoreError) as e:
         run_pipeline([drop], wh, **FAST)
     assert "No space left" in str(e.value) and "free space" in str(e.value)
     assert "\n" not in str(e.value)
-    monkeypatch.delitem(contracts._OVERRIDES, "write_run_parquet")
+    monkeypatch.setattr(tables, "write_run_parquet", real)
     run_pipeline([drop], wh, **FAST)
     assert warehouse_contents(wh) == want
 

@@ -23,7 +23,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from accelcal.warehouse.db import extras_root_of
+from accelcal.warehouse.extras import extras_root_of
 
 REPO = Path(__file__).resolve().parents[1]
 

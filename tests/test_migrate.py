@@ -20,7 +20,8 @@ import pytest
 
 from accelcal.flows.pipeline import run_pipeline
 from accelcal.warehouse import migrate as mig
-from accelcal.warehouse.db import Warehouse, WarehouseError
+from accelcal.warehouse.db import Warehouse
+from accelcal.warehouse.errors import WarehouseError
 
 from test_faults import warehouse_contents
 

@@ -85,7 +85,7 @@ def test_every_coefficient_traces_to_raw_bytes(sample_run):
     with wh.connect() as con:
         assert verify_lineage(con) == []
     # the Parquet copies the campaigns were read from carry the raw files' sha256
-    from accelcal.tasks.contracts import read_run_parquet
+    from accelcal.schemas.tables import read_run_parquet
     for r in wh.query("SELECT sha256, parquet_path FROM runs WHERE status = 'accepted'"):
         assert read_run_parquet(wh.root / r["parquet_path"]).sha256 == r["sha256"]
 

@@ -47,31 +47,48 @@ def _drop_of_copies(src: Path, dst: Path, copies: int) -> Path:
 
 
 class _LiveRuns:
-    """Counts parsed runs (RunFile objects from the parser -- read_run, or parse_run on an
-    open file as ingest calls it -- or from Parquet) alive at once."""
+    """Counts parsed runs (RunFile objects from the parser -- read_run, parse_run on an
+    open file, parse_runs on files held as bytes, as ingest calls them -- or from Parquet)
+    alive at once.  The schema functions are replaced with ``monkeypatch.setattr`` on
+    their modules, where ingest and science look them up at call time."""
 
-    def __init__(self):
-        from accelcal.tasks import contracts
-        self.contracts, self.live, self.peak = contracts, weakref.WeakSet(), 0
-        self.real = {n: contracts.resolve(n) for n in ("read_run", "parse_run", "read_run_parquet")}
+    def __init__(self, monkeypatch):
+        from accelcal.schemas import dropformat, tables
+        self.monkeypatch, self.live, self.peak = monkeypatch, weakref.WeakSet(), 0
+        self.real = {(m, n): getattr(m, n) for m, n in (
+            (dropformat, "read_run"), (dropformat, "parse_run"), (dropformat, "parse_runs"),
+            (tables, "read_run_parquet"))}
 
-    def _wrap(self, name):
-        def f(*a, **kw):
-            run = self.real[name](*a, **kw)
-            gc.collect()      # count runs still reachable, not garbage awaiting the collector
-            self.live.add(run)
-            self.peak = max(self.peak, len(self.live))
+    def _count(self, run) -> None:
+        gc.collect()      # count runs still reachable, not garbage awaiting the collector
+        self.live.add(run)
+        self.peak = max(self.peak, len(self.live))
+
+    def _wrap(self, key):
+        real = self.real[key]
+        if key[1] == "parse_runs":
+            def f(items):
+                out = real(items)
+                for run in out:
+                    if not isinstance(run, BaseException):
+                        self._count(run)
+                return out
+            return f
+
+        def g(*a, **kw):
+            run = real(*a, **kw)
+            self._count(run)
             return run
-        return f
+        return g
 
     def __enter__(self):
-        for n in self.real:
-            self.contracts._OVERRIDES[n] = self._wrap(n)
+        for key in self.real:
+            self.monkeypatch.setattr(key[0], key[1], self._wrap(key))
         return self
 
     def __exit__(self, *exc):
-        for n in self.real:
-            self.contracts._OVERRIDES.pop(n, None)
+        for (mod, name), fn in self.real.items():
+            self.monkeypatch.setattr(mod, name, fn)
 
 
 @pytest.mark.slow
@@ -84,13 +101,13 @@ def test_parsed_runs_alive_at_once_bounded_by_batch_not_drop(tmp_path, examples,
     monkeypatch.setenv("ACCELCAL_BATCH_FILES", "11")
     monkeypatch.setenv("ACCELCAL_IN_FLIGHT", "1")
     gc.collect()
-    with _LiveRuns() as streamed:
+    with _LiveRuns(monkeypatch) as streamed:
         s = run_pipeline([drop], tmp_path / "a" / "lab.duckdb", engine="local")
     assert s["drops"][0]["files"] == 88 and s["drops"][0]["accepted"] == 88
     assert [c["status"] for c in s["campaigns"]] == ["new"]
     monkeypatch.setenv("ACCELCAL_BATCH_FILES", "100000")
     gc.collect()
-    with _LiveRuns() as whole:
+    with _LiveRuns(monkeypatch) as whole:
         run_pipeline([drop], tmp_path / "b" / "lab.duckdb", engine="local")
     print(f"\nparsed runs alive at once: {streamed.peak} streamed (batches of 11), "
           f"{whole.peak} in one batch")

@@ -185,7 +185,8 @@ def test_extras_are_a_content_addressed_file_the_row_names(wh):
     import hashlib
     import json
 
-    from accelcal.warehouse.db import ExtrasError, extras_file, load_extras, write_extras
+    from accelcal.warehouse.errors import ExtrasError
+    from accelcal.warehouse.extras import extras_file, load_extras, write_extras
     wh.record_runs([rec("a" * 64, "/d/x.csv")])
     store(wh, result())
     sha = wh.query("SELECT extras_sha256 FROM results")[0]["extras_sha256"]

@@ -3,7 +3,13 @@
 ``run_pipeline(drops, warehouse)`` is the entry point.  With ``engine='prefect'``
 (the default) the steps run as Prefect tasks inside the ``accelcal-pipeline``
 flow; with ``engine='local'`` the same composition calls the plain functions
-directly (no Prefect server; used by fast tests and the benchmark).
+directly (no Prefect server; used by fast tests and the benchmark).  The two are the
+``Steps`` of :mod:`accelcal.flows.steps`.
+
+Read :func:`pipeline_body` top to bottom: the intake loop (:func:`_intake`: list and
+settle the drops, ingest + validate in batches, record each batch's verdicts), then the
+science loop (:func:`_science`: plan the touched campaigns, compute them a few a task,
+store them a transaction at a time), then the summary and the snapshot.
 
 Campaigns touched by the drops are processed with ALL their current runs in the
 warehouse (newest accepted revision of each run_id, earlier drops included),
@@ -17,20 +23,19 @@ import os
 import time
 import uuid
 from collections import deque
+from dataclasses import dataclass, field
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
-from ..tasks import contracts as _contracts
+from ..schemas import dropformat
 from ..tasks import progress
-from ..tasks import science as _science
-from ..tasks import store as _store
-from ..tasks import validate as _validate
 from ..fileio import StoreError, os_error_text, path_text
-from ..warehouse.db import Warehouse, WarehouseError
+from ..warehouse.db import Warehouse
+from ..warehouse.errors import WarehouseError
 from ..warehouse.summary import fill_campaigns
 from ..warehouse.lineage import code_version as _code_version
 from ..warehouse.lineage import result_id as _result_id
+from .steps import LocalSteps, PrefectSteps, Steps
 
 ENGINES = ("prefect", "local")
 TASK_RUNNERS = ("thread", "dask")
@@ -38,35 +43,6 @@ TASK_RUNNERS = ("thread", "dask")
 
 class PipelineError(RuntimeError):
     """The pipeline could not work at all (bad arguments, unusable warehouse)."""
-
-
-class _Done:
-    """A finished 'future' for the local engine."""
-
-    def __init__(self, fn, *a, **kw):
-        try:
-            self._value, self._exc = fn(*a, **kw), None
-        except Exception as e:  # re-raised by result(), as a Prefect future would
-            self._value, self._exc = None, e
-
-    def result(self):
-        if self._exc is not None:
-            raise self._exc
-        return self._value
-
-
-def _local_steps(pool=None) -> SimpleNamespace:
-    """The plain functions; with ``pool`` (a process pool) the two heavy steps -- a
-    batch's ingest + validate, a chunk's load + science -- run in its worker processes,
-    the rest (every warehouse write) in the flow process."""
-    submit = _Done if pool is None else pool.submit
-    return SimpleNamespace(
-        engine="local",
-        known_keys=_store.known_keys,
-        submit_intake=lambda *a: submit(_validate.intake_batch, *a),
-        record_drop=_store.record_drop,
-        submit_campaigns=lambda *a: submit(_science.load_and_process, *a),
-        store_campaigns=_store.store_campaigns)
 
 
 def local_workers() -> int:
@@ -101,35 +77,6 @@ def _local_pool(workers: int):
         pool.shutdown(wait=True, cancel_futures=True)
         raise
     pool.shutdown(wait=True)
-
-
-def _prefect_steps() -> SimpleNamespace:
-    """The steps as Prefect tasks.  The two that run in the flow process (record, store)
-    get their large arguments (a batch's records, computed results) under ``quote``, the
-    two submitted to workers theirs in a ``Sealed`` (accelcal.tasks): Prefect otherwise
-    walks every nested object of a task's arguments twice (resolving futures, collecting
-    task inputs) -- 15-19 s of the flow process's CPU at 200 campaigns for record and
-    store, ~1 s for the submitted tasks, taken from the workers on a machine with as many
-    workers as cores."""
-    from prefect.utilities.annotations import quote
-
-    from ..tasks import Sealed, prefect_tasks
-    t = prefect_tasks()
-
-    def submit_intake(drop, batch, pq_root, root, known, docs, part, allow_simulated):
-        return t.intake_batch.submit(drop, Sealed(batch), pq_root, root, Sealed(known), docs,
-                                     part, allow_simulated)
-
-    return SimpleNamespace(
-        engine="prefect",
-        known_keys=t.known_keys,
-        submit_intake=submit_intake,
-        record_drop=lambda wh, ing, fid: t.record_drop(wh, quote(ing), fid),
-        # the submitted tasks' large arguments are Sealed, not quoted: they travel to
-        # the workers through Dask, which would unmake a quote
-        submit_campaigns=lambda root, chunks, parameters: t.load_and_process.submit(
-            root, Sealed(chunks), Sealed(parameters)),
-        store_campaigns=lambda wh, items, **kw: t.store_campaigns(wh, quote(items), **kw))
 
 
 def check_drops(drops: list[str]) -> list[str]:
@@ -289,18 +236,36 @@ def settle_seconds() -> float:
         return SETTLE_S
 
 
+@dataclass
+class _Run:
+    """What every stage of one run reads: who it is, its parameters and bounds, its clock."""
+    steps: Steps
+    flow_run_id: str
+    parameters: dict[str, Any]
+    code_version: str
+    allow_simulated: bool
+    batch_files: int                 # files per ingest + validate task, at most
+    in_flight: int                   # tasks (or campaigns' worth of tasks) submitted ahead
+    timings: dict[str, float] = field(default_factory=dict)
+
+    def tick(self, name: str, t0: float, dt: float | None = None) -> None:
+        """Add the time since ``t0`` (or ``dt`` seconds) to ``timings[name]``."""
+        self.timings[name] = self.timings.get(name, 0.0) + (
+            time.perf_counter() - t0 if dt is None else dt)
+
+
 def pipeline_body(drops: list[str], warehouse: str, *, lock_timeout: float = 60.0,
-                  parameters: dict[str, Any] | None = None, steps: SimpleNamespace,
+                  parameters: dict[str, Any] | None = None, steps: Steps,
                   flow_run_id: str, settle: float | None = None,
                   snapshot: bool = True, allow_simulated: bool = False) -> dict[str, Any]:
     """The composition shared by both engines.  Returns a JSON-able summary.
 
     Streams: each drop's files go in batches (ingest + validate as one task, possibly
     on another worker), each batch's verdicts are recorded in one transaction as soon
-    as it is done, in file order; then each touched campaign is loaded and computed as
-    one task and stored as soon as it is done.  At most ``in_flight()`` batches or
-    campaigns are held at once, so memory is bounded by the batch size, not the drop.
-    Only the flow process writes to the warehouse.
+    as it is done, in file order (:func:`_intake`); then each touched campaign is loaded
+    and computed in a task and stored as soon as it is done (:func:`_science`).  At most
+    ``in_flight()`` batches or campaigns are held at once, so memory is bounded by the
+    batch size, not the drop.  Only the flow process writes to the warehouse.
 
     Files carrying the simulator's mark are not taken in unless ``allow_simulated``
     (each drop's ``simulated_held`` lists them); even then a simulated result is never
@@ -313,25 +278,27 @@ def pipeline_body(drops: list[str], warehouse: str, *, lock_timeout: float = 60.
     a read-only copy ``<stem>-snapshot.duckdb`` is published for readers outside accelcal.
     """
     parameters = dict(parameters or {})
-    timings: dict[str, float] = {}
     _quiet_libraries()
-
-    def tick(name, t0, dt=None):
-        timings[name] = timings.get(name, 0.0) + (time.perf_counter() - t0 if dt is None else dt)
-
     wh = Warehouse(warehouse, lock_timeout=lock_timeout)
-    cv = _code_version()
+    run = _Run(steps=steps, flow_run_id=flow_run_id, parameters=parameters,
+               code_version=_code_version(), allow_simulated=allow_simulated,
+               batch_files=batch_files(), in_flight=in_flight())
     summary: dict[str, Any] = {"warehouse": str(wh.path), "flow_run_id": flow_run_id,
-                               "code_version": cv, "parameters": parameters,
-                               "drops": [], "campaigns": [], "timings": timings,
+                               "code_version": run.code_version, "parameters": parameters,
+                               "drops": [], "campaigns": [], "timings": run.timings,
                                "warnings": [], "snapshot": None}
-    B, W = batch_files(), in_flight()
     settle = settle_seconds() if settle is None else settle
     with wh.lock():
         wh.init()
         summary["removed_temp_files"] = len(wh.remove_stale_temps())
-        _body(wh, drops, summary, steps, flow_run_id, parameters, cv, settle, B, W, tick,
-              allow_simulated)
+        with _Session(wh) as sess:
+            touched = _intake(wh, sess, drops, settle, summary["drops"], run)
+            _science(wh, sess, sorted(touched), summary["campaigns"], run)
+            # what the warehouse now says about these campaigns
+            t0 = time.perf_counter()
+            sess.touch()
+            fill_campaigns(wh, summary["campaigns"])
+            run.tick("summary", t0)
         wrote = any(d["new"] or d["rechecked"] for d in summary["drops"]) or any(
             c["status"] in ("new", "reactivated") for c in summary["campaigns"])
         if snapshot and (wrote or not wh.snapshot_path.exists()):
@@ -340,215 +307,230 @@ def pipeline_body(drops: list[str], warehouse: str, *, lock_timeout: float = 60.
                 summary["snapshot"] = str(wh.publish_snapshot())
             except WarehouseError as e:
                 summary["warnings"].append(f"the results are stored, but {e}")
-            tick("snapshot", t0)
+            run.tick("snapshot", t0)
     return summary
 
 
-def _body(wh, drops, summary, steps, flow_run_id, parameters, cv, settle, B, W, tick,
-          allow_simulated: bool = False) -> None:
-    with _Session(wh) as sess:
-        touched: set[str] = set()
+# ------------------------------------------------- steps 1-3: the intake loop --
 
-        # -- 1-3: ingest + validate in batches (tasks), record each batch (flow process)
-        pending: deque = deque()
-
-        def record_next() -> None:
-            entry, fut = pending.popleft()
+def _intake(wh: Warehouse, sess: _Session, drops: list[str], settle: float,
+            entries: list[dict], run: _Run) -> set[str]:
+    """Each drop's settled files, in batches: ingest + validate each batch (a submitted
+    task), record its verdicts (flow process) in file order.  Appends one entry per drop
+    to ``entries``; returns the campaigns the accepted files belong to."""
+    by_drop, held_by, empty = _settled_files(drops, settle, run)
+    last = {d: i for i, d in enumerate(drops)}
+    pending: deque = deque()             # (drop entry, future of its batch), in file order
+    touched: set[str] = set()
+    for i, drop in enumerate(drops):
+        sess.touch()
+        known = run.steps.known_keys(wh, drop)
+        entry = {"drop": Path(drop).name, "path": drop, "files": 0, "accepted": 0,
+                 "refused": 0, "new": 0, "refused_files": [], "rechecked": 0,
+                 "errors": [], "held": held_by[drop], "warnings": [], "docs": None,
+                 "simulated_held": []}
+        entries.append(entry)
+        if drop in empty:
+            entry["warnings"].append(f"drop {drop} holds no *.csv file: nothing to do")
+        # each drop's list is let go once it is submitted: what the run holds of the
+        # listing shrinks as it goes (a fleet's drops list ~10 files a campaign)
+        paths = by_drop.pop(drop) if last[drop] == i else by_drop[drop]
+        progress.stage("ingest", len(paths))
+        batches = file_batches(paths, run.batch_files, batch_bytes()) or [[]]
+        nb = len(batches)
+        progress.stage("validate", nb)
+        progress.stage("record", nb)
+        for k, batch in enumerate(batches):
+            bset = {path_text(e.path) for e in batch}
+            kb = {key: v for key, v in known.items() if key[1] in bset}
             t0 = time.perf_counter()
-            try:
-                ing = fut.result()
-            except (StoreError, WarehouseError):
-                raise                # a place the run writes is unusable: stop, say where
-            except Exception as e:   # a bug in a step, not a bad file: report, record nothing
-                entry["errors"].append(f"batch failed: {type(e).__name__}: {e}")
-                tick("ingest+validate (wait)", t0)
-                return
-            tick("ingest+validate (wait)", t0)
-            tick("ingest+validate", 0.0, ing.seconds)
-            for k, v in (getattr(ing, "stage_seconds", None) or {}).items():
-                tick(k, 0.0, v)      # the same time by step: "ingest", "validate"
-            t0 = time.perf_counter()
-            sess.touch()
-            stored = steps.record_drop(wh, ing, flow_run_id)
-            tick("record", t0)
-            new_keys = {(r.sha256, r.source_path) for r in ing.records if r.new_content}
-            for r in stored:
-                entry["files"] += 1
-                if r["status"] == "accepted":
-                    entry["accepted"] += 1
-                    if r["campaign"]:
-                        touched.add(r["campaign"])
-                elif r["status"] == "refused":
-                    entry["refused"] += 1
-                    entry["refused_files"].append({"path": r["source_path"], "reason": r["reason"]})
-                entry["new"] += (r["sha256"], r["source_path"]) in new_keys
-            entry["rechecked"] += sum(1 for r in ing.records if r.rechecked)
-            entry["errors"].extend(ing.errors)
-            entry["simulated_held"].extend(ing.simulated_held)
-            entry["held"].extend(ing.held)
-            if ing.docs and entry["docs"] is None:
-                entry["docs"] = ing.docs
+            pending.append((entry, run.steps.submit_intake(
+                drop, batch, str(wh.parquet_root), str(wh.root), kb, str(wh.docs_root),
+                None if nb == 1 else k, run.allow_simulated)))
+            run.tick("ingest+validate (submit)", t0)
+            while len(pending) >= run.in_flight:
+                touched |= _record_batch(wh, sess, *pending.popleft(), run)
+    while pending:
+        touched |= _record_batch(wh, sess, *pending.popleft(), run)
+    for e in entries:
+        e["refused_files"].sort(key=lambda r: r["path"])
+        e["simulated_held"].sort(key=lambda r: r["path"])
+    return touched
 
-        # every drop listed first, and one settle wait for all of them
-        t0 = time.perf_counter()
-        scanned: dict[str, list] = {}
-        for drop in drops:
-            try:
-                scanned[drop] = _contracts.scan_drop(drop)
-            except OSError as e:
-                raise PipelineError(os_error_text(e, "cannot list drop")) from None
-        unique = {e.path: e for es in scanned.values() for e in es}
-        ready, held_all = _contracts.settle_wait(list(unique.values()), settle)
-        ready_at = {e.path: e for e in ready}
-        held_at = {e.path: why for e, why in held_all}
-        by_drop = {d: [ready_at[e.path] for e in scanned[d] if e.path in ready_at] for d in drops}
-        held_by = {d: [f"{path_text(e.path)}: {held_at[e.path]}" for e in scanned[d]
-                       if e.path in held_at] for d in drops}
-        empty = {d for d in drops if not scanned[d]}
-        # only by_drop is kept, and each drop's list is let go once it is submitted: what
-        # the run holds of the listing shrinks as it goes (a fleet's drops list ~10 files
-        # a campaign)
-        del scanned, unique, ready, held_all, ready_at, held_at
-        tick("discover", t0)
-        last = {d: i for i, d in enumerate(drops)}
-        for i, drop in enumerate(drops):
-            sess.touch()
-            known = steps.known_keys(wh, drop)
-            entry = {"drop": Path(drop).name, "path": drop, "files": 0, "accepted": 0,
-                     "refused": 0, "new": 0, "refused_files": [], "rechecked": 0,
-                     "errors": [], "held": held_by[drop], "warnings": [], "docs": None,
-                     "simulated_held": []}
-            summary["drops"].append(entry)
-            if drop in empty:
-                entry["warnings"].append(f"drop {drop} holds no *.csv file: nothing to do")
-            paths = by_drop.pop(drop) if last[drop] == i else by_drop[drop]
-            progress.stage("ingest", len(paths))
-            batches = file_batches(paths, B, batch_bytes()) or [[]]
-            nb = len(batches)
-            progress.stage("validate", nb)
-            progress.stage("record", nb)
-            for k, batch in enumerate(batches):
-                bset = {path_text(e.path) for e in batch}
-                kb = {key: v for key, v in known.items() if key[1] in bset}
-                t0 = time.perf_counter()
-                pending.append((entry, steps.submit_intake(
-                    drop, batch, str(wh.parquet_root), str(wh.root), kb, str(wh.docs_root),
-                    None if nb == 1 else k, allow_simulated)))
-                tick("ingest+validate (submit)", t0)
-                while len(pending) >= W:
-                    record_next()
-        while pending:
-            record_next()
-        for e in summary["drops"]:
-            e["refused_files"].sort(key=lambda r: r["path"])
-            e["simulated_held"].sort(key=lambda r: r["path"])
 
-        # -- 4: group by campaign; plan what needs computing
-        campaigns = sorted(touched)
-        progress.stage("science", len(campaigns))
-        progress.stage("store", len(campaigns))
-        P = campaigns_per_plan()
+def _settled_files(drops: list[str], settle: float, run: _Run):
+    """Every drop listed first, and one settle wait for all of them: (drop -> its settled
+    entries, drop -> its held files as text, the drops that list no file)."""
+    t0 = time.perf_counter()
+    scanned: dict[str, list] = {}
+    for drop in drops:
+        try:
+            scanned[drop] = dropformat.scan_drop(drop)
+        except OSError as e:
+            raise PipelineError(os_error_text(e, "cannot list drop")) from None
+    unique = {e.path: e for es in scanned.values() for e in es}
+    ready, held_all = dropformat.settle_wait(list(unique.values()), settle)
+    ready_at = {e.path: e for e in ready}
+    held_at = {e.path: why for e, why in held_all}
+    by_drop = {d: [ready_at[e.path] for e in scanned[d] if e.path in ready_at] for d in drops}
+    held_by = {d: [f"{path_text(e.path)}: {held_at[e.path]}" for e in scanned[d]
+                   if e.path in held_at] for d in drops}
+    empty = {d for d in drops if not scanned[d]}
+    run.tick("discover", t0)
+    return by_drop, held_by, empty
 
-        # -- 5-8: load + science, a few campaigns per task; store each chunk's results
-        inflight: deque = deque()
 
-        def store_next() -> None:
-            chunk, fut = inflight.popleft()
-            t0 = time.perf_counter()
-            try:
-                outcomes = fut.result()
-            except Exception as e:           # the task itself failed: every campaign in it
-                outcomes = [(None, f"{type(e).__name__}: {e}")] * len(chunk)
-            tick("science (wait)", t0)
-            for (entry, inputs), (result, info) in zip(chunk, outcomes):
-                progress.advance("science", note=entry["campaign"])
-                if result is None:
-                    entry["status"], entry["error"] = "failed", info
-                    progress.advance("store", note=entry["campaign"])
-                    continue
-                for k, v in info.items():
-                    tick(k, 0.0, v)
-                missing = set(result.input_sha256) - {i["sha256"] for i in inputs}
-                if missing:
-                    result.flags.append(
-                        f"science reported inputs not handed to it: {sorted(missing)}")
-                to_store.append((entry, result, inputs))
-            if len(to_store) >= S:
-                flush_store()
+def _record_batch(wh: Warehouse, sess: _Session, entry: dict, fut, run: _Run) -> set[str]:
+    """Wait for one batch's ingest + validate, record its verdicts in one transaction and
+    count them into the drop's ``entry``; returns the campaigns of its accepted files."""
+    t0 = time.perf_counter()
+    try:
+        ing = fut.result()
+    except (StoreError, WarehouseError):
+        raise                # a place the run writes is unusable: stop, say where
+    except Exception as e:   # a bug in a step, not a bad file: report, record nothing
+        entry["errors"].append(f"batch failed: {type(e).__name__}: {e}")
+        run.tick("ingest+validate (wait)", t0)
+        return set()
+    run.tick("ingest+validate (wait)", t0)
+    run.tick("ingest+validate", 0.0, ing.seconds)
+    for k, v in (getattr(ing, "stage_seconds", None) or {}).items():
+        run.tick(k, 0.0, v)      # the same time by step: "ingest", "validate"
+    t0 = time.perf_counter()
+    sess.touch()
+    stored = run.steps.record_drop(wh, ing, run.flow_run_id)
+    run.tick("record", t0)
+    new_keys = {(r.sha256, r.source_path) for r in ing.records if r.new_content}
+    campaigns: set[str] = set()
+    for r in stored:
+        entry["files"] += 1
+        if r["status"] == "accepted":
+            entry["accepted"] += 1
+            if r["campaign"]:
+                campaigns.add(r["campaign"])
+        elif r["status"] == "refused":
+            entry["refused"] += 1
+            entry["refused_files"].append({"path": r["source_path"], "reason": r["reason"]})
+        entry["new"] += (r["sha256"], r["source_path"]) in new_keys
+    entry["rechecked"] += sum(1 for r in ing.records if r.rechecked)
+    entry["errors"].extend(ing.errors)
+    entry["simulated_held"].extend(ing.simulated_held)
+    entry["held"].extend(ing.held)
+    if ing.docs and entry["docs"] is None:
+        entry["docs"] = ing.docs
+    return campaigns
 
-        to_store: list = []
-        S = campaigns_per_store()
 
-        def flush_store() -> None:
-            """Store the computed campaigns waiting in ONE transaction (columnar)."""
-            if not to_store:
-                return
-            items = to_store[:]
-            t0 = time.perf_counter()
-            sess.touch()
-            statuses = steps.store_campaigns(
-                wh, [(r, e["result_id"], i) for e, r, i in items], code_version=cv,
-                parameters=parameters, flow_run_id=flow_run_id)
-            del to_store[:]
-            for (entry, _, _), st in zip(items, statuses):
-                entry["status"] = st
-            tick("store", t0)
+# ------------------------------------------------ steps 4-8: the science loop --
 
-        C = campaigns_per_task(steps.engine)
-        chunk: list = []
-        plans: dict = {}
-        left_out: dict = {}
+def _science(wh: Warehouse, sess: _Session, campaigns: list[str], entries: list[dict],
+             run: _Run) -> None:
+    """Each touched campaign with all its current runs: unchanged when its result is
+    already current, else computed a few campaigns per submitted task (load + science)
+    and stored in transactions of ``campaigns_per_store()``.  Appends one entry per
+    campaign to ``entries``."""
+    progress.stage("science", len(campaigns))
+    progress.stage("store", len(campaigns))
+    most = campaigns_per_task(run.steps.engine)
+    inflight: deque = deque()           # (chunk, future of its outcomes), in order
+    computed: list = []                 # (entry, result, inputs) waiting to be stored
+    chunk: list = []                    # (entry, inputs) of the next task
+    for k, (camp, inputs, current, left_out) in enumerate(_planned(wh, sess, campaigns, run)):
+        rid = _result_id(camp, [i["sha256"] for i in inputs], run.code_version, run.parameters)
+        entry = {"campaign": camp, "result_id": rid, "n_runs": len(inputs), "status": None,
+                 "error": None, "simulated_left_out": left_out}
+        entries.append(entry)
+        if current == rid:
+            entry["status"] = "unchanged"
+            progress.advance("science", note=camp)
+            progress.advance("store", note=camp)
+            continue
+        if not chunk:
+            size = guided_chunk(len(campaigns) - k, most, run.in_flight)
+        chunk.append((entry, inputs))
+        if len(chunk) >= size:
+            _submit_chunk(wh, sess, chunk, inflight, computed, most, run)
+            chunk = []
+    if chunk:
+        _submit_chunk(wh, sess, chunk, inflight, computed, most, run)
+    while inflight:
+        _collect_chunk(wh, sess, inflight.popleft(), computed, run)
+    _store(wh, sess, computed, run)
 
-        def submit(chunk) -> None:
-            t0 = time.perf_counter()
-            inflight.append((chunk, steps.submit_campaigns(
-                str(wh.root), [inputs for _, inputs in chunk], parameters)))
-            tick("science (submit)", t0)
-            # bounded in campaigns, not tasks: the guided chunks shrink at the end, and a
-            # bound in tasks let the workers run dry behind one long chunk still computing
-            while sum(len(c) for c, _ in inflight) >= W * C:
-                store_next()
 
-        for k, camp in enumerate(campaigns):
-            if camp not in plans:
-                # the next window of campaigns: its runs and current results (one plan
-                # per campaign, whatever window it is asked in), so what the run holds
-                # of the plans is bounded by the window, not the fleet
-                window = campaigns[k:k + P]
-                plans.clear()
-                left_out.clear()
-                t0 = time.perf_counter()
-                sess.touch()
-                plans.update(wh.campaign_plans(window))
-                left_out.update(wh.simulated_left_out(window))
-                tick("plan", t0)
-            inputs, current = plans.pop(camp)
-            rid = _result_id(camp, [i["sha256"] for i in inputs], cv, parameters)
-            entry = {"campaign": camp, "result_id": rid, "n_runs": len(inputs), "status": None,
-                     "error": None, "simulated_left_out": left_out.get(camp, 0)}
-            summary["campaigns"].append(entry)
-            if current == rid:
-                entry["status"] = "unchanged"
-                progress.advance("science", note=camp)
-                progress.advance("store", note=camp)
-                continue
-            if not chunk:
-                size = guided_chunk(len(campaigns) - k, C, W)
-            chunk.append((entry, inputs))
-            if len(chunk) >= size:
-                submit(chunk)
-                chunk = []
-        if chunk:
-            submit(chunk)
-        while inflight:
-            store_next()
-        flush_store()
-
-        # -- what the warehouse now says about these campaigns
+def _planned(wh: Warehouse, sess: _Session, campaigns: list[str], run: _Run):
+    """(campaign, its input runs, its current result_id, simulated runs left out) for each
+    campaign in order, read from the warehouse a window of ``campaigns_per_plan()`` at a
+    time (one plan per campaign), so what the run holds of the plans is bounded by the
+    window, not the fleet."""
+    window = campaigns_per_plan()
+    for start in range(0, len(campaigns), window):
+        names = campaigns[start:start + window]
         t0 = time.perf_counter()
         sess.touch()
-        fill_campaigns(wh, summary["campaigns"])
-        tick("summary", t0)
+        plans = wh.campaign_plans(names)
+        left_out = wh.simulated_left_out(names)
+        run.tick("plan", t0)
+        for camp in names:
+            inputs, current = plans.pop(camp)
+            yield camp, inputs, current, left_out.get(camp, 0)
+
+
+def _submit_chunk(wh: Warehouse, sess: _Session, chunk: list, inflight: deque,
+                  computed: list, most: int, run: _Run) -> None:
+    """Submit one chunk's load + science; then collect the oldest chunks until fewer than
+    ``in_flight * most`` campaigns are in flight."""
+    t0 = time.perf_counter()
+    inflight.append((chunk, run.steps.submit_campaigns(
+        str(wh.root), [inputs for _, inputs in chunk], run.parameters)))
+    run.tick("science (submit)", t0)
+    # bounded in campaigns, not tasks: the guided chunks shrink at the end, and a
+    # bound in tasks let the workers run dry behind one long chunk still computing
+    while sum(len(c) for c, _ in inflight) >= run.in_flight * most:
+        _collect_chunk(wh, sess, inflight.popleft(), computed, run)
+
+
+def _collect_chunk(wh: Warehouse, sess: _Session, done: tuple, computed: list,
+                   run: _Run) -> None:
+    """Wait for one chunk's outcomes: a failed campaign's entry says why, a computed one
+    joins ``computed``, which is stored once it holds ``campaigns_per_store()``."""
+    chunk, fut = done
+    t0 = time.perf_counter()
+    try:
+        outcomes = fut.result()
+    except Exception as e:           # the task itself failed: every campaign in it
+        outcomes = [(None, f"{type(e).__name__}: {e}")] * len(chunk)
+    run.tick("science (wait)", t0)
+    for (entry, inputs), (result, info) in zip(chunk, outcomes):
+        progress.advance("science", note=entry["campaign"])
+        if result is None:
+            entry["status"], entry["error"] = "failed", info
+            progress.advance("store", note=entry["campaign"])
+            continue
+        for k, v in info.items():
+            run.tick(k, 0.0, v)
+        missing = set(result.input_sha256) - {i["sha256"] for i in inputs}
+        if missing:
+            result.flags.append(f"science reported inputs not handed to it: {sorted(missing)}")
+        computed.append((entry, result, inputs))
+    if len(computed) >= campaigns_per_store():
+        _store(wh, sess, computed, run)
+
+
+def _store(wh: Warehouse, sess: _Session, computed: list, run: _Run) -> None:
+    """Store the computed campaigns waiting in ONE transaction (columnar); empties
+    ``computed`` once they are stored."""
+    if not computed:
+        return
+    t0 = time.perf_counter()
+    sess.touch()
+    statuses = run.steps.store_campaigns(
+        wh, [(r, e["result_id"], i) for e, r, i in computed], code_version=run.code_version,
+        parameters=run.parameters, flow_run_id=run.flow_run_id)
+    for (entry, _, _), st in zip(computed, statuses):
+        entry["status"] = st
+    del computed[:]
+    run.tick("store", t0)
 
 
 # ------------------------------------------------------------------ prefect --
@@ -569,7 +551,7 @@ def pipeline_flow():
                               snapshot: bool = True, allow_simulated: bool = False) -> dict:
             from prefect.runtime import flow_run
             return pipeline_body(drops, warehouse, lock_timeout=lock_timeout,
-                                 parameters=parameters, steps=_prefect_steps(),
+                                 parameters=parameters, steps=PrefectSteps(),
                                  flow_run_id=str(flow_run.id), settle=settle,
                                  snapshot=snapshot, allow_simulated=allow_simulated)
 
@@ -666,7 +648,7 @@ def run_pipeline(drops: list[str], warehouse: str | Path, *, engine: str = "pref
         if n < 1:
             raise PipelineError(f"--workers must be at least 1, not {n}")
         with _local_pool(n) as pool:
-            summary = pipeline_body(drops, warehouse, steps=_local_steps(pool),
+            summary = pipeline_body(drops, warehouse, steps=LocalSteps(pool),
                                     flow_run_id=f"local-{uuid.uuid4()}", **kw)
         summary["workers"] = n
     elif engine == "prefect":

@@ -196,7 +196,7 @@ def _need_warehouse(path: str) -> None:
 
 def _cmd_migrate(args) -> int:
     from ..cli import _console, say
-    from ..warehouse.db import WarehouseError
+    from ..warehouse.errors import WarehouseError
     from ..warehouse.migrate import migrate
     _need_warehouse(args.warehouse)
     try:
@@ -226,7 +226,7 @@ def _cmd_status(args) -> int:
 
 def _cmd_campaign(args) -> int:
     from ..cli import _console, say
-    from ..warehouse.db import WarehouseError
+    from ..warehouse.errors import WarehouseError
     from .campaigns import campaign_log, campaign_rows, set_campaign
     _need_warehouse(args.warehouse)
     if args.action in ("adjust", "unadjust"):

@@ -266,7 +266,7 @@ def watch_pass(watch_dir: str, warehouse: str, settle: float = DEFAULT_SETTLE_S,
     """One pass: plan, run the pipeline on ready drops, remember what was processed, log
     what happened (:func:`pass_lines`) and keep the record in the state file."""
     from ..flows.pipeline import run_pipeline
-    from ..warehouse.db import warehouse_lock
+    from ..warehouse.lock import warehouse_lock
     sp = state_path_for(warehouse)
     sp.parent.mkdir(parents=True, exist_ok=True)
     t0 = time.time()
@@ -421,7 +421,7 @@ def serve(watch_dir: str, warehouse: str, *, cron: str | None = None,
 
 def _holder(warehouse: str | Path) -> str | None:
     """The pid holding the warehouse's writer lock, when a live process holds it."""
-    from ..warehouse.db import lock_path_for
+    from ..warehouse.lock import lock_path_for
     try:
         txt = lock_path_for(Path(warehouse).expanduser().resolve()).read_text().strip()
         pid = int(txt)
@@ -494,7 +494,8 @@ def _stored_files(warehouse: str | Path) -> set[tuple[str, int]] | None:
     read now (a run holds it)."""
     import duckdb
 
-    from ..warehouse.db import Warehouse, WarehouseError
+    from ..warehouse.db import Warehouse
+    from ..warehouse.errors import WarehouseError
     try:                                    # DuckDB refuses a reader while a writer has it
         rows = Warehouse(Path(warehouse).expanduser().resolve()).query(
             "SELECT DISTINCT source_path, size_bytes FROM run_files")

@@ -59,7 +59,9 @@ def _cmd_sql(args) -> int:
 
     import duckdb
 
-    from ..warehouse.db import Warehouse, WarehouseBusy, WarehouseError, warehouse_lock
+    from ..warehouse.db import Warehouse
+    from ..warehouse.errors import WarehouseBusy, WarehouseError
+    from ..warehouse.lock import warehouse_lock
     wh = Warehouse(args.warehouse, lock_timeout=args.lock_timeout)
     path = wh.snapshot_path if args.snapshot else wh.path
     if not path.exists():

@@ -26,7 +26,8 @@ from ..provenance import metadata_lines, simulated_line
 from ..fileio import StoreError, os_error_text, path_text, sync_files
 from ..warehouse.db import Refusal, RunRecord
 from ..warehouse.lineage import validator_version
-from . import contracts, progress
+from ..schemas import dropformat, tables
+from . import progress
 
 _SNIFF_KEYS = ("run_id", "test", "unit_serial", "unit_model", "campaign", "rig_id", "started_at")
 #: Files up to this size are read into memory once (hash, then parse from the bytes);
@@ -79,7 +80,7 @@ def _relative(path: Path, root: Path) -> str:
 
 
 def _entries(paths) -> list:
-    E = contracts.resolve("Entry")
+    E = dropformat.Entry
     return [p if isinstance(p, E) else E(os.fspath(p)) for p in paths]
 
 
@@ -91,7 +92,7 @@ def ingest_drop(drop_dir: str, parquet_root: str, warehouse_root: str,
     ``known`` maps files already recorded to the validator version of their
     latest verdict; those checked by the current version are skipped.
     """
-    entries = contracts.scan_drop(os.path.realpath(drop_dir))
+    entries = dropformat.scan_drop(os.path.realpath(drop_dir))
     progress.stage("ingest", len(entries))
     return ingest_files(drop_dir, entries, parquet_root, warehouse_root, known, allow_simulated)
 
@@ -114,7 +115,7 @@ def ingest_files(drop_dir: str, paths: list, parquet_root: str, warehouse_root: 
     vv = validator_version()
     drop = os.path.realpath(drop_dir)
     out = DropIngest(drop_name=path_text(os.path.basename(drop)), drop_path=path_text(drop))
-    DropFormatError = contracts.drop_format_error()
+    DropFormatError = dropformat.DropFormatError
 
     writes: list[tuple[str, RunRecord, Any]] = []      # (source, its record, Parquet write)
     pending = _Pending()
@@ -175,14 +176,14 @@ def _take_parsed(items, out, refuse, parquet_root, pool, writes) -> None:
     """Parse the pending files together and record each as :func:`_ingest_open_file` does
     a file parsed alone.  A bug in the joint parse costs no file: each is parsed alone."""
     try:
-        results = contracts.parse_runs([(raw, src) for src, raw, _, _ in items])
+        results = dropformat.parse_runs([(raw, src) for src, raw, _, _ in items])
     except Exception:
         results = None
-    DropFormatError = contracts.drop_format_error()
+    DropFormatError = dropformat.DropFormatError
     for k, (src, raw, head, base) in enumerate(items):
         try:
             if results is None:
-                res = contracts.parse_runs([(raw, src)])[0]
+                res = dropformat.parse_runs([(raw, src)])[0]
             else:
                 res = results[k]
             if isinstance(res, BaseException):
@@ -330,11 +331,11 @@ def _ingest_open_file(fd, e, src, out, known, vv, parquet_root, warehouse_root,
         return
     try:
         if raw is not None:
-            run = contracts.parse_run(io.BytesIO(raw), src)
+            run = dropformat.parse_run(io.BytesIO(raw), src)
         else:
             os.lseek(fd, 0, os.SEEK_SET)
             with io.FileIO(fd, "rb", closefd=False) as fh:
-                run = contracts.parse_run(fh, src)
+                run = dropformat.parse_run(fh, src)
     except DropFormatError as err:
         refuse(src, sha, size, err.rule, err.detail, err.line, head)
         return
@@ -361,7 +362,7 @@ def _accept(run, base: dict, out: DropIngest, parquet_root, pool, writes) -> Non
         n_rows=run.n_rows)
     # the Parquet file is written beside the next files' reading; its path is filled in
     # when it is in place, before the batch returns (_finish_writes)
-    fut = pool.submit(contracts.write_run_parquet, run, parquet_root)
+    fut = pool.submit(tables.write_run_parquet, run, parquet_root)
     writes.append((src, rec, fut))
     out.keys.append((sha, src))
     out.records.append(rec)

@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from . import contracts
+from ..schemas import dropformat, tables
 
 
 def load_campaign_runs(warehouse_root: str, inputs: list[dict[str, Any]]) -> list:
@@ -22,14 +22,14 @@ def load_campaign_runs(warehouse_root: str, inputs: list[dict[str, Any]]) -> lis
     for i in inputs:
         pq = Path(warehouse_root) / i["parquet_path"] if i.get("parquet_path") else None
         if pq is not None and pq.exists():
-            run = contracts.read_run_parquet(pq)
+            run = tables.read_run_parquet(pq)
         else:
             src = Path(i["source_path"])
             if not src.exists() or hashlib.sha256(src.read_bytes()).hexdigest() != i["sha256"]:
                 raise FileNotFoundError(
                     f"run {i['run_id']} ({i['sha256'][:12]}): neither its Parquet copy {pq} "
                     f"nor unchanged raw bytes at {src} are available")
-            run = contracts.read_run(src)
+            run = dropformat.read_run(src)
         if run.sha256 != i["sha256"]:
             raise ValueError(f"Parquet copy {pq} holds {run.sha256[:12]}, "
                              f"the warehouse expects {i['sha256'][:12]}")

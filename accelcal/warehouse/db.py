@@ -1,4 +1,11 @@
-"""The DuckDB warehouse: schema, the write lock, transactional idempotent writes.
+"""The DuckDB warehouse: the :class:`Warehouse` (its files, connections, schema, the
+guarding of the file, run records, plans, quarantine), beside the modules it uses:
+
+- ``lock.py``: the cross-process write lock (``fcntl.flock`` on ``<db>.lock``);
+- ``results.py``: the results writer (a batch of campaign results with their lineage);
+- ``extras.py``: the extras store (a result's extras as content-addressed files);
+- ``columnar.py``: transactions and one-Arrow-insert-per-table writes;
+- ``errors.py``: WarehouseError and its kin, one line each.
 
 Plain Python, no Prefect.  One writer at a time: every write session holds an
 exclusive ``fcntl.flock`` on ``<db>.lock`` (re-entrant within a process); readers
@@ -19,59 +26,41 @@ duckdb 2.0: always fetch a result before the next statement.
 from __future__ import annotations
 
 import contextlib
-import errno
-import fcntl
-import hashlib
-import json
 import os
 import re
 import shutil
-import stat
 import tempfile
-import threading
 import time
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any, Iterator
 
 import duckdb
 
-from ..fileio import (StoreError, atomic_write, current_umask, os_error_text, path_text,
-                      remove_stale_temps, sync_files)
+from ..fileio import atomic_write, current_umask, os_error_text, path_text, remove_stale_temps
 from ..schemas.dropformat import Refusal  # the one Refusal (drop format and warehouse)
+from .columnar import Checkpoint, _arrow, _attr_columns, _cp, _insert, _nextvals, _registered, \
+    _transaction
+from .errors import WarehouseBusy, WarehouseError, duckdb_error_text
+from .extras import EXTRAS_DIR_KEY, extras_root_of
+from .extras import load_extras
 from .lineage import canonical_json
+from .lock import describe_pid, holds_lock, warehouse_lock
+from .results import write_results
 from .views import apply_views
 
 #: 3: results.extras (the JSON the certificate's plots and checks read, ~48 KB a result)
 #: moved out of the table into content-addressed files; results.extras_sha256 names one.
 SCHEMA_VERSION = "3"
 
-Checkpoint = Callable[[str], None] | None
-
-
-class WarehouseError(RuntimeError):
-    """The warehouse cannot be used (one-line message for the CLI)."""
-
-
-class WarehouseBusy(WarehouseError):
-    """Another process holds the warehouse lock."""
-
-
-class ExtrasError(WarehouseError):
-    """A result's extras file is missing or its bytes are not the ones its sha256 names."""
-
-
-_DUCKDB_HINTS = (
-    ("no space left", "the disk is full: free space, then run again; what was committed stays"),
-    ("read-only file system", "a read-only file system: choose a writable place"),
-    ("permission denied", "no permission: make the warehouse folder writable for this user"),
-    ("not a valid duckdb database", "restore it from a backup or its -snapshot.duckdb copy"),
-    ("serialization", "the file is damaged or from another DuckDB version: restore it from a "
-                      "backup or its -snapshot.duckdb copy"),
-    ("corrupt", "the file is damaged: restore it from a backup or its -snapshot.duckdb copy"),
-    ("checksum", "the file is damaged: restore it from a backup or its -snapshot.duckdb copy"),
-)
+#: What other modules take from here.  ``load_extras``, ``extras_root_of``,
+#: ``warehouse_lock`` and ``WarehouseError`` live in extras.py, lock.py and errors.py;
+#: ops/report.py (being changed on another branch) still imports them from here.
+__all__ = ["SCHEMA_VERSION", "RunRecord", "Refusal", "Warehouse", "check_schema_version",
+           "ensure_views", "roomy", "schema_version", "query_memory_limit",
+           "write_memory_limit", "load_extras", "extras_root_of", "warehouse_lock",
+           "WarehouseError"]
 
 
 def _duckdb_size(head: bytes) -> int | None:
@@ -90,160 +79,6 @@ def _duckdb_size(head: bytes) -> int | None:
         if best is None or iteration > best[0]:
             best = (iteration, 3 * 4096 + count * bsize)
     return best[1]
-
-
-def duckdb_error_text(e: Exception, what: str, untouched: bool = False) -> str:
-    """One line for a DuckDB error: what, DuckDB's first line (cut), what to do."""
-    msg = " ".join(str(e).split())[:240]
-    low = msg.lower()
-    hint = next((h for k, h in _DUCKDB_HINTS if k in low), None)
-    if hint is None and untouched:
-        hint = "restore it from a backup or its -snapshot.duckdb copy"
-    tail = "; it was not modified" if untouched else ""
-    return f"{what}: {msg}{tail}" + (f" ({hint})" if hint else "")
-
-
-# --------------------------------------------------------------------- lock --
-
-_held_lock = threading.RLock()
-_held: dict[str, list] = {}      # realpath of lock file -> [fd, depth]
-
-
-def lock_path_for(db_path: str | Path) -> Path:
-    return Path(str(db_path) + ".lock")
-
-
-def _holder_pid(lock_path: Path) -> str:
-    try:
-        txt = lock_path.read_text().strip()
-        return txt or "unknown"
-    except OSError:
-        return "unknown"
-
-
-def lock_holders(lock_path: str | Path) -> list[tuple[int, str]]:
-    """(pid, 'WRITE'|'READ') of the processes holding a flock on ``lock_path``, from
-    /proc/locks (Linux; empty elsewhere)."""
-    try:
-        st = os.stat(lock_path)
-        with open("/proc/locks") as f:
-            lines = f.read().splitlines()
-    except OSError:
-        return []
-    want = (os.major(st.st_dev), os.minor(st.st_dev), st.st_ino)
-    out = []
-    for line in lines:
-        parts = line.split()
-        if "->" in parts or len(parts) < 6 or parts[1] != "FLOCK":
-            continue
-        try:
-            maj, mnr, ino = parts[5].split(":")
-            if (int(maj, 16), int(mnr, 16), int(ino)) == want:
-                out.append((int(parts[4]), parts[3]))
-        except ValueError:
-            continue
-    return out
-
-
-def describe_pid(pid: int) -> str:
-    """'pid N (command line)' for a message."""
-    try:
-        with open(f"/proc/{pid}/cmdline", "rb") as f:
-            cmd = f.read().replace(b"\0", b" ").decode("utf-8", "replace").strip()
-    except OSError:
-        cmd = ""
-    cmd = re.sub(r"^\S*python[0-9.]*\s+(-m\s+)?", "", " ".join(cmd.split()))
-    return f"pid {pid}" + (f" ({cmd[:60]})" if cmd else "")
-
-
-def _busy_text(db_path, lp: Path, timeout: float) -> str:
-    holders = lock_holders(lp)
-    if holders:
-        who = ", ".join(describe_pid(p) + (", reading" if m == "READ" else "") for p, m in holders[:3])
-    else:
-        who = f"pid {_holder_pid(lp)}"
-    return f"warehouse {db_path} is in use by {who} (waited {timeout:g} s; see {lp})"
-
-
-@contextlib.contextmanager
-def warehouse_lock(db_path: str | Path, timeout: float = 60.0,
-                   poll: float = 0.1, shared: bool = False) -> Iterator[None]:
-    """Exclusive OS lock on ``<db>.lock`` (``shared=True``: a reader's shared lock);
-    waits up to ``timeout`` seconds.
-
-    Re-entrant within one process.  Raises :class:`WarehouseBusy` naming the
-    holder's pid when the wait times out.  A reader in a folder where the lock file
-    cannot be created goes on without it (no writer can work there either).
-    """
-    lp = lock_path_for(db_path)
-    key = os.path.realpath(lp)
-    with _held_lock:
-        if key in _held:
-            _held[key][1] += 1
-            reentered = True
-        else:
-            reentered = False
-    if reentered:
-        try:
-            yield
-        finally:
-            with _held_lock:
-                _held[key][1] -= 1
-        return
-
-    try:
-        if not shared:
-            lp.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(lp, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
-    except OSError as e:
-        fd = None
-        if shared:
-            try:
-                fd = os.open(lp, os.O_RDONLY | os.O_CLOEXEC)
-            except OSError:
-                pass
-        if fd is None and not shared:
-            raise WarehouseError(os_error_text(e, f"cannot use warehouse {db_path}: cannot "
-                                                  "create its lock file")) from None
-    if fd is None:                     # a reader, no lock file and none can be made
-        yield
-        return
-    deadline = time.monotonic() + max(0.0, timeout)
-    try:
-        while True:
-            try:
-                fcntl.flock(fd, (fcntl.LOCK_SH if shared else fcntl.LOCK_EX) | fcntl.LOCK_NB)
-                break
-            except OSError as e:
-                if e.errno not in (errno.EAGAIN, errno.EACCES, errno.EWOULDBLOCK):
-                    raise
-                if time.monotonic() >= deadline:
-                    raise WarehouseBusy(_busy_text(db_path, lp, timeout)) from None
-                time.sleep(poll)
-    except BaseException:
-        os.close(fd)
-        raise
-    if not shared:
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-    with _held_lock:
-        _held[key] = [fd, 1]
-    try:
-        yield
-    finally:
-        with _held_lock:
-            del _held[key]
-        try:
-            if not shared:
-                os.ftruncate(fd, 0)
-        finally:
-            fcntl.flock(fd, fcntl.LOCK_UN)
-            os.close(fd)
-
-
-def holds_lock(db_path: str | Path) -> bool:
-    with _held_lock:
-        return os.path.realpath(lock_path_for(db_path)) in _held
 
 
 # ---------------------------------------------------------------- records --
@@ -281,76 +116,7 @@ class RunRecord:
         return "; ".join(str(r) for r in self.refusals) or "refused"
 
 
-def _transaction(con) -> contextlib.AbstractContextManager:
-    @contextlib.contextmanager
-    def tx():
-        con.execute("BEGIN TRANSACTION")
-        try:
-            yield con
-        except BaseException:
-            try:
-                con.execute("ROLLBACK")
-            except Exception:
-                pass
-            raise
-        con.execute("COMMIT")
-    return tx()
-
-
-def _column(values: list) -> "pa.Array":
-    """An Arrow column of Python values; a column mixing types Arrow cannot unify goes as
-    text, which DuckDB casts to the table's type exactly as it casts a bound parameter
-    (repr of a float round-trips)."""
-    import pyarrow as pa
-    try:
-        return pa.array(values)
-    except (pa.ArrowInvalid, pa.ArrowTypeError):
-        return pa.array([None if v is None else str(v) for v in values], type=pa.string())
-
-
-def _attr_columns(objs: list, names: tuple[str, ...]) -> dict[str, list]:
-    """Columns ``name -> [getattr(o, name) for o in objs]``."""
-    return {n: [getattr(o, n) for o in objs] for n in names}
-
-
-def _arrow(columns: dict[str, list]):
-    import pyarrow as pa
-    return pa.table({k: _column(v) for k, v in columns.items()})
-
-
-@contextlib.contextmanager
-def _registered(con, name: str, table) -> Iterator[None]:
-    """``table`` (Arrow) visible to SQL on ``con`` as view ``name`` for the block."""
-    con.register(name, table)
-    try:
-        yield
-    finally:
-        with contextlib.suppress(duckdb.Error):
-            con.unregister(name)
-
-
-def _insert(con, table: str, columns: dict[str, list | None]) -> None:
-    """One columnar INSERT of many rows: ``columns`` maps column -> values (Python
-    lists, all of one length); ``None`` instead of a list means now() (the
-    transaction's timestamp, as the row-wise inserts used).  DuckDB casts each Arrow
-    column to the table's type."""
-    data = {k: v for k, v in columns.items() if v is not None}
-    sel = ", ".join(f'"{k}"' if v is not None else "now()" for k, v in columns.items())
-    with _registered(con, "_insert_rows", _arrow(data)):
-        con.execute(f"INSERT INTO {table} ({', '.join(columns)}) "
-                    f"SELECT {sel} FROM _insert_rows").fetchall()
-
-
-def _nextvals(con, sequence: str, n: int) -> list[int]:
-    """The next ``n`` values of a sequence, in order (as n row-wise nextval() calls)."""
-    return sorted(v for (v,) in con.execute(
-        f"SELECT nextval('{sequence}') FROM range(?)", [n]).fetchall())
-
-
-def _cp(checkpoint: Checkpoint, step: str) -> None:
-    if checkpoint is not None:
-        checkpoint(step)
-
+# ------------------------------------------------------- plans and memory --
 
 #: The runs a campaign is computed from (parameter: the list of campaigns): its current
 #: runs, without the simulated ones when the label also has real runs.
@@ -433,99 +199,6 @@ def check_schema_version(con, path) -> None:
                  "process its drops again into a new warehouse (the raw drops are never "
                  "changed; results are recomputed exactly)") if older else
                 "it was written by a newer accelcal; upgrade accelcal to read it"))
-
-
-# ----------------------------------------------------------------- extras --
-#
-# A result's extras (per-pair fits, residual series, the Monte Carlo check: what the
-# certificate's plots and checks read, ~48 KB of JSON a result) are files, not a column.
-# In the results table they made the flow process's memory grow with the fleet: DuckDB
-# rewrites a table's whole row group at a checkpoint, and with 91 MB of extras at 2,000
-# campaigns, appending 32 results and checkpointing took the process from 167 to 334 MB.
-# One immutable file per distinct extras, named by the sha256 of its bytes, costs the same
-# at any fleet size; ``results.extras_sha256`` names it, and anyone can check the bytes
-# (``sha256sum``) against it.
-
-#: schema_info key: the folder of the extras files, relative to the warehouse's folder.
-#: The snapshot (same folder, a copy of schema_info) finds them through it too.
-EXTRAS_DIR_KEY = "extras_dir"
-
-
-def extras_file(extras_root: str | Path, sha256: str) -> Path:
-    """``<extras_root>/<sha256[:2]>/<sha256>.json``: where the extras of that sha256 are."""
-    return Path(extras_root) / sha256[:2] / f"{sha256}.json"
-
-
-def _holds(path: Path, data: bytes) -> bool:
-    """The file exists with exactly these bytes (a file a power loss cut short does not)."""
-    try:
-        if os.stat(path).st_size != len(data):
-            return False
-        with open(path, "rb") as f:
-            return f.read() == data
-    except OSError:
-        return False
-
-
-def write_extras(extras_root: str | Path, texts: list[str]) -> list[str]:
-    """Store each JSON text as the UTF-8 file :func:`extras_file` names by the sha256 of
-    its bytes, unless that file already holds them; return the sha256s, in order.
-
-    Each file is written atomically (temporary file + rename) and the batch made durable
-    by one flush before returning: the caller commits the rows naming them afterwards, so
-    a run killed at any point leaves at most a file nothing names yet, with the content
-    its name says, which the next run finds in place.  Raises StoreError (one line).
-    """
-    root = Path(extras_root)
-    shas: list[str] = []
-    written: list[Path] = []
-    try:
-        for text in texts:
-            data = text.encode("utf-8")
-            sha = hashlib.sha256(data).hexdigest()
-            shas.append(sha)
-            target = extras_file(root, sha)
-            if _holds(target, data):
-                continue
-            target.parent.mkdir(parents=True, exist_ok=True)
-            atomic_write(target, lambda fh, data=data: fh.write(data), "wb")
-            written.append(target)
-        sync_files(written)
-    except OSError as e:        # name the store, not our temporary file in it
-        raise StoreError(os_error_text(OSError(e.errno, e.strerror, str(root)),
-                                       "cannot write the extras store")) from None
-    return shas
-
-
-def read_extras_text(extras_root: str | Path, sha256: str) -> str:
-    """The JSON text of the extras ``sha256`` names, its bytes checked against it.
-    Raises ExtrasError (one line) when the file is missing, unreadable or altered."""
-    path = extras_file(extras_root, sha256)
-    try:
-        data = path.read_bytes()
-    except OSError as e:
-        raise ExtrasError(os_error_text(e, f"cannot read the extras {sha256[:12]} of a result")
-                          + " (restore the warehouse's extras folder from a backup)") from None
-    if hashlib.sha256(data).hexdigest() != sha256:
-        raise ExtrasError(f"extras file {path_text(path)} does not hold the bytes its name "
-                          "(results.extras_sha256) says: restore it from a backup")
-    return data.decode("utf-8")
-
-
-def load_extras(extras_root: str | Path, sha256: str | None) -> Any:
-    """A result's extras (``CampaignResult.extras``) from its ``results.extras_sha256``;
-    None for None.  ExtrasError when the file is missing or its bytes are not these."""
-    if sha256 is None:
-        return None
-    return json.loads(read_extras_text(extras_root, sha256))
-
-
-def extras_root_of(con, db_path: str | Path) -> Path:
-    """The extras folder of the warehouse (or snapshot) open on ``con`` at ``db_path``:
-    schema_info's ``extras_dir`` under the file's folder."""
-    db_path = Path(db_path).expanduser().resolve()
-    row = con.execute("SELECT value FROM schema_info WHERE key = ?", [EXTRAS_DIR_KEY]).fetchall()
-    return db_path.parent / (row[0][0] if row else f"{db_path.stem}-extras")
 
 
 # -------------------------------------------------------------- warehouse --
@@ -1010,57 +683,8 @@ class Warehouse:
         """
         params_json = canonical_json(parameters)
         with self.connect() as con, _transaction(con):
-            return self._store_results(con, items, code_version, params_json, flow_run_id,
-                                       checkpoint, self.extras_root)
-
-    @staticmethod
-    def _store_results(con, items, code_version, params_json, flow_run_id,
-                       checkpoint, extras_root) -> list[str]:
-        if not items:
-            return []
-        camps = sorted({r.campaign for r, _, _ in items})
-        current = dict(con.execute(
-            "SELECT campaign, arg_max(result_id, seq) FROM result_activations "
-            "WHERE list_contains(?, campaign) GROUP BY campaign", [camps]).fetchall())
-        stored = {rid for (rid,) in con.execute(
-            "SELECT result_id FROM results WHERE list_contains(?, result_id)",
-            [sorted({rid for _, rid, _ in items})]).fetchall()}
-        real = {u for (u,) in con.execute(
-            "SELECT unit_serial FROM real_units WHERE list_contains(?, unit_serial)",
-            [sorted({r.unit_serial for r, _, _ in items if r.unit_serial is not None})]).fetchall()}
-        statuses: list[str] = []
-        fresh: list[tuple] = []             # (result, result_id, inputs, simulated)
-        activate: list[tuple[str, str]] = []
-        for result, rid, inputs in items:
-            simulated = any(bool(i.get("simulated")) for i in inputs)
-            if current.get(result.campaign) == rid:
-                statuses.append("unchanged")
-                continue
-            exists = rid in stored
-            if not exists:
-                stored.add(rid)
-                fresh.append((result, rid, inputs, simulated))
-                if not simulated and _completeness(result) == "complete":
-                    real.add(result.unit_serial)
-            if simulated and result.unit_serial in real:
-                statuses.append("simulated-not-current")
-                continue
-            activate.append((result.campaign, rid))
-            current[result.campaign] = rid
-            statuses.append("reactivated" if exists else "new")
-        if fresh:
-            _insert_results(con, fresh, code_version, params_json, flow_run_id, checkpoint,
-                            extras_root)
-        if activate:
-            _cp(checkpoint, "activate")
-            _insert(con, "result_activations", {
-                "seq": _nextvals(con, "activation_seq", len(activate)),
-                "campaign": [c for c, _ in activate],
-                "result_id": [r for _, r in activate],
-                "activated_at": None,
-                "flow_run_id": [flow_run_id] * len(activate)})
-            _cp(checkpoint, "commit")
-        return statuses
+            return write_results(con, items, code_version, params_json, flow_run_id,
+                                 checkpoint, self.extras_root)
 
     # -- quarantine ------------------------------------------------------------
 
@@ -1119,115 +743,6 @@ class Warehouse:
                   "budget_history", "alignment_history", "flag_history", "campaign_actions"]
         with self.connect() as con:
             return {t: con.execute(f"SELECT count(*) FROM {t}").fetchall()[0][0] for t in tables}
-
-
-def _completeness(result) -> str:
-    return getattr(result, "completeness", "complete") or "complete"
-
-
-def _rows(fresh, attr: str, row) -> dict[str, list]:
-    """Columns of one detail table for many results: ``row(result_id, seq, campaign, x)``
-    gives a dict per item x of ``result.<attr>``."""
-    out: dict[str, list] = {}
-    for result, rid, _, _ in fresh:
-        for k, x in enumerate(getattr(result, attr)):
-            for c, v in row(rid, k, result.campaign, x).items():
-                out.setdefault(c, []).append(v)
-    return out
-
-
-def _insert_results(con, fresh, code_version, params_json, flow_run_id, checkpoint,
-                    extras_root) -> None:
-    """The rows of new results (results, lineage, coefficients, radii, adequacy, budget,
-    alignment, flags): one Arrow insert per table, values as the row-wise inserts had.
-    The extras files are written (and flushed) first: a row never names a missing file."""
-    n = len(fresh)
-    extras = write_extras(extras_root, [canonical_json(r.extras) for r, _, _, _ in fresh])
-    _cp(checkpoint, "extras")
-    _insert(con, "results", {
-        "result_id": [rid for _, rid, _, _ in fresh],
-        "campaign": [r.campaign for r, _, _, _ in fresh],
-        "unit_serial": [r.unit_serial for r, _, _, _ in fresh],
-        "unit_model": [r.unit_model for r, _, _, _ in fresh],
-        "tests": [canonical_json(list(r.tests)) for r, _, _, _ in fresh],
-        "rig_ids": [canonical_json(list(r.rig_ids)) for r, _, _, _ in fresh],
-        "computed_at": None,
-        "flow_run_id": [flow_run_id] * n,
-        "code_version": [code_version] * n,
-        "parameters": [params_json] * n,
-        "science_parameters": [canonical_json(r.parameters) for r, _, _, _ in fresh],
-        "input_sha256": [canonical_json(sorted(i["sha256"] for i in inputs))
-                         for _, _, inputs, _ in fresh],
-        "extras_sha256": extras,
-        "simulated": [bool(s) for _, _, _, s in fresh],
-        "completeness": [_completeness(r) for r, _, _, _ in fresh],
-        "completeness_reasons": [
-            canonical_json(list(getattr(r, "completeness_reasons", []) or []))
-            for r, _, _, _ in fresh]})
-    _cp(checkpoint, "results")
-    lin = [(rid, i) for _, rid, inputs, _ in fresh
-           for i in sorted(inputs, key=lambda i: i["sha256"])]
-    if lin:
-        _insert(con, "lineage", {
-            "result_id": [rid for rid, _ in lin],
-            "sha256": [i["sha256"] for _, i in lin],
-            "run_id": [i.get("run_id") for _, i in lin],
-            "revision": [i.get("revision") for _, i in lin],
-            "source_path": [i.get("source_path") for _, i in lin],
-            "parquet_path": [i.get("parquet_path") for _, i in lin],
-            "flow_run_id": [flow_run_id] * len(lin),
-            "code_version": [code_version] * len(lin),
-            "parameters": [params_json] * len(lin)})
-    _cp(checkpoint, "lineage")
-    # per table: the row of one item (result_id, seq, campaign, item); the unit serial of
-    # a coefficient row is its result's
-    unit = {rid: r.unit_serial for r, rid, _, _ in fresh}
-    details = [
-        ("coefficient_history", "coefficients", lambda rid, k, camp, c: {
-            "result_id": rid, "seq": k, "unit_serial": unit[rid], "campaign": camp,
-            "name": c.name, "value": _f(c.value), "std_uncertainty": _f(c.std_uncertainty),
-            "unit": c.unit, "method": c.method, "rig_id": c.rig_id, "dof": _f(c.dof),
-            "note": c.note, "adopted": bool(getattr(c, "adopted", False)),
-            "coverage_factor": _f(getattr(c, "coverage_factor", 2.0)) or 2.0}),
-        ("radius_history", "radii", lambda rid, k, camp, r: {
-            "result_id": rid, "seq": k, "campaign": camp, "rig_id": r.rig_id,
-            "polarity": r.polarity, "method": r.method, "model_order": r.model_order,
-            "g_max": _f(r.g_max), "radius_m": _f(r.radius_m),
-            "std_uncertainty_m": _f(r.std_uncertainty_m), "note": r.note}),
-        ("adequacy_history", "adequacy", lambda rid, k, camp, a: {
-            "result_id": rid, "seq": k, "campaign": camp, "rig_id": a.rig_id, "fit": a.fit,
-            "model_order": a.model_order, "g_max": _f(a.g_max),
-            "f_statistic": _f(a.f_statistic), "p_value": _f(a.p_value),
-            "dof_lack_of_fit": a.dof_lack_of_fit, "dof_pure_error": a.dof_pure_error,
-            "trend_p": _f(a.trend_p), "sweep_p": _f(a.sweep_p), "runs_p": _f(a.runs_p),
-            "adequate": bool(a.adequate), "chosen": bool(a.chosen), "note": a.note}),
-        ("budget_history", "budget", lambda rid, k, camp, b: {
-            "result_id": rid, "seq": k, "campaign": camp, "coefficient": b.coefficient,
-            "quantity": b.quantity, "value": _f(b.value),
-            "std_uncertainty": _f(b.std_uncertainty), "sensitivity": _f(b.sensitivity),
-            "contribution": _f(b.contribution), "type": b.type,
-            "distribution": b.distribution, "method": getattr(b, "method", "")}),
-        ("alignment_history", "alignment", lambda rid, k, camp, a: {
-            "result_id": rid, "seq": k, "campaign": camp, "record": canonical_json(a)}),
-        ("flag_history", "flags", lambda rid, k, camp, f: {
-            "result_id": rid, "seq": k, "campaign": camp, "flag": str(f)}),
-    ]
-    for table, attr, row in details:
-        cols = _rows(fresh, attr, row)
-        if cols:
-            _insert(con, table, cols)
-        if table in ("coefficient_history", "radius_history"):
-            _cp(checkpoint, "coefficients" if table == "coefficient_history" else "radii")
-    _cp(checkpoint, "details")
-
-
-def _f(x) -> float | None:
-    if x is None:
-        return None
-    try:
-        return float(x)
-    except (TypeError, ValueError):
-        return None
 
 
 def ensure_views(warehouse: str | Path, lock_timeout: float = 60.0) -> None:

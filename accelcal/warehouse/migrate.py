@@ -3,7 +3,7 @@
 Schema 2 -> 3 is the one step there is: schema 2 held each result's extras (the per-pair
 fits, residual series and Monte Carlo check the certificate reads, ~48 KB of canonical
 JSON a result) in the column ``results.extras``; schema 3 keeps them as immutable files
-``<extras_dir>/<sha[:2]>/<sha>.json`` named by ``results.extras_sha256`` (db.py, "extras").
+``<extras_dir>/<sha[:2]>/<sha>.json`` named by ``results.extras_sha256`` (extras.py).
 The text of the column is exactly the bytes of the file (both ``canonical_json`` of
 ``CampaignResult.extras``), so a migrated result names the same file a fresh run of the
 same code would write.
@@ -26,8 +26,10 @@ from pathlib import Path
 import duckdb
 
 from ..fileio import os_error_text, path_text
-from .db import (EXTRAS_DIR_KEY, SCHEMA_VERSION, Warehouse, WarehouseError, _arrow,
-                 _registered, _transaction, schema_version, write_extras)
+from .columnar import _arrow, _registered, _transaction
+from .db import SCHEMA_VERSION, Warehouse, schema_version
+from .errors import WarehouseError
+from .extras import EXTRAS_DIR_KEY, write_extras
 
 #: Results whose extras are read and written as files at a time (~48 KB each).
 ROWS_PER_BATCH = 200
