@@ -70,7 +70,9 @@ def _read(warehouse: str | Path, fn, lock_timeout: float = 60.0):
     """Call fn(con, path) on a read-only connection, under the writer lock."""
     import duckdb
 
-    from ..warehouse.db import WarehouseError, check_schema_version, warehouse_lock
+    from ..warehouse.db import check_schema_version
+    from ..warehouse.errors import WarehouseError
+    from ..warehouse.lock import warehouse_lock
     path = Path(warehouse).expanduser().resolve()
     if not path.exists():
         raise ReportError(f"warehouse {path} does not exist")
@@ -122,7 +124,7 @@ def resolve_result(con, campaign: str | None, result_id: str | None) -> tuple[st
 
 
 def _load(con, campaign: str | None, result_id: str | None, path: Path) -> dict[str, Any]:
-    from ..warehouse.db import extras_root_of, load_extras
+    from ..warehouse.extras import extras_root_of, load_extras
     campaign, rid = resolve_result(con, campaign, result_id)
     acts = _rows(con, "SELECT seq, result_id, activated_at, flow_run_id FROM result_activations "
                       "WHERE campaign = ? ORDER BY seq", [campaign])

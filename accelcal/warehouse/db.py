@@ -44,7 +44,6 @@ from .columnar import Checkpoint, _arrow, _attr_columns, _cp, _insert, _nextvals
     _transaction
 from .errors import WarehouseBusy, WarehouseError, duckdb_error_text
 from .extras import EXTRAS_DIR_KEY, extras_root_of
-from .extras import load_extras
 from .lineage import canonical_json
 from .lock import describe_pid, holds_lock, warehouse_lock
 from .results import write_results
@@ -54,13 +53,11 @@ from .views import apply_views
 #: moved out of the table into content-addressed files; results.extras_sha256 names one.
 SCHEMA_VERSION = "3"
 
-#: What other modules take from here.  ``load_extras``, ``extras_root_of``,
-#: ``warehouse_lock`` and ``WarehouseError`` live in extras.py, lock.py and errors.py;
-#: ops/report.py (being changed on another branch) still imports them from here.
+#: What other modules take from here (the lock, the extras store and the errors are
+#: imported from lock.py, extras.py and errors.py).
 __all__ = ["SCHEMA_VERSION", "RunRecord", "Refusal", "Warehouse", "check_schema_version",
            "ensure_views", "roomy", "schema_version", "query_memory_limit",
-           "write_memory_limit", "load_extras", "extras_root_of", "warehouse_lock",
-           "WarehouseError"]
+           "write_memory_limit"]
 
 
 def _duckdb_size(head: bytes) -> int | None:
