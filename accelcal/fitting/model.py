@@ -497,8 +497,6 @@ class CampaignModel:
         tau = float(eff.get("sensor_lag", 0.0))
         t = r.cols.get("time_s")
         base = None
-        lin: list[int] = []
-        rows: list[np.ndarray] = []
         acting = self._acting(j)
         for c, i in enumerate(cols):
             if i not in acting:
@@ -508,10 +506,14 @@ class CampaignModel:
                 if F is None:
                     F = specific_force(r.test, r.meta, r.cols, eff, **kw)
                     temp = self._temp(r)
-                col = instrument.output_derivative(role.key, co, F, temp, t,
-                                                   float(eff.get("bias_drift", 0.0)))
-                lin.append(c)
-                rows.append(col)
+                # one column per reading at a time, reduced to its cell means at once: a big
+                # run's Jacobian never holds a (readings x coefficients) array (issue 28)
+                x = np.empty(r.y_rows.shape)
+                x[:] = instrument.output_derivative(role.key, co, F, temp, t,
+                                                    float(eff.get("bias_drift", 0.0)))
+                if tau > 0:                   # lagged like the output (the lag is linear)
+                    x = first_order_lag(x, t, tau)
+                J[:, c] = r.cell_mean(x)
                 continue
             h = 1e-3 * self.params[i].scale
             pp, pm = p.copy(), p.copy()
@@ -524,15 +526,6 @@ class CampaignModel:
                 continue
             pm[i] -= h
             J[:, c] = (r.cell_mean(self._rows(pp, j)) - r.cell_mean(self._rows(pm, j))) / (2 * h)
-        if lin:
-            # the columns side by side (a scalar column, K0 at a constant K1, fills its column)
-            X = np.empty(r.y_rows.shape + (len(rows),))
-            for k, col in enumerate(rows):
-                X[:, k] = col
-            if tau > 0:                       # the lag is linear: lag the columns at once
-                X = first_order_lag(X, t, tau)
-            for k, c in enumerate(lin):
-                J[:, c] = r.cell_mean(X[:, k])
         return J
 
     def _acting(self, j: int) -> frozenset[int]:
