@@ -168,16 +168,23 @@ def run_case(name: str, work: Path, size_mb: float | None = None) -> dict:
             "computed": computed, "err": "" if ok else res["err"][-600:]}
 
 
-def table(results: list[dict]) -> str:
-    out = ["| case | file | rows | wall | peak RSS (ru_maxrss) | peak RSS (sampled, tree) | bound | accepted | campaign computed |",
-           "|---|---|---|---|---|---|---|---|---|"]
+def table(results: list[dict], before: dict[str, dict] | None = None) -> str:
+    b_col = before is not None
+    out = ["| case | file | rows | wall | peak RSS (ru_maxrss) | peak RSS (sampled, tree) | bound | accepted | campaign computed |"
+           + (" before: peak RSS, wall |" if b_col else ""),
+           "|---|---|---|---|---|---|---|---|---|" + ("---|" if b_col else "")]
     for r in results:
+        extra = ""
+        if b_col:
+            o = (before or {}).get(r["case"])
+            extra = (f" {max(o['maxrss_mb'], o['sampled_mb']):.0f} MB, {o['seconds']:.0f} s |"
+                     if o and o.get("rows") == r["rows"] else " — |")
         peak = max(r["maxrss_mb"], r["sampled_mb"])
         within = "" if r["bound_mb"] is None else (" ✓" if peak <= r["bound_mb"] else " ✗")
         out.append(f"| {r['case']} | {r['size_mb']:.0f} MB | {r['rows']:,} | {r['seconds']:.0f} s | "
                    f"{r['maxrss_mb']:.0f} MB | {r['sampled_mb']:.0f} MB | "
                    f"{'—' if r['bound_mb'] is None else str(r['bound_mb']) + ' MB' + within} | "
-                   f"{r['accepted']} | {'yes' if r['computed'] else 'NO'} |")
+                   f"{r['accepted']} | {'yes' if r['computed'] else 'NO'} |{extra}")
     return "\n".join(out)
 
 
@@ -190,6 +197,8 @@ def main(argv=None) -> int:
                     "(a quick check; no bound applies)")
     ap.add_argument("--keep", type=Path, help="make the drops and warehouses here and keep them")
     ap.add_argument("--json", type=Path, help="also write the results as JSON")
+    ap.add_argument("--before", type=Path, help="a --json of another version (e.g. PYTHONPATH="
+                    "naming the code before a change): its peak and wall time as a column")
     ap.add_argument("--readme", type=Path)
     args = ap.parse_args(argv)
     work = args.keep or Path(tempfile.mkdtemp(prefix="bench-bigfile-"))
@@ -207,16 +216,24 @@ def main(argv=None) -> int:
     finally:
         if not args.keep:
             shutil.rmtree(work, ignore_errors=True)
-    text = table(results)
+    before, before_commit = None, "?"
+    if args.before:
+        b = json.loads(args.before.read_text())
+        before = {r["case"]: r for r in b["results"]}
+        before_commit = b.get("commit", "?")
+    text = table(results, before)
     print(text)
     if args.json:
-        args.json.write_text(json.dumps(results, indent=1))
+        args.json.write_text(json.dumps({"commit": commit(), "results": results}, indent=1))
     if args.readme:
         c = commit()
         body = (f"`python benchmarks/bench_bigfile.py --readme README.md`, commit {c}; "
                 f"2 cores, engine local, one process.  Peak RSS of `accelcal run` on a drop "
                 f"whose one run is made N MB (a sample run with every dwell's readings repeated "
-                f"in the DAQ's format):\n\n{text}\n")
+                f"in the DAQ's format)"
+                + (f"; before: the same drops with the code of commit {before_commit}"
+                   if args.before else "")
+                + f":\n\n{text}\n")
         write_block(args.readme, "bench_bigfile", body)
     return 0 if all(r["ok"] for r in results) else 1
 
