@@ -70,6 +70,18 @@ def test_chunk_size_does_not_change_the_result(monkeypatch):
     assert (e.rule, e.line, e.detail) == (want_bad.rule, want_bad.line, want_bad.detail)
 
 
+def test_big_run_columns_are_views_of_the_same_values(monkeypatch):
+    """A big run's parsed columns are handed out as views of the parser's buffers, not
+    copied to their exact length (issue 28: that copy doubled a 5 M-row run's columns for
+    a moment): the run is the same."""
+    p = SHARED / "drop-2026-11-18-thermal" / "TT1-20261118-0001.csv"
+    want = read_run(p)
+    monkeypatch.setattr(dropformat, "VIEW_BYTES", 0)
+    got = read_run(p)
+    assert got == want
+    assert all(a.base is not None for a in got.arrays.values())
+
+
 # ------------------------------------------------------------ the file rules --
 
 import json

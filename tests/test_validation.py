@@ -163,6 +163,22 @@ def test_configuration_memo_changes_no_verdict(variant_results, monkeypatch, tmp
     assert key(plain) == key(res)
 
 
+def test_sliced_validation_changes_no_verdict(variant_results, monkeypatch, tmp_path):
+    """A batch of more rows than suites.VALIDATE_ROWS is validated a slice of rows at a time
+    (issue 28: a big run file in bounded memory); the refusals -- rule, first line, detail
+    with its row count -- must be those of the whole table, whatever the slice size (here
+    slices that cut runs anywhere), Data Docs written."""
+    from accelcal.schemas import suites
+    res, _ = variant_results
+    runs = [read_run(p) for p in sorted(res)]
+    key = lambda d: {p: [(r.rule, r.line, r.detail) for r in v] for p, v in d.items()}  # noqa: E731
+    for rows in (1000, 2501):
+        monkeypatch.setattr(suites, "VALIDATE_ROWS", rows)
+        sliced = validate_report(runs, tmp_path / str(rows), "variants")
+        assert key(sliced.refusals) == key(res)
+        assert (tmp_path / str(rows) / "variants" / "index.html").exists()
+
+
 def test_configuration_memo_is_off_outside_a_validation():
     """Outside accelcal's own validation GE's property runs as shipped: a new
     configuration object on every access; inside, one per expectation."""

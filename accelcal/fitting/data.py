@@ -352,13 +352,21 @@ def fitted_drive(t: np.ndarray, logged: np.ndarray, f: float, harmonics: int = 3
     return X @ b, D @ b
 
 
+#: Cells of a run's frame up to which :func:`_float_columns` makes one block of it.
+BLOCK_CELLS = 1 << 20
+
+
 def _float_columns(data, names: Sequence[str]) -> dict[str, np.ndarray]:
     """``{c: np.asarray(data[c], float)}`` of every column but ``line``.
 
     A DataFrame of plain numpy float and int columns (unique names) is converted at once
     (``to_numpy(dtype=float)``: the same float64 values, at a tenth of the cost of pandas'
-    column access, ~15 us a column) into one block whose rows are the columns."""
+    column access, ~15 us a column) into one block whose rows are the columns.  A frame of
+    more than BLOCK_CELLS cells is not: the block would be a second copy of a big run (the
+    frame stays alive beside the cells), so its float64 columns are used as they are and
+    only the others converted (issue 28: the same values, one copy)."""
     if (hasattr(data, "to_numpy") and hasattr(data, "dtypes") and data.columns.is_unique
+            and data.size <= BLOCK_CELLS
             and all(isinstance(dt, np.dtype) and dt.kind in "fi" for dt in data.dtypes)):
         block = np.ascontiguousarray(data.to_numpy(dtype=float).T)
         return {c: block[k] for k, c in enumerate(names) if c != "line"}

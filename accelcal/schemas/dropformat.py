@@ -940,6 +940,11 @@ class _BadCell(Exception):
         self.row, self.error = row, error
 
 
+#: A parsed column buffer of at least this many bytes is handed out as a view, not copied
+#: to its exact length (_Body.columns).
+VIEW_BYTES = 16 << 20
+
+
 class _Body:
     """The data rows of one run, parsed a chunk at a time into per-column arrays."""
 
@@ -1143,9 +1148,11 @@ class _Body:
         Copied out of the growing buffers when those are larger (their capacity is an
         estimate plus 1,024 rows: ~3x a 500-row run): a batch holds its parsed runs until
         validation, and views would keep every buffer whole (a worker's peak grew by ~80 MB
-        over batches of 550 files)."""
+        over batches of 550 files).  A big run's buffers are not copied (VIEW_BYTES): that
+        copy doubled its columns for a moment (a 5 M-row run: +280 MB), while the pages of
+        the unused tail, never written, hold no memory."""
         n = self.n_rows
-        cols = {c: self.cols[c][:n] if len(self.cols[c]) == n else self.cols[c][:n].copy()
-                for c in (*COLUMNS[self.test], "line")}
+        cols = {c: self.cols[c][:n] if len(self.cols[c]) == n or self.cols[c].nbytes >= VIEW_BYTES
+                else self.cols[c][:n].copy() for c in (*COLUMNS[self.test], "line")}
         self.cols = {}
         return cols

@@ -599,16 +599,102 @@ def _batch_specs(kinds: list[str], columns: dict[str, set[str]]) -> list[tuple[t
     return out
 
 
-def _batch_table(items: list[tuple[RunFile, str, dict]]) -> tuple[dict[str, pd.DataFrame], dict,
-                                                                  np.ndarray, np.ndarray, list[dict]]:
-    """The batch as two tables: ``rows``, every run's rows (its columns and derived columns;
-    a column a kind does not have is empty on its rows), and ``meta``, one row per run with
-    its metadata; both say where each row came from (``test``, ``file``, ``line``, ``_row``;
-    a run's meta row carries the ``_row`` and ``line`` of its first data row).  Two tables,
-    not one, because great-expectations copies the whole table for every column it checks:
-    metadata columns spread over every data row cost that copy without holding anything.
-    Also: the columns each kind fills, the run and the line of each row, and each run's
-    meta 'why'."""
+#: Rows of the ``rows`` table validated by one great-expectations call.  A batch with more
+#: rows (a big run file) is validated a slice of rows at a time and the slices' results
+#: merged (:func:`_validate_batch`): GE copies the whole table for each metric, so a 5 M-row
+#: table cost ~2 GB.  Every expectation on ``rows`` looks at one row at a time (or at the
+#: table's columns and dtypes, the same in every slice), so the merged verdicts, failing
+#: rows and messages are those of the whole table.
+VALIDATE_ROWS = 1 << 19
+
+
+class _Rows:
+    """The ``rows`` table of a batch, made a slice of rows at a time (:meth:`frame`): every
+    run's rows (its columns and derived columns; a column a kind does not have is empty on
+    its rows -- NaN, or 0 in an int column) and where each row came from (``test``,
+    ``file``, ``line``, ``_row``).  The whole table is never held: only the runs' own
+    arrays, and the slice being validated."""
+
+    def __init__(self, items: list[tuple[RunFile, str, dict]], lens: np.ndarray,
+                 names: list[str], dtypes: dict[str, np.dtype], kinds, files, kind_code, file_code):
+        self.items, self.lens, self.names, self.dtypes = items, lens, names, dtypes
+        self.starts = np.r_[0, np.cumsum(lens)[:-1]].astype(np.int64)
+        self.n = int(lens.sum())
+        self.kinds, self.files = kinds, files          # category names
+        self.kind_code, self.file_code = kind_code, file_code   # per run
+
+    def run_of(self, rows) -> np.ndarray:
+        """The run (index into the items) of each global row index."""
+        return np.searchsorted(self.starts, np.asarray(rows, np.int64), side="right") - 1
+
+    def _line(self, j: int) -> np.ndarray:
+        r, _, d = self.items[j]
+        if "line" in d:
+            return d["line"]
+        if "line" in r.arrays:
+            return np.asarray(r.arrays["line"], dtype=np.int64)
+        return np.full(self.lens[j], -1)
+
+    def line(self, k: int) -> int:
+        j = int(self.run_of(k))
+        return int(self._line(j)[k - self.starts[j]])
+
+    def cell(self, c: str, k: int):
+        """The value of column ``c`` at global row ``k``, as the whole table holds it."""
+        j = int(self.run_of(k))
+        v = self.items[j][2].get(c)
+        dt = self.dtypes[c]
+        if v is None:
+            return dt.type(0) if dt.kind in "iu" else dt.type(np.nan)
+        return dt.type(v[k - self.starts[j]])
+
+    def frame(self, a: int = 0, b: int | None = None) -> pd.DataFrame:
+        """Rows ``a`` to ``b`` of the table (global row numbers kept in ``_row``)."""
+        b = self.n if b is None else b
+        js = [j for j in range(len(self.items))
+              if self.starts[j] < b and self.starts[j] + self.lens[j] > a]
+        cuts = [(j, max(a - self.starts[j], 0), min(b - self.starts[j], self.lens[j])) for j in js]
+        m = b - a
+        data: dict[str, object] = {}
+        for c in self.names:
+            dt = self.dtypes[c]
+            parts = [self.items[j][2].get(c) for j, _, _ in cuts]
+            if all(p is not None for p in parts):
+                data[c] = np.concatenate([p[lo:hi] for p, (_, lo, hi) in zip(parts, cuts)]) \
+                    if len(parts) != 1 or cuts[0][1] != 0 or cuts[0][2] != len(parts[0]) \
+                    else parts[0]
+                if data[c].dtype != dt:
+                    data[c] = data[c].astype(dt)
+                continue
+            vals = np.zeros(m, np.int64) if dt.kind in "iu" else np.full(m, np.nan)
+            pos = 0
+            for p, (_, lo, hi) in zip(parts, cuts):
+                if p is not None:
+                    vals[pos:pos + hi - lo] = p[lo:hi]
+                pos += hi - lo
+            data[c] = vals
+        run_ix = np.repeat(np.asarray(js, np.int64), [hi - lo for _, lo, hi in cuts])
+        data["test"] = pd.Categorical.from_codes(self.kind_code[run_ix], self.kinds)
+        data["file"] = pd.Categorical.from_codes(self.file_code[run_ix], self.files)
+        data["line"] = np.concatenate([self._line(j)[lo:hi] for j, lo, hi in cuts])
+        data["_row"] = np.arange(a, b)
+        return pd.DataFrame(data, copy=False)
+
+    def slices(self, rows: int = 0):
+        """(a, b) row ranges of at most ``rows`` rows (default VALIDATE_ROWS) covering it."""
+        rows = rows or VALIDATE_ROWS
+        return [(a, min(a + rows, self.n)) for a in range(0, max(self.n, 1), rows)]
+
+
+def _batch_parts(items: list[tuple[RunFile, str, dict]]) -> tuple[_Rows, pd.DataFrame, dict,
+                                                                  list[dict]]:
+    """The batch as two tables: ``rows`` (a :class:`_Rows`, made a slice at a time), and
+    ``meta``, one row per run with its metadata; both say where each row came from
+    (``test``, ``file``, ``line``, ``_row``; a run's meta row carries the ``_row`` and
+    ``line`` of its first data row).  Two tables, not one, because great-expectations
+    copies the whole table for every column it checks: metadata columns spread over every
+    data row cost that copy without holding anything.  Also: the columns each kind fills,
+    and each run's meta 'why'."""
     lens = np.array([len(next(iter(d.values()))) if d else 0 for _, _, d in items], np.int64)
     for j, (r, t, d) in enumerate(items):
         if lens[j] == 0:      # nothing to hold its metadata: one empty row (not a file's)
@@ -616,41 +702,26 @@ def _batch_table(items: list[tuple[RunFile, str, dict]]) -> tuple[dict[str, pd.D
                                   np.zeros(1, v.dtype) for c, v in d.items()},
                                "line": np.full(1, -1)})
             lens[j] = 1
-    starts = np.r_[0, np.cumsum(lens)[:-1]]
-    n = int(lens.sum())
-    run_ix = np.repeat(np.arange(len(items)), lens)
-    line = np.concatenate([d["line"] if "line" in d else
-                           (np.asarray(r.arrays["line"], dtype=np.int64) if "line" in r.arrays
-                            else np.full(lens[j], -1)) for j, (r, _, d) in enumerate(items)])
     columns: dict[str, set[str]] = {}
     names: dict[str, None] = {}
     for _, t, d in items:
         columns.setdefault(t, set()).update(c for c in d if c != "line")
         names.update(dict.fromkeys(c for c in d if c != "line"))
-    data: dict[str, object] = {}
+    dtypes: dict[str, np.dtype] = {}
     for c in names:
         parts = [d.get(c) for _, _, d in items]
-        if all(p is not None for p in parts):
-            data[c] = np.concatenate(parts)
-            continue
         dt = np.result_type(*[p.dtype for p in parts if p is not None])
-        if dt.kind in "iu":
-            # an int column stays int64 (GE checks a nullable one row by row, in Python):
-            # the other kinds' rows hold 0, and count as having the column, so its
-            # expectations are limited to the kinds whose column it is (_batch_specs)
-            vals = np.zeros(n, np.int64)
-            for j, p in enumerate(parts):
-                if p is not None:
-                    vals[starts[j]:starts[j] + lens[j]] = p
-            data[c] = vals
-            for _, t, _ in items:
-                columns[t].add(c)
-        else:
-            a = np.full(n, np.nan)
-            for j, p in enumerate(parts):
-                if p is not None:
-                    a[starts[j]:starts[j] + lens[j]] = p
-            data[c] = a
+        if any(p is None for p in parts):
+            if dt.kind in "iu":
+                # an int column stays int64 (GE checks a nullable one row by row, in Python):
+                # the other kinds' rows hold 0, and count as having the column, so its
+                # expectations are limited to the kinds whose column it is (_batch_specs)
+                dt = np.dtype(np.int64)
+                for _, t, _ in items:
+                    columns[t].add(c)
+            else:
+                dt = np.dtype(np.float64)
+        dtypes[c] = dt
     # the metadata, one row per run
     whys, recs = [], []
     meta: dict[str, object] = {}
@@ -675,16 +746,24 @@ def _batch_table(items: list[tuple[RunFile, str, dict]]) -> tuple[dict[str, pd.D
     # strings per row cost a fifth of a large batch's validation; the values are the same
     kind_names, kind_code = np.unique(tests.astype(str), return_inverse=True)
     file_names, file_code = np.unique(files.astype(str), return_inverse=True)
-    data["test"] = pd.Categorical.from_codes(kind_code[run_ix], kind_names.astype(object))
-    data["file"] = pd.Categorical.from_codes(file_code[run_ix], file_names.astype(object))
-    data["line"] = line
-    data["_row"] = np.arange(n)
+    rows = _Rows(items, lens, list(names), dtypes, kind_names.astype(object),
+                 file_names.astype(object), kind_code, file_code)
     meta["test"] = pd.Series(tests, dtype=object)
     meta["file"] = files
-    meta["line"] = line[starts]
-    meta["_row"] = starts
-    tables = {"rows": pd.DataFrame(data, copy=False), "meta": pd.DataFrame(meta, copy=False)}
-    return tables, columns, run_ix, line, whys
+    meta["line"] = np.asarray([rows._line(j)[0] for j in range(len(items))], np.int64)
+    meta["_row"] = rows.starts
+    return rows, pd.DataFrame(meta, copy=False), columns, whys
+
+
+def _batch_table(items: list[tuple[RunFile, str, dict]]) -> tuple[dict[str, pd.DataFrame], dict,
+                                                                  np.ndarray, np.ndarray, list[dict]]:
+    """:func:`_batch_parts` with the ``rows`` table made whole (benchmarks/
+    bench_intake_budget.py times it): the two tables, the columns each kind fills, the run
+    and the line of each row, and each run's meta 'why'."""
+    rows, meta, columns, whys = _batch_parts(items)
+    df = rows.frame()
+    run_ix = np.repeat(np.arange(len(items)), rows.lens)
+    return {"rows": df, "meta": meta}, columns, run_ix, df["line"].to_numpy(), whys
 
 
 def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
@@ -729,10 +808,10 @@ def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
     if items:
         tk = time.perf_counter()
         kinds = list(dict.fromkeys(t for _, t, _ in items))
-        tables, columns, run_ix_a, line_a, meta_why = _batch_table(items)
-        df, dfm = tables["rows"], tables["meta"]
+        rows, dfm, columns, meta_why = _batch_parts(items)
         specs = _batch_specs(kinds, columns)
-        results, res_json = _validate_batch(tables, specs, docs_root is not None)
+        results, res_json = _validate_batch({"rows": rows, "meta": dfm}, specs,
+                                            docs_root is not None)
         if docs_root is not None:
             suite_results.append((BATCH_SUITE, res_json))
         kind_runs = [r for r, _, _ in items]
@@ -763,7 +842,7 @@ def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
                         refusals[r.path].append(Refusal(r.path, ln, rule, msg))
                 continue
             idx = np.asarray(sorted(int(i) for i in idx))
-            ri = run_ix_a[idx]
+            ri = rows.run_of(idx)
             for i in np.unique(ri):
                 sel = idx[ri == i]
                 k = int(sel[0])
@@ -780,14 +859,14 @@ def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
                     refusals[r.path].append(Refusal(r.path, ln, rule, detail))
                     continue
                 test = test_of[int(i)]
-                ln = int(line_a[k])
+                ln = rows.line(k)
                 more = f" ({len(sel)} rows, first here)" if len(sel) > 1 else ""
                 shown = [c for c in (col, "time_s") if c and c in columns[test]]
                 if col == "nonfinite_cells":
                     shown = [c for c in COLUMNS[test] if c not in INT_COLUMNS
-                             and not np.isfinite(df[c].iloc[k])
-                             and not (np.isnan(df[c].iloc[k]) and c in NULLABLE_COLUMNS[test])]
-                vals = ", ".join(f"{c} = {_fmt(df[c].iloc[k])}" for c in dict.fromkeys(shown))
+                             and not np.isfinite(rows.cell(c, k))
+                             and not (np.isnan(rows.cell(c, k)) and c in NULLABLE_COLUMNS[test])]
+                vals = ", ".join(f"{c} = {_fmt(rows.cell(c, k))}" for c in dict.fromkeys(shown))
                 refusals[r.path].append(Refusal(r.path, ln if ln > 0 else None, rule,
                                                 f"{what}: {vals}{more}"))
         per_kind["+".join(kinds)] = time.perf_counter() - tk
@@ -816,7 +895,7 @@ def run_suite(name: str, table: str, df: pd.DataFrame, specs: list, which: list[
         _forget_batches()
 
 
-def _validate_batch(tables: dict[str, pd.DataFrame], specs: list,
+def _validate_batch(tables: dict[str, "pd.DataFrame | _Rows"], specs: list,
                     want_json: bool) -> tuple[list, dict | None]:
     """The batch's suite on its tables (``rows`` and ``meta``, each expectation on the
     table its spec names): GE's results, in the suite's order, and (``want_json``) one
@@ -826,9 +905,15 @@ def _validate_batch(tables: dict[str, pd.DataFrame], specs: list,
     cheap metrics); only those that failed are run again, COMPLETE, for the rows to name
     (their file and line: WHERE_COLUMNS) and the observed values.  A clean batch costs one
     validation per table; the failures' results replace theirs, so the Data Docs show them
-    whole."""
+    whole.
+
+    A ``rows`` table given as :class:`_Rows` of more than VALIDATE_ROWS rows is validated a
+    slice at a time (:func:`_validate_slices`), each slice made only while it is checked."""
     def run(name: str, table: str, which: list[int], result_format: dict):
-        return run_suite(name, table, tables[table], specs, which, result_format)
+        df = tables[table]
+        if isinstance(df, _Rows):
+            df = df.frame()
+        return run_suite(name, table, df, specs, which, result_format)
 
     def key(er) -> int:
         return int(er.expectation_config.meta["i"])
@@ -842,6 +927,17 @@ def _validate_batch(tables: dict[str, pd.DataFrame], specs: list,
         if not which:
             continue
         name = f"{BATCH_SUITE}.{table}"
+        if isinstance(tables[table], _Rows) and len(tables[table].slices()) > 1:
+            merged, merged_json = _validate_slices(name, table, tables[table], specs, which,
+                                                   want_json)
+            results.update(merged)
+            if want_json:
+                docs.update(merged_json)
+                ok = sum(1 for i in which if merged[i].success)
+                stats["evaluated_expectations"] += len(which)
+                stats["successful_expectations"] += ok
+                stats["unsuccessful_expectations"] += len(which) - ok
+            continue
         first = run(name, table, which, {"result_format": "BOOLEAN_ONLY"})
         failed = [key(er) for er in first.results if not er.success]
         again = run(f"{name}.failed", table, failed, {
@@ -867,6 +963,67 @@ def _validate_batch(tables: dict[str, pd.DataFrame], specs: list,
            "suite_name": BATCH_SUITE, "results": [docs[i] for i in sorted(docs)],
            "tables": {t: [i for i, sp in enumerate(specs) if sp[1] == t] for t in tables}}
     return ordered, doc
+
+
+#: Counts in a result that add up over slices of rows (the rest is the first failing slice's).
+_SUMMED = ("element_count", "unexpected_count", "missing_count")
+
+
+def _validate_slices(name: str, table: str, rows: _Rows, specs: list, which: list[int],
+                     want_json: bool) -> tuple[dict[int, object], dict[int, dict]]:
+    """:func:`_validate_batch` on a ``rows`` table too big for one call: each slice of rows
+    (:meth:`_Rows.slices`) made, checked BOOLEAN_ONLY, its failures checked again COMPLETE,
+    and let go.  An expectation passes when it passes on every slice; one that fails keeps
+    the COMPLETE result of the first slice it fails on, with the failing rows of the later
+    slices appended (``_row`` is the row's number in the whole table) and the counts of
+    :data:`_SUMMED` added up -- so the refusals made from it (first failing row, how many)
+    are those of the whole table.  Results and their JSON (``want_json``) by expectation."""
+    def key(er) -> int:
+        return int(er.expectation_config.meta["i"])
+
+    out: dict[int, object] = {}
+    out_json: dict[int, dict] = {}
+    for a, b in rows.slices():
+        df = rows.frame(a, b)
+        first = run_suite(name, table, df, specs, which, {"result_format": "BOOLEAN_ONLY"})
+        failed = [key(er) for er in first.results if not er.success]
+        again = run_suite(f"{name}.failed", table, df, specs, failed, {
+            "result_format": "COMPLETE", "unexpected_index_column_names": WHERE_COLUMNS}) \
+            if failed else None
+        del df
+        full = {key(er): er for er in again.results} if again is not None else {}
+        full_json = ({int(r["expectation_config"]["meta"]["i"]): r
+                      for r in again.to_json_dict()["results"]}
+                     if want_json and again is not None else {})
+        first_json = ({int(r["expectation_config"]["meta"]["i"]): r
+                       for r in first.to_json_dict()["results"]} if want_json else {})
+        for er in first.results:
+            i = key(er)
+            er = full.get(i, er)
+            prev = out.get(i)
+            if prev is None or (prev.success and not er.success):
+                out[i] = er
+                if want_json:
+                    out_json[i] = full_json.get(i, first_json.get(i))
+                continue
+            if er.success or prev.success:
+                continue
+            _merge_result(prev.result, er.result)
+            if want_json and i in full_json:
+                _merge_result(out_json[i].get("result"), full_json[i].get("result"))
+    return out, out_json
+
+
+def _merge_result(into: dict | None, more: dict | None) -> None:
+    """Add a later slice's failing rows and counts to a failed expectation's result."""
+    if not into or not more:
+        return
+    for k in ("unexpected_index_list",):
+        if isinstance(into.get(k), list) and isinstance(more.get(k), list):
+            into[k] = into[k] + more[k]
+    for k in _SUMMED:
+        if isinstance(into.get(k), (int, np.integer)) and isinstance(more.get(k), (int, np.integer)):
+            into[k] = int(into[k]) + int(more[k])
 
 
 def _docs(docs_root: Path | None, title: str, runs: list[RunFile],
