@@ -368,6 +368,9 @@ class CampaignModel:
     #: its solution again and again (its last step, the noise refit, the next fit's start,
     #: the pure error), each time at the same point
     PREDICTION_CACHE = 8
+    #: and at most this many bytes of them, the newest point always kept: a big run's outputs
+    #: at eight points would be hundreds of MB (issue 28)
+    PREDICTION_CACHE_BYTES = 64 * 2 ** 20
 
     def predict_rows(self, p: np.ndarray, j: int, extra: Mapping[str, float] | None = None) -> np.ndarray:
         """The model's output at every reading of run j.
@@ -402,6 +405,12 @@ class CampaignModel:
         if E is None:
             E = rows[j] = self._rows(p, j)
             E.setflags(write=False)
+            held = sum(a.nbytes for d in cache.values() for a in d.values())
+            while held > self.PREDICTION_CACHE_BYTES and len(cache) > 1:
+                old = next(iter(cache))
+                if old == key:
+                    break
+                held -= sum(a.nbytes for a in cache.pop(old).values())
         return E
 
     def _rows(self, p: np.ndarray, j: int, extra: Mapping[str, float] | None = None) -> np.ndarray:
