@@ -11,7 +11,8 @@ from pathlib import Path
 
 from ..fileio import StoreError, os_error_text
 from ..warehouse.db import Refusal
-from . import contracts, progress
+from ..schemas import datadocs, suites
+from . import progress
 from .ingest import DropIngest, ingest_files
 
 
@@ -35,10 +36,10 @@ def validate_drop(ing: DropIngest, docs_root: str, part: int | None = None) -> D
     parse_refusals = [rf for rec in ing.records if rec.status == "refused" for rf in rec.refusals]
     if runs or parse_refusals:
         _follow_quiet_parent()
-        folder = contracts.docs_folder_name(ing.drop_name)
+        folder = suites.docs_folder_name(ing.drop_name)
         verdicts = _validate_isolated(ing, runs, docs_root, part, parse_refusals)
         if part is not None:
-            contracts.write_drop_index(Path(docs_root) / folder, ing.drop_name)
+            datadocs.write_drop_index(Path(docs_root) / folder, ing.drop_name)
         by_path = {}
         for k, v in (verdicts or {}).items():
             by_path[str(k)] = v
@@ -69,11 +70,11 @@ def _validate_isolated(ing: DropIngest, runs: list, docs_root: str, part: int | 
     if part is None:
         where = (docs_root, ing.drop_name)
     else:
-        where = (str(Path(docs_root) / contracts.docs_folder_name(ing.drop_name)), f"part-{part:04d}")
+        where = (str(Path(docs_root) / suites.docs_folder_name(ing.drop_name)), f"part-{part:04d}")
 
     def validate(rs):
         try:
-            return contracts.validate_runs(rs, *where, parse_refusals)
+            return suites.validate_runs(rs, *where, parse_refusals)
         except OSError as e:
             raise StoreError(os_error_text(e, f"cannot write Data Docs under {docs_root}")) from None
 
