@@ -1,0 +1,239 @@
+"""The derived columns the rows suites check (:mod:`accelcal.schemas.rules`): dwell keys,
+run-level figures on each run's first row (sample period, rest-dwell spread, the 1 g
+step, the sine drive's amplitude and frequency), and the metadata record of a run."""
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from ..fitting.core import lstsq_min_norm
+from .dropformat import COLUMNS, FLOAT_KEYS, INT_COLUMNS, INT_KEYS, NULLABLE_COLUMNS, REQUIRED_KEYS, RunFile
+from .rules import ANGLE_TOL_DEG, REST_RATE, SINE_RESID_MAX
+
+# --------------------------------------------------------------------------------------
+# derived columns (the header's claims made checkable row by row)
+
+
+def _first_only(n: int, value: float) -> np.ndarray:
+    out = np.full(n, np.nan)
+    if n:
+        out[0] = value
+    return out
+
+
+def _dwell_keys(test: str, d: dict[str, np.ndarray]) -> np.ndarray:
+    """Consecutive rows of one dwell share a key (the DAQ logs at sample_period within it)."""
+    if test == "tumble":
+        k = d["position"].astype(np.float64)
+    elif test == "centrifuge":
+        k = d["step"].astype(np.float64)
+    elif test == "tilt_rotation":
+        k = d["temp_set_c"].astype(np.float64) * 1e4 + d["rotation_deg"].astype(np.float64)
+    else:
+        k = np.zeros(len(d["line"]))
+    return k
+
+
+def _segments(values: np.ndarray) -> np.ndarray:
+    """Index of the run of equal consecutive values each row belongs to."""
+    if len(values) == 0:
+        return np.zeros(0, np.int64)
+    change = np.r_[False, values[1:] != values[:-1]]
+    return np.cumsum(change)
+
+
+def _run_edges(values: np.ndarray) -> np.ndarray:
+    """Where each run of equal consecutive values starts, then the end: run k is
+    ``values[edges[k]:edges[k + 1]]`` (the slices of :func:`_segments`' labels)."""
+    if len(values) == 0:
+        return np.zeros(0, np.int64)
+    return np.flatnonzero(np.r_[True, values[1:] != values[:-1], True])
+
+
+def _derive(test: str, run: RunFile, step_means: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """The run's columns plus the derived columns the suite checks, as numpy arrays of the
+    run's length (no DataFrame per run: the batch is one table, made once).  The run's
+    columns are its arrays (RunFile.arrays): a pandas column lookup costs more than most
+    of the arithmetic here.  ``step_means``: for a centrifuge run, its mean turning rate
+    per step when already known (:func:`_turning_step_means`)."""
+    d = dict(run.arrays)
+    n = run.n_rows
+    d.setdefault("line", np.full(n, -1))
+    cols = [c for c in COLUMNS[test] if c in d]
+    out: dict[str, np.ndarray] = {c: d[c] for c in cols}
+    meta = run.meta
+    nullable = NULLABLE_COLUMNS[test]
+    bad = np.zeros(n, np.int64)
+    for c in cols:
+        if c == "output" or c in INT_COLUMNS:
+            continue
+        v = d[c].astype(np.float64, copy=False)
+        bad += np.isinf(v) if c in nullable else ~np.isfinite(v)
+    out["nonfinite_cells"] = bad
+    with np.errstate(all="ignore"):
+        t = d["time_s"].astype(np.float64, copy=False) if "time_s" in d else np.full(n, np.nan)
+        dt = np.r_[np.nan, np.diff(t)] if n else np.zeros(0)
+        out["d_time_s"] = dt
+        period = float(meta.get("sample_period_s", np.nan) or np.nan)
+        # only forward steps here; a step back is time-not-increasing's alone
+        out["dt_over_period"] = np.where(dt > 0, dt / period, np.nan) if period > 0 else np.nan
+        try:
+            keys = _dwell_keys(test, d)
+            same = np.r_[False, keys[1:] == keys[:-1]] & np.isfinite(dt) & (dt > 0)
+            within = dt[same]
+            perr = abs(float(np.median(within)) / period - 1.0) if within.size and period > 0 else np.nan
+        except KeyError:
+            perr = np.nan
+        out["period_error"] = _first_only(n, perr)
+
+        if test == "tumble" and {"position", "angle_deg"} <= d.keys():
+            ang = d["angle_deg"].astype(np.float64, copy=False)
+            med = pd.Series(ang).groupby(d["position"]).transform("median").to_numpy(np.float64)
+            out["angle_dev_deg"] = np.abs(ang - med)
+        if test == "centrifuge" and {"step", "table_rate_rad_s", "table_angle_deg"} <= d.keys():
+            out["rest_dwell_error_deg"] = _first_only(n, _rest_dwell_error(d))
+            out["one_g_error"] = _one_g(d, meta, n, step_means)
+        if test == "tilt_rotation" and {"temp_set_c", "rotation_deg"} <= d.keys():
+            npos = int(meta.get("positions", 0) or 0)
+            rot = d["rotation_deg"].astype(np.float64, copy=False)
+            if npos >= 1:
+                step = 360.0 / npos
+                r = np.mod(rot, step)
+                out["rotation_grid_dev_deg"] = np.minimum(r, step - r)
+            else:
+                out["rotation_grid_dev_deg"] = np.nan
+            seg = _segments(d["temp_set_c"].astype(np.float64, copy=False))
+            rk = np.round(np.mod(rot, 360.0) / ANGLE_TOL_DEG)
+            distinct = pd.Series(rk).groupby(seg).transform("nunique").to_numpy(np.float64)
+            first = np.r_[True, seg[1:] != seg[:-1]] if n else np.zeros(0, bool)
+            out["positions_error"] = np.where(first, distinct - npos, np.nan)
+        if test == "sine_centrifuge" and "table_rate_rad_s" in d:
+            ratio, resid = _sine_fit(t, d["table_rate_rad_s"].astype(np.float64, copy=False), meta)
+            out["rate_amplitude_ratio"] = _first_only(n, ratio)
+            out["rate_fit_residual"] = _first_only(n, resid)
+    for k, v in out.items():         # a scalar stands for every row (as a column would)
+        if np.ndim(v) == 0:
+            out[k] = np.full(n, v, dtype=np.float64)
+    return out
+
+
+def _rest_dwell_error(d: dict[str, np.ndarray]) -> float:
+    """Worst spacing error (deg) of the leading rest dwells' azimuths; 999 if < 2 of them."""
+    rate = d["table_rate_rad_s"].astype(np.float64, copy=False)
+    step = d["step"]
+    ang = d["table_angle_deg"].astype(np.float64, copy=False)
+    # the dwells (runs of equal steps) as slices: the same rows, in order, as a mask each
+    edges = _run_edges(step)
+    az = []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        m = slice(lo, hi)
+        if not np.all(np.abs(rate[m]) < REST_RATE):
+            break
+        a = ang[m]
+        a = a[np.isfinite(a)]
+        if a.size == 0:
+            return 999.0
+        az.append(float(np.median(np.mod(a, 360.0))))
+    az = sorted(set(round(a, 6) for a in az))
+    if len(az) < 2:
+        return 999.0
+    gaps = np.diff(np.r_[az, az[0] + 360.0])
+    return float(np.max(np.abs(gaps - 360.0 / len(az))))
+
+
+def _one_g(d: dict[str, np.ndarray], meta: dict, n: int,
+           means: np.ndarray | None = None) -> np.ndarray:
+    """min over turning dwells of |omega^2 R / g - 1|, placed on the first turning row.
+    ``means``: the mean turning rate [rad/s] per step, ascending steps (see
+    :func:`_turning_step_means`), or None to compute them here."""
+    rate = d["table_rate_rad_s"].astype(np.float64, copy=False)
+    R = float(meta.get("arm_radius_m", np.nan))
+    g = float(meta.get("g_local_m_s2", np.nan))
+    turning = rate >= REST_RATE
+    out = np.full(n, np.nan)
+    if not turning.any() or not (R > 0 and g > 0):
+        out[0] = 999.0 if n else np.nan
+        return out
+    if means is None:
+        means = pd.Series(rate[turning]).groupby(d["step"][turning]).mean().to_numpy()
+    err = np.abs(means ** 2 * R / g - 1.0)
+    out[int(np.flatnonzero(turning)[0])] = float(np.nanmin(err)) if np.isfinite(err).any() else 999.0
+    return out
+
+
+def _turning_step_means(runs: list[RunFile]) -> dict[int, np.ndarray]:
+    """What :func:`_one_g` needs of each centrifuge run ``runs[j]`` -- the mean rate [rad/s]
+    of its turning rows per step, ascending steps -- for all of them in one pandas groupby
+    (one per run cost a quarter of a run's derived columns).  The same numbers as a
+    groupby per run, bit for bit: each group here is one run's step, its rows in the run's
+    order, and pandas sums a group from its values alone -- but how depends on the whole
+    key: rows sorted by group (and no NaN) are summed with ``np.add.reduceat``, others by
+    a compensated sum.  So only runs whose turning steps never go down are taken (the
+    batch is then sorted too, as each of them is alone; a turning rate is never NaN);
+    the others, and runs whose columns are not the parser's dtypes, are left out
+    (computed per run)."""
+    rates, steps, js = [], [], []
+    for j, r in enumerate(runs):
+        a = r.arrays
+        if r.test != "centrifuge" or not {"step", "table_rate_rad_s", "table_angle_deg"} <= a.keys():
+            continue
+        rate, step = a["table_rate_rad_s"], a["step"]
+        if rate.dtype != np.float64 or step.dtype != np.int64:
+            continue
+        turning = rate >= REST_RATE
+        s = step[turning]
+        if len(s) > 1 and not (s[1:] >= s[:-1]).all():
+            continue
+        rates.append(rate[turning])
+        steps.append(s)
+        js.append(np.full(len(rates[-1]), j, np.int64))
+    if not rates:
+        return {}
+    means = pd.Series(np.concatenate(rates)).groupby([np.concatenate(js),
+                                                      np.concatenate(steps)]).mean()
+    run_of = means.index.get_level_values(0).to_numpy()
+    values = means.to_numpy()
+    out: dict[int, np.ndarray] = {}
+    bounds = _run_edges(run_of)
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        out[int(run_of[a])] = values[a:b]
+    return out
+
+
+def _sine_fit(t: np.ndarray, rate: np.ndarray, meta: dict) -> tuple[float, float]:
+    """Least-squares a*sin + b*cos + c at rate_frequency_hz: (amplitude/Omega, rms resid/Omega)."""
+    Om = float(meta.get("rate_amplitude_rad_s", np.nan))
+    f = float(meta.get("rate_frequency_hz", np.nan))
+    ok = np.isfinite(t) & np.isfinite(rate)
+    if ok.sum() < 4 or not (Om > 0 and f > 0):
+        return np.nan, np.nan
+    w = 2 * np.pi * f * t[ok]
+    A = np.column_stack([np.sin(w), np.cos(w), np.ones_like(w)])
+    try:
+        coef = lstsq_min_norm(A, rate[ok])
+    except np.linalg.LinAlgError:
+        return np.nan, np.nan
+    resid = rate[ok] - A @ coef
+    rel_resid = float(np.sqrt(np.mean(resid ** 2)) / Om)
+    if rel_resid <= SINE_RESID_MAX:
+        amp = float(np.hypot(coef[0], coef[1]))
+    else:  # wrong frequency: the fit says nothing about the amplitude; use the rms instead
+        amp = float(np.sqrt(2.0) * np.std(rate[ok]))
+    return amp / Om, rel_resid
+
+
+def _meta_record(test: str, r: RunFile) -> tuple[dict, dict[str, str]]:
+    """The run's typed metadata for the ``meta`` expectations, plus counts of missing and
+    badly typed keys; and the names behind those counts (for the refusal's detail)."""
+    keys = list(REQUIRED_KEYS[test]) + ["ambient_temp_c"]
+    rec = {k: r.meta.get(k) for k in keys}
+    missing = [k for k in REQUIRED_KEYS[test] if r.meta.get(k) in (None, "")]
+    badtype = [k for k in keys if k in r.meta and (
+        (k in FLOAT_KEYS and (isinstance(r.meta[k], bool) or not isinstance(r.meta[k], (float, int))))
+        or (k in INT_KEYS and (isinstance(r.meta[k], bool) or not isinstance(r.meta[k], int)))
+        or (k not in FLOAT_KEYS and k not in INT_KEYS and not isinstance(r.meta[k], str)))]
+    rec["missing_keys"] = len(missing)
+    rec["badly_typed_keys"] = len(badtype)
+    for k in badtype:
+        rec[k] = None  # keep the range checks from choking on a wrong kind
+    return rec, {"missing_keys": ", ".join(missing), "badly_typed_keys": ", ".join(badtype)}
