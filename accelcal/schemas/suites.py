@@ -47,9 +47,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .dropformat import (COLUMNS, FLOAT_KEYS, FORMAT, INT_COLUMNS, INT_KEYS, NULLABLE_COLUMNS,
-                         OUTPUT_UNITS, REQUIRED_KEYS, ROTATION_SENSES, Refusal,
-                         RunFile)
+from .dropformat import RunFile
+from .dropspec import (COLUMNS, FLOAT_KEYS, FORMAT, INT_COLUMNS, INT_KEYS, NULLABLE_COLUMNS,
+                       OUTPUT_UNITS, REQUIRED_KEYS, ROTATION_SENSES, Refusal)
 from ..effects import TESTS
 from ..fitting.core import lstsq_min_norm
 
