@@ -546,7 +546,7 @@ def peak_rss_of(cmd, env=None, cwd=None, timeout=1800) -> tuple[int, float, str,
 INGEST_ONE = r'''
 import json, resource, sys, time
 from accelcal.tasks.ingest import ingest_files
-from accelcal.schemas.dropformat import scan_drop
+from accelcal.schemas.dropscan import scan_drop
 t = time.perf_counter()
 ing = ingest_files(sys.argv[1], scan_drop(sys.argv[1]), sys.argv[2], sys.argv[3], {})
 print(json.dumps({"seconds": time.perf_counter() - t, "status": [r.status for r in ing.records],

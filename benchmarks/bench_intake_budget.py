@@ -79,7 +79,8 @@ def measure(drop: str, repeat: int) -> dict:
 
     from accelcal.flows.pipeline import batch_bytes, batch_files, file_batches
     from accelcal.schemas import suites
-    from accelcal.schemas.dropformat import parse_runs, scan_drop
+    from accelcal.schemas.dropformat import parse_runs
+    from accelcal.schemas.dropscan import scan_drop
     from accelcal.schemas.tables import write_run_parquet
     from accelcal.tasks.validate import intake_batch
 

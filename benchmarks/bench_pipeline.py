@@ -135,7 +135,7 @@ def warm_intake(drops: list[str], repeat: int) -> dict:
     Parquet files are written in threads beside the parsing), so wall time gained by
     running two things at once is told apart from work saved."""
     from accelcal.flows.pipeline import batch_bytes, batch_files, file_batches
-    from accelcal.schemas.dropformat import scan_drop
+    from accelcal.schemas.dropscan import scan_drop
     from accelcal.tasks.validate import intake_batch
     batches = []
     for d in drops:
@@ -165,7 +165,7 @@ def floor(drops: list[str], repeat: int) -> dict:
     import numpy as np
     import pyarrow.csv as pacsv
 
-    from accelcal.schemas.dropformat import scan_drop
+    from accelcal.schemas.dropscan import scan_drop
     files = [e.path for d in drops for e in scan_drop(os.path.realpath(d))
              if e.refusal is None]
 

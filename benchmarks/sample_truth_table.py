@@ -17,7 +17,8 @@ from pathlib import Path
 
 from accelcal.effects import COEFFICIENTS
 from accelcal.estimators.campaign import process_campaign
-from accelcal.schemas.dropformat import discover, read_run
+from accelcal.schemas.dropformat import read_run
+from accelcal.schemas.dropscan import discover
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))

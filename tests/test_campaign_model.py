@@ -7,7 +7,8 @@ import json
 import pytest
 
 from accelcal.estimators.joint import fit_campaign_model, prepare
-from accelcal.schemas.dropformat import discover, read_run
+from accelcal.schemas.dropformat import read_run
+from accelcal.schemas.dropscan import discover
 
 from conftest import SHARED
 

@@ -14,7 +14,8 @@ from accelcal.estimators.campaign import process_campaign
 from accelcal.estimators.crosscoupling import alignment, c2_of_mount, delta_c2, kip_from_45
 from accelcal.estimators.radius import PairData, test_radius_iterative, test_radius_static
 from accelcal.physics import rig_output
-from accelcal.schemas.dropformat import discover, read_run
+from accelcal.schemas.dropformat import read_run
+from accelcal.schemas.dropscan import discover
 
 from conftest import TRUTH_20
 

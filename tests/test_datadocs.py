@@ -10,7 +10,9 @@ import subprocess
 
 import pytest
 
-from accelcal.schemas.dropformat import DropFormatError, discover, read_run
+from accelcal.schemas.dropformat import read_run
+from accelcal.schemas.dropscan import discover
+from accelcal.schemas.dropspec import DropFormatError
 from accelcal.schemas.suites import validate_report
 
 

@@ -9,8 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from accelcal.schemas.dropformat import (COLUMNS, REQUIRED_KEYS, DropFormatError, RunFile, discover,
-                                         read_run)
+from accelcal.schemas.dropformat import RunFile, read_run
+from accelcal.schemas.dropscan import discover
+from accelcal.schemas.dropspec import COLUMNS, REQUIRED_KEYS, DropFormatError
 
 from conftest import EXAMPLES, require_shared  # ../shared/examples relative to the repository root
 

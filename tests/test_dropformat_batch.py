@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from accelcal.schemas.dropformat import DropFormatError, parse_run, parse_runs
+from accelcal.schemas.dropformat import parse_run, parse_runs
+from accelcal.schemas.dropspec import DropFormatError
 
 DEMO = Path(__file__).resolve().parents[1] / "accelcal" / "demo_data"
 

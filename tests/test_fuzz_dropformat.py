@@ -11,7 +11,8 @@ from pathlib import Path
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from accelcal.schemas.dropformat import COLUMNS, DropFormatError, RunFile, read_run
+from accelcal.schemas.dropformat import RunFile, read_run
+from accelcal.schemas.dropspec import COLUMNS, DropFormatError
 from accelcal.schemas.suites import Refusal, validate_runs
 
 from conftest import EXAMPLES, require_shared  # ../shared/examples relative to the repository root

@@ -8,8 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from accelcal.schemas import dropformat
-from accelcal.schemas.dropformat import DETAIL_MAX, LINE_MAX, DropFormatError, parse_run, read_run
+from accelcal.schemas import dropformat, runbody
+from accelcal.schemas.dropformat import parse_run, read_run
+from accelcal.schemas.dropspec import DETAIL_MAX, LINE_MAX, DropFormatError
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared" / "examples"
@@ -62,7 +63,8 @@ def test_chunk_size_does_not_change_the_result(monkeypatch):
     bad = b"\n".join(ls[:HEADER + 3] + [b"", b"  "] + ls[HEADER + 3:HEADER + 9]
                      + [ls[HEADER + 9].replace(b",", b",,", 1)] + ls[HEADER + 10:])
     want_bad = _refusal(bad)
-    monkeypatch.setattr(dropformat, "CHUNK_BYTES", 257)
+    monkeypatch.setattr(dropformat, "CHUNK_BYTES", 257)     # the stream's chunks
+    monkeypatch.setattr(runbody, "CHUNK_BYTES", 257)        # the row parser's read block
     monkeypatch.setattr(dropformat, "BLOCK_BYTES", 61)
     for p, w in zip(files, want):
         assert read_run(p) == w
@@ -76,7 +78,7 @@ def test_big_run_columns_are_views_of_the_same_values(monkeypatch):
     a moment): the run is the same."""
     p = SHARED / "drop-2026-11-18-thermal" / "TT1-20261118-0001.csv"
     want = read_run(p)
-    monkeypatch.setattr(dropformat, "VIEW_BYTES", 0)
+    monkeypatch.setattr(runbody, "VIEW_BYTES", 0)
     got = read_run(p)
     assert got == want
     assert all(a.base is not None for a in got.arrays.values())
@@ -93,7 +95,7 @@ import sys
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from accelcal.schemas.dropformat import Entry, scan_drop, settle_wait
+from accelcal.schemas.dropscan import Entry, scan_drop, settle_wait
 from accelcal.textout import esc, plain
 
 

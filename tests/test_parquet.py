@@ -8,7 +8,9 @@ import pyarrow.parquet as pq
 import pytest
 
 from accelcal.schemas import tables
-from accelcal.schemas.dropformat import COLUMNS, discover, read_run
+from accelcal.schemas.dropformat import read_run
+from accelcal.schemas.dropscan import discover
+from accelcal.schemas.dropspec import COLUMNS
 from accelcal.schemas.tables import (META_KEY, SCHEMAS, parquet_path, read_run_parquet,
                                      write_run_parquet)
 

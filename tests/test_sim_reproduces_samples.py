@@ -11,7 +11,8 @@ import pytest
 
 from accelcal.estimators.campaign import process_campaign
 from accelcal.validation.simruns import SimRunFile
-from accelcal.schemas.dropformat import discover, read_run
+from accelcal.schemas.dropformat import read_run
+from accelcal.schemas.dropscan import discover
 from accelcal.simulate import load_scenario, simulate_campaign
 
 #: sample drop -> (shipped scenario, the (name, method) pairs compared)

@@ -300,7 +300,8 @@ def test_real_imucal_heads_untestable_and_disagreeing(examples):
     """../shared/real/imucal-ferraris: four positions per run (untestable, flagged), theta0 per
     head equal in size to imucal's misalignment terms, K0 of the two heads flagged."""
     from accelcal.estimators.tumble import tumble_step
-    from accelcal.schemas.dropformat import discover, read_run as read_drop
+    from accelcal.schemas.dropformat import read_run as read_drop
+    from accelcal.schemas.dropscan import discover
     real = examples.parent / "real" / "imucal-ferraris"
     if not real.is_dir():
         pytest.skip("real data not available")

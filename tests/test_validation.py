@@ -5,7 +5,9 @@ from pathlib import Path
 
 import pytest
 
-from accelcal.schemas.dropformat import DropFormatError, discover, read_run
+from accelcal.schemas.dropformat import read_run
+from accelcal.schemas.dropscan import discover
+from accelcal.schemas.dropspec import DropFormatError
 from accelcal.schemas.suites import Refusal, validate_report, validate_runs
 
 from conftest import EXAMPLES, require_shared  # ../shared/examples relative to the repository root

@@ -17,12 +17,13 @@ def read_paths(paths) -> list:
     -------
     list of RunFile
         Parsed runs (typed ``meta`` and ``data`` columns), files in the order given and,
-        within a folder, sorted (:func:`accelcal.schemas.dropformat.discover`); empty when
+        within a folder, sorted (:func:`accelcal.schemas.dropscan.discover`); empty when
         nothing could be read.
     """
     from pathlib import Path
 
-    from ..schemas.dropformat import discover, read_run
+    from ..schemas.dropformat import read_run
+    from ..schemas.dropscan import discover
     files: list[Path] = []
     for p in paths:
         p = Path(p)

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..schemas import dropformat
+from ..schemas import dropscan
 from ..tasks import progress
 from ..fileio import StoreError, os_error_text, path_text
 from ..warehouse.db import Warehouse
@@ -365,11 +365,11 @@ def _settled_files(drops: list[str], settle: float, run: _Run):
     scanned: dict[str, list] = {}
     for drop in drops:
         try:
-            scanned[drop] = dropformat.scan_drop(drop)
+            scanned[drop] = dropscan.scan_drop(drop)
         except OSError as e:
             raise PipelineError(os_error_text(e, "cannot list drop")) from None
     unique = {e.path: e for es in scanned.values() for e in es}
-    ready, held_all = dropformat.settle_wait(list(unique.values()), settle)
+    ready, held_all = dropscan.settle_wait(list(unique.values()), settle)
     ready_at = {e.path: e for e in ready}
     held_at = {e.path: why for e, why in held_all}
     by_drop = {d: [ready_at[e.path] for e in scanned[d] if e.path in ready_at] for d in drops}

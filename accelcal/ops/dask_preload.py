@@ -51,7 +51,7 @@ def warm_scheduler() -> float:
     t0 = time.perf_counter()
     import prefect.task_engine  # noqa: F401
     from ..tasks import prefect_tasks, science, store, validate  # noqa: F401
-    from ..schemas import dropformat  # noqa: F401  (the drop listing's entries)
+    from ..schemas import dropscan  # noqa: F401  (the drop listing's entries)
     return time.perf_counter() - t0
 
 

@@ -61,7 +61,7 @@ DISPLAY_TO_DSI: dict[str, tuple[str, float]] = {
     "ppm/degC": (r"\ppm\degreecelsius\tothe{-1}", 1e-6),
     "deg": (r"\degree", math.pi / 180.0),
 }
-#: A run's output unit (dropformat.OUTPUT_UNITS) in D-SI, for K1 = output per m/s².
+#: A run's output unit (dropspec.OUTPUT_UNITS) in D-SI, for K1 = output per m/s².
 OUTPUT_TO_DSI = {"mA": r"\milli\ampere", "V": r"\volt", "count": "", "m/s2": r"\metre\second\tothe{-2}"}
 #: Coverage probability written beside U = k u (k from the coefficient; about 95 %).
 COVERAGE_PROBABILITY = "0.95"

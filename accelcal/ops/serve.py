@@ -96,7 +96,7 @@ def snapshot(drop: Path) -> tuple[dict[str, list[int]], list[str]]:
     The run files are those of ``scan_drop`` (shared with ``run``: links are not followed,
     entries it refuses -- links, FIFOs, bad names -- are left to the pipeline, which
     records why); ``*.part`` files are found without following links either."""
-    from ..schemas.dropformat import scan_drop
+    from ..schemas.dropscan import scan_drop
     files: dict[str, list[int]] = {}
     partial: list[str] = []
     try:

@@ -7,7 +7,8 @@ import numpy as np
 import pandas as pd
 
 from ..fitting.core import lstsq_min_norm
-from .dropformat import COLUMNS, FLOAT_KEYS, INT_COLUMNS, INT_KEYS, NULLABLE_COLUMNS, REQUIRED_KEYS, RunFile
+from .dropformat import RunFile
+from .dropspec import COLUMNS, FLOAT_KEYS, INT_COLUMNS, INT_KEYS, NULLABLE_COLUMNS, REQUIRED_KEYS
 from .rules import ANGLE_TOL_DEG, REST_RATE, SINE_RESID_MAX
 
 # --------------------------------------------------------------------------------------

@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .dropformat import COLUMNS, FORMAT, INT_COLUMNS, OUTPUT_UNITS, REQUIRED_KEYS, ROTATION_SENSES, Refusal
+from .dropspec import COLUMNS, FORMAT, INT_COLUMNS, OUTPUT_UNITS, REQUIRED_KEYS, ROTATION_SENSES, Refusal
 
 #: Plausible temperatures, degC.
 TEMP_RANGE_C = (-60.0, 150.0)

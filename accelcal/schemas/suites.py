@@ -48,7 +48,8 @@ import pandas as pd
 
 from ..effects import TESTS
 from .derived import _derive, _meta_record, _turning_step_means
-from .dropformat import COLUMNS, FLOAT_KEYS, INT_COLUMNS, INT_KEYS, NULLABLE_COLUMNS, Refusal, RunFile
+from .dropformat import RunFile
+from .dropspec import COLUMNS, FLOAT_KEYS, INT_COLUMNS, INT_KEYS, NULLABLE_COLUMNS, Refusal
 from .rules import ANGLE_TOL_DEG, TEMP_RANGE_C, ValidationReport, _expectation, _suite_specs, build_suites
 
 os.environ.setdefault("GX_ANALYTICS_ENABLED", "False")

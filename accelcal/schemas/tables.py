@@ -24,7 +24,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from ..fileio import atomic_write
-from .dropformat import COLUMNS, INT_COLUMNS, RunFile
+from .dropformat import RunFile
+from .dropspec import COLUMNS, INT_COLUMNS
 
 #: Key of the JSON run metadata in the Parquet key-value metadata.
 META_KEY = b"accelcal.run"

@@ -26,7 +26,7 @@ from ..provenance import metadata_lines, simulated_line
 from ..fileio import StoreError, os_error_text, path_text, sync_files
 from ..warehouse.db import Refusal, RunRecord
 from ..warehouse.lineage import validator_version
-from ..schemas import dropformat, tables
+from ..schemas import dropformat, dropscan, dropspec, tables
 from . import progress
 
 _SNIFF_KEYS = ("run_id", "test", "unit_serial", "unit_model", "campaign", "rig_id", "started_at")
@@ -80,7 +80,7 @@ def _relative(path: Path, root: Path) -> str:
 
 
 def _entries(paths) -> list:
-    E = dropformat.Entry
+    E = dropscan.Entry
     return [p if isinstance(p, E) else E(os.fspath(p)) for p in paths]
 
 
@@ -92,7 +92,7 @@ def ingest_drop(drop_dir: str, parquet_root: str, warehouse_root: str,
     ``known`` maps files already recorded to the validator version of their
     latest verdict; those checked by the current version are skipped.
     """
-    entries = dropformat.scan_drop(os.path.realpath(drop_dir))
+    entries = dropscan.scan_drop(os.path.realpath(drop_dir))
     progress.stage("ingest", len(entries))
     return ingest_files(drop_dir, entries, parquet_root, warehouse_root, known, allow_simulated)
 
@@ -115,7 +115,7 @@ def ingest_files(drop_dir: str, paths: list, parquet_root: str, warehouse_root: 
     vv = validator_version()
     drop = os.path.realpath(drop_dir)
     out = DropIngest(drop_name=path_text(os.path.basename(drop)), drop_path=path_text(drop))
-    DropFormatError = dropformat.DropFormatError
+    DropFormatError = dropspec.DropFormatError
 
     writes: list[tuple[str, RunRecord, Any]] = []      # (source, its record, Parquet write)
     pending = _Pending()
@@ -179,7 +179,7 @@ def _take_parsed(items, out, refuse, parquet_root, pool, writes) -> None:
         results = dropformat.parse_runs([(raw, src) for src, raw, _, _ in items])
     except Exception:
         results = None
-    DropFormatError = dropformat.DropFormatError
+    DropFormatError = dropspec.DropFormatError
     for k, (src, raw, head, base) in enumerate(items):
         try:
             if results is None:

@@ -39,7 +39,7 @@ from typing import Any, Iterator
 import duckdb
 
 from ..fileio import atomic_write, current_umask, os_error_text, path_text, remove_stale_temps
-from ..schemas.dropformat import Refusal  # the one Refusal (drop format and warehouse)
+from ..schemas.dropspec import Refusal  # the one Refusal (drop format and warehouse)
 from .columnar import Checkpoint, _arrow, _attr_columns, _cp, _insert, _nextvals, _registered, \
     _transaction
 from .errors import WarehouseBusy, WarehouseError, duckdb_error_text
