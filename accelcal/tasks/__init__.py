@@ -7,7 +7,8 @@ Prefect tasks (no caching of inputs: RunFiles hold DataFrames) on first use.
 from __future__ import annotations
 
 import functools
-from types import SimpleNamespace
+from dataclasses import dataclass
+from typing import Any
 
 
 class Sealed:
@@ -43,8 +44,18 @@ def load_and_process_sealed(warehouse_root: str, campaigns: Sealed, parameters: 
     return load_and_process(warehouse_root, campaigns.value, parameters.value)
 
 
+@dataclass(frozen=True)
+class PrefectTasks:
+    """The pipeline's plain functions as Prefect tasks (:func:`prefect_tasks`), by name."""
+    known_keys: Any
+    record_drop: Any
+    intake_batch: Any
+    load_and_process: Any
+    store_campaigns: Any
+
+
 @functools.lru_cache(maxsize=1)
-def prefect_tasks() -> SimpleNamespace:
+def prefect_tasks() -> PrefectTasks:
     from prefect import task
     from prefect.cache_policies import NO_CACHE
 
@@ -53,7 +64,7 @@ def prefect_tasks() -> SimpleNamespace:
     def wrap(fn, name, **kw):
         return task(fn, name=name, cache_policy=NO_CACHE, persist_result=False, **kw)
 
-    return SimpleNamespace(
+    return PrefectTasks(
         known_keys=wrap(store.known_keys, "known-files"),
         record_drop=wrap(store.record_drop, "record-runs"),
         intake_batch=wrap(intake_batch_sealed, "ingest-validate-batch"),
