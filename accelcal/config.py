@@ -76,6 +76,35 @@ def find_config(explicit: str | Path | None = None,
     return next((c for c in candidates if c.is_file()), None)
 
 
+def _read(path: Path) -> dict[str, Any]:
+    """The config file's TOML; a file that cannot be read or parsed is one ConfigError line."""
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError(f"cannot read config {path}: {e}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"config {path} is not valid TOML: {e}") from None
+
+
+def rig_limits(explicit: str | Path | None = None) -> dict[str, float]:
+    """Rig id -> the highest g level it may run [g], from ``[rigs."ID"] max_g`` of the config
+    file (same look-up as :func:`lab_config`; none without a file)."""
+    path = find_config(explicit)
+    if path is None:
+        return {}
+    rigs = _read(path).get("rigs") or {}
+    if not isinstance(rigs, dict):
+        raise ConfigError(f"{path}: [rigs] must be a table of rig ids")
+    out = {}
+    for rig, v in rigs.items():
+        if isinstance(v, dict) and "max_g" in v:
+            try:
+                out[str(rig)] = float(v["max_g"])
+            except (TypeError, ValueError):
+                raise ConfigError(f'{path}: [rigs."{rig}"] max_g must be a number') from None
+    return out
+
+
 def _str(d: dict[str, Any], key: str, where: str, path: Path) -> str | None:
     v = d.get(key)
     if v is None:
@@ -90,12 +119,7 @@ def lab_config(explicit: str | Path | None = None,
     path = find_config(explicit, warehouse)
     if path is None:
         return LabConfig()
-    try:
-        raw = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError) as e:
-        raise ConfigError(f"cannot read config {path}: {e}") from None
-    except tomllib.TOMLDecodeError as e:
-        raise ConfigError(f"config {path} is not valid TOML: {e}") from None
+    raw = _read(path)
     lab, cert, tr = (raw.get(k) or {} for k in ("lab", "certificate", "traceability"))
     for name, sec in (("lab", lab), ("certificate", cert), ("traceability", tr)):
         if not isinstance(sec, dict):
@@ -150,12 +174,7 @@ def forecast_config(explicit: str | Path | None = None,
     path = find_config(explicit, warehouse)
     if path is None:
         return ForecastConfig()
-    try:
-        raw = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError) as e:
-        raise ConfigError(f"cannot read config {path}: {e}") from None
-    except tomllib.TOMLDecodeError as e:
-        raise ConfigError(f"config {path} is not valid TOML: {e}") from None
+    raw = _read(path)
     tol = raw.get("tolerance") or {}
     if not isinstance(tol, dict):
         raise ConfigError(f"{path}: [tolerance] must be a table of unit models")

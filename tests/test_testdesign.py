@@ -154,3 +154,15 @@ def next_runs_from_cells(cells, res, fn):
         def __init__(self, c):
             self.meta, self.data, self.sha256 = c.meta, pd.DataFrame(c.cols), c.sha256
     return fn([Run(c) for c in cells], res)
+
+
+def test_rig_limits_come_from_the_config_file(tmp_path):
+    """``[rigs."ID"] max_g`` of accelcal.toml bounds a candidate's g levels; a bad value is
+    one line naming the file and the key."""
+    from accelcal.config import ConfigError, rig_limits
+    f = tmp_path / "accelcal.toml"
+    f.write_text('[rigs."LXJ-100"]\nmax_g = 20\n[rigs."DH-1"]\nnote = "no g limit"\n')
+    assert rig_limits(f) == {"LXJ-100": 20.0}
+    f.write_text('[rigs."LXJ-100"]\nmax_g = "fast"\n')
+    with pytest.raises(ConfigError, match=r'accelcal.toml: \[rigs."LXJ-100"\] max_g must be a number'):
+        rig_limits(f)

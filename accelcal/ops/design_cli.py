@@ -37,29 +37,10 @@ def _fail(msg: str):
     raise CliError(msg)
 
 
-def _rig_limits(path) -> dict[str, float]:
-    """Rig id -> max_g from ``[rigs."ID"]`` of accelcal.toml (absent file: none)."""
-    import tomllib
-    from pathlib import Path
-    p = Path(path) if path else Path("accelcal.toml")
-    if not p.is_file():
-        if path:
-            _fail(f"{p}: no such file")
-        return {}
-    try:
-        doc = tomllib.loads(p.read_text(encoding="utf-8"))
-    except (OSError, tomllib.TOMLDecodeError) as exc:
-        _fail(f"{p}: {exc}")
-    out = {}
-    for rig, v in (doc.get("rigs") or {}).items():
-        if isinstance(v, dict) and "max_g" in v:
-            out[str(rig)] = float(v["max_g"])
-    return out
-
-
 def _cmd_design(args) -> int:
     import json
 
+    from ..config import ConfigError, rig_limits
     from ..diagnosis.core import prepare_cells, resolve_baseline
     from ..diagnosis.runfiles import read_paths
     from ..testdesign import DesignError, advise, load_candidates
@@ -82,10 +63,10 @@ def _cmd_design(args) -> int:
         _fail("--max-runs must be 1 or more")
     cells, _ = prepare_cells(runs)
     try:
-        cands = (load_candidates(args.candidates, cells, _rig_limits(args.config))
+        cands = (load_candidates(args.candidates, cells, rig_limits(args.config))
                  if args.candidates else None)
         adv = advise(cells, baseline, targets or None, pairs, args.max_runs, cands, args.top)
-    except DesignError as exc:
+    except (DesignError, ConfigError) as exc:
         _fail(str(exc))
     if args.json:
         print(json.dumps(adv.to_dict()))
