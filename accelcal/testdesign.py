@@ -40,7 +40,7 @@ from .fitting.blas import single_thread
 from .fitting.core import information_root, lstsq_svd
 from .fitting.data import RunCells, mean_variance, pooled_noise
 from .fitting.model import CampaignModel
-from .fitting.procedure import fit_model
+from .fitting.procedure import fit_selected
 from .physics.axes import AXES
 from .physics.geometry import CentrifugeMount, geometry_of
 from .physics.rigs import INSTRUMENT_EFFECTS
@@ -349,16 +349,6 @@ def _model(cells: Sequence[RunCells], effects: Sequence[str]) -> CampaignModel:
     return CampaignModel(cells, effects, include=INSTRUMENT_TERMS)
 
 
-def _fit(model: CampaignModel):
-    """The model fitted as the joint fit fits it: what the runs cannot determine (aliased,
-    not excited, weaker than its plausible size) held at its start
-    (:meth:`CampaignModel.select`); a free undetermined coefficient would wander off and
-    bend the Jacobian the advice is computed from."""
-    p = model.start()
-    held = model.select(p)
-    return fit_model(model, p, held, noise_passes=1, reselect=True, bounded=True)
-
-
 def resolve_targets(model: CampaignModel, targets: Sequence[str]) -> dict[str, list[int]]:
     """Target name -> parameter indices: a coefficient (K2, Kip) or an effect id.
 
@@ -459,6 +449,14 @@ def _predict(info: _Information, runs: Sequence[int], targets: Mapping[str, list
     return max(preds, key=badness)
 
 
+def _determined(u: float, key: str) -> float | None:
+    """A standard uncertainty [parameter unit] as a determination, or None: not finite or
+    not positive, or beyond the parameter's plausible size, as the model's own selection
+    says (:meth:`CampaignModel.select`)."""
+    lim = plausible_size(key)
+    return float(u) if math.isfinite(u) and u > 0 and (lim is None or u <= lim) else None
+
+
 def _predict_at(info: _Information, runs: Sequence[int], targets: Mapping[str, list[int]],
                 pairs: Sequence[tuple[str, str]], J: np.ndarray) -> Prediction:
     cols, mixed, sol = info.solve(runs, J)
@@ -469,11 +467,8 @@ def _predict_at(info: _Information, runs: Sequence[int], targets: Mapping[str, l
         for i in idx:
             k = pos.get(i)
             u = (math.sqrt(sol.cov[k, k]) if k is not None and i not in mixed and sol.estimable[k]
-                 and sol.cov[k, k] > 0 else None)
-            # determined as the model's own selection says (CampaignModel.select): an
-            # uncertainty beyond the parameter's plausible size is not a determination
-            lim = plausible_size(info.model.params[i].key)
-            std[names[i] if len(idx) > 1 else t] = u if u is not None and (lim is None or u <= lim) else None
+                 and sol.cov[k, k] > 0 else float("nan"))
+            std[names[i] if len(idx) > 1 else t] = _determined(u, info.model.params[i].key)
     corr: dict[str, float | None] = {}
     for a, b in pairs:
         ia, ib = targets[a][0], targets[b][0]
@@ -565,7 +560,7 @@ def _advise(cells, baseline, targets, separate, max_runs, candidates, top) -> Ad
     # the noise a fit of the augmented campaign will see); copies, the caller's are kept
     cells = [replace(c) for c in cells]
     made = _model(cells, effects)
-    p_made = _fit(made).fit.values
+    p_made = fit_selected(made).fit.values
     cand_cells = [candidate_cells(c, cells, len(cells) + k) for k, c in enumerate(cands)]
     model = _model(cells + cand_cells, effects)
     p = model.params.values()
@@ -662,7 +657,7 @@ def fitted_uncertainty(cells: Sequence[RunCells], baseline: Sequence[str], targe
     extra = [t for t in targets if t in EFFECTS and t not in baseline and t not in INSTRUMENT_EFFECTS]
     model = _model(list(cells), list(baseline) + extra)
     tmap = resolve_targets(model, targets)
-    mf = _fit(model)
+    mf = fit_selected(model)
     out: dict[str, float | None] = {}
     mixed = {n.strip() for why in mf.held.values() if why.startswith("aliased with ")
              for n in why[len("aliased with "):].split(",")}
@@ -670,9 +665,7 @@ def fitted_uncertainty(cells: Sequence[RunCells], baseline: Sequence[str], targe
         for i in idx:
             name = model.params.names[i]
             u = mf.fit.std(name) if name not in mixed else float("nan")
-            lim = plausible_size(model.params[i].key)
-            ok = math.isfinite(u) and u > 0 and (lim is None or u <= lim)
-            out[name if len(idx) > 1 else t] = float(u) if ok else None
+            out[name if len(idx) > 1 else t] = _determined(u, model.params[i].key)
     corr: dict[str, float | None] = {}
     for a, b in separate:
         na, nb = model.params.names[tmap[a][0]], model.params.names[tmap[b][0]]

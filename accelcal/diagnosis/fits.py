@@ -23,6 +23,7 @@ from ..fitting.core import (LackOfFit, ParameterSet, column_space_basis, separab
 from ..fitting.data import RunCells
 from ..fitting.model import ALIAS_TOL, PRIORITY, CampaignModel
 from ..fitting.procedure import ModelFit, fit_model
+from ..physics.rigs import INSTRUMENT_EFFECTS
 
 #: Instrument coefficients that are not catalogue effects.  A candidate effect they would
 #: absorb claims its direction first: the bare model holds them and the diagnosis names
@@ -195,8 +196,7 @@ class Fit(ModelFit):
             Names of the parameters that are the effect and free and active in this fit
             (:attr:`free`), in model order; empty when there are none.
         """
-        coef = {"odd_quadratic": "Koq", "cubic": "K3", "cross_coupling": "Kip",
-                "bias_temperature": "K0T", "scale_temperature": "K1T"}.get(effect)
+        coef = INSTRUMENT_EFFECTS.get(effect)
         return [prm.name for prm, role, v in zip(self.model.params, self.model.roles, self.free)
                 if v and ((role.kind == "effect" and role.key == effect) or (coef and role.kind == "coef"
                                                                               and role.key == coef))]
@@ -219,8 +219,7 @@ class Fit(ModelFit):
         names = [prm.name for prm, role in zip(self.model.params, self.model.roles)
                  if role.kind == "effect" and role.key == effect and prm.vary]
         if not names:
-            coef = {"odd_quadratic": "Koq", "cubic": "K3", "cross_coupling": "Kip",
-                    "bias_temperature": "K0T", "scale_temperature": "K1T"}.get(effect)
+            coef = INSTRUMENT_EFFECTS.get(effect)
             names = [prm.name for prm, role in zip(self.model.params, self.model.roles)
                      if role.kind == "coef" and role.key == coef and prm.vary]
         return names[0] if len(names) == 1 else None

@@ -38,7 +38,7 @@ from ..effects import si_unit
 from ..fitting.core import lstsq_svd, normalised_error
 from ..fitting.data import RunCells, drop_duplicate_cells, fit_noise, make_run, pool_missing_noise
 from ..fitting.model import CampaignModel, mount_runs, processing_effects
-from ..fitting.procedure import ModelFit, fit_model
+from ..fitting.procedure import ModelFit, fit_selected
 from ..physics.axes import AXES
 from ..results import AdequacyResult, BudgetTerm, CoefficientResult, RadiusResult
 from .adequacy import runs_test, trend_test
@@ -69,8 +69,8 @@ def fit_campaign_model(runs: Sequence[RunCells], effects: Sequence[str], *, shar
                        per_run_bias: bool | None = None, per_run_scale: bool = False,
                        noise_passes: int = 1, keep: Sequence[str] = ()) -> JointFit:
     """Fit a campaign model to runs whose cells are built (:func:`prepare`), through the one
-    fit procedure (:func:`accelcal.fitting.procedure.fit_model`): the design judged at the
-    start and again after the first noise pass, a time constant bounded at 0.
+    fit procedure (:func:`accelcal.fitting.procedure.fit_selected`): the design judged at
+    the start and again after the first noise pass, a time constant bounded at 0.
 
     Parameters
     ----------
@@ -90,10 +90,7 @@ def fit_campaign_model(runs: Sequence[RunCells], effects: Sequence[str], *, shar
     """
     model = CampaignModel(runs, effects, shared=shared, per_run_bias=per_run_bias,
                           per_run_scale=per_run_scale)
-    p = model.start()
-    held = model.select(p, keep=keep)
-    return fit_model(model, p, held, keep=keep, noise_passes=noise_passes, reselect=True,
-                     bounded=True, max_iter=40, effects=effects)
+    return fit_selected(model, keep=keep, noise_passes=noise_passes, effects=effects)
 
 
 def prepare(runs) -> tuple[list[RunCells], list[str]]:

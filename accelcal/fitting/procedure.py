@@ -178,3 +178,29 @@ def fit_model(model: CampaignModel, p: np.ndarray, held: dict[str, str], *,
     active = model.params.free() & (np.linalg.norm(gn.J, axis=0) > 0)
     return ModelFit(model, fit, dict(held), its, {"chi2": chi_pe, "dof": dof_pe}, active, list(effects))
 
+
+def fit_selected(model: CampaignModel, *, keep: Sequence[str] = (), noise_passes: int = 1,
+                 effects: Sequence[str] = ()) -> ModelFit:
+    """Fit a campaign model as the adopted calibration does: from its start
+    (:meth:`CampaignModel.start`), with what the design cannot determine held
+    (:meth:`CampaignModel.select`), judged again after the first noise pass, a time
+    constant bounded at 0.
+
+    Parameters
+    ----------
+    model : CampaignModel
+    keep : sequence of str
+        Parameters never held for being weakly determined.
+    noise_passes : int
+        :func:`fit_model`.
+    effects : sequence of str
+        Kept in the result (the effects.md ids the model was built with).
+
+    Returns
+    -------
+    ModelFit
+    """
+    p = model.start()
+    held = model.select(p, keep=keep)
+    return fit_model(model, p, held, keep=keep, noise_passes=noise_passes, reselect=True, bounded=True,
+                     effects=effects)
