@@ -398,7 +398,12 @@ class _Information:
             q = p.copy()
             for i in new:
                 q[i] = p[i] + sign * typical_size(model.roles[i].key)
-            self.Js.append(model.jacobian(q))
+            # only the candidates' rows are read at these points (the runs made keep R0)
+            Jq = np.zeros_like(J)
+            for j in range(n_made, len(model.runs)):
+                sl = model.rows(j)
+                Jq[sl] = model.jacobian_run(q, j) / model.sig[sl, None]
+            self.Js.append(Jq)
 
     def cols(self, runs: Sequence[int]) -> list[int]:
         extra = {i for j in runs for i in self.model.run_params[j]}
