@@ -6,6 +6,8 @@ diagnosis and the warehouse: never rename them.
 from __future__ import annotations
 
 import math
+import re
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 from .constants import G_STANDARD
@@ -77,9 +79,54 @@ RIG_QUANTITIES: dict[str, tuple[str, float]] = {"radius": ("m", 1.0)}
 
 
 def coefficient_spec(name: str) -> Coefficient | None:
-    """The catalogue row of a coefficient name (``"K2"``, ``"K0[run]"``, ``"Kppp"``), or None."""
-    base = name.split("[", 1)[0]
+    """The catalogue row of a coefficient name (``"K2"``, ``"K0[run]"``, ``"Kppp"``), or None.
+    A combination (:func:`combination_name`, ``"K2-Koo"``) has the row of its first term: its
+    unit and display unit."""
+    base = re.split(r"[+\-*]", name.split("[", 1)[0], maxsplit=1)[0]
     return COEFFICIENTS.get(base) or PAPER_TERMS.get(base)
+
+
+def combination_name(name: str, terms: Mapping[str, float]) -> str:
+    """The name of what a row measures when the runs determine a coefficient only together
+    with others (issue 30; IEEE 1293 names the tumble's ``K2 - Koo``).
+
+    Parameters
+    ----------
+    name : str
+        The coefficient (``"K2"``, ``"theta0[PA]"``).
+    terms : mapping of str to float
+        Other coefficient -> its factor in the combination [unit of name / unit of it].
+
+    Returns
+    -------
+    str
+        ``name`` followed by each term as ``+f*K`` or ``-f*K`` (f to 4 significant digits,
+        left out when 1): ``"K2-Koo"``, ``"K0+96.06*Koo"``, ``"Kip+Kpp"``; ``name`` when
+        ``terms`` is empty.  :func:`coefficient_spec` of it is that of ``name``.
+    """
+    out = name
+    for k, f in terms.items():
+        mag = abs(f)
+        out += ("-" if f < 0 else "+") + ("" if abs(mag - 1.0) < 5e-4 else f"{mag:.4g}*") + k
+    return out
+
+
+def split_combination(name: str) -> tuple[str, dict[str, float]]:
+    """The inverse of :func:`combination_name`: ``"K0+96.06*Koo"`` -> ``("K0", {"Koo": 96.06})``.
+
+    Parameters
+    ----------
+    name : str
+        A row name; a bracketed scope (``"K2[PA]-Koo"``) stays with its coefficient.
+
+    Returns
+    -------
+    (str, dict of str to float)
+        The coefficient and the other terms with their factors (empty for a plain name).
+    """
+    parts = re.findall(r"([+-]?)(?:([0-9.eE+-]+)\*)?([A-Za-z_][A-Za-z0-9_]*(?:\[[^\]]*\])?)", name)
+    base = parts[0][2] if parts else name
+    return base, {k: (-1.0 if s == "-" else 1.0) * (float(f) if f else 1.0) for s, f, k in parts[1:]}
 
 
 def si_unit(name: str, output_unit: str = "out") -> str:
@@ -106,8 +153,8 @@ def to_display(name: str, value: float, std_u: float | None, unit: str,
     K1 is shown in <output unit>/g with U relative, in ppm (U_in_ppm True); a name
     outside COEFFICIENTS is returned in its own unit.  value and u in SI (effects.md)."""
     U = None if std_u is None else k * std_u
-    spec = COEFFICIENTS.get(name.split("[", 1)[0])
-    if spec is None:
+    spec = coefficient_spec(name)
+    if spec is None or spec.name not in COEFFICIENTS:
         return value, U, unit, False
     val = value / spec.display_factor
     if spec.name == "K1":

@@ -266,7 +266,7 @@ def lstsq_svd(J: np.ndarray, z: np.ndarray, rcond: float = RCOND) -> LinearSolut
         cov[:, :] = C / np.outer(norm, norm)
     else:
         cov[np.ix_(act, act)] = C / np.outer(norm[act], norm[act])
-    Vn = Vt[~keep]
+    Vn = np.vstack([Vt[:S.size][~keep], Vt[S.size:]])
     if Vn.size:
         est[act] = np.linalg.norm(Vn, axis=0) < 1e-6
     else:
@@ -290,9 +290,11 @@ def _svd_solve(J: np.ndarray, z: np.ndarray, rcond: float):
     if not act.any():
         return x, norm, act, None
     Js = J[:, act] / norm[act]
-    U, S, Vt = np.linalg.svd(Js, full_matrices=False)
+    # fewer rows than columns: the full Vt, whose last rows span the null space that a thin
+    # SVD leaves out (2 mount pairs for 3 second-order unknowns)
+    U, S, Vt = np.linalg.svd(Js, full_matrices=Js.shape[0] < Js.shape[1])
     keep = S > S[0] * rcond
-    V = Vt[keep].T
+    V = Vt[:S.size][keep].T
     xs = V @ ((U[:, keep].T @ z) / S[keep])
     x[act] = xs / norm[act]
     return x, norm, act, (S, Vt, keep, V)
