@@ -34,10 +34,10 @@ from typing import Any
 import numpy as np
 
 from ..constants import MOUNT_ANGLE_TOLERANCE_RAD
-from ..effects import si_unit
+from ..effects import combination_name, si_unit
 from ..fitting.core import lstsq_svd, normalised_error
 from ..fitting.data import RunCells, drop_duplicate_cells, fit_noise, make_run, pool_missing_noise
-from ..fitting.model import CampaignModel, mount_runs, processing_effects
+from ..fitting.model import ACTING, CampaignModel, mount_runs, processing_effects
 from ..fitting.procedure import ModelFit, fit_selected
 from ..physics.axes import AXES
 from ..results import AdequacyResult, BudgetTerm, CoefficientResult, RadiusResult
@@ -45,6 +45,9 @@ from .adequacy import runs_test, trend_test
 from ..fitting.distributions import chi2_sf, t_ppf
 
 METHOD = "joint_ml"
+#: |correlation| of two coefficients' estimates from which each is said to be determined only
+#: through their combination (:func:`nearly_aliased`)
+NEAR_ALIAS_R = 0.999
 
 #: Reported coefficients and what an aliased design leaves in them
 NOTES = {
@@ -88,8 +91,10 @@ def fit_campaign_model(runs: Sequence[RunCells], effects: Sequence[str], *, shar
     -------
     JointFit
     """
+    # Kip is a designed coefficient of a tumble too (a head about OA turns IA through PA,
+    # IEEE 1293), not only the centrifuge's cross_coupling effect; Koq and K3 act on a tumble
     model = CampaignModel(runs, effects, shared=shared, per_run_bias=per_run_bias,
-                          per_run_scale=per_run_scale)
+                          per_run_scale=per_run_scale, include=("Kip", "Koq", "K3"), acting=ACTING)
     return fit_selected(model, keep=keep, noise_passes=noise_passes, effects=effects)
 
 
@@ -105,13 +110,70 @@ def prepare(runs) -> tuple[list[RunCells], list[str]]:
 
 # ----------------------------------------------------------------------------- results
 
-def _alias_note(jf: JointFit, name: str) -> str:
-    """What the design leaves in a coefficient: the held parameters it is aliased with."""
-    parts = []
-    for held, why in jf.held.items():
-        if why.startswith("aliased with") and name in why:
-            parts.append(held)
-    return f"aliased in this design with {', '.join(parts)} (held at 0): the value includes them" if parts else ""
+def what_it_measures(measures: dict[str, tuple[dict[str, float], list[str]]], name: str, label: str
+                     ) -> tuple[str, str]:
+    """The row name and note of a free parameter: the combination the runs determine.
+
+    Parameters
+    ----------
+    measures : dict
+        :meth:`accelcal.fitting.model.CampaignModel.measures` of the fit.
+    name : str
+        The parameter's name in the model.
+    label : str
+        Its row name when the runs determine it alone (``'K2'``, ``'theta0[PA]'``).
+
+    Returns
+    -------
+    (str, str)
+        Row name: ``label`` itself, or its combination with the instrument coefficients held
+        at 0 that it takes up (:func:`accelcal.effects.combination_name`, e.g. ``'K2-Koo'``);
+        note: what is aliased and which other held parameters it depends on, or ``''``.
+    """
+    coef, other = measures.get(name, ({}, []))
+    notes = []
+    if coef:
+        notes.append(f"aliased in this design: the runs determine {combination_name(label, coef)}, "
+                     f"not {label} alone ({', '.join(coef)} held at 0)")
+    if other:
+        notes.append("not determined alone by these runs: " + "; ".join(other))
+    return combination_name(label, coef), "; ".join(notes)
+
+
+def nearly_aliased(jf: JointFit, r_min: float = NEAR_ALIAS_R) -> list[tuple[str, str, float, float]]:
+    """Pairs of instrument coefficients the runs determine far better together than alone.
+
+    Two free coefficients whose estimates correlate with |r| >= ``r_min`` are determined
+    through their combination ``K_a + t K_b`` with ``t = -r u_a / u_b`` (the combination of
+    least variance) far better than either alone (Kip and Kpp from IA-PA 0/180 and 45/225
+    without 90/270).
+
+    Parameters
+    ----------
+    jf : JointFit
+    r_min : float
+        Smallest |correlation| named [1] (:data:`NEAR_ALIAS_R`).
+
+    Returns
+    -------
+    list of (str, str, float, float)
+        (parameter a, parameter b, t [unit a / unit b], r [1]) for each such pair.
+    """
+    model, fit = jf.model, jf.fit
+    coef = [prm.name for i, prm in enumerate(model.params)
+            if model.roles[i].kind == "coef" and prm.vary and fit.estimable[i]]
+    if len(coef) < 2:
+        return []
+    names, R = fit.correlation(coef)
+    u = np.array([fit.std(n) for n in names])
+    return [(names[a], names[b], float(-R[a, b] * u[a] / u[b]), float(R[a, b]))
+            for a in range(len(names)) for b in range(a + 1, len(names))
+            if np.isfinite(R[a, b]) and abs(R[a, b]) >= r_min]
+
+
+def prm_unit(model: CampaignModel, name: str) -> str:
+    """The SI unit of a model parameter [text]."""
+    return model.params[model.params.index[name]].unit
 
 
 def run_consistency(runs, effects: Sequence[str], alpha: float = 0.01) -> tuple[list[dict], list[str]]:
@@ -272,12 +334,26 @@ def _records(jf: JointFit, cells: list[RunCells]) -> dict[str, Any]:
         flags.append(f"joint fit did not converge: {fit.message}")
     flags += [f"joint fit: {n}" for n in jf.notes]
     rig_of = _dominant_rigs(jf)
+    measures = model.measures(fit.values, {prm.name: fit.std(prm.name) for prm in model.params if prm.vary})
+    near = nearly_aliased(jf)
+    near_note: dict[str, str] = {}
+    for a, b, t, r in near:
+        ka, kb = (model.roles[model.params.index[n]].key for n in (a, b))
+        comb = combination_name(ka, {kb: t})
+        for n, other in ((a, kb), (b, ka)):
+            near_note[n] = "; ".join(x for x in (near_note.get(n, ""), (
+                f"nearly aliased with {other} (correlation {r:+.4f}): the runs determine {comb} "
+                "(its own row) far better than either alone")) if x)
     # instrument coefficients
     for i, prm in enumerate(model.params):
         role = model.roles[i]
         if role.kind != "coef" or not prm.vary or not fit.estimable[i]:
             continue
-        name = role.key
+        name, alias = what_it_measures(measures, prm.name, role.key)
+        if prm.name in near_note:
+            alias = "; ".join(x for x in (alias, near_note[prm.name]) if x)
+        if alias:
+            flags.append(f"{name}: {alias}")
         u = fit.std(prm.name)
         u_noise = fit.std_noise(prm.name)
         terms_b = tb.get(prm.name, [])
@@ -285,7 +361,7 @@ def _records(jf: JointFit, cells: list[RunCells]) -> dict[str, Any]:
         if untestable:
             u = float("nan")
         note = "; ".join(x for x in ("joint ML fit of every reading through the forward model",
-                                     NOTES.get(name, ""), _alias_note(jf, prm.name)) if x)
+                                     NOTES.get(role.key, ""), alias) if x)
         coefficients.append(CoefficientResult(name, float(fit.values[i]), float(u), si_unit(name, out_unit),
                                               METHOD, rig_of.get(prm.name, rig_label), float(dof), note,
                                               adopted=True, coverage_factor=k))
@@ -298,6 +374,28 @@ def _records(jf: JointFit, cells: list[RunCells]) -> dict[str, Any]:
                                      0.0, extra, 1.0, extra, "A", "normal", METHOD))
         for q, c, ub in terms_b:
             budget.append(BudgetTerm(name, q, 0.0, ub, c, abs(c) * ub, "B", "uniform", METHOD))
+    for a, b, t, r in near:
+        # the combination the runs do determine, as a row of its own (issue 30)
+        ia, ib = model.params.index[a], model.params.index[b]
+        ka, kb = model.roles[ia].key, model.roles[ib].key
+        name = combination_name(ka, {kb: t})
+        c = np.zeros(len(model.params))
+        c[ia], c[ib] = 1.0, t
+        value = float(c @ fit.values)
+        u = float(np.sqrt(max(c @ fit.cov @ c, 0.0))) if not untestable else float("nan")
+        noise_cov = fit.cov / lof.factor ** 2 if lof.factor > 1 else fit.cov
+        u_noise = float(np.sqrt(max(c @ noise_cov @ c, 0.0)))
+        coefficients.append(CoefficientResult(
+            name, value, u, si_unit(ka, out_unit), METHOD, rig_of.get(a, rig_label), float(dof),
+            f"joint ML fit; {ka} and {kb} are nearly aliased in this design (correlation {r:+.4f}): "
+            f"the runs determine this combination, not each alone", adopted=True, coverage_factor=k))
+        budget.append(BudgetTerm(name, "readings: joint fit through the forward model (noise model per run, "
+                                       "autocorrelation included)", value, u_noise, 1.0, u_noise, "A", "normal",
+                                 METHOD))
+        if lof.factor > 1:
+            extra = u_noise * math.sqrt(lof.factor ** 2 - 1.0)
+            budget.append(BudgetTerm(name, f"model inadequacy: lack-of-fit scaling sqrt(F) = {lof.factor:.3g}",
+                                     0.0, extra, 1.0, extra, "A", "normal", METHOD))
     mc_check = _mc_checks(coefficients, budget)
     # theta0 per head
     for i, prm in enumerate(model.params):
@@ -310,17 +408,17 @@ def _records(jf: JointFit, cells: list[RunCells]) -> dict[str, Any]:
             1 for q in model.params if model.roles[model.params.index[q.name]].key == "initial_misalignment") > 1 \
             else "theta0"
         u = float("nan") if untestable else fit.std(prm.name)
+        label, alias = what_it_measures(measures, prm.name, label)
+        if alias:
+            flags.append(f"{label}: {alias}")
         coefficients.append(CoefficientResult(
             label, float(fit.values[i]), u, "rad", METHOD, runs_h[0].rig_id if runs_h else rig_label, float(dof),
-            "initial misalignment of this dividing head (never pooled across heads); aliases with the "
-            "cross-axis sensitivity of the other turning axis (paper 003)", adopted=True, coverage_factor=k))
+            "; ".join(x for x in ("initial misalignment of this dividing head (never pooled across heads)", alias)
+                      if x), adopted=True, coverage_factor=k))
         budget.append(BudgetTerm(label, "readings: joint fit through the forward model", float(fit.values[i]),
                                  fit.std_noise(prm.name), 1.0, fit.std_noise(prm.name), "A", "normal", METHOD))
     # geometry: radii, mass-centre offset, mount angles, tool errors
     radii, alignment = _geometry_records(jf)
-    for prm, why in jf.held.items():
-        if why.startswith("weakly") or why.startswith("aliased"):
-            pass
     # adequacy record
     tr, rn = _residual_checks(jf)
     adequacy = [AdequacyResult(rig_label, "joint campaign fit", 0, None,

@@ -952,7 +952,15 @@ def process_sine_campaign(runs: Sequence, rig_id: str = "", *, tool_errors: Mapp
     if fit.diagnostics["rank"] < fit.diagnostics["n_params"]:
         flags.append(f"joint design rank {fit.diagnostics['rank']} < {fit.diagnostics['n_params']} parameters")
     results = []
-    for n in fit.names:
+    missing = sorted({"a", "b", "c"} - set(atts))
+    if missing:
+        # paper 002's method is the joint least squares of the three attitudes; with one of
+        # them missing its coefficients alias in ways its normal equations do not show
+        # (K2 with Koq where a_I >= 0, Kp with Ko): no value of it is reported
+        flags.append(f"sine_ls: no values: attitude(s) {', '.join(missing)} missing, and paper 002's "
+                     "least squares needs a, b and c to separate its coefficients; the joint fit "
+                     "says what these runs determine")
+    for n in ([] if missing else fit.names):
         p_kind = "tool" if n in fit.tool_errors else "coef"
         if p_kind == "tool":
             continue
@@ -1031,7 +1039,10 @@ def campaign_records(runs: Sequence, steps: Mapping[str, Any]) -> list:
         except Exception as exc:
             out.append(Records(flags=[f"sine_centrifuge {rig}: {type(exc).__name__}: {exc}"]))
             continue
-        out.append(Records(coefficients=coeffs, budget=budget_terms(coeffs), extras={"sine": {rig: extras}}).checked())
+        # the method's own flags stay in its extras; that it gave no values is the campaign's
+        out.append(Records(coefficients=coeffs, budget=budget_terms(coeffs), extras={"sine": {rig: extras}},
+                           flags=[f"{rig}: {f}" for f in extras.get("flags", ())
+                                  if f.startswith("sine_ls: no values")]).checked())
     return out
 
 

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from ..effects import CROSS_AXIS_TERM, SQUARE_TERM, si_unit
+from ..effects import CROSS_AXIS_TERM, SQUARE_TERM, combination_name, si_unit
 from ..fitting.core import (FitResult, GaussNewton, LackOfFit, Parameter, ParameterSet, birge_ratio,
                             finish_fit, gauss_newton, lstsq_svd)
 from ..physics.axes import AXES, parse_signed_axis
@@ -1022,8 +1022,73 @@ def campaign_records(runs: Sequence, steps: Mapping[str, Any]) -> list:
     coeffs, budget = tumble_records(tumble.pooled, square_terms=_square_terms(rigs),
                                     k1=campaign_k1_correction(steps), g=tumble.g,
                                     out_unit=str(runs[0].meta.get("output_unit", "out")))
-    return [Records(coefficients=coeffs, budget=budget, extras=_tumble_extras(tumble),
-                    flags=list(tumble.flags)).checked()]
+    flags = list(tumble.flags) + name_combinations(runs, coeffs, budget)
+    return [Records(coefficients=coeffs, budget=budget, extras=_tumble_extras(tumble), flags=flags).checked()]
+
+
+def name_combinations(runs: Sequence, coeffs: list[CoefficientResult], budget: list[BudgetTerm]) -> list[str]:
+    """Name each tumble row after what the tumble runs determine (issue 30; IEEE 1293): one
+    head measures K0 + Koo g^2, K2 - Koo and theta0 - Ko (head about PA), not K0, K2, theta0.
+
+    The answer is the campaign model's (:meth:`accelcal.fitting.model.CampaignModel.measures`)
+    of the tumble runs of each head axis alone, judged at its start: a row is renamed to
+    the combination of the coefficients held at 0 that it takes up, where a typical size
+    of them would move it by more than half its u.  A K2 to which the centrifuge's square
+    term was added is K2 itself.  K0 and K1, pooled over the heads, are renamed only when
+    every head measures the same combination; otherwise a flag says what each head measures.
+
+    Parameters
+    ----------
+    runs : sequence
+        RunFile-like tumble runs of the campaign.
+    coeffs, budget : list
+        :func:`tumble_records`; renamed in place.
+
+    Returns
+    -------
+    list of str
+        Flags: each renamed row, and K0/K1 rows whose heads measure different combinations.
+    """
+    from ..fitting.data import fit_noise, make_run, pool_missing_noise
+    from ..fitting.model import ACTING, CampaignModel
+    groups: dict[str, list] = {}
+    for r in runs:
+        if str(r.meta.get("test")) == "tumble":
+            groups.setdefault(AXES[geometry_of(r.meta).head_axis], []).append(r)
+    several = len(groups) > 1
+    u = {c.name: c.std_uncertainty for c in coeffs}
+    answer: dict[str, dict[str, dict[str, float]]] = {}
+    for grp, rr in groups.items():
+        cells = [make_run(r.meta, r.data, j) for j, r in enumerate(rr)]
+        for c in cells:
+            fit_noise(c)
+        pool_missing_noise(cells)
+        model = CampaignModel(cells, ["initial_misalignment"], include=("Kip", "Koq", "K3"), acting=ACTING)
+        p = model.start()
+        model.select(p)
+        rows = {"K0": "K0", "K1": "K1", "K2": _group_name("K2", grp, several),
+                "initial_misalignment": _group_name("theta0", grp, several)}
+        meas = model.measures(p, {k: u[v] for k, v in rows.items() if math.isfinite(u.get(v, math.nan))})
+        answer[grp] = {("theta0" if k == "initial_misalignment" else k): coef for k, (coef, _) in meas.items()}
+    flags = []
+    for c in coeffs:
+        key, _, grp = c.name.rstrip("]").partition("[")
+        if (key == "K2" and "from the centrifuge added" in c.note) or (
+                key == "K1" and "corrected for Koq and K3" in c.note):
+            continue
+        combos = [answer[g].get(key, {}) for g in ([grp] if grp else groups)]
+        if any(t != combos[0] for t in combos):
+            flags.append(f"{c.name} ({METHOD}): the heads measure different combinations: " + "; ".join(
+                combination_name(key, t) for t in combos) + "; the pooled value is none of them")
+            continue
+        if not combos[0]:
+            continue
+        old, c.name = c.name, combination_name(c.name, combos[0])
+        for b in budget:
+            if b.coefficient == old:
+                b.coefficient = c.name
+        flags.append(f"{c.name} ({METHOD}): aliased in one tumble: the runs determine {c.name}, not {old} alone")
+    return flags
 
 
 def mc_truth(c: Mapping[str, float], eff: Mapping[str, float], test: Mapping[str, Any], g: float,

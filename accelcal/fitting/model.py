@@ -48,7 +48,7 @@ from ..physics.geometry import CentrifugeMount, TumbleHead
 from ..physics.instrument import first_order_lag
 from ..physics.rigs import INSTRUMENT_EFFECTS, rig_output, rotation_sign, specific_force
 from ..constants import T_REF_C
-from .core import Parameter, ParameterSet, lstsq_svd, separable_columns
+from .core import Parameter, ParameterSet, lstsq_svd, lstsq_svd_x, separable_columns
 from .data import RunCells, ar1_variance_factor
 
 CENTRIFUGES = ("centrifuge", "sine_centrifuge")
@@ -62,6 +62,10 @@ DESIGNED: dict[str, tuple[str, ...]] = {
     "sine_centrifuge": ("K0", "K1", "K2", "K3", "Koq", "Kp", "Ko", "Kip", "Kio", "Kpo", "Kpp", "Koo"),
     "tilt_rotation": ("K0", "K1", "K0T", "K1T", "Kp", "Ko"),
 }
+#: Coefficients that act on a test's readings though it is not designed to determine them:
+#: the fundamental of a tumble's IA input takes Koq g 8/(3 pi) and K3 g^2 3/4
+#: (:func:`accelcal.estimators.tumble.k1_correction`).
+ACTING: dict[str, tuple[str, ...]] = {"tumble": ("Koq", "K3")}
 #: A parameter whose Jacobian column (unit-scaled) has less than this relative norm outside
 #: the span of the parameters before it is aliased: its variance would be inflated 1e6-fold.
 ALIAS_TOL = 1e-3
@@ -70,6 +74,13 @@ ALIAS_TOL = 1e-3
 #: and OA) they only enter linearly in one centripetal component, as an angle error does.
 PRIORITY = ("K1", "K0", "theta0", "K2", "bias", "radius", "K3", "Koq", "Kip", "Kio", "Kpp", "Koo",
             "K0T", "K1T", "mass_centre_offset", "mount_angle_error", "Kpo", "effect", "Kp", "Ko")
+#: Coefficients that scale a centrifuge's output as its radius does: K1, and IA's cross
+#: terms with an axis along gravity (K1 (1 + Kio g) a_I with OA up; a tumble turning IA
+#: through OA in 24 positions separates Kio, one in 4 positions does not)
+SCALE_TERMS = ("K1", "Kio", "Kip")
+#: A held parameter is part of what a free one measures when a typical size of it would
+#: move the free one's estimate by more than this many of its standard uncertainties.
+ABSORBED_SHARE = 0.5
 #: coefficients never held for being weakly determined (the base of every design)
 BASE = ("K0", "K1", "K2", "theta0", "bias", "radius")
 
@@ -137,6 +148,10 @@ class CampaignModel:
         wherever a campaign's tests are designed to determine them (:data:`DESIGNED`), even
         when their effect is not in ``effects`` (the diagnosis' bare model: the
         tilt-rotation test measures K0T and K1T).
+    acting : mapping of str to sequence of str, optional
+        Test kind -> coefficients of ``include`` that come in where a test of that kind acts
+        on them, though it is not designed to determine them (:data:`ACTING`: a tumble's K1
+        takes up Koq and K3, so the adopted fit of a tumble-only campaign names K1 with them).
     fixed : sequence of str
         Effects held at their physical size when in ``effects`` (default: ``earth_rate`` at 1);
         an effect in ``effects`` but not here is a fitted parameter (the diagnosis estimates
@@ -146,8 +161,9 @@ class CampaignModel:
     def __init__(self, runs: Sequence[RunCells], effects: Sequence[str] = (), *,
                  shared: Sequence[str] = (), per_run_bias: bool | None = None,
                  per_run_scale: bool = False, include: Sequence[str] = (),
-                 fixed: Sequence[str] = ("earth_rate",)):
+                 fixed: Sequence[str] = ("earth_rate",), acting: Mapping[str, Sequence[str]] | None = None):
         self.runs = list(runs)
+        acting = acting or {}
         self.effects = [e for e in dict.fromkeys(effects)]
         for e in self.effects:
             if e not in EFFECTS:
@@ -177,7 +193,7 @@ class CampaignModel:
                       if (k not in COEFFICIENT_EFFECT and any(k in DESIGNED[t] for t in tests))
                       or (k in COEFFICIENT_EFFECT and COEFFICIENT_EFFECT[k] in self.effects
                           and any(t in EFFECTS[COEFFICIENT_EFFECT[k]].tests for t in tests))
-                      or (k in include and any(k in DESIGNED[t] for t in tests))]
+                      or (k in include and any(k in DESIGNED[t] or k in acting.get(t, ()) for t in tests))]
             bias_runs = {j for j in idx if self._has_bias(self.runs[j], per_run_bias)}
             for k in wanted:
                 acts = [j for j in idx if not (k == "K0" and j in bias_runs)]
@@ -815,7 +831,7 @@ class CampaignModel:
         cols = list(cols)
         prm_of = [self.candidates[i] for i in cols]
         order = sorted(range(len(cols)), key=lambda c: (self.priority[cols[c]], cols[c]))
-        kept = separable_columns(J, order, tol)
+        kept = self._scale_reference(J, cols, order, tol)
         held: dict[str, str] = {}
         kept_set = set(kept)
         for c in range(len(cols)):
@@ -847,6 +863,97 @@ class CampaignModel:
             held[prm_of[k].name] = (f"weakly determined: design uncertainty {u[worst]:.2g} "
                                     f"{prm_of[k].unit} exceeds its plausible size")
         return held
+
+    def _scale_reference(self, J: np.ndarray, cols: Sequence[int], order: list[int], tol: float) -> list[int]:
+        """:func:`scale_referenced_columns` with this model's roles."""
+        return scale_referenced_columns(J, order, tol,
+                                        radius=[self.roles[c].kind == "radius" for c in cols],
+                                        scale=[self.roles[c].key in SCALE_TERMS for c in cols])
+
+    def absorbed(self, p: np.ndarray, u: Mapping[str, float] | None = None,
+                 share: float = ABSORBED_SHARE) -> dict[str, dict[str, float]]:
+        """What each free parameter measures besides itself: the held parameters it absorbs.
+
+        A parameter held where the data cannot determine it (:meth:`select`) is not gone
+        from the readings: the free parameters take up its part.  Linearised at p, the
+        estimate of free parameter k is ``x_k + sum_h A_kh (x_h - p_h)`` with
+        ``A = (J_f^T J_f)^+ J_f^T J_h`` (the alias matrix of the design, Draper & Smith
+        §10.2), J_f and J_h the whitened columns of the free and the held parameters.
+        A held parameter counts when a size of it typical of an ordinary unit
+        (:func:`accelcal.effects.typical_size`) would move the estimate by more than
+        ``share`` of its uncertainty.
+
+        Parameters
+        ----------
+        p : ndarray
+            Parameter vector, held parameters at their held values [parameter units].
+        u : mapping of str to float, optional
+            Standard uncertainty of each free parameter [parameter unit] (default: the
+            design's, from J_f).
+        share : float
+            Smallest shift, in units of u, that makes a held parameter part of what a free
+            one measures [1].
+
+        Returns
+        -------
+        dict of str to dict of str to float
+            Free parameter name -> {held parameter name: A_kh [free unit / held unit]}, only
+            for free parameters that absorb something.
+        """
+        free = [i for i, prm in enumerate(self.params) if prm.vary]
+        held = [i for i, prm in enumerate(self.params) if not prm.vary]
+        if not free or not held:
+            return {}
+        Jf, Jh = self.jacobian(p, free), self.jacobian(p, held)
+        A = np.column_stack([lstsq_svd_x(Jf, Jh[:, c]) for c in range(len(held))])
+        if u is None:
+            sol = lstsq_svd(Jf, np.zeros(Jf.shape[0]))
+            u_f = np.sqrt(np.clip(np.diag(sol.cov), 0, None))
+        else:
+            u_f = np.array([u.get(self.params[i].name, np.nan) for i in free])
+        typ = np.array([typical_size(self.roles[i].key if self.roles[i].kind != "radius" else "radius")
+                        for i in held])
+        out: dict[str, dict[str, float]] = {}
+        for a, i in enumerate(free):
+            terms = {self.params[h].name: float(A[a, b]) for b, h in enumerate(held)
+                     if abs(A[a, b]) * typ[b] > share * u_f[a]}
+            if terms:
+                out[self.params[i].name] = terms
+        return out
+
+    def measures(self, p: np.ndarray, u: Mapping[str, float] | None = None
+                 ) -> dict[str, tuple[dict[str, float], list[str]]]:
+        """:meth:`absorbed`, said as what each free parameter measures: the instrument
+        coefficients held at 0 that it takes up (its row is their combination,
+        :func:`accelcal.effects.combination_name`), and the other held parameters (a rig
+        quantity at its nominal value, an effect) it depends on.
+
+        Parameters
+        ----------
+        p : ndarray
+            Parameter vector, held parameters at their held values [parameter units].
+        u : mapping of str to float, optional
+            :meth:`absorbed`.
+
+        Returns
+        -------
+        dict of str to (dict of str to float, list of str)
+            Free parameter name -> ({coefficient: factor [free unit / its unit]}, [text of
+            each other held parameter: its held value and the factor on its departure]).
+        """
+        out = {}
+        for name, terms in self.absorbed(p, u).items():
+            coef, other = {}, []
+            for h, f in terms.items():
+                i = self.params.index[h]
+                v = float(p[i])
+                if self.roles[i].kind == "coef" and v == 0.0:
+                    coef[self.roles[i].key] = f
+                else:
+                    other.append(f"{h} held at {v:.6g} {self.params[i].unit} (the value includes "
+                                 f"{f:+.3g}·({h} − {v:.6g}))")
+            out[name] = (coef, other)
+        return out
 
     def _aliased_with(self, J: np.ndarray, i: int, kept: Sequence[int], share: float = 0.05) -> list[int]:
         """Positions (in J) of the kept columns that make up column i (at most four, by
@@ -901,6 +1008,50 @@ class CampaignModel:
         phi = g.phi_rad + float(eff.get("mount_angle_error", 0.0))
         off = float(eff.get("mass_centre_offset", 0.0))
         return float(math.hypot(R * math.cos(phi) - off, R * math.sin(phi)))
+
+
+def scale_referenced_columns(J: np.ndarray, order: Sequence[int], tol: float, *, radius: Sequence[bool],
+                             scale: Sequence[bool]) -> list[int]:
+    """:func:`~accelcal.fitting.core.separable_columns` in ``order``, with one rule of physics
+    on top: a rig's radius that only the scale factor K1 (with the terms that scale with it)
+    can stand in for is held at its nominal value, not the others.
+
+    Without a gravity reference (no tumble, no axis along gravity) the readings fix K1 R,
+    not K1 and R: scaling R by s and K1, K2, Koq, K3 and the mass-centre offset by the
+    matching powers of 1/s leaves every output unchanged.  Judged in priority order at a
+    point where K2 is not 0, the radius would be kept and the last term of that scale
+    direction held (the offset: an inadequate fit).  So each kept radius is judged again
+    last, and held when K1 or a cross term of IA with the vertical axis
+    (:data:`SCALE_TERMS`) is among what it is aliased with
+    (:meth:`CampaignModel.holds`; the Cramér–Rao bound of the Monte Carlo study uses the
+    same rule).
+
+    Parameters
+    ----------
+    J : (m, k) ndarray
+        Whitened design [1 / parameter unit].
+    order : sequence of int
+        Column positions in priority order.
+    tol : float
+        :data:`ALIAS_TOL` [1].
+    radius, scale : sequence of bool
+        Per column: a rig radius; the scale factor K1.
+
+    Returns
+    -------
+    list of int
+        Positions of the columns kept.
+    """
+    order = list(order)
+    kept = separable_columns(J, order, tol)
+    for c in [k for k in kept if radius[k]]:
+        last = separable_columns(J, [k for k in order if k != c] + [c], tol)
+        if c not in last:
+            sol = lstsq_svd_x(J[:, last], J[:, c])
+            share = np.abs(sol) * np.linalg.norm(J[:, last], axis=0)
+            if any(scale[k] and share[i] > 0.05 * share.sum() for i, k in enumerate(last)):
+                kept = last
+    return kept
 
 
 def head_runs(model: CampaignModel) -> dict[str, list[int]]:

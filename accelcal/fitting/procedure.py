@@ -202,5 +202,8 @@ def fit_selected(model: CampaignModel, *, keep: Sequence[str] = (), noise_passes
     """
     p = model.start()
     held = model.select(p, keep=keep)
+    # the start's linear refit (:meth:`CampaignModel.start_lag`) spreads a minimum-norm
+    # solution over aliased coefficients too: those held start at their held values
+    p = np.where(model.params.free(), p, model.params.values())
     return fit_model(model, p, held, keep=keep, noise_passes=noise_passes, reselect=True, bounded=True,
                      effects=effects)

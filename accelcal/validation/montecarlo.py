@@ -80,7 +80,7 @@ from typing import Any
 import numpy as np
 
 from ..constants import T_REF_C
-from ..effects import plausible_size, typical_size
+from ..effects import plausible_size, split_combination, typical_size
 from ..estimators import registry
 from .simruns import SimRunFile
 from ..fitting.core import thin_svd
@@ -185,6 +185,41 @@ def truth_table(scenario, notes: Mapping[tuple[str, str, str], str] | None = Non
                 out[(name, est.method, rg)] = v
     out.update(_joint_truth(sc, out))
     return out
+
+
+def combination_truth(key: tuple[str, str, str], truth: Mapping) -> tuple[float, str] | None:
+    """Truth of a row named as a combination (:func:`accelcal.effects.split_combination`,
+    issue 30): where the table maps its coefficient to an apparent value (a tumble's K0 is
+    K0 + K_ss g^2), that mapping already is the combination; where it maps it to the
+    instrument value, the other terms' instrument values are added with their factors.
+
+    Parameters
+    ----------
+    key : (name, method, rig_id)
+    truth : mapping
+        :func:`truth_table`.
+
+    Returns
+    -------
+    (float, str) or None
+        Truth [SI] and how it was mapped; None for a plain name or an unknown term.
+    """
+    name, method, rig = key
+    base, terms = split_combination(name)
+    if not terms:
+        return None
+    got = truth.get((base, method, rig)) or truth.get((base, method, "*"))
+    if got is None:
+        return None
+    if got[1] != "instrument value":
+        return got[0], f"{got[1]} (the combination {name})"
+    total = got[0]
+    for k, f in terms.items():
+        t = truth.get((k, "joint_ml", "*"))
+        if t is None:
+            return None
+        total += f * t[0]
+    return total, f"instrument values of {name}"
 
 
 def _joint_truth(sc, per_method: Mapping) -> dict[tuple[str, str, str], tuple[float, str]]:
@@ -335,8 +370,8 @@ def _crb_selection(J: np.ndarray, names: Sequence[str]) -> list[int]:
     whose column adds a new direction (an aliased combination is counted once), then
     without the extension terms whose bound exceeds their plausible size (they are held,
     as the estimator holds them).  accelcal.fitting.model documents the rule."""
-    from ..fitting.core import lstsq_svd, separable_columns
-    from ..fitting.model import ALIAS_TOL, BASE, PRIORITY
+    from ..fitting.core import lstsq_svd
+    from ..fitting.model import ALIAS_TOL, BASE, PRIORITY, SCALE_TERMS, scale_referenced_columns
 
     def kind(n):
         b = n.split("[", 1)[0]
@@ -344,7 +379,8 @@ def _crb_selection(J: np.ndarray, names: Sequence[str]) -> list[int]:
                 "dphi": "mount_angle_error", "spindle_tilt": "effect", "sensor_lag": "effect"}.get(b, b)
 
     order = sorted(range(len(names)), key=lambda i: (PRIORITY.index(kind(names[i])), i))
-    kept = separable_columns(J, order, ALIAS_TOL)
+    kept = scale_referenced_columns(J, order, ALIAS_TOL, radius=[kind(n) == "radius" for n in names],
+                                    scale=[n in SCALE_TERMS for n in names])
     while True:
         u = np.sqrt(np.clip(np.diag(lstsq_svd(J[:, kept], np.zeros(J.shape[0])).cov), 0, None))
         worst, ratio = None, 1.0
@@ -523,7 +559,7 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
         m = len(x)
         sd = float(np.std(x, ddof=1)) if m > 1 else float("nan")
         u_rms = float(np.sqrt(np.mean(u**2)))
-        tv, tnote = truth.get(key) or truth.get((name, method, "*")) or (
+        tv, tnote = truth.get(key) or truth.get((name, method, "*")) or combination_truth(key, truth) or (
             None, "no truth defined for this coefficient/method")
         cs = CoefficientStats(name, method, rig, m, tv, tnote, float(np.mean(x)), sd, u_rms,
                               float(np.mean(u)), noise_free=nf.get(key),
@@ -542,7 +578,11 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
             lo, hi = cs.coverage_wilson
             cs.status = "ok" if lo <= TARGET <= hi else ("UNDER" if hi < TARGET else "OVER")
             cs.bias_over_sd = cs.bias / sd if sd > 0 else None
-        b = bounds.get(key, bounds.get((name, method, "*")))
+        # a combination (issue 30) has the bound of its coefficient with the terms it takes up
+        # held out of the information, as the bound's own selection holds them
+        base = split_combination(name)[0]
+        b = next((bounds[k] for k in (key, (name, method, "*"), (base, method, rig), (base, method, "*"))
+                  if bounds.get(k) is not None), None)
         if b is not None and b > 0 and tv is not None and m > 1:
             cs.crb_sd = math.sqrt(b)
             cs.var_over_crb = sd**2 / b
