@@ -176,6 +176,44 @@ def prm_unit(model: CampaignModel, name: str) -> str:
     return model.params[model.params.index[name]].unit
 
 
+#: Aliased pairs of one campaign for which the run that separates them is sought (each
+#: search is a test-design advice, 0.2-0.7 s)
+MAX_SEPARATIONS = 4
+
+
+def separating_runs(cells: Sequence[RunCells], effects: Sequence[str], pairs: Sequence[tuple[str, str]]
+                    ) -> dict[tuple[str, str], str]:
+    """The one run the campaign's rigs can make that best separates each aliased pair
+    (:func:`accelcal.testdesign.advise`, issue 25), for the flags of issue 30.
+
+    Parameters
+    ----------
+    cells : sequence of RunCells
+        The campaign's runs, with noise models.
+    effects : sequence of str
+        The model's effects.md ids.
+    pairs : sequence of (str, str)
+        Instrument coefficients the runs determine only together (at most
+        :data:`MAX_SEPARATIONS` are searched).
+
+    Returns
+    -------
+    dict of (str, str) to str
+        Pair -> the run in drop-format words; pairs no single run separates, or that the
+        advice cannot judge, are left out.
+    """
+    from ..testdesign import DesignError, advise
+    out = {}
+    for a, b in list(pairs)[:MAX_SEPARATIONS]:
+        try:
+            adv = advise(cells, effects, None, [(a, b)], max_runs=1, top=1)
+        except (DesignError, ValueError, np.linalg.LinAlgError):
+            continue
+        if adv.proposals:
+            out[(a, b)] = " + ".join(c.label for c in adv.proposals[0].runs)
+    return out
+
+
 def run_consistency(runs, effects: Sequence[str], alpha: float = 0.01) -> tuple[list[dict], list[str]]:
     """Do runs of one test kind that measure the same coefficients agree?
 
@@ -248,6 +286,8 @@ def campaign_results(runs, rig_ids: Sequence[str] | None = None, effects: Sequen
     jf = fit_campaign_model(cells, eff)
     jf.notes += notes
     out = _records(jf, cells)
+    for (a, b), words in separating_runs(cells, eff, out.pop("aliased_pairs")).items():
+        out["flags"].append(f"{a}, {b}: one more run would separate them: {words} (accelcal design)")
     rows, flags = run_consistency(runs, eff)
     out["flags"] += flags
     if rows:
@@ -336,20 +376,24 @@ def _records(jf: JointFit, cells: list[RunCells]) -> dict[str, Any]:
     rig_of = _dominant_rigs(jf)
     measures = model.measures(fit.values, {prm.name: fit.std(prm.name) for prm in model.params if prm.vary})
     near = nearly_aliased(jf)
+    pairs: list[tuple[str, str]] = [tuple(model.roles[model.params.index[n]].key for n in (a, b))
+                                    for a, b, _, _ in near]
     near_note: dict[str, str] = {}
     for a, b, t, r in near:
         ka, kb = (model.roles[model.params.index[n]].key for n in (a, b))
-        comb = combination_name(ka, {kb: t})
+        comb = combination_name(ka, {kb: float(f"{t:.2g}")})
+        row = " (its own row)" if si_unit(ka) == si_unit(kb) else ""
         for n, other in ((a, kb), (b, ka)):
             near_note[n] = "; ".join(x for x in (near_note.get(n, ""), (
-                f"nearly aliased with {other} (correlation {r:+.4f}): the runs determine {comb} "
-                "(its own row) far better than either alone")) if x)
+                f"nearly aliased with {other} (correlation {r:+.4f}): the runs determine {comb}{row} "
+                "far better than either alone")) if x)
     # instrument coefficients
     for i, prm in enumerate(model.params):
         role = model.roles[i]
         if role.kind != "coef" or not prm.vary or not fit.estimable[i]:
             continue
         name, alias = what_it_measures(measures, prm.name, role.key)
+        pairs += [(role.key, k) for k in measures.get(prm.name, ({}, []))[0]]
         if prm.name in near_note:
             alias = "; ".join(x for x in (alias, near_note[prm.name]) if x)
         if alias:
@@ -375,9 +419,14 @@ def _records(jf: JointFit, cells: list[RunCells]) -> dict[str, Any]:
         for q, c, ub in terms_b:
             budget.append(BudgetTerm(name, q, 0.0, ub, c, abs(c) * ub, "B", "uniform", METHOD))
     for a, b, t, r in near:
-        # the combination the runs do determine, as a row of its own (issue 30)
+        # the combination the runs do determine, as a row of its own (issue 30) where it is a
+        # coefficient of the same unit (Kip+Kpp); t to two digits, so that every campaign of
+        # a design names the same row (its u is that of the rounded combination)
         ia, ib = model.params.index[a], model.params.index[b]
         ka, kb = model.roles[ia].key, model.roles[ib].key
+        if si_unit(ka) != si_unit(kb):
+            continue
+        t = float(f"{t:.2g}")
         name = combination_name(ka, {kb: t})
         c = np.zeros(len(model.params))
         c[ia], c[ib] = 1.0, t
@@ -447,7 +496,8 @@ def _records(jf: JointFit, cells: list[RunCells]) -> dict[str, Any]:
         "notes": jf.notes,
     }
     return {"mc_check": mc_check, "coefficients": coefficients, "radii": radii, "adequacy": adequacy, "budget": budget,
-            "alignment": alignment, "flags": flags, "extras": extras, "fit": jf}
+            "alignment": alignment, "flags": flags, "extras": extras, "fit": jf,
+            "aliased_pairs": list(dict.fromkeys(pairs))}
 
 
 def _mc_checks(coefficients: Sequence[CoefficientResult], budget: Sequence[BudgetTerm]) -> dict[str, dict]:

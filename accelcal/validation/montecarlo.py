@@ -187,6 +187,34 @@ def truth_table(scenario, notes: Mapping[tuple[str, str, str], str] | None = Non
     return out
 
 
+#: key of :func:`cramer_rao`'s whole bound covariance {(name, name): [SI^2]}
+COVARIANCE = ("__covariance__", "", "")
+
+
+def combination_bound(name: str, cov: Mapping[tuple[str, str], float]) -> float | None:
+    """Cramér–Rao variance of a row named as a combination (issue 30): c^T F^+ c over the
+    terms the bound has free; a term the bound holds (aliased, as the estimator holds it)
+    is left out, so a coefficient that takes up a held one has its own bound.
+
+    Parameters
+    ----------
+    name : str
+        :func:`accelcal.effects.split_combination` form (``'Kip+Kpp'``, ``'K0+96.06*Koo'``).
+    cov : mapping
+        :func:`cramer_rao`'s ``COVARIANCE`` entry [SI^2].
+
+    Returns
+    -------
+    float or None
+        [SI^2]; None when the coefficient itself is not free in the bound.
+    """
+    base, terms = split_combination(name)
+    c = {base: 1.0, **{k: f for k, f in terms.items() if (k, k) in cov}}
+    if (base, base) not in cov:
+        return None
+    return float(sum(fa * fb * cov[(a, b)] for a, fa in c.items() for b, fb in c.items()))
+
+
 def combination_truth(key: tuple[str, str, str], truth: Mapping) -> tuple[float, str] | None:
     """Truth of a row named as a combination (:func:`accelcal.effects.split_combination`,
     issue 30): where the table maps its coefficient to an apparent value (a tumble's K0 is
@@ -301,8 +329,10 @@ def _column(kind, meta, data, coeffs, effects, name) -> np.ndarray:
     return (rig_output(kind, meta, data, coeffs, up) - rig_output(kind, meta, data, coeffs, dn)) / (2 * h)
 
 
-def _bound(J: np.ndarray, names: Sequence[str], rtol: float = 1e-10) -> dict[str, float | None]:
-    """diag(F^+) for the estimable parameters of the whitened Jacobian J (None if aliased)."""
+def _bound(J: np.ndarray, names: Sequence[str], rtol: float = 1e-10,
+           cov: dict | None = None) -> dict[str, float | None]:
+    """diag(F^+) for the estimable parameters of the whitened Jacobian J (None if aliased);
+    ``cov``, when given, receives every element of F^+ keyed by (name, name)."""
     scale = np.linalg.norm(J, axis=0)
     scale[scale == 0] = 1.0
     _, s, Vt = thin_svd(J / scale)
@@ -316,6 +346,9 @@ def _bound(J: np.ndarray, names: Sequence[str], rtol: float = 1e-10) -> dict[str
             out[n] = None
         else:
             out[n] = float(cov_s[i, i] / scale[i] ** 2)
+    if cov is not None:
+        cov.update({(a, b): float(cov_s[i, j] / (scale[i] * scale[j]))
+                    for i, a in enumerate(names) for j, b in enumerate(names)})
     return out
 
 
@@ -438,9 +471,10 @@ def cramer_rao(scenario, seed: int | None = None) -> dict[tuple[str, str, str], 
         blocks.append(M / sig[:, None])
     J = np.vstack(blocks)
     keep = _crb_selection(J, order)
-    bound = _bound(J[:, keep], [order[i] for i in keep])
+    cov: dict = {}
+    bound = _bound(J[:, keep], [order[i] for i in keep], cov=cov)
     label = "*"
-    out: dict[tuple[str, str, str], float | None] = {}
+    out: dict = {COVARIANCE: cov}
     for k in _ALL_COEFFS:
         if k in bound:
             out[(k, "joint_ml", label)] = bound[k]
@@ -578,11 +612,9 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
             lo, hi = cs.coverage_wilson
             cs.status = "ok" if lo <= TARGET <= hi else ("UNDER" if hi < TARGET else "OVER")
             cs.bias_over_sd = cs.bias / sd if sd > 0 else None
-        # a combination (issue 30) has the bound of its coefficient with the terms it takes up
-        # held out of the information, as the bound's own selection holds them
-        base = split_combination(name)[0]
-        b = next((bounds[k] for k in (key, (name, method, "*"), (base, method, rig), (base, method, "*"))
-                  if bounds.get(k) is not None), None)
+        b = next((bounds[k] for k in (key, (name, method, "*")) if bounds.get(k) is not None), None)
+        if b is None and bounds:
+            b = combination_bound(name, bounds[COVARIANCE])
         if b is not None and b > 0 and tv is not None and m > 1:
             cs.crb_sd = math.sqrt(b)
             cs.var_over_crb = sd**2 / b
