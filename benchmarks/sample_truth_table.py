@@ -15,7 +15,7 @@ import sys
 import time
 from pathlib import Path
 
-from accelcal.effects import COEFFICIENTS
+from accelcal.effects import coefficient_spec, split_combination
 from accelcal.estimators.campaign import process_campaign
 from accelcal.schemas.dropformat import read_run
 from accelcal.schemas.dropscan import discover
@@ -57,11 +57,13 @@ def main() -> None:
         dt = time.perf_counter() - t0
         rows = sorted(res.coefficients, key=lambda c: (not c.adopted, c.method))
         for c in rows:
-            if c.name not in truth or (c.method == "tumble_lm" and c.name == "K2" and "added" not in c.note):
+            base, terms = split_combination(c.name)
+            if base not in truth or any(k not in truth for k in terms):
                 continue
-            t = truth[c.name]
-            f = COEFFICIENTS[c.name].display_factor
-            du = COEFFICIENTS[c.name].display_unit
+            # a row named as a combination (issue 30: a tumble's K2-Koo) against that combination
+            t = truth[base] + sum(f * truth[k] for k, f in terms.items())
+            f = coefficient_spec(c.name).display_factor
+            du = coefficient_spec(c.name).display_unit
             method = f"**{c.method}** (adopted)" if c.adopted else c.method
             k = c.coverage_factor
             rounding = 0.5 * 10 ** (math.floor(math.log10(abs(t))) - DIGITS[(drop, c.name)] + 1) \
