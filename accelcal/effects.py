@@ -100,19 +100,21 @@ def combination_name(name: str, terms: Mapping[str, float]) -> str:
     Returns
     -------
     str
-        ``name`` followed by each term as ``+f*K`` or ``-f*K`` (f to 4 significant digits,
-        left out when 1): ``"K2-Koo"``, ``"K0+96.06*Koo"``, ``"Kip+Kpp"``; ``name`` when
-        ``terms`` is empty.  :func:`coefficient_spec` of it is that of ``name``.
+        ``name`` followed by each term as ``+f*K`` or ``-f*K`` (f to 3 significant digits,
+        left out when 1): ``"K2-Koo"``, ``"K0+96.1*Koo"``, ``"Kip+Kpp"``; ``name`` when
+        ``terms`` is empty.  :func:`coefficient_spec` of it is that of ``name``.  The name
+        is the row's identity, the same for every campaign of a design; the exact factors
+        are in the row's note.
     """
     out = name
     for k, f in terms.items():
         mag = abs(f)
-        out += ("-" if f < 0 else "+") + ("" if abs(mag - 1.0) < 5e-4 else f"{mag:.4g}*") + k
+        out += ("-" if f < 0 else "+") + ("" if abs(mag - 1.0) < 5e-3 else f"{mag:.3g}*") + k
     return out
 
 
 def split_combination(name: str) -> tuple[str, dict[str, float]]:
-    """The inverse of :func:`combination_name`: ``"K0+96.06*Koo"`` -> ``("K0", {"Koo": 96.06})``.
+    """The inverse of :func:`combination_name`: ``"K0+96.1*Koo"`` -> ``("K0", {"Koo": 96.1})``.
 
     Parameters
     ----------

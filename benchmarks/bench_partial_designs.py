@@ -57,7 +57,7 @@ FLAG_WORDS = ("aliased", "not determined", "undetermined", "combination")
 
 def truth_of(name: str, truth: dict) -> float | None:
     """Truth of a coefficient or of a determined combination
-    (:func:`accelcal.effects.split_combination`: ``K2-Koo``, ``K0+96.06*Koo``)."""
+    (:func:`accelcal.effects.split_combination`: ``K2-Koo``, ``K0+96.1*Koo``)."""
     base, terms = split_combination(name)
     if base not in truth or any(k not in truth for k in terms):
         return None

@@ -962,5 +962,8 @@ ESTIMATOR = register(Estimator(
     certificate=("paper 001 (Zhang et al., 2021): least squares of K0 and K1 over the "
                  "table positions at each temperature point, and a linear temperature model "
                  "for K0T and K1T (T_ref = 20 °C)"),
+    # its first pass is the runs themselves: the tumble's records need to know that the
+    # campaign measures K0T and K1T (their K0 and K1 are then at the tumble's temperature)
+    prepare=lambda runs, steps: tuple(runs),
     records=campaign_records, truth=mc_truth, methods=(METHOD, METHOD_TWO_POSITION), adoption=3,
     main=("K0T", "K1T"), order=2))

@@ -1022,18 +1022,24 @@ def campaign_records(runs: Sequence, steps: Mapping[str, Any]) -> list:
     coeffs, budget = tumble_records(tumble.pooled, square_terms=_square_terms(rigs),
                                     k1=campaign_k1_correction(steps), g=tumble.g,
                                     out_unit=str(runs[0].meta.get("output_unit", "out")))
-    flags = list(tumble.flags) + name_combinations(runs, coeffs, budget)
+    # where the campaign measures the temperature coefficients, K0 and K1 mean their values
+    # at 20 degC, and a tumble's are at its own temperature
+    thermal = ("bias_temperature", "scale_temperature") if steps.get("tilt_rotation_ls") else ()
+    flags = list(tumble.flags) + name_combinations(runs, coeffs, budget, thermal)
     return [Records(coefficients=coeffs, budget=budget, extras=_tumble_extras(tumble), flags=flags).checked()]
 
 
-def name_combinations(runs: Sequence, coeffs: list[CoefficientResult], budget: list[BudgetTerm]) -> list[str]:
+def name_combinations(runs: Sequence, coeffs: list[CoefficientResult], budget: list[BudgetTerm],
+                      effects: Sequence[str] = ()) -> list[str]:
     """Name each tumble row after what the tumble runs determine (issue 30; IEEE 1293): one
     head measures K0 + Koo g^2, K2 - Koo and theta0 - Ko (head about PA), not K0, K2, theta0.
 
     The answer is the campaign model's (:meth:`accelcal.fitting.model.CampaignModel.measures`)
-    of the tumble runs of each head axis alone, judged at its start: a row is renamed to
-    the combination of the coefficients held at 0 that it takes up, where a typical size
-    of them would move it by more than half its u.  A K2 to which the centrifuge's square
+    of the tumble runs of each head axis alone, judged at its start, with what the paper
+    method fits free and every other coefficient held: a row is renamed to the combination
+    of the coefficients held at 0 that it takes up, where a typical size of them would move
+    it by more than half its u (K0T and K1T of a campaign that measures them: a tumble's K0
+    and K1 are at its own temperature).  A K2 to which the centrifuge's square
     term was added is K2 itself.  K0 and K1, pooled over the heads, are renamed only when
     every head measures the same combination; otherwise a flag says what each head measures.
 
@@ -1043,6 +1049,9 @@ def name_combinations(runs: Sequence, coeffs: list[CoefficientResult], budget: l
         RunFile-like tumble runs of the campaign.
     coeffs, budget : list
         :func:`tumble_records`; renamed in place.
+    effects : sequence of str
+        effects.md ids besides ``initial_misalignment`` in the model of the tumble runs
+        (``bias_temperature``, ``scale_temperature`` where the campaign measures K0T, K1T).
 
     Returns
     -------
@@ -1063,9 +1072,14 @@ def name_combinations(runs: Sequence, coeffs: list[CoefficientResult], budget: l
         for c in cells:
             fit_noise(c)
         pool_missing_noise(cells)
-        model = CampaignModel(cells, ["initial_misalignment"], include=("Kip", "Koq", "K3"), acting=ACTING)
+        model = CampaignModel(cells, ["initial_misalignment", *effects], include=("Kip", "Koq", "K3"),
+                              acting=ACTING)
+        # the paper method fits K0, K1, K2, theta0 and the extra terms it chose; every other
+        # term of the model is what its rows take up, where the runs cannot tell it apart
+        fitted = {"K0", "K1", "K2", "initial_misalignment"} | {c.name.split("[", 1)[0] for c in coeffs}
         p = model.start()
-        model.select(p)
+        model.select(p, hold={prm.name: "not a parameter of the tumble fit" for i, prm in enumerate(model.params)
+                              if model.roles[i].kind == "coef" and model.roles[i].key not in fitted})
         rows = {"K0": "K0", "K1": "K1", "K2": _group_name("K2", grp, several),
                 "initial_misalignment": _group_name("theta0", grp, several)}
         meas = model.measures(p, {k: u[v] for k, v in rows.items() if math.isfinite(u.get(v, math.nan))})

@@ -64,8 +64,14 @@ DESIGNED: dict[str, tuple[str, ...]] = {
 }
 #: Coefficients that act on a test's readings though it is not designed to determine them:
 #: the fundamental of a tumble's IA input takes Koq g 8/(3 pi) and K3 g^2 3/4
-#: (:func:`accelcal.estimators.tumble.k1_correction`).
-ACTING: dict[str, tuple[str, ...]] = {"tumble": ("Koq", "K3")}
+#: (:func:`accelcal.estimators.tumble.k1_correction`); the adopted fit lets the design decide
+#: (:meth:`CampaignModel.select`) whether each is determined, aliased or weak.
+ACTING: dict[str, tuple[str, ...]] = {
+    "tumble": ("Koq", "K3"),
+    # a tilted rotary table turns gravity through IA and PA at g sin(tilt) with OA at
+    # g cos(tilt): every square and cross term acts (visible from about 10 deg of tilt)
+    "tilt_rotation": ("K2", "Kip", "Kio", "Kpo", "Kpp", "Koo", "Koq", "K3"),
+}
 #: A parameter whose Jacobian column (unit-scaled) has less than this relative norm outside
 #: the span of the parameters before it is aliased: its variance would be inflated 1e6-fold.
 ALIAS_TOL = 1e-3
@@ -183,17 +189,22 @@ class CampaignModel:
             self.priority.append(PRIORITY.index(prio))
 
         coef_names = {}
+        #: coefficients that are here only because a test acts on them (:data:`ACTING`)
+        self.acting_only: list[str] = []
         for c in self.campaigns:
             idx = [j for j, r in enumerate(self.runs) if r.campaign == c]
             tests = {self.runs[j].test for j in idx}
             # an instrument-term effect in the model adds its coefficient wherever the effect
             # applies (bias_temperature to a centrifuge campaign too), not only where a test
             # is designed to measure it
-            wanted = [k for k in instrument.DEFAULTS
-                      if (k not in COEFFICIENT_EFFECT and any(k in DESIGNED[t] for t in tests))
-                      or (k in COEFFICIENT_EFFECT and COEFFICIENT_EFFECT[k] in self.effects
-                          and any(t in EFFECTS[COEFFICIENT_EFFECT[k]].tests for t in tests))
-                      or (k in include and any(k in DESIGNED[t] or k in acting.get(t, ()) for t in tests))]
+            designed = [k for k in instrument.DEFAULTS
+                        if (k not in COEFFICIENT_EFFECT and any(k in DESIGNED[t] for t in tests))
+                        or (k in COEFFICIENT_EFFECT and COEFFICIENT_EFFECT[k] in self.effects
+                            and any(t in EFFECTS[COEFFICIENT_EFFECT[k]].tests for t in tests))
+                        or (k in include and any(k in DESIGNED[t] for t in tests))]
+            only_acting = [k for k in instrument.DEFAULTS if k not in designed and k in include
+                           and any(k in acting.get(t, ()) for t in tests)]
+            wanted = [k for k in instrument.DEFAULTS if k in designed or k in only_acting]
             bias_runs = {j for j in idx if self._has_bias(self.runs[j], per_run_bias)}
             for k in wanted:
                 acts = [j for j in idx if not (k == "K0" and j in bias_runs)]
@@ -201,6 +212,8 @@ class CampaignModel:
                     continue
                 name = f"{k}[{c}]" if multi else k
                 coef_names[(c, k)] = name
+                if k in only_acting:
+                    self.acting_only.append(name)
                 add(name, k, si_unit(k), typical_size(k), acts, "instrument", Role("coef", k), k,
                     1.0 if k == "K1" else 0.0)
             for j in sorted(bias_runs):
@@ -768,7 +781,8 @@ class CampaignModel:
                 best, p_best = c, q
         return p_best
 
-    def select(self, p: np.ndarray, tol: float = ALIAS_TOL, keep: Sequence[str] = ()) -> dict[str, str]:
+    def select(self, p: np.ndarray, tol: float = ALIAS_TOL, keep: Sequence[str] = (),
+               hold: Mapping[str, str] | None = None) -> dict[str, str]:
         """Hold the parameters the design cannot determine at p (module docstring); returns
         {name: reason} of those held.  ``keep`` names are never held for being weak.  Every
         candidate is considered afresh (a parameter held at the start, where the instrument
@@ -789,15 +803,22 @@ class CampaignModel:
             is aliased [1] (:data:`ALIAS_TOL`).
         keep : sequence of str
             Parameter names never held for being weakly determined.
+        hold : mapping of str to str, optional
+            Parameters held whatever the design (name -> reason), before it is judged.
 
         Returns
         -------
         dict of str to str
             Name -> reason of each parameter held (``'aliased with ...'``, ``'not excited by
-            these runs'``, ``'weakly determined: ...'``).
+            these runs'``, ``'weakly determined: ...'``, or the reason given in ``hold``).
         """
         self.params = self.candidates
-        held = self.holds(self.jacobian(p), range(len(self.params)), tol, keep)
+        hold = dict(hold or {})
+        if hold:
+            cols = [i for i, prm in enumerate(self.params) if prm.name not in hold]
+            held = {**self.holds(self.jacobian(p, cols), cols, tol, keep), **hold}
+        else:
+            held = self.holds(self.jacobian(p), range(len(self.params)), tol, keep)
         self.params = self.params.held(held)
         return held
 

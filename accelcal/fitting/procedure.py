@@ -20,7 +20,7 @@ Marquardt 1963 (the damped Gauss–Newton step).
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -121,7 +121,8 @@ def refit_noise(model: CampaignModel, p: np.ndarray, noise_level: str = "design"
 def fit_model(model: CampaignModel, p: np.ndarray, held: dict[str, str], *,
               keep: Sequence[str] = (), noise_passes: int = 1, reselect: bool = True,
               bounded: bool = True, noise_level: str = "design", max_iter: int = 40,
-              alpha: float = ALPHA, effects: Sequence[str] = ()) -> ModelFit:
+              alpha: float = ALPHA, effects: Sequence[str] = (),
+              hold: Mapping[str, str] | None = None) -> ModelFit:
     """Fit a campaign model whose holds are decided (:meth:`CampaignModel.select`).
 
     Parameters
@@ -150,6 +151,9 @@ def fit_model(model: CampaignModel, p: np.ndarray, held: dict[str, str], *,
         Level of the lack-of-fit test (:func:`accelcal.fitting.core.lack_of_fit`).
     effects : sequence of str
         Kept in the result (the effects.md ids the model was built with).
+    hold : mapping of str to str, optional
+        Parameters held whatever the design, at the re-selection too
+        (:meth:`CampaignModel.select`).
 
     Returns
     -------
@@ -164,7 +168,7 @@ def fit_model(model: CampaignModel, p: np.ndarray, held: dict[str, str], *,
     for k in range(noise_passes):
         refit_noise(model, gn.p, noise_level)
         if k == 0 and reselect:
-            held2 = model.select(gn.p, keep=keep)
+            held2 = model.select(gn.p, keep=keep, hold=hold)
             if set(held2) != set(held):
                 held = held2
                 free = model.params.free()
@@ -180,7 +184,7 @@ def fit_model(model: CampaignModel, p: np.ndarray, held: dict[str, str], *,
 
 
 def fit_selected(model: CampaignModel, *, keep: Sequence[str] = (), noise_passes: int = 1,
-                 effects: Sequence[str] = ()) -> ModelFit:
+                 effects: Sequence[str] = (), hold: Mapping[str, str] | None = None) -> ModelFit:
     """Fit a campaign model as the adopted calibration does: from its start
     (:meth:`CampaignModel.start`), with what the design cannot determine held
     (:meth:`CampaignModel.select`), judged again after the first noise pass, a time
@@ -195,15 +199,17 @@ def fit_selected(model: CampaignModel, *, keep: Sequence[str] = (), noise_passes
         :func:`fit_model`.
     effects : sequence of str
         Kept in the result (the effects.md ids the model was built with).
+    hold : mapping of str to str, optional
+        Parameters held whatever the design (name -> reason).
 
     Returns
     -------
     ModelFit
     """
     p = model.start()
-    held = model.select(p, keep=keep)
+    held = model.select(p, keep=keep, hold=hold)
     # the start's linear refit (:meth:`CampaignModel.start_lag`) spreads a minimum-norm
     # solution over aliased coefficients too: those held start at their held values
     p = np.where(model.params.free(), p, model.params.values())
     return fit_model(model, p, held, keep=keep, noise_passes=noise_passes, reselect=True, bounded=True,
-                     effects=effects)
+                     effects=effects, hold=hold)

@@ -199,7 +199,7 @@ def combination_bound(name: str, cov: Mapping[tuple[str, str], float]) -> float 
     Parameters
     ----------
     name : str
-        :func:`accelcal.effects.split_combination` form (``'Kip+Kpp'``, ``'K0+96.06*Koo'``).
+        :func:`accelcal.effects.split_combination` form (``'Kip+Kpp'``, ``'K0+96.1*Koo'``).
     cov : mapping
         :func:`cramer_rao`'s ``COVARIANCE`` entry [SI^2].
 
