@@ -74,8 +74,11 @@ PAPER_TERMS: dict[str, Coefficient] = {c.name: c for c in [
 CROSS_AXIS_TERM: tuple[str | None, str, str] = (None, "Kp", "Ko")
 SQUARE_TERM: tuple[str, str, str] = ("K2", "Kpp", "Koo")
 
-#: Rig quantities fitted beside the instrument: name -> (SI unit, typical size [SI]).
-RIG_QUANTITIES: dict[str, tuple[str, float]] = {"radius": ("m", 1.0)}
+#: Rig quantities fitted beside the instrument: name -> (SI unit, typical size [SI], largest
+#: plausible departure from the nominal value [SI]).  A radius known to worse than 1 cm from
+#: the runs (a rig with no IA-radial mount: IA sees it only through the mount angle) is
+#: held at the rig's nominal radius, as weakly determined.
+RIG_QUANTITIES: dict[str, tuple[str, float, float]] = {"radius": ("m", 1.0, 0.01)}
 
 
 def coefficient_spec(name: str) -> Coefficient | None:
@@ -279,10 +282,13 @@ def typical_size(key: str) -> float:
 
 
 def plausible_size(key: str) -> float | None:
-    """Largest plausible size [SI] of a coefficient or effect parameter, or None (the
-    coefficients every design determines, rig quantities, names the catalogue lacks)."""
+    """Largest plausible size [SI] of a coefficient or effect parameter, or of a rig
+    quantity's departure from its nominal value; None for the coefficients every design
+    determines and names the catalogue lacks."""
     spec = coefficient_spec(key)
     if spec is not None:
         return spec.plausible
     base = key.split("[", 1)[0]
+    if base in RIG_QUANTITIES:
+        return RIG_QUANTITIES[base][2]
     return EFFECTS[base].plausible if base in EFFECTS else None

@@ -7,7 +7,7 @@ simulator made with known instrument values (the issues quote them; the scenario
 ``accelcal/simulate/scenarios/snj103-*.toml`` and ``qa5512-sine.toml`` copy them):
 
 * LXJ-100 (drop-2026-11-20) and LXJ-200 (drop-2026-11-21) are the two "seeds" of each
-  centrifuge design: tumble + IA pair; + 45/225; + 90/270; full set; IA pair alone;
+  centrifuge design: the tumble alone; tumble + IA pair; + 45/225; + 90/270; full set; IA pair alone;
   IA pair + 45/225; IA pair + 90/270 + 45/225 without the tumble;
 * the sine drop (drop-2026-11-19-sine) with each one and each two of its three attitudes.
 
@@ -42,6 +42,7 @@ UNIT = {"K0": 4.0e-4, "K1": 0.1325631, "Kp": 2.0e-5, "Ko": -1.5e-5, "K2": 3.94e-
 SINE = {**UNIT, "K3": 1.5e-9, "Koq": 2.0e-8}
 #: mounts (plane, angle) of each centrifuge design; "T" = with the drop's tumble
 CENTRIFUGE_DESIGNS = {
+    "tumble alone": (True, set()),
     "T + IA pair": (True, {0, 180}),
     "T + IA pair + 45/225": (True, {0, 180, 45, 225}),
     "T + IA pair + 90/270": (True, {0, 180, 90, 270}),

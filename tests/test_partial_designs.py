@@ -139,6 +139,23 @@ def test_partial_centrifuge_designs_report_what_they_determine(drop, angles, tum
 
 
 @needs_samples
+@pytest.mark.parametrize("drop", ["drop-2026-11-20", "drop-2026-11-21"])
+def test_a_tumble_alone_names_its_k1_with_the_odd_terms_it_takes_up(drop):
+    """The fundamental of a tumble's IA input takes Koq a|a| and K3 a^3: cos|cos| has
+    fundamental 8/(3 pi), cos^3 has 3/4, so K1 (1 + Koq g 8/(3 pi) + K3 g^2 3/4)."""
+    from accelcal.estimators.campaign import process_campaign
+    runs = _runs(drop)
+    res = process_campaign(_centrifuge_subset(runs, set(), True))
+    assert _check(res, UNIT) >= 4
+    g = float(runs[0].meta["g_local_m_s2"])
+    k1 = next(c for c in res.coefficients if c.method == "joint_ml" and c.name.startswith("K1"))
+    base, terms = split_combination(k1.name)
+    assert base == "K1"
+    assert terms["Koq"] == pytest.approx(UNIT["K1"] * g * 8 / (3 * math.pi), rel=5e-3)
+    assert terms["K3"] == pytest.approx(UNIT["K1"] * 0.75 * g * g, rel=5e-3)
+
+
+@needs_samples
 @pytest.mark.parametrize("keep", [(1,), (2,), (1, 2), (2, 3)], ids=["a", "b", "a+b", "b+c"])
 def test_sine_with_fewer_attitudes_reports_combinations_not_paper_002_values(keep):
     from accelcal.estimators.campaign import process_campaign
@@ -150,3 +167,52 @@ def test_sine_with_fewer_attitudes_reports_combinations_not_paper_002_values(kee
     if keep == (1,):
         # methods.md: in attitude (a) a_I >= 0, so K2 and Koq alias
         assert any(c.name == "K2+Koq" for c in res.coefficients)
+
+
+# ------------------------------------------------------------------- designs the samples cannot make
+# Our simulator: regression checks that these designs fit (issue 30's list), not evidence
+# of the model (the sample-drop tests above are).
+
+def _simulated(sc, seed=1):
+    from accelcal.estimators.campaign import process_campaign
+    from accelcal.simulate import simulate_campaign
+    from accelcal.validation.montecarlo import SimRunFile
+    return process_campaign([SimRunFile.from_simrun(r) for r in simulate_campaign(sc, seed)])
+
+
+def _adequate(res):
+    return res.extras["joint"]["lack_of_fit"]["status"] == "adequate"
+
+
+def test_a_second_centrifuge_with_only_a_pa_radial_pair_holds_its_radius():
+    import copy
+
+    from accelcal.simulate import load_scenario
+    sc = load_scenario("snj103-lxj200")
+    second = copy.deepcopy(load_scenario("snj103-lxj100").tests[1])
+    second["mounts"] = [m for m in second["mounts"] if m["plane"] == "IA-PA" and float(m["angle_deg"]) in (90, 270)]
+    second["run_id_prefix"] = "LXJ100-X"
+    sc.tests.append(second)
+    res = _simulated(sc)
+    assert _adequate(res)
+    held = {p["name"]: p["held"] for p in res.extras["joint"]["parameters"] if p["held"]}
+    assert held.get("R[LXJ-100]", "").startswith("weakly determined")
+
+
+def test_a_tilted_table_lets_in_the_square_terms_it_shows():
+    import copy
+
+    from accelcal.simulate import load_scenario
+    sc = copy.deepcopy(load_scenario("hust-m07-thermal"))
+    sc.tests[0]["tilt_deg"] = 30.0
+    sc.coefficients.update({"K2": 3.94e-7, "Kpp": 4.7e-8, "Kip": 7.1e-7, "Koo": 3e-8, "Kio": 2e-7})
+    res = _simulated(sc)
+    assert _adequate(res)
+    rows = {c.name: c for c in res.coefficients if c.method == "joint_ml"}
+    # a tilted table turns gravity through IA and PA: cos 2psi sees K2 - Kpp, sin 2psi Kip
+    assert abs(rows["K2-Kpp"].value - (3.94e-7 - 4.7e-8)) < 4 * rows["K2-Kpp"].std_uncertainty
+    assert abs(rows["Kip"].value - 7.1e-7) < 4 * rows["Kip"].std_uncertainty
+    # K1 (1 + Kio g cos tilt)
+    k1 = next(c for n, c in rows.items() if n.startswith("K1+"))
+    assert split_combination(k1.name)[1]["Kio"] == pytest.approx(50.0 * 9.7936 * math.cos(math.radians(30)),
+                                                                    rel=5e-3)

@@ -1091,7 +1091,7 @@ def name_combinations(runs: Sequence, coeffs: list[CoefficientResult], budget: l
                 key == "K1" and "corrected for Koq and K3" in c.note):
             continue
         combos = [answer[g].get(key, {}) for g in ([grp] if grp else groups)]
-        if any(t != combos[0] for t in combos):
+        if len({combination_name(key, t) for t in combos}) > 1:
             flags.append(f"{c.name} ({METHOD}): the heads measure different combinations: " + "; ".join(
                 combination_name(key, t) for t in combos) + "; the pooled value is none of them")
             continue

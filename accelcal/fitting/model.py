@@ -88,7 +88,7 @@ SCALE_TERMS = ("K1", "Kio", "Kip")
 #: move the free one's estimate by more than this many of its standard uncertainties.
 ABSORBED_SHARE = 0.5
 #: coefficients never held for being weakly determined (the base of every design)
-BASE = ("K0", "K1", "K2", "theta0", "bias", "radius")
+BASE = ("K0", "K1", "K2", "theta0", "bias")
 
 
 #: Effects the lab's processing models, per test kind (the default model; the diagnosis
