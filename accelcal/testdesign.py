@@ -58,6 +58,12 @@ ALIAS_SHARE = 0.05
 PLANES = ("IA-PA", "IA-OA", "PA-OA")
 
 
+#: Largest number of candidates whose pairs are all tried when a target is not yet
+#: determined or a pair not separated (the default list of a 20-run campaign has about 70;
+#: a lab's own list may have hundreds)
+PAIR_POOL = 30
+
+
 class DesignError(ValueError):
     """Bad input to the advice (one line naming the target, effect or candidate)."""
 
@@ -390,6 +396,10 @@ class _Information:
         self.cols_made = sorted({i for j in range(n_made) for i in model.run_params[j]})
         J = model.jacobian(p)
         self.R0 = information_root(J[made_rows][:, self.cols_made])
+        # the radius rule of CampaignModel.holds matters only where the runs made leave the
+        # radius to K1 (no gravity reference); a run added only adds information
+        self.scale_rule = (model.holds(self.R0, self.cols_made, reasons=False)
+                           != model.holds(self.R0, self.cols_made, reasons=False, scale_rule=False))
         new = [i for i, r in enumerate(model.roles) if r.kind == "effect" and i not in set(self.cols_made)]
         self.Js = [J]
         for sign in (1.0, -1.0):
@@ -421,7 +431,7 @@ class _Information:
             R[:, pos[c]] = self.R0[:, k]
         blocks = [R] + [J[self.model.rows(j)][:, cols] for j in runs]
         A = np.vstack(blocks)
-        held = self.model.holds(A, cols, reasons=False)
+        held = self.model.holds(A, cols, reasons=False, scale_rule=self.scale_rule)
         free = [c for c in cols if self.model.candidates[c].name not in held]
         Af = A[:, [pos[c] for c in free]]
         sol = lstsq_svd(Af, np.zeros(A.shape[0]))
@@ -508,6 +518,15 @@ def _gain(cur: Prediction, new: Prediction, prior: Mapping[str, float | None]) -
         a0 = 1.0 if r0 is None else abs(r0)
         g += max(0.0, a0 - abs(r1)) + (1.0 if abs(r1) < SEPARATED <= a0 else 0.0)
     return g
+
+
+def _target_information(info: _Information, j: int, targets: Mapping[str, list[int]]) -> float:
+    """Squared norm of run j's whitened rows in the targets' columns [1 / unit^2, summed]
+    (scaled by each column's norm over the runs made, so that units do not weigh)."""
+    rows = info.Js[0][info.model.rows(j)]
+    idx = sorted({i for ix in targets.values() for i in ix})
+    scale = np.linalg.norm(info.Js[0][:, idx], axis=0)
+    return float(np.sum((rows[:, idx] / np.where(scale > 0, scale, 1.0)) ** 2))
 
 
 def _touches(info: _Information, j: int, targets: Mapping[str, list[int]]) -> bool:
@@ -606,6 +625,11 @@ def _advise(cells, baseline, targets, separate, max_runs, candidates, top) -> Ad
                  and all(s.predicted.std_uncertainty.get(t) is None for s in singles)]
         if still or any(r is None or abs(r) >= SEPARATED for r in cur.corr.values()):
             near = [k for k in range(len(cands)) if _touches(info, n0 + k, tmap)]
+            if len(near) > PAIR_POOL:
+                # a lab's list of hundreds: pairs among the runs that carry the most
+                # information on the targets per minute (each pair is a full prediction)
+                near = sorted(sorted(near, key=lambda k: -_target_information(info, n0 + k, tmap)
+                                     / max(cands[k].minutes, 1e-9))[:PAIR_POOL])
             for a, b in itertools.combinations(near, 2):
                 if (cands[a].rig_id, cands[a].test) != (cands[b].rig_id, cands[b].test):
                     continue

@@ -823,7 +823,7 @@ class CampaignModel:
         return held
 
     def holds(self, J: np.ndarray, cols: Sequence[int], tol: float = ALIAS_TOL,
-              keep: Sequence[str] = (), reasons: bool = True) -> dict[str, str]:
+              keep: Sequence[str] = (), reasons: bool = True, scale_rule: bool = True) -> dict[str, str]:
         """What :meth:`select` holds, judged on a given design: aliased or not excited in
         :data:`PRIORITY` order, then weakly determined one at a time.
 
@@ -843,6 +843,9 @@ class CampaignModel:
         reasons : bool
             Name what an aliased parameter is aliased with (one more solve per parameter
             held); False gives ``'aliased'``.
+        scale_rule : bool
+            Apply :func:`scale_referenced_columns` (False: where the caller knows the runs
+            fix the radius, the test-design advice judging many candidates).
 
         Returns
         -------
@@ -852,7 +855,7 @@ class CampaignModel:
         cols = list(cols)
         prm_of = [self.candidates[i] for i in cols]
         order = sorted(range(len(cols)), key=lambda c: (self.priority[cols[c]], cols[c]))
-        kept = self._scale_reference(J, cols, order, tol)
+        kept = self._scale_reference(J, cols, order, tol) if scale_rule else separable_columns(J, order, tol)
         held: dict[str, str] = {}
         kept_set = set(kept)
         for c in range(len(cols)):
@@ -1066,6 +1069,14 @@ def scale_referenced_columns(J: np.ndarray, order: Sequence[int], tol: float, *,
     order = list(order)
     kept = separable_columns(J, order, tol)
     for c in [k for k in kept if radius[k]]:
+        others = [k for k in order if k != c and np.any(J[:, k])]
+        if others:
+            # a radius that adds a direction to every other column is kept however late it
+            # is judged (every design with a gravity reference): one solve, not a second pass
+            col = J[:, c] / np.linalg.norm(J[:, c])
+            Jo = J[:, others] / np.linalg.norm(J[:, others], axis=0)
+            if np.linalg.norm(col - Jo @ lstsq_svd_x(Jo, col)) > tol:
+                continue
         last = separable_columns(J, [k for k in order if k != c] + [c], tol)
         if c not in last:
             sol = lstsq_svd_x(J[:, last], J[:, c])
