@@ -20,6 +20,7 @@ The whole API:
 """
 from __future__ import annotations
 
+import re
 import sys
 
 __all__ = ["plain", "esc", "console", "error", "warn"]
@@ -49,9 +50,16 @@ def plain(x, limit: int | None = None) -> str:
     return s
 
 
+#: a "[" that does not open a rich tag: rich.markup.escape leaves it, and rich's renderer
+#: then reads a backslash before it as an escape ("\\[" would print as "\[")
+_BARE_BRACKET = re.compile(r"\[(?![a-z#/@][^\[]*?\])")
+
+
 def esc(x, limit: int | None = None) -> str:
+    """:func:`plain`, escaped for rich markup: printed by rich it is exactly the plain text
+    (tag-like brackets by rich's escape, every other bracket with one more backslash)."""
     from rich.markup import escape
-    return escape(plain(x, limit))
+    return _BARE_BRACKET.sub(r"\\[", escape(plain(x, limit)))
 
 
 def console(stderr: bool = False):
