@@ -414,7 +414,7 @@ def _records(jf: JointFit, cells: list[RunCells]) -> dict[str, Any]:
     for a, b, t, r in near:
         ka, kb = (model.roles[model.params.index[n]].key for n in (a, b))
         comb = combination_name(ka, {kb: float(f"{t:.2g}")})
-        row = " (its own row)" if si_unit(ka) == si_unit(kb) else ""
+        row = " (its own row)" if si_unit(ka) == si_unit(kb) and fit.converged else ""
         for n, other in ((a, kb), (b, ka)):
             near_note[n] = "; ".join(x for x in (near_note.get(n, ""), (
                 f"nearly aliased with {other} (correlation {r:+.4f}): the runs determine {comb}{row} "
@@ -456,7 +456,9 @@ def _records(jf: JointFit, cells: list[RunCells]) -> dict[str, Any]:
         # a design names the same row (its u is that of the rounded combination)
         ia, ib = model.params.index[a], model.params.index[b]
         ka, kb = model.roles[ia].key, model.roles[ib].key
-        if si_unit(ka) != si_unit(kb):
+        # a fit that stopped before converging is not at its optimum along the weak
+        # direction, which a combination with a rounded factor would take up
+        if si_unit(ka) != si_unit(kb) or not fit.converged:
             continue
         t = float(f"{t:.2g}")
         name = combination_name(ka, {kb: t})
