@@ -86,7 +86,7 @@ PRIORITY = ("K1", "K0", "theta0", "K2", "bias", "radius", "K3", "Koq", "Kip", "K
 SCALE_TERMS = ("K1", "Kio", "Kip")
 #: A held parameter is part of what a free one measures when a typical size of it would
 #: move the free one's estimate by more than this many of its standard uncertainties.
-ABSORBED_SHARE = 0.5
+ABSORBED_SHARE = 1.0
 #: coefficients never held for being weakly determined (the base of every design)
 BASE = ("K0", "K1", "K2", "theta0", "bias")
 
