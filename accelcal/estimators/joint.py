@@ -38,13 +38,6 @@ from ..effects import combination_name, si_unit
 from ..fitting.core import lstsq_svd, normalised_error
 from ..fitting.data import RunCells, drop_duplicate_cells, fit_noise, make_run, pool_missing_noise
 from ..fitting.model import ACTING, CampaignModel, mount_runs, processing_effects
-
-#: Level of the extra-sum-of-squares test of the terms that only act on the runs, when the
-#: designed model fails its lack-of-fit test: a campaign that fails that test by chance
-#: (1 %) lets them in only 0.1 % of the time
-ACTING_ALPHA = 1e-3
-#: coefficients the adopted fit takes where a test is designed for them or acts on them
-ACTING_TERMS = ("Kip", *sorted({k for ks in ACTING.values() for k in ks} - {"Kip"}))
 from ..fitting.procedure import ModelFit, fit_selected
 from ..physics.axes import AXES
 from ..results import AdequacyResult, BudgetTerm, CoefficientResult, RadiusResult
@@ -52,6 +45,12 @@ from .adequacy import runs_test, trend_test
 from ..fitting.distributions import chi2_sf, f_sf, t_ppf
 
 METHOD = "joint_ml"
+#: Level of the extra-sum-of-squares test of the terms that only act on the runs, when the
+#: designed model fails its lack-of-fit test: a campaign that fails that test by chance
+#: (1 %) lets them in only 0.1 % of the time
+ACTING_ALPHA = 1e-3
+#: coefficients the adopted fit takes where a test is designed for them or acts on them
+ACTING_TERMS = ("Kip", *sorted({k for ks in ACTING.values() for k in ks} - {"Kip"}))
 #: |correlation| of two coefficients' estimates from which each is said to be determined only
 #: through their combination (:func:`nearly_aliased`)
 NEAR_ALIAS_R = 0.999
@@ -113,8 +112,8 @@ def fit_campaign_model(runs: Sequence[RunCells], effects: Sequence[str], *, shar
     if hold and jf.fit.lof.status == "inadequate":
         # ... and let in, as the design decides, where the designed model does not fit and
         # the terms let in explain it (extra sum of squares, Draper & Smith §6.1): a table
-        # tilted by 10 deg or more shows its square terms, a tumble in 24 positions the
-        # third harmonic of Koq; a campaign that fails the test by chance keeps its model
+        # tilted by 10 deg or more shows its square terms; a campaign that fails the test by
+        # chance keeps its model
         wider = fit_selected(build(), keep=keep, noise_passes=noise_passes, effects=effects)
         extra = wider.fit.rank - jf.fit.rank
         if extra > 0 and wider.fit.dof > 0 and wider.fit.chi2 > 0:
@@ -201,11 +200,6 @@ def nearly_aliased(jf: JointFit, r_min: float = NEAR_ALIAS_R) -> list[tuple[str,
     return [(names[a], names[b], float(-R[a, b] * u[a] / u[b]), float(R[a, b]))
             for a in range(len(names)) for b in range(a + 1, len(names))
             if np.isfinite(R[a, b]) and abs(R[a, b]) >= r_min]
-
-
-def prm_unit(model: CampaignModel, name: str) -> str:
-    """The SI unit of a model parameter [text]."""
-    return model.params[model.params.index[name]].unit
 
 
 #: Aliased pairs of one campaign for which the run that separates them is sought (each
