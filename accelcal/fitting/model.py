@@ -64,8 +64,10 @@ DESIGNED: dict[str, tuple[str, ...]] = {
 }
 #: Coefficients that act on a test's readings though it is not designed to determine them:
 #: the fundamental of a tumble's IA input takes Koq g 8/(3 pi) and K3 g^2 3/4
-#: (:func:`accelcal.estimators.tumble.k1_correction`); the adopted fit lets the design decide
-#: (:meth:`CampaignModel.select`) whether each is determined, aliased or weak.
+#: (:func:`accelcal.estimators.tumble.k1_correction`).  The adopted fit holds them while the
+#: designed model fits, names what they leave in its rows (:meth:`CampaignModel.measures`),
+#: and lets them in where they explain a lack of fit
+#: (:func:`accelcal.estimators.joint.fit_campaign_model`).
 ACTING: dict[str, tuple[str, ...]] = {
     "tumble": ("Koq", "K3"),
     # a tilted rotary table turns gravity through IA and PA at g sin(tilt) with OA at
