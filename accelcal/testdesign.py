@@ -520,13 +520,16 @@ def _gain(cur: Prediction, new: Prediction, prior: Mapping[str, float | None]) -
     return g
 
 
-def _target_information(info: _Information, j: int, targets: Mapping[str, list[int]]) -> float:
-    """Squared norm of run j's whitened rows in the targets' columns [1 / unit^2, summed]
-    (scaled by each column's norm over the runs made, so that units do not weigh)."""
-    rows = info.Js[0][info.model.rows(j)]
+def _target_information(info: _Information, runs: Sequence[int], targets: Mapping[str, list[int]]
+                        ) -> list[float]:
+    """Squared norm of each run's whitened rows in the targets' columns [1, summed], each
+    column scaled by its norm over every run of the model (made and candidate), so that
+    units do not weigh."""
     idx = sorted({i for ix in targets.values() for i in ix})
-    scale = np.linalg.norm(info.Js[0][:, idx], axis=0)
-    return float(np.sum((rows[:, idx] / np.where(scale > 0, scale, 1.0)) ** 2))
+    J = info.Js[0][:, idx]
+    scale = np.linalg.norm(J, axis=0)
+    J = J / np.where(scale > 0, scale, 1.0)
+    return [float(np.sum(J[info.model.rows(j)] ** 2)) for j in runs]
 
 
 def _touches(info: _Information, j: int, targets: Mapping[str, list[int]]) -> bool:
@@ -628,8 +631,9 @@ def _advise(cells, baseline, targets, separate, max_runs, candidates, top) -> Ad
             if len(near) > PAIR_POOL:
                 # a lab's list of hundreds: pairs among the runs that carry the most
                 # information on the targets per minute (each pair is a full prediction)
-                near = sorted(sorted(near, key=lambda k: -_target_information(info, n0 + k, tmap)
-                                     / max(cands[k].minutes, 1e-9))[:PAIR_POOL])
+                weight = _target_information(info, [n0 + k for k in near], tmap)
+                per_minute = {k: -w / max(cands[k].minutes, 1e-9) for k, w in zip(near, weight)}
+                near = sorted(sorted(near, key=per_minute.__getitem__)[:PAIR_POOL])
             for a, b in itertools.combinations(near, 2):
                 if (cands[a].rig_id, cands[a].test) != (cands[b].rig_id, cands[b].test):
                     continue

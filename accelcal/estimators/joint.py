@@ -460,8 +460,7 @@ def _records(jf: JointFit, cells: list[RunCells]) -> dict[str, Any]:
         c[ia], c[ib] = 1.0, t
         value = float(c @ fit.values)
         u = float(np.sqrt(max(c @ fit.cov @ c, 0.0))) if not untestable else float("nan")
-        noise_cov = fit.cov / lof.factor ** 2 if lof.factor > 1 else fit.cov
-        u_noise = float(np.sqrt(max(c @ noise_cov @ c, 0.0)))
+        u_noise = float(np.sqrt(max(c @ fit.cov_noise @ c, 0.0)))
         coefficients.append(CoefficientResult(
             name, value, u, si_unit(ka, out_unit), METHOD, rig_of.get(a, rig_label), float(dof),
             f"joint ML fit; {ka} and {kb} are nearly aliased in this design (correlation {r:+.4f}): "

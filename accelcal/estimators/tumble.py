@@ -1058,8 +1058,8 @@ def name_combinations(runs: Sequence, coeffs: list[CoefficientResult], budget: l
     list of str
         Flags: each renamed row, and K0/K1 rows whose heads measure different combinations.
     """
-    from ..fitting.data import fit_noise, make_run, pool_missing_noise
     from ..fitting.model import ACTING, CampaignModel
+    from .joint import prepare
     groups: dict[str, list] = {}
     for r in runs:
         if str(r.meta.get("test")) == "tumble":
@@ -1068,10 +1068,7 @@ def name_combinations(runs: Sequence, coeffs: list[CoefficientResult], budget: l
     u = {c.name: c.std_uncertainty for c in coeffs}
     answer: dict[str, dict[str, dict[str, float]]] = {}
     for grp, rr in groups.items():
-        cells = [make_run(r.meta, r.data, j) for j, r in enumerate(rr)]
-        for c in cells:
-            fit_noise(c)
-        pool_missing_noise(cells)
+        cells, _ = prepare(rr)
         model = CampaignModel(cells, ["initial_misalignment", *effects], include=("Kip", "Koq", "K3"),
                               acting=ACTING)
         # the paper method fits K0, K1, K2, theta0 and the extra terms it chose; every other
