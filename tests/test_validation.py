@@ -1,6 +1,7 @@
 """GE validation tests (drop-format.md, "What the pipeline must refuse" and the per-test claims)."""
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -193,3 +194,35 @@ def test_configuration_memo_is_off_outside_a_validation():
     with suites._configurations_memo():
         assert e.configuration is e.configuration
     assert e.configuration is not e.configuration
+
+
+def test_each_metadata_rule_checked_in_one_place():
+    """The parser owns a key's presence, type, set, time form and axes; the suites own
+    plausible ranges.  No rule id is used by both for the metadata, and the meta suites
+    hold nothing but range checks."""
+    import inspect
+
+    from accelcal.effects import TESTS
+    from accelcal.schemas import dropformat, dropspec
+    from accelcal.schemas.rules import METADATA_RANGES, _suite_specs
+
+    parser_src = inspect.getsource(dropformat) + inspect.getsource(dropspec)
+    parser_rules = set(re.findall(r'"([a-z]+(?:-[a-z0-9]+)+)"', parser_src))
+    assert {"missing-key", "bad-value", "bad-axis", "unknown-format", "unknown-test"} <= parser_rules
+    for test in TESTS:
+        meta = _suite_specs(test)["meta"]
+        assert {rule for _, rule, _, _ in meta} == {"metadata-range"}
+        assert {kw["column"] for _, _, _, kw in meta} <= set(METADATA_RANGES) | {"ambient_temp_c"}
+    assert "metadata-range" not in parser_rules
+
+
+def test_a_run_made_without_the_parser_is_refused_by_the_parsers_rule(good_runs):
+    """A RunFile whose test is not a kind is refused with the parser's own words."""
+    import dataclasses
+
+    r = next(iter(good_runs.values()))[0]
+    bad = dataclasses.replace(r, meta={**r.meta, "test": "spin"}, data=r.data)
+    rep = validate_report([bad])
+    (ref,) = rep.refusals[bad.path]
+    assert (ref.rule, ref.detail) == (
+        "unknown-test", "test 'spin' is not one of tumble, centrifuge, tilt_rotation, sine_centrifuge")

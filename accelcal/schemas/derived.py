@@ -8,8 +8,8 @@ import pandas as pd
 
 from ..fitting.core import lstsq_min_norm
 from .dropformat import RunFile
-from .dropspec import COLUMNS, FLOAT_KEYS, INT_COLUMNS, INT_KEYS, NULLABLE_COLUMNS, REQUIRED_KEYS
-from .rules import ANGLE_TOL_DEG, REST_RATE, SINE_RESID_MAX
+from .dropspec import COLUMNS, INT_COLUMNS, NULLABLE_COLUMNS, REQUIRED_KEYS
+from .rules import ANGLE_TOL_DEG, METADATA_RANGES, REST_RATE, SINE_RESID_MAX
 
 # --------------------------------------------------------------------------------------
 # derived columns (the header's claims made checkable row by row)
@@ -223,18 +223,14 @@ def _sine_fit(t: np.ndarray, rate: np.ndarray, meta: dict) -> tuple[float, float
     return amp / Om, rel_resid
 
 
-def _meta_record(test: str, r: RunFile) -> tuple[dict, dict[str, str]]:
-    """The run's typed metadata for the ``meta`` expectations, plus counts of missing and
-    badly typed keys; and the names behind those counts (for the refusal's detail)."""
-    keys = list(REQUIRED_KEYS[test]) + ["ambient_temp_c"]
+def _meta_record(test: str, r: RunFile) -> dict:
+    """The run's numeric metadata the ``meta`` suite checks for plausible ranges
+    (:data:`accelcal.schemas.rules.METADATA_RANGES` and ``ambient_temp_c``).  A value that is
+    not a number is None here (the parser refuses it before; a run made by code that skips
+    the parser is then checked on the rest)."""
+    keys = [k for k in METADATA_RANGES if k in REQUIRED_KEYS[test]] + ["ambient_temp_c"]
     rec = {k: r.meta.get(k) for k in keys}
-    missing = [k for k in REQUIRED_KEYS[test] if r.meta.get(k) in (None, "")]
-    badtype = [k for k in keys if k in r.meta and (
-        (k in FLOAT_KEYS and (isinstance(r.meta[k], bool) or not isinstance(r.meta[k], (float, int))))
-        or (k in INT_KEYS and (isinstance(r.meta[k], bool) or not isinstance(r.meta[k], int)))
-        or (k not in FLOAT_KEYS and k not in INT_KEYS and not isinstance(r.meta[k], str)))]
-    rec["missing_keys"] = len(missing)
-    rec["badly_typed_keys"] = len(badtype)
-    for k in badtype:
-        rec[k] = None  # keep the range checks from choking on a wrong kind
-    return rec, {"missing_keys": ", ".join(missing), "badly_typed_keys": ", ".join(badtype)}
+    for k, v in rec.items():
+        if isinstance(v, bool) or not isinstance(v, (float, int)):
+            rec[k] = None
+    return rec

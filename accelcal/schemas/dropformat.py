@@ -63,11 +63,10 @@ import numpy as np
 import pandas as pd
 import pyarrow as pa
 
-from ..effects import TESTS
 from ..physics.axes import AxisError, parse_plane, parse_signed_axis, plane_handedness
 from .dropspec import (BLOCK_BYTES, CHUNK_BYTES, COLUMNS, FLOAT_KEYS, FORMAT, INT_KEYS, LINE_MAX,
                        NULLABLE_COLUMNS, OUTPUT_UNITS, REQUIRED_KEYS, ROTATION_SENSES, _INTEGER,
-                       _META_LINE, _NUMBER, DropFormatError)
+                       _META_LINE, _NUMBER, DropFormatError, check_test)
 from .runbody import _Body, _plain_arrays, _plain_rows, _rows_of
 
 
@@ -450,10 +449,7 @@ def _parse_head(st: _Stream, spath: str):
     if "test" not in raw_meta:
         raise DropFormatError(spath, None, "truncated" if cut else "missing-key",
                               "required key 'test' is missing")
-    test = raw_meta["test"]
-    if test not in TESTS:
-        raise DropFormatError(spath, key_line["test"], "unknown-test",
-                              f"test {test!r} is not one of {', '.join(TESTS)}")
+    test = check_test(spath, key_line["test"], raw_meta["test"])
     missing = [k for k in REQUIRED_KEYS[test] if k not in raw_meta]
     if missing:
         if cut:

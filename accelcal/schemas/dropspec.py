@@ -97,6 +97,16 @@ class DropFormatError(ValueError):
         return Refusal(self.path, self.line, self.rule, self.detail)
 
 
+def check_test(path, line: int | None, test) -> str:
+    """``test`` when it is one of the spec's test kinds; else :class:`DropFormatError`
+    ``unknown-test`` (the one place this rule is checked: the parser, and the suites'
+    dispatch of a run made without it)."""
+    if test not in TESTS:
+        raise DropFormatError(path, line, "unknown-test",
+                              f"test {test!r} is not one of {', '.join(TESTS)}")
+    return test
+
+
 @dataclass(frozen=True)
 class Refusal:
     """Why a file (or one of its lines) is refused; same text form as DropFormatError."""

@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .dropspec import COLUMNS, FORMAT, INT_COLUMNS, OUTPUT_UNITS, REQUIRED_KEYS, ROTATION_SENSES, Refusal
+from .dropspec import COLUMNS, INT_COLUMNS, REQUIRED_KEYS, Refusal
 
 #: Plausible temperatures, degC.
 TEMP_RANGE_C = (-60.0, 150.0)
@@ -24,9 +24,15 @@ SINE_AMP_RTOL = 0.1
 #: sine: rms residual of the rate fit at rate_frequency_hz, relative to the amplitude.
 SINE_RESID_MAX = 0.1
 _BIG = 1e300
-_ISO_OFFSET = r"^\d{4}-?\d{2}-?\d{2}[T ]\d{2}(:?\d{2}(:?\d{2}(\.\d+)?)?)?(Z|[+-]\d{2}(:?\d{2})?)$"
-_SIGNED_AXIS = r"^\s*[+-]?\s*(IA|PA|OA)\s*$"
-_PLANE = r"^\s*(IA|PA|OA)\s*-\s*(IA|PA|OA)\s*$"
+#: Plausible ranges of numeric metadata (rule ``metadata-range``).  This is the one check of
+#: metadata the suites make: presence, types, sets, times and axes are the parser's
+#: (:mod:`accelcal.schemas.dropformat`), which refuses a file before it reaches a suite.
+METADATA_RANGES: dict[str, tuple[float, float]] = {
+    "site_latitude_deg": (-90, 90), "g_local_m_s2": (9.7, 9.9), "sample_period_s": (1e-6, 3600),
+    "arm_radius_m": (1e-3, 20), "mount_angle_deg": (-360, 360), "reading_window_s": (1e-6, 3600),
+    "tilt_deg": (0, 90), "positions": (1, 100000), "rate_amplitude_rad_s": (1e-6, 1000),
+    "rate_frequency_hz": (1e-6, 1000),
+}
 
 
 @dataclass
@@ -135,46 +141,13 @@ def _suite_specs(test: str) -> dict[str, list[tuple[str, str, str, dict]]]:
                        "rms residual of a sine fit at rate_frequency_hz / amplitude",
                        column="rate_fit_residual", min_value=0.0, max_value=SINE_RESID_MAX))
 
-    keys = REQUIRED_KEYS[test]
-    meta: list = [
-        _E("ExpectColumnValuesToBeBetween", "missing-key", "required keys missing (count)",
-           column="missing_keys", max_value=0),
-        _E("ExpectColumnValuesToBeBetween", "bad-value",
-           "keys whose value is not of their type (count)", column="badly_typed_keys", max_value=0),
-    ]
-    meta.append(_E("ExpectColumnValuesToBeInSet", "unknown-format", f"format must be {FORMAT}",
-                   column="format", value_set=[FORMAT]))
-    meta.append(_E("ExpectColumnValuesToBeInSet", "unknown-test", f"test must be {test}",
-                   column="test", value_set=[test]))
-    meta.append(_E("ExpectColumnValuesToBeInSet", "bad-value", "output_unit not allowed",
-                   column="output_unit", value_set=list(OUTPUT_UNITS)))
-    meta.append(_E("ExpectColumnValuesToMatchRegex", "bad-value",
-                   "started_at must be ISO 8601 with a UTC offset", column="started_at",
-                   regex=_ISO_OFFSET))
-    ranges = {
-        "site_latitude_deg": (-90, 90), "g_local_m_s2": (9.7, 9.9), "sample_period_s": (1e-6, 3600),
-        "arm_radius_m": (1e-3, 20), "mount_angle_deg": (-360, 360), "reading_window_s": (1e-6, 3600),
-        "tilt_deg": (0, 90), "positions": (1, 100000), "rate_amplitude_rad_s": (1e-6, 1000),
-        "rate_frequency_hz": (1e-6, 1000),
-    }
-    for k, (lo, hi) in ranges.items():
-        if k in keys:
-            meta.append(_E("ExpectColumnValuesToBeBetween", "metadata-range",
-                           f"{k} outside plausible range {lo:g}..{hi:g}", column=k,
-                           min_value=lo, max_value=hi))
+    meta = [_E("ExpectColumnValuesToBeBetween", "metadata-range",
+                  f"{k} outside plausible range {lo:g}..{hi:g}", column=k, min_value=lo,
+                  max_value=hi)
+            for k, (lo, hi) in METADATA_RANGES.items() if k in REQUIRED_KEYS[test]]
     meta.append(_E("ExpectColumnValuesToBeBetween", "metadata-range",
                    "ambient_temp_c outside plausible range", column="ambient_temp_c",
                    min_value=TEMP_RANGE_C[0], max_value=TEMP_RANGE_C[1]))
-    for k in ("head_axis", "cos_axis", "sin_axis", "normal_axis", "vertical_axis"):
-        if k in keys:
-            meta.append(_E("ExpectColumnValuesToMatchRegex", "bad-axis", f"{k} must be a signed axis",
-                           column=k, regex=_SIGNED_AXIS))
-    if "mount_plane" in keys:
-        meta.append(_E("ExpectColumnValuesToMatchRegex", "bad-axis", "mount_plane must be like IA-PA",
-                       column="mount_plane", regex=_PLANE))
-    if "rotation_sense" in keys:
-        meta.append(_E("ExpectColumnValuesToBeInSet", "bad-value", "rotation_sense must be ccw or cw",
-                       column="rotation_sense", value_set=list(ROTATION_SENSES)))
     return {"rows": rows, "meta": meta}
 
 

@@ -14,8 +14,10 @@ checks what needs the numbers, per test kind, with one Expectation Suite per
   rest, a step near 1 g; tilt_rotation ``positions`` equally spaced angles per
   temperature point; sine_centrifuge ``rate_amplitude_rad_s``/``rate_frequency_hz``).
   Run-level quantities sit on the run's first row (NaN elsewhere, which GE skips).
-* ``<test>.meta`` on the metadata, one row per run: keys present, well typed,
-  values in their sets and plausible ranges.
+* ``<test>.meta`` on the metadata, one row per run: numeric values in their plausible
+  ranges (``rules.METADATA_RANGES``).  That a key is present, well typed, in its set, a
+  time or an axis is the parser's rule, checked there only: a run that breaks one never
+  reaches a suite.
 
 GE's unexpected row indices are mapped back to (file, ``line``); each failed
 expectation of a run gives one :class:`Refusal` naming the first offending
@@ -26,8 +28,8 @@ line, the rule (``meta["rule"]`` of the expectation) and a detail. Rule ids:
 ``angle-out-of-range``, ``sample-period``, ``angle-inconsistent``,
 ``angle-missing-at-rest``, ``rest-dwells``, ``no-1g-step``,
 ``positions-mismatch``, ``sine-amplitude``, ``sine-frequency``,
-``missing-key``, ``unknown-format``, ``unknown-test``, ``bad-value``,
-``bad-axis``, ``metadata-range``.
+``metadata-range``; and ``unknown-test`` (through ``dropspec.check_test``, the parser's
+rule) for a run made without the parser.
 
 Data Docs (static HTML, offline: :mod:`accelcal.schemas.datadocs`) of each call go to
 ``docs_dir/<drop_name>/index.html``: every file with its verdict, the parser's refusals
@@ -46,10 +48,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..effects import TESTS
 from .derived import _derive, _meta_record, _turning_step_means
 from .dropformat import RunFile
-from .dropspec import COLUMNS, FLOAT_KEYS, INT_COLUMNS, INT_KEYS, NULLABLE_COLUMNS, Refusal
+from .dropspec import COLUMNS, INT_COLUMNS, NULLABLE_COLUMNS, DropFormatError, Refusal, check_test
 from .rules import ANGLE_TOL_DEG, TEMP_RANGE_C, ValidationReport, _expectation, _suite_specs, build_suites
 
 os.environ.setdefault("GX_ANALYTICS_ENABLED", "False")
@@ -282,15 +283,13 @@ class _Rows:
         return [(a, min(a + rows, self.n)) for a in range(0, max(self.n, 1), rows)]
 
 
-def _batch_parts(items: list[tuple[RunFile, str, dict]]) -> tuple[_Rows, pd.DataFrame, dict,
-                                                                  list[dict]]:
+def _batch_parts(items: list[tuple[RunFile, str, dict]]) -> tuple[_Rows, pd.DataFrame, dict]:
     """The batch as two tables: ``rows`` (a :class:`_Rows`, made a slice at a time), and
     ``meta``, one row per run with its metadata; both say where each row came from
     (``test``, ``file``, ``line``, ``_row``; a run's meta row carries the ``_row`` and
     ``line`` of its first data row).  Two tables, not one, because great-expectations
     copies the whole table for every column it checks: metadata columns spread over every
-    data row cost that copy without holding anything.  Also: the columns each kind fills,
-    and each run's meta 'why'."""
+    data row cost that copy without holding anything.  Also: the columns each kind fills."""
     lens = np.array([len(next(iter(d.values()))) if d else 0 for _, _, d in items], np.int64)
     for j, (r, t, d) in enumerate(items):
         if lens[j] == 0:      # nothing to hold its metadata: one empty row (not a file's)
@@ -319,22 +318,14 @@ def _batch_parts(items: list[tuple[RunFile, str, dict]]) -> tuple[_Rows, pd.Data
                 dt = np.dtype(np.float64)
         dtypes[c] = dt
     # the metadata, one row per run
-    whys, recs = [], []
+    recs = []
     meta: dict[str, object] = {}
     for r, t, _ in items:
-        rec, why = _meta_record(t, r)
-        recs.append(rec)
-        whys.append(why)
-        columns[t].update(rec)
+        recs.append(_meta_record(t, r))
+        columns[t].update(recs[-1])
     for k in dict.fromkeys(k for rec in recs for k in rec):
-        numeric = k in FLOAT_KEYS or k in INT_KEYS or k in ("missing_keys", "badly_typed_keys")
-        if numeric:
-            meta[k] = pd.to_numeric(pd.Series([rec.get(k) for rec in recs], dtype=object),
-                                    errors="coerce").astype("float64").to_numpy()
-        else:
-            vals = np.empty(len(recs), dtype=object)
-            vals[:] = [rec.get(k) for rec in recs]
-            meta[k] = pd.Series(vals, dtype=object)
+        meta[k] = pd.to_numeric(pd.Series([rec.get(k) for rec in recs], dtype=object),
+                                errors="coerce").astype("float64").to_numpy()
     tests = np.asarray([t for _, t, _ in items], dtype=object)
     files = np.asarray([r.path for r, _, _ in items], dtype=object)
     # on the data rows, ``test`` and ``file`` are categorical (a code per row): GE copies the
@@ -348,18 +339,18 @@ def _batch_parts(items: list[tuple[RunFile, str, dict]]) -> tuple[_Rows, pd.Data
     meta["file"] = files
     meta["line"] = np.asarray([rows._line(j)[0] for j in range(len(items))], np.int64)
     meta["_row"] = rows.starts
-    return rows, pd.DataFrame(meta, copy=False), columns, whys
+    return rows, pd.DataFrame(meta, copy=False), columns
 
 
 def _batch_table(items: list[tuple[RunFile, str, dict]]) -> tuple[dict[str, pd.DataFrame], dict,
-                                                                  np.ndarray, np.ndarray, list[dict]]:
+                                                                  np.ndarray, np.ndarray]:
     """:func:`_batch_parts` with the ``rows`` table made whole (benchmarks/
     bench_intake_budget.py times it): the two tables, the columns each kind fills, the run
-    and the line of each row, and each run's meta 'why'."""
-    rows, meta, columns, whys = _batch_parts(items)
+    and the line of each row."""
+    rows, meta, columns = _batch_parts(items)
     df = rows.frame()
     run_ix = np.repeat(np.arange(len(items)), rows.lens)
-    return {"rows": df, "meta": meta}, columns, run_ix, df["line"].to_numpy(), whys
+    return {"rows": df, "meta": meta}, columns, run_ix, df["line"].to_numpy()
 
 
 def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
@@ -378,10 +369,10 @@ def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
     items: list[tuple[RunFile, str, dict]] = []
     todo: list[tuple[RunFile, str]] = []
     for r in runs:
-        test = str(r.meta.get("test", ""))
-        if test not in TESTS:
-            refusals[r.path].append(Refusal(r.path, r.meta_lines.get("test"), "unknown-test",
-                                            f"test {test!r} is not one of {', '.join(TESTS)}"))
+        try:
+            test = check_test(r.path, r.meta_lines.get("test"), str(r.meta.get("test", "")))
+        except DropFormatError as e:    # a run made without the parser
+            refusals[r.path].append(e.as_refusal())
             continue
         miss = [c for c in list(COLUMNS[test]) + ["line"] if c not in r.arrays]
         if miss:
@@ -404,7 +395,7 @@ def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
     if items:
         tk = time.perf_counter()
         kinds = list(dict.fromkeys(t for _, t, _ in items))
-        rows, dfm, columns, meta_why = _batch_parts(items)
+        rows, dfm, columns = _batch_parts(items)
         specs = _batch_specs(kinds, columns)
         results, res_json = _validate_batch({"rows": rows, "meta": dfm}, specs,
                                             docs_root is not None)
@@ -444,15 +435,8 @@ def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
                 k = int(sel[0])
                 r = kind_runs[int(i)]
                 if table == "meta":
-                    why = meta_why[int(i)]
-                    if col in why:
-                        names = why[col]
-                        ln = r.meta_lines.get(names.split(", ")[0]) if names else None
-                        detail = f"{what}: {names}"
-                    else:
-                        ln = r.meta_lines.get(col)
-                        detail = f"{what}: {col} = {_fmt(r.meta.get(col, dfm[col].iloc[int(i)]))}"
-                    refusals[r.path].append(Refusal(r.path, ln, rule, detail))
+                    detail = f"{what}: {col} = {_fmt(r.meta.get(col, dfm[col].iloc[int(i)]))}"
+                    refusals[r.path].append(Refusal(r.path, r.meta_lines.get(col), rule, detail))
                     continue
                 test = test_of[int(i)]
                 ln = rows.line(k)
