@@ -144,8 +144,13 @@ class RadiusCorrections:
     type_b : dict
         (method, polarity, order, g_max) -> standard uncertainty [m] of the type-B term of the
         static and iterative radii (uniform; instrument terms the method leaves in the radius).
+        None where K_iv is undetermined (no term can be evaluated).
     iterative, static : dict
         Polarity -> (radius [m], standard uncertainty [m]) of the corrected radii.
+    kiv_source : str
+        Where K_iv comes from: ``'pairs'`` (the mount pairs, eq 2/3), ``'tumble'`` (the
+        campaign's tumble, where the pairs leave it undetermined), ``'undetermined'`` (by
+        neither: its leak into the radius is not in u, and a flag says so), ``'none'``.
     """
     cross: str | None
     Kiv: float
@@ -153,6 +158,7 @@ class RadiusCorrections:
     type_b: dict
     iterative: dict[str, tuple[float, float]]
     static: dict[str, tuple[float, float]]
+    kiv_source: str = "pairs"
 
 
 @dataclass(frozen=True)
@@ -459,8 +465,17 @@ def radius_corrections(mounts: Mounts, ref: Reference, static: StaticStep, itera
     vert = geometry_of(meta)
     cross = CROSS.get(frozenset((0, vert.vertical)))
     c = comb.combination
-    Kiv = c.values.get(cross, 0.0) if cross else 0.0
-    uKiv = c.std.get(cross, 0.0) if cross else 0.0
+    # K_iv from the mount pairs; where they leave it undetermined, from the tumble; where
+    # neither determines it, its leak into the radius is not evaluated (None: no term)
+    tumble_cross = {k: (v, u) for k, v, u in ref.cross}
+    if not cross:
+        Kiv, uKiv, source = 0.0, 0.0, "none"
+    elif cross in c.values:
+        Kiv, uKiv, source = c.values[cross], c.std.get(cross, 0.0), "pairs"
+    elif cross in tumble_cross:
+        (Kiv, uKiv), source = tumble_cross[cross], "tumble"
+    else:
+        Kiv, uKiv, source = 0.0, 0.0, "undetermined"
     scale = 1.0 + Kiv * vert.vertical_sign * g
     K2c = c.values.get("K2", ref.K2)
     type_b = {}
@@ -470,7 +485,8 @@ def radius_corrections(mounts: Mounts, ref: Reference, static: StaticStep, itera
     for (order, gr), it in iterative.fits.items():
         gmax = iterative.top if gr is None else gr
         for pol, R in (("+", it.R_plus), ("-", it.R_minus)):
-            type_b[("iterative", pol, order, gmax)] = unc.uniform_u(R * abs(Kiv) * g)
+            type_b[("iterative", pol, order, gmax)] = (None if source == "undetermined"
+                                                       else unc.uniform_u(R * abs(Kiv) * g))
     best = iterative.best
     it_corr = {pol: (R / scale, math.hypot(u, R * g * uKiv))
                for pol, R, u in (("+", best.R_plus, best.u_plus), ("-", best.R_minus, best.u_minus))}
@@ -480,7 +496,7 @@ def radius_corrections(mounts: Mounts, ref: Reference, static: StaticStep, itera
         run = mounts.run_plus if pol == "+" else mounts.run_minus
         st_corr[pol] = (geometric_static_radius(run.meta, s, coeffs),
                         math.hypot(s.std_uncertainty_m, s.radius_m * g * uKiv))
-    return RadiusCorrections(cross, Kiv, uKiv, type_b, it_corr, st_corr)
+    return RadiusCorrections(cross, Kiv, uKiv, type_b, it_corr, st_corr, source)
 
 
 def process_rig(runs: Sequence, tumble: Reference | None) -> RigOutcome | tuple[str, ...]:
@@ -549,17 +565,28 @@ def rig_records(out: RigOutcome, k1_correction: tuple[float, float] | None = Non
     """
     rig, rec = out.rig, Records()
     st, it, corr = out.static, out.iterative, out.corrections
-    typeb_note = "includes type-B {:.2e} m (uniform) for instrument terms the method leaves in the radius"
+    neither = f"{corr.cross} (IA with the vertical) is determined by neither the mount pairs nor a tumble"
+    src = {"tumble": f"; {corr.cross} from the tumble (the mount pairs leave it undetermined)",
+           "undetermined": f"; {neither}: its leak R·{corr.cross}·g is not in u"}.get(corr.kiv_source, "")
+    if corr.kiv_source == "undetermined":
+        rec.flags.append(f"{rig}: test radii: {neither}; their u leaves out R·{corr.cross}·g (add a tumble "
+                         "or a mount pair that determines it)")
+
+    def typeb_note(b):
+        if b is None:
+            return f"no type-B term: {neither}"
+        return (f"includes type-B {b:.2e} m (uniform) for instrument terms the method leaves in the radius"
+                + src)
 
     def with_b(u, key):
-        return math.hypot(u, corr.type_b[key])
+        return u if corr.type_b[key] is None else math.hypot(u, corr.type_b[key])
 
     # static radius (eq 4-6)
     for pol, s in st.radii.items():
         key = ("static", pol, None, 1.0)
         rec.radii.append(RadiusResult(rig, pol, "static", None, 1.0, s.radius_m, with_b(s.std_uncertainty_m, key),
                                       note=f"eq 6; printed-form u = {s.std_uncertainty_printed_m:.3e} m; "
-                                           + typeb_note.format(corr.type_b[key])))
+                                           + typeb_note(corr.type_b[key])))
     rec.alignment.append({"kind": "lambda_c", "rig_id": rig,
                           **{f"lambda_c{p}": s.lambda_c_rad for p, s in st.radii.items()},
                           **{f"u_lambda_c{p}": s.u_lambda_c_rad for p, s in st.radii.items()}})
@@ -575,7 +602,7 @@ def rig_records(out: RigOutcome, k1_correction: tuple[float, float] | None = Non
             for pol, R, u in (("+", f.R_plus, f.u_plus), ("-", f.R_minus, f.u_minus)):
                 key = ("iterative", pol, order, gmax)
                 rec.radii.append(RadiusResult(rig, pol, "iterative", order, gmax, R, with_b(u, key),
-                                              note=typeb_note.format(corr.type_b[key])))
+                                              note=typeb_note(corr.type_b[key])))
             d = f.fit
             rec.adequacy.append(AdequacyResult(rig, it.label, order, gmax, d.f_statistic, d.p_value, d.dof_lof,
                                                d.dof_pe, d.trend_p, d.sweep_p, d.runs_p, d.adequate,

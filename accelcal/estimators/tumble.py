@@ -908,6 +908,9 @@ class Reference:
     K2: float
     u_K2: float
     from_tumble: bool = True
+    #: the cross-coupling terms the tumble determines, name -> (value [s2/m], u): the
+    #: centrifuge's K_iv where its own mount pairs leave it undetermined (issue 27)
+    cross: tuple[tuple[str, float, float], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -931,7 +934,9 @@ class TumbleStep:
         (:class:`Reference`)."""
         k2 = next(q for q in self.pooled.values() if q.key == "K2")
         K0, K1 = self.pooled["K0"], self.pooled["K1"]
-        return Reference(K0.value, K1.value, K0.u, K1.u, k2.value, k2.u)
+        cross = tuple((q.key, q.value, q.u) for q in self.pooled.values()
+                      if q.key in ("Kip", "Kio", "Kpo") and q.name == q.key)
+        return Reference(K0.value, K1.value, K0.u, K1.u, k2.value, k2.u, cross=cross)
 
     @property
     def g(self) -> float:
