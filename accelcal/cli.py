@@ -194,15 +194,19 @@ def print_summary(summary: dict[str, Any], console=None) -> None:
                       caption="* the adopted value" if any(
                           co.get("adopted") for co in c["coefficients"]) else None,
                       caption_justify="left")
-            for col, j in (("", "left"), ("coef", "left"), ("value", "right"),
-                           ("U (k=2)", "right"), ("unit", "left"), ("method", "left"),
-                           ("rig", "left")):
-                t.add_column(col, justify=j, no_wrap=col in ("value", "U (k=2)", "unit", "coef"),
-                             overflow="fold")
-            for co in c["coefficients"]:
-                v, U, unit = display_coefficient(co)
-                t.add_row("*" if co.get("adopted") else "", _cell(co["name"]), v, U, unit,
-                          _cell(co.get("method")), _cell(co.get("rig_id")))
+            rows = [("*" if co.get("adopted") else "", _cell(co["name"]), *display_coefficient(co),
+                     _cell(co.get("method")), _cell(co.get("rig_id"))) for co in c["coefficients"]]
+            # the numbers and their unit are never cut: a long name (a combination the runs
+            # determine, K0+0.00296*K2+...) folds onto a second line instead
+            for k, (col, j) in enumerate((("", "left"), ("coef", "left"), ("value", "right"),
+                                          ("U (k=2)", "right"), ("unit", "left"), ("method", "left"),
+                                          ("rig", "left"))):
+                whole = col in ("value", "U (k=2)", "unit")
+                t.add_column(col, justify=j, no_wrap=whole, overflow="fold",
+                             min_width=max([len(col)] + [len(str(r[k])) for r in rows]) if whole else None,
+                             max_width=24 if col == "coef" else None)
+            for r in rows:
+                t.add_row(*r)
             con.print(t)
         radii = _radius_rows(c.get("radii") or [])
         if radii:
@@ -276,6 +280,11 @@ def _execute(drops: list[str], warehouse: str, args, console, create: bool = Fal
                    MofNCompleteColumn(), TimeElapsedColumn(), console=err, transient=False,
                    disable=not show)
     rep = RichReporter(bar)
+    from .config import ConfigError, rig_uncertainties
+    try:
+        stated = rig_uncertainties(args.config, warehouse)
+    except ConfigError as e:
+        raise CliError(str(e)) from None
     try:
         with bar:
             prog.set_reporter(rep)
@@ -286,7 +295,8 @@ def _execute(drops: list[str], warehouse: str, args, console, create: bool = Fal
                                    task_runner=args.task_runner, settle=args.settle,
                                    create=create, snapshot=not args.no_snapshot,
                                    allow_simulated=allow_simulated,
-                                   workers=args.workers)
+                                   workers=args.workers,
+                                   parameters={"rig_uncertainty": stated} if stated else None)
     except (PipelineError, WarehouseError, StoreError) as e:
         raise CliError(str(e)) from None
     finally:
@@ -326,6 +336,10 @@ def _add_run_options(p: argparse.ArgumentParser) -> None:
                         "held back for the next run")
     p.add_argument("--no-snapshot", action="store_true",
                    help="do not publish the read-only copy <warehouse>-snapshot.duckdb")
+    p.add_argument("--config", default=None, metavar="TOML",
+                   help="the lab's accelcal.toml (default ./accelcal.toml, else beside the "
+                        "warehouse): the stated uncertainties of rig inputs ([rigs.\"ID\"] "
+                        "g_local_u_m_s2, tilt_u_deg, temperature_u_c) enter every budget")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.add_argument("--log-level", default=None,

@@ -105,6 +105,40 @@ def rig_limits(explicit: str | Path | None = None) -> dict[str, float]:
     return out
 
 
+def rig_uncertainties(explicit: str | Path | None = None,
+                      warehouse: str | Path | None = None) -> dict[str, dict[str, float]]:
+    """Rig id -> :data:`accelcal.effects.RIG_INPUTS` id -> the lab's stated standard
+    uncertainty of that input, from ``[rigs."ID"]`` of the config file (issue 27)::
+
+        [rigs."TT-1"]
+        g_local_u_m_s2 = 1e-5      # local gravity at the rig [m/s2]
+        tilt_u_deg = 0.002         # tilt of the thermal table [deg]
+        temperature_u_c = 0.05     # temperature reading at each set point [degC]
+
+    Same look-up as :func:`lab_config`; none without a file.  A value that is not a
+    positive number is one :class:`ConfigError` line naming it."""
+    from .effects import RIG_INPUTS
+    path = find_config(explicit, warehouse)
+    if path is None:
+        return {}
+    rigs = _read(path).get("rigs") or {}
+    if not isinstance(rigs, dict):
+        raise ConfigError(f"{path}: [rigs] must be a table of rig ids")
+    out: dict[str, dict[str, float]] = {}
+    for rig, v in rigs.items():
+        if not isinstance(v, dict):
+            continue
+        for spec in RIG_INPUTS.values():
+            if spec.config_key not in v:
+                continue
+            x = v[spec.config_key]
+            if isinstance(x, bool) or not isinstance(x, (int, float)) or not x > 0:
+                raise ConfigError(f'{path}: [rigs."{rig}"] {spec.config_key} must be a positive number '
+                                  f"(a standard uncertainty in {spec.unit})")
+            out.setdefault(str(rig), {})[spec.id] = float(x)
+    return out
+
+
 def _str(d: dict[str, Any], key: str, where: str, path: Path) -> str | None:
     v = d.get(key)
     if v is None:

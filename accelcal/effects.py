@@ -81,6 +81,55 @@ SQUARE_TERM: tuple[str, str, str] = ("K2", "Kpp", "Koo")
 RIG_QUANTITIES: dict[str, tuple[str, float, float]] = {"radius": ("m", 1.0, 0.01)}
 
 
+@dataclass(frozen=True)
+class RigInput:
+    """A quantity of the rig the forward model takes as known from the drop (a metadata
+    value or a logged column) whose uncertainty the lab states: it enters every budget
+    through the model's derivative (JCGM 100 §5.1.3), a type-B term.
+
+    Attributes
+    ----------
+    id : str
+        Its name in budgets and flags (``g_local``).
+    config_key : str
+        Key of ``[rigs."ID"]`` in accelcal.toml that states its standard uncertainty.
+    unit : str
+        Unit of that uncertainty and of the value (``m/s2``, ``deg``, ``degC``).
+    meta_key : str or None
+        Drop-format metadata key the model reads (``g_local_m_s2``), or None.
+    column : str or None
+        Logged column the model reads (``temp_c``), or None.
+    tests : tuple of str
+        Test kinds whose output depends on it.
+    per_point : bool
+        True when its error is independent from one temperature point to the next
+        (a reading), False when it is one value for all runs of the rig.
+    what : str
+        How the budget line names it.
+    """
+
+    id: str
+    config_key: str
+    unit: str
+    meta_key: str | None
+    column: str | None
+    tests: tuple[str, ...]
+    per_point: bool
+    what: str
+
+
+#: Rig inputs with a lab-stated uncertainty (issue 27): local gravity at every rig, the
+#: tilt of the thermal table, the temperature reading of a thermal run.
+RIG_INPUTS: dict[str, RigInput] = {r.id: r for r in [
+    RigInput("g_local", "g_local_u_m_s2", "m/s2", "g_local_m_s2", None, TESTS, False,
+             "local gravity g_local"),
+    RigInput("table_tilt", "tilt_u_deg", "deg", "tilt_deg", None, ("tilt_rotation",), False,
+             "tilt angle of the table"),
+    RigInput("temperature", "temperature_u_c", "degC", None, "temp_c", ("tilt_rotation",), True,
+             "error of the temperature reading at each set point (independent between set points)"),
+]}
+
+
 def coefficient_spec(name: str) -> Coefficient | None:
     """The catalogue row of a coefficient name (``"K2"``, ``"K0[run]"``, ``"Kppp"``), or None.
     A combination (:func:`combination_name`, ``"K2-Koo"``) has the row of its first term: its

@@ -34,3 +34,18 @@ def examples() -> Path:
     if not EXAMPLES.is_dir():
         pytest.skip(NO_SHARED)
     return EXAMPLES
+
+
+#: The lab's stated rig-input uncertainties of the sample drops' rigs (accelcal.toml, issue 27):
+#: with them the budgets are complete and a certificate can be final.
+RIG_INPUTS_TOML = """[rigs."LXJ-100"]
+g_local_u_m_s2 = 1e-5
+[rigs."DH-1"]
+g_local_u_m_s2 = 1e-5
+[rigs."TT-1"]
+g_local_u_m_s2 = 1e-5
+tilt_u_deg = 0.001
+temperature_u_c = 0.05
+[rigs."DC-1"]
+g_local_u_m_s2 = 1e-5
+"""

@@ -3,6 +3,7 @@ campaigns (centrifuge + tumble, thermal, sine), in the HTML and in the PDF the s
 chromium prints (skipped without chromium; the PDF text check also needs pdftotext)."""
 from __future__ import annotations
 
+import math
 import re
 import shutil
 import subprocess
@@ -12,6 +13,8 @@ import pytest
 
 from accelcal import cli
 from accelcal.ops.report import build_report, report_filename
+
+from conftest import RIG_INPUTS_TOML
 
 CAMPS = {"centrifuge": "SNJ-1-03/2026-11-20", "thermal": "HUST-M-07/2026-11-18",
          "sine": "QA-5512/2026-11-19"}
@@ -34,7 +37,7 @@ statement = "Traceable to the SI through the national standards of length, time 
 "DH-1" = "dividing head angle cert. A-7"
 "TT-1" = "tilt table angle cert. T-2; chamber thermometer cert. C-9"
 "DC-1" = "disc centrifuge radius cert. R-4"
-"""
+""" + RIG_INPUTS_TOML
 #: 7.8.2.1 / 7.8.4 elements, as the certificate words them (in every certificate).
 ELEMENTS = ["Calibration Certificate", "Certificate No. IML-", LAB["name"], LAB["address"],
             "Centrifuge hall 3", "Example Customer Ltd", LAB["approver"], "Head of laboratory",
@@ -48,12 +51,14 @@ ELEMENTS = ["Calibration Certificate", "Certificate No. IML-", LAB["name"], LAB[
 
 @pytest.fixture(scope="module")
 def lab(tmp_path_factory, examples):
+    from accelcal.config import rig_uncertainties
     from accelcal.flows.pipeline import run_pipeline
     d = tmp_path_factory.mktemp("cert")
+    (d / "accelcal.toml").write_text(CONFIG)          # found beside the warehouse
     run_pipeline([str(examples / x) for x in
                   ("drop-2026-11-20", "drop-2026-11-18-thermal", "drop-2026-11-19-sine")],
-                 d / "lab.duckdb", engine="local")
-    (d / "accelcal.toml").write_text(CONFIG)          # found beside the warehouse
+                 d / "lab.duckdb", engine="local",
+                 parameters={"rig_uncertainty": rig_uncertainties(d / "accelcal.toml")})
     return d / "lab.duckdb"
 
 
@@ -88,11 +93,15 @@ def test_thermal_certificate_dates_numbers_and_no_centrifuge_parameters(htmls):
     # the data's dates: started_at to the last reading (17.5 h later), not start -> start
     assert "2026-11-20 00:00 (UTC+08:00) to 2026-11-20 17:29 (UTC+08:00)" in html
     assert "The campaign label names 2026-11-18" in html
-    # the adopted value (joint fit, reading by reading) and the paper method in the annex
-    assert re.search(r"<td>K1T</td><td class=\"num\">-119\.9983</td><td class=\"num\">0\.0026</td>",
-                     html)
-    assert re.search(r"<td>K1T</td><td class=\"num\">-119\.987</td><td class=\"num\">0\.030</td>",
-                     html)
+    # the adopted value (joint fit, reading by reading) and the paper method in the annex;
+    # U now holds the stated temperature reading (0.05 degC at each of the set points 20,
+    # 25, ..., 40 degC): u = |K1T| u_T / sqrt(sum (T - Tbar)^2) = 120 ppm * 0.05 / sqrt(250)
+    # beside the readings' 0.0013 (joint) and 0.015 (paper) ppm/degC, derived here
+    for u_a in (0.0013, 0.015):
+        U = 2 * math.hypot(120 * 0.05 / math.sqrt(250), u_a)
+        assert f"{U:.2f}" == "0.76"
+    assert re.search(r"<td>K1T</td><td class=\"num\">-120\.00</td><td class=\"num\">0\.76</td>", html)
+    assert re.search(r"<td>K1T</td><td class=\"num\">-119\.99</td><td class=\"num\">0\.76</td>", html)
     for word in ("radius", "mount_angle_tolerance", "Alignment", "centrifuge runs"):
         assert word not in html, word
     assert "20.15 / 30.30 / 40.46" in html                  # instrument temperature from temp_c

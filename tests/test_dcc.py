@@ -18,6 +18,8 @@ from accelcal import cli
 from accelcal.ops import dcc as dccmod
 from accelcal.ops.report import build_report, load_report_data
 
+from conftest import RIG_INPUTS_TOML
+
 CAMPS = {"thermal": "HUST-M-07/2026-11-18", "centrifuge": "SNJ-1-03/2026-11-20"}
 SI = "{https://ptb.de/si}"
 DCC = "{https://ptb.de/dcc}"
@@ -31,7 +33,7 @@ approver = "Dr A. Approver"
 customer = "Example Customer Ltd"
 [traceability]
 statement = "Traceable to the SI."
-[dcc]
+""" + RIG_INPUTS_TOML + """[dcc]
 country_code = "CN"
 email = "lab@example.org"
 """
@@ -43,11 +45,13 @@ SCALE = {r"\micro\metre\second\tothe{-2}": 1e-6, r"\micro\radian": 1e-6, r"\degr
 
 @pytest.fixture(scope="module")
 def lab(tmp_path_factory, examples):
+    from accelcal.config import rig_uncertainties
     from accelcal.flows.pipeline import run_pipeline
     d = tmp_path_factory.mktemp("dcc")
+    (d / "accelcal.toml").write_text(CONFIG)          # found beside the warehouse
     run_pipeline([str(examples / x) for x in ("drop-2026-11-18-thermal", "drop-2026-11-20")],
-                 d / "lab.duckdb", engine="local")
-    (d / "accelcal.toml").write_text(CONFIG)
+                 d / "lab.duckdb", engine="local",
+                 parameters={"rig_uncertainty": rig_uncertainties(d / "accelcal.toml")})
     return d / "lab.duckdb"
 
 

@@ -13,6 +13,7 @@ sinusoidal-centrifuge campaigns (paper 002) -> the adopted values of the joint f
 from __future__ import annotations
 
 from collections import defaultdict
+from collections.abc import Mapping
 
 from ..constants import MOUNT_ANGLE_TOLERANCE_RAD
 from ..results import CampaignResult, CoefficientResult
@@ -22,13 +23,19 @@ from .centrifuge import RADIUS_ORDERS, RADIUS_RANGES
 
 # ------------------------------------------------------------------ entry point
 
-def process_campaign(runs) -> CampaignResult:
+def process_campaign(runs, rig_uncertainty: Mapping[str, Mapping[str, float]] | None = None
+                     ) -> CampaignResult:
     """Run every estimator that applies to the runs of one campaign (docs/design.md).
 
     Parameters
     ----------
     runs : sequence
         RunFile-like objects with .meta, .data, .sha256 (the newest revision of each run_id).
+    rig_uncertainty : mapping, optional
+        Rig id -> :data:`~accelcal.effects.RIG_INPUTS` id -> the lab's stated standard
+        uncertainty of that input [its unit] (accelcal.toml ``[rigs."ID"]``,
+        :func:`accelcal.config.rig_uncertainties`): type-B terms of the budgets.  Inputs
+        that enter and are not stated are left out, and a flag says which.
 
     Returns
     -------
@@ -37,10 +44,10 @@ def process_campaign(runs) -> CampaignResult:
     """
     from ..fitting.blas import single_thread
     with single_thread():            # small dense algebra: one BLAS thread is the fast one
-        return _process_campaign(runs)
+        return _process_campaign(runs, rig_uncertainty or {})
 
 
-def _process_campaign(runs) -> CampaignResult:
+def _process_campaign(runs, stated: Mapping[str, Mapping[str, float]]) -> CampaignResult:
     first = runs[0]
     res = CampaignResult(
         campaign=str(first.meta["campaign"]), unit_serial=str(first.meta["unit_serial"]),
@@ -51,12 +58,15 @@ def _process_campaign(runs) -> CampaignResult:
         parameters={"radius_orders": list(RADIUS_ORDERS), "radius_ranges_g": list(RADIUS_RANGES),
                     "adequacy_alpha": 0.01, "coverage_factor": 2.0,
                     "mount_angle_tolerance_rad": MOUNT_ANGLE_TOLERANCE_RAD})
+    if stated:
+        res.parameters["rig_uncertainty"] = {rig: dict(v) for rig, v in sorted(stated.items())
+                                             if rig in res.rig_ids}
     by_test = defaultdict(list)
     for r in sorted(runs, key=lambda r: str(r.meta.get("run_id"))):
         by_test[str(r.meta["test"])].append(r)
 
     # the paper methods, as the registry declares them: first passes, then records in order
-    steps: dict = {}
+    steps: dict = {"rig_uncertainty": stated}
     taken = {e.method: [r for t in e.tests for r in by_test.get(t, [])] for e in registry.estimators()}
     for est in registry.estimators():
         if taken[est.method] and est.prepare is not None:
@@ -65,18 +75,19 @@ def _process_campaign(runs) -> CampaignResult:
         if taken[est.method]:
             for rec in est.records(taken[est.method], steps):
                 rec.add_to(res)
-    _joint(runs, res)
+    _joint(runs, res, stated)
     _mark_adopted(res)
     _assess_completeness(res)
     return res
 
 
-def _joint(runs, res: CampaignResult) -> None:
+def _joint(runs, res: CampaignResult, stated: Mapping[str, Mapping[str, float]]) -> None:
     """The adopted values: the joint fit of every reading through the forward model
     (:mod:`accelcal.estimators.joint`), compared with the paper methods' values."""
     from . import joint
     try:
-        out = joint.campaign_results(sorted(runs, key=lambda r: str(r.meta.get("run_id"))))
+        out = joint.campaign_results(sorted(runs, key=lambda r: str(r.meta.get("run_id"))),
+                                     rig_uncertainty=stated)
     except Exception as exc:  # the paper methods' values stay; the failure is a flag
         res.flags.append(f"joint fit failed ({type(exc).__name__}: {exc}); the paper methods' values are "
                          "adopted instead")

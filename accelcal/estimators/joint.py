@@ -28,7 +28,7 @@ Zhan & Cai (003); JCGM 100:2008 §4.2, G.4; ISO 13528 §9.7 (En).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -288,8 +288,8 @@ def run_consistency(runs, effects: Sequence[str], alpha: float = 0.01) -> tuple[
     return rows, flags
 
 
-def campaign_results(runs, rig_ids: Sequence[str] | None = None, effects: Sequence[str] | None = None
-                     ) -> dict[str, Any]:
+def campaign_results(runs, rig_ids: Sequence[str] | None = None, effects: Sequence[str] | None = None,
+                     rig_uncertainty: Mapping[str, Mapping[str, float]] | None = None) -> dict[str, Any]:
     """The joint fit of one campaign and its results in the pipeline's record types.
 
     Parameters
@@ -298,6 +298,11 @@ def campaign_results(runs, rig_ids: Sequence[str] | None = None, effects: Sequen
         The runs of one campaign (newest revision of each run_id).
     effects : sequence of str, optional
         Effects in the model (default :func:`processing_effects` of the tests present).
+    rig_uncertainty : mapping, optional
+        Rig id -> :data:`~accelcal.effects.RIG_INPUTS` id -> the lab's stated standard
+        uncertainty [the input's unit] (accelcal.toml ``[rigs."ID"]``): type-B terms of
+        every budget (:func:`rig_input_terms`); an input that enters but is not stated is a
+        flag and ``extras['rig_inputs']['missing']``.
 
     Returns
     -------
@@ -311,7 +316,7 @@ def campaign_results(runs, rig_ids: Sequence[str] | None = None, effects: Sequen
     eff = processing_effects(tests) if effects is None else list(effects)
     jf = fit_campaign_model(cells, eff)
     jf.notes += notes
-    out = _records(jf, cells)
+    out = _records(jf, cells, rig_uncertainty or {})
     for (a, b), words in separating_runs(cells, eff, out.pop("aliased_pairs")).items():
         out["flags"].append(f"{a}, {b}: one more run would separate them: {words} (accelcal design)")
     rows, flags = run_consistency(runs, eff)
@@ -377,10 +382,84 @@ def type_b_terms(jf: JointFit, tolerance: float = MOUNT_ANGLE_TOLERANCE_RAD) -> 
     return out
 
 
-def _records(jf: JointFit, cells: list[RunCells]) -> dict[str, Any]:
+def rig_input_terms(jf: JointFit, stated: Mapping[str, Mapping[str, float]]
+                    ) -> tuple[dict[str, list[tuple[str, float, float, str]]], list[dict[str, str]]]:
+    """Type-B terms of the rig inputs the drop gives as known (issue 27): local gravity,
+    the thermal table's tilt, the temperature reading.
+
+    Each input of each rig moves the model along :meth:`CampaignModel.input_direction` (j);
+    the estimates processed with the input at x + dx move by dtheta = -(J^T W J)^-1 J^T W j dx
+    (JCGM 100 §5.1.3: the sensitivity through the fit; for the thermal table
+    dK1/dg = -K1/g and dK1/dgamma = -K1 cot gamma, paper 001's K1 = b / (g sin gamma)).  A temperature reading's error is
+    independent from one temperature point to the next: its sensitivities over the points
+    are combined root-sum-square into one line (the same variance as one line per point).
+
+    Parameters
+    ----------
+    jf : JointFit
+        The campaign's joint fit.
+    stated : mapping
+        Rig id -> input id -> standard uncertainty [the input's unit: m/s2, deg, degC].
+
+    Returns
+    -------
+    terms : dict
+        Parameter name -> [(quantity, sensitivity [parameter unit per input unit], u,
+        'normal', the input's value)] for the stated inputs, in SI units (an angle in rad;
+        a temperature reading's value is its error, 0).
+    missing : list of dict
+        ``{"rig", "input", "key"}`` of each input that enters the fit but has no stated
+        uncertainty (``key``: the accelcal.toml key that states it).
+    """
+    from ..effects import RIG_INPUTS
+    model, fit = jf.model, jf.fit
+    free = np.flatnonzero(model.params.free() & fit.estimable)
+    terms: dict[str, list[tuple[str, float, float, str]]] = {}
+    missing: list[dict[str, str]] = []
+    by_rig: dict[str, list[int]] = {}
+    for j, r in enumerate(model.runs):
+        by_rig.setdefault(r.rig_id, []).append(j)
+    for rig, runs in sorted(by_rig.items()):
+        for spec in RIG_INPUTS.values():
+            js = [j for j in runs if model.runs[j].test in spec.tests]
+            if not js:
+                continue
+            if spec.per_point:      # one direction per set point of the rig's runs
+                sets = {j: model.runs[j].cols.get("temp_set_c") for j in js}
+                sets = {j: v for j, v in sets.items() if v is not None}
+                levels = np.unique(np.concatenate([v[np.isfinite(v)] for v in sets.values()] or [[]]))
+                dirs = [model.input_direction(fit.values, spec.id, list(sets), {j: v == t for j, v in sets.items()})
+                        for t in levels]
+            else:
+                dirs = [model.input_direction(fit.values, spec.id, js)]
+            dirs = [d for d in dirs if np.any(d != 0.0)]
+            if not dirs:
+                continue            # the input does not enter these runs' model
+            u = (stated.get(rig) or {}).get(spec.id)
+            if u is None:
+                missing.append({"rig": rig, "input": spec.id, "key": spec.config_key})
+                continue
+            # the estimate moves opposite to the model: theta(x + dx) - theta(x) = -J^+ j dx
+            sens = -np.array([lstsq_svd(fit.J[:, free], d).x for d in dirs])    # (points, free)
+            c = np.sqrt((sens ** 2).sum(axis=0)) if spec.per_point else sens[0]
+            x = 0.0 if spec.meta_key is None else float(model.runs[js[0]].meta[spec.meta_key])
+            if spec.unit == "deg":      # budgets state inputs in SI units: the angle in rad
+                c, u, x = c * (180.0 / math.pi), u * (math.pi / 180.0), math.radians(x)
+            q = (f"{spec.what} of {rig} (type B, normal; u stated in accelcal.toml"
+                 + (f"; {len(dirs)} set points, sensitivities root-sum-square)" if spec.per_point else ")"))
+            for k, i in enumerate(free):
+                if c[k] != 0.0:
+                    terms.setdefault(model.params[i].name, []).append((q, float(c[k]), float(u), "normal", x))
+    return terms, missing
+
+
+def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[str, float]]) -> dict[str, Any]:
     model, fit = jf.model, jf.fit
     lof = fit.lof
-    tb = type_b_terms(jf)
+    tb = {n: [(q, c, u, "uniform", 0.0) for q, c, u in v] for n, v in type_b_terms(jf).items()}
+    inputs, missing = rig_input_terms(jf, stated)
+    for n, v in inputs.items():
+        tb.setdefault(n, []).extend(v)
     flags: list[str] = []
     coefficients: list[CoefficientResult] = []
     budget: list[BudgetTerm] = []
@@ -399,6 +478,10 @@ def _records(jf: JointFit, cells: list[RunCells]) -> dict[str, Any]:
     if not fit.converged:
         flags.append(f"joint fit did not converge: {fit.message}")
     flags += [f"joint fit: {n}" for n in jf.notes]
+    if missing:
+        flags.append("budgets leave out rig inputs with no stated uncertainty: "
+                     + "; ".join(f"{m['input']} of {m['rig']} ([rigs.\"{m['rig']}\"] {m['key']})" for m in missing)
+                     + " (accelcal.toml)")
     rig_of = _dominant_rigs(jf)
     measures = model.measures(fit.values, {prm.name: fit.std(prm.name) for prm in model.params if prm.vary})
     near = nearly_aliased(jf)
@@ -427,7 +510,7 @@ def _records(jf: JointFit, cells: list[RunCells]) -> dict[str, Any]:
         u = fit.std(prm.name)
         u_noise = fit.std_noise(prm.name)
         terms_b = tb.get(prm.name, [])
-        u = math.sqrt(u * u + sum((c * ub) ** 2 for _, c, ub in terms_b))
+        u = math.sqrt(u * u + sum((c * ub) ** 2 for _, c, ub, _, _ in terms_b))
         if untestable:
             u = float("nan")
         note = "; ".join(x for x in ("joint ML fit of every reading through the forward model",
@@ -442,8 +525,8 @@ def _records(jf: JointFit, cells: list[RunCells]) -> dict[str, Any]:
             extra = u_noise * math.sqrt(lof.factor ** 2 - 1.0)
             budget.append(BudgetTerm(name, f"model inadequacy: lack-of-fit scaling sqrt(F) = {lof.factor:.3g}",
                                      0.0, extra, 1.0, extra, "A", "normal", METHOD))
-        for q, c, ub in terms_b:
-            budget.append(BudgetTerm(name, q, 0.0, ub, c, abs(c) * ub, "B", "uniform", METHOD))
+        for q, c, ub, dist, x in terms_b:
+            budget.append(BudgetTerm(name, q, x, ub, c, abs(c) * ub, "B", dist, METHOD))
     for a, b, t, r in near:
         # the combination the runs do determine, as a row of its own (issue 30) where it is a
         # coefficient of the same unit (Kip+Kpp); t to two digits, so that every campaign of
@@ -521,6 +604,9 @@ def _records(jf: JointFit, cells: list[RunCells]) -> dict[str, Any]:
         "noise": {r.run_id: {"a": r.noise.a, "b": r.noise.b, "rho": r.noise.rho, "dof": r.noise.dof,
                              "source": r.noise.source} for r in model.runs},
         "notes": jf.notes,
+        "rig_inputs": {"stated": {rig: dict(stated[rig]) for rig in sorted({r.rig_id for r in model.runs})
+                                  if rig in stated},
+                       "missing": missing},
     }
     return {"mc_check": mc_check, "coefficients": coefficients, "radii": radii, "adequacy": adequacy, "budget": budget,
             "alignment": alignment, "flags": flags, "extras": extras, "fit": jf,
@@ -529,7 +615,7 @@ def _records(jf: JointFit, cells: list[RunCells]) -> dict[str, Any]:
 
 def _mc_checks(coefficients: Sequence[CoefficientResult], budget: Sequence[BudgetTerm]) -> dict[str, dict]:
     """JCGM 101 check of each adopted coefficient's budget: its inputs (the readings' type-A
-    term, normal; the type-B terms, uniform) propagated as distributions and the 95 %
+    term, normal; the type-B terms, uniform or normal as the budget says) propagated as distributions and the 95 %
     interval compared with the GUM one (JCGM 101 §8, two significant digits).  The budget is
     linear, so the propagation is an exact convolution: no sampling noise can fail it."""
     from .uncertainty import validate_gum_linear

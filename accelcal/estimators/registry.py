@@ -12,7 +12,8 @@ names
   (:class:`~accelcal.estimators.records.Records`; a failure is a flags-only record);
 * ``prepare(runs, steps)``: optional first pass whose outcome other methods read
   (``steps[method]``: the tumble's reference for the centrifuge radius, the centrifuge's
-  square terms for the tumble's K2);
+  square terms for the tumble's K2); ``steps["rig_uncertainty"]`` holds the lab's stated
+  rig inputs (rig id -> :data:`accelcal.effects.RIG_INPUTS` id -> u) for the budgets;
 * ``truth(coefficients, effects, test, g, notes)``: what each of its coefficients
   estimates in a simulated scenario (the Monte Carlo study's truth mapping);
 * ``methods``: the method ids of its records, in the order a value is adopted from them

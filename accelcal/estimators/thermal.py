@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -488,7 +489,8 @@ def _wls_line(x, y, u, birge: bool = True) -> dict[str, Any]:
 def fit_temperature_model(temp_c: Sequence[float], K0: Sequence[float], u_K0: Sequence[float],
                           K1: Sequence[float], u_K1: Sequence[float], t_ref: float = T_REF_C,
                           birge: bool = True, level: float = 0.95,
-                          dof_u: float | None = None) -> dict[str, Any]:
+                          dof_u: float | None = None,
+                          levels: Sequence[float] | None = None) -> dict[str, Any]:
     """Fit the effects.md temperature model across temperature points (Zhang et al. 2021,
     paper 001).
 
@@ -514,6 +516,9 @@ def fit_temperature_model(temp_c: Sequence[float], K0: Sequence[float], u_K0: Se
         Coverage probability of the intervals.
     dof_u : float, optional
         Degrees of freedom of the per-point uncertainties.
+    levels : sequence of float, optional
+        Chamber set point of each point [degC]: the points of one set point share their
+        temperature reading's error (``temperature_sensitivity``); default each its own.
 
     Returns
     -------
@@ -551,6 +556,35 @@ def fit_temperature_model(temp_c: Sequence[float], K0: Sequence[float], u_K0: Se
         out["dof_" + k] = dof
         out["t_factor_" + k] = tq
         out["interval_" + k] = [v - tq * uu, v + tq * uu] if dof > 0 else [float("nan")] * 2
+    out["temperature_sensitivity"] = _temperature_sensitivity(
+        x, u_K0, u_K1, f0["p"], f1["p"], np.arange(N) if levels is None else levels)
+    return out
+
+
+def _temperature_sensitivity(x, u_K0, u_K1, p_K0, p_K1, levels) -> dict[str, float]:
+    """Root-sum-square over the temperature levels of d(coefficient)/d(T_k) [coefficient
+    unit per degC]: the sensitivity to a temperature reading whose error is the same at
+    every return to one set point and independent from one set point to the next (issue 27).
+
+    The weighted line p = A y, A = (X^T W X)^-1 X^T W, X = [1, T - T_ref], takes a reading
+    error dT_k as a shift of the point's abscissa: dp = -A[:, k] p1 dT_k, summed over the
+    points of a level.  K0, K0T are (p0, p1) of K0(T); K1 = p0 and K1T = p1 / p0 of K1(T),
+    so dK1T = (dp1 - K1T dp0) / p0.
+    """
+    X = np.column_stack([np.ones_like(x), x])
+    _, level = np.unique(np.asarray(levels, float), return_inverse=True)
+    S = np.zeros((x.size, level.max() + 1))
+    S[np.arange(x.size), level] = 1.0                 # point -> its level
+    out = {}
+    for (n0, n1), u, p in ((("K0", "K0T"), u_K0, p_K0), (("K1", "K1T"), u_K1, p_K1)):
+        w = 1.0 / np.asarray(u, float) ** 2
+        A = np.linalg.solve(X.T @ (w[:, None] * X), (w[:, None] * X).T)      # (2, N)
+        d = (-A * p[1]) @ S                                                    # dp / dT_level
+        if n1 == "K1T":
+            out[n0] = float(np.sqrt(np.sum(d[0] ** 2)))
+            out[n1] = float(np.sqrt(np.sum(((d[1] - p[1] / p[0] * d[0]) / p[0]) ** 2)))
+        else:
+            out[n0], out[n1] = (float(np.sqrt(np.sum(r ** 2))) for r in d)
     return out
 
 
@@ -561,7 +595,8 @@ def _fit_from_points(points: list[dict], pooled: bool = True, birge: bool = True
     dof_u = pts[0].get("dof_pooled") if pooled else min(p["dof"] for p in pts)
     return fit_temperature_model([p["temp_c"] for p in pts], [p["K0"] for p in pts], [p[uk0] for p in pts],
                                  [p["K1"] for p in pts], [p[uk1] for p in pts], birge=birge,
-                                 dof_u=dof_u if dof_u and dof_u > 0 else None)
+                                 dof_u=dof_u if dof_u and dof_u > 0 else None,
+                                 levels=[p.get("temp_set_c", p["temp_c"]) for p in pts])
 
 
 def sweep_repeatability(points: list[dict], pooled: bool = True) -> dict[str, Any]:
@@ -880,8 +915,53 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = "", *,
     return coeffs, _jsonable(extras)
 
 
-def budget_terms(coefficients: Sequence[CoefficientResult], model: Mapping[str, Any]) -> list[BudgetTerm]:
-    """GUM budget lines of paper 001's coefficients (JCGM 100 §4.2: type A from the fit).
+#: How each coefficient of paper 001 scales with g sin(gamma): K1 = b / (g sin gamma) and
+#: K0 = a / K1, K0T likewise; K1T = p1 / p0 is a ratio and does not.
+_GRAVITY_POWER = {"K0": 1.0, "K0T": 1.0, "K1": -1.0, "K1T": 0.0}
+
+
+def input_sensitivities(coefficients: Sequence[CoefficientResult], model: Mapping[str, Any],
+                        g: float, gamma_rad: float) -> dict[str, dict[str, float]]:
+    """Sensitivity of paper 001's coefficients to the rig inputs the drop gives as known
+    (:data:`accelcal.effects.RIG_INPUTS`; issue 27), in closed form.
+
+    With K1 = sigma b / (g sin gamma) and K0 = a / K1 (paper 001), a coefficient that scales
+    as (g sin gamma)^n has dC/dg = n C / g and dC/dgamma = n C cot(gamma); the temperature
+    reading's sensitivity is :func:`fit_temperature_model`'s ``temperature_sensitivity``.
+
+    Parameters
+    ----------
+    coefficients : sequence of CoefficientResult
+        K0, K1, K0T, K1T.
+    model : mapping
+        ``extras['temperature_model']``.
+    g : float
+        g_local [m/s2].
+    gamma_rad : float
+        Table tilt gamma [rad].
+
+    Returns
+    -------
+    dict
+        Coefficient -> {``g_local`` [unit per m/s2], ``table_tilt`` [unit per rad],
+        ``temperature`` [unit per degC, root-sum-square over the points]}; ``temperature``
+        absent when the model has no such figure (the two-position method).
+    """
+    dT = model.get("temperature_sensitivity") or {}
+    out = {}
+    for c in coefficients:
+        n = _GRAVITY_POWER[c.name]
+        out[c.name] = {"g_local": n * c.value / g, "table_tilt": n * c.value / math.tan(gamma_rad)}
+        if c.name in dT:
+            out[c.name]["temperature"] = dT[c.name]
+    return out
+
+
+def budget_terms(coefficients: Sequence[CoefficientResult], model: Mapping[str, Any],
+                 inputs: Mapping[str, Mapping[str, tuple[float, float, float]]] | None = None
+                 ) -> list[BudgetTerm]:
+    """GUM budget lines of paper 001's coefficients (JCGM 100 §4.2: type A from the fit; the
+    stated rig inputs as type B).
 
     Parameters
     ----------
@@ -889,16 +969,20 @@ def budget_terms(coefficients: Sequence[CoefficientResult], model: Mapping[str, 
         K0, K1, K0T, K1T of :func:`process_thermal_run`.
     model : mapping
         Its ``extras['temperature_model']`` (:func:`fit_temperature_model`).
+    inputs : mapping, optional
+        Coefficient -> input id -> (value [SI], standard uncertainty [SI], sensitivity):
+        the lab-stated rig inputs (:func:`input_sensitivities`), one normal type-B line each.
 
     Returns
     -------
     list of BudgetTerm
         Per coefficient the weighted least-squares line over the temperature points with the
         per-point uncertainties, and, when their scatter exceeds them (Birge rule), the
-        between-point scatter as a second type-A line; the combined u is the coefficient's.
-        The fixture's thermal tilt is not a line: the method cannot tell it from the
+        between-point scatter as a second type-A line; then the rig inputs.  The
+        fixture's thermal tilt is not a line: the method cannot tell it from the
         instrument's bias TC (paper 001 §3.2), which the K0T note says.
     """
+    from ..effects import RIG_INPUTS
     out = []
     for c in coefficients:
         line = "K0" if c.name in ("K0", "K0T") else "K1"
@@ -910,6 +994,10 @@ def budget_terms(coefficients: Sequence[CoefficientResult], model: Mapping[str, 
         if applied:
             terms.append((f"between-point scatter of {line}(T): Birge ratio {birge:.3g}", 0.0,
                           u0 * math.sqrt(birge * birge - 1.0), 1.0, "A", "normal"))
+        for iid, (x, u, sens) in ((inputs or {}).get(c.name) or {}).items():
+            if sens != 0.0:
+                terms.append((f"{RIG_INPUTS[iid].what} (type B, stated in accelcal.toml)", x, u, sens,
+                              "B", "normal"))
         out += unc.linear_budget(c.name, terms, method=c.method, rig_id=c.rig_id, value=c.value).terms
     return out
 
@@ -927,8 +1015,30 @@ def campaign_records(runs: Sequence, steps: Mapping[str, Any]) -> list:
         except Exception as exc:
             out.append(Records(flags=[f"tilt_rotation {run.meta.get('run_id')}: {type(exc).__name__}: {exc}"]))
             continue
-        out.append(Records(coefficients=coeffs, budget=budget_terms(coeffs, extras["temperature_model"]),
+        model = extras["temperature_model"]
+        inputs = _stated_inputs(coeffs, model, run.meta,
+                                (steps.get("rig_uncertainty") or {}).get(str(run.meta.get("rig_id", ""))) or {})
+        budget = budget_terms(coeffs, model, inputs)
+        coeffs = [replace(c, std_uncertainty=math.sqrt(c.std_uncertainty ** 2 + sum(
+            (u * sens) ** 2 for _, u, sens in inputs.get(c.name, {}).values()))) for c in coeffs]
+        out.append(Records(coefficients=coeffs, budget=budget,
                            extras={"thermal": {str(run.meta.get("run_id")): extras}}).checked())
+    return out
+
+
+def _stated_inputs(coeffs, model, meta, stated: Mapping[str, float]) -> dict[str, dict[str, tuple]]:
+    """Coefficient -> input id -> (value, u, sensitivity) in SI units for the inputs the lab
+    states for this run's rig (:func:`input_sensitivities`); the tilt's u is stated in deg."""
+    if not stated:
+        return {}
+    g, gamma = float(meta["g_local_m_s2"]), math.radians(float(meta["tilt_deg"]))
+    value = {"g_local": g, "table_tilt": gamma, "temperature": 0.0}
+    to_si = {"table_tilt": math.pi / 180.0}
+    out: dict[str, dict[str, tuple]] = {}
+    for name, sens in input_sensitivities(coeffs, model, g, gamma).items():
+        for iid, c in sens.items():
+            if iid in stated:
+                out.setdefault(name, {})[iid] = (value[iid], float(stated[iid]) * to_si.get(iid, 1.0), c)
     return out
 
 

@@ -680,6 +680,58 @@ class CampaignModel:
             out[sl] = (self.predict_run(p, j, {effect: h}) - self.predict_run(p, j, {effect: -h})) / (2 * h)
         return out / self.sig
 
+    def input_direction(self, p: np.ndarray, rig_input: str, runs: Sequence[int],
+                        rows: Mapping[int, np.ndarray] | None = None, h: float | None = None
+                        ) -> np.ndarray:
+        """Whitened derivative of the model with respect to a rig input the drop gives as
+        known (:data:`accelcal.effects.RIG_INPUTS`: ``g_local``, ``table_tilt``,
+        ``temperature``), moved by the same amount in ``runs``: the direction a stated
+        uncertainty of that input takes the fit (a type-B term, JCGM 100 §5.1.3).
+
+        Parameters
+        ----------
+        p : ndarray
+            Parameter vector [parameter units].
+        rig_input : str
+            Its id in :data:`~accelcal.effects.RIG_INPUTS`.
+        runs : sequence of int
+            Indices of the runs whose input moves together.
+        rows : mapping of int to ndarray of bool, optional
+            Per run, the readings whose logged column moves (a temperature point); all of
+            them when not given.  Only for an input read from a column.
+        h : float, optional
+            Difference step [the input's unit]; default 1e-6 of g for ``g_local``, 1e-3 deg
+            for an angle, 1e-3 degC for a temperature.
+
+        Returns
+        -------
+        (N,) ndarray
+            Central difference of the cell means of ``runs`` divided by sigma, 0 in every
+            other row [1 per input unit].
+        """
+        from ..effects import RIG_INPUTS
+        spec = RIG_INPUTS[rig_input]
+        h = h or {"m/s2": 1e-5, "deg": 1e-3, "degC": 1e-3}[spec.unit]
+        out = np.zeros(self.N)
+        for j in runs:
+            r = self.runs[j]
+            co, eff, kw = self.inputs(p, j)
+            E = []
+            for step in (h, -h):
+                meta, cols = r.meta, r.cols
+                if spec.meta_key is not None:
+                    meta = {**meta, spec.meta_key: float(meta[spec.meta_key]) + step}
+                else:
+                    if spec.column not in cols:
+                        break
+                    moved = np.asarray(cols[spec.column], float) + (
+                        step if rows is None or j not in rows else np.where(rows[j], step, 0.0))
+                    cols = {**cols, spec.column: moved}
+                E.append(r.cell_mean(rig_output(r.test, meta, cols, co, eff, **kw)))
+            if len(E) == 2:
+                out[self.rows(j)] = (E[0] - E[1]) / (2 * h)
+        return out / self.sig
+
     def lower_bounds(self) -> np.ndarray:
         """Lower bound of each parameter.
 

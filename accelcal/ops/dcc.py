@@ -320,7 +320,7 @@ def build_dcc(d: dict[str, Any], cfg, dcfg: DccConfig | None = None,
     from lxml import etree
 
     from .certificate import COVERAGE_PROBABILITY as _CP_TEXT
-    from .certificate import _adopted, _k, _u_unknown, certificate_number, method_text
+    from .certificate import _adopted, _k, _u_unknown, certificate_number, method_text, missing_rig_inputs
     dcfg = dcfg or DccConfig()
     lang = dcfg.language
     r = d["result"]
@@ -334,6 +334,7 @@ def build_dcc(d: dict[str, Any], cfg, dcfg: DccConfig | None = None,
     cust = customer or cfg.customer
     if not cust:
         missing.append("[certificate] customer")
+    missing += [what for what, _ in missing_rig_inputs(d)]
 
     root = etree.Element(f"{{{DCC_NS}}}digitalCalibrationCertificate", nsmap=NSMAP)
     root.set("schemaVersion", SCHEMA_VERSION)

@@ -9,7 +9,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from .certificate import COVERAGE_PROBABILITY, _adopted, _k, _u_unknown, method_text
+from .certificate import COVERAGE_PROBABILITY, _adopted, _k, _u_unknown, method_text, missing_rig_inputs
 from .plots import (K_COVERAGE, radius_plot, residual_plot, series_residual_plot,
                     sine_residual_plot, thermal_residual_plot)
 from .report_display import (_at_digit, _coefficient_scale, _e, _fmt, _img, _keep, _kv, _ph, _same_minute,
@@ -356,10 +356,13 @@ def _sec_budgets(d) -> str:
                    f"<th>distribution</th></tr></thead><tbody>{''.join(body)}</tbody></table></div>")
     if not out:
         return "<p>No adopted value, no budget.</p>"
+    left = missing_rig_inputs(d)
+    gap = ("<p>Left out of every budget, for want of a stated uncertainty: "
+           + "; ".join(_ph(f"{what}: {how}") for what, how in left) + ".</p>") if left else ""
     return ("<p class='note'>GUM (JCGM 100) budgets. Each input quantity in its own SI unit, "
             "its value to the last digit of its u; sensitivities, contributions, u<sub>c</sub> and "
             "U in the unit of the results table (section 4). u<sub>c</sub> is the stored standard "
-            "uncertainty of the adopted value.</p>" + "".join(out))
+            "uncertainty of the adopted value.</p>" + gap + "".join(out))
 
 
 def _sec_mc(d) -> str:

@@ -280,8 +280,13 @@ def watch_pass(watch_dir: str, warehouse: str, settle: float = DEFAULT_SETTLE_S,
                                "unchanged": len(plan.unchanged), "summary": None, "error": None}
         if plan.ready:
             try:
+                # the lab's stated rig inputs, read each pass (./accelcal.toml or beside the
+                # warehouse), so that a corrected file takes effect at the next drop
+                from ..config import rig_uncertainties
+                stated = rig_uncertainties(None, warehouse)
                 summary = run_pipeline(plan.ready, warehouse, engine=engine,
-                                       lock_timeout=lock_timeout, task_runner=task_runner)
+                                       lock_timeout=lock_timeout, task_runner=task_runner,
+                                       parameters={"rig_uncertainty": stated} if stated else None)
                 out["summary"] = _pass_summary(summary)
                 for d in plan.ready:
                     for p, sig in plan.files[d].items():
