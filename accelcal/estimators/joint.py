@@ -422,7 +422,11 @@ def rig_input_terms(jf: JointFit, stated: Mapping[str, Mapping[str, float]]
     for rig, runs in sorted(by_rig.items()):
         for spec in RIG_INPUTS.values():
             js = [j for j in runs if model.runs[j].test in spec.tests]
-            if not js:
+            if not js or not _enters(model, spec, js):
+                continue
+            u = (stated.get(rig) or {}).get(spec.id)
+            if u is None:
+                missing.append({"rig": rig, "input": spec.id, "key": spec.config_key})
                 continue
             if spec.per_point:      # one direction per set point of the rig's runs
                 sets = {j: model.runs[j].cols.get("temp_set_c") for j in js}
@@ -434,10 +438,6 @@ def rig_input_terms(jf: JointFit, stated: Mapping[str, Mapping[str, float]]
                 dirs = [model.input_direction(fit.values, spec.id, js)]
             dirs = [d for d in dirs if np.any(d != 0.0)]
             if not dirs:
-                continue            # the input does not enter these runs' model
-            u = (stated.get(rig) or {}).get(spec.id)
-            if u is None:
-                missing.append({"rig": rig, "input": spec.id, "key": spec.config_key})
                 continue
             # the estimate moves opposite to the model: theta(x + dx) - theta(x) = -J^+ j dx
             sens = -np.array([lstsq_svd(fit.J[:, free], d).x for d in dirs])    # (points, free)
@@ -451,6 +451,18 @@ def rig_input_terms(jf: JointFit, stated: Mapping[str, Mapping[str, float]]
                 if c[k] != 0.0:
                     terms.setdefault(model.params[i].name, []).append((q, float(c[k]), float(u), "normal", x))
     return terms, missing
+
+
+def _enters(model: CampaignModel, spec, js: Sequence[int]) -> bool:
+    """Whether a rig input enters the model of runs ``js``: a metadata value (g_local, the
+    table's tilt) always does; a logged column (the temperature) where the run has it and
+    a coefficient of the model reads it (K0T, K1T: :func:`accelcal.physics.rigs.rig_output`
+    reads the temperature only through them)."""
+    if spec.column is None:
+        return True
+    reads = {"temp_c": ("K0T", "K1T")}.get(spec.column, ())
+    return (any(spec.column in model.runs[j].cols for j in js)
+            and any(role.key in reads and prm.vary for prm, role in zip(model.params, model.roles)))
 
 
 def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[str, float]]) -> dict[str, Any]:

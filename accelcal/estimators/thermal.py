@@ -573,13 +573,11 @@ def _temperature_sensitivity(x, u_K0, u_K1, p_K0, p_K1, levels) -> dict[str, flo
     """
     X = np.column_stack([np.ones_like(x), x])
     _, level = np.unique(np.asarray(levels, float), return_inverse=True)
-    S = np.zeros((x.size, level.max() + 1))
-    S[np.arange(x.size), level] = 1.0                 # point -> its level
     out = {}
     for (n0, n1), u, p in ((("K0", "K0T"), u_K0, p_K0), (("K1", "K1T"), u_K1, p_K1)):
         w = 1.0 / np.asarray(u, float) ** 2
         A = np.linalg.solve(X.T @ (w[:, None] * X), (w[:, None] * X).T)      # (2, N)
-        d = (-A * p[1]) @ S                                                    # dp / dT_level
+        d = np.array([np.bincount(level, weights=-a * p[1]) for a in A])     # dp / dT_level
         if n1 == "K1T":
             out[n0] = float(np.sqrt(np.sum(d[0] ** 2)))
             out[n1] = float(np.sqrt(np.sum(((d[1] - p[1] / p[0] * d[0]) / p[0]) ** 2)))
