@@ -552,38 +552,105 @@ def heldout_gap(f: Fit, fold: np.ndarray, tol: float = 1e-6) -> float | None:
         predicted cells of both folds [1, sigma of a cell mean]; None when no cell is
         predicted.
     """
-    J = f.J[:, f.free]
-    z = f.z
     ss = ex = 0.0
     n = 0
     for k in (0, 1):
-        T, H = fold != k, fold == k
-        if not T.any() or not H.any():
+        got = _heldout_fold(f, fold, k, tol)
+        if got is None:
             continue
-        norm = np.linalg.norm(J[T], axis=0)
-        act = norm > 0
-        if not act.any():
-            continue
-        Js = J[T][:, act] / norm[act]
-        U, S, Vt = thin_svd(Js)
-        keep = S > S[0] * 1e-10
-        V = Vt[keep].T
-        JH = J[H][:, act] / norm[act]
-        inact = np.linalg.norm(J[H][:, ~act], axis=1)
-        resid = np.linalg.norm(JH - (JH @ V) @ V.T, axis=1)
-        scale = np.maximum(np.linalg.norm(JH, axis=1), 1e-300)
-        ok = (resid <= tol * scale) & (inact <= tol * np.maximum(scale, 1.0))
-        if not ok.any():
-            continue
-        d = V @ ((U[:, keep].T @ z[T]) / S[keep])
-        zh = z[H][ok] - JH[ok] @ d
-        A = (JH[ok] @ V) / S[keep]
+        _, zh, A = got
         ss += float(zh @ zh)
-        ex += float(ok.sum() + np.sum(A * A))
-        n += int(ok.sum())
+        ex += float(zh.size + np.sum(A * A))
+        n += int(zh.size)
     if n == 0:
         return None
     return float(math.sqrt(max(ss - ex, 0.0) / n))
+
+
+def _heldout_fold(f: Fit, fold: np.ndarray, k: int, tol: float):
+    """Fold k of :func:`heldout_gap`: the held-out cells the other fold determines (a
+    boolean mask over the cells of fold k), their whitened prediction residuals, and the
+    rows A with A A^T the covariance of those predictions (the training fit's) [1]; None
+    when no cell is predicted."""
+    J = f.J[:, f.free]
+    z = f.z
+    T, H = fold != k, fold == k
+    if not T.any() or not H.any():
+        return None
+    norm = np.linalg.norm(J[T], axis=0)
+    act = norm > 0
+    if not act.any():
+        return None
+    Js = J[T][:, act] / norm[act]
+    U, S, Vt = thin_svd(Js)
+    keep = S > S[0] * 1e-10
+    V = Vt[keep].T
+    JH = J[H][:, act] / norm[act]
+    inact = np.linalg.norm(J[H][:, ~act], axis=1)
+    resid = np.linalg.norm(JH - (JH @ V) @ V.T, axis=1)
+    scale = np.maximum(np.linalg.norm(JH, axis=1), 1e-300)
+    ok = (resid <= tol * scale) & (inact <= tol * np.maximum(scale, 1.0))
+    if not ok.any():
+        return None
+    d = V @ ((U[:, keep].T @ z[T]) / S[keep])
+    return ok, z[H][ok] - JH[ok] @ d, (JH[ok] @ V) / S[keep]
+
+
+def heldout_test(without: Fit, with_: Fit, fold: np.ndarray, tol: float = 1e-6) -> dict:
+    """Held-out test of what a change of model buys (issue 26: a naming rule that does not
+    depend on the design's size).
+
+    Each fold's cells are predicted by both models fitted to the other fold (linearised at
+    their solutions, as :func:`heldout_gap`).  With r the held-out residuals of the model
+    without the change and d the change of prediction (r minus the residuals with it), the
+    statistic is sum d.r over both folds, divided by its standard deviation when the change
+    buys nothing, sqrt(sum |d|^2 + |A^T d|^2) (A A^T: the covariance of the training fit's
+    prediction, which r also carries): a standard normal then in the linear model, whatever
+    the number of cells; large when the held-out cells move the way the training cells
+    said.  One-sided p.
+
+    Parameters
+    ----------
+    without, with_ : Fit
+        The fits without and with the change (the same cells).
+    fold : (N,) ndarray of int
+        :func:`folds`.
+    tol : float
+        As :func:`heldout_gap`.
+
+    Returns
+    -------
+    dict
+        ``z`` [1] and ``p`` (one-sided), None when no held-out cell is predicted by both
+        or the change moves no prediction; ``cells``: the cells compared; ``share``: the
+        share of the held-out excess (sum of squares over its expectation, not floored)
+        the change removes, 1 - excess_with / excess_without [1] (None without an excess).
+    """
+    num = var = 0.0
+    cells = 0
+    excess = np.zeros(2)                # held-out sum of squares over its expectation: without, with
+    for k in (0, 1):
+        gb, ga = _heldout_fold(without, fold, k, tol), _heldout_fold(with_, fold, k, tol)
+        if gb is None or ga is None:
+            continue
+        nh = int((fold == k).sum())
+        rb, ra = np.full(nh, np.nan), np.full(nh, np.nan)
+        Ab, Aa = np.zeros((nh, gb[2].shape[1])), np.zeros((nh, ga[2].shape[1]))
+        rb[gb[0]], ra[ga[0]], Ab[gb[0]], Aa[ga[0]] = gb[1], ga[1], gb[2], ga[2]
+        both = gb[0] & ga[0]
+        if not both.any():
+            continue
+        d = rb[both] - ra[both]
+        num += float(d @ rb[both])
+        var += float(d @ d) + float(np.sum((Ab[both].T @ d) ** 2))
+        cells += int(both.sum())
+        for i, (r, A) in enumerate(((rb, Ab), (ra, Aa))):
+            excess[i] += float(r[both] @ r[both]) - float(both.sum() + np.sum(A[both] ** 2))
+    if var <= 0.0:
+        return {"z": None, "p": None, "cells": cells, "share": None}
+    z = num / math.sqrt(var)
+    share = float(1.0 - excess[1] / excess[0]) if excess[0] > 0 else None
+    return {"z": float(z), "p": float(stats.norm.sf(z)), "cells": cells, "share": share}
 
 
 def lr_test(before: Fit, after: Fit, m: int, alpha: float) -> dict:

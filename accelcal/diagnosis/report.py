@@ -121,21 +121,23 @@ def _unit_of(effect: str) -> str:
 def _why_verdict(res: dict) -> str:
     """In words, why the verdict is the one named (the rule of
     :meth:`accelcal.diagnosis.core.Diagnosis.run`)."""
-    from .core import HELDOUT_GATE, VERDICT_STATISTIC
+    from .core import HELDOUT_GATE, HELDOUT_Z, VERDICT_STATISTIC
     v = res.get("verdict")
     rk = {e["effect"]: e for e in res["ranking"]}
     if not v:
         if res["gap"]["significant_before"]["status"] in ("adequate", "no gap"):
             return "No verdict: the bare model fits these runs within their noise."
-        return ("No verdict: no catalogue effect was significant, held its shrink on held-out "
-                "data and carried the gap; see 'Unexplained' and where the gap lies.")
+        return ("No verdict: no catalogue effect was significant, passed the held-out test "
+                "and carried the gap; see 'Unexplained' and where the gap lies.")
     e = rk[v]
     strong = [x["effect"] for x in res["ranking"] if x.get("selected") and x.get("significant")
               and (x.get("statistic") or 0) >= VERDICT_STATISTIC]
     parts = [f"{v} was selected by forward selection and is significant "
              f"(z = {_f(e.get('z'), '{:.1f}')}, Δχ² = {_f(e.get('delta_chi2'), '{:.3g}')}); "
-             f"its held-out shrink {_f(e.get('shrink_heldout'), '{:.2f}')} passes the gate "
-             f"{HELDOUT_GATE:g}."]
+             f"on the cells it was not fitted to it removes {_f(e.get('shrink_heldout'), '{:.2f}')} of "
+             f"the gap (the gate is {HELDOUT_GATE:g}) and improves the prediction at held-out "
+             f"z = {_f(e.get('heldout_z'), '{:.1f}')} (z >= {HELDOUT_Z:g} names an effect whatever "
+             f"share of the gap it removes)."]
     others = [x for x in strong if x != v]
     if others:
         parts.append(f"Other effects also carry a five-sigma part of the misfit on their own "
