@@ -51,9 +51,10 @@ from typing import Any
 
 from .certificate import ReportError, _read, certificate_number, load_report_data
 from .report_display import PLACEHOLDER_CLASS, _e, _ph
-from .report_sections import (_CSS, _Doc, _annex_lineage, _annex_other, _grouped, _page_css, _sec_adequacy,
-                              _sec_alignment, _sec_budgets, _sec_certificate, _sec_dates, _sec_flags, _sec_item,
-                              _sec_mc, _sec_method, _sec_radius, _sec_results, _sec_traceability)
+from .report_sections import (_CSS, _Doc, _annex_lineage, _annex_other, _grouped, _lineage_close, _page_css,
+                              _sec_adequacy, _sec_alignment, _sec_budgets, _sec_certificate, _sec_dates,
+                              _sec_flags, _sec_item, _sec_mc, _sec_method, _sec_radius, _sec_results,
+                              _sec_traceability)
 
 
 def render_html(d: dict[str, Any], plots: bool = True, config=None,
@@ -121,8 +122,8 @@ def render_html(d: dict[str, Any], plots: bool = True, config=None,
     title = (f"<h1>Calibration Certificate</h1><div class='certno'>No. {_e(number)}</div>"
              f"<div class='sub'>{_e(r.get('unit_model'))} serial {_e(r.get('unit_serial'))} · "
              f"campaign {_e(camp)} · result <span class='mono'>{_e(_grouped(d['result_id']))}</span></div>")
-    sign = ("<div class='keep'><div class='sign'>" + (_e(cfg.approver) if cfg.approver else
-                                     _ph("approver not configured")) + "</div>"
+    sign = ("<div class='keep'>" + _lineage_close(d) + "<div class='sign'>"
+            + (_e(cfg.approver) if cfg.approver else _ph("approver not configured")) + "</div>"
             "<p class='note'>Signature of the person authorising this certificate.</p>")
     foot = (f"<footer>Certificate No. {_e(number)} · issued {_e(issued)} by accelcal "
             f"{_e(r.get('code_version'))} from the warehouse; self-contained (no external "

@@ -701,13 +701,19 @@ def _annex_lineage(d) -> str:
              (x.get("rig_id"), "nw"), (x.get("started_at"), "nw"), (_grouped(x.get("sha256")), "mono"),
              (_in_drop(x), "mono"), (x.get("flow_run_id"), "mono")]
             for x in d["lineage"]]
-    out = _table(["run id", "rev", "test", "rig", "started", "sha256", "raw file (drop / path)",
-                  "ingest flow run"], rows)
+    return _table(["run id", "rev", "test", "rig", "started", "sha256", "raw file (drop / path)",
+                   "ingest flow run"], rows)
+
+
+def _lineage_close(d) -> str:
+    """The end of the lineage annex: the result history, quarantine decisions and the
+    result's identity.  The certificate prints it in one block with the signature, so that
+    the signature never stands alone on the last page (issue 27)."""
     acts = [[a["seq"], (_grouped(a["result_id"]), "mono"), _to_second(a["activated_at"]),
              (a.get("flow_run_id"), "mono")]
             for a in d["activations"]]
-    out += ("<p class='note'>Result history of this campaign (append-only; the last activation "
-            "is current):</p>")
+    out = ("<p class='note'>Result history of this campaign (append-only; the last activation "
+           "is current):</p>")
     out += _table(["#", "result id", "activated", "flow run"], acts)
     if d.get("audit"):
         out += "<p class='note'>Quarantine decisions (accelcal campaign exclude|include):</p>"
