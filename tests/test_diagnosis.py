@@ -299,3 +299,25 @@ def test_an_effect_at_z_10_in_480_cells_is_named_though_its_shrink_is_small():
     top = res["ranking"][0]
     assert res["verdict"] == "arm_stretch" and abs(top["estimate"] / val - 1) < 0.25
     assert top["heldout_z"] >= 5 and top["shrink_heldout"] < 0.5
+
+
+def test_a_cell_the_training_half_barely_predicts_does_not_floor_the_heldout_gap():
+    """Issue 25/26: the demo's IA pair with a second tumble head (OA) and arm_stretch 3e-6 s2:
+    one position of the new head is predicted by the other half to ~4e4 sigma, whose
+    expected square had floored the held-out gap at 0 and left the z = 181 effect unnamed."""
+    from accelcal.fitting.model import processing_effects
+    from accelcal.simulate import load_scenario, simulate_campaign
+    from accelcal.validation.simruns import SimRunFile
+
+    sc = load_scenario("demo")
+    sc.effects = {k: v for k, v in sc.effects.items() if k in ("earth_rate", "mass_centre_offset")}
+    sc.effects["arm_stretch"] = 3e-6
+    cen = next(t for t in sc.tests if t["kind"] == "centrifuge")
+    cen["mounts"] = [m for m in cen["mounts"] if m["plane"] == "IA-PA" and m["angle_deg"] in (0, 180)]
+    tum = next(t for t in sc.tests if t["kind"] == "tumble")
+    tum["heads"] = list(tum["heads"]) + [{"head_axis": "OA", "cos_axis": "+IA", "sin_axis": "+PA"}]
+    runs = [SimRunFile.from_simrun(r) for r in simulate_campaign(sc, 0)]
+    res = diagnose(runs, processing_effects(["tumble", "centrifuge"]))
+    top = res["ranking"][0]
+    assert res["verdict"] == "arm_stretch" and abs(top["estimate"] / 3e-6 - 1) < 0.05
+    assert top["shrink_heldout"] > 0.9

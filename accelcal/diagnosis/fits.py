@@ -533,7 +533,8 @@ def heldout_gap(f: Fit, fold: np.ndarray, tol: float = 1e-6) -> float | None:
     """rms excess over the noise of the residuals of each fold predicted by the model fitted
     to the other fold (linearised at the solution), with the exact expectation of a model
     that is right: 1 + j (J_T^T J_T)^+ j^T per held-out cell.  Cells the training fold does
-    not determine (outside its row space) are not predicted; None when no cell is.
+    not determine (outside its row space, or predicted to a variance above
+    :data:`PREDICTION_VARIANCE_MAX`) are not predicted; None when no cell is.
 
     Parameters
     ----------
@@ -567,6 +568,11 @@ def heldout_gap(f: Fit, fold: np.ndarray, tol: float = 1e-6) -> float | None:
     return float(math.sqrt(max(ss - ex, 0.0) / n))
 
 
+#: largest variance of a held-out cell's prediction by the other half [sigma^2 of the cell
+#: mean] for the cell to count as predicted (:func:`heldout_gap`, :func:`heldout_test`)
+PREDICTION_VARIANCE_MAX = 100.0
+
+
 def _heldout_fold(f: Fit, fold: np.ndarray, k: int, tol: float):
     """Fold k of :func:`heldout_gap`: the held-out cells the other fold determines (a
     boolean mask over the cells of fold k), their whitened prediction residuals, and the
@@ -590,10 +596,15 @@ def _heldout_fold(f: Fit, fold: np.ndarray, k: int, tol: float):
     resid = np.linalg.norm(JH - (JH @ V) @ V.T, axis=1)
     scale = np.maximum(np.linalg.norm(JH, axis=1), 1e-300)
     ok = (resid <= tol * scale) & (inact <= tol * np.maximum(scale, 1.0))
+    # a cell whose prediction the training half knows only to far worse than its own noise
+    # (a parameter that half barely determines) tests nothing: one such cell's expected
+    # square, 1e9 beside a misfit of 3e4, floored a whole campaign's held-out gap at 0
+    A = (JH @ V) / S[keep]
+    ok &= np.sum(A * A, axis=1) <= PREDICTION_VARIANCE_MAX
     if not ok.any():
         return None
     d = V @ ((U[:, keep].T @ z[T]) / S[keep])
-    return ok, z[H][ok] - JH[ok] @ d, (JH[ok] @ V) / S[keep]
+    return ok, z[H][ok] - JH[ok] @ d, A[ok]
 
 
 def heldout_test(without: Fit, with_: Fit, fold: np.ndarray, tol: float = 1e-6) -> dict:
