@@ -321,3 +321,19 @@ def test_a_cell_the_training_half_barely_predicts_does_not_floor_the_heldout_gap
     top = res["ranking"][0]
     assert res["verdict"] == "arm_stretch" and abs(top["estimate"] / 3e-6 - 1) < 0.05
     assert top["shrink_heldout"] > 0.9
+
+
+def test_a_sweep_hysteresis_the_omnibus_test_dilutes_is_a_shaped_gap():
+    """Issue 26: rising steps reading 6e-7 a_IA above falling ones (case temperature held):
+    the omnibus lack-of-fit test passes, the targeted rising-minus-falling contrast sees it
+    at z > 4, and the diagnosis says a shaped gap remains, never 'no significant gap'."""
+    from accelcal.fitting.model import processing_effects
+    from accelcal.validation import diagnosis_benchmark as db
+
+    sc = db.scenario("centrifuge", {}, {"sweep_hysteresis_rel": 6e-7})
+    sc["test"][0]["temp_start_c"] = sc["test"][0]["temp_c"]
+    res = diagnose(db.runs_of(sc, 6000), processing_effects(["centrifuge"]))
+    t = next(x for x in res["shape_tests"] if "IA input" in x["test"])
+    assert t["z"] > 4 and t["significant"]
+    assert res["explained"] is False and res["status"].startswith("a shaped gap remains unexplained")
+    assert res["gap"]["significant_before"]["significant"] is False      # the omnibus test missed it

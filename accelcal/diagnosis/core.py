@@ -50,7 +50,7 @@ from ..physics.rigs import INSTRUMENT_EFFECTS, specific_force
 from ._blas import single_thread
 from .fits import (GAP_ALPHA, NON_CATALOGUE, Fit, Fitter, folds, gap_rms, gap_test, heldout_gap, heldout_test,
                    lr_test, project_out, shrink)
-from .localise import localise, residual_si, shape, summary, where
+from .localise import localise, residual_si, shape, shape_tests, summary, where
 
 #: |cos| between projected signatures above which two effects are reported as aliases
 ALIAS_COS = 0.95
@@ -599,6 +599,13 @@ class _Diagnosis:
         explained = None if after["significant"] is None else not after["significant"]
         if before["significant"] is False and after["significant"] is None:
             explained = True
+        # the omnibus test dilutes a shaped gap over every cell: the targeted shape tests
+        # (rising vs falling steps, polarity) can say on their own that a gap remains
+        shaped = shape_tests(final) if final.dof > 0 else []
+        if explained is not False and any(t["significant"] for t in shaped):
+            explained = False
+            after = {**after, "significant": True, "status": "shaped gap",
+                     "shape_test": next(t for t in shaped if t["significant"])}
         rows_b = localise(bare0, self.alpha)
         rows_a = localise(final, self.alpha) if sel else rows_b
         ho_b, ho_a = self.ho(bare), self.ho(final)
@@ -640,6 +647,7 @@ class _Diagnosis:
             "where_after": where(rows_a) if sel else None,
             "unexplained": unexplained,
             "shape_before": shape(bare0),
+            "shape_tests": shaped,
             "gap": g,
             "selection_steps": steps,
             "alpha": self.alpha, "gap_alpha": GAP_ALPHA, "heldout_gate": HELDOUT_GATE, "heldout_z": HELDOUT_Z,
@@ -660,6 +668,10 @@ class _Diagnosis:
     def status(before, after, verdict, sel) -> str:
         if before["significant"] is None:
             return "untestable: no degrees of freedom (the bare model has as many parameters as distinct inputs)"
+        if after.get("status") == "shaped gap":
+            t = after["shape_test"]
+            return (f"a shaped gap remains unexplained{' after ' + ', '.join(sel) if sel else ''}: {t['test']} "
+                    f"(z = {t['z']:.1f}) that no catalogue effect explains")
         if not before["significant"] and not sel:
             return "no significant gap"
         if verdict and after["significant"] is False:

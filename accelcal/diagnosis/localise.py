@@ -14,6 +14,8 @@ that explains the largest part of the excess is the gap's shape.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy import stats
 
@@ -51,6 +53,10 @@ def _labels(f: Fit) -> dict[str, np.ndarray]:
             v = None if v is None else np.asarray(v, float)
             add(dim, na if v is None else _bins(dim, v))
             add("#" + dim, np.full(k, np.nan) if v is None else v)
+        # the signed IA input of a centrifuge cell [g]: the centripetal level along IA
+        phi = getattr(r.geometry, "phi_rad", None)
+        add("#ia_centrifuge", np.full(k, np.nan) if phi is None or a.get("g_level") is None
+            else np.asarray(a["g_level"], float) * math.cos(phi))
         q = np.minimum((a["time_frac"] * 4).astype(int), 3)
         add("time", np.array([["first quarter", "second quarter", "third quarter", "last quarter"][i] for i in q],
                              object))
@@ -171,6 +177,64 @@ def residual_si(f: Fit) -> np.ndarray:
         name = f.model.name(r.campaign, "K1")
         K1 = abs(f.p[f.model.params.index[name]]) if name in f.model.params.index else 1.0
         out[sl] = f.z[sl] * f.model.sig[sl] / (K1 or 1.0)
+    return out
+
+
+#: family-wise level of the targeted shape tests (:func:`shape_tests`): as strong a claim as
+#: the lack-of-fit test's that a gap remains
+SHAPE_ALPHA = 0.001
+
+
+def shape_tests(f: Fit, alpha: float = SHAPE_ALPHA) -> list[dict]:
+    """Targeted tests of shaped gaps the omnibus lack-of-fit test dilutes over every cell
+    (issue 26): a centrifuge's rising against its falling steps (a sweep hysteresis), flat
+    and in proportion to the signed IA input, and its + against its - polarity in proportion
+    to the g level (flat, a run's own bias takes it).
+
+    Each is a contrast of the whitened cell residuals, T = sum w_i z_i / sqrt(sum w_i^2)
+    with w_i = +c_i on one side and -c_i on the other (c_i = 1, the cell's signed IA input
+    or its g level),
+    a standard normal (or narrower: the fit takes some of it) when there is no such
+    shape; Bonferroni over the tests made, two-sided.
+
+    Parameters
+    ----------
+    f : Fit
+        The fit whose residuals are tested.
+    alpha : float
+        Family-wise level [1].
+
+    Returns
+    -------
+    list of dict
+        ``test``, ``z`` [1], ``p_value``, ``p_bonferroni``, ``significant``, ``cells`` and
+        ``mean_residual_m_s2`` of each side (first, second), for every test the cells allow
+        (both sides present).
+    """
+    z = f.z
+    lab = _labels(f)
+    si = residual_si(f)
+    g = np.nan_to_num(lab["#g_level"], nan=0.0)
+    ia = np.nan_to_num(lab["#ia_centrifuge"], nan=0.0)
+    specs = [("rising minus falling steps", "sweep", ("up", "down"), None),
+             ("rising minus falling steps, in proportion to the IA input", "sweep", ("up", "down"), ia),
+             ("polarity + minus -, in proportion to the g level", "polarity", ("+", "-"), g)]
+    out = []
+    for name, dim, (a, b), scale in specs:
+        A, B = lab[dim] == a, lab[dim] == b
+        if not A.any() or not B.any():
+            continue
+        w = np.where(A, 1.0, np.where(B, -1.0, 0.0)) * (1.0 if scale is None else scale)
+        n2 = float(w @ w)
+        if n2 <= 0:
+            continue
+        T = float(w @ z) / math.sqrt(n2)
+        out.append({"test": name, "z": T, "p_value": float(2 * stats.norm.sf(abs(T))),
+                    "cells": [int(A.sum()), int(B.sum())],
+                    "mean_residual_m_s2": [float(np.mean(si[A])), float(np.mean(si[B]))]})
+    for r in out:
+        r["p_bonferroni"] = min(1.0, r["p_value"] * len(out))
+        r["significant"] = r["p_bonferroni"] < alpha
     return out
 
 

@@ -25,7 +25,9 @@ The optional noise keys draw random numbers only when they are above 0, so a sce
 without them gives the same bytes as before they existed.
 
 Disturbances (``[disturbance]``): effects outside the catalogue (effects.md), for testing that
-the diagnosis says a gap is unexplained: a bias quadratic in temperature
+the diagnosis says a gap is unexplained: a sweep hysteresis (a centrifuge's rising steps read
+K1(T) * sweep_hysteresis_rel * a_IA higher, its falling steps as much lower), a bias quadratic
+in temperature
 K1(T) * bias_temp_quadratic_m_s2_c2 * (T - T_ref)^2 and a periodic bias
 K1(T) * bias_periodic_m_s2 * sin(2 pi t / bias_periodic_period_s).
 """
@@ -41,7 +43,7 @@ import pandas as pd
 from ..constants import OMEGA_EARTH, T_REF_C
 from ..effects import EFFECTS
 from ..physics import rig_output, scale_factor
-from ..physics.rigs import INSTRUMENT_EFFECTS, centripetal_level, sine_drive, sine_drive_angle
+from ..physics.rigs import INSTRUMENT_EFFECTS, centripetal_level, sine_drive, sine_drive_angle, specific_force
 from .scenario import DISTURBANCE_DEFAULTS, Scenario, load_scenario
 
 COLUMNS = {
@@ -108,9 +110,10 @@ def _started_at(t: dict, k: int) -> str:
     return dt.isoformat()
 
 
-def _finish(kind, meta, phys, coeffs, effects, noise, rng, sc_truth, level=None):
+def _finish(kind, meta, phys, coeffs, effects, noise, rng, sc_truth, level=None, down=None):
     """Noise-free output from the physics, then bias walk, white noise and (with ``level``,
-    the centripetal level omega_z^2 R of each reading) noise proportional to it (output_unit)."""
+    the centripetal level omega_z^2 R of each reading) noise proportional to it (output_unit);
+    ``down``: the readings of a centrifuge's falling steps (the sweep hysteresis)."""
     E0 = rig_output(kind, meta, phys, coeffs, effects)
     n = len(E0)
     c = dict(coeffs)
@@ -129,6 +132,10 @@ def _finish(kind, meta, phys, coeffs, effects, noise, rng, sc_truth, level=None)
         E = E + K1 * noise["white_m_s2"] * rng.standard_normal(n)
     if level is not None and noise.get("centripetal_rel", 0.0) > 0:
         E = E + K1 * noise["centripetal_rel"] * np.abs(level) * rng.standard_normal(n)
+    hyst = noise.get("sweep_hysteresis_rel", 0.0)
+    if hyst and down is not None:       # rising steps read h a_IA higher, falling ones lower
+        a_ia = specific_force(kind, meta, phys, effects)[:, 0]
+        E = E + K1 * hyst * a_ia * np.where(down, -1.0, 1.0)
     quad = noise.get("bias_temp_quadratic_m_s2_c2", 0.0)
     if quad and temp is not None:
         E = E + K1 * quad * (temp - T_REF_C) ** 2
@@ -273,7 +280,8 @@ def _centrifuge_run(sc, t, mount, meta, effects, noise, rng):
     phys = _frame_phys({**cols, "table_rate_rad_s": true_rate})
     cols["table_angle_deg"] = _logged_angle(angle, noise, rng)
     E, E0 = _finish("centrifuge", meta, phys, sc.coefficients, effects, noise, rng, None,
-                    level=centripetal_level(meta, true_rate, R))
+                    level=centripetal_level(meta, true_rate, R),
+                    down=step >= len(az) + len(levels))
     cols["output"] = E
     return cols, {"noise_free_output": E0, "true_rate_rad_s": true_rate, "g_levels": seq}
 

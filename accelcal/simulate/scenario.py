@@ -131,6 +131,7 @@ NOISE_DEFAULTS: dict[str, float] = {
 }
 #: Effects outside the catalogue the simulator can add (``[disturbance]``), all off by default.
 DISTURBANCE_DEFAULTS: dict[str, float] = {
+    "sweep_hysteresis_rel": 0.0,
     "bias_temp_quadratic_m_s2_c2": 0.0,
     "bias_periodic_m_s2": 0.0,
     "bias_periodic_period_s": 0.0,

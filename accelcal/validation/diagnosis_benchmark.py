@@ -17,7 +17,9 @@ output counts, rare spikes, a bias random walk):
   with its Wilson interval, and how often a clean campaign is said to keep a gap;
 * big designs (issue 26): a centrifuge with BIG_LEVELS g levels in six mounts (480 cells),
   one effect at z = BIG_SNR, right when named and estimated within 25 % (the held-out
-  shrink is reported, not asked); and clean big designs (false alarms).
+  shrink is reported, not asked); and clean big designs (false alarms);
+* a sweep hysteresis (issue 26; right when a gap is said to remain: the omnibus test
+  dilutes it, the targeted rising-minus-falling contrast sees it).
 
 Section 2: the dev set of the independent reference simulator (``../shared/diagnosis-dev``)
 run through the same code and scored by its scorer's rules.
@@ -49,6 +51,8 @@ SNR_RANGE = (12.0, 60.0)
 #: the big-design family (issue 26): g levels of the centrifuge, and the effect's z
 BIG_LEVELS = 40
 BIG_SNR = 10.0
+#: the sweep-hysteresis family (issue 26): h of a_IA [1]
+HYSTERESIS_REL = 6e-7
 #: the dev set's baselines per test kind (thinner than the processing model)
 DEV_BASELINE = {"centrifuge": ["earth_rate", "mass_centre_offset"], "sine_centrifuge": ["earth_rate"],
                 "tumble": ["initial_misalignment"], "tilt_rotation": []}
@@ -254,6 +258,14 @@ def simulated_cases(quick: bool, seeds: int, n_clean: int, rng_seed: int = 20261
     for i in range(2 if quick else 10 * seeds):
         yield ("centrifuge/clean/big", "centrifuge", scenario("centrifuge", {}, levels=BIG_LEVELS), 9500 + i,
                base, None, None, None, False, "big-clean")
+    # a sweep hysteresis (issue 26): rising steps read h a_IA higher than falling ones, at a
+    # size the targeted rising-minus-falling contrast sees at z ~ 4-6, the case temperature
+    # held (a drifting one would make it K1T's); right when a gap is said to remain
+    for i in range(1 if quick else 5 * seeds):
+        sc = scenario("centrifuge", {}, {"sweep_hysteresis_rel": HYSTERESIS_REL})
+        sc["test"][0]["temp_start_c"] = sc["test"][0]["temp_c"]
+        yield ("centrifuge/unknown: sweep hysteresis", "centrifuge", sc, 9700 + i, base, None, None, None, True,
+               "shaped")
 
 
 def _typical(e: str) -> float:
@@ -359,6 +371,7 @@ def summarise(sim: list[dict], dev: list[dict], elapsed: float, commit: str = ""
     big = [c for c in sim if c["category"] == "big"]
     big_clean = [c for c in sim if c["category"] == "big-clean"]
     big_sh = [c["shrink_heldout"] for c in big if c.get("top1") and c.get("shrink_heldout") is not None]
+    shaped = [c for c in sim if c["category"] == "shaped"]
     rel = [c["rel_error"] for c in obs if c.get("top1") and c.get("rel_error") is not None]
     sh = [c["shrink_heldout"] for c in obs if c.get("top1") and c.get("shrink_heldout") is not None]
     fa = sum(c["false_alarm"] for c in clean)
@@ -388,6 +401,7 @@ def summarise(sim: list[dict], dev: list[dict], elapsed: float, commit: str = ""
          "big_cases": len(big), "big_right": count([c["right"] for c in big]),
          "big_median_heldout_shrink": float(np.median(big_sh)) if big_sh else None,
          "big_clean_cases": len(big_clean), "big_false_alarms": sum(c["false_alarm"] for c in big_clean),
+         "shaped_cases": len(shaped), "shaped_right": count([c["right"] for c in shaped]),
          "dev_cases": len(dev), "dev_right": sum(c["right"] for c in dev),
          "median_seconds_per_diagnosis": float(np.median(secs)) if secs else None,
          "p90_seconds_per_diagnosis": float(np.percentile(secs, 90)) if secs else None,
@@ -425,6 +439,9 @@ def markdown(s: dict) -> str:
         L += [f"| big designs ({BIG_LEVELS} g levels x 6 mounts), one effect at z = {BIG_SNR:g}: named and within "
               f"25 % | {s['big_right']} (median held-out shrink {f(s['big_median_heldout_shrink'])}) |",
               f"| big designs, clean: false alarms | {s['big_false_alarms']} of {s['big_clean_cases']} |"]
+    if s.get("shaped_cases"):
+        L += [f"| a sweep hysteresis (rising steps {HYSTERESIS_REL:g} a_IA above falling ones), said a gap "
+              f"remains | {s['shaped_right']} |"]
     L += [""]
     misses = [c for c in s["simulated"] if not c["right"]]
     if misses:
