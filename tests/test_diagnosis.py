@@ -337,3 +337,22 @@ def test_a_sweep_hysteresis_the_omnibus_test_dilutes_is_a_shaped_gap():
     assert t["z"] > 4 and t["significant"]
     assert res["explained"] is False and res["status"].startswith("a shaped gap remains unexplained")
     assert res["gap"]["significant_before"]["significant"] is False      # the omnibus test missed it
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_45_and_135_deg_runs_separate_kip_from_kpp(seed):
+    """Issue 26: with 45 and 135 deg beside the IA pair, a_I a_P changes sign between them
+    while a_P^2 does not: cross_coupling is named without Kpp among its aliases and its
+    estimate is within 5 % of the unit's Kip (the scenario's truth)."""
+    from accelcal.simulate import load_scenario, simulate_campaign
+    from accelcal.validation.simruns import SimRunFile
+    sc = load_scenario("demo")
+    cen = next(t for t in sc.tests if t["kind"] == "centrifuge")
+    mounts = [m for m in cen["mounts"] if m["plane"] == "IA-PA" and m["angle_deg"] in (0, 180, 45)]
+    cen["mounts"] = mounts + [{**next(m for m in mounts if m["angle_deg"] == 45), "angle_deg": 135.0}]
+    sc.tests = [cen]
+    runs = [SimRunFile.from_simrun(r) for r in simulate_campaign(sc, seed)]
+    res = diagnose(runs, ["earth_rate", "odd_quadratic", "cubic", "mass_centre_offset", "mount_angle_error"])
+    top = res["ranking"][0]
+    assert res["verdict"] == "cross_coupling" and "Kpp" not in top["aliases"]
+    assert abs(top["estimate"] / sc.coefficients["Kip"] - 1) < 0.05
