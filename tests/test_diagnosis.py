@@ -356,3 +356,21 @@ def test_45_and_135_deg_runs_separate_kip_from_kpp(seed):
     top = res["ranking"][0]
     assert res["verdict"] == "cross_coupling" and "Kpp" not in top["aliases"]
     assert abs(top["estimate"] / sc.coefficients["Kip"] - 1) < 0.05
+
+
+def test_a_temperature_held_within_its_sensor_noise_carries_no_temperature_effect():
+    """Issue 26: a tumble whose case temperature is held (0.02 degC sensor noise, no drift
+    or cycle) and whose bias wanders: bias_temperature's signature would be the sensor's
+    noise, so it is reported not observable with that reason and never selected."""
+    from accelcal.validation import diagnosis_benchmark as db
+
+    sc = db.scenario("tumble", {"bias_drift": 2e-7})
+    t = sc["test"][0]
+    t["temp_start_c"] = t["temp_c"]
+    t.pop("temp_cycle_c", None)
+    res = diagnose(db.runs_of(sc, 11), ["initial_misalignment"])
+    rows = {e["effect"]: e for e in res["ranking"]}
+    for c in ("bias_temperature", "scale_temperature"):
+        assert not rows[c]["observable"] and "held within its sensor noise" in rows[c]["note"]
+        assert c not in res["selected"]
+    assert res["verdict"] == "bias_drift"
