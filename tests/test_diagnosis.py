@@ -337,3 +337,40 @@ def test_a_sweep_hysteresis_the_omnibus_test_dilutes_is_a_shaped_gap():
     assert t["z"] > 4 and t["significant"]
     assert res["explained"] is False and res["status"].startswith("a shaped gap remains unexplained")
     assert res["gap"]["significant_before"]["significant"] is False      # the omnibus test missed it
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_45_and_135_deg_runs_separate_kip_from_kpp(seed):
+    """Issue 26: with 45 and 135 deg beside the IA pair, a_I a_P changes sign between them
+    while a_P^2 does not: cross_coupling is named without Kpp among its aliases and its
+    estimate is within 5 % of the unit's Kip (the scenario's truth)."""
+    from accelcal.simulate import load_scenario, simulate_campaign
+    from accelcal.validation.simruns import SimRunFile
+    sc = load_scenario("demo")
+    cen = next(t for t in sc.tests if t["kind"] == "centrifuge")
+    mounts = [m for m in cen["mounts"] if m["plane"] == "IA-PA" and m["angle_deg"] in (0, 180, 45)]
+    cen["mounts"] = mounts + [{**next(m for m in mounts if m["angle_deg"] == 45), "angle_deg": 135.0}]
+    sc.tests = [cen]
+    runs = [SimRunFile.from_simrun(r) for r in simulate_campaign(sc, seed)]
+    res = diagnose(runs, ["earth_rate", "odd_quadratic", "cubic", "mass_centre_offset", "mount_angle_error"])
+    top = res["ranking"][0]
+    assert res["verdict"] == "cross_coupling" and "Kpp" not in top["aliases"]
+    assert abs(top["estimate"] / sc.coefficients["Kip"] - 1) < 0.05
+
+
+def test_a_temperature_held_within_its_sensor_noise_carries_no_temperature_effect():
+    """Issue 26: a tumble whose case temperature is held (0.02 degC sensor noise, no drift
+    or cycle) and whose bias wanders: bias_temperature's signature would be the sensor's
+    noise, so it is reported not observable with that reason and never selected."""
+    from accelcal.validation import diagnosis_benchmark as db
+
+    sc = db.scenario("tumble", {"bias_drift": 2e-7})
+    t = sc["test"][0]
+    t["temp_start_c"] = t["temp_c"]
+    t.pop("temp_cycle_c", None)
+    res = diagnose(db.runs_of(sc, 11), ["initial_misalignment"])
+    rows = {e["effect"]: e for e in res["ranking"]}
+    for c in ("bias_temperature", "scale_temperature"):
+        assert not rows[c]["observable"] and "held within its sensor noise" in rows[c]["note"]
+        assert c not in res["selected"]
+    assert res["verdict"] == "bias_drift"

@@ -76,6 +76,46 @@ VERDICT_STATISTIC = 25.0
 SINE_SEGMENTS = 4
 
 
+#: candidates whose signature is the logged temperature's (through K0T, K1T, a fixture tilt)
+TEMPERATURE_EFFECTS = ("bias_temperature", "scale_temperature", "fixture_thermal_tilt")
+#: level of the test that the logged temperature moves beyond its reading noise
+TEMPERATURE_HELD_P = 0.01
+
+
+def _temperature_held(cells: Sequence[RunCells]) -> tuple[float, float] | None:
+    """(F, p) when the temperature the runs log does not move beyond its own reading noise,
+    else None (issue 26: no effect enters on a signature that is only a regressor's
+    measurement noise).
+
+    One-way analysis of variance of ``temp_c`` over the cells of every run, pooled: the
+    between-cell mean square (around each run's mean) over the within-cell one, F with
+    (sum (k_j - 1), sum (n_j - k_j)) degrees of freedom.  Held when p > TEMPERATURE_HELD_P.
+    """
+    sb = sw = db = dw = 0.0
+    for r in cells:
+        T = r.cols.get("temp_c")
+        if T is None:
+            continue
+        T = np.asarray(T, float)
+        ok = (r.cid >= 0) & np.isfinite(T)
+        if ok.sum() < 3:
+            continue
+        cid = r.cid[ok]
+        n = np.bincount(cid, minlength=r.ncell).astype(float)
+        m = np.bincount(cid, weights=T[ok], minlength=r.ncell) / np.maximum(n, 1)
+        use = n > 0
+        grand = float(np.sum(n[use] * m[use]) / np.sum(n[use]))
+        sb += float(np.sum(n[use] * (m[use] - grand) ** 2))
+        sw += float(np.sum((T[ok] - m[cid]) ** 2))
+        db += float(use.sum() - 1)
+        dw += float(ok.sum() - use.sum())
+    if db <= 0 or dw <= 0 or sw <= 0:
+        return None
+    F = (sb / db) / (sw / dw)
+    p = float(stats.f.sf(F, db, dw))
+    return (F, p) if p > TEMPERATURE_HELD_P else None
+
+
 def resolve_baseline(baseline, tests: Sequence[str]) -> tuple[list[str], str]:
     """The effects the diagnosis' forward model includes from the start.
 
@@ -316,6 +356,14 @@ class _Diagnosis:
             if ns == 0:
                 o["note"] = ("no signature in these runs: nothing they vary acts on it"
                              + (" (no temperature logged)" if c in ("bias_temperature", "scale_temperature") else ""))
+                obs[c] = o
+                continue
+            held = _temperature_held(self.cells) if c in TEMPERATURE_EFFECTS else None
+            if held is not None:
+                F, p = held
+                o["note"] = (f"not observable in these runs: the temperature they log is held within its "
+                             f"sensor noise (between-cell F = {F:.2g}, p = {p:.2g}); its signature would be "
+                             "that noise")
                 obs[c] = o
                 continue
             sp = project_out(U, s)
