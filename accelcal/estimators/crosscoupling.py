@@ -207,11 +207,12 @@ class PairFit:
     order : int
         Chosen model order; ``fits`` holds every order tried, ``fit`` the chosen one.
     c2, u_c2 : float
-        Coefficient of a^2 [s2/m] (eq 2's combination of the second-order terms).
+        Coefficient of a^2 [s2/m] (eq 2's combination of the second-order terms), read from
+        ``fit`` (its FitResult).
     d, u_d : float
-        Polarity-odd quadratic [s2/m] (Koq for the IA pair).
+        Polarity-odd quadratic [s2/m] (Koq for the IA pair), from ``fit``.
     c3, u_c3 : float or None
-        Cubic [s4/m2] (K3 for the IA pair), order 3 only.
+        Cubic [s4/m2] (K3 for the IA pair), order 3 only, from ``fit``.
     adequate : bool
     geometry : Alignment
     dwells : DataFrame
@@ -223,15 +224,33 @@ class PairFit:
     order: int
     fit: DwellFit
     fits: dict[int, DwellFit]
-    c2: float
-    u_c2: float
-    d: float
-    u_d: float
-    c3: float | None
-    u_c3: float | None
     adequate: bool
     geometry: Alignment
     dwells: pd.DataFrame = field(repr=False, default=None)
+
+    @property
+    def c2(self) -> float:
+        return self.fit.value("c2")
+
+    @property
+    def u_c2(self) -> float:
+        return self.fit.std_error("c2")
+
+    @property
+    def d(self) -> float:
+        return self.fit.value("d")
+
+    @property
+    def u_d(self) -> float:
+        return self.fit.std_error("d")
+
+    @property
+    def c3(self) -> float | None:
+        return self.fit.value("c3") if "c3" in self.fit.names else None
+
+    @property
+    def u_c3(self) -> float | None:
+        return self.fit.std_error("c3") if "c3" in self.fit.names else None
 
 
 def pair_key(meta: Mapping) -> tuple[str, float]:
@@ -292,11 +311,8 @@ def fit_mount_pair(run_a: tuple[Mapping, pd.DataFrame], run_b: tuple[Mapping, pd
         fits[order], _ = pair.fit(a, order, subtract_a=False)
     chosen, adequate = choose_order(fits, {3: ["c3"]})
     f = fits[chosen]
-    has_c3 = "c3" in f.names
     T = T.assign(a=a, std_resid=f.std_resid, fitted=f.yhat)
     return PairFit(plane, phi0, (str(ma.get("run_id")), str(mb.get("run_id"))), chosen, f, fits,
-                   f.value("c2"), f.std_error("c2"), f.value("d"), f.std_error("d"),
-                   f.value("c3") if has_c3 else None, f.std_error("c3") if has_c3 else None,
                    adequate, geo, T)
 
 
