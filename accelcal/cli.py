@@ -280,9 +280,9 @@ def _execute(drops: list[str], warehouse: str, args, console, create: bool = Fal
                    MofNCompleteColumn(), TimeElapsedColumn(), console=err, transient=False,
                    disable=not show)
     rep = RichReporter(bar)
-    from .config import ConfigError, rig_uncertainties
+    from .config import ConfigError, run_parameters
     try:
-        stated = rig_uncertainties(args.config, warehouse)
+        parameters = run_parameters(args.config, warehouse)
     except ConfigError as e:
         raise CliError(str(e)) from None
     try:
@@ -296,7 +296,7 @@ def _execute(drops: list[str], warehouse: str, args, console, create: bool = Fal
                                    create=create, snapshot=not args.no_snapshot,
                                    allow_simulated=allow_simulated,
                                    workers=args.workers,
-                                   parameters={"rig_uncertainty": stated} if stated else None)
+                                   parameters=parameters)
     except (PipelineError, WarehouseError, StoreError) as e:
         raise CliError(str(e)) from None
     finally:

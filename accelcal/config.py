@@ -86,15 +86,22 @@ def _read(path: Path) -> dict[str, Any]:
         raise ConfigError(f"config {path} is not valid TOML: {e}") from None
 
 
-def rig_limits(explicit: str | Path | None = None) -> dict[str, float]:
-    """Rig id -> the highest g level it may run [g], from ``[rigs."ID"] max_g`` of the config
-    file (same look-up as :func:`lab_config`; none without a file)."""
-    path = find_config(explicit)
+def _rig_tables(explicit: str | Path | None, warehouse: str | Path | None = None
+                ) -> tuple[Path | None, dict[str, Any]]:
+    """(the config file, its ``[rigs]`` table: rig id -> its keys); (None, {}) without a file."""
+    path = find_config(explicit, warehouse)
     if path is None:
-        return {}
+        return None, {}
     rigs = _read(path).get("rigs") or {}
     if not isinstance(rigs, dict):
         raise ConfigError(f"{path}: [rigs] must be a table of rig ids")
+    return path, rigs
+
+
+def rig_limits(explicit: str | Path | None = None) -> dict[str, float]:
+    """Rig id -> the highest g level it may run [g], from ``[rigs."ID"] max_g`` of the config
+    file (same look-up as :func:`lab_config`; none without a file)."""
+    path, rigs = _rig_tables(explicit)
     out = {}
     for rig, v in rigs.items():
         if isinstance(v, dict) and "max_g" in v:
@@ -118,12 +125,7 @@ def rig_uncertainties(explicit: str | Path | None = None,
     Same look-up as :func:`lab_config`; none without a file.  A value that is not a
     positive number is one :class:`ConfigError` line naming it."""
     from .effects import RIG_INPUTS
-    path = find_config(explicit, warehouse)
-    if path is None:
-        return {}
-    rigs = _read(path).get("rigs") or {}
-    if not isinstance(rigs, dict):
-        raise ConfigError(f"{path}: [rigs] must be a table of rig ids")
+    path, rigs = _rig_tables(explicit, warehouse)
     out: dict[str, dict[str, float]] = {}
     for rig, v in rigs.items():
         if not isinstance(v, dict):
@@ -137,6 +139,15 @@ def rig_uncertainties(explicit: str | Path | None = None,
                                   f"(a standard uncertainty in {spec.unit})")
             out.setdefault(str(rig), {})[spec.id] = float(x)
     return out
+
+
+def run_parameters(explicit: str | Path | None = None,
+                   warehouse: str | Path | None = None) -> dict[str, Any] | None:
+    """The pipeline parameters the lab's config file sets for a run (``run``, ``demo``,
+    ``serve``): ``{"rig_uncertainty": ...}`` (:func:`rig_uncertainties`) when it states any,
+    else None, so that a run without them keeps the result ids it always had."""
+    stated = rig_uncertainties(explicit, warehouse)
+    return {"rig_uncertainty": stated} if stated else None
 
 
 def _str(d: dict[str, Any], key: str, where: str, path: Path) -> str | None:

@@ -282,11 +282,10 @@ def watch_pass(watch_dir: str, warehouse: str, settle: float = DEFAULT_SETTLE_S,
             try:
                 # the lab's stated rig inputs, read each pass (./accelcal.toml or beside the
                 # warehouse), so that a corrected file takes effect at the next drop
-                from ..config import rig_uncertainties
-                stated = rig_uncertainties(None, warehouse)
+                from ..config import run_parameters
                 summary = run_pipeline(plan.ready, warehouse, engine=engine,
                                        lock_timeout=lock_timeout, task_runner=task_runner,
-                                       parameters={"rig_uncertainty": stated} if stated else None)
+                                       parameters=run_parameters(None, warehouse))
                 out["summary"] = _pass_summary(summary)
                 for d in plan.ready:
                     for p, sig in plan.files[d].items():
