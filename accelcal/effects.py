@@ -73,6 +73,9 @@ PAPER_TERMS: dict[str, Coefficient] = {c.name: c for c in [
 #: model): the cross-axis sensitivity of an axis (IA has none) and its square term.
 CROSS_AXIS_TERM: tuple[str | None, str, str] = (None, "Kp", "Ko")
 SQUARE_TERM: tuple[str, str, str] = ("K2", "Kpp", "Koo")
+#: The cross-coupling coefficient of each pair of input axes (effects.md model).
+CROSS_TERM: dict[frozenset[int], str] = {frozenset((0, 1)): "Kip", frozenset((0, 2)): "Kio",
+                                         frozenset((1, 2)): "Kpo"}
 
 #: Rig quantities fitted beside the instrument: name -> (SI unit, typical size [SI], largest
 #: plausible departure from the nominal value [SI]).  A radius known to worse than 1 cm from
@@ -102,10 +105,16 @@ class RigInput:
     tests : tuple of str
         Test kinds whose output depends on it.
     per_point : bool
-        True when its error is independent from one temperature point to the next
-        (a reading), False when it is one value for all runs of the rig.
+        True when its error is shared by every return to one chamber set point and
+        independent between set points (a reading), False when it is one value for all
+        runs of the rig.
     what : str
         How the budget line names it.
+    step : float
+        Difference step of the model's derivative with respect to it [its unit].
+    read_through : tuple of str
+        For a logged column: the coefficients through which the forward model reads it
+        (the temperature only through K0T and K1T); it enters a model that has one of them.
     """
 
     id: str
@@ -116,17 +125,20 @@ class RigInput:
     tests: tuple[str, ...]
     per_point: bool
     what: str
+    step: float
+    read_through: tuple[str, ...] = ()
 
 
 #: Rig inputs with a lab-stated uncertainty (issue 27): local gravity at every rig, the
 #: tilt of the thermal table, the temperature reading of a thermal run.
 RIG_INPUTS: dict[str, RigInput] = {r.id: r for r in [
     RigInput("g_local", "g_local_u_m_s2", "m/s2", "g_local_m_s2", None, TESTS, False,
-             "local gravity g_local"),
+             "local gravity g_local", 1e-5),
     RigInput("table_tilt", "tilt_u_deg", "deg", "tilt_deg", None, ("tilt_rotation",), False,
-             "tilt angle of the table"),
+             "tilt angle of the table", 1e-3),
     RigInput("temperature", "temperature_u_c", "degC", None, "temp_c", ("tilt_rotation",), True,
-             "error of the temperature reading at each set point (independent between set points)"),
+             "error of the temperature reading at each set point (independent between set points)",
+             1e-3, ("K0T", "K1T")),
 ]}
 
 

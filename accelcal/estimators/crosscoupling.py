@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from ..effects import combination_name
+from ..effects import CROSS_TERM, SQUARE_TERM, combination_name
 from ..fitting.core import lstsq_svd
 from ..physics.axes import AXES, parse_plane
 from ..physics.geometry import geometry_of
@@ -44,8 +44,8 @@ from ..physics.instrument import output_derivative
 from .adequacy import DwellFit, choose_order
 from .radius import PairData, centripetal_unit_input
 
-SQUARE = {0: "K2", 1: "Kpp", 2: "Koo"}
-CROSS = {frozenset((0, 1)): "Kip", frozenset((0, 2)): "Kio", frozenset((1, 2)): "Kpo"}
+SQUARE = dict(enumerate(SQUARE_TERM))
+CROSS = CROSS_TERM
 UNKNOWNS = ["K2", "Kpp", "Koo", "Kip", "Kio", "Kpo"]
 
 

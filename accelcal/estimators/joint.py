@@ -383,16 +383,17 @@ def type_b_terms(jf: JointFit, tolerance: float = MOUNT_ANGLE_TOLERANCE_RAD) -> 
 
 
 def rig_input_terms(jf: JointFit, stated: Mapping[str, Mapping[str, float]]
-                    ) -> tuple[dict[str, list[tuple[str, float, float, str]]], list[dict[str, str]]]:
+                    ) -> tuple[dict[str, list[tuple[str, float, float, str, float]]], list[dict[str, str]]]:
     """Type-B terms of the rig inputs the drop gives as known (issue 27): local gravity,
     the thermal table's tilt, the temperature reading.
 
     Each input of each rig moves the model along :meth:`CampaignModel.input_direction` (j);
     the estimates processed with the input at x + dx move by dtheta = -(J^T W J)^-1 J^T W j dx
     (JCGM 100 §5.1.3: the sensitivity through the fit; for the thermal table
-    dK1/dg = -K1/g and dK1/dgamma = -K1 cot gamma, paper 001's K1 = b / (g sin gamma)).  A temperature reading's error is
-    independent from one temperature point to the next: its sensitivities over the points
-    are combined root-sum-square into one line (the same variance as one line per point).
+    dK1/dg = -K1/g and dK1/dgamma = -K1 cot gamma, paper 001's K1 = b / (g sin gamma)).
+    A temperature reading's error is shared by every return to one set point and
+    independent between set points: one direction per set point, their sensitivities
+    combined root-sum-square into one line (the same variance as one line per set point).
 
     Parameters
     ----------
@@ -414,7 +415,7 @@ def rig_input_terms(jf: JointFit, stated: Mapping[str, Mapping[str, float]]
     from ..effects import RIG_INPUTS
     model, fit = jf.model, jf.fit
     free = np.flatnonzero(model.params.free() & fit.estimable)
-    terms: dict[str, list[tuple[str, float, float, str]]] = {}
+    terms: dict[str, list[tuple[str, float, float, str, float]]] = {}
     missing: list[dict[str, str]] = []
     by_rig: dict[str, list[int]] = {}
     for j, r in enumerate(model.runs):
@@ -456,13 +457,26 @@ def rig_input_terms(jf: JointFit, stated: Mapping[str, Mapping[str, float]]
 def _enters(model: CampaignModel, spec, js: Sequence[int]) -> bool:
     """Whether a rig input enters the model of runs ``js``: a metadata value (g_local, the
     table's tilt) always does; a logged column (the temperature) where the run has it and
-    a coefficient of the model reads it (K0T, K1T: :func:`accelcal.physics.rigs.rig_output`
-    reads the temperature only through them)."""
+    a free coefficient of the model reads it (:attr:`accelcal.effects.RigInput.read_through`:
+    :func:`accelcal.physics.rigs.rig_output` reads the temperature only through K0T, K1T)."""
     if spec.column is None:
         return True
-    reads = {"temp_c": ("K0T", "K1T")}.get(spec.column, ())
     return (any(spec.column in model.runs[j].cols for j in js)
-            and any(role.key in reads and prm.vary for prm, role in zip(model.params, model.roles)))
+            and any(role.key in spec.read_through and prm.vary
+                    for prm, role in zip(model.params, model.roles)))
+
+
+def _type_a_lines(name: str, value: float, u_noise: float, factor: float) -> list[BudgetTerm]:
+    """The type-A lines of an adopted row's budget: the readings through the forward model
+    [its unit], and the lack-of-fit scaling u sqrt(F^2 - 1) where the model is inadequate
+    (``factor`` = sqrt(F) > 1)."""
+    out = [BudgetTerm(name, "readings: joint fit through the forward model (noise model per run, "
+                            "autocorrelation included)", value, u_noise, 1.0, u_noise, "A", "normal", METHOD)]
+    if factor > 1:
+        extra = u_noise * math.sqrt(factor ** 2 - 1.0)
+        out.append(BudgetTerm(name, f"model inadequacy: lack-of-fit scaling sqrt(F) = {factor:.3g}",
+                              0.0, extra, 1.0, extra, "A", "normal", METHOD))
+    return out
 
 
 def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[str, float]]) -> dict[str, Any]:
@@ -530,13 +544,7 @@ def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
         coefficients.append(CoefficientResult(name, float(fit.values[i]), float(u), si_unit(name, out_unit),
                                               METHOD, rig_of.get(prm.name, rig_label), float(dof), note,
                                               adopted=True, coverage_factor=k))
-        budget.append(BudgetTerm(name, "readings: joint fit through the forward model (noise model per run, "
-                                       "autocorrelation included)", float(fit.values[i]), u_noise, 1.0,
-                                 u_noise, "A", "normal", METHOD))
-        if lof.factor > 1:
-            extra = u_noise * math.sqrt(lof.factor ** 2 - 1.0)
-            budget.append(BudgetTerm(name, f"model inadequacy: lack-of-fit scaling sqrt(F) = {lof.factor:.3g}",
-                                     0.0, extra, 1.0, extra, "A", "normal", METHOD))
+        budget += _type_a_lines(name, float(fit.values[i]), u_noise, lof.factor)
         for q, c, ub, dist, x in terms_b:
             budget.append(BudgetTerm(name, q, x, ub, c, abs(c) * ub, "B", dist, METHOD))
     for a, b, t, r in near:
@@ -560,13 +568,7 @@ def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
             name, value, u, si_unit(ka, out_unit), METHOD, rig_of.get(a, rig_label), float(dof),
             f"joint ML fit; {ka} and {kb} are nearly aliased in this design (correlation {r:+.4f}): "
             f"the runs determine this combination, not each alone", adopted=True, coverage_factor=k))
-        budget.append(BudgetTerm(name, "readings: joint fit through the forward model (noise model per run, "
-                                       "autocorrelation included)", value, u_noise, 1.0, u_noise, "A", "normal",
-                                 METHOD))
-        if lof.factor > 1:
-            extra = u_noise * math.sqrt(lof.factor ** 2 - 1.0)
-            budget.append(BudgetTerm(name, f"model inadequacy: lack-of-fit scaling sqrt(F) = {lof.factor:.3g}",
-                                     0.0, extra, 1.0, extra, "A", "normal", METHOD))
+        budget += _type_a_lines(name, value, u_noise, lof.factor)
     mc_check = _mc_checks(coefficients, budget)
     # theta0 per head
     for i, prm in enumerate(model.params):

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from ..effects import CROSS_AXIS_TERM, SQUARE_TERM, combination_name, si_unit
+from ..effects import CROSS_AXIS_TERM, CROSS_TERM, SQUARE_TERM, combination_name, si_unit
 from ..fitting.core import (FitResult, GaussNewton, LackOfFit, Parameter, ParameterSet, birge_ratio,
                             finish_fit, gauss_newton, lstsq_svd)
 from ..physics.axes import AXES, parse_signed_axis
@@ -935,7 +935,7 @@ class TumbleStep:
         k2 = next(q for q in self.pooled.values() if q.key == "K2")
         K0, K1 = self.pooled["K0"], self.pooled["K1"]
         cross = tuple((q.key, q.value, q.u) for q in self.pooled.values()
-                      if q.key in ("Kip", "Kio", "Kpo") and q.name == q.key)
+                      if q.key in CROSS_TERM.values() and q.name == q.key)
         return Reference(K0.value, K1.value, K0.u, K1.u, k2.value, k2.u, cross=cross)
 
     @property

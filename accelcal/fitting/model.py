@@ -697,11 +697,11 @@ class CampaignModel:
         runs : sequence of int
             Indices of the runs whose input moves together.
         rows : mapping of int to ndarray of bool, optional
-            Per run, the readings whose logged column moves (a temperature point); all of
-            them when not given.  Only for an input read from a column.
+            Per run, the readings whose logged column moves (a set point); all of them
+            when not given.  Only for an input read from a column.
         h : float, optional
-            Difference step [the input's unit]; default 1e-6 of g for ``g_local``, 1e-3 deg
-            for an angle, 1e-3 degC for a temperature.
+            Difference step [the input's unit]; default the catalogue's
+            (:attr:`accelcal.effects.RigInput.step`).
 
         Returns
         -------
@@ -711,7 +711,7 @@ class CampaignModel:
         """
         from ..effects import RIG_INPUTS
         spec = RIG_INPUTS[rig_input]
-        h = h or {"m/s2": 1e-5, "deg": 1e-3, "degC": 1e-3}[spec.unit]
+        h = h or spec.step
         out = np.zeros(self.N)
         for j in runs:
             r = self.runs[j]
