@@ -48,8 +48,8 @@ from ..fitting.data import (RunCells, drop_duplicate_cells, fit_noise, make_run,
 from ..fitting.model import processing_effects
 from ..physics.rigs import INSTRUMENT_EFFECTS, specific_force
 from ._blas import single_thread
-from .fits import (GAP_ALPHA, NON_CATALOGUE, Fit, Fitter, folds, gap_rms, gap_test, heldout_gap, heldout_test,
-                   lr_test, project_out, shrink)
+from .fits import (GAP_ALPHA, NON_CATALOGUE, Fit, Fitter, folds, gap_rms, gap_test, heldout_gap, heldout_parts,
+                   heldout_test, lr_test, project_out, shrink)
 from .localise import localise, residual_si, shape, shape_tests, summary, where
 
 #: |cos| between projected signatures above which two effects are reported as aliases
@@ -307,12 +307,21 @@ class _Diagnosis:
         # id alone can be reused by a new Fit once the old one is collected, which returned
         # another model's held-out gap (an intermittent failure seen in CI)
         self._ho: dict[int, tuple[Fit, float | None]] = {}
+        # and the held-out predictions behind it, which the held-out test reads too
+        self._parts: dict[int, tuple[Fit, tuple]] = {}
 
     # ------------------------------------------------------------------ helpers
+    def parts(self, f: Fit) -> tuple:
+        """:func:`.fits.heldout_parts` of a fit, made once (cached like :meth:`ho`)."""
+        hit = self._parts.get(id(f))
+        if hit is None or hit[0] is not f:
+            hit = self._parts[id(f)] = (f, heldout_parts(f, self.fold))
+        return hit[1]
+
     def ho(self, f: Fit) -> float | None:
         hit = self._ho.get(id(f))
         if hit is None or hit[0] is not f:
-            hit = self._ho[id(f)] = (f, heldout_gap(f, self.fold))
+            hit = self._ho[id(f)] = (f, heldout_gap(f, self.fold, parts=self.parts(f)))
         return hit[1]
 
     def param_values(self, model, effect: str, value: float) -> dict[str, float]:
@@ -483,7 +492,9 @@ class _Diagnosis:
                 "selected": selected,
                 "shrink_in_sample": shrink(gap_rms(without), gap_rms(final)),
                 "shrink_heldout": shrink(self.ho(without), self.ho(final)),
-                **{f"heldout_{k}": v for k, v in heldout_test(without, final, self.fold).items() if k != "cells"},
+                **{f"heldout_{k}": v for k, v in heldout_test(
+                    without, final, self.fold, parts=(self.parts(without), self.parts(final))).items()
+                   if k != "cells"},
                 "observable": True, "observable_fraction": obs[c]["observable_fraction"],
                 "absorbed_fraction": obs[c]["absorbed_fraction"], "min_detectable": obs[c]["min_detectable"],
                 "aliases": []}

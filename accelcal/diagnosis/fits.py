@@ -529,7 +529,13 @@ def folds(cells: Sequence[RunCells]) -> np.ndarray:
     return np.concatenate([np.arange(r.ncell) % 2 for r in cells]) if cells else np.zeros(0, int)
 
 
-def heldout_gap(f: Fit, fold: np.ndarray, tol: float = 1e-6) -> float | None:
+def heldout_parts(f: Fit, fold: np.ndarray, tol: float = 1e-6) -> tuple:
+    """Both folds of the held-out prediction of a fit (:func:`_heldout_fold` for fold 0 and
+    1), computed once for :func:`heldout_gap` and :func:`heldout_test` alike."""
+    return tuple(_heldout_fold(f, fold, k, tol) for k in (0, 1))
+
+
+def heldout_gap(f: Fit, fold: np.ndarray, tol: float = 1e-6, parts: tuple | None = None) -> float | None:
     """rms excess over the noise of the residuals of each fold predicted by the model fitted
     to the other fold (linearised at the solution), with the exact expectation of a model
     that is right: 1 + j (J_T^T J_T)^+ j^T per held-out cell.  Cells the training fold does
@@ -545,6 +551,8 @@ def heldout_gap(f: Fit, fold: np.ndarray, tol: float = 1e-6) -> float | None:
     tol : float
         Relative distance of a held-out row from the training fold's row space (and norm of
         its inactive columns) up to which the cell counts as determined [1].
+    parts : tuple, optional
+        :func:`heldout_parts` of the fit, when already made.
 
     Returns
     -------
@@ -555,8 +563,7 @@ def heldout_gap(f: Fit, fold: np.ndarray, tol: float = 1e-6) -> float | None:
     """
     ss = ex = 0.0
     n = 0
-    for k in (0, 1):
-        got = _heldout_fold(f, fold, k, tol)
+    for got in (heldout_parts(f, fold, tol) if parts is None else parts):
         if got is None:
             continue
         _, zh, A = got
@@ -607,7 +614,8 @@ def _heldout_fold(f: Fit, fold: np.ndarray, k: int, tol: float):
     return ok, z[H][ok] - JH[ok] @ d, A[ok]
 
 
-def heldout_test(without: Fit, with_: Fit, fold: np.ndarray, tol: float = 1e-6) -> dict:
+def heldout_test(without: Fit, with_: Fit, fold: np.ndarray, tol: float = 1e-6,
+                 parts: tuple | None = None) -> dict:
     """Held-out test of what a change of model buys (issue 26: a naming rule that does not
     depend on the design's size).
 
@@ -628,6 +636,8 @@ def heldout_test(without: Fit, with_: Fit, fold: np.ndarray, tol: float = 1e-6) 
         :func:`folds`.
     tol : float
         As :func:`heldout_gap`.
+    parts : (tuple, tuple), optional
+        :func:`heldout_parts` of ``without`` and ``with_``, when already made.
 
     Returns
     -------
@@ -640,8 +650,8 @@ def heldout_test(without: Fit, with_: Fit, fold: np.ndarray, tol: float = 1e-6) 
     num = var = 0.0
     cells = 0
     excess = np.zeros(2)                # held-out sum of squares over its expectation: without, with
-    for k in (0, 1):
-        gb, ga = _heldout_fold(without, fold, k, tol), _heldout_fold(with_, fold, k, tol)
+    pb, pa = parts if parts is not None else (heldout_parts(without, fold, tol), heldout_parts(with_, fold, tol))
+    for k, gb, ga in zip((0, 1), pb, pa):
         if gb is None or ga is None:
             continue
         nh = int((fold == k).sum())
