@@ -78,10 +78,13 @@ ACTING: dict[str, tuple[str, ...]] = {
 #: the span of the parameters before it is aliased: its variance would be inflated 1e6-fold.
 ALIAS_TOL = 1e-3
 #: order in which parameters claim directions of the design (higher first)
-#: Kpo, Kp and Ko come after the mount angles: without a PA-OA mount (or a tumble turning PA
-#: and OA) they only enter linearly in one centripetal component, as an angle error does.
+#: The instrument's own terms come before the rig's effects (issue 26): in one mount plane
+#: Kp a_P is exactly a rotation of the mount (Kp = -dphi), Ko a_O a tilt of IA towards OA,
+#: and Kp is what the calibration exists to measure; a mount angle error or an IA tilt then
+#: claims only what the instrument's terms leave (a difference between mounts).  Kp comes
+#: before Kpo: with one vertical axis Kpo a_O a_P is Kp times g.
 PRIORITY = ("K1", "K0", "theta0", "K2", "bias", "radius", "K3", "Koq", "Kip", "Kio", "Kpp", "Koo",
-            "K0T", "K1T", "mass_centre_offset", "mount_angle_error", "Kpo", "effect", "Kp", "Ko")
+            "K0T", "K1T", "Kp", "Ko", "Kpo", "mass_centre_offset", "mount_angle_error", "effect")
 #: Coefficients that scale a centrifuge's output as its radius does: K1, and IA's cross
 #: terms with an axis along gravity (K1 (1 + Kio g) a_I with OA up; a tumble turning IA
 #: through OA in 24 positions separates Kio, one in 4 positions does not)
@@ -909,17 +912,30 @@ class CampaignModel:
         cols = list(cols)
         prm_of = [self.candidates[i] for i in cols]
         order = sorted(range(len(cols)), key=lambda c: (self.priority[cols[c]], cols[c]))
-        kept = self._scale_reference(J, cols, order, tol) if scale_rule else separable_columns(J, order, tol)
-        held: dict[str, str] = {}
-        kept_set = set(kept)
-        for c in range(len(cols)):
-            if c not in kept_set:
-                if not reasons:
-                    held[prm_of[c].name] = "aliased"
-                    continue
-                ali = [prm_of[k].name for k in self._aliased_with(J, c, kept)]
-                held[prm_of[c].name] = ("aliased with " + ", ".join(ali)) if ali else "not excited by these runs"
-        # weakly determined extension terms
+
+        def separable(weak):
+            o = [c for c in order if c not in weak]
+            return self._scale_reference(J, cols, o, tol) if scale_rule else separable_columns(J, o, tol)
+
+        def aliased(kept):
+            out: dict[str, str] = {}
+            kept_set = set(kept)
+            for c in range(len(cols)):
+                if c not in kept_set and c not in weak:
+                    if not reasons:
+                        out[prm_of[c].name] = "aliased"
+                        continue
+                    ali = [prm_of[k].name for k in self._aliased_with(J, c, kept)]
+                    out[prm_of[c].name] = ("aliased with " + ", ".join(ali)) if ali else "not excited by these runs"
+            return out
+
+        weak: set[int] = set()
+        kept = separable(weak)
+        held = aliased(kept)
+        # weakly determined extension terms; a direction one of them had claimed (Kp's
+        # rounding-level column in an IA pair, before the mass-centre offset) goes back to
+        # an effect of the model it had displaced (coefficients it displaced stay held: the
+        # runs did not determine them before it either)
         while True:
             sol = lstsq_svd(J[:, kept], np.zeros(J.shape[0]))
             u = np.sqrt(np.clip(np.diag(sol.cov), 0, None))
@@ -938,8 +954,16 @@ class CampaignModel:
             if worst is None:
                 break
             k = kept.pop(worst)
-            held[prm_of[k].name] = (f"weakly determined: design uncertainty {u[worst]:.2g} "
-                                    f"{prm_of[k].unit} exceeds its plausible size")
+            weak.add(k)
+            why = (f"weakly determined: design uncertainty {u[worst]:.2g} "
+                   f"{prm_of[k].unit} exceeds its plausible size")
+            stay = weak | {c for c in range(len(cols)) if c not in set(kept) and self.roles[cols[c]].kind != "effect"}
+            back = [c for c in separable(stay) if c not in set(kept) and prm_of[k].name in held.get(prm_of[c].name, "")]
+            if back:
+                kept = kept + back
+                for c in back:
+                    held.pop(prm_of[c].name, None)
+            held[prm_of[k].name] = why
         return held
 
     def _scale_reference(self, J: np.ndarray, cols: Sequence[int], order: list[int], tol: float) -> list[int]:

@@ -253,7 +253,8 @@ def combination_truth(key: tuple[str, str, str], truth: Mapping) -> tuple[float,
 def _joint_truth(sc, per_method: Mapping) -> dict[tuple[str, str, str], tuple[float, str]]:
     """Truth of the joint fit (method 'joint_ml', one row per campaign, rig_id the '+'-joined
     rigs): the instrument values; K0 and K1 at the tumble's temperature when there is a
-    tumble; theta0 as for tumble_lm (Ko aliases with it in one tumble); for a tilt-rotation
+    tumble; theta0 the head's initial misalignment (a row that absorbs Ko says so in its
+    name, :func:`combination_truth`); for a tilt-rotation
     campaign the apparent K0 and K0T of tilt_rotation_ls (the design aliases them)."""
     label = "*"           # the joint fit names each coefficient's rig (the one its information comes from)
     kinds = {t["kind"] for t in sc.tests}
@@ -273,9 +274,10 @@ def _joint_truth(sc, per_method: Mapping) -> dict[tuple[str, str, str], tuple[fl
         dT = float(tumble.get("temp_c", 23.0)) - T_REF_C
         out[("K0", "joint_ml", label)] = (c["K0"] + c["K0T"] * dT, "K0(T) at the tumble's temperature")
         out[("K1", "joint_ml", label)] = (c["K1"] * (1 + c["K1T"] * dT), "K1(T) at the tumble's temperature")
-        rig = str(tumble["rig_id"])
-        if ("theta0", "tumble_lm", rig) in per_method:
-            out[("theta0", "joint_ml", label)] = per_method[("theta0", "tumble_lm", rig)]
+        # the joint fit names what its theta0 row absorbs (theta0-Ko in one tumble, plain
+        # theta0 where a centrifuge's IA-OA mounts give Ko): the combination adds the rest
+        eff = {**sc.effects, **(tumble.get("effects") or {})}
+        out[("theta0", "joint_ml", label)] = (float(eff.get("initial_misalignment", 0.0)), "instrument value")
     if kinds == {"tilt_rotation"}:
         rig = str(sc.tests[0]["rig_id"])
         for k in ("K0", "K0T"):
