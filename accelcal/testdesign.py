@@ -351,8 +351,12 @@ def _ia_share(geo) -> float:
 
 # ----------------------------------------------------------------------------- targets
 
-def _model(cells: Sequence[RunCells], effects: Sequence[str]) -> CampaignModel:
-    return CampaignModel(cells, effects, include=INSTRUMENT_TERMS)
+def _model(cells: Sequence[RunCells], effects: Sequence[str], extra: Sequence[str] = ()) -> CampaignModel:
+    """The advice model: the effects, every instrument term; an effect the baseline leaves
+    out (``extra``) in the form the diagnosis looks for it, a mount angle error as one angle
+    shared by every mount (:meth:`accelcal.diagnosis.fits.Fitter.fit`)."""
+    return CampaignModel(cells, effects, include=INSTRUMENT_TERMS,
+                         shared=[e for e in ("mount_angle_error",) if e in extra])
 
 
 def resolve_targets(model: CampaignModel, targets: Sequence[str]) -> dict[str, list[int]]:
@@ -586,10 +590,10 @@ def _advise(cells, baseline, targets, separate, max_runs, candidates, top) -> Ad
     # the runs made, fitted as the advice model (noise refitted to its residuals, which is
     # the noise a fit of the augmented campaign will see); copies, the caller's are kept
     cells = [replace(c) for c in cells]
-    made = _model(cells, effects)
+    made = _model(cells, effects, extra)
     p_made = fit_selected(made).fit.values
     cand_cells = [candidate_cells(c, cells, len(cells) + k) for k, c in enumerate(cands)]
-    model = _model(cells + cand_cells, effects)
+    model = _model(cells + cand_cells, effects, extra)
     p = model.params.values()
     for i, prm in enumerate(model.params):
         k = made.params.index.get(prm.name)
@@ -688,7 +692,7 @@ def fitted_uncertainty(cells: Sequence[RunCells], baseline: Sequence[str], targe
     """
     targets = list(targets) + [x for ab in separate for x in ab if x not in targets]
     extra = [t for t in targets if t in EFFECTS and t not in baseline and t not in INSTRUMENT_EFFECTS]
-    model = _model(list(cells), list(baseline) + extra)
+    model = _model(list(cells), list(baseline) + extra, extra)
     tmap = resolve_targets(model, targets)
     mf = fit_selected(model)
     out: dict[str, float | None] = {}

@@ -257,6 +257,39 @@ def test_one_45_deg_run_names_kpp_among_cross_couplings_aliases():
     assert fix["runs"][0]["test"] == "centrifuge" and fix["runs"][0]["mount_angle_deg"] not in (0.0, 45.0, 180.0)
 
 
+@pytest.mark.parametrize("drop", ["drop-2026-11-20", "drop-2026-11-21"])
+@pytest.mark.parametrize("angles", [(0, 180, 45, 225), (0, 180, 90, 270), (0, 180, 45, 225, 90, 270)])
+def test_the_units_kp_is_not_reported_as_a_mount_angle_error(drop, angles):
+    """Issue 26: IEEE 836 mount sets of the sample drops (independent simulator; the unit's
+    Kp = 2.0e-5, Ko = -1.5e-5, no withheld effect) diagnosed with mount_angle_error left out
+    of the baseline.  Derived here: a mount turned by dphi moves the input along IA by
+    delta a_I = -a_P dphi and along PA by a_I dphi, so to first order the output changes by
+    K1 (-dphi) a_P, which is K1 Kp a_P with Kp = -dphi in every mount of one plane.  The
+    bare model keeps the unit's Kp (it is what the calibration measures): no verdict, and
+    mount_angle_error is named as Kp's alias, one radian of it moving Kp by -1."""
+    from accelcal.fitting.model import processing_effects
+    from accelcal.schemas.dropformat import read_run
+    from accelcal.schemas.dropscan import discover
+    ex = SHARED / "examples" / drop
+    if not ex.is_dir():
+        pytest.skip("../shared/examples not present")
+    runs = [r for r in (read_run(p) for p in discover(ex)) if r.meta["test"] == "centrifuge"
+            and r.meta.get("mount_plane") == "IA-PA" and float(r.meta["mount_angle_deg"]) in angles]
+    assert len(runs) == len(angles)
+    res = diagnose(runs, [e for e in processing_effects(["centrifuge"]) if e != "mount_angle_error"])
+    assert res["verdict"] is None and res["explained"] is True
+    row = next(e for e in res["ranking"] if e["effect"] == "mount_angle_error")
+    assert row["aliases"] == ["Kp"] and not row["significant"]
+    (kp,) = [a for a in row["absorbed_by"] if a["parameter"] == "Kp"]
+    assert kp["per_unit"] == pytest.approx(-1.0, abs=1e-3)
+    (ca,) = row["coefficient_aliases"]
+    assert abs(ca["value"] - 2.0e-5) < 4 * ca["std_uncertainty"]
+    assert row["alias_estimates"]["Kp"] == pytest.approx(-ca["value"], rel=1e-3)
+    text = text_report(res)
+    assert "cannot tell mount_angle_error from the unit's Kp" in text
+    assert max(len(line) for line in text.splitlines() if line.startswith("note: these runs")) <= 80
+
+
 def test_heldout_test_is_a_standard_normal_when_the_effect_buys_nothing():
     """Issue 26: the held-out statistic in the linear model, derived here: with the effect
     absent it is N(0, 1) whatever the number of cells; with it present its mean grows as the

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import sys
+import textwrap
 
 import numpy as np
 
@@ -36,8 +37,8 @@ def _diagnose(args) -> int:
     else:
         print(text_report(res))
         for f in fixes:
-            print(f"to {f['to']}: add {f['run']} ({f['minutes']:.0f} min)" if f.get("run")
-                  else f"to {f['to']}: {f['note']}")
+            print(textwrap.fill(f"to {f['to']}: add {f['run']} ({f['minutes']:.0f} min)" if f.get("run")
+                                else f"to {f['to']}: {f['note']}", 80, subsequent_indent="  "))
     return 0
 
 
@@ -60,6 +61,7 @@ def next_runs(runs, res) -> list[dict]:
         [min], ``predicted`` (standard uncertainties [SI]); or ``note`` when no single run
         does.
     """
+    from ..effects import coefficient_spec
     from ..testdesign import DesignError, advise
     from .core import prepare_cells
     asks = [(f"see {u['effect']}", [u["effect"]], []) for u in res.get("unobservable") or []]
@@ -80,7 +82,11 @@ def next_runs(runs, res) -> list[dict]:
             out.append({"to": what, "note": f"no advice: {exc}"})
             continue
         if not adv.proposals:
-            out.append({"to": what, "note": "no single run these rigs can make does it"})
+            other = pairs[0][1] if pairs else None
+            gravity = (other is not None and coefficient_spec(other) is not None
+                       and not any(r.meta.get("test") == "tumble" for r in runs))
+            out.append({"to": what, "note": "no single run these rigs can make does it" + (
+                f"; a tumble in the gravity field measures the unit's {other} on its own" if gravity else "")})
             continue
         p = adv.proposals[0]
         out.append({"to": what, "run": " + ".join(c.label for c in p.runs),

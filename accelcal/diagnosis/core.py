@@ -45,7 +45,7 @@ from ..effects import EFFECTS
 from ..fitting.core import lstsq_min_norm
 from ..fitting.data import (RunCells, drop_duplicate_cells, fit_noise, make_run, pool_missing_noise,
                             reject_spikes)
-from ..fitting.model import processing_effects
+from ..fitting.model import BASE, processing_effects
 from ..physics.rigs import INSTRUMENT_EFFECTS, specific_force
 from ._blas import single_thread
 from .fits import (GAP_ALPHA, NON_CATALOGUE, Fit, Fitter, folds, gap_rms, gap_test, heldout_gap, heldout_parts,
@@ -54,6 +54,8 @@ from .localise import localise, residual_si, shape, shape_tests, summary, where
 
 #: |cos| between projected signatures above which two effects are reported as aliases
 ALIAS_COS = 0.95
+#: share of an absorbed signature an instrument coefficient must take to be named its alias
+ALIAS_SHARE = 0.25
 #: observable fraction |P s| / |s| below which the bare model absorbs a candidate
 UNOBSERVABLE_FRACTION = 1e-3
 #: held-out shrink that names an effect (it removes half the gap on cells it was not fitted to)
@@ -379,7 +381,8 @@ class _Diagnosis:
             fr = float(np.linalg.norm(sp) / ns)
             o["observable_fraction"] = fr
             o["absorbed_fraction"] = float(max(0.0, 1.0 - fr * fr))
-            o["projected"] = sp
+            if fr >= UNOBSERVABLE_FRACTION:   # what is left of an absorbed one is rounding
+                o["projected"] = sp
             if fr < UNOBSERVABLE_FRACTION:
                 ab = self.absorbed_by(bare, s)
                 o["absorbed_by"] = ab
@@ -401,13 +404,28 @@ class _Diagnosis:
         return obs
 
     def absorbed_by(self, f: Fit, s: np.ndarray) -> list[dict]:
-        """The bare model's parameters that take up a signature, by their share of it."""
+        """The bare model's parameters that take up a signature, by their share of it.
+
+        Parameters
+        ----------
+        f : Fit
+            The bare model's fit.
+        s : (N,) ndarray
+            Whitened signature of an effect [1 per effect unit].
+
+        Returns
+        -------
+        list of dict
+            Up to six rows, largest share first: ``parameter``, ``share`` of |s|^2 [1] and
+            ``per_unit``, how far one effect unit moves that parameter
+            [parameter unit / effect unit].
+        """
         idx = np.flatnonzero(f.free)
         J = f.J[:, idx]
         x = lstsq_min_norm(J / np.linalg.norm(J, axis=0), s, rcond=1e-10) / np.linalg.norm(J, axis=0)
         n2 = float(s @ s)
-        out = [{"parameter": f.model.params[i].name, "share": float((J[:, k] * x[k]) @ s / n2)}
-               for k, i in enumerate(idx)]
+        out = [{"parameter": f.model.params[i].name, "share": float((J[:, k] * x[k]) @ s / n2),
+                "per_unit": float(x[k])} for k, i in enumerate(idx)]
         out.sort(key=lambda a: -abs(a["share"]))
         return [a for a in out if abs(a["share"]) > 1e-3][:6]
 
@@ -539,6 +557,7 @@ class _Diagnosis:
                  "min_detectable": o["min_detectable"], "aliases": [], "note": o.get("note", "")}
             if "absorbed_by" in o:
                 e["absorbed_by"] = o["absorbed_by"]
+                self.instrument_aliases(e, bare)
             ranking.append(e)
             unobservable.append({k: e[k] for k in ("effect", "observable_fraction", "absorbed_fraction", "note")}
                                 | ({"absorbed_by": o["absorbed_by"]} if "absorbed_by" in o else {}))
@@ -562,6 +581,35 @@ class _Diagnosis:
             ranking.sort(key=lambda e: e["effect"] != verdict)
             self.alias_estimates(ranking[0], final, sel, obs)
         return self.report(bare, fits[()], final, sel, steps, ranking, unobservable, verdict)
+
+    def instrument_aliases(self, e: dict, bare: Fit) -> None:
+        """An effect the bare model's instrument coefficients take up whole (a mount angle
+        error in one mount plane is the unit's Kp, Kp = -dphi; a rate scale error on a
+        centrifuge without a gravity reference is K1): those coefficients are its
+        ``aliases``, and ``alias_estimates`` says what the effect would be were the whole
+        of each coefficient's estimate the effect.  The bare model keeps the coefficient:
+        the calibration exists to measure it (issue 26).
+
+        Parameters
+        ----------
+        e : dict
+            Ranking row of an unobservable effect with ``absorbed_by``; changed in place.
+        bare : Fit
+            The bare model's fit.
+        """
+        m = bare.model
+        for a in e["absorbed_by"]:
+            k = a["parameter"]
+            i = m.params.index.get(k)
+            if i is None or m.roles[i].kind != "coef" or abs(a["share"]) < ALIAS_SHARE or not a["per_unit"]:
+                continue
+            e["aliases"].append(k)
+            if m.roles[i].key not in BASE:   # a cross term's whole estimate could be the effect; K1's not
+                e.setdefault("alias_estimates", {})[k] = bare.value(k) / a["per_unit"]
+            e.setdefault("coefficient_aliases", []).append(
+                {"coefficient": k, "value": bare.value(k), "std_uncertainty": bare.std(k),
+                 "note": f"instrument coefficient the bare model determines; these runs cannot tell "
+                         f"{e['effect']} from it, and the calibration keeps {k}"})
 
     def alias_estimates(self, e: dict, final: Fit, sel: list[str], obs: dict) -> None:
         """What each alias of the verdict would be if it were the cause: the final model with

@@ -25,10 +25,12 @@ from ..fitting.model import ALIAS_TOL, PRIORITY, CampaignModel
 from ..fitting.procedure import ModelFit, fit_model
 from ..physics.rigs import INSTRUMENT_EFFECTS
 
-#: Instrument coefficients that are not catalogue effects.  A candidate effect they would
-#: absorb claims its direction first: the bare model holds them and the diagnosis names
-#: them as the effect's coefficient aliases (theta0 and Ko in one tumble; Kip and Kpp with
-#: only 0 and 45 deg mounts).
+#: Instrument coefficients that are not catalogue effects.  A candidate effect aliased with
+#: one claims the direction where the joint fit's order puts it first
+#: (:func:`effect_priority`): the bare model holds the coefficient and the diagnosis names it
+#: as the effect's coefficient alias (Kip and Kpp with only 0 and 45 deg mounts); where the
+#: coefficient comes first (Kp before a mount angle), the bare model keeps it and the effect
+#: is reported as absorbed by it.
 NON_CATALOGUE = ("Kp", "Ko", "Kio", "Kpo", "Kpp", "Koo")
 #: Catalogue instrument terms a test is designed to measure: part of the bare model where
 #: that test is present (the tilt-rotation test measures K0T and K1T, paper 001).
@@ -467,7 +469,11 @@ class Fitter:
         for e, s in sigs.items():
             if not np.any(s):
                 continue
-            kept = set(separable_columns(np.column_stack([J, s]), base + [n] + ncs, ALIAS_TOL))
+            # the candidate claims at its own place in the joint fit's order: before Kpp as
+            # cross_coupling (Kip), after Kp and Ko as a mount angle or a tilt (issue 26)
+            pe = effect_priority(e)
+            order = base + [c for c in ncs if prio(c)[0] <= pe] + [n] + [c for c in ncs if prio(c)[0] > pe]
+            kept = set(separable_columns(np.column_stack([J, s]), order, ALIAS_TOL))
             if n not in kept:
                 continue
             for c in ncs:
@@ -475,6 +481,26 @@ class Fitter:
                     out.setdefault(m.params[free[c]].name, []).append(e)
         return {k: "aliased with candidate effect " + ", ".join(v) + " (the effect claims the direction)"
                 for k, v in out.items()}
+
+
+def effect_priority(effect: str) -> int:
+    """Place of a candidate effect in the joint fit's order of claims
+    (:data:`accelcal.fitting.model.PRIORITY`): an instrument-term effect at its
+    coefficient's place (``cross_coupling`` at Kip's), ``initial_misalignment`` at theta0's,
+    the mass-centre offset and mount angle at theirs, every other effect last.
+
+    Parameters
+    ----------
+    effect : str
+        effects.md id.
+
+    Returns
+    -------
+    int
+        Index into :data:`PRIORITY` [1].
+    """
+    key = INSTRUMENT_EFFECTS.get(effect, "theta0" if effect == "initial_misalignment" else effect)
+    return PRIORITY.index(key if key in PRIORITY else "effect")
 
 
 # ----------------------------------------------------------------------------- statistics

@@ -5,9 +5,12 @@ import base64
 import html
 import io
 import json
+import textwrap
 from pathlib import Path
 
 import numpy as np
+
+from ..rounding import format_sig_sci, round_gum_sci
 
 
 def _f(v, fmt="{:.4g}"):
@@ -68,6 +71,15 @@ def text_report(res: dict) -> str:
             L.append(f"  {u['effect']}: {u['note']}")
     for e in res["ranking"]:
         for ca in e.get("coefficient_aliases", []):
+            if "value" in ca:                # the bare model keeps the unit's coefficient
+                k = ca["coefficient"]
+                v, u = round_gum_sci(ca["value"], ca["std_uncertainty"])
+                alt = (e.get("alias_estimates") or {}).get(k)
+                L.extend(textwrap.wrap(
+                    f"note: these runs cannot tell {e['effect']} from the unit's {k}; the calibration keeps "
+                    f"{k} = {v} ± {u}" + (f" (were it all {e['effect']}: {format_sig_sci(alt)} {e['unit']})"
+                                         if alt is not None else ""), 80, subsequent_indent="  "))
+                continue
             L.append(f"note: {e['effect']} is indistinguishable here from the coefficient {ca['coefficient']} "
                      f"({ca['note']})")
     L.append("")
