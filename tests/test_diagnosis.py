@@ -290,6 +290,33 @@ def test_the_units_kp_is_not_reported_as_a_mount_angle_error(drop, angles):
     assert max(len(line) for line in text.splitlines() if line.startswith("note: these runs")) <= 80
 
 
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_ar1_output_noise_is_not_a_gap(seed):
+    """Issue 26: the sample drop's IA pair (independent simulator) with AR(1) output noise
+    added here (lag-1 correlation 0.9 between consecutive readings, 3e-4 mA, ten times the
+    drop's largest within-cell scatter; a plain loop, not our simulator): a cell mean's
+    noise is read from the lag-1 correlation without the short cells' bias, at the upper
+    end of its interval, so clean data stay clean (before: a gap in 6 of 6 seeds, F 4-6)."""
+    from accelcal.fitting.model import processing_effects
+    ex = SHARED / "examples" / "drop-2026-11-20"
+    if not ex.is_dir():
+        pytest.skip("../shared/examples not present")
+    runs = [r for r in read_paths([ex]) if r.meta["test"] == "centrifuge"
+            and r.meta.get("mount_plane") == "IA-PA" and float(r.meta["mount_angle_deg"]) in (0, 180)]
+    rng = np.random.default_rng(seed)
+    rho, size = 0.9, 3e-4                           # output_unit (mA)
+    from dataclasses import replace
+    noisy = []
+    for r in runs:
+        e = np.empty(len(r.data))
+        e[0] = rng.standard_normal()
+        for t in range(1, e.size):
+            e[t] = rho * e[t - 1] + np.sqrt(1 - rho * rho) * rng.standard_normal()
+        noisy.append(replace(r, data=r.data.assign(output=r.data["output"] + size * e)))
+    res = diagnose(noisy, processing_effects(["centrifuge"]))
+    assert res["verdict"] is None and res["explained"] is True, (res["verdict"], res["unexplained"])
+
+
 def test_heldout_test_is_a_standard_normal_when_the_effect_buys_nothing():
     """Issue 26: the held-out statistic in the linear model, derived here: with the effect
     absent it is N(0, 1) whatever the number of cells; with it present its mean grows as the

@@ -205,7 +205,7 @@ def prepare_cells(runs) -> tuple[list[RunCells], list[str]]:
         if reject_spikes(c):
             notes += [n for n in c.notes if "spikes" in n]
         angle_level(c)
-        fit_noise(c, use_level=noise_grows(c))
+        fit_noise(c, use_level=noise_grows(c), cautious=True)
     pool_missing_noise(cells)
     return cells, notes
 

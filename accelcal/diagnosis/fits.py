@@ -385,7 +385,8 @@ class Fitter:
         for k in held:                           # at their held value, whatever a start said
             p[m.params.index[k]] = m.params[k].value
         mf = fit_model(m, p, held, noise_passes=noise_passes, reselect=False, bounded=False,
-                       noise_level="spread", max_iter=max_iter, alpha=GAP_ALPHA, effects=effects)
+                       noise_level="spread", max_iter=max_iter, alpha=GAP_ALPHA, effects=effects,
+                       cautious=True)
         return Fit(**vars(mf))
 
     @staticmethod

@@ -49,6 +49,10 @@ SPIKE_SIGMAS = 7.0
 RHO_BOUNDS = (-0.5, 0.95)
 #: |rho| sqrt(pairs) below which the lag-1 autocorrelation is not distinguished from 0
 RHO_SIGNIFICANCE = 3.0
+#: standard errors of the lag-1 ratio to the upper end of rho's interval: the lack-of-fit
+#: test calls a model inadequate only if it is at that end too (a rho read low from short
+#: cells would put a cell mean's noise too low and call clean data inadequate)
+RHO_INTERVAL_Z = 2.0
 
 
 @dataclass
@@ -63,6 +67,8 @@ class NoiseModel:
         Rate-dependent part [output_unit^2 / (m/s^2)^2], x the centripetal level [m/s^2].
     rho : float
         Lag-1 autocorrelation of the readings inside a cell [1].
+    rho_hi : float
+        Upper end of rho's sampling interval [1] (:meth:`RunCells.cell_scatter`).
     dof : int
         Pure-error degrees of freedom it rests on [1].
     source : str
@@ -72,6 +78,7 @@ class NoiseModel:
     a: float
     b: float = 0.0
     rho: float = 0.0
+    rho_hi: float = 0.0
     dof: int = 0
     source: str = "outputs"
 
@@ -143,6 +150,114 @@ def ar1_variance_factor(n: np.ndarray, rho: float) -> np.ndarray:
         k = np.arange(1, int(val))
         out[n == val] = 1.0 - 2.0 / (val * (val - 1.0)) * np.sum((val - k) * rho ** k)
     return np.maximum(out, 0.05)
+
+
+def ar1_scatter_dof(n: np.ndarray, rho: float) -> np.ndarray:
+    """Degrees of freedom of the within-cell sum of squares of n AR(1) readings
+    (Satterthwaite: Q = e^T C e with C = I - 11^T/n and e ~ N(0, sigma^2 R), so
+    E[Q] = sigma^2 tr(CR), Var[Q] = 2 sigma^4 tr((CR)^2) and nu = tr(CR)^2 / tr((CR)^2)).
+    Correlated readings carry less information on the variance than n - 1 independent
+    ones: at rho = 0.9, 8 readings give about 2.8 dof, not 7.
+
+    Parameters
+    ----------
+    n : array_like
+        Readings per cell [1].
+    rho : float
+        Lag-1 autocorrelation [1].
+
+    Returns
+    -------
+    ndarray
+        nu [1], shape of n: n - 1 where rho = 0; 0 for n < 2.
+    """
+    n = np.asarray(n, float)
+    out = np.maximum(n - 1.0, 0.0)
+    if rho == 0.0:
+        return out
+    for val in np.unique(n):
+        m = int(val)
+        if m < 2:
+            continue
+        if m > 400:                       # the long-cell limit, (n - 1)(1 - rho^2)/(1 + rho^2)
+            out[n == val] = (m - 1) * (1 - rho * rho) / (1 + rho * rho)
+            continue
+        i = np.arange(m)
+        CR = rho ** np.abs(i[:, None] - i[None, :])
+        CR = CR - CR.mean(axis=0, keepdims=True)
+        out[n == val] = np.trace(CR) ** 2 / float(np.sum(CR * CR.T))
+    return out
+
+
+def ar1_deviation_lag1(n: int, rho: float) -> tuple[float, float]:
+    """Expected lag-1 sum and sum of squares of the deviations of n AR(1) readings from
+    their own mean, per unit reading variance (derived in the body; no short-cell
+    approximation).
+
+    With R_ij = rho^|i-j|, row means m_t = (1/n) sum_j R_tj and M = 1^T R 1 / n^2, the
+    deviation d_t = e_t - mean(e) has Cov(d_t, d_s) = R_ts - m_t - m_s + M, so
+    E[sum_t d_t^2] = n - n M and E[sum_t d_t d_{t+1}] = (n-1) rho - (n+1) M + 2 m_1
+    (sum_t m_t = n M, m_1 = m_n).  At rho = 0 their ratio is -1/n, the +1/n correction.
+
+    Parameters
+    ----------
+    n : int
+        Readings in the cell [1], at least 2.
+    rho : float
+        Lag-1 autocorrelation of the readings [1].
+
+    Returns
+    -------
+    (float, float)
+        E[sum d_t d_{t+1}] / sigma^2 and E[sum d_t^2] / sigma^2 [1].
+    """
+    p = rho ** np.arange(n)
+    k = np.arange(1, n)
+    M = (n + 2.0 * float(np.sum((n - k) * p[1:]))) / (n * n)
+    m1 = float(np.sum(p)) / n
+    return (n - 1) * rho - (n + 1) * M + 2.0 * m1, n - n * M
+
+
+def ar1_from_lag1(r: float, n: np.ndarray, weight: np.ndarray) -> float:
+    """The AR(1) correlation whose expected pooled lag-1 ratio of within-cell deviations is
+    the observed one: solves sum_c w_c g(n_c, rho) = r, g = E[lag-1 sum] / E[sum of
+    squares] (:func:`ar1_deviation_lag1`), by bisection within :data:`RHO_BOUNDS`.  Short
+    cells bias the plain ratio low (-(1 + 3 rho)/n and more: at rho = 0.9 in 10-reading
+    cells it reads about 0.5); this does not.
+
+    Parameters
+    ----------
+    r : float
+        Pooled sum d_t d_{t+1} over pooled sum d_t^2 [1].
+    n : (ncell,) ndarray
+        Readings per cell [1] (cells of fewer than 3 readings carry no information on rho
+        and are left out).
+    weight : (ncell,) ndarray
+        Each cell's within-cell sum of squares (its share of the pooled denominator) [any].
+
+    Returns
+    -------
+    float
+        rho [1].
+    """
+    ok = (n >= 3) & (weight > 0)
+    if not np.any(ok):
+        return 0.0
+    vals, inv = np.unique(n[ok].astype(int), return_inverse=True)
+    w = np.bincount(inv, weights=weight[ok]) / float(np.sum(weight[ok]))
+
+    def h(rho):
+        return sum(wi * (lambda a, b: a / b)(*ar1_deviation_lag1(int(v), rho)) for v, wi in zip(vals, w)) - r
+
+    lo, hi = RHO_BOUNDS
+    if h(lo) >= 0:
+        return lo
+    if h(hi) <= 0:
+        return hi
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if h(mid) < 0 else (lo, mid)
+    return 0.5 * (lo + hi)
 
 
 @dataclass
@@ -256,7 +371,7 @@ class RunCells:
         return np.bincount(self.cid[keep], weights=np.asarray(rows, float)[keep],
                            minlength=self.ncell) / self.n
 
-    def cell_scatter(self, rows: np.ndarray) -> tuple[np.ndarray, float]:
+    def cell_scatter(self, rows: np.ndarray) -> tuple[np.ndarray, float, float]:
         """Within-cell sample variance of a per-reading quantity and the pooled lag-1
         autocorrelation of its deviations inside cells.
 
@@ -270,9 +385,12 @@ class RunCells:
         s2 : (ncell,) ndarray
             Sample variance in each cell [unit of rows ^2]; nan for 1-reading cells.
         rho : float
-            Lag-1 autocorrelation of consecutive readings of one cell [1], corrected by
-            +1/n for the deviations' own correlation, 0 when within its sampling noise
-            (:data:`RHO_SIGNIFICANCE`), clipped to :data:`RHO_BOUNDS`.
+            Lag-1 autocorrelation of consecutive readings of one cell [1], 0 when within
+            its sampling noise (:data:`RHO_SIGNIFICANCE`, judged on the ratio corrected by
+            +1/n); else the AR(1) correlation whose expected ratio in cells of these sizes
+            is the one observed (:func:`ar1_from_lag1`), clipped to :data:`RHO_BOUNDS`.
+        rho_hi : float
+            Upper end of rho's sampling interval (:data:`RHO_INTERVAL_Z`) [1]; 0 with rho.
         """
         keep = self.cid >= 0
         r = np.asarray(rows, float)
@@ -283,17 +401,20 @@ class RunCells:
         same = keep[1:] & keep[:-1] & (self.cid[1:] == self.cid[:-1])
         num = float(np.sum(dev[1:][same] * dev[:-1][same]))
         den = float(np.sum(dev[keep] ** 2))
-        rho = num / den if den > 0 else 0.0
+        r = num / den if den > 0 else 0.0
         # the deviations from a cell mean are negatively correlated by about -1/n
         nbar = float(np.mean(self.n[self.n >= 2])) if np.any(self.n >= 2) else 1.0
-        if nbar > 1:
-            rho = rho + 1.0 / nbar
+        rho = r + 1.0 / nbar if nbar > 1 else r
         # an autocorrelation within its sampling noise (sd ~ 1/sqrt(pairs)) is taken as 0:
         # a noisy rho would scale the weights of white-noise data by chance
         pairs = int(np.sum(same))
         if pairs == 0 or abs(rho) * math.sqrt(pairs) < RHO_SIGNIFICANCE:
-            rho = 0.0
-        return s2, float(np.clip(rho, *RHO_BOUNDS))
+            return s2, 0.0, 0.0
+        # one that is there is read without the short cells' bias (issue 26), and with the
+        # upper end of its sampling interval (Bartlett: var r ~ (1 - rho^2) / pairs)
+        rho = float(np.clip(ar1_from_lag1(r, self.n, ss), *RHO_BOUNDS))
+        r_hi = r + RHO_INTERVAL_Z * math.sqrt(max(1.0 - rho * rho, 0.0) / pairs)
+        return s2, rho, float(np.clip(max(ar1_from_lag1(r_hi, self.n, ss), rho), *RHO_BOUNDS))
 
 
 # ----------------------------------------------------------------------------- building
@@ -664,8 +785,8 @@ def _restrict(run: RunCells, keep: np.ndarray) -> None:
 
 # ----------------------------------------------------------------------------- noise
 
-def fit_noise(run: RunCells, residual_rows: np.ndarray | None = None, *, use_level: bool | None = None
-              ) -> NoiseModel:
+def fit_noise(run: RunCells, residual_rows: np.ndarray | None = None, *, use_level: bool | None = None,
+              cautious: bool = False) -> NoiseModel:
     """Fit the run's :class:`NoiseModel` to the within-cell scatter of ``residual_rows``
     (output minus model per reading; default the outputs themselves) and set
     ``run.var_mean``.
@@ -683,6 +804,10 @@ def fit_noise(run: RunCells, residual_rows: np.ndarray | None = None, *, use_lev
     use_level : bool, optional
         Fit the b x^2 term (default: for centrifuge runs whose level x varies, as their
         noise grows with rate).
+    cautious : bool
+        Take rho at the upper end of its sampling interval (``rho_hi``) for everything: a
+        cell mean's noise is then not put too low where short cells read rho low (the
+        diagnosis, which must not call coloured noise a gap; issue 26).
 
     Returns
     -------
@@ -691,7 +816,9 @@ def fit_noise(run: RunCells, residual_rows: np.ndarray | None = None, *, use_lev
         'none' when no cell has two readings.
     """
     rows = run.y_rows if residual_rows is None else residual_rows
-    s2, rho = run.cell_scatter(rows)
+    s2, rho, rho_hi = run.cell_scatter(rows)
+    if cautious:
+        rho = rho_hi
     ok = (run.n >= 2) & np.isfinite(s2)
     if use_level is None:
         use_level = isinstance(run.geometry, CentrifugeMount) and float(np.ptp(run.x)) > 0
@@ -704,6 +831,7 @@ def fit_noise(run: RunCells, residual_rows: np.ndarray | None = None, *, use_lev
         X = run.x[ok]
         model = _fit_variance_function(S, nu, X, use_level)
         model.rho = rho
+        model.rho_hi = rho_hi
         model.dof = int(nu.sum())
         model.source = "outputs" if residual_rows is None else "residuals"
     run.noise = model
@@ -778,7 +906,7 @@ def pooled_noise(runs: Sequence[RunCells]) -> NoiseModel | None:
         return None
     w = np.array([max(m.dof, 1) for m in ok], float)
     avg = lambda v: float(np.sum(w * np.array(v, float)) / np.sum(w))  # noqa: E731
-    return NoiseModel(a=avg([m.a for m in ok]), b=avg([m.b for m in ok]), rho=avg([m.rho for m in ok]),
+    return NoiseModel(a=avg([m.a for m in ok]), b=avg([m.b for m in ok]), rho=avg([m.rho for m in ok]), rho_hi=avg([m.rho_hi for m in ok]),
                       dof=int(w.sum()), source="pooled")
 
 

@@ -27,7 +27,7 @@ import numpy as np
 
 from .core import ALPHA, FitResult, finish_fit, gauss_newton, lack_of_fit
 from .data import fit_noise, pool_missing_noise
-from .model import CampaignModel, pure_error
+from .model import CampaignModel, lack_of_fit_at_rho_hi, pure_error
 
 
 @dataclass
@@ -97,7 +97,7 @@ class ModelFit:
         return self.fit.std(name)
 
 
-def refit_noise(model: CampaignModel, p: np.ndarray, noise_level: str = "design") -> None:
+def refit_noise(model: CampaignModel, p: np.ndarray, noise_level: str = "design", cautious: bool = False) -> None:
     """Refit every run's noise model to the residual readings of the model at ``p`` and
     whiten the model again (:func:`accelcal.fitting.data.fit_noise`).
 
@@ -110,10 +110,12 @@ def refit_noise(model: CampaignModel, p: np.ndarray, noise_level: str = "design"
         Runs that fit the rate-proportional term b x^2: ``'design'`` leaves the choice to
         :func:`~accelcal.fitting.data.fit_noise` (centrifuge mounts whose rate varies);
         ``'spread'``: every run whose regressor x varies.
+    cautious : bool
+        AR(1) correlation at the upper end of its interval (:func:`fit_noise`).
     """
     for j, r in enumerate(model.runs):
         level = None if noise_level == "design" else bool(r.x.size and np.ptp(r.x) > 0)
-        fit_noise(r, r.y_rows - model.predict_rows(p, j), use_level=level)
+        fit_noise(r, r.y_rows - model.predict_rows(p, j), use_level=level, cautious=cautious)
     pool_missing_noise(model.runs)
     model.refresh_noise()
 
@@ -122,7 +124,7 @@ def fit_model(model: CampaignModel, p: np.ndarray, held: dict[str, str], *,
               keep: Sequence[str] = (), noise_passes: int = 1, reselect: bool = True,
               bounded: bool = True, noise_level: str = "design", max_iter: int = 40,
               alpha: float = ALPHA, effects: Sequence[str] = (),
-              hold: Mapping[str, str] | None = None) -> ModelFit:
+              hold: Mapping[str, str] | None = None, cautious: bool = False) -> ModelFit:
     """Fit a campaign model whose holds are decided (:meth:`CampaignModel.select`).
 
     Parameters
@@ -154,6 +156,9 @@ def fit_model(model: CampaignModel, p: np.ndarray, held: dict[str, str], *,
     hold : mapping of str to str, optional
         Parameters held whatever the design, at the re-selection too
         (:meth:`CampaignModel.select`).
+    cautious : bool
+        Noise refits take each run's AR(1) correlation at the upper end of its interval
+        (:func:`~accelcal.fitting.data.fit_noise`).
 
     Returns
     -------
@@ -166,7 +171,7 @@ def fit_model(model: CampaignModel, p: np.ndarray, held: dict[str, str], *,
     gn = gauss_newton(model.residual, model.jacobian, p, free, max_iter=max_iter, lower=lower)
     its = gn.iterations
     for k in range(noise_passes):
-        refit_noise(model, gn.p, noise_level)
+        refit_noise(model, gn.p, noise_level, cautious)
         if k == 0 and reselect:
             held2 = model.select(gn.p, keep=keep, hold=hold)
             if set(held2) != set(held):
@@ -178,6 +183,10 @@ def fit_model(model: CampaignModel, p: np.ndarray, held: dict[str, str], *,
     chi_pe, dof_pe = pure_error(model, gn.p)
     rank = finish_fit(model.params, gn).rank
     lof = lack_of_fit(gn.chi2, model.N - rank, chi_pe if dof_pe > 0 else None, dof_pe, alpha=alpha)
+    # coloured noise: inadequate only if inadequate at the upper end of rho's interval too
+    hi = lack_of_fit_at_rho_hi(model, gn.p, gn.z, model.N - rank, alpha) if lof.p_value is not None else None
+    if hi is not None and hi.p_value is not None and hi.p_value > lof.p_value:
+        lof = hi
     fit = finish_fit(model.params, gn, lof)
     active = model.params.free() & (np.linalg.norm(gn.J, axis=0) > 0)
     return ModelFit(model, fit, dict(held), its, {"chi2": chi_pe, "dof": dof_pe}, active, list(effects))

@@ -10,7 +10,9 @@ Noise model (per run, from the run's own random stream):
 - temperature: temp_c = plan temperature + N(0, temp_noise_c); the output is computed from the
   temp_c that is written (the instrument's own sensor), as the physics does;
 - bias random walk: K1(T) * b(t), b a Wiener process with b(t0) = 0, sigma bias_walk_m_s2_rt_s;
-- white noise: K1(T) * N(0, white_m_s2) per row;
+- white noise: K1(T) * N(0, white_m_s2) per row; with white_ar1_rho, AR(1) between
+  consecutive rows of one run (lag-1 correlation rho, the same marginal sd: a DAQ's
+  anti-alias filter or a slowly wandering environment);
 - centripetal noise: K1(T) * N(0, centripetal_rel * omega_z^2 R) per row of a centrifuge or
   sine run, in every mount (what the lab's centrifuge data show: std/a_c ~ 2e-6 at 0, 45 and
   90 deg alike);
@@ -33,12 +35,14 @@ K1(T) * bias_periodic_m_s2 * sin(2 pi t / bias_periodic_period_s).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any
 
 import numpy as np
 import pandas as pd
+from scipy.signal import lfilter
 
 from ..constants import OMEGA_EARTH, T_REF_C
 from ..effects import EFFECTS
@@ -129,7 +133,12 @@ def _finish(kind, meta, phys, coeffs, effects, noise, rng, sc_truth, level=None,
         steps = rng.standard_normal(n - 1) * walk * np.sqrt(np.maximum(np.diff(t), 0.0))
         E = E + K1 * np.concatenate([[0.0], np.cumsum(steps)])
     if noise["white_m_s2"] > 0:
-        E = E + K1 * noise["white_m_s2"] * rng.standard_normal(n)
+        w = rng.standard_normal(n)
+        rho = noise.get("white_ar1_rho", 0.0)
+        if rho:                         # AR(1) between consecutive rows, the same marginal sd
+            w[1:] *= math.sqrt(1.0 - rho * rho)
+            w = lfilter([1.0], [1.0, -rho], w)
+        E = E + K1 * noise["white_m_s2"] * w
     if level is not None and noise.get("centripetal_rel", 0.0) > 0:
         E = E + K1 * noise["centripetal_rel"] * np.abs(level) * rng.standard_normal(n)
     hyst = noise.get("sweep_hysteresis_rel", 0.0)

@@ -32,6 +32,7 @@ key says otherwise (``*_deg``, ``*_c``).  Layout::
     [noise]                         # defaults for every test (a test's [test.noise] overrides)
     white_m_s2 = 2.0e-6             # white noise of one reading (one row), in m/s^2 of input;
                                     # the simulator multiplies it by K1 (output_unit)
+    white_ar1_rho = 0.0             # lag-1 correlation of that noise between consecutive rows (AR(1))
     rate_jitter_rel = 2.5e-6        # delta ~ N(0, sigma): true omega^2 = logged omega^2 (1 + delta),
                                     # one draw per reading (centrifuge) or per sample (sine)
     rate_log_rel = 1.5e-7           # logged rate = level rate or sine drive times (1 + nu), nu ~ N(0, sigma)
@@ -118,6 +119,7 @@ SCENARIO_DIR = Path(__file__).with_name("scenarios")
 
 NOISE_DEFAULTS: dict[str, float] = {
     "white_m_s2": 0.0,
+    "white_ar1_rho": 0.0,
     "rate_jitter_rel": 0.0,
     "rate_log_rel": 0.0,
     "rate_log_abs": 0.0,
