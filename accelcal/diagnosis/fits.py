@@ -384,7 +384,11 @@ class Fitter:
         m.params = ParameterSet(replace(prm, vary=prm.name not in held) for prm in m.params)
         for k in held:                           # at their held value, whatever a start said
             p[m.params.index[k]] = m.params[k].value
-        mf = fit_model(m, p, held, noise_passes=noise_passes, reselect=False, bounded=False,
+        # the first fit of the bare model judges the design again at its estimate, as the joint
+        # fit does (a mass-centre offset turns the input of a 90 deg mount towards IA, and
+        # Kip, weak at a zero offset, is then seen); later fits keep the holds they nest in
+        mf = fit_model(m, p, held, noise_passes=noise_passes, reselect=start is None and not self.extra_held,
+                       bounded=False,
                        noise_level="spread", max_iter=max_iter, alpha=GAP_ALPHA, effects=effects,
                        cautious=True)
         return Fit(**vars(mf))

@@ -386,8 +386,8 @@ class RunCells:
             Sample variance in each cell [unit of rows ^2]; nan for 1-reading cells.
         rho : float
             Lag-1 autocorrelation of consecutive readings of one cell [1], 0 when within
-            its sampling noise (:data:`RHO_SIGNIFICANCE`, judged on the ratio corrected by
-            +1/n); else the AR(1) correlation whose expected ratio in cells of these sizes
+            its sampling noise (:data:`RHO_SIGNIFICANCE`, judged on the ratio less what
+            white readings give in these cells); else the AR(1) correlation whose expected ratio in cells of these sizes
             is the one observed (:func:`ar1_from_lag1`), clipped to :data:`RHO_BOUNDS`.
         rho_hi : float
             Upper end of rho's sampling interval (:data:`RHO_INTERVAL_Z`) [1]; 0 with rho.
@@ -402,13 +402,28 @@ class RunCells:
         num = float(np.sum(dev[1:][same] * dev[:-1][same]))
         den = float(np.sum(dev[keep] ** 2))
         r = num / den if den > 0 else 0.0
-        # the deviations from a cell mean are negatively correlated by about -1/n
-        nbar = float(np.mean(self.n[self.n >= 2])) if np.any(self.n >= 2) else 1.0
-        rho = r + 1.0 / nbar if nbar > 1 else r
-        # an autocorrelation within its sampling noise (sd ~ 1/sqrt(pairs)) is taken as 0:
-        # a noisy rho would scale the weights of white-noise data by chance
-        pairs = int(np.sum(same))
-        if pairs == 0 or abs(rho) * math.sqrt(pairs) < RHO_SIGNIFICANCE:
+        # the deviations from a cell mean are negatively correlated by -1/n: white readings
+        # give the ratio r0 = -sum_c ss_c / n_c / sum_c ss_c (cells weighted as the pooled
+        # ratio weights them: noise growing with rate in cells shorter than the rest would
+        # otherwise read as a negative rho)
+        ok2 = self.n >= 2
+        r0 = -float(np.sum(ss[ok2] / self.n[ok2]) / np.sum(ss[ok2])) if np.any(ok2) and np.sum(ss[ok2]) > 0 else 0.0
+        # an autocorrelation within its sampling noise is taken as 0: a noisy rho would
+        # scale the weights of white-noise data by chance.  The ratio's sd is 1/sqrt(pairs)
+        # when the cells' scatter is alike; where it grows with rate, the few loud cells
+        # carry the ratio: var r ~ sum_c ss_c^2 / p_c / (sum_c ss_c)^2, p_c = n_c - 1 pairs
+        # (the scatter each cell is expected to have: a + b x^2 through the cells' own)
+        pc = np.bincount(self.cid[1:][same], minlength=self.ncell).astype(float)
+        use = (pc > 0) & np.isfinite(s2)
+        pairs = 0.0
+        if np.any(use):
+            X = np.column_stack([np.ones(int(use.sum())), self.x[use] ** 2])
+            ab = np.linalg.lstsq(X, s2[use], rcond=None)[0] if np.ptp(self.x[use]) > 0 else \
+                np.array([float(np.mean(s2[use])), 0.0])
+            v = np.maximum(X @ ab, 0.05 * float(np.mean(s2[use])))
+            w = v * (self.n[use] - 1.0)
+            pairs = float(np.sum(w) ** 2 / np.sum(w * w / pc[use])) if np.sum(w) > 0 else 0.0
+        if pairs == 0 or abs(r - r0) * math.sqrt(pairs) < RHO_SIGNIFICANCE:
             return s2, 0.0, 0.0
         # one that is there is read without the short cells' bias (issue 26), and with the
         # upper end of its sampling interval (Bartlett: var r ~ (1 - rho^2) / pairs)
