@@ -587,6 +587,12 @@ def _advise(cells, baseline, targets, separate, max_runs, candidates, top) -> Ad
     extra = [t for t in targets if t in EFFECTS and t not in baseline and t not in INSTRUMENT_EFFECTS]
     effects = list(baseline) + extra
     cands = list(candidate_runs(cells) if candidates is None else candidates)
+    # to see an effect the baseline leaves out, a run of a test it acts on (effects.md): a
+    # tumble measures Kip as the unit's coefficient, not cross_coupling, the centrifuge
+    # effect the diagnosis would then name
+    seen = [t for t in targets if t in EFFECTS and t not in baseline]
+    if seen:
+        cands = [c for c in cands if any(c.test in EFFECTS[t].tests for t in seen)]
     # the runs made, fitted as the advice model (noise refitted to its residuals, which is
     # the noise a fit of the augmented campaign will see); copies, the caller's are kept
     cells = [replace(c) for c in cells]

@@ -10,7 +10,7 @@ from the baseline, whether ``diagnose`` then names it within 25 % of its size.
 Families (the dev set's kinds of partial design):
 
 * ``ia-pair-kip``: tumble + IA pair (0/180 deg); the unit's Kip withheld (cross_coupling
-  not in the baseline); target Kip.
+  not in the baseline); target cross_coupling (to see it: a run of a test it acts on).
 * ``ia-pair-kip-kpp``: the same, centrifuge runs only proposed (the rig's other IA-PA
   angles); target Kip, separate Kip and Kpp (45 + 135 deg, never 45 alone).
 * ``pair-arm-stretch``: tumble + IA pair with an arm stretch, not in the baseline
@@ -61,7 +61,7 @@ def _family(name: str):
     cen["mounts"] = [m for m in cen["mounts"] if m["plane"] == "IA-PA" and m["angle_deg"] in (0, 180)]
     base = [e for e in processing_effects(["tumble", "centrifuge"]) if e != "cross_coupling"]
     if name == "ia-pair-kip":
-        return sc, base, ["Kip"], [], "cross_coupling", None
+        return sc, base, ["cross_coupling"], [], "cross_coupling", None
     if name == "ia-pair-kip-kpp":
         return (sc, base, ["Kip"], [("Kip", "Kpp")], None,
                 lambda c: c.test == "centrifuge" and c.spec["mount_plane"] == "IA-PA"

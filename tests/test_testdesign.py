@@ -143,7 +143,7 @@ def test_diagnose_says_which_run_would_fix_what_it_cannot_see(ia_pair):
     out = {f["to"]: f for f in next_runs_from_cells(ia_pair, res, next_runs)}
     assert out["see cross_coupling"]["run"] and out["see cross_coupling"]["minutes"] > 0
     assert out["see cross_coupling"]["predicted"]["cross_coupling"] is not None
-    assert "no single run" in out["see rate_scale_error"]["note"]
+    assert "no run or pair of runs" in out["see rate_scale_error"]["note"]
 
 
 def next_runs_from_cells(cells, res, fn):

@@ -44,7 +44,8 @@ def _diagnose(args) -> int:
 
 def next_runs(runs, res) -> list[dict]:
     """For each effect the runs cannot see and each alias the diagnosis names, the best
-    single run the rigs can make to fix it (:func:`accelcal.testdesign.advise`).
+    single run the rigs can make to fix it, or the best two where no single run does
+    (:func:`accelcal.testdesign.advise`).
 
     Parameters
     ----------
@@ -78,6 +79,11 @@ def next_runs(runs, res) -> list[dict]:
     for what, targets, pairs in asks:
         try:
             adv = advise(cells, base, targets or None, pairs, max_runs=1, top=1)
+            # seeing an effect may take two runs (Kip beside an unknown Kpp: 45 + 135 deg);
+            # telling an effect from a coefficient by two runs of other planes leans on
+            # second-order terms, and the plain answer is the gravity reference below
+            if not adv.proposals and targets:
+                adv = advise(cells, base, targets, pairs, max_runs=2, top=1)
         except (DesignError, ValueError, np.linalg.LinAlgError) as exc:
             out.append({"to": what, "note": f"no advice: {exc}"})
             continue
@@ -85,7 +91,8 @@ def next_runs(runs, res) -> list[dict]:
             other = pairs[0][1] if pairs else None
             gravity = (other is not None and coefficient_spec(other) is not None
                        and not any(r.meta.get("test") == "tumble" for r in runs))
-            out.append({"to": what, "note": "no single run these rigs can make does it" + (
+            out.append({"to": what, "note": ("no run or pair of runs these rigs can make does it" if targets
+                                             else "no single run these rigs can make does it") + (
                 f"; a tumble in the gravity field measures the unit's {other} on its own" if gravity else "")})
             continue
         p = adv.proposals[0]
