@@ -29,11 +29,8 @@ KINDS = ("centrifuge", "tumble")
 def one(args):
     kind, rho, seed = args
     from accelcal.diagnosis import diagnose
-    from accelcal.validation.diagnosis_benchmark import DEV_BASELINE, runs_of, scenario
-    sc = scenario(kind, {}, noise={"white_m_s2": 2e-6, "white_ar1_rho": rho, "temp_noise_c": 0.02})
-    if kind == "centrifuge":
-        sc["test"][0]["mounts"] = [{"plane": "IA-PA", "angle_deg": a, "vertical": "+OA"} for a in (0, 180)]
-    res = diagnose(runs_of(sc, seed), DEV_BASELINE[kind])
+    from accelcal.validation.diagnosis_benchmark import DEV_BASELINE, ar1_scenario, runs_of
+    res = diagnose(runs_of(ar1_scenario(kind, rho), seed), DEV_BASELINE[kind])
     return kind, rho, seed, res["verdict"] is not None or res["explained"] is False, res["verdict"]
 
 

@@ -25,21 +25,15 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from readme_block import commit, write_block  # noqa: E402
 
-SETS = {"IA pair": (0, 180), "+ 90/270": (0, 180, 90, 270), "+ 45/225": (0, 180, 45, 225),
-        "+ 45/135": (0, 180, 45, 135), "full set": (0, 45, 90, 135, 180, 225, 270, 315)}
-UNIT = {"K0": 2.5e-4, "K1": 0.1325, "K2": 3.94e-7, "Kp": 2e-5, "Ko": -1.5e-5, "Kip": 7.1e-7, "Kio": 2e-7,
-        "Kpp": 4.7e-8, "Koo": 3e-8}
-BASELINE = ["earth_rate", "mass_centre_offset", "cross_coupling"]
+from accelcal.validation.diagnosis_benchmark import MOUNT_SET_BASELINE as BASELINE  # noqa: E402
+from accelcal.validation.diagnosis_benchmark import MOUNT_SETS as SETS  # noqa: E402
 
 
 def one(args):
     name, seed = args
     from accelcal.diagnosis import diagnose
-    from accelcal.validation.diagnosis_benchmark import runs_of, scenario
-    sc = scenario("centrifuge", {"mass_centre_offset": -0.0045})
-    sc["unit"]["coefficients"] = dict(UNIT)
-    sc["test"][0]["mounts"] = [{"plane": "IA-PA", "angle_deg": a, "vertical": "+OA"} for a in SETS[name]]
-    res = diagnose(runs_of(sc, seed), BASELINE)
+    from accelcal.validation.diagnosis_benchmark import mount_set_scenario, runs_of
+    res = diagnose(runs_of(mount_set_scenario(name), seed), BASELINE)
     alarm = res["verdict"] is not None or res["explained"] is False
     return name, seed, alarm, res["verdict"], res["explained"]
 

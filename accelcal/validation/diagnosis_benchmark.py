@@ -109,6 +109,36 @@ def scenario(kind: str, effects: dict, disturbance: dict | None = None, noise: d
             "disturbance": disturbance or {}, "test": [design(kind, levels)]}
 
 
+#: IEEE 836 mount sets of the IA-PA plane (issue 26's clean family)
+MOUNT_SETS = {"IA pair": (0, 180), "+ 90/270": (0, 180, 90, 270), "+ 45/225": (0, 180, 45, 225),
+              "+ 45/135": (0, 180, 45, 135), "full set": (0, 45, 90, 135, 180, 225, 270, 315)}
+#: a unit with everyday misalignments and cross terms (the lab's sample unit SNJ-1-03)
+EVERYDAY_UNIT = {"K0": 2.5e-4, "K1": 0.1325, "K2": 3.94e-7, "Kp": 2e-5, "Ko": -1.5e-5, "Kip": 7.1e-7,
+                 "Kio": 2e-7, "Kpp": 4.7e-8, "Koo": 3e-8}
+#: what the diagnosis is told about a mount-set campaign: the effects it has
+MOUNT_SET_BASELINE = ["earth_rate", "mass_centre_offset", "cross_coupling"]
+#: lag-1 correlations of the AR(1) output-noise family
+AR1_RHOS = (0.6, 0.75, 0.9)
+
+
+def mount_set_scenario(name: str) -> dict:
+    """A clean centrifuge campaign in one of :data:`MOUNT_SETS` (vertical +OA), the unit
+    :data:`EVERYDAY_UNIT` with the sample unit's 4.5 mm mass-centre offset, DAQ noise."""
+    sc = scenario("centrifuge", {"mass_centre_offset": -0.0045})
+    sc["unit"]["coefficients"] = dict(EVERYDAY_UNIT)
+    sc["test"][0]["mounts"] = [{"plane": "IA-PA", "angle_deg": a, "vertical": "+OA"} for a in MOUNT_SETS[name]]
+    return sc
+
+
+def ar1_scenario(kind: str, rho: float) -> dict:
+    """A clean IA pair (centrifuge) or 24-position tumble whose 2e-6 m/s^2 output noise is
+    AR(1) between consecutive readings with lag-1 correlation ``rho``."""
+    sc = scenario(kind, {}, noise={"white_m_s2": 2e-6, "white_ar1_rho": rho, "temp_noise_c": 0.02})
+    if kind == "centrifuge":
+        sc["test"][0]["mounts"] = [{"plane": "IA-PA", "angle_deg": a, "vertical": "+OA"} for a in (0, 180)]
+    return sc
+
+
 def runs_of(sc: dict, seed: int) -> list:
     return [SimRunFile.from_simrun(r) for r in simulate_campaign(load_scenario(sc), seed)]
 
@@ -258,6 +288,20 @@ def simulated_cases(quick: bool, seeds: int, n_clean: int, rng_seed: int = 20261
     for i in range(2 if quick else 10 * seeds):
         yield ("centrifuge/clean/big", "centrifuge", scenario("centrifuge", {}, levels=BIG_LEVELS), 9500 + i,
                base, None, None, None, False, "big-clean")
+    # clean IEEE 836 mount sets, a unit with everyday misalignments (issue 26): the unit's
+    # Kp is not a mount angle error
+    for i in range(len(MOUNT_SETS) if quick else 4 * len(MOUNT_SETS) * seeds):
+        name = list(MOUNT_SETS)[i % len(MOUNT_SETS)]
+        if fnmatch.fnmatch("centrifuge/clean: mount set", only):
+            yield ("centrifuge/clean: mount set", "centrifuge", mount_set_scenario(name), 9800 + i,
+                   list(MOUNT_SET_BASELINE), None, None, None, False, "mount-set")
+    # clean runs whose output noise is AR(1) between consecutive readings (issue 26)
+    for kind in ("centrifuge", "tumble"):
+        for rho in AR1_RHOS:
+            for i in range(1 if quick else 4 * seeds):
+                if fnmatch.fnmatch(f"{kind}/clean: AR(1)", only):
+                    yield (f"{kind}/clean: AR(1)", kind, ar1_scenario(kind, rho), 9900 + 10 * i + int(10 * rho),
+                           DEV_BASELINE[kind], None, None, None, False, "coloured")
     # a sweep hysteresis (issue 26): rising steps read h a_IA higher than falling ones, at a
     # size the targeted rising-minus-falling contrast sees at z ~ 4-6, the case temperature
     # held (a drifting one would make it K1T's); right when a gap is said to remain
@@ -372,6 +416,8 @@ def summarise(sim: list[dict], dev: list[dict], elapsed: float, commit: str = ""
     big_clean = [c for c in sim if c["category"] == "big-clean"]
     big_sh = [c["shrink_heldout"] for c in big if c.get("top1") and c.get("shrink_heldout") is not None]
     shaped = [c for c in sim if c["category"] == "shaped"]
+    mset = [c for c in sim if c["category"] == "mount-set"]
+    col = [c for c in sim if c["category"] == "coloured"]
     rel = [c["rel_error"] for c in obs if c.get("top1") and c.get("rel_error") is not None]
     sh = [c["shrink_heldout"] for c in obs if c.get("top1") and c.get("shrink_heldout") is not None]
     fa = sum(c["false_alarm"] for c in clean)
@@ -402,6 +448,8 @@ def summarise(sim: list[dict], dev: list[dict], elapsed: float, commit: str = ""
          "big_median_heldout_shrink": float(np.median(big_sh)) if big_sh else None,
          "big_clean_cases": len(big_clean), "big_false_alarms": sum(c["false_alarm"] for c in big_clean),
          "shaped_cases": len(shaped), "shaped_right": count([c["right"] for c in shaped]),
+         "mount_set_cases": len(mset), "mount_set_false_alarms": sum(not c["right"] for c in mset),
+         "coloured_cases": len(col), "coloured_false_alarms": sum(not c["right"] for c in col),
          "dev_cases": len(dev), "dev_right": sum(c["right"] for c in dev),
          "median_seconds_per_diagnosis": float(np.median(secs)) if secs else None,
          "p90_seconds_per_diagnosis": float(np.percentile(secs, 90)) if secs else None,
@@ -442,6 +490,13 @@ def markdown(s: dict) -> str:
     if s.get("shaped_cases"):
         L += [f"| a sweep hysteresis (rising steps {HYSTERESIS_REL:g} a_IA above falling ones), said a gap "
               f"remains | {s['shaped_right']} |"]
+    if s.get("mount_set_cases"):
+        L += [f"| clean IEEE 836 mount sets (IA pair; + 90/270, 45/225, 45/135; all eight), a unit with Kp = 2e-5, "
+              f"Ko = -1.5e-5: a verdict or a gap said to remain | {s['mount_set_false_alarms']} of "
+              f"{s['mount_set_cases']} |"]
+    if s.get("coloured_cases"):
+        L += [f"| clean IA pairs and tumbles, output noise AR(1) at rho {', '.join(f'{r:g}' for r in AR1_RHOS)}: a "
+              f"verdict or a gap said to remain | {s['coloured_false_alarms']} of {s['coloured_cases']} |"]
     L += [""]
     misses = [c for c in s["simulated"] if not c["right"]]
     if misses:
