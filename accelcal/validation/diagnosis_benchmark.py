@@ -336,8 +336,12 @@ def run_section1(quick: bool = False, seeds: int = 2, n_clean: int = 200, log=pr
         row = {"case": label, "kind": kind, "category": cat, "truth": truth, "param": param, "also": also,
                "baseline": base, "seed": seed, **score_case(res, truth, param, also, unknown, cat == "big")}
         if cat == "unobservable":
+            # linearly unobservable; at ten times its typical size an effect may still show
+            # at second order (a shared mount angle of 0.01 rad: Kp takes dphi, the mounts'
+            # cos(dphi) do not), and then naming it with its size is right too
             unobs = {u["effect"] for u in res["unobservable"]}
-            row["right"] = res["verdict"] is None and truth in unobs
+            seen = res["verdict"] == truth and row.get("rel_error") is not None and row["rel_error"] <= 0.25
+            row["right"] = (res["verdict"] is None and truth in unobs) or seen
             row["why"] = "" if row["right"] else f"verdict {res['verdict']}, reported unobservable: {truth in unobs}"
         out.append(row)
         log(f"{'ok  ' if row['right'] else 'MISS'} {label:48s} {row['seconds']:5.2f} s  verdict {row['verdict']}"
@@ -476,7 +480,8 @@ def markdown(s: dict) -> str:
          f"| median relative estimate error | {f(s['median_rel_error'])} |",
          f"| held-out shrink >= 0.5 (of the top-1 hits) | {f(s['heldout_shrink_ge_0.5'])} |",
          f"| median held-out shrink | {f(s['median_heldout_shrink'])} |",
-         f"| effects the design cannot see, reported not observable, no verdict | {s['unobservable_reported']} |",
+         f"| effects the design cannot see (linearly), reported not observable, or named with their size where "
+         f"they show at second order | {s['unobservable_reported']} |",
          f"| two effects at once, both found | {s['two_effect_right']} |",
          f"| gaps outside the catalogue said unexplained | {s['unknown_explained_false']} |",
          f"| clean campaigns | {s['clean_cases']} |",
