@@ -19,7 +19,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def commit() -> str:
     """Short hash of HEAD of the checkout whose ``accelcal`` is imported (PYTHONPATH may name
-    another one than this script's), with ``+changes`` when its tracked files differ from it."""
+    another one than this script's), with ``+changes`` when its tracked files differ from it
+    (the README and ``benchmarks/results/``, which the scripts write, do not count)."""
     try:
         import accelcal
         where = Path(accelcal.__file__).resolve().parents[1]
@@ -32,7 +33,10 @@ def commit() -> str:
         except OSError:
             return ""
     sha = git("rev-parse", "--short", "HEAD") or "unknown"
-    return sha + ("+changes" if git("status", "--porcelain", "--untracked-files=no") else "")
+    # the README and the results folder are what the scripts write, not what they run
+    changed = [ln for ln in git("status", "--porcelain", "--untracked-files=no").splitlines()
+               if ln[3:].strip() not in ("README.md",) and not ln[3:].strip().startswith("benchmarks/results/")]
+    return sha + ("+changes" if changed else "")
 
 
 def write_block(readme: Path, name: str, body: str) -> None:
