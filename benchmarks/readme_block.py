@@ -35,7 +35,7 @@ def commit() -> str:
     sha = git("rev-parse", "--short", "HEAD") or "unknown"
     # the README and the results folder are what the scripts write, not what they run
     changed = [ln for ln in git("status", "--porcelain", "--untracked-files=no").splitlines()
-               if ln[3:].strip() not in ("README.md",) and not ln[3:].strip().startswith("benchmarks/results/")]
+               if ln[2:].strip() != "README.md" and not ln[2:].strip().startswith("benchmarks/results/")]
     return sha + ("+changes" if changed else "")
 
 
