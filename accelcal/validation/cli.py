@@ -30,8 +30,10 @@ def _benchmark(args) -> int:
     try:
         commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
                                 cwd=Path(__file__).resolve().parent, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True,
-                               text=True, cwd=Path(__file__).resolve().parent).stdout.strip()
+        # the package's own files: the README and results this command writes do not count
+        pkg = Path(__file__).resolve().parents[1]
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", "."],
+                               capture_output=True, text=True, cwd=pkg).stdout.strip()
         commit += "+changes" if dirty else ""
     except Exception:  # noqa: BLE001 - not a git checkout
         pass
