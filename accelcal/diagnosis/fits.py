@@ -562,7 +562,25 @@ def folds(cells: Sequence[RunCells]) -> np.ndarray:
 
 def heldout_parts(f: Fit, fold: np.ndarray, tol: float = 1e-6) -> tuple:
     """Both folds of the held-out prediction of a fit (:func:`_heldout_fold` for fold 0 and
-    1), computed once for :func:`heldout_gap` and :func:`heldout_test` alike."""
+    1), computed once for :func:`heldout_gap` and :func:`heldout_test` alike.
+
+    Parameters
+    ----------
+    f : Fit
+        The fit (its whitened residual and the free columns of its Jacobian).
+    fold : (N,) ndarray of int
+        Fold (0 or 1) of each cell (:func:`folds`).
+    tol : float
+        Relative residual of a held-out cell's Jacobian row outside the training fold's
+        row space below which the fold determines the cell [1].
+
+    Returns
+    -------
+    tuple
+        :func:`_heldout_fold`'s result for fold 0 and for fold 1: the mask of the cells it
+        predicts, their whitened prediction residuals [1] and the rows A with A A^T the
+        covariance of those predictions [1]; None for a fold that predicts no cell.
+    """
     return tuple(_heldout_fold(f, fold, k, tol) for k in (0, 1))
 
 
