@@ -17,6 +17,7 @@ from pathlib import Path
 
 from accelcal.effects import coefficient_spec, split_combination
 from accelcal.estimators.campaign import process_campaign
+from accelcal.rounding import round_gum_sci
 from accelcal.schemas.dropformat import read_run
 from accelcal.schemas.dropscan import discover
 
@@ -24,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from readme_block import commit, write_block  # noqa: E402
 CENTRIFUGE = {"K2": 3.94e-7, "Kpp": 4.7e-8, "Kip": 7.1e-7, "Kio": 2.0e-7, "Koo": 3.0e-8,
-              "Koq": 3.0e-8, "K3": 2.0e-10}
+              "Koq": 3.0e-8, "K3": 2.0e-10, "Kp": 2.0e-5, "Ko": -1.5e-5, "Kpo": 0.0, "theta0": 0.0}
 TRUTH = {
     "drop-2026-11-20": CENTRIFUGE,
     # made with the same instrument values on LXJ-200 (accelcal/simulate/scenarios/snj103-lxj200.toml)
@@ -67,11 +68,12 @@ def main() -> None:
             method = f"**{c.method}** (adopted)" if c.adopted else c.method
             k = c.coverage_factor
             rounding = 0.5 * 10 ** (math.floor(math.log10(abs(t))) - DIGITS[(drop, c.name)] + 1) \
-                if (drop, c.name) in DIGITS else 0.0
+                if (drop, c.name) in DIGITS and t else 0.0
             z = "—" if rounding > c.std_uncertainty else f"{(c.value - t) / c.std_uncertainty:+.2f}"
             kk = "" if k == 2 else f" (k={k:.3g})"
-            row(f"| {drop} | {c.name} | {method} | {c.value / f:.5g} {du} | {k * c.std_uncertainty / f:.2g}{kk} | "
-                  f"{t / f:.4g} | {100 * (c.value / t - 1):+.2f} % | {z} |")
+            v, U = round_gum_sci(c.value / f, k * c.std_uncertainty / f)      # U to 2 digits, the value to U's
+            row(f"| {drop} | {c.name} | {method} | {v} {du} | {U}{kk} | "
+                  f"{t / f:.4g} | {f'{100 * (c.value / t - 1):+.2f} %' if t else '—'} | {z} |")
         for r in res.radii:
             if drop not in RADII:
                 continue
