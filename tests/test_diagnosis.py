@@ -317,6 +317,22 @@ def test_ar1_output_noise_is_not_a_gap(seed):
     assert res["verdict"] is None and res["explained"] is True, (res["verdict"], res["unexplained"])
 
 
+def test_text_report_fits_80_columns_and_rounds_as_people_read():
+    """The terminal report of a dev case (independent simulator): every line fits 80
+    columns; an estimate is shown with its u to two significant digits and the value to
+    u's last digit, in the effect's effects.md unit."""
+    import re as _re
+    res, _ = _dev("cent-two-d1")
+    text = text_report(res)
+    assert max(len(line) for line in text.splitlines()) <= 80
+    row = next(line for line in text.splitlines() if line.startswith("odd_quadratic "))
+    m = _re.search(r"(-?[0-9.]+)(e-?[0-9]+)? ± ([0-9.]+)(e-?[0-9]+)? s2/m", row)
+    assert m, row
+    value, u = m.group(1), m.group(3)
+    assert len(u.replace(".", "").lstrip("0")) == 2                    # two significant digits
+    assert len(value.split(".")[-1]) == len(u.split(".")[-1])          # the value to u's last digit
+
+
 def test_heldout_test_is_a_standard_normal_when_the_effect_buys_nothing():
     """Issue 26: the held-out statistic in the linear model, derived here: with the effect
     absent it is N(0, 1) whatever the number of cells; with it present its mean grows as the

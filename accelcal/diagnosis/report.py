@@ -10,86 +10,101 @@ from pathlib import Path
 
 import numpy as np
 
-from ..rounding import format_sig_sci, round_gum_sci
+from ..rounding import format_sig, format_sig_sci, round_gum_sci
 
 
 def _f(v, fmt="{:.4g}"):
     return "-" if v is None else fmt.format(v)
 
 
-def text_report(res: dict) -> str:
-    """The diagnosis as plain text for the terminal.
+def text_report(res: dict, width: int = 80) -> str:
+    """The diagnosis as plain text for a terminal of ``width`` columns.
 
     Baseline, gap before and after (whitened rms [1] and in SI [m/s^2]), shrink in sample
-    and held out, status, verdict and whether the gap is explained, the ranked effects
-    (estimate and u in the effect's effects.md unit, z, delta chi2, shrinks, observable
-    fraction, aliases), the unobservable effects, coefficient aliases, the Holm-significant
-    segments (first 15) and the shape of the gap.
+    and held out, status, verdict and whether the gap is explained; the ranked effects
+    (estimate ± u rounded as people read them, in the effect's effects.md unit, z, held-out
+    shrink, observable fraction, significance, aliases on a line of their own); the
+    unobservable effects, coefficient aliases, the Holm-significant segments (first 15) and
+    the shape of the gap.  Every line fits ``width`` (long ones wrap, indented); the
+    figures the text leaves out (delta chi2, in-sample shrinks per effect) are in --json.
 
     Parameters
     ----------
     res : dict
         Result of :func:`accelcal.diagnosis.core.diagnose`.
+    width : int
+        Columns of the terminal [1].
 
     Returns
     -------
     str
         Lines joined by newlines, no trailing newline.
     """
-    L = []
+    L: list[str] = []
+
+    def say(text: str, indent: str = "  ") -> None:
+        L.extend(textwrap.wrap(text, width, subsequent_indent=indent, break_on_hyphens=False) or [""])
+
     g = res["gap"]
-    L.append(f"baseline: {res['baseline']['label']} ({', '.join(res['baseline']['effects']) or 'bare model'})")
+    lab, effs = res["baseline"]["label"], ", ".join(res["baseline"]["effects"]) or "bare model"
+    say(f"baseline: {effs}" if lab.replace(" ", "") == effs.replace(" ", "") else f"baseline: {lab} ({effs})")
     sb, sa = g["significant_before"], g["significant_after"]
-    L.append(f"gap before: {sb['status']}"
-             + (f" (F = {sb['F']:.4g}, p = {sb['p_value']:.3g})" if sb["p_value"] is not None else ""))
-    L.append(f"gap (whitened rms, noise = {_f(g['noise_rms'], '{:.3f}')}): before {g['rms_before']:.4g}, after "
-             f"{g['rms_after']:.4g}; in SI {g['si']['rms_before_m_s2']:.3g} -> {g['si']['rms_after_m_s2']:.3g} m/s2"
-             f" (noise {g['si']['noise_rms_m_s2']:.3g})")
-    L.append(f"shrink: in sample {_f(g['shrink_in_sample'], '{:.3f}')}, held out {_f(g['shrink_heldout'], '{:.3f}')}")
-    L.append(f"STATUS: {res['status']}")
-    L.append(f"VERDICT: {res['verdict'] or 'none'}"
-             + (f" (aliases: {', '.join(res['verdict_aliases'])})" if res.get("verdict_aliases") else "")
-             + f"; explained: {'-' if res['explained'] is None else str(res['explained']).lower()}")
+    say(f"gap before: {sb['status']}" + (f" (F = {format_sig(sb['F'], 3)}, p = {format_sig_sci(sb['p_value'])})"
+                                         if sb["p_value"] is not None else ""))
+    si = g["si"]
+    say(f"gap, whitened rms: before {format_sig(g['rms_before'], 3)}, after {format_sig(g['rms_after'], 3)} "
+        f"(noise {format_sig(g['noise_rms'], 2)}); in SI {format_sig_sci(si['rms_before_m_s2'])} -> "
+        f"{format_sig_sci(si['rms_after_m_s2'])} m/s2 (noise {format_sig_sci(si['noise_rms_m_s2'])})")
+    say(f"shrink: in sample {_f(g['shrink_in_sample'], '{:.2f}')}, held out {_f(g['shrink_heldout'], '{:.2f}')}")
+    say(f"STATUS: {res['status']}")
+    say(f"VERDICT: {res['verdict'] or 'none'}"
+        + (f" (aliases: {', '.join(res['verdict_aliases'])})" if res.get("verdict_aliases") else "")
+        + f"; explained: {'-' if res['explained'] is None else str(res['explained']).lower()}")
     if res["selected"]:
-        L.append(f"effects found (forward selection, alpha {res['alpha']}): {', '.join(res['selected'])}; "
-                 f"gap after: {sa['status']}" + (f" (p = {sa['p_value']:.3g})" if sa["p_value"] is not None else ""))
+        say(f"effects found (forward selection, alpha {res['alpha']}): {', '.join(res['selected'])}; "
+            f"gap after: {sa['status']}" + (f" (p = {format_sig_sci(sa['p_value'])})"
+                                            if sa["p_value"] is not None else ""))
     if res.get("unexplained"):
-        L.append("UNEXPLAINED: " + res["unexplained"]["text"])
+        say("UNEXPLAINED: " + res["unexplained"]["text"])
     L.append("")
-    L.append(f"{'effect':22s} {'estimate':>12s} {'u':>10s} {'z':>8s} {'dchi2':>10s} {'shrink':>7s} {'heldout':>7s} "
-             f"{'obs.frac':>9s} sig aliases")
+    L.append(f"{'effect':20s} {'estimate ± u':>27s} {'z':>6s} {'held-out':>8s} {'obs.':>6s} sig")
     for e in res["ranking"]:
-        L.append(f"{e['effect']:22s} {_f(e['estimate']):>12s} {_f(e['std_uncertainty'], '{:.2g}'):>10s} "
-                 f"{_f(e['z'], '{:.1f}'):>8s} {_f(e['delta_chi2'], '{:.3g}'):>10s} "
-                 f"{_f(e['shrink_in_sample'], '{:.2f}'):>7s} {_f(e['shrink_heldout'], '{:.2f}'):>7s} "
-                 f"{_f(e['observable_fraction'], '{:.3g}'):>9s} {'*' if e['significant'] else ' ':>3s} "
-                 f"{','.join(e['aliases'])}")
+        if e["estimate"] is None:
+            est = "-"
+        else:
+            v, u = round_gum_sci(e["estimate"], e["std_uncertainty"])
+            est = f"{v} ± {u} {e['unit']}"
+        L.append(f"{e['effect'][:20]:20s} {est:>27s} {_f(e['z'], '{:.1f}'):>6s} "
+                 f"{_f(e['shrink_heldout'], '{:.2f}'):>8s} {format_sig_sci(e['observable_fraction'], 2):>6s} "
+                 f"{'*' if e['significant'] else ' ':>3s}")
+        if e["aliases"]:
+            say(f"    aliases: {', '.join(e['aliases'])}", "      ")
     if res["unobservable"]:
         L.append("")
         L.append("not observable in these runs:")
         for u in res["unobservable"]:
-            L.append(f"  {u['effect']}: {u['note']}")
+            say(f"  {u['effect']}: {u['note']}", "    ")
     for e in res["ranking"]:
         for ca in e.get("coefficient_aliases", []):
             if "value" in ca:                # the bare model keeps the unit's coefficient
                 k = ca["coefficient"]
                 v, u = round_gum_sci(ca["value"], ca["std_uncertainty"])
                 alt = (e.get("alias_estimates") or {}).get(k)
-                L.extend(textwrap.wrap(
-                    f"note: these runs cannot tell {e['effect']} from the unit's {k}; the calibration keeps "
+                say(f"note: these runs cannot tell {e['effect']} from the unit's {k}; the calibration keeps "
                     f"{k} = {v} ± {u}" + (f" (were it all {e['effect']}: {format_sig_sci(alt)} {e['unit']})"
-                                         if alt is not None else ""), 80, subsequent_indent="  "))
+                                         if alt is not None else ""))
                 continue
-            L.append(f"note: {e['effect']} is indistinguishable here from the coefficient {ca['coefficient']} "
-                     f"({ca['note']})")
+            say(f"note: {e['effect']} is indistinguishable here from the coefficient {ca['coefficient']} "
+                f"({ca['note']})")
     L.append("")
-    L.append("where the gap lies before (Holm-significant segments, share of the dimension's excess chi2):")
+    say("where the gap lies before (Holm-significant segments, share of the dimension's excess chi2):")
     for w in res["where"][:15]:
-        L.append(f"  {w['dimension']:12s} {w['segment']:28s} share {w['share']:.2f}  chi2 {w['chi2']:.4g} "
-                 f"(expected {w['expected']:.3g}), mean residual {w['mean_residual_m_s2']:.3g} m/s2")
+        say(f"  {w['dimension']} {w['segment']}: share {w['share']:.2f}, chi2 {format_sig(w['chi2'], 3)} "
+            f"(expected {format_sig(w['expected'], 3)}), mean residual "
+            f"{format_sig_sci(w['mean_residual_m_s2'])} m/s2", "    ")
     if res.get("shape_before"):
-        L.append("shape before: " + "; ".join(f"{s['form']} ({100 * s['explained_fraction']:.0f} %)"
-                                              for s in res["shape_before"]))
+        say("shape before: " + "; ".join(f"{s['form']} ({100 * s['explained_fraction']:.0f} %)"
+                                         for s in res["shape_before"]))
     L.append(f"\n({len(res['runs'])} runs, {res['elapsed_s']:.2f} s)")
     return "\n".join(L)
 
