@@ -39,7 +39,7 @@ from .effects import EFFECTS, coefficient_spec, plausible_size, typical_size
 from .fitting.blas import single_thread
 from .fitting.core import information_root, lstsq_svd
 from .fitting.data import RunCells, mean_variance, pooled_noise
-from .fitting.model import CampaignModel
+from .fitting.model import CANDIDATE_SHARED, CampaignModel
 from .fitting.procedure import fit_selected
 from .physics.axes import AXES
 from .physics.geometry import CentrifugeMount, geometry_of
@@ -356,7 +356,7 @@ def _model(cells: Sequence[RunCells], effects: Sequence[str], extra: Sequence[st
     out (``extra``) in the form the diagnosis looks for it, a mount angle error as one angle
     shared by every mount (:meth:`accelcal.diagnosis.fits.Fitter.fit`)."""
     return CampaignModel(cells, effects, include=INSTRUMENT_TERMS,
-                         shared=[e for e in ("mount_angle_error",) if e in extra])
+                         shared=[e for e in CANDIDATE_SHARED if e in extra])
 
 
 def resolve_targets(model: CampaignModel, targets: Sequence[str]) -> dict[str, list[int]]:

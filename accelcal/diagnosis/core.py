@@ -358,6 +358,13 @@ class _Diagnosis:
         m = max(len(self.cands), 1)
         zthr = float(stats.norm.isf(self.alpha / (2 * m)))
         obs = {}
+        held_once: list = []
+
+        def temperature_held():          # one test of the logged temperature for every candidate
+            if not held_once:
+                held_once.append(_temperature_held(self.cells))
+            return held_once[0]
+
         for c in self.cands:
             applies = any(r.test in EFFECTS[c].tests for r in self.cells)
             s = sigs[c]
@@ -369,7 +376,7 @@ class _Diagnosis:
                              + (" (no temperature logged)" if c in ("bias_temperature", "scale_temperature") else ""))
                 obs[c] = o
                 continue
-            held = _temperature_held(self.cells) if c in TEMPERATURE_EFFECTS else None
+            held = temperature_held() if c in TEMPERATURE_EFFECTS else None
             if held is not None:
                 F, p = held
                 o["note"] = (f"not observable in these runs: the temperature they log is held within its "

@@ -21,13 +21,13 @@ from ..effects import EFFECTS
 from ..fitting.core import (LackOfFit, ParameterSet, column_space_basis, separable_columns,
                             thin_svd)
 from ..fitting.data import RunCells
-from ..fitting.model import ALIAS_TOL, PRIORITY, CampaignModel
+from ..fitting.model import ALIAS_TOL, CANDIDATE_SHARED, PRIORITY, CampaignModel, effect_claim
 from ..fitting.procedure import ModelFit, fit_model
 from ..physics.rigs import INSTRUMENT_EFFECTS
 
 #: Instrument coefficients that are not catalogue effects.  A candidate effect aliased with
 #: one claims the direction where the joint fit's order puts it first
-#: (:func:`effect_priority`): the bare model holds the coefficient and the diagnosis names it
+#: (:func:`accelcal.fitting.model.effect_claim`): the bare model holds the coefficient and the diagnosis names it
 #: as the effect's coefficient alias (Kip and Kpp with only 0 and 45 deg mounts); where the
 #: coefficient comes first (Kp before a mount angle), the bare model keeps it and the effect
 #: is reported as absorbed by it.
@@ -287,7 +287,7 @@ class Fitter:
         """
         return CampaignModel(self.cells, list(effects), include=self.include,
                              fixed=[e for e in ("earth_rate",) if e in self.baseline],
-                             shared=[e for e in ("mount_angle_error",) if e not in self.baseline])
+                             shared=[e for e in CANDIDATE_SHARED if e not in self.baseline])
 
     def step(self, effect: str) -> float:
         """Difference step of an effect's signature: a sampled lag needs a finite one (a
@@ -388,8 +388,7 @@ class Fitter:
         # fit does (a mass-centre offset turns the input of a 90 deg mount towards IA, and
         # Kip, weak at a zero offset, is then seen); later fits keep the holds they nest in
         mf = fit_model(m, p, held, noise_passes=noise_passes, reselect=start is None and not self.extra_held,
-                       bounded=False,
-                       noise_level="spread", max_iter=max_iter, alpha=GAP_ALPHA, effects=effects,
+                       bounded=False, noise_level="spread", max_iter=max_iter, alpha=GAP_ALPHA, effects=effects,
                        cautious=True)
         return Fit(**vars(mf))
 
@@ -476,7 +475,7 @@ class Fitter:
                 continue
             # the candidate claims at its own place in the joint fit's order: before Kpp as
             # cross_coupling (Kip), after Kp and Ko as a mount angle or a tilt (issue 26)
-            pe = effect_priority(e)
+            pe = PRIORITY.index(effect_claim(e))
             order = base + [c for c in ncs if prio(c)[0] <= pe] + [n] + [c for c in ncs if prio(c)[0] > pe]
             kept = set(separable_columns(np.column_stack([J, s]), order, ALIAS_TOL))
             if n not in kept:
@@ -486,26 +485,6 @@ class Fitter:
                     out.setdefault(m.params[free[c]].name, []).append(e)
         return {k: "aliased with candidate effect " + ", ".join(v) + " (the effect claims the direction)"
                 for k, v in out.items()}
-
-
-def effect_priority(effect: str) -> int:
-    """Place of a candidate effect in the joint fit's order of claims
-    (:data:`accelcal.fitting.model.PRIORITY`): an instrument-term effect at its
-    coefficient's place (``cross_coupling`` at Kip's), ``initial_misalignment`` at theta0's,
-    the mass-centre offset and mount angle at theirs, every other effect last.
-
-    Parameters
-    ----------
-    effect : str
-        effects.md id.
-
-    Returns
-    -------
-    int
-        Index into :data:`PRIORITY` [1].
-    """
-    key = INSTRUMENT_EFFECTS.get(effect, "theta0" if effect == "initial_misalignment" else effect)
-    return PRIORITY.index(key if key in PRIORITY else "effect")
 
 
 # ----------------------------------------------------------------------------- statistics

@@ -247,7 +247,11 @@ def ar1_from_lag1(r: float, n: np.ndarray, weight: np.ndarray) -> float:
     w = np.bincount(inv, weights=weight[ok]) / float(np.sum(weight[ok]))
 
     def h(rho):
-        return sum(wi * (lambda a, b: a / b)(*ar1_deviation_lag1(int(v), rho)) for v, wi in zip(vals, w)) - r
+        total = 0.0
+        for v, wi in zip(vals, w):
+            lag1, squares = ar1_deviation_lag1(int(v), rho)
+            total += wi * (lag1 / squares)
+        return total - r
 
     lo, hi = RHO_BOUNDS
     if h(lo) >= 0:
@@ -371,6 +375,33 @@ class RunCells:
         return np.bincount(self.cid[keep], weights=np.asarray(rows, float)[keep],
                            minlength=self.ncell) / self.n
 
+    def _deviations(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(keep, deviation from its cell's mean per reading, sum of squares per cell, sample
+        variance per cell) of a per-reading quantity."""
+        keep = self.cid >= 0
+        r = np.asarray(rows, float)
+        dev = np.zeros_like(r)
+        dev[keep] = r[keep] - self.cell_mean(r)[self.cid[keep]]
+        ss = np.bincount(self.cid[keep], weights=dev[keep] ** 2, minlength=self.ncell)
+        s2 = np.where(self.n >= 2, ss / np.maximum(self.n - 1, 1), np.nan)
+        return keep, dev, ss, s2
+
+    def cell_variance(self, rows: np.ndarray) -> np.ndarray:
+        """Within-cell sample variance of a per-reading quantity (:meth:`cell_scatter`
+        without the lag-1 correlation).
+
+        Parameters
+        ----------
+        rows : (nrow,) array_like
+            One value per reading [any unit]; readings with cid -1 are ignored.
+
+        Returns
+        -------
+        (ncell,) ndarray
+            Sample variance in each cell [unit of rows ^2]; nan for 1-reading cells.
+        """
+        return self._deviations(rows)[3]
+
     def cell_scatter(self, rows: np.ndarray) -> tuple[np.ndarray, float, float]:
         """Within-cell sample variance of a per-reading quantity and the pooled lag-1
         autocorrelation of its deviations inside cells.
@@ -387,17 +418,13 @@ class RunCells:
         rho : float
             Lag-1 autocorrelation of consecutive readings of one cell [1], 0 when within
             its sampling noise (:data:`RHO_SIGNIFICANCE`, judged on the ratio less what
-            white readings give in these cells); else the AR(1) correlation whose expected ratio in cells of these sizes
-            is the one observed (:func:`ar1_from_lag1`), clipped to :data:`RHO_BOUNDS`.
+            white readings give in these cells); else the AR(1) correlation whose expected
+            ratio in cells of these sizes is the one observed (:func:`ar1_from_lag1`),
+            clipped to :data:`RHO_BOUNDS`.
         rho_hi : float
             Upper end of rho's sampling interval (:data:`RHO_INTERVAL_Z`) [1]; 0 with rho.
         """
-        keep = self.cid >= 0
-        r = np.asarray(rows, float)
-        dev = np.zeros_like(r)
-        dev[keep] = r[keep] - self.cell_mean(r)[self.cid[keep]]
-        ss = np.bincount(self.cid[keep], weights=dev[keep] ** 2, minlength=self.ncell)
-        s2 = np.where(self.n >= 2, ss / np.maximum(self.n - 1, 1), np.nan)
+        keep, dev, ss, s2 = self._deviations(rows)
         same = keep[1:] & keep[:-1] & (self.cid[1:] == self.cid[:-1])
         num = float(np.sum(dev[1:][same] * dev[:-1][same]))
         den = float(np.sum(dev[keep] ** 2))
@@ -921,8 +948,8 @@ def pooled_noise(runs: Sequence[RunCells]) -> NoiseModel | None:
         return None
     w = np.array([max(m.dof, 1) for m in ok], float)
     avg = lambda v: float(np.sum(w * np.array(v, float)) / np.sum(w))  # noqa: E731
-    return NoiseModel(a=avg([m.a for m in ok]), b=avg([m.b for m in ok]), rho=avg([m.rho for m in ok]), rho_hi=avg([m.rho_hi for m in ok]),
-                      dof=int(w.sum()), source="pooled")
+    return NoiseModel(a=avg([m.a for m in ok]), b=avg([m.b for m in ok]), rho=avg([m.rho for m in ok]),
+                      rho_hi=avg([m.rho_hi for m in ok]), dof=int(w.sum()), source="pooled")
 
 
 def mean_variance(run: RunCells, model: NoiseModel) -> np.ndarray:

@@ -85,6 +85,32 @@ ALIAS_TOL = 1e-3
 #: before Kpo: with one vertical axis Kpo a_O a_P is Kp times g.
 PRIORITY = ("K1", "K0", "theta0", "K2", "bias", "radius", "K3", "Koq", "Kip", "Kio", "Kpp", "Koo",
             "K0T", "K1T", "Kp", "Ko", "Kpo", "mass_centre_offset", "mount_angle_error", "effect")
+#: Effects a diagnosis or a test-design advice looks for, when the baseline leaves them out,
+#: as one parameter shared by every run they apply to (a mount angle error: one angle, not
+#: one per mount)
+CANDIDATE_SHARED = ("mount_angle_error",)
+
+
+def effect_claim(effect: str) -> str:
+    """The :data:`PRIORITY` entry under which an effect claims a direction of the design: an
+    instrument-term effect its coefficient's (``cross_coupling`` as Kip), the initial
+    misalignment theta0's, the mass-centre offset and the mount angle their own, every
+    other effect ``'effect'``.
+
+    Parameters
+    ----------
+    effect : str
+        effects.md id.
+
+    Returns
+    -------
+    str
+        An entry of :data:`PRIORITY`.
+    """
+    key = INSTRUMENT_EFFECTS.get(effect, "theta0" if effect == "initial_misalignment" else effect)
+    return key if key in PRIORITY else "effect"
+
+
 #: Coefficients that scale a centrifuge's output as its radius does: K1, and IA's cross
 #: terms with an axis along gravity (K1 (1 + Kio g) a_I with OA up; a tumble turning IA
 #: through OA in 24 positions separates Kio, one in 4 positions does not)
@@ -245,12 +271,10 @@ class CampaignModel:
             idx = [j for j, r in enumerate(self.runs) if r.test in EFFECTS[e].tests]
             if not idx:
                 continue
-            prio = e if e in PRIORITY else "effect"
             for label, group in self._scopes(e, idx, shared):
                 name = f"{e}[{label}]" if label else e
-                if e == "initial_misalignment":
-                    prio = "theta0"
-                add(name, e, EFFECTS[e].unit, typical_size(e), group, f"effect {e}", Role("effect", e), prio)
+                add(name, e, EFFECTS[e].unit, typical_size(e), group, f"effect {e}", Role("effect", e),
+                    effect_claim(e))
         self.params = ps
         #: every candidate parameter, before :meth:`select` held any
         self.candidates = ps
@@ -957,8 +981,10 @@ class CampaignModel:
             weak.add(k)
             why = (f"weakly determined: design uncertainty {u[worst]:.2g} "
                    f"{prm_of[k].unit} exceeds its plausible size")
-            stay = weak | {c for c in range(len(cols)) if c not in set(kept) and self.roles[cols[c]].kind != "effect"}
-            back = [c for c in separable(stay) if c not in set(kept) and prm_of[k].name in held.get(prm_of[c].name, "")]
+            kept_set = set(kept)
+            stay = weak | {c for c in range(len(cols)) if c not in kept_set and self.roles[cols[c]].kind != "effect"}
+            back = [c for c in separable(stay)
+                    if c not in kept_set and prm_of[k].name in _aliased_names(held.get(prm_of[c].name, ""))]
             if back:
                 kept = kept + back
                 for c in back:
@@ -1205,6 +1231,13 @@ def mount_runs(model: CampaignModel) -> dict[tuple[str, str, float], list[int]]:
     return out
 
 
+def _aliased_names(reason: str) -> list[str]:
+    """The parameters a hold's reason names (``'aliased with A, B'`` -> [A, B]; [] for any
+    other reason)."""
+    head = "aliased with "
+    return [n.strip() for n in reason[len(head):].split(",")] if reason.startswith(head) else []
+
+
 def pure_error(model: "CampaignModel", p: np.ndarray, at_rho_hi: bool = False) -> tuple[float, int]:
     """Weighted pure-error chi-square and its degrees of freedom (Draper & Smith §2.1).
 
@@ -1227,7 +1260,7 @@ def pure_error(model: "CampaignModel", p: np.ndarray, at_rho_hi: bool = False) -
     chi, dof = 0.0, 0
     for j, r in enumerate(model.runs):
         res = r.y_rows - model.predict_rows(p, j)
-        s2, _, _ = r.cell_scatter(res)
+        s2 = r.cell_variance(res)
         ok = (r.n >= 2) & np.isfinite(s2)
         if not ok.any() or r.noise is None or not math.isfinite(r.noise.a):
             continue
@@ -1277,7 +1310,7 @@ def lack_of_fit_at_rho_hi(model: "CampaignModel", p: np.ndarray, z: np.ndarray, 
         return None
     chi = 0.0
     for j, r in enumerate(model.runs):
-        zj = z[model.offsets[j]:model.offsets[j + 1]]
+        zj = z[model.rows(j)]
         if r.noise is None or not r.noise.rho_hi > r.noise.rho:
             chi += float(zj @ zj)
             continue
