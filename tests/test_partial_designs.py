@@ -216,3 +216,18 @@ def test_a_tilted_table_lets_in_the_square_terms_it_shows():
     k1 = next(c for n, c in rows.items() if n.startswith("K1+"))
     assert split_combination(k1.name)[1]["Kio"] == pytest.approx(50.0 * 9.7936 * math.cos(math.radians(30)),
                                                                     rel=5e-3)
+
+
+@needs_samples
+def test_on_many_readings_the_separating_run_is_left_to_accelcal_design(monkeypatch):
+    """The run that separates an aliased pair is sought by a test-design advice, which
+    refits the runs made reading by reading; above joint.SEPARATION_MAX_READINGS (issue
+    28: over ten minutes on one 200 MB run) the flag says the pair was not searched and
+    where to find it, instead of holding the campaign back."""
+    from accelcal.estimators import joint
+    from accelcal.estimators.campaign import process_campaign
+    monkeypatch.setattr(joint, "SEPARATION_MAX_READINGS", 10)
+    res = process_campaign(_centrifuge_subset(_runs("drop-2026-11-20"), {0, 180, 45, 225}, False))
+    assert not [f for f in res.flags if "one more run would separate them" in f]
+    (note,) = [f for f in res.flags if "would separate them was not sought" in f]
+    assert "Kip/Kpp" in note and "(accelcal design finds it)" in note
