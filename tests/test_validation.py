@@ -226,3 +226,47 @@ def test_a_run_made_without_the_parser_is_refused_by_the_parsers_rule(good_runs)
     (ref,) = rep.refusals[bad.path]
     assert (ref.rule, ref.detail) == (
         "unknown-test", "test 'spin' is not one of tumble, centrifuge, tilt_rotation, sine_centrifuge")
+
+
+def test_derived_columns_made_a_slice_at_a_time_hold_the_whole_columns(good_runs):
+    """The derived columns a big run is checked on are made a slice of rows at a time
+    (issue 28); every slice must hold the numbers of the column made whole, computed here
+    from the run's own arrays by the rules' definitions (rules.py): the time step, the step
+    over the sample period, the non-finite cells, the distance of a rotation from its grid,
+    and the distinct positions of each temperature point (a pandas ``nunique``)."""
+    import numpy as np
+    import pandas as pd
+
+    from accelcal.schemas.derived import RowColumn, _derive
+    from accelcal.schemas.dropspec import COLUMNS, INT_COLUMNS, NULLABLE_COLUMNS
+    from accelcal.schemas.rules import ANGLE_TOL_DEG
+
+    seen = set()
+    for r in (r for runs in good_runs.values() for r in runs):
+        d, a, n = _derive(r.test, r), r.arrays, r.n_rows
+        t = a["time_s"].astype(float)
+        dt = np.r_[np.nan, np.diff(t)]
+        period = float(r.meta["sample_period_s"])
+        bad = sum((np.isinf(a[c]) if c in NULLABLE_COLUMNS[r.test] else ~np.isfinite(a[c])).astype(int)
+                  for c in COLUMNS[r.test] if c != "output" and c not in INT_COLUMNS)
+        want = {"d_time_s": dt, "dt_over_period": np.where(dt > 0, dt / period, np.nan),
+                "nonfinite_cells": bad}
+        if r.test == "tilt_rotation":
+            npos, rot = int(r.meta["positions"]), a["rotation_deg"]
+            step = 360.0 / npos
+            want["rotation_grid_dev_deg"] = np.minimum(np.mod(rot, step), step - np.mod(rot, step))
+            sp = a["temp_set_c"]
+            seg = np.cumsum(np.r_[False, sp[1:] != sp[:-1]])
+            rk = np.round(np.mod(rot, 360.0) / ANGLE_TOL_DEG)
+            distinct = pd.Series(rk).groupby(seg).transform("nunique").to_numpy(float)
+            want["positions_error"] = np.where(np.r_[True, seg[1:] != seg[:-1]], distinct - npos, np.nan)
+        for c, w in want.items():
+            col = d[c]
+            assert isinstance(col, RowColumn) and len(col) == n, c
+            cuts = [0, 1, n // 3, n // 3 + 1, n - 1, n]
+            got = np.concatenate([col[lo:hi] for lo, hi in zip(cuts[:-1], cuts[1:])])
+            assert np.array_equal(got, w, equal_nan=True), (r.path, c)
+            assert np.array_equal(col[:], w, equal_nan=True)
+            assert np.array_equal(col[n - 1:n], w[-1:], equal_nan=True) and (col[0] == w[0] or np.isnan(w[0]))
+        seen.add(r.test)
+    assert "tilt_rotation" in seen and "centrifuge" in seen

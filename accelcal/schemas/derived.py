@@ -15,11 +15,52 @@ from .rules import ANGLE_TOL_DEG, METADATA_RANGES, REST_RATE, SINE_RESID_MAX
 # derived columns (the header's claims made checkable row by row)
 
 
-def _first_only(n: int, value: float) -> np.ndarray:
-    out = np.full(n, np.nan)
-    if n:
-        out[0] = value
-    return out
+class RowColumn:
+    """A derived column made a slice of rows at a time, never whole (issue 28: a day-long
+    run's derived columns were hundreds of MB beside its own).  ``rows(lo, hi)`` gives
+    rows ``lo`` to ``hi`` as an array of ``dtype``, element by element the numbers the
+    whole column would hold.  It reads like the array it stands for where the rows table
+    reads one (:class:`accelcal.schemas.suites._Rows`): ``len``, ``dtype``, a slice, a row.
+    """
+
+    def __init__(self, n: int, dtype, rows):
+        self.n, self.dtype, self._rows = int(n), np.dtype(dtype), rows
+
+    def __len__(self) -> int:
+        return self.n
+
+    def __getitem__(self, k):
+        if isinstance(k, slice):
+            lo, hi, step = k.indices(self.n)
+            if step != 1:
+                raise IndexError("a RowColumn is read in slices of consecutive rows")
+            return np.asarray(self._rows(lo, max(hi, lo)), self.dtype)
+        k = int(k) + (self.n if int(k) < 0 else 0)
+        if not 0 <= k < self.n:
+            raise IndexError(k)
+        return self[k:k + 1][0]
+
+
+def _sparse(n: int, at: np.ndarray, values: np.ndarray, fill: float = np.nan, dtype=np.float64) -> RowColumn:
+    """A column that is ``fill`` but at the rows ``at`` (ascending), where it is ``values``."""
+    at = np.asarray(at, np.int64)
+    values = np.asarray(values, dtype)
+
+    def rows(lo, hi):
+        out = np.full(hi - lo, fill, dtype)
+        a, b = np.searchsorted(at, lo), np.searchsorted(at, hi)
+        out[at[a:b] - lo] = values[a:b]
+        return out
+    return RowColumn(n, dtype, rows)
+
+
+def _first_only(n: int, value: float) -> RowColumn:
+    return _sparse(n, np.zeros(1 if n else 0, np.int64), np.array([value] if n else []))
+
+
+def _elementwise(n: int, dtype, fn, *cols: np.ndarray) -> RowColumn:
+    """``fn`` of the columns, row by row, made for a slice at a time."""
+    return RowColumn(n, dtype, lambda lo, hi: fn(*(c[lo:hi] for c in cols)))
 
 
 def _dwell_keys(test: str, d: dict[str, np.ndarray]) -> np.ndarray:
@@ -64,20 +105,31 @@ def _derive(test: str, run: RunFile, step_means: np.ndarray | None = None) -> di
     out: dict[str, np.ndarray] = {c: d[c] for c in cols}
     meta = run.meta
     nullable = NULLABLE_COLUMNS[test]
-    bad = np.zeros(n, np.int64)
-    for c in cols:
-        if c == "output" or c in INT_COLUMNS:
-            continue
-        v = d[c].astype(np.float64, copy=False)
-        bad += np.isinf(v) if c in nullable else ~np.isfinite(v)
-    out["nonfinite_cells"] = bad
+    checked = [(d[c], c in nullable) for c in cols if c != "output" and c not in INT_COLUMNS]
+
+    def nonfinite(*vs):
+        bad = np.zeros(len(vs[0]) if vs else 0, np.int64)
+        for v, (_, null) in zip(vs, checked):
+            v = v.astype(np.float64, copy=False)
+            bad += np.isinf(v) if null else ~np.isfinite(v)
+        return bad
+    out["nonfinite_cells"] = (_elementwise(n, np.int64, nonfinite, *[v for v, _ in checked]) if checked
+                              else np.zeros(n, np.int64))
     with np.errstate(all="ignore"):
         t = d["time_s"].astype(np.float64, copy=False) if "time_s" in d else np.full(n, np.nan)
-        dt = np.r_[np.nan, np.diff(t)] if n else np.zeros(0)
-        out["d_time_s"] = dt
         period = float(meta.get("sample_period_s", np.nan) or np.nan)
-        # only forward steps here; a step back is time-not-increasing's alone
-        out["dt_over_period"] = np.where(dt > 0, dt / period, np.nan) if period > 0 else np.nan
+
+        def d_time(lo, hi):
+            # rows lo..hi of np.r_[nan, np.diff(t)]: the same differences
+            return np.r_[np.nan, np.diff(t[lo:hi])] if lo == 0 else np.diff(t[lo - 1:hi])
+
+        def dt_over_period(lo, hi):
+            # only forward steps here; a step back is time-not-increasing's alone
+            dt = d_time(lo, hi)
+            return np.where(dt > 0, dt / period, np.nan) if period > 0 else np.full(hi - lo, np.nan)
+        out["d_time_s"] = RowColumn(n, np.float64, d_time)
+        out["dt_over_period"] = RowColumn(n, np.float64, dt_over_period)
+        dt = d_time(0, n) if n else np.zeros(0)
         try:
             keys = _dwell_keys(test, d)
             same = np.r_[False, keys[1:] == keys[:-1]] & np.isfinite(dt) & (dt > 0)
@@ -85,6 +137,7 @@ def _derive(test: str, run: RunFile, step_means: np.ndarray | None = None) -> di
             perr = abs(float(np.median(within)) / period - 1.0) if within.size and period > 0 else np.nan
         except KeyError:
             perr = np.nan
+        del dt
         out["period_error"] = _first_only(n, perr)
 
         if test == "tumble" and {"position", "angle_deg"} <= d.keys():
@@ -93,29 +146,51 @@ def _derive(test: str, run: RunFile, step_means: np.ndarray | None = None) -> di
             out["angle_dev_deg"] = np.abs(ang - med)
         if test == "centrifuge" and {"step", "table_rate_rad_s", "table_angle_deg"} <= d.keys():
             out["rest_dwell_error_deg"] = _first_only(n, _rest_dwell_error(d))
-            out["one_g_error"] = _one_g(d, meta, n, step_means)
+            one_g = _one_g(d, meta, n, step_means)
+            at = np.flatnonzero(~np.isnan(one_g))
+            out["one_g_error"] = _sparse(n, at, one_g[at])
+            del one_g
         if test == "tilt_rotation" and {"temp_set_c", "rotation_deg"} <= d.keys():
             npos = int(meta.get("positions", 0) or 0)
             rot = d["rotation_deg"].astype(np.float64, copy=False)
             if npos >= 1:
                 step = 360.0 / npos
-                r = np.mod(rot, step)
-                out["rotation_grid_dev_deg"] = np.minimum(r, step - r)
+
+                def grid_dev(rot):
+                    r = np.mod(rot, step)
+                    return np.minimum(r, step - r)
+                out["rotation_grid_dev_deg"] = _elementwise(n, np.float64, grid_dev, rot)
             else:
-                out["rotation_grid_dev_deg"] = np.nan
+                out["rotation_grid_dev_deg"] = _sparse(n, np.zeros(0), np.zeros(0))
             seg = _segments(d["temp_set_c"].astype(np.float64, copy=False))
             rk = np.round(np.mod(rot, 360.0) / ANGLE_TOL_DEG)
-            distinct = pd.Series(rk).groupby(seg).transform("nunique").to_numpy(np.float64)
-            first = np.r_[True, seg[1:] != seg[:-1]] if n else np.zeros(0, bool)
-            out["positions_error"] = np.where(first, distinct - npos, np.nan)
+            first = np.flatnonzero(np.r_[True, seg[1:] != seg[:-1]]) if n else np.zeros(0, np.int64)
+            out["positions_error"] = _sparse(n, first, _distinct_per_segment(seg, rk)[seg[first]] - npos)
+            del seg, rk
         if test == "sine_centrifuge" and "table_rate_rad_s" in d:
             ratio, resid = _sine_fit(t, d["table_rate_rad_s"].astype(np.float64, copy=False), meta)
             out["rate_amplitude_ratio"] = _first_only(n, ratio)
             out["rate_fit_residual"] = _first_only(n, resid)
     for k, v in out.items():         # a scalar stands for every row (as a column would)
-        if np.ndim(v) == 0:
+        if not isinstance(v, RowColumn) and np.ndim(v) == 0:
             out[k] = np.full(n, v, dtype=np.float64)
     return out
+
+
+def _distinct_per_segment(seg: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """Number of distinct non-NaN ``values`` in each segment (``seg``: 0, 1, ... per row,
+    from :func:`_segments`): a groupby ``nunique``, found over the blocks of consecutive
+    equal (segment, value) rows, so no table of the run's length is made (issue 28)."""
+    if seg.size == 0:
+        return np.zeros(0, np.int64)
+    starts = np.flatnonzero(np.r_[True, (seg[1:] != seg[:-1]) | (values[1:] != values[:-1])])
+    bs, bv = seg[starts], values[starts]
+    ok = ~np.isnan(bv)
+    bs, bv = bs[ok], bv[ok]
+    order = np.lexsort((bv, bs))
+    bs, bv = bs[order], bv[order]
+    new = np.r_[True, (bs[1:] != bs[:-1]) | (bv[1:] != bv[:-1])] if bs.size else np.zeros(0, bool)
+    return np.bincount(bs[new], minlength=int(seg[-1]) + 1)
 
 
 def _rest_dwell_error(d: dict[str, np.ndarray]) -> float:

@@ -48,7 +48,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .derived import _derive, _meta_record, _turning_step_means
+from .derived import RowColumn, _derive, _meta_record, _turning_step_means
 from .dropformat import RunFile
 from .dropspec import COLUMNS, INT_COLUMNS, NULLABLE_COLUMNS, DropFormatError, Refusal, check_test
 from .rules import ANGLE_TOL_DEG, TEMP_RANGE_C, ValidationReport, _expectation, _suite_specs, build_suites
@@ -256,6 +256,8 @@ class _Rows:
         for c in self.names:
             dt = self.dtypes[c]
             parts = [self.items[j][2].get(c) for j, _, _ in cuts]
+            # a derived column made a slice at a time (RowColumn) is sliced even when whole
+            parts = [p[:] if isinstance(p, RowColumn) and len(parts) == 1 else p for p in parts]
             if all(p is not None for p in parts):
                 data[c] = np.concatenate([p[lo:hi] for p, (_, lo, hi) in zip(parts, cuts)]) \
                     if len(parts) != 1 or cuts[0][1] != 0 or cuts[0][2] != len(parts[0]) \
