@@ -45,6 +45,11 @@ from .distributions import f_sf
 ANGLE_TOL_DEG = 0.2
 #: a reading further than this many robust sigmas from its cell's median is a spike
 SPIKE_SIGMAS = 7.0
+#: Readings a big run's reading-by-reading model work takes at a time (issue 28): the
+#: forward model's temporaries are a dozen arrays of the run's length, 0.6 GB at the 4.5 M
+#: readings of a 200 MB run.  A run of at most this many readings is taken whole (its sums
+#: the same to the last bit as before slices existed).
+ROW_SLICE = 1 << 20
 #: smallest and largest lag-1 autocorrelation the noise model accepts
 RHO_BOUNDS = (-0.5, 0.95)
 #: |rho| sqrt(pairs) below which the lag-1 autocorrelation is not distinguished from 0
@@ -375,14 +380,81 @@ class RunCells:
         return np.bincount(self.cid[keep], weights=np.asarray(rows, float)[keep],
                            minlength=self.ncell) / self.n
 
+    def row_slices(self) -> list[slice]:
+        """The readings in the slices a big run's reading-by-reading work takes them.
+
+        Returns
+        -------
+        list of slice
+            ``[slice(None)]`` for a run of at most :data:`ROW_SLICE` readings (the whole
+            run, so its sums are the same to the last bit); else consecutive slices of
+            :data:`ROW_SLICE` readings.
+        """
+        nrow = int(self.y_rows.size)
+        if nrow <= ROW_SLICE:
+            return [slice(None)]
+        return [slice(a, min(a + ROW_SLICE, nrow)) for a in range(0, nrow, ROW_SLICE)]
+
+    def cell_sum_slices(self, rows_of, slices: Sequence[slice]) -> np.ndarray:
+        """Sum over each cell of a per-reading quantity made one slice of readings at a time.
+
+        Parameters
+        ----------
+        rows_of : callable
+            ``rows_of(sl)`` gives the quantity at the readings ``sl`` [any unit].
+        slices : sequence of slice
+            From :meth:`row_slices` (or ``[slice(None)]``).
+
+        Returns
+        -------
+        (ncell,) ndarray
+            Cell sums [unit of rows]; readings with cid -1 are left out.
+        """
+        total = np.zeros(self.ncell)
+        for sl in slices:
+            cid = self.cid[sl]
+            keep = cid >= 0
+            total += np.bincount(cid[keep], weights=np.asarray(rows_of(sl), float)[keep],
+                                 minlength=self.ncell)
+        return total
+
+    def cell_mean_slices(self, rows_of, slices: Sequence[slice] | None = None) -> np.ndarray:
+        """:meth:`cell_mean` of a per-reading quantity made one slice of readings at a time
+        (issue 28: a big run's forward-model temporaries are a slice long, not a run long).
+
+        Parameters
+        ----------
+        rows_of : callable
+            ``rows_of(sl)`` gives the quantity at the readings ``sl`` [any unit];
+            ``rows_of(slice(None))`` the whole run.
+        slices : sequence of slice, optional
+            Default :meth:`row_slices`.
+
+        Returns
+        -------
+        (ncell,) ndarray
+            Cell means [unit of rows]: exactly :meth:`cell_mean` of the whole run's
+            quantity when there is one slice.
+        """
+        slices = self.row_slices() if slices is None else list(slices)
+        if len(slices) == 1 and slices[0] == slice(None):
+            return self.cell_mean(rows_of(slice(None)))
+        return self.cell_sum_slices(rows_of, slices) / self.n
+
     def _deviations(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(keep, deviation from its cell's mean per reading, sum of squares per cell, sample
         variance per cell) of a per-reading quantity."""
         keep = self.cid >= 0
         r = np.asarray(rows, float)
-        dev = np.zeros_like(r)
-        dev[keep] = r[keep] - self.cell_mean(r)[self.cid[keep]]
-        ss = np.bincount(self.cid[keep], weights=dev[keep] ** 2, minlength=self.ncell)
+        if self._kept_mask() is None:
+            # every reading kept: the same numbers without the masked copies (a big run's
+            # scatter took five arrays of its length, issue 28)
+            dev = r - self.cell_mean(r)[self.cid]
+            ss = np.bincount(self.cid, weights=dev * dev, minlength=self.ncell)
+        else:
+            dev = np.zeros_like(r)
+            dev[keep] = r[keep] - self.cell_mean(r)[self.cid[keep]]
+            ss = np.bincount(self.cid[keep], weights=dev[keep] ** 2, minlength=self.ncell)
         s2 = np.where(self.n >= 2, ss / np.maximum(self.n - 1, 1), np.nan)
         return keep, dev, ss, s2
 
@@ -426,8 +498,11 @@ class RunCells:
         """
         keep, dev, ss, s2 = self._deviations(rows)
         same = keep[1:] & keep[:-1] & (self.cid[1:] == self.cid[:-1])
-        num = float(np.sum(dev[1:][same] * dev[:-1][same]))
-        den = float(np.sum(dev[keep] ** 2))
+        lag = dev[1:] * dev[:-1]          # the products of the pairs, then the same-cell ones:
+        num = float(np.sum(lag[same]))    # the same numbers as masking both factors first
+        del lag
+        dk = dev if self._kept_mask() is None else dev[keep]
+        den = float(np.sum(dk * dk))
         r = num / den if den > 0 else 0.0
         # the deviations from a cell mean are negatively correlated by -1/n: white readings
         # give the ratio r0 = -sum_c ss_c / n_c / sum_c ss_c (cells weighted as the pooled
@@ -440,7 +515,10 @@ class RunCells:
         # when the cells' scatter is alike; where it grows with rate, the few loud cells
         # carry the ratio: var r ~ sum_c ss_c^2 / p_c / (sum_c ss_c)^2, p_c = n_c - 1 pairs
         # (the scatter each cell is expected to have: a + b x^2 through the cells' own)
-        pc = np.bincount(self.cid[1:][same], minlength=self.ncell).astype(float)
+        if self._kept_mask() is None:     # counts as float sums of ones: exact, no copy of cid
+            pc = np.bincount(self.cid[1:], weights=same, minlength=self.ncell)
+        else:
+            pc = np.bincount(self.cid[1:][same], minlength=self.ncell).astype(float)
         use = (pc > 0) & np.isfinite(s2)
         pairs = 0.0
         if np.any(use):

@@ -164,6 +164,18 @@ class Role:
     key: str
 
 
+def _reading_slice(r: RunCells, cols: Mapping[str, np.ndarray], kw: Mapping, sl: slice | None
+                   ) -> tuple[Mapping[str, np.ndarray], dict]:
+    """The columns and the per-reading keyword arrays (``rate_derivative``) of ``rig_output``
+    at the readings ``sl`` of run ``r`` (views, no copies); as they are for ``None`` or
+    ``slice(None)``."""
+    if sl is None or sl == slice(None):
+        return cols, dict(kw)
+    nrow = r.y_rows.size
+    return ({k: v[sl] for k, v in cols.items()},
+            {k: (v[sl] if isinstance(v, np.ndarray) and v.shape == (nrow,) else v) for k, v in kw.items()})
+
+
 class CampaignModel:
     """Parameters and predictions of the forward model over cells of runs (module doc).
 
@@ -471,11 +483,30 @@ class CampaignModel:
                 held -= sum(a.nbytes for a in cache.pop(old).values())
         return E
 
-    def _rows(self, p: np.ndarray, j: int, extra: Mapping[str, float] | None = None) -> np.ndarray:
-        """:meth:`predict_rows` itself: ``rig_output`` at the inputs of run j."""
+    def _rows(self, p: np.ndarray, j: int, extra: Mapping[str, float] | None = None,
+              sl: slice | None = None) -> np.ndarray:
+        """:meth:`predict_rows` itself: ``rig_output`` at the inputs of run j (of its
+        readings ``sl`` only, when given)."""
         r = self.runs[j]
         co, eff, kw = self.inputs(p, j, extra)
-        return rig_output(r.test, r.meta, r.cols, co, eff, **kw)
+        slices = [sl] if sl is not None else self._slices(r, eff)
+        if len(slices) == 1:
+            cols, kw = _reading_slice(r, r.cols, kw, slices[0])
+            return rig_output(r.test, r.meta, cols, co, eff, **kw)
+        # a big run's outputs made a slice at a time (the model is reading by reading: the
+        # same numbers), so its temporaries are a slice long (issue 28)
+        out = np.empty(r.y_rows.shape)
+        for s in slices:
+            cols, skw = _reading_slice(r, r.cols, kw, s)
+            out[s] = rig_output(r.test, r.meta, cols, co, eff, **skw)
+        return out
+
+    @staticmethod
+    def _slices(r: RunCells, eff: Mapping[str, float]) -> list[slice]:
+        """The slices of readings run ``r``'s model work takes at a time
+        (:meth:`RunCells.row_slices`): the whole run when a sensor lag is in its model, whose
+        output at a reading depends on every reading before it."""
+        return [slice(None)] if "sensor_lag" in eff else r.row_slices()
 
     def predict_run(self, p: np.ndarray, j: int, extra: Mapping[str, float] | None = None) -> np.ndarray:
         """Cell means of the model's output for run j.
@@ -494,7 +525,20 @@ class CampaignModel:
         (ncell,) ndarray
             :meth:`predict_rows` averaged over each cell of the run [output_unit].
         """
-        return self.runs[j].cell_mean(self.predict_rows(p, j, extra))
+        r = self.runs[j]
+        slices = self._slices(r, self.inputs(p, j, extra)[1])
+        if len(slices) == 1:
+            return r.cell_mean(self.predict_rows(p, j, extra))
+        # a big run: its cell means (not its readings' outputs) kept by point
+        cache = self.__dict__.setdefault("_cell_predictions", {})
+        key = (j, np.asarray(p, float).tobytes(), tuple(sorted((extra or {}).items())))
+        out = cache.get(key)
+        if out is None:
+            out = cache[key] = r.cell_mean_slices(lambda sl: self._rows(p, j, extra, sl), slices)
+            out.setflags(write=False)
+            while len(cache) > 4 * self.PREDICTION_CACHE:
+                del cache[next(iter(cache))]
+        return out
 
     def predict(self, p: np.ndarray) -> np.ndarray:
         """Cell means of the model's output over all runs.
@@ -560,6 +604,9 @@ class CampaignModel:
         cols = list(range(len(self.params))) if params is None else list(params)
         J = np.zeros((r.ncell, len(cols)))
         co, eff, kw = self.inputs(p, j)
+        slices = self._slices(r, eff)
+        if len(slices) > 1:
+            return self._jacobian_slices(p, j, cols, slices)
         F = None
         tau = float(eff.get("sensor_lag", 0.0))
         t = r.cols.get("time_s")
@@ -593,6 +640,41 @@ class CampaignModel:
                 continue
             pm[i] -= h
             J[:, c] = (r.cell_mean(self._rows(pp, j)) - r.cell_mean(self._rows(pm, j))) / (2 * h)
+        return J
+
+    def _jacobian_slices(self, p: np.ndarray, j: int, cols: list[int], slices: list[slice]) -> np.ndarray:
+        """:meth:`jacobian_run` of a big run, its readings taken a slice at a time (issue
+        28): the same columns, each a sum of the slices' cell sums (no sensor lag here,
+        :meth:`_slices`)."""
+        r = self.runs[j]
+        co, eff, kw = self.inputs(p, j)
+        acting = self._acting(j)
+        exact = [(c, i) for c, i in enumerate(cols) if i in acting
+                 and self.roles[i].kind in ("coef", "bias") and self.roles[i].key in instrument.DEFAULTS]
+        S = np.zeros((r.ncell, len(cols)))
+        drift = float(eff.get("bias_drift", 0.0))
+        T = self._temp(r) if exact else None
+        for sl in slices if exact else []:
+            sc, skw = _reading_slice(r, r.cols, kw, sl)
+            F = specific_force(r.test, r.meta, sc, eff, **skw)
+            temp = None if T is None else T[sl]
+            cid = r.cid[sl]
+            keep = cid >= 0
+            for c, i in exact:
+                x = np.empty(cid.shape)
+                x[:] = instrument.output_derivative(self.roles[i].key, co, F, temp, sc.get("time_s"), drift)
+                S[:, c] += np.bincount(cid[keep], weights=x[keep], minlength=r.ncell)
+        J = S / r.n[:, None]
+        done = {c for c, _ in exact}
+        for c, i in enumerate(cols):
+            if i not in acting or c in done:
+                continue
+            h = 1e-3 * self.params[i].scale
+            pp, pm = p.copy(), p.copy()
+            pp[i] += h
+            pm[i] -= h
+            J[:, c] = (r.cell_sum_slices(lambda sl: self._rows(pp, j, None, sl), slices)
+                       - r.cell_sum_slices(lambda sl: self._rows(pm, j, None, sl), slices)) / r.n / (2 * h)
         return J
 
     def _acting(self, j: int) -> frozenset[int]:
@@ -745,16 +827,21 @@ class CampaignModel:
             co, eff, kw = self.inputs(p, j)
             E = []
             for step in (h, -h):
-                meta, cols = r.meta, r.cols
-                if spec.meta_key is not None:
-                    meta = {**meta, spec.meta_key: float(meta[spec.meta_key]) + step}
-                else:
-                    if spec.column not in cols:
-                        break
-                    moved = np.asarray(cols[spec.column], float) + (
-                        step if rows is None or j not in rows else np.where(rows[j], step, 0.0))
-                    cols = {**cols, spec.column: moved}
-                E.append(r.cell_mean(rig_output(r.test, meta, cols, co, eff, **kw)))
+                if spec.meta_key is None and spec.column not in r.cols:
+                    break
+
+                def moved_output(sl, step=step):
+                    meta = r.meta
+                    cols, skw = _reading_slice(r, r.cols, kw, sl)
+                    if spec.meta_key is not None:
+                        meta = {**meta, spec.meta_key: float(meta[spec.meta_key]) + step}
+                    else:
+                        on = None if rows is None or j not in rows else rows[j]
+                        moved = np.asarray(cols[spec.column], float) + (
+                            step if on is None else np.where(on if sl is None else on[sl], step, 0.0))
+                        cols = {**cols, spec.column: moved}
+                    return rig_output(r.test, meta, cols, co, eff, **skw)
+                E.append(r.cell_mean_slices(moved_output, self._slices(r, eff)))
             if len(E) == 2:
                 out[self.rows(j)] = (E[0] - E[1]) / (2 * h)
         return out / self.sig
