@@ -355,3 +355,19 @@ def test_other_geometries(n_pos, sin_axis, cos_axis, method):
         assert c.method == method
         assert abs(c.value - TRUTH[c.name]) < 3 * c.std_uncertainty, c
     json.dumps(extras, allow_nan=False)
+
+
+def test_position_keys_counted_not_sorted_are_numpys_unique():
+    """position_means finds its (point, position) groups by counting small integer keys
+    (issue 28: no sort of a long run); the three arrays must be np.unique's, dtype included,
+    on keys in runs of repeats as a run's dwells give them."""
+    import numpy as np
+
+    from accelcal.estimators.thermal import _unique_small
+
+    rng = np.random.default_rng(28)
+    for _ in range(300):
+        m = int(rng.integers(1, 60))
+        key = np.repeat(rng.integers(0, 40, m), rng.integers(1, 5, m))
+        for a, b in zip(np.unique(key, return_index=True, return_inverse=True), _unique_small(key)):
+            assert np.array_equal(a, b) and a.dtype == b.dtype

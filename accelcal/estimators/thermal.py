@@ -45,6 +45,7 @@ from scipy import stats
 
 from ..constants import MICRO_G, T_REF_C
 from ..fitting.core import lack_of_fit, linear_fit
+from ..fitting.data import ROW_SLICE
 from ..physics.geometry import geometry_of
 from ..physics.instrument import indicated_acceleration, output_derivative
 from ..physics.rigs import tilt_rotation_specific_force
@@ -191,6 +192,19 @@ def temperature_design(temp_c) -> np.ndarray:
 
 # --------------------------------------------------------------------------- segmentation
 
+def _in_time_order(data: pd.DataFrame, fresh: bool = False) -> pd.DataFrame:
+    """``data`` sorted by ``time_s`` (stable), with a 0.. index when ``fresh`` (a new frame
+    whose columns may be added to).  A run already in time order, as every accepted run is,
+    is not copied: the sort would be the identity, and a copy of a day-long run is
+    hundreds of MB (issue 28)."""
+    if not data["time_s"].is_monotonic_increasing:
+        d = data.sort_values("time_s", kind="stable")
+        return d.reset_index(drop=True).copy() if fresh else d
+    if not fresh:
+        return data
+    return pd.DataFrame({c: data[c].to_numpy() for c in data.columns}, copy=False)
+
+
 def segment_run(data: pd.DataFrame, positions: int | None = None) -> pd.DataFrame:
     """Label every reading of a tilt_rotation run with its sweep, temperature point and position.
 
@@ -201,7 +215,7 @@ def segment_run(data: pd.DataFrame, positions: int | None = None) -> pd.DataFram
     distinct rounded angles.  Returns a copy of ``data`` (sorted by ``time_s``) with the
     int columns ``sweep``, ``point`` (0-based, run-wide) and ``position``.
     """
-    d = data.sort_values("time_s", kind="stable").reset_index(drop=True).copy()
+    d = _in_time_order(data, fresh=True)
     sp = d["temp_set_c"].to_numpy(float)
     change = np.r_[True, np.abs(np.diff(sp)) > 1e-9]
     point = np.cumsum(change) - 1
@@ -217,8 +231,8 @@ def segment_run(data: pd.DataFrame, positions: int | None = None) -> pd.DataFram
         else:
             direction = s
         sweep_of_point[j] = sweep
-    d["point"] = point.astype(int)
-    d["sweep"] = sweep_of_point[point].astype(int)
+    d["point"] = point.astype(int, copy=False)
+    d["sweep"] = sweep_of_point[point].astype(int, copy=False)
     th = np.mod(d["rotation_deg"].to_numpy(float), 360.0)
     if positions:
         d["position"] = (np.rint(th * positions / 360.0).astype(int) % int(positions))
@@ -227,6 +241,22 @@ def segment_run(data: pd.DataFrame, positions: int | None = None) -> pd.DataFram
         key = np.where(np.isclose(key, 360.0), 0.0, key)
         d["position"] = pd.factorize(key, sort=True)[0]
     return d
+
+
+def _unique_small(key: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``np.unique(key, return_index=True, return_inverse=True)`` of small non-negative
+    integer keys (a point and position index), found by counting instead of sorting the
+    readings: the same three arrays, without the sort's copies of a long run (issue 28)."""
+    if key.size == 0 or key.min() < 0 or key.max() > 4 * key.size + (1 << 16):
+        return np.unique(key, return_index=True, return_inverse=True)
+    present = np.bincount(key) > 0
+    uniq = np.flatnonzero(present)
+    rank = np.cumsum(present) - 1
+    # a key's first reading starts one of the blocks of equal consecutive keys
+    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    first_of = np.full(present.size, key.size, np.int64)
+    np.minimum.at(first_of, key[starts], starts)
+    return uniq, first_of[uniq], rank[key]
 
 
 def position_means(labelled: pd.DataFrame) -> pd.DataFrame:
@@ -239,7 +269,8 @@ def position_means(labelled: pd.DataFrame) -> pd.DataFrame:
     point = labelled["point"].to_numpy()
     position = labelled["position"].to_numpy()
     key = point.astype(np.int64) * (int(position.max(initial=0)) + 1) + position
-    uniq, first, gid = np.unique(key, return_index=True, return_inverse=True)
+    uniq, first, gid = _unique_small(key)
+    del key
     k = uniq.size
     n = np.bincount(gid, minlength=k).astype(float)
 
@@ -250,14 +281,19 @@ def position_means(labelled: pd.DataFrame) -> pd.DataFrame:
     m_out = mean(out)
     dev = out - m_out[gid]
     sd = np.sqrt(np.bincount(gid, weights=dev * dev, minlength=k) / np.maximum(n - 1, 1))
+    del dev                          # (each series of a long run let go once used, issue 28)
     sd[n < 2] = np.nan
     T = labelled["temp_c"].to_numpy(float)
     fin = np.isfinite(T)
     nT = np.bincount(gid, weights=fin.astype(float), minlength=k)
     with np.errstate(invalid="ignore", divide="ignore"):
         mT = np.bincount(gid, weights=np.where(fin, T, 0.0), minlength=k) / nT
+    del fin
     th = np.radians(labelled["rotation_deg"].to_numpy(float))
-    theta = np.mod(np.degrees(np.arctan2(mean(np.sin(th)), mean(np.cos(th)))), 360.0)
+    s_mean = mean(np.sin(th))
+    c_mean = mean(np.cos(th))
+    del th
+    theta = np.mod(np.degrees(np.arctan2(s_mean, c_mean)), 360.0)
     return pd.DataFrame({
         "point": point[first], "position": position[first],
         "sweep": labelled["sweep"].to_numpy()[first], "time_s": mean(labelled["time_s"].to_numpy(float)),
@@ -417,8 +453,7 @@ def fit_points(meta: Mapping, data: pd.DataFrame) -> tuple[list[dict], pd.DataFr
     """
     geo = rig_geometry(meta)
     n_pos = int(meta["positions"]) if meta.get("positions") not in (None, "") else None
-    lab = segment_run(data, n_pos)
-    pm = position_means(lab)
+    pm = position_means(segment_run(data, n_pos))
     points: list[dict] = []
     for pt, grp in pm.groupby("point", sort=True):
         grp = grp.sort_values("position")
@@ -761,17 +796,19 @@ def temperature_correlation(series, temp_c) -> dict[str, float | None]:
     y = np.asarray(series, float)
     T = np.asarray(temp_c, float)
     ok = np.isfinite(y) & np.isfinite(T)
-    y, T = y[ok], T[ok]
+    if not ok.all():                 # (no copies of a long run that has no gaps)
+        y, T = y[ok], T[ok]
     n = y.size
     if n < 3 or np.ptp(T) == 0:
         return {"n": int(n), "slope_m_s2_per_degC": None, "u_slope_m_s2_per_degC": None,
                 "slope_ug_per_degC": None, "u_slope_ug_per_degC": None, "r": None}
+    # r first: np.corrcoef copies both series, which is the peak of a long run (issue 28)
+    r = float(np.corrcoef(T, y)[0, 1]) if np.std(y) > 0 else 0.0
     Tc = T - T.mean()
     sxx = float(Tc @ Tc)
     slope = float(Tc @ (y - y.mean())) / sxx
     resid = y - y.mean() - slope * Tc
     u = math.sqrt(float(resid @ resid) / (n - 2) / sxx)
-    r = float(np.corrcoef(T, y)[0, 1]) if np.std(y) > 0 else 0.0
     return {"n": int(n), "slope_m_s2_per_degC": slope, "u_slope_m_s2_per_degC": u,
             "slope_ug_per_degC": slope / MICRO_G, "u_slope_ug_per_degC": u / MICRO_G, "r": r}
 
@@ -896,19 +933,23 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = "", *,
             extras["method_comparison"] = comp
     # compensation on the run itself: the nominal IA input taken out, temperature-free
     # calibration (K0, K1 at 20 degC) before, the full model after
-    d = data.sort_values("time_s", kind="stable")
+    d = _in_time_order(data)
     T = d["temp_c"].to_numpy(float)
     if np.isfinite(T).any():
         T = np.where(np.isfinite(T), T, d["temp_set_c"].to_numpy(float))
         # the IA input with the fitted in-plane cross term: a_i + Kx a_x of the forward model
         Kx = float(np.mean([p["cross_term"] for p in fitted])) if fitted else 0.0
-        inp = indicated_acceleration({geo["cross_term"]: Kx}, specific_force_at(meta, d["rotation_deg"]))
+        rot = d["rotation_deg"].to_numpy(float)
+        inp = np.empty(rot.shape)
+        for lo in range(0, rot.size, ROW_SLICE):    # a slice at a time: the same numbers (issue 28)
+            inp[lo:lo + ROW_SLICE] = indicated_acceleration({geo["cross_term"]: Kx},
+                                                            specific_force_at(meta, rot[lo:lo + ROW_SLICE]))
         E = d["output"].to_numpy(float)
-        before = compensate(E, T, {"K0": model["K0"], "K1": model["K1"]}, inp)
-        after = compensate(E, T, model, inp)
+        # one series of the run's length at a time (issue 28)
+        before = temperature_correlation(compensate(E, T, {"K0": model["K0"], "K1": model["K1"]}, inp), T)
+        after = temperature_correlation(compensate(E, T, model, inp), T)
         extras["compensation"] = {"series": "run readings minus nominal IA input (m/s2)",
-                                  "before": temperature_correlation(before, T),
-                                  "after": temperature_correlation(after, T)}
+                                  "before": before, "after": after}
     extras["flags"] = flags
     return coeffs, _jsonable(extras)
 
