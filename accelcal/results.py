@@ -102,3 +102,99 @@ class CampaignResult:
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+
+# ------------------------------------------------------------------ what the report draws
+#
+# The science-to-report contract of the residual figures (issue 23): each paper method
+# turns what it stored (its own ``extras``) into ResidualFigure records
+# (:attr:`accelcal.estimators.registry.Estimator.figures`); the certificate draws those
+# (:func:`accelcal.ops.plots.residual_figure`) and never reads a method's extras itself.
+
+#: How a figure is laid out (accelcal.ops.plots draws each): ``'dwells'`` a grid of panels
+#: sharing y, one legend above (the eq 9 dwell residuals); ``'points'`` panels side by side
+#: (per-point residuals); ``'bars'`` one bar per tick (a ratio to sigma); ``'series'`` a
+#: grid of plain scatter panels.
+FIGURE_STYLES = ("dwells", "points", "bars", "series")
+
+
+@dataclass(frozen=True)
+class ResidualSeries:
+    """One set of points of a residual panel.
+
+    Attributes
+    ----------
+    label : str
+        Legend text ('' for none).
+    x : tuple of float
+        Abscissae [the panel's ``x_label`` unit]; bar positions for ``'bars'``.
+    y : tuple of float
+        Standardised residuals [1] (``'bars'``: a ratio to sigma [1]).
+    marker : str
+        matplotlib marker.
+    colour : str or None
+        matplotlib colour (None: the style's cycle).
+    """
+    label: str
+    x: tuple[float, ...]
+    y: tuple[float, ...]
+    marker: str = "o"
+    colour: str | None = None
+
+
+@dataclass(frozen=True)
+class ResidualPanel:
+    """One panel of a residual figure: its title, x label, series and (``'bars'``) the
+    text under each bar."""
+    title: str
+    x_label: str
+    series: tuple[ResidualSeries, ...]
+    ticks: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class ResidualFigure:
+    """A residual figure of the certificate, as a method states it.
+
+    Attributes
+    ----------
+    style : str
+        One of :data:`FIGURE_STYLES`.
+    caption : str
+        What the figure shows, in the certificate's words.
+    panels : tuple of ResidualPanel
+    y_label : str
+        The y axis [1].
+    """
+    style: str
+    caption: str
+    panels: tuple[ResidualPanel, ...]
+    y_label: str = "standardised residual"
+
+    def __post_init__(self):
+        if self.style not in FIGURE_STYLES:
+            raise ValueError(f"figure style {self.style!r}: one of {', '.join(FIGURE_STYLES)}")
+
+
+def stored_series_figures(extras: dict[str, Any] | None) -> list[ResidualFigure]:
+    """Residual series any method stored as ``extras["residual_series"]`` (a list of
+    ``{"title", "x_label", "x": [...], "std_resid": [...]}``), as one ``'series'`` figure.
+
+    Parameters
+    ----------
+    extras : dict or None
+        A stored result's extras.
+
+    Returns
+    -------
+    list of ResidualFigure
+        Empty when no series has points.
+    """
+    series = [s for s in ((extras or {}).get("residual_series") or [])
+              if isinstance(s, dict) and s.get("x") and s.get("std_resid")]
+    if not series:
+        return []
+    return [ResidualFigure("series", "Residual series stored by the method.", tuple(
+        ResidualPanel(str(s.get("title", "")), str(s.get("x_label", "")),
+                      (ResidualSeries("", tuple(s["x"]), tuple(s["std_resid"])),))
+        for s in series))]

@@ -72,3 +72,61 @@ def test_toy_estimator_in_campaign_result():
     toy = [c for c in res.coefficients if c.method == TOY]
     assert len(toy) == 1 and not toy[0].adopted          # the joint fit's values are adopted
     assert any(c.method == "joint_ml" and c.name == "K0" and c.adopted for c in res.coefficients)
+
+
+def _toy_figures(extras):
+    """The toy method's residual figure, read from what it stored (its own key)."""
+    from accelcal.results import ResidualFigure, ResidualPanel, ResidualSeries
+    pts = (extras.get("toy") or {}).get("residuals") or []
+    if not pts:
+        return []
+    return [ResidualFigure("series", "toy: each run's mean minus the toy K0, in u.", (
+        ResidualPanel("toy residuals", "run", (ResidualSeries("", tuple(range(len(pts))), tuple(pts)),)),))]
+
+
+def test_toy_estimator_figure_reaches_the_certificate():
+    """A method states its residual figures from its own stored extras (issue 23: the typed
+    science-to-report contract); the certificate's adequacy section draws them, in the
+    registry's order, with the method's caption, and reads no method's keys itself."""
+    import base64
+
+    from accelcal.ops.report_sections import _sec_adequacy
+
+    toy = registry.Estimator(method=TOY, tests=("tumble",), certificate="toy", records=_toy_records,
+                             order=90, figures=_toy_figures)
+    d = {"extras": {"toy": {"residuals": [0.5, -1.2, 0.3]}}, "tests": ["tumble"], "adequacy": [],
+         "coefficients": [], "science_parameters": {}}
+    assert "toy: each run" not in _sec_adequacy(d, True)
+    with registry.registered(toy):
+        (fig,) = registry.residual_figures(d["extras"])
+        html = _sec_adequacy(d, True)
+    assert fig.style == "series" and fig.panels[0].series[0].y == (0.5, -1.2, 0.3)
+    assert "toy: each run&#x27;s mean minus the toy K0, in u." in html or "toy: each run's mean" in html
+    png = html.split("data:image/png;base64,", 1)[1].split("'", 1)[0]
+    assert base64.b64decode(png).startswith(b"\x89PNG")
+
+
+def test_paper_methods_state_their_figures_from_their_own_extras():
+    """Each paper method that stores residuals turns them into its figure: the eq 9 dwell
+    residuals (a panel per pair, series by polarity and sweep), the thermal points (a K0
+    and a K1 panel, a series per run) and the sine runs (a bar per run); the values are
+    the stored ones, recomputed here from the stored numbers."""
+    from accelcal.constants import G_STANDARD
+    ex = {"pairs": {"C1": [{"pair": "IA-PA 0/180", "order": 2, "dwells": {
+              "a": [0.0, 9.80665, -19.6133], "std_resid": [0.1, None, -0.4], "pol": [1, 1, -1],
+              "sweep": ["rest", "up", "down"]}}]},
+          "thermal": {"T1": {"temperature_model": {"K0": 1e-3, "K0T": 1e-5, "K1": 1.0, "K1T": 2e-6},
+                             "points": [{"temp_c": 30.0, "K0": 1.1e-3 + 1e-5 * 10, "u_K0": 5e-5,
+                                         "K1": 1.0 + 2e-5, "u_K1": 1e-5}]}},
+          "sine": {"S1": {"residual_rms": {"r2": 3.0, "r1": 1.5}, "sigma": 1.5}}}
+    figs = {f.style: f for f in registry.residual_figures(ex)}
+    assert list(figs) == ["dwells", "points", "bars"]
+    (p,) = figs["dwells"].panels
+    assert p.title == "C1 IA-PA 0/180 (order 2)"
+    assert {s.label: (s.x, s.y) for s in p.series} == {"+ rest": ((0.0,), (0.1,)),
+                                                        "− down": ((-19.6133 / G_STANDARD,), (-0.4,))}
+    k0, k1 = figs["points"].panels
+    assert k0.series[0].y[0] == (1.1e-3 + 1e-4 - (1e-3 + 1e-5 * 10)) / 5e-5
+    assert k1.series[0].y[0] == (1.0 + 2e-5 - 1.0 * (1 + 2e-6 * 10)) / 1e-5
+    (b,) = figs["bars"].panels
+    assert b.ticks == ("S1 r1", "S1 r2") and b.series[0].y == (1.0, 2.0)

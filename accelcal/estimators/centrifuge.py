@@ -25,17 +25,18 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from ..constants import MOUNT_ANGLE_TOLERANCE_RAD
+from ..constants import G_STANDARD, MOUNT_ANGLE_TOLERANCE_RAD
 from ..physics.axes import parse_plane
 from ..physics.geometry import geometry_of
-from ..results import AdequacyResult, CoefficientResult, RadiusResult
+from ..results import (AdequacyResult, CoefficientResult, RadiusResult, ResidualFigure, ResidualPanel,
+                       ResidualSeries)
 from . import uncertainty as unc
 from .adequacy import choose_order
 from .crosscoupling import CROSS, Combination, PairFit, combine_second_order, delta_c2, fit_mount_pair, pair_label
@@ -700,6 +701,46 @@ def mc_truth(c, eff, test, g, notes) -> dict[tuple[str, str], tuple[float, str]]
     return {(k, rig): (c[k], "instrument value") for k in ("K2", "Kpp", "Koo", "Kip", "Kio", "Kpo", "Koq", "K3")}
 
 
+def residual_figures(extras: Mapping[str, Any]) -> list[ResidualFigure]:
+    """The eq 9 fits' standardised dwell-mean residuals against the signed centripetal
+    input, one panel per mount pair, from what :func:`campaign_records` stored
+    (``extras['pairs']``), for the certificate (issue 23).
+
+    Parameters
+    ----------
+    extras : mapping
+        A stored result's extras.
+
+    Returns
+    -------
+    list of ResidualFigure
+        One ``'dwells'`` figure (series by polarity and sweep), or none without pairs.
+    """
+    pairs = [(rig, p) for rig, ps in (extras.get("pairs") or {}).items() for p in ps
+             if isinstance(p, dict) and isinstance(p.get("dwells"), dict)]
+    panels = []
+    for rig, p in pairs:
+        dw = p["dwells"]
+        a = [(x or 0.0) / G_STANDARD for x in dw.get("a", [])]
+        r = dw.get("std_resid", [])
+        pol = dw.get("pol", [1] * len(a))
+        sweep = dw.get("sweep", ["up"] * len(a))
+        series = []
+        for sgn, colour in ((1, "#1f5fa8"), (-1, "#c0392b")):
+            for sw, marker in (("up", "^"), ("down", "v"), ("rest", "o")):
+                xy = [(x, y) for x, s, w, y in zip(a, pol, sweep, r) if s == sgn and w == sw and y is not None]
+                if xy:
+                    series.append(ResidualSeries(f"{'+' if sgn > 0 else '−'} {sw}", tuple(x for x, _ in xy),
+                                                 tuple(y for _, y in xy), marker, colour))
+        panels.append(ResidualPanel(f"{rig} {p.get('pair', '')} (order {p.get('order', '?')})",
+                                    "input acceleration along IA (signed) / g", tuple(series)))
+    if not panels:
+        return []
+    return [ResidualFigure("dwells", "Standardised dwell-mean residuals of the eq 9 fits (▲ up-sweep, "
+                           "▼ down-sweep, ● rest; blue + polarity, red − polarity; dashed: ±3).",
+                           tuple(panels))]
+
+
 ESTIMATOR = register(Estimator(
     method=METHOD, tests=("centrifuge",),
     certificate=("paper 000 (He & Yin, 2017): test radius by static back-calculation "
@@ -708,4 +749,4 @@ ESTIMATOR = register(Estimator(
                  "(eqs 2–3); alignment analysis (eq 8); GUM budgets with a JCGM 101 Monte Carlo "
                  "check"),
     prepare=campaign_rigs, records=campaign_records, truth=mc_truth, adoption=1,
-    main=("K2", "Kip", "Kpp", "Koq", "K3"), order=1))
+    main=("K2", "Kip", "Kpp", "Koq", "K3"), order=1, figures=residual_figures))

@@ -22,7 +22,10 @@ names
 * ``crb``: whether the whole-campaign Cramér–Rao bound applies to its values (not to a
   tumble's apparent, aliased ones);
 * ``order``: where it runs (lower first; the tumble first, its reference scales the
-  centrifuge radius).
+  centrifuge radius);
+* ``figures(extras)``: the residual figures of its stored result
+  (:class:`~accelcal.results.ResidualFigure`), which the certificate draws: what a method
+  stored is read by the method, never by the report (:func:`residual_figures`).
 
 The adopted values come from the joint fit (:mod:`accelcal.estimators.joint`, method
 :data:`ADOPTED`), which is not a paper method and not in the registry.
@@ -57,6 +60,7 @@ class Estimator:
     main: tuple[str, ...] = ()
     crb: bool = True
     order: int = 50
+    figures: Callable[[Mapping[str, Any]], list] | None = None
 
     @property
     def record_methods(self) -> tuple[str, ...]:
@@ -117,6 +121,28 @@ def display_order() -> dict[str, int]:
 def main_coefficients() -> dict[str, tuple[str, ...]]:
     """Method id -> the coefficients the Monte Carlo study reports as its headline."""
     return {e.method: e.main for e in estimators() if e.main}
+
+
+def residual_figures(extras: Mapping[str, Any] | None) -> list:
+    """The residual figures of a stored result: each estimator's (``figures``, in run
+    order), then any residual series a method stored
+    (:func:`accelcal.results.stored_series_figures`).
+
+    Parameters
+    ----------
+    extras : mapping or None
+        The stored result's extras.
+
+    Returns
+    -------
+    list of ResidualFigure
+    """
+    from ..results import stored_series_figures
+    out = []
+    for est in estimators():
+        if est.figures is not None:
+            out += est.figures(extras or {})
+    return out + stored_series_figures(dict(extras or {}))
 
 
 #: The modules of the paper methods (each registers its estimator on import).

@@ -77,7 +77,7 @@ from ..fitting.core import FitResult, LackOfFit, Parameter, ParameterSet, gauss_
 from ..fitting.data import fitted_drive
 from ..physics import instrument, rigs
 from ..physics.geometry import geometry_of
-from ..results import BudgetTerm, CoefficientResult
+from ..results import BudgetTerm, CoefficientResult, ResidualFigure, ResidualPanel, ResidualSeries
 from . import uncertainty as unc
 from .registry import Estimator, register
 
@@ -1055,9 +1055,38 @@ def mc_truth(c, eff, test, g, notes) -> dict[tuple[str, str], tuple[float, str]]
             for k in ("K0", "K1", "Kp", "Ko", "K2", "K3", "Koq", "Kip", "Kio", "Kpo", "Kpp", "Koo")}
 
 
+def residual_figures(extras: Mapping[str, Any]) -> list[ResidualFigure]:
+    """Per run, the rms residual of the sine fit relative to its pooled sigma (a run whose
+    model misses shows as a bar well above 1), from what :func:`campaign_records` stored
+    (``extras['sine']``; the fit stores no residual series), for the certificate (issue 23).
+
+    Parameters
+    ----------
+    extras : mapping
+        A stored result's extras.
+
+    Returns
+    -------
+    list of ResidualFigure
+        One ``'bars'`` figure, or none.
+    """
+    rigs = [(rig, s) for rig, s in (extras.get("sine") or {}).items()
+            if isinstance(s, dict) and isinstance(s.get("residual_rms"), dict) and s.get("sigma")]
+    bars = [(f"{rig} {run}", rms / s["sigma"]) for rig, s in rigs for run, rms in sorted(s["residual_rms"].items())]
+    if not bars:
+        return []
+    return [ResidualFigure("bars", "Residual rms of the joint sine fit per run, relative to its pooled σ "
+                           "(the fit stores no residual series).", (ResidualPanel(
+                               "sine fit: residual rms per run", "",
+                               (ResidualSeries("", tuple(float(k) for k in range(len(bars))),
+                                               tuple(v for _, v in bars), colour="#1f5fa8"),),
+                               tuple(lab for lab, _ in bars)),), y_label="rms residual / pooled σ")]
+
+
 ESTIMATOR = register(Estimator(
     method=METHOD, tests=("sine_centrifuge",),
     certificate=("paper 002 (Sun, Ren & Wang): joint least squares of the instrument "
                  "model with the rig's tool errors through the forward model, with an "
                  "aliasing analysis"),
-    records=campaign_records, truth=mc_truth, adoption=2, main=("K2", "Kip"), order=3))
+    records=campaign_records, truth=mc_truth, adoption=2, main=("K2", "Kip"), order=3,
+    figures=residual_figures))

@@ -49,7 +49,7 @@ from ..fitting.data import ROW_SLICE
 from ..physics.geometry import geometry_of
 from ..physics.instrument import indicated_acceleration, output_derivative
 from ..physics.rigs import tilt_rotation_specific_force
-from ..results import BudgetTerm, CoefficientResult
+from ..results import BudgetTerm, CoefficientResult, ResidualFigure, ResidualPanel, ResidualSeries
 from . import uncertainty as unc
 from .registry import Estimator, register
 
@@ -1106,6 +1106,43 @@ def mc_truth(c: Mapping[str, float], eff: Mapping[str, float], test: Mapping[str
             ("K1T", rig): (c["K1T"], "instrument value")}
 
 
+def residual_figures(extras: Mapping[str, Any]) -> list[ResidualFigure]:
+    """Per temperature point, the point's K0 and K1 minus the temperature model at its
+    temperature, in units of the point's standard uncertainty (paper 001), from what
+    :func:`campaign_records` stored (``extras['thermal']``), for the certificate (issue 23).
+
+    Parameters
+    ----------
+    extras : mapping
+        A stored result's extras.
+
+    Returns
+    -------
+    list of ResidualFigure
+        One ``'points'`` figure (a K0 and a K1 panel, a series per run), or none.
+    """
+    runs = [(rid, t) for rid, t in (extras.get("thermal") or {}).items()
+            if isinstance(t, dict) and t.get("points") and t.get("temperature_model")]
+    if not runs:
+        return []
+    k0, k1 = [], []
+    for rid, t in runs:
+        m = t["temperature_model"]
+        tref = float(m.get("t_ref_c", T_REF_C))
+        pts = [p for p in t["points"] if p.get("temp_c") is not None]
+        r0 = [(p["temp_c"], (p["K0"] - (m["K0"] + m["K0T"] * (p["temp_c"] - tref))) / p["u_K0"])
+              for p in pts if p.get("u_K0")]
+        r1 = [(p["temp_c"], (p["K1"] - m["K1"] * (1 + m["K1T"] * (p["temp_c"] - tref))) / p["u_K1"])
+              for p in pts if p.get("u_K1")]
+        k0.append(ResidualSeries(rid, tuple(x for x, _ in r0), tuple(y for _, y in r0)))
+        k1.append(ResidualSeries(rid, tuple(x for x, _ in r1), tuple(y for _, y in r1)))
+    return [ResidualFigure("points", "Per temperature point: K0 and K1 minus the temperature model, in "
+                           "units of the point's standard uncertainty (dashed: ±3).", tuple(
+                               ResidualPanel(f"{name} per point − temperature model",
+                                             "instrument temperature / °C", tuple(series))
+                               for name, series in (("K0", k0), ("K1", k1))))]
+
+
 ESTIMATOR = register(Estimator(
     method=METHOD, tests=("tilt_rotation",),
     certificate=("paper 001 (Zhang et al., 2021): least squares of K0 and K1 over the "
@@ -1115,4 +1152,4 @@ ESTIMATOR = register(Estimator(
     # campaign measures K0T and K1T (their K0 and K1 are then at the tumble's temperature)
     prepare=lambda runs, steps: tuple(runs),
     records=campaign_records, truth=mc_truth, methods=(METHOD, METHOD_TWO_POSITION), adoption=3,
-    main=("K0T", "K1T"), order=2))
+    main=("K0T", "K1T"), order=2, figures=residual_figures))

@@ -1,10 +1,10 @@
 """Plots of the calibration certificate (matplotlib, PNG, base64 for inline embedding).
 
-Each function takes what the warehouse stores and returns a base64 PNG, or None when
-there is nothing to plot.  Residual plots exist for every test kind whose result stores
-something to plot: the eq 9 dwell residuals (centrifuge), the per-temperature-point
-residuals from the temperature model (thermal), the per-run residual rms of the joint
-fit (sine), and any ``extras["residual_series"]`` a method provides.
+Each function takes what the warehouse stores, or a typed figure a method made of it, and
+returns a base64 PNG, or None when there is nothing to plot.  The residual figures are the
+methods' own (:class:`accelcal.results.ResidualFigure`, from
+:func:`accelcal.estimators.registry.residual_figures`): this module draws them by their
+style and never reads a method's extras (issue 23).
 """
 from __future__ import annotations
 
@@ -12,6 +12,8 @@ import base64
 import io
 import math
 from typing import Any
+
+from ..results import ResidualFigure
 
 K_COVERAGE = 2.0
 
@@ -54,38 +56,6 @@ def _png(fig) -> str:
     return base64.b64encode(buf.getvalue()).decode("ascii")
 
 
-def residual_plot(extras: dict[str, Any] | None) -> str | None:
-    """Standardised dwell residuals of the eq 9 fits against centripetal g, one panel per pair."""
-    pairs = [(rig, p) for rig, ps in ((extras or {}).get("pairs") or {}).items() for p in ps
-             if isinstance(p, dict) and isinstance(p.get("dwells"), dict)]
-    if not pairs:
-        return None
-    from ..constants import G_STANDARD
-    fig, axes = _panels(len(pairs), sharey=True)
-    for k, (rig, p) in enumerate(pairs):
-        ax = axes[k]
-        dw = p["dwells"]
-        a = [(x or 0.0) / G_STANDARD for x in dw.get("a", [])]
-        r = dw.get("std_resid", [])
-        pol = dw.get("pol", [1] * len(a))
-        sweep = dw.get("sweep", ["up"] * len(a))
-        for sgn, colour in ((1, "#1f5fa8"), (-1, "#c0392b")):
-            for sw, marker in (("up", "^"), ("down", "v"), ("rest", "o")):
-                xs = [x for x, s, w, y in zip(a, pol, sweep, r) if s == sgn and w == sw and y is not None]
-                ys = [y for x, s, w, y in zip(a, pol, sweep, r) if s == sgn and w == sw and y is not None]
-                if xs:
-                    ax.scatter(xs, ys, s=14, marker=marker, color=colour, alpha=0.8,
-                               label=f"{'+' if sgn > 0 else '−'} {sw}")
-        ax.set_title(f"{rig} {p.get('pair', '')} (order {p.get('order', '?')})", fontsize=9)
-        _residual_axes(ax, "input acceleration along IA (signed) / g", y_label=k % 3 == 0)
-    h, lab = axes[0].get_legend_handles_labels()
-    if h:
-        fig.legend(h, lab, loc="upper center", ncol=6, fontsize=7, frameon=False,
-                   bbox_to_anchor=(0.5, 1.04))
-    fig.tight_layout()
-    return _png(fig)
-
-
 def radius_plot(radii: list[dict[str, Any]]) -> str | None:
     """Test radius per polarity against the g range of the fit, per method/order, with U (k=2)."""
     rows = [r for r in radii if r.get("radius_m") is not None]
@@ -120,70 +90,59 @@ def radius_plot(radii: list[dict[str, Any]]) -> str | None:
     return _png(fig)
 
 
-def thermal_residual_plot(extras: dict[str, Any] | None) -> str | None:
-    """Per temperature point: the point's K0 and K1 minus the temperature model's value at
-    its temperature, in units of the point's standard uncertainty (paper 001)."""
-    runs = [(rid, t) for rid, t in ((extras or {}).get("thermal") or {}).items()
-            if isinstance(t, dict) and t.get("points") and t.get("temperature_model")]
-    if not runs:
+def residual_figure(fig: ResidualFigure) -> str | None:
+    """Draw a method's residual figure by its style (``accelcal.results.FIGURE_STYLES``).
+
+    Parameters
+    ----------
+    fig : ResidualFigure
+
+    Returns
+    -------
+    str or None
+        Base64 PNG; None for a figure without panels.
+    """
+    panels = list(fig.panels)
+    if not panels:
         return None
-    plt = _plt()
-    fig, axes = plt.subplots(1, 2, figsize=(9.0, 3.0), squeeze=False)
-    for rid, t in runs:
-        m = t["temperature_model"]
-        tref = float(m.get("t_ref_c", 20.0))
-        pts = [p for p in t["points"] if p.get("temp_c") is not None]
-        T = [p["temp_c"] for p in pts]
-        r0 = [(p["K0"] - (m["K0"] + m["K0T"] * (p["temp_c"] - tref))) / p["u_K0"]
-              if p.get("u_K0") else None for p in pts]
-        r1 = [(p["K1"] - m["K1"] * (1 + m["K1T"] * (p["temp_c"] - tref))) / p["u_K1"]
-              if p.get("u_K1") else None for p in pts]
-        for ax, r, name in ((axes[0][0], r0, "K0"), (axes[0][1], r1, "K1")):
-            xs = [x for x, y in zip(T, r) if y is not None]
-            ys = [y for y in r if y is not None]
-            ax.scatter(xs, ys, s=16, label=rid)
-            ax.set_title(f"{name} per point − temperature model", fontsize=9)
-    for ax in axes[0]:
-        _residual_axes(ax, "instrument temperature / °C")
-    fig.tight_layout()
-    return _png(fig)
+    if fig.style == "bars":
+        return _bars(fig, panels[0])
+    if fig.style == "points":
+        figure, axes = _plt().subplots(1, len(panels), figsize=(4.5 * len(panels), 3.0), squeeze=False)
+        axes = list(axes[0])
+    else:
+        figure, axes = _panels(len(panels), sharey=fig.style == "dwells")
+    size = {"dwells": 14, "points": 16, "series": 10}[fig.style]
+    for k, (ax, p) in enumerate(zip(axes, panels)):
+        for sr in p.series:
+            kw = {"s": size}
+            if fig.style == "dwells":
+                kw.update(marker=sr.marker, color=sr.colour, alpha=0.8)
+            elif sr.colour is not None:
+                kw["color"] = sr.colour
+            if sr.label:
+                kw["label"] = sr.label
+            ax.scatter(list(sr.x), list(sr.y), **kw)
+        ax.set_title(p.title, fontsize=9)
+        _residual_axes(ax, p.x_label, y_label=k % 3 == 0 or fig.style != "dwells")
+    if fig.style == "dwells":
+        h, lab = axes[0].get_legend_handles_labels()
+        if h:
+            figure.legend(h, lab, loc="upper center", ncol=6, fontsize=7, frameon=False,
+                          bbox_to_anchor=(0.5, 1.04))
+    figure.tight_layout()
+    return _png(figure)
 
 
-def sine_residual_plot(extras: dict[str, Any] | None) -> str | None:
-    """Per run: the rms residual of the joint fit relative to the fit's pooled sigma (a run
-    whose model misses shows as a bar well above 1)."""
-    rigs = [(rig, s) for rig, s in ((extras or {}).get("sine") or {}).items()
-            if isinstance(s, dict) and isinstance(s.get("residual_rms"), dict) and s.get("sigma")]
-    if not rigs:
-        return None
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(6.0, 2.8))
-    labels, vals = [], []
-    for rig, s in rigs:
-        for run, rms in sorted(s["residual_rms"].items()):
-            labels.append(f"{rig} {run}")
-            vals.append(rms / s["sigma"])
-    ax.bar(range(len(vals)), vals, color="#1f5fa8")
+def _bars(fig: ResidualFigure, p) -> str:
+    """A ``'bars'`` figure: one bar per tick, the line at 1."""
+    figure, ax = _plt().subplots(figsize=(6.0, 2.8))
+    vals = list(p.series[0].y)
+    ax.bar(range(len(vals)), vals, color=p.series[0].colour or "#1f5fa8")
     ax.axhline(1.0, color="#444", lw=0.8, ls="--")
-    ax.set_xticks(range(len(vals)), labels, fontsize=7, rotation=15)
-    ax.set_ylabel("rms residual / pooled σ", fontsize=8)
-    ax.set_title("sine fit: residual rms per run", fontsize=9)
+    ax.set_xticks(range(len(vals)), list(p.ticks), fontsize=7, rotation=15)
+    ax.set_ylabel(fig.y_label, fontsize=8)
+    ax.set_title(p.title, fontsize=9)
     ax.tick_params(labelsize=7)
-    fig.tight_layout()
-    return _png(fig)
-
-
-def series_residual_plot(extras: dict[str, Any] | None) -> str | None:
-    """Any residual series a method stores as ``extras["residual_series"]``: a list of
-    {"title", "x_label", "x": [...], "std_resid": [...]} (one panel each)."""
-    series = [s for s in ((extras or {}).get("residual_series") or [])
-              if isinstance(s, dict) and s.get("x") and s.get("std_resid")]
-    if not series:
-        return None
-    fig, axes = _panels(len(series))
-    for ax, s in zip(axes, series):
-        ax.scatter(s["x"], s["std_resid"], s=10)
-        ax.set_title(str(s.get("title", "")), fontsize=9)
-        _residual_axes(ax, str(s.get("x_label", "")))
-    fig.tight_layout()
-    return _png(fig)
+    figure.tight_layout()
+    return _png(figure)

@@ -9,9 +9,9 @@ import re
 from pathlib import Path
 from typing import Any
 
+from ..estimators.registry import residual_figures
 from .certificate import COVERAGE_PROBABILITY, _adopted, _k, _u_unknown, method_text, missing_rig_inputs
-from .plots import (K_COVERAGE, radius_plot, residual_plot, series_residual_plot,
-                    sine_residual_plot, thermal_residual_plot)
+from .plots import K_COVERAGE, radius_plot, residual_figure
 from .report_display import (_at_digit, _coefficient_scale, _e, _fmt, _img, _keep, _kv, _ph, _same_minute,
                              _table, _to_second, _when, display_value)
 
@@ -507,18 +507,10 @@ def _sec_adequacy(d, plots) -> str:
     if not out:
         out.append("<p>No adequacy test is stored for this result.</p>")
     if plots:
-        ex = d.get("extras")
-        for img, cap in ((residual_plot(ex), "Standardised dwell-mean residuals of the eq 9 fits "
-                          "(▲ up-sweep, ▼ down-sweep, ● rest; blue + polarity, red − polarity; "
-                          "dashed: ±3)."),
-                         (thermal_residual_plot(ex), "Per temperature point: K0 and K1 minus the "
-                          "temperature model, in units of the point's standard uncertainty "
-                          "(dashed: ±3)."),
-                         (sine_residual_plot(ex), "Residual rms of the joint sine fit per run, "
-                          "relative to its pooled σ (the fit stores no residual series)."),
-                         (series_residual_plot(ex), "Residual series stored by the method.")):
+        for fig in residual_figures(d.get("extras")):
+            img = residual_figure(fig)
             if img:
-                out.append(f"<div class='keep'><p class='note'>{_e(cap)}</p>"
+                out.append(f"<div class='keep'><p class='note'>{_e(fig.caption)}</p>"
                            f"{_img(img, 'residual plot')}</div>")
         tests = set(d.get("tests") or [])
         if "tumble" in tests:
