@@ -935,8 +935,11 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = "", *,
     # calibration (K0, K1 at 20 degC) before, the full model after
     d = _in_time_order(data)
     T = d["temp_c"].to_numpy(float)
-    if np.isfinite(T).any():
-        T = np.where(np.isfinite(T), T, d["temp_set_c"].to_numpy(float))
+    fin = np.isfinite(T)
+    if fin.any():
+        if not fin.all():            # (a run with every temperature logged is not copied)
+            T = np.where(fin, T, d["temp_set_c"].to_numpy(float))
+        del fin
         # the IA input with the fitted in-plane cross term: a_i + Kx a_x of the forward model
         Kx = float(np.mean([p["cross_term"] for p in fitted])) if fitted else 0.0
         rot = d["rotation_deg"].to_numpy(float)
