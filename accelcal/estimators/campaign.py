@@ -15,6 +15,7 @@ from __future__ import annotations
 from collections import defaultdict
 from collections.abc import Mapping
 
+from .. import memory
 from ..constants import MOUNT_ANGLE_TOLERANCE_RAD
 from ..results import CampaignResult, CoefficientResult
 from . import registry
@@ -75,6 +76,8 @@ def _process_campaign(runs, stated: Mapping[str, Mapping[str, float]]) -> Campai
         if taken[est.method]:
             for rec in est.records(taken[est.method], steps):
                 rec.add_to(res)
+    if sum(len(r.data) for r in runs) >= memory.BIG_ROWS:
+        memory.give_back()     # what the paper methods freed, before the joint fit (issue 28)
     _joint(runs, res, stated)
     _mark_adopted(res)
     _assess_completeness(res)

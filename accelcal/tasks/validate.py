@@ -9,6 +9,7 @@ import logging
 import time
 from pathlib import Path
 
+from .. import memory
 from ..fileio import StoreError, os_error_text
 from ..warehouse.db import Refusal
 from ..schemas import datadocs, suites
@@ -98,29 +99,6 @@ def _validate_isolated(ing: DropIngest, runs: list, docs_root: str, part: int | 
     return verdicts
 
 
-#: Rows of a batch after which its memory is handed back to the OS (give_back_memory).
-BIG_BATCH_ROWS = 1 << 20
-
-
-def give_back_memory() -> None:
-    """Return the free memory a big batch leaves to the OS: pyarrow's pool keeps what
-    the Parquet write freed, and glibc's heap the slices the validation freed (~400 MB
-    after a 5 M-row run); the science that follows in the same process would start that
-    much higher (issue 28).  Best effort: nothing on a libc without malloc_trim."""
-    import gc
-    gc.collect()          # the validation's frames sit in reference cycles: ~500 MB after a
-    try:                  # 4.5 M-row run stayed until the next collection (issue 28)
-        import pyarrow as pa
-        pa.default_memory_pool().release_unused()
-    except Exception:
-        pass
-    try:
-        import ctypes
-        ctypes.CDLL(None).malloc_trim(0)
-    except (OSError, AttributeError):
-        pass
-
-
 def intake_batch(drop_dir: str, paths: list, parquet_root: str, warehouse_root: str,
                  known: dict[tuple[str, str], str], docs_root: str,
                  part: int | None, allow_simulated: bool = False) -> DropIngest:
@@ -137,8 +115,8 @@ def intake_batch(drop_dir: str, paths: list, parquet_root: str, warehouse_root: 
     rows = sum(getattr(r, "n_rows", 0) for r in ing.parsed.values())
     ing = validate_drop(ing, docs_root, part)
     ing.parsed.clear()
-    if rows >= BIG_BATCH_ROWS:
-        give_back_memory()
+    if rows >= memory.BIG_ROWS:
+        memory.give_back()   # the validation's frames sit in reference cycles (~500 MB at 4.5 M rows)
     t2 = time.perf_counter()
     ing.seconds = t2 - t0
     ing.stage_seconds = {"ingest": t1 - t0, "validate": t2 - t1}
