@@ -358,16 +358,18 @@ def test_other_geometries(n_pos, sin_axis, cos_axis, method):
 
 
 def test_position_keys_counted_not_sorted_are_numpys_unique():
-    """position_means finds its (point, position) groups by counting small integer keys
+    """position_means and a run's cells find their groups by counting small integer keys
     (issue 28: no sort of a long run); the three arrays must be np.unique's, dtype included,
-    on keys in runs of repeats as a run's dwells give them."""
+    on keys in runs of repeats as a run's dwells give them, and on keys in any order."""
     import numpy as np
 
-    from accelcal.estimators.thermal import _unique_small
+    from accelcal.fitting.data import unique_small_ints as _unique_small
 
     rng = np.random.default_rng(28)
     for _ in range(300):
         m = int(rng.integers(1, 60))
         key = np.repeat(rng.integers(0, 40, m), rng.integers(1, 5, m))
+        if _ % 2:
+            key = rng.permutation(key)
         for a, b in zip(np.unique(key, return_index=True, return_inverse=True), _unique_small(key)):
             assert np.array_equal(a, b) and a.dtype == b.dtype

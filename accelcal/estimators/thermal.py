@@ -45,7 +45,7 @@ from scipy import stats
 
 from ..constants import MICRO_G, T_REF_C
 from ..fitting.core import lack_of_fit, linear_fit
-from ..fitting.data import ROW_SLICE
+from ..fitting.data import ROW_SLICE, unique_small_ints
 from ..physics.geometry import geometry_of
 from ..physics.instrument import indicated_acceleration, output_derivative
 from ..physics.rigs import tilt_rotation_specific_force
@@ -243,22 +243,6 @@ def segment_run(data: pd.DataFrame, positions: int | None = None) -> pd.DataFram
     return d
 
 
-def _unique_small(key: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``np.unique(key, return_index=True, return_inverse=True)`` of small non-negative
-    integer keys (a point and position index), found by counting instead of sorting the
-    readings: the same three arrays, without the sort's copies of a long run (issue 28)."""
-    if key.size == 0 or key.min() < 0 or key.max() > 4 * key.size + (1 << 16):
-        return np.unique(key, return_index=True, return_inverse=True)
-    present = np.bincount(key) > 0
-    uniq = np.flatnonzero(present)
-    rank = np.cumsum(present) - 1
-    # a key's first reading starts one of the blocks of equal consecutive keys
-    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
-    first_of = np.full(present.size, key.size, np.int64)
-    np.minimum.at(first_of, key[starts], starts)
-    return uniq, first_of[uniq], rank[key]
-
-
 def position_means(labelled: pd.DataFrame) -> pd.DataFrame:
     """Mean of the readings at every (point, position) of a :func:`segment_run` table.
 
@@ -269,7 +253,7 @@ def position_means(labelled: pd.DataFrame) -> pd.DataFrame:
     point = labelled["point"].to_numpy()
     position = labelled["position"].to_numpy()
     key = point.astype(np.int64) * (int(position.max(initial=0)) + 1) + position
-    uniq, first, gid = _unique_small(key)
+    uniq, first, gid = unique_small_ints(key)
     del key
     k = uniq.size
     n = np.bincount(gid, minlength=k).astype(float)

@@ -472,7 +472,37 @@ class RunCells:
         (ncell,) ndarray
             Sample variance in each cell [unit of rows ^2]; nan for 1-reading cells.
         """
+        if self._kept_mask() is None and len(self.row_slices()) > 1:
+            return self._sliced_scatter(rows)[1]
         return self._deviations(rows)[3]
+
+    def _sliced_scatter(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float, np.ndarray]:
+        """(sum of squares per cell, sample variance per cell, lag-1 sum and sum of squares
+        of the deviations over same-cell pairs, pairs per cell) of a big run whose readings
+        are all kept, made a slice of readings at a time (:meth:`row_slices`, issue 28: no
+        array of the run's length but the cell means'); the sums of :meth:`cell_scatter`,
+        in another order."""
+        r = np.asarray(rows, float)
+        cm = self.cell_mean(r)
+        k = self.ncell
+        ss, pc = np.zeros(k), np.zeros(k)
+        num = den = 0.0
+        last = None                       # (deviation, cell) of the reading before the slice
+        for sl in self.row_slices():
+            c = self.cid[sl]
+            d = r[sl] - cm[c]
+            d2 = d * d
+            ss += np.bincount(c, weights=d2, minlength=k)
+            den += float(np.sum(d2))
+            same = c[1:] == c[:-1]
+            num += float(np.sum((d[1:] * d[:-1])[same]))
+            pc += np.bincount(c[1:], weights=same, minlength=k)
+            if last is not None and last[1] == c[0]:
+                num += last[0] * float(d[0])
+                pc[c[0]] += 1.0
+            last = (float(d[-1]), int(c[-1]))
+        s2 = np.where(self.n >= 2, ss / np.maximum(self.n - 1, 1), np.nan)
+        return ss, s2, num, den, pc
 
     def cell_scatter(self, rows: np.ndarray) -> tuple[np.ndarray, float, float]:
         """Within-cell sample variance of a per-reading quantity and the pooled lag-1
@@ -496,13 +526,20 @@ class RunCells:
         rho_hi : float
             Upper end of rho's sampling interval (:data:`RHO_INTERVAL_Z`) [1]; 0 with rho.
         """
-        keep, dev, ss, s2 = self._deviations(rows)
-        same = keep[1:] & keep[:-1] & (self.cid[1:] == self.cid[:-1])
-        lag = dev[1:] * dev[:-1]          # the products of the pairs, then the same-cell ones:
-        num = float(np.sum(lag[same]))    # the same numbers as masking both factors first
-        del lag
-        dk = dev if self._kept_mask() is None else dev[keep]
-        den = float(np.sum(dk * dk))
+        if self._kept_mask() is None and len(self.row_slices()) > 1:
+            ss, s2, num, den, pc = self._sliced_scatter(rows)
+        else:
+            keep, dev, ss, s2 = self._deviations(rows)
+            same = keep[1:] & keep[:-1] & (self.cid[1:] == self.cid[:-1])
+            lag = dev[1:] * dev[:-1]          # the products of the pairs, then the same-cell ones:
+            num = float(np.sum(lag[same]))    # the same numbers as masking both factors first
+            del lag
+            dk = dev if self._kept_mask() is None else dev[keep]
+            den = float(np.sum(dk * dk))
+            if self._kept_mask() is None:     # counts as float sums of ones: exact, no copy of cid
+                pc = np.bincount(self.cid[1:], weights=same, minlength=self.ncell)
+            else:
+                pc = np.bincount(self.cid[1:][same], minlength=self.ncell).astype(float)
         r = num / den if den > 0 else 0.0
         # the deviations from a cell mean are negatively correlated by -1/n: white readings
         # give the ratio r0 = -sum_c ss_c / n_c / sum_c ss_c (cells weighted as the pooled
@@ -515,10 +552,6 @@ class RunCells:
         # when the cells' scatter is alike; where it grows with rate, the few loud cells
         # carry the ratio: var r ~ sum_c ss_c^2 / p_c / (sum_c ss_c)^2, p_c = n_c - 1 pairs
         # (the scatter each cell is expected to have: a + b x^2 through the cells' own)
-        if self._kept_mask() is None:     # counts as float sums of ones: exact, no copy of cid
-            pc = np.bincount(self.cid[1:], weights=same, minlength=self.ncell)
-        else:
-            pc = np.bincount(self.cid[1:][same], minlength=self.ncell).astype(float)
         use = (pc > 0) & np.isfinite(s2)
         pairs = 0.0
         if np.any(use):
@@ -538,6 +571,35 @@ class RunCells:
 
 
 # ----------------------------------------------------------------------------- building
+
+def unique_small_ints(key: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``np.unique(key, return_index=True, return_inverse=True)`` of non-negative integer
+    keys of a small range (cells, a thermal run's point and position), found by counting
+    instead of sorting the readings: the same three arrays, without the sort's copies of a
+    long run (issue 28).
+
+    Parameters
+    ----------
+    key : (n,) ndarray of int
+        Keys [1]; any other (negative, or a range over 4 n + 65536) goes to np.unique.
+
+    Returns
+    -------
+    uniq, first, inverse : ndarray
+        The sorted distinct keys, the index of each one's first reading, and each
+        reading's index into ``uniq``.
+    """
+    if key.size == 0 or key.min() < 0 or key.max() > 4 * key.size + (1 << 16):
+        return np.unique(key, return_index=True, return_inverse=True)
+    present = np.bincount(key) > 0
+    uniq = np.flatnonzero(present)
+    rank = np.cumsum(present) - 1
+    # a key's first reading starts one of the blocks of equal consecutive keys
+    starts = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    first_of = np.full(present.size, key.size, np.int64)
+    np.minimum.at(first_of, key[starts], starts)
+    return uniq, first_of[uniq], rank[key]
+
 
 def _blocks(keys: Sequence[np.ndarray], tols: Sequence[float] | None = None) -> np.ndarray:
     """Consecutive readings with equal keys (within ``tols``, default exact) form one block;
@@ -677,7 +739,7 @@ def make_run(meta: Mapping, data, index: int = 0, sha256: str = "", sine_segment
             cid = cid + nb * np.minimum(((t - t[0]) / (np.ptp(t) + dt) * seg).astype(int), seg - 1)
     else:
         raise ValueError(f"unknown test kind {test!r}")
-    _, cid = np.unique(cid, return_inverse=True)
+    cid = unique_small_ints(cid)[2]
     k = int(cid.max()) + 1 if cid.size else 0
     n = np.bincount(cid, minlength=k).astype(float)
     y_rows = cols["output"]
