@@ -239,16 +239,14 @@ def _one_g(d: dict[str, np.ndarray], meta: dict, n: int,
 
 def _turning_step_means(runs: list[RunFile]) -> dict[int, np.ndarray]:
     """What :func:`_one_g` needs of each centrifuge run ``runs[j]`` -- the mean rate [rad/s]
-    of its turning rows per step, ascending steps -- for all of them in one pandas groupby
-    (one per run cost a quarter of a run's derived columns).  The same numbers as a
-    groupby per run, bit for bit: each group here is one run's step, its rows in the run's
-    order, and pandas sums a group from its values alone -- but how depends on the whole
-    key: rows sorted by group (and no NaN) are summed with ``np.add.reduceat``, others by
-    a compensated sum.  So only runs whose turning steps never go down are taken (the
-    batch is then sorted too, as each of them is alone; a turning rate is never NaN);
-    the others, and runs whose columns are not the parser's dtypes, are left out
-    (computed per run)."""
-    rates, steps, js = [], [], []
+    of its turning rows per step, ascending steps -- as ``np.add.reduceat`` over each step's
+    rows, which is how pandas' groupby mean sums a group whose rows are sorted by it (the
+    same numbers, bit for bit: tests/test_validation.py).  So only runs whose turning steps
+    never go down are taken (then each step's turning rows are one block); the others, and
+    runs whose columns are not the parser's dtypes, are left out (computed per run by
+    :func:`_one_g`).  One run at a time, without a table of the batch: a pandas groupby of a
+    1 GB run's rows was the peak of its whole intake (issue 28)."""
+    out: dict[int, np.ndarray] = {}
     for j, r in enumerate(runs):
         a = r.arrays
         if r.test != "centrifuge" or not {"step", "table_rate_rad_s", "table_angle_deg"} <= a.keys():
@@ -260,19 +258,10 @@ def _turning_step_means(runs: list[RunFile]) -> dict[int, np.ndarray]:
         s = step[turning]
         if len(s) > 1 and not (s[1:] >= s[:-1]).all():
             continue
-        rates.append(rate[turning])
-        steps.append(s)
-        js.append(np.full(len(rates[-1]), j, np.int64))
-    if not rates:
-        return {}
-    means = pd.Series(np.concatenate(rates)).groupby([np.concatenate(js),
-                                                      np.concatenate(steps)]).mean()
-    run_of = means.index.get_level_values(0).to_numpy()
-    values = means.to_numpy()
-    out: dict[int, np.ndarray] = {}
-    bounds = _run_edges(run_of)
-    for a, b in zip(bounds[:-1], bounds[1:]):
-        out[int(run_of[a])] = values[a:b]
+        if not len(s):
+            continue
+        starts = _run_edges(s)
+        out[j] = np.add.reduceat(rate[turning], starts[:-1]) / np.diff(starts)
     return out
 
 
