@@ -931,13 +931,17 @@ def drop_duplicate_cells(runs: Sequence[RunCells]) -> list[str]:
         t = run.cols.get("time_s", np.arange(run.y_rows.size, dtype=float))
         dup = []
         # rows of cell c in row order: a stable sort by cell, split at the cell boundaries
-        # (the same rows, and bytes, as np.flatnonzero(run.cid == c) taken cell by cell)
-        ty = np.c_[t, run.y_rows]
-        order = np.argsort(run.cid, kind="stable")
-        bounds = np.searchsorted(run.cid[order], np.arange(run.ncell + 1))
+        # (the same rows, and bytes, as np.flatnonzero(run.cid == c) taken cell by cell);
+        # cells that are consecutive blocks (every stepped run) need no sort, and the
+        # (time, output) pairs of a cell are stacked for that cell only (issue 28: the
+        # whole run's pairs and sort order were 3 arrays of its length)
+        blocks = bool(np.all(run.cid[1:] >= run.cid[:-1])) and (run.cid.size == 0 or run.cid[0] >= 0)
+        order = None if blocks else np.argsort(run.cid, kind="stable")
+        bounds = np.searchsorted(run.cid if blocks else run.cid[order], np.arange(run.ncell + 1))
         for c in range(run.ncell):
-            rows = order[bounds[c]:bounds[c + 1]]
-            h = hashlib.sha1(np.ascontiguousarray(ty[rows]).tobytes()).hexdigest()
+            rows = slice(bounds[c], bounds[c + 1]) if blocks else order[bounds[c]:bounds[c + 1]]
+            ty = np.column_stack((t[rows], run.y_rows[rows]))
+            h = hashlib.sha1(ty.tobytes()).hexdigest()
             if h in seen and seen[h][0] != run.run_id:
                 dup.append((c, seen[h]))
             else:
