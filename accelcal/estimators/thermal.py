@@ -212,7 +212,8 @@ def segment_run(data: pd.DataFrame, positions: int | None = None) -> pd.DataFram
     sweep (repeat) starts when the set-point turns back against the sweep's direction
     (for the usual rising sweeps: when it goes back down).  The position index is
     k = round(theta * n / 360) mod n when n (``positions``) is given, else the rank of the
-    distinct rounded angles.  Returns a copy of ``data`` (sorted by ``time_s``) with the
+    distinct rounded angles.  Returns a new frame of ``data``'s columns (sorted by
+    ``time_s``; sharing them, not copied, when ``data`` is already in time order) with the
     int columns ``sweep``, ``point`` (0-based, run-wide) and ``position``.
     """
     d = _in_time_order(data, fresh=True)
