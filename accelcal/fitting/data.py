@@ -103,6 +103,17 @@ class NoiseModel:
         return self.a + self.b * np.asarray(x, float) ** 2
 
 
+def _per_cell_size(n: np.ndarray, value, out: np.ndarray) -> np.ndarray:
+    """``out`` with each cell's entry set to ``value(size)``, worked out once per distinct
+    cell size (the AR(1) factors depend on n alone); a size whose value is None keeps
+    ``out``'s entry."""
+    for val in np.unique(n):
+        v = value(val)
+        if v is not None:
+            out[n == val] = v
+    return out
+
+
 def ar1_mean_factor(n: np.ndarray, rho: float) -> np.ndarray:
     """Variance inflation of the mean of n AR(1) readings.
 
@@ -122,11 +133,11 @@ def ar1_mean_factor(n: np.ndarray, rho: float) -> np.ndarray:
     n = np.asarray(n, float)
     if rho == 0.0:
         return np.ones_like(n)
-    out = np.empty_like(n)
-    for val in np.unique(n):
+
+    def factor(val):
         k = np.arange(1, int(val))
-        out[n == val] = 1.0 + 2.0 * np.sum((1.0 - k / val) * rho ** k) if k.size else 1.0
-    return out
+        return 1.0 + 2.0 * np.sum((1.0 - k / val) * rho ** k) if k.size else 1.0
+    return _per_cell_size(n, factor, np.empty_like(n))
 
 
 def ar1_variance_factor(n: np.ndarray, rho: float) -> np.ndarray:
@@ -148,13 +159,13 @@ def ar1_variance_factor(n: np.ndarray, rho: float) -> np.ndarray:
     n = np.asarray(n, float)
     if rho == 0.0:
         return np.ones_like(n)
-    out = np.ones_like(n)
-    for val in np.unique(n):
+
+    def factor(val):
         if val < 2:
-            continue
+            return None
         k = np.arange(1, int(val))
-        out[n == val] = 1.0 - 2.0 / (val * (val - 1.0)) * np.sum((val - k) * rho ** k)
-    return np.maximum(out, 0.05)
+        return 1.0 - 2.0 / (val * (val - 1.0)) * np.sum((val - k) * rho ** k)
+    return np.maximum(_per_cell_size(n, factor, np.ones_like(n)), 0.05)
 
 
 def ar1_scatter_dof(n: np.ndarray, rho: float) -> np.ndarray:
@@ -180,18 +191,18 @@ def ar1_scatter_dof(n: np.ndarray, rho: float) -> np.ndarray:
     out = np.maximum(n - 1.0, 0.0)
     if rho == 0.0:
         return out
-    for val in np.unique(n):
+
+    def dof(val):
         m = int(val)
         if m < 2:
-            continue
+            return None
         if m > 400:                       # the long-cell limit, (n - 1)(1 - rho^2)/(1 + rho^2)
-            out[n == val] = (m - 1) * (1 - rho * rho) / (1 + rho * rho)
-            continue
+            return (m - 1) * (1 - rho * rho) / (1 + rho * rho)
         i = np.arange(m)
         CR = rho ** np.abs(i[:, None] - i[None, :])
         CR = CR - CR.mean(axis=0, keepdims=True)
-        out[n == val] = np.trace(CR) ** 2 / float(np.sum(CR * CR.T))
-    return out
+        return np.trace(CR) ** 2 / float(np.sum(CR * CR.T))
+    return _per_cell_size(n, dof, out)
 
 
 def ar1_deviation_lag1(n: int, rho: float) -> tuple[float, float]:

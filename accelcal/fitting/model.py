@@ -604,77 +604,48 @@ class CampaignModel:
         cols = list(range(len(self.params))) if params is None else list(params)
         J = np.zeros((r.ncell, len(cols)))
         co, eff, kw = self.inputs(p, j)
+        # a big run is taken a slice of readings at a time, each column a sum of the slices'
+        # cell sums; a run of one slice gives the whole run's cell means, bit for bit
+        # (issue 28: never a readings x coefficients array, nor the forward model's
+        # temporaries of a whole big run)
         slices = self._slices(r, eff)
-        if len(slices) > 1:
-            return self._jacobian_slices(p, j, cols, slices)
-        F = None
         tau = float(eff.get("sensor_lag", 0.0))
-        t = r.cols.get("time_s")
-        base = None
-        acting = self._acting(j)
-        for c, i in enumerate(cols):
-            if i not in acting:
-                continue
-            role = self.roles[i]
-            if role.kind in ("coef", "bias") and role.key in instrument.DEFAULTS:
-                if F is None:
-                    F = specific_force(r.test, r.meta, r.cols, eff, **kw)
-                    temp = self._temp(r)
-                # one column per reading at a time, reduced to its cell means at once: a big
-                # run's Jacobian never holds a (readings x coefficients) array (issue 28)
-                x = np.empty(r.y_rows.shape)
-                x[:] = instrument.output_derivative(role.key, co, F, temp, t,
-                                                    float(eff.get("bias_drift", 0.0)))
-                if tau > 0:                   # lagged like the output (the lag is linear)
-                    x = first_order_lag(x, t, tau)
-                J[:, c] = r.cell_mean(x)
-                continue
-            h = 1e-3 * self.params[i].scale
-            pp, pm = p.copy(), p.copy()
-            pp[i] += h
-            # the points of the differences are not kept (each is used once)
-            if role.key == "sensor_lag" and p[i] - h < 0:
-                if base is None:
-                    base = self.predict_run(p, j)
-                J[:, c] = (r.cell_mean(self._rows(pp, j)) - base) / h
-                continue
-            pm[i] -= h
-            J[:, c] = (r.cell_mean(self._rows(pp, j)) - r.cell_mean(self._rows(pm, j))) / (2 * h)
-        return J
-
-    def _jacobian_slices(self, p: np.ndarray, j: int, cols: list[int], slices: list[slice]) -> np.ndarray:
-        """:meth:`jacobian_run` of a big run, its readings taken a slice at a time (issue
-        28): the same columns, each a sum of the slices' cell sums (no sensor lag here,
-        :meth:`_slices`)."""
-        r = self.runs[j]
-        co, eff, kw = self.inputs(p, j)
         acting = self._acting(j)
         exact = [(c, i) for c, i in enumerate(cols) if i in acting
                  and self.roles[i].kind in ("coef", "bias") and self.roles[i].key in instrument.DEFAULTS]
-        S = np.zeros((r.ncell, len(cols)))
-        drift = float(eff.get("bias_drift", 0.0))
-        T = self._temp(r) if exact else None
-        for sl in slices if exact else []:
-            sc, skw = _reading_slice(r, r.cols, kw, sl)
-            F = specific_force(r.test, r.meta, sc, eff, **skw)
-            temp = None if T is None else T[sl]
-            cid = r.cid[sl]
-            keep = cid >= 0
-            for c, i in exact:
-                x = np.empty(cid.shape)
-                x[:] = instrument.output_derivative(self.roles[i].key, co, F, temp, sc.get("time_s"), drift)
-                S[:, c] += np.bincount(cid[keep], weights=x[keep], minlength=r.ncell)
-        J = S / r.n[:, None]
+        if exact:
+            S = np.zeros((r.ncell, len(exact)))
+            T = self._temp(r)
+            drift = float(eff.get("bias_drift", 0.0))
+            for sl in slices:
+                sc, skw = _reading_slice(r, r.cols, kw, sl)
+                F = specific_force(r.test, r.meta, sc, eff, **skw)
+                temp = None if T is None else T[sl]
+                t = sc.get("time_s")
+                for e, (c, i) in enumerate(exact):
+                    x = np.empty(r.cid[sl].shape)
+                    x[:] = instrument.output_derivative(self.roles[i].key, co, F, temp, t, drift)
+                    if tau > 0:               # lagged like the output (the lag is linear)
+                        x = first_order_lag(x, t, tau)
+                    S[:, e] += r.cell_sum_slices(lambda _: x, [sl])
+            J[:, [c for c, _ in exact]] = S / r.n[:, None]
         done = {c for c, _ in exact}
+        base = None
         for c, i in enumerate(cols):
             if i not in acting or c in done:
                 continue
             h = 1e-3 * self.params[i].scale
             pp, pm = p.copy(), p.copy()
             pp[i] += h
+            # the points of the differences are not kept (each is used once)
+            plus = r.cell_mean_slices(lambda sl: self._rows(pp, j, None, sl), slices)
+            if self.roles[i].key == "sensor_lag" and p[i] - h < 0:
+                if base is None:
+                    base = self.predict_run(p, j)
+                J[:, c] = (plus - base) / h
+                continue
             pm[i] -= h
-            J[:, c] = (r.cell_sum_slices(lambda sl: self._rows(pp, j, None, sl), slices)
-                       - r.cell_sum_slices(lambda sl: self._rows(pm, j, None, sl), slices)) / r.n / (2 * h)
+            J[:, c] = (plus - r.cell_mean_slices(lambda sl: self._rows(pm, j, None, sl), slices)) / (2 * h)
         return J
 
     def _acting(self, j: int) -> frozenset[int]:
