@@ -32,14 +32,14 @@ from accelcal.validation.diagnosis_benchmark import MOUNT_SETS as SETS  # noqa: 
 def one(args):
     name, seed = args
     from accelcal.diagnosis import diagnose
-    from accelcal.validation.diagnosis_benchmark import mount_set_scenario, runs_of
+    from accelcal.validation.diagnosis_benchmark import mount_set_scenario, runs_of, score_case
     res = diagnose(runs_of(mount_set_scenario(name), seed), BASELINE)
-    alarm = res["verdict"] is not None or res["explained"] is False
+    alarm = not score_case(res, None, None)["right"]       # a verdict, or a gap said to remain
     return name, seed, alarm, res["verdict"], res["explained"]
 
 
 def main() -> None:
-    from accelcal.validation.diagnosis_benchmark import wilson
+    from accelcal.validation.diagnosis_benchmark import rate_with_interval
     ap = argparse.ArgumentParser()
     ap.add_argument("--n", type=int, default=200, help="campaigns in all (spread over the sets)")
     ap.add_argument("--workers", type=int, default=2)
@@ -57,12 +57,10 @@ def main() -> None:
     for name, angles in SETS.items():
         r = [x for x in rows if x[0] == name]
         k = sum(x[2] for x in r)
-        lo, hi = wilson(k, len(r))
         lines.append(f"| {name} | {'/'.join(map(str, angles))} | {len(r)} | {k} | "
-                     f"{100 * k / len(r):.0f} % ({100 * lo:.1f}–{100 * hi:.1f} %) |")
+                     f"{rate_with_interval(k, len(r))} |")
     k = sum(x[2] for x in rows)
-    lo, hi = wilson(k, len(rows))
-    lines.append(f"| **all** | | {len(rows)} | {k} | {100 * k / len(rows):.0f} % ({100 * lo:.1f}–{100 * hi:.1f} %) |")
+    lines.append(f"| **all** | | {len(rows)} | {k} | {rate_with_interval(k, len(rows))} |")
     for x in rows:
         if x[2]:
             lines.append(f"\nfalse alarm: {x[0]} seed {x[1]}: verdict {x[3]}, explained {x[4]}")

@@ -170,6 +170,13 @@ def wilson(k: int, n: int, conf: float = 0.95) -> tuple[float, float]:
     return max(0.0, c - h), min(1.0, c + h)
 
 
+def rate_with_interval(k: int, n: int) -> str:
+    """``'k/n as a percentage (its Wilson 95 % interval)'``, as the benchmark tables print
+    it, e.g. ``'2 % (0.4–12.9 %)'``."""
+    lo, hi = wilson(k, n)
+    return f"{100 * k / n:.0f} % ({100 * lo:.1f}–{100 * hi:.1f} %)"
+
+
 # ----------------------------------------------------------------------------- scoring
 def _estimate_of(res: dict, truth: str):
     """The estimate the diagnosis gives for the true effect: the verdict's, or the refitted
