@@ -109,3 +109,33 @@ def test_fisher_information_of_a_weighted_straight_line():
     assert names == ["a", "b"]
     assert np.allclose(F, want, rtol=1e-12)
     assert np.allclose(np.linalg.inv(F), fit.cov_noise, rtol=1e-10)
+
+
+def test_lack_of_fit_reference_of_runs_with_their_own_noise_estimate():
+    """Issue 26: each run's cell means weighted by a variance read from that run's own
+    scatter.  Under the model, F dof_lof is then sum_j X_j m_j / Y_j with X_j ~ chi2(d_j) and
+    Y_j ~ chi2(m_j) independent (not chi2 / pooled F).  Drawn here directly, that sum's
+    upper quantiles must get their own tail probability from lack_of_fit with the
+    reference's cumulants (within 15 % at 1e-3), where the pooled F(dof_lof, dof_pe) put
+    them several times too low."""
+    from types import SimpleNamespace as NS
+
+    from accelcal.fitting.model import lack_of_fit_reference
+
+    d, m = np.array([21.0, 21.0, 30.0, 12.0, 21.0, 21.0, 30.0, 14.0]), 80.5
+    runs = [NS(noise=NS(source="residuals", n_params=2)) for _ in d]
+    ref = lack_of_fit_reference(NS(runs=runs), d, [(0.0, int(2 * m))] * d.size)
+    rng = np.random.default_rng(20261126)
+    S = (rng.chisquare(d, (400_000, d.size)) * m / rng.chisquare(m, (400_000, d.size))).sum(axis=1)
+    dl = float(d.sum())
+    for q in (0.95, 0.99, 0.999):
+        s = float(np.quantile(S, q))
+        p = lack_of_fit(s, int(dl), dl, int(dl), reference=ref).p_value   # chi2_pe / dof_pe = 1
+        assert p == pytest.approx(1.0 - q, rel=0.15)
+    s = float(np.quantile(S, 0.999))
+    assert lack_of_fit(s, int(dl), dl, 1288).p_value < 0.3e-3          # the pooled F: liberal
+    # noise known in every run: exactly chi2(dof_lof)
+    known = [NS(noise=NS(source="pooled", n_params=1)) for _ in d]
+    assert lack_of_fit_reference(NS(runs=known), d, [(0.0, 161)] * d.size) is None
+    mixed = lack_of_fit_reference(NS(runs=known[:1] + runs[1:]), d, [(0.0, 161)] * d.size)
+    assert mixed[0] > dl and mixed[0] < lack_of_fit_reference(NS(runs=runs), d, [(0.0, 161)] * d.size)[0]

@@ -657,7 +657,7 @@ class LackOfFit:
 
 
 def lack_of_fit(chi2_lof: float, dof_lof: int, chi2_pe: float | None = None, dof_pe: int = 0,
-                alpha: float = ALPHA) -> LackOfFit:
+                alpha: float = ALPHA, reference: tuple[float, float, float] | None = None) -> LackOfFit:
     """Lack-of-fit test of a weighted fit to cell means against the pure error.
 
     Parameters
@@ -674,11 +674,19 @@ def lack_of_fit(chi2_lof: float, dof_lof: int, chi2_pe: float | None = None, dof
         Pure-error degrees of freedom (readings minus cells).
     alpha : float
         Significance level.
+    reference : (k1, k2, k3), optional
+        Cumulants of F dof_lof under the model when the weights are noise models estimated
+        run by run from the pure error
+        (:func:`accelcal.fitting.model.lack_of_fit_reference`); the p-value is then that of
+        the shifted, scaled chi-square with these three cumulants, a + c chi^2(k) with
+        c = k3 / (4 k2), k = 8 k2^3 / k3^2, a = k1 - c k (Pearson's type III; exact,
+        chi^2(dof_lof), when the noise is known), instead of F(dof_lof, dof_pe).
 
     Returns
     -------
     LackOfFit
-        F = (chi2_lof / dof_lof) / (chi2_pe / dof_pe) ~ F(dof_lof, dof_pe) under the model.
+        F = (chi2_lof / dof_lof) / (chi2_pe / dof_pe) ~ F(dof_lof, dof_pe) under the model
+        (or the reference's scaled chi-square).
     """
     if dof_lof <= 0:
         return LackOfFit("untestable", None, None, int(dof_lof), int(dof_pe), 1.0,
@@ -693,7 +701,12 @@ def lack_of_fit(chi2_lof: float, dof_lof: int, chi2_pe: float | None = None, dof
             return LackOfFit("untestable", None, None, int(dof_lof), int(dof_pe), 1.0,
                              "no pure-error scatter")
         stat = (chi2_lof / dof_lof) / (chi2_pe / dof_pe)
-        p = float(f_sf(stat, dof_lof, dof_pe))
+        if reference is not None and reference[1] > 0 and reference[2] > 0:
+            k1, k2, k3 = reference
+            c, k = k3 / (4.0 * k2), 8.0 * k2 ** 3 / k3 ** 2
+            p = float(chi2_sf(max(stat * dof_lof - (k1 - c * k), 0.0) / c, k))
+        else:
+            p = float(f_sf(stat, dof_lof, dof_pe))
         dpe = int(dof_pe)
     bad = p < alpha
     return LackOfFit("inadequate" if bad else "adequate", float(stat), p, int(dof_lof), dpe,

@@ -79,6 +79,10 @@ class NoiseModel:
     source : str
         What it was estimated from: 'residuals', 'outputs', 'pooled', 'fit residuals'
         ('none' when nothing could be).
+    n_params : int
+        Parameters of the variance function fitted to the scatter [1]: 1 (a) or 2 (a and
+        b); the lack of fit counts them against the ``dof`` it rests on
+        (:func:`accelcal.fitting.model.lack_of_fit_reference`).
     """
     a: float
     b: float = 0.0
@@ -86,6 +90,7 @@ class NoiseModel:
     rho_hi: float = 0.0
     dof: int = 0
     source: str = "outputs"
+    n_params: int = 1
 
     def reading_variance(self, x: np.ndarray) -> np.ndarray:
         """Variance of one reading at centripetal level x.
@@ -1079,7 +1084,7 @@ def _fit_variance_function(S: np.ndarray, nu: np.ndarray, X: np.ndarray, use_lev
     if r.fun < vals[k]:
         t = float(r.x)
     c = profile(t)[1]
-    return NoiseModel(a=float(c * (1.0 - t)), b=float(c * t / sx ** 2))
+    return NoiseModel(a=float(c * (1.0 - t)), b=float(c * t / sx ** 2), n_params=2)
 
 
 def pooled_noise(runs: Sequence[RunCells]) -> NoiseModel | None:
