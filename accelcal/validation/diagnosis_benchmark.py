@@ -210,7 +210,7 @@ def score_case(res: dict, truth: str | None, param: float | None, also: dict | N
     if not hit:
         why = f"verdict {v}"
     elif out["rel_error"] is None or out["rel_error"] > 0.25:
-        why = (f"estimate {est:.3g} vs {param:.3g} ({100 * out['rel_error']:.0f} % off)"
+        why = (f"estimate {est:.3g} vs {param:.3g} ({100 * out['rel_error']:.1f} % off)"
                if out["rel_error"] is not None else f"no estimate (truth {param:.3g})")
     elif (sh or 0) < 0.5 and not big:
         why = f"held-out shrink {sh:.2f}" if sh is not None else "no held-out shrink"
