@@ -174,7 +174,9 @@ def rate_with_interval(k: int, n: int) -> str:
     """``'k/n as a percentage (its Wilson 95 % interval)'``, as the benchmark tables print
     it, e.g. ``'2 % (0.4–12.9 %)'``."""
     lo, hi = wilson(k, n)
-    return f"{100 * k / n:.0f} % ({100 * lo:.1f}–{100 * hi:.1f} %)"
+    r = 100 * k / n
+    rate = f"{r:.1f}" if 0 < r < 1 else f"{r:.0f}"        # 1 in 1000 is not '0 %'
+    return f"{rate} % ({100 * lo:.1f}–{100 * hi:.1f} %)"
 
 
 # ----------------------------------------------------------------------------- scoring
