@@ -251,10 +251,6 @@ def display_coefficient(name: str, value: float | None, std_u: float | None, uni
     return r.value, r.uncertainty, dunit
 
 
-#: The second-order coefficients, used where code must loop over them.
-SECOND_ORDER = ("K2", "Koq", "Kip", "Kio", "Kpo", "Kpp", "Koo")
-
-
 @dataclass(frozen=True)
 class Effect:
     """One effects.md effect.
@@ -317,11 +313,6 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in [
     Effect("cross_coupling", ("centrifuge", "sine_centrifuge"), "Kip", "s2/m",
            "instrument term, when the baseline model omits it", typical=1e-06, plausible=0.0001, coefficient="Kip"),
 ]}
-
-
-def effects_for(test: str) -> list[str]:
-    """Effect ids that apply to a test kind (effects.md, column 'tests')."""
-    return [e.id for e in EFFECTS.values() if test in e.tests]
 
 
 def typical_size(key: str) -> float:

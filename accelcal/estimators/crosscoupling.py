@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from ..effects import CROSS_TERM, SQUARE_TERM, combination_name
+from ..effects import CROSS_TERM, combination_name
 from ..fitting.core import lstsq_svd
 from ..physics.axes import AXES, parse_plane
 from ..physics.geometry import geometry_of
@@ -44,7 +44,6 @@ from ..physics.instrument import output_derivative
 from .adequacy import DwellFit, choose_order
 from .radius import PairData, centripetal_unit_input
 
-SQUARE = dict(enumerate(SQUARE_TERM))
 CROSS = CROSS_TERM
 UNKNOWNS = ["K2", "Kpp", "Koo", "Kip", "Kio", "Kpo"]
 
@@ -434,7 +433,3 @@ def pair_label(p: PairFit) -> str:
     """'IA-PA 45/225': the pair's plane and its two mount angles [deg]."""
     return f"{p.plane} {p.phi0_deg:g}/{p.phi0_deg + 180:g}"
 
-
-def axis_name(i: int) -> str:
-    """'IA', 'PA' or 'OA' of an axis index."""
-    return AXES[i]

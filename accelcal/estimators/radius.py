@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from ..constants import G_STANDARD, OMEGA_EARTH
+from ..constants import G_STANDARD
 from ..physics.geometry import geometry_of
 from ..physics.instrument import indicated_acceleration
 from ..physics.rigs import NOMINAL, centrifuge_specific_force
@@ -224,9 +224,6 @@ def test_radius_static(meta: Mapping, data: pd.DataFrame, K0: float, K1: float,
 
 
 # ---------------------------------------------------------------- iterative (eq 7)
-
-MODEL_TERMS = {1: [], 2: ["K2", "Koq"], 3: ["K2", "Koq", "K3"]}
-
 
 def polarity_design(a: np.ndarray, pol: np.ndarray, order: int, odd_quadratic: bool = True,
                     names: tuple[str, str, str] = ("c2", "d", "c3")) -> tuple[np.ndarray, list[str]]:
@@ -461,22 +458,6 @@ def g_levels(pair: PairData, R_plus: float, R_minus: float) -> list[float]:
     """
     a = np.abs(pair.inputs({1: R_plus, -1: R_minus}))[~pair.column("rest")]
     return sorted({round(float(x) / G_STANDARD, 1) for x in a})
-
-
-def earth_rate_term(meta: Mapping) -> float:
-    """The vertical earth rate that eq 6 includes.
-
-    Parameters
-    ----------
-    meta : mapping
-        ``site_latitude_deg`` [deg].
-
-    Returns
-    -------
-    float
-        Omega_e sin(latitude) [rad/s].
-    """
-    return OMEGA_EARTH * np.sin(np.radians(float(meta["site_latitude_deg"])))
 
 
 # the paper's names start with "test_"; tell pytest they are not tests

@@ -44,7 +44,7 @@ import numpy as np
 
 from ..effects import EFFECTS, plausible_size, si_unit, typical_size
 from ..physics import instrument
-from ..physics.geometry import CentrifugeMount, TumbleHead
+from ..physics.geometry import CentrifugeMount
 from ..physics.instrument import first_order_lag
 from ..physics.rigs import INSTRUMENT_EFFECTS, rig_output, rotation_sign, specific_force
 from ..constants import T_REF_C
@@ -1251,26 +1251,6 @@ def scale_referenced_columns(J: np.ndarray, order: Sequence[int], tol: float, *,
     return kept
 
 
-def head_runs(model: CampaignModel) -> dict[str, list[int]]:
-    """Tumble runs grouped by dividing head (rig and axis assignment).
-
-    Parameters
-    ----------
-    model : CampaignModel
-        The model whose runs are grouped.
-
-    Returns
-    -------
-    dict of str to list of int
-        ``'<rig_id> <head label>'`` -> indices of its runs in the model, in run order.
-    """
-    out: dict[str, list[int]] = {}
-    for j, r in enumerate(model.runs):
-        if isinstance(r.geometry, TumbleHead):
-            out.setdefault(f"{r.rig_id} {r.geometry.label}", []).append(j)
-    return out
-
-
 def mount_runs(model: CampaignModel) -> dict[tuple[str, str, float], list[int]]:
     """Centrifuge runs grouped by (rig, plane, phi mod 180).
 
@@ -1301,7 +1281,7 @@ def _aliased_names(reason: str) -> list[str]:
 
 def pure_error_runs(model: "CampaignModel", p: np.ndarray, at_rho_hi: bool = False) -> list[tuple[float, int]]:
     """Each run's weighted pure-error chi-square and its degrees of freedom (Draper &
-    Smith §2.1); :func:`pure_error` is their sum.
+    Smith §2.1); the lack of fit tests against their sums.
 
     Parameters
     ----------
@@ -1338,29 +1318,6 @@ def pure_error_runs(model: "CampaignModel", p: np.ndarray, at_rho_hi: bool = Fal
         nu = ar1_scatter_dof(r.n[ok], rho)
         out.append((float(np.sum(nu * s2[ok] / sig2)), int(round(float(np.sum(nu))))))
     return out
-
-
-def pure_error(model: "CampaignModel", p: np.ndarray, at_rho_hi: bool = False) -> tuple[float, int]:
-    """Weighted pure-error chi-square and its degrees of freedom (Draper & Smith §2.1):
-    the sum of :func:`pure_error_runs`.
-
-    Parameters
-    ----------
-    model : CampaignModel
-    p : ndarray
-        Parameter vector [parameter units].
-    at_rho_hi : bool
-        Count the dof at the upper end of each run's rho interval.
-
-    Returns
-    -------
-    (chi2, dof) : (float [1], int)
-    """
-    chi, dof = 0.0, 0
-    for c, d in pure_error_runs(model, p, at_rho_hi):
-        chi += c
-        dof += d
-    return chi, dof
 
 
 def residual_dof_runs(model: "CampaignModel", J: np.ndarray, cov: np.ndarray) -> np.ndarray:

@@ -48,7 +48,8 @@ class ModelFit:
     iterations : int
         Gauss–Newton iterations over all passes.
     pure_error : dict
-        ``{"chi2": [1], "dof": int}`` of the within-cell scatter (:func:`pure_error`).
+        ``{"chi2": [1], "dof": int}`` of the within-cell scatter (the sums of
+        :func:`~accelcal.fitting.model.pure_error_runs`).
     active : ndarray of bool
         Free parameters whose Jacobian column acts on the data at the solution.
     effects : list of str

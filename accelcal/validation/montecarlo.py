@@ -99,7 +99,6 @@ def main_coefficients() -> dict[str, tuple[str, ...]]:
     return {**registry.main_coefficients(), registry.ADOPTED: ADOPTED_MAIN}
 
 _ALL_COEFFS = ("K0", "K1", "K2", "K3", "Koq", "Kp", "Ko", "Kip", "Kio", "Kpo", "Kpp", "Koo", "K0T", "K1T")
-SINE_TOOL_ERRORS = ("spindle_tilt", "mass_centre_offset", "rate_scale_error", "sensor_lag")
 
 
 # ---------------------------------------------------------------- runs and scenarios
