@@ -6,6 +6,7 @@ warehouse writes it in one transaction with its lineage.  Values are SI
 """
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -198,3 +199,64 @@ def stored_series_figures(extras: dict[str, Any] | None) -> list[ResidualFigure]
         ResidualPanel(str(s.get("title", "")), str(s.get("x_label", "")),
                       (ResidualSeries("", tuple(s["x"]), tuple(s["std_resid"])),))
         for s in series))]
+
+
+# ------------------------------------------------------------------ what the report lists
+#
+# The fit statistics a method stores (its lack-of-fit test, term F tests, residual trends)
+# reach the certificate's adequacy section as FitCheck records
+# (:attr:`accelcal.estimators.registry.Estimator.checks`), the way the residual figures do.
+
+def display_number(x: Any, spec: str = ".4g") -> str:
+    """A number as a table cell shows it: ``format(x, spec)``; '—' for None or nan,
+    'yes'/'no' for a bool, ``str`` for anything else."""
+    if x is None:
+        return "—"
+    if isinstance(x, bool):
+        return "yes" if x else "no"
+    if isinstance(x, float):
+        if math.isnan(x):
+            return "—"
+        return format(x, spec)
+    return str(x)
+
+
+@dataclass(frozen=True)
+class FitCheck:
+    """One adequacy or term test a method stored, as the certificate lists it.
+
+    Attributes
+    ----------
+    test : str
+        Test kind ('tumble', 'thermal', 'sine').
+    fit : str or None
+        The run or rig it belongs to.
+    check : str
+        What is tested, in the certificate's words.
+    statistic : str
+        The statistic as shown (e.g. 'F = 1.23') [display units].
+    dof : str
+        Its degrees of freedom as shown ('3 / 40', or '—').
+    p : float or None
+        p-value [1]; the check passes when p >= the adequacy alpha.
+    passes : bool or None
+        The method's own verdict where there is no p-value (None: none).
+    yes, no : str
+        The verdict's words when it passes, when it does not.
+    """
+    test: str
+    fit: Any
+    check: str
+    statistic: str
+    dof: str
+    p: float | None = None
+    passes: bool | None = None
+    yes: str = "adequate"
+    no: str = "NOT adequate"
+
+    def verdict(self, alpha: float) -> tuple[str, str]:
+        """(words, 'ok' | 'bad' | '') at the adequacy level ``alpha`` [1]."""
+        good = (self.p >= alpha) if self.p is not None else self.passes
+        if good is None:
+            return ("—", "")
+        return (self.yes if good else self.no, "ok" if good else "bad")

@@ -130,3 +130,43 @@ def test_paper_methods_state_their_figures_from_their_own_extras():
     assert k1.series[0].y[0] == (1.0 + 2e-5 - 1.0 * (1 + 2e-6 * 10)) / 1e-5
     (b,) = figs["bars"].panels
     assert b.ticks == ("S1 r1", "S1 r2") and b.series[0].y == (1.0, 2.0)
+
+
+def test_toy_estimator_fit_check_reaches_the_certificate():
+    """A method states its fit statistics from its own stored extras (issue 23): the
+    certificate's adequacy table lists the toy's FitCheck with the verdict at the lab's
+    adequacy alpha, and the paper methods' checks hold the stored numbers."""
+    from accelcal.ops.report_sections import _sec_adequacy
+    from accelcal.results import FitCheck
+
+    def checks(extras):
+        p = (extras.get("toy") or {}).get("p")
+        return [FitCheck("tumble", "toy run", "toy spread test", "Q = 2.5", "3", p)] if p is not None else []
+
+    toy = registry.Estimator(method=TOY, tests=("tumble",), certificate="toy", records=_toy_records,
+                             order=90, checks=checks)
+    d = {"extras": {"toy": {"p": 0.004}}, "tests": ["tumble"], "adequacy": [], "coefficients": [],
+         "science_parameters": {"adequacy_alpha": 0.01}}
+    assert "toy spread test" not in _sec_adequacy(d, False)
+    with registry.registered(toy):
+        html = _sec_adequacy(d, False)
+        d["science_parameters"]["adequacy_alpha"] = 0.001
+        html2 = _sec_adequacy(d, False)
+    row = html.split("toy spread test", 1)[1].split("</tr>", 1)[0]
+    assert "Q = 2.5" in row and "0.004" in row and "NOT adequate" in row
+    assert "NOT adequate" not in html2.split("toy spread test", 1)[1].split("</tr>", 1)[0]
+    ex = {"tumble": [{"run_id": "t1", "lack_of_fit": {"F": 1.234, "dof_lof": 3, "dof_pe": 40, "p": 0.31}},
+                     {"run_id": "t2", "dof": 0}],
+          "thermal": {"T1": {"temperature_model": {"chi2_K0": 12.0, "nu": 3, "birge_ratio_K0": 2.0},
+                             "scale_factor_time_trend": {"slope_ppm_per_h": 0.5, "u_slope_ppm_per_h": 0.1,
+                                                         "significant": True}}},
+          "sine": {"S1": {"per_run_bias": {"F": 0.5, "df1": 2, "df2": 30, "p_value": 0.61}}}}
+    got = [(c.test, c.fit, c.statistic, c.dof, c.p, c.verdict(0.01)[0]) for c in registry.fit_checks(ex)]
+    from scipy import stats
+    assert got == [
+        ("tumble", "t1", "F = 1.23", "3 / 40", 0.31, "adequate"),
+        ("tumble", "t2", "not testable", "0", None, "no replicated positions beyond the parameters"),
+        ("thermal", "T1", "χ² = 12, Birge 2", "3", float(stats.chi2.sf(12.0, 3)), "NOT adequate"),
+        ("thermal", "T1", "χ² = —, Birge —", "3", None, "—"),
+        ("thermal", "T1", "0.5 ± 0.1 ppm/h", "—", None, "significant"),
+        ("sine", "S1", "F = 0.5", "2 / 30", 0.61, "not needed (model adequate without)")]

@@ -25,7 +25,10 @@ names
   centrifuge radius);
 * ``figures(extras)``: the residual figures of its stored result
   (:class:`~accelcal.results.ResidualFigure`), which the certificate draws: what a method
-  stored is read by the method, never by the report (:func:`residual_figures`).
+  stored is read by the method, never by the report (:func:`residual_figures`);
+* ``checks(extras)``: the fit statistics of its stored result
+  (:class:`~accelcal.results.FitCheck`: lack of fit, term F tests, residual trends), which
+  the certificate lists in its adequacy section (:func:`fit_checks`).
 
 The adopted values come from the joint fit (:mod:`accelcal.estimators.joint`, method
 :data:`ADOPTED`), which is not a paper method and not in the registry.
@@ -61,6 +64,7 @@ class Estimator:
     crb: bool = True
     order: int = 50
     figures: Callable[[Mapping[str, Any]], list] | None = None
+    checks: Callable[[Mapping[str, Any]], list] | None = None
 
     @property
     def record_methods(self) -> tuple[str, ...]:
@@ -143,6 +147,21 @@ def residual_figures(extras: Mapping[str, Any] | None) -> list:
         if est.figures is not None:
             out += est.figures(extras or {})
     return out + stored_series_figures(dict(extras or {}))
+
+
+def fit_checks(extras: Mapping[str, Any] | None) -> list:
+    """The fit statistics of a stored result: each estimator's (``checks``, in run order).
+
+    Parameters
+    ----------
+    extras : mapping or None
+        The stored result's extras.
+
+    Returns
+    -------
+    list of FitCheck
+    """
+    return [c for est in estimators() if est.checks is not None for c in est.checks(extras or {})]
 
 
 #: The modules of the paper methods (each registers its estimator on import).

@@ -77,7 +77,8 @@ from ..fitting.core import FitResult, LackOfFit, Parameter, ParameterSet, gauss_
 from ..fitting.data import fitted_drive
 from ..physics import instrument, rigs
 from ..physics.geometry import geometry_of
-from ..results import BudgetTerm, CoefficientResult, ResidualFigure, ResidualPanel, ResidualSeries
+from ..results import (BudgetTerm, CoefficientResult, FitCheck, ResidualFigure, ResidualPanel, ResidualSeries,
+                       display_number)
 from . import uncertainty as unc
 from .registry import Estimator, register
 
@@ -1083,10 +1084,40 @@ def residual_figures(extras: Mapping[str, Any]) -> list[ResidualFigure]:
                                tuple(lab for lab, _ in bars)),), y_label="rms residual / pooled σ")]
 
 
+def fit_checks(extras: Mapping[str, Any]) -> list[FitCheck]:
+    """The certificate's fit statistics of a stored sine result: per rig the F tests of
+    the tool-error terms, the third-order terms Kppp, Kooo and the per-run bias (paper 002
+    §3; a term passes when it is not needed).
+
+    Parameters
+    ----------
+    extras : mapping
+        The stored result's extras (``extras['sine'][rig]``).
+
+    Returns
+    -------
+    list of FitCheck
+    """
+    f = display_number
+    out = []
+    for rig, s in (extras.get("sine") or {}).items():
+        s = s or {}
+        tests = [("tool-error terms (joint F test)", (s.get("compensation") or {}).get("f_test_tool_errors")),
+                 ("third-order terms Kppp, Kooo (F test)", (s.get("third_order") or {}).get("f_test")),
+                 ("per-run bias (F test)", s.get("per_run_bias"))]
+        for label, t in tests:
+            if not isinstance(t, dict) or t.get("p_value") is None:
+                continue
+            out.append(FitCheck("sine", rig, label, f"F = {f(t.get('F'), '.3g')}",
+                                f"{f(t.get('df1'))} / {f(t.get('df2'))}", t.get("p_value"),
+                                yes="not needed (model adequate without)", no="significant: model needs them"))
+    return out
+
+
 ESTIMATOR = register(Estimator(
     method=METHOD, tests=("sine_centrifuge",),
     certificate=("paper 002 (Sun, Ren & Wang): joint least squares of the instrument "
                  "model with the rig's tool errors through the forward model, with an "
                  "aliasing analysis"),
     records=campaign_records, truth=mc_truth, adoption=2, main=("K2", "Kip"), order=3,
-    figures=residual_figures))
+    figures=residual_figures, checks=fit_checks))

@@ -49,7 +49,8 @@ from ..fitting.data import ROW_SLICE, unique_small_ints
 from ..physics.geometry import geometry_of
 from ..physics.instrument import indicated_acceleration, output_derivative
 from ..physics.rigs import tilt_rotation_specific_force
-from ..results import BudgetTerm, CoefficientResult, ResidualFigure, ResidualPanel, ResidualSeries
+from ..results import (BudgetTerm, CoefficientResult, FitCheck, ResidualFigure, ResidualPanel, ResidualSeries,
+                       display_number)
 from . import uncertainty as unc
 from .registry import Estimator, register
 
@@ -1131,6 +1132,37 @@ def residual_figures(extras: Mapping[str, Any]) -> list[ResidualFigure]:
                                for name, series in (("K0", k0), ("K1", k1))))]
 
 
+def fit_checks(extras: Mapping[str, Any]) -> list[FitCheck]:
+    """The certificate's fit statistics of a stored thermal result: per run the chi-square
+    of the K0 and K1 point values about their temperature model, and the trend in time of
+    the scale-factor residuals (a K1 drift the model leaves out).
+
+    Parameters
+    ----------
+    extras : mapping
+        The stored result's extras (``extras['thermal'][run]``).
+
+    Returns
+    -------
+    list of FitCheck
+    """
+    f = display_number
+    out = []
+    for run, t in (extras.get("thermal") or {}).items():
+        m = (t or {}).get("temperature_model") or {}
+        for k in ("K0", "K1"):
+            chi2, nu = m.get(f"chi2_{k}"), m.get("nu")
+            p = float(stats.chi2.sf(chi2, nu)) if chi2 is not None and nu else None
+            out.append(FitCheck("thermal", run, f"temperature model of {k} (χ² of the point values)",
+                                f"χ² = {f(chi2, '.3g')}, Birge {f(m.get(f'birge_ratio_{k}'), '.3g')}", f(nu), p))
+        tr = (t or {}).get("scale_factor_time_trend") or {}
+        if tr:
+            out.append(FitCheck("thermal", run, "K1 drift in time (residual trend)",
+                                f"{f(tr.get('slope_ppm_per_h'), '.3g')} ± {f(tr.get('u_slope_ppm_per_h'), '.2g')} ppm/h",
+                                "—", passes=not bool(tr.get("significant")), yes="not significant", no="significant"))
+    return out
+
+
 ESTIMATOR = register(Estimator(
     method=METHOD, tests=("tilt_rotation",),
     certificate=("paper 001 (Zhang et al., 2021): least squares of K0 and K1 over the "
@@ -1140,4 +1172,4 @@ ESTIMATOR = register(Estimator(
     # campaign measures K0T and K1T (their K0 and K1 are then at the tumble's temperature)
     prepare=lambda runs, steps: tuple(runs),
     records=campaign_records, truth=mc_truth, methods=(METHOD, METHOD_TWO_POSITION), adoption=3,
-    main=("K0T", "K1T"), order=2, figures=residual_figures))
+    main=("K0T", "K1T"), order=2, figures=residual_figures, checks=fit_checks))

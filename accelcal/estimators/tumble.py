@@ -48,7 +48,7 @@ from ..physics.axes import AXES, parse_signed_axis
 from ..physics.geometry import TumbleHead, geometry_of
 from ..physics.instrument import output_derivative
 from ..physics.rigs import rig_output, tumble_specific_force
-from ..results import BudgetTerm, CoefficientResult
+from ..results import BudgetTerm, CoefficientResult, FitCheck, display_number
 from . import uncertainty as unc
 from .registry import Estimator, register
 from .adequacy import pure_error_test
@@ -1153,10 +1153,38 @@ def mc_truth(c: Mapping[str, float], eff: Mapping[str, float], test: Mapping[str
             (cross, rig): (c[cross], "instrument value")}
 
 
+def fit_checks(extras: Mapping[str, Any]) -> list[FitCheck]:
+    """The certificate's fit statistics of a stored tumble result: per run the lack-of-fit
+    F test against the pure error of replicated positions (paper 003), or why it is not
+    testable.
+
+    Parameters
+    ----------
+    extras : mapping
+        The stored result's extras (``extras['tumble']``, one entry per run).
+
+    Returns
+    -------
+    list of FitCheck
+    """
+    f = display_number
+    out = []
+    for t in extras.get("tumble") or []:
+        lof = (t or {}).get("lack_of_fit") or {}
+        if lof:
+            out.append(FitCheck("tumble", t.get("run_id"), "lack of fit (pure error of replicates)",
+                                f"F = {f(lof.get('F'), '.3g')}", f"{f(lof.get('dof_lof'))} / {f(lof.get('dof_pe'))}",
+                                lof.get("p")))
+        else:
+            out.append(FitCheck("tumble", t.get("run_id"), "lack of fit", "not testable", f(t.get("dof")),
+                                passes=False, no="no replicated positions beyond the parameters"))
+    return out
+
+
 ESTIMATOR = register(Estimator(
     method=METHOD, tests=("tumble",),
     certificate=("paper 003 (Zhan & Cai): Levenberg–Marquardt fit of K0, K1, K2 and the head's "
                  "initial misalignment through the forward model, with a lack-of-fit test; "
                  "two-position values for comparison"),
     prepare=lambda runs, steps: tumble_step(runs), records=campaign_records, truth=mc_truth,
-    adoption=5, crb=False, order=0))
+    adoption=5, crb=False, order=0, checks=fit_checks))

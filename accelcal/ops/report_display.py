@@ -9,6 +9,7 @@ import math
 import re
 from typing import Any
 
+from ..results import display_number
 from .certificate import K_COVERAGE
 
 PLACEHOLDER_CLASS = "placeholder"
@@ -53,16 +54,7 @@ def _at_digit(x: float | None, exp: int | None) -> str:
     return s[1:] if s.startswith("-") and float(s) == 0 else s
 
 
-def _fmt(x: Any, spec: str = ".4g") -> str:
-    if x is None:
-        return "—"
-    if isinstance(x, bool):
-        return "yes" if x else "no"
-    if isinstance(x, float):
-        if math.isnan(x):
-            return "—"
-        return format(x, spec)
-    return str(x)
+_fmt = display_number
 
 
 def _e(x: Any) -> str:

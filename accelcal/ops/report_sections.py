@@ -9,7 +9,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from ..estimators.registry import residual_figures
+from ..estimators.registry import fit_checks, residual_figures
 from .certificate import COVERAGE_PROBABILITY, _adopted, _k, _u_unknown, method_text, missing_rig_inputs
 from .plots import K_COVERAGE, radius_plot, residual_figure
 from .report_display import (_at_digit, _coefficient_scale, _e, _fmt, _img, _keep, _kv, _ph, _same_minute,
@@ -426,60 +426,11 @@ def _u_text(u: float | None, f: float) -> str:
 
 
 def _fit_statistics(d) -> list[list[Any]]:
-    """Adequacy and term tests stored by each method, one row each (any test kind)."""
-    from scipy import stats
-    ex = d.get("extras") or {}
+    """Adequacy and term tests stored by each method, one row each (the methods' own
+    :class:`~accelcal.results.FitCheck` records, :func:`fit_checks`)."""
     alpha = float((d.get("science_parameters") or {}).get("adequacy_alpha", 0.01))
-    rows = []
-
-    def verdict(p, adequate_when_high=True, yes="adequate", no="NOT adequate"):
-        if p is None:
-            return ("—", "")
-        good = (p >= alpha) if adequate_when_high else (p < alpha)
-        return (yes if good else no, "ok" if good else "bad")
-
-    for t in ex.get("tumble") or []:
-        lof = (t or {}).get("lack_of_fit") or {}
-        if lof:
-            rows.append(["tumble", t.get("run_id"), "lack of fit (pure error of replicates)",
-                         (f"F = {_fmt(lof.get('F'), '.3g')}", "nw"),
-                         (f"{_fmt(lof.get('dof_lof'))} / {_fmt(lof.get('dof_pe'))}", "num"),
-                         (_fmt(lof.get("p"), ".3g"), "num"), verdict(lof.get("p"))])
-        else:
-            rows.append(["tumble", t.get("run_id"), "lack of fit", "not testable",
-                         (_fmt(t.get("dof")), "num"), "—",
-                         ("no replicated positions beyond the parameters", "bad")])
-    for run, t in (ex.get("thermal") or {}).items():
-        m = (t or {}).get("temperature_model") or {}
-        for k in ("K0", "K1"):
-            chi2, nu = m.get(f"chi2_{k}"), m.get("nu")
-            p = float(stats.chi2.sf(chi2, nu)) if chi2 is not None and nu else None
-            rows.append(["thermal", run, f"temperature model of {k} (χ² of the point values)",
-                         (f"χ² = {_fmt(chi2, '.3g')}, Birge {_fmt(m.get(f'birge_ratio_{k}'), '.3g')}", "nw"),
-                         (_fmt(nu), "num"), (_fmt(p, ".3g"), "num"), verdict(p)])
-        tr = (t or {}).get("scale_factor_time_trend") or {}
-        if tr:
-            sig = bool(tr.get("significant"))
-            rows.append(["thermal", run, "K1 drift in time (residual trend)",
-                         (f"{_fmt(tr.get('slope_ppm_per_h'), '.3g')} ± "
-                          f"{_fmt(tr.get('u_slope_ppm_per_h'), '.2g')} ppm/h", "nw"), "—", "—",
-                         ("significant" if sig else "not significant", "bad" if sig else "ok")])
-    for rig, s in (ex.get("sine") or {}).items():
-        s = s or {}
-        tests = [("tool-error terms (joint F test)", (s.get("compensation") or {}).get("f_test_tool_errors")),
-                 ("third-order terms Kppp, Kooo (F test)", (s.get("third_order") or {}).get("f_test")),
-                 ("per-run bias (F test)", s.get("per_run_bias"))]
-        for label, f in tests:
-            if not isinstance(f, dict) or f.get("p_value") is None:
-                continue
-            p = f.get("p_value")
-            rows.append(["sine", rig, label,
-                         (f"F = {_fmt(f.get('F'), '.3g')}", "nw"),
-                         (f"{_fmt(f.get('df1'))} / {_fmt(f.get('df2'))}", "num"),
-                         (_fmt(p, ".3g"), "num"),
-                         verdict(p, yes="not needed (model adequate without)",
-                                 no="significant: model needs them")])
-    return rows
+    return [[c.test, c.fit, c.check, (c.statistic, "nw"), (c.dof, "num"), (_fmt(c.p, ".3g"), "num"),
+             c.verdict(alpha)] for c in fit_checks(d.get("extras"))]
 
 
 def _sec_adequacy(d, plots) -> str:
