@@ -49,7 +49,7 @@ from typing import Any, Sequence
 import numpy as np
 from scipy import stats
 
-from .fitting.core import lstsq_svd
+from .fitting.core import FitResult, LackOfFit, Parameter, ParameterSet, lstsq_svd
 
 #: Two step positions whose p values agree to this relative tolerance are a tie (the data
 #: cannot place the step); the later one is taken.
@@ -100,16 +100,30 @@ def from_years(y: float) -> np.datetime64:
 
 # ------------------------------------------------------------- the line fit ----
 
-def _wls(X: np.ndarray, x: np.ndarray, var: np.ndarray):
+def _wls_fit(X: np.ndarray, x: np.ndarray, var: np.ndarray) -> FitResult:
     """Weighted least squares through the fitting core (:func:`accelcal.fitting.core.
-    lstsq_svd`, W = 1/var): coefficients, covariance (X'WX)^-1, residuals.  A design the
-    data cannot determine (rank below its columns) raises ``LinAlgError``, as the callers
-    expect of a step position or segment with no calibration of its own."""
+    lstsq_svd`, W = 1/var) as a :class:`~accelcal.fitting.core.FitResult`: coefficients
+    ``a``, ``b`` and the segment offsets, covariance (X'WX)^-1 (the between-campaign
+    scatter is in ``var`` as tau^2, eq 2, not a Birge factor).  A design the data cannot
+    determine (rank below its columns) raises ``LinAlgError``, as the callers expect of a
+    step position or segment with no calibration of its own."""
     w = 1.0 / np.sqrt(var)
-    sol = lstsq_svd(X * w[:, None], x * w)
+    Jw = X * w[:, None]
+    sol = lstsq_svd(Jw, x * w)
     if sol.rank < X.shape[1]:
         raise np.linalg.LinAlgError("singular design: a parameter of the drift line is not determined")
-    return sol.x, sol.cov, x - X @ sol.x
+    z = (x - X @ sol.x) * w
+    chi2, dof = float(z @ z), x.size - sol.rank
+    lof = LackOfFit("untestable" if dof <= 0 else "adequate", chi2 / dof if dof > 0 else None, None, dof, 0,
+                    1.0, "the scatter between campaigns is tau^2 in the weights (eq 2)")
+    names = ParameterSet(Parameter(n, n) for n in ["a", "b"] + [f"offset{k}" for k in range(X.shape[1] - 2)])
+    return FitResult(names, sol.x, sol.cov, sol.cov, sol.estimable, chi2, dof, x.size, sol.rank, lof, z, Jw)
+
+
+def _wls(X: np.ndarray, x: np.ndarray, var: np.ndarray):
+    """:func:`_wls_fit` as (coefficients, covariance, residuals [unit])."""
+    f = _wls_fit(X, x, var)
+    return f.values, f.cov_noise, x - X @ f.values
 
 
 def scatter_moments(X: np.ndarray, x: np.ndarray, u: np.ndarray) -> tuple[float, float, float]:
@@ -185,26 +199,48 @@ def fleet_prior(series: Sequence[tuple[Any, Any, Any]]) -> FleetPrior:
 
 @dataclass
 class DriftFit:
-    """Eq (1) fitted to one series.
+    """Eq (1) fitted to one series: two weighted fits of the same line, which it wraps.
 
-    a : value of the line at t_ref [unit]; b : drift rate [unit/a]
-    cov : covariance of (a, b) with tau2 in the weights
-    cov0 : the same with tau2 = 0 (for the degrees of freedom)
+    result : the fit with tau2 in the weights (``a``, ``b``, ``beta``, ``cov``)
+    result0 : the same with tau2 = 0 (``cov0``, for the degrees of freedom)
+    t_ref : the time ``a`` is the line's value at [a]
     tau2 : between-campaign variance [unit^2]; dof : its degrees of freedom
     t, x, u : the series [a, unit, unit]
     """
     t_ref: float
-    a: float
-    b: float
-    cov: np.ndarray
-    cov0: np.ndarray
+    result: FitResult
+    result0: FitResult
     tau2: float
     dof: float
     t: np.ndarray
     x: np.ndarray
     u: np.ndarray
     tau2_own: float | None = None      # the series' own eq (2) estimate (untruncated)
-    beta: np.ndarray | None = None     # every coefficient (segment offsets after a, b)
+
+    @property
+    def a(self) -> float:
+        """Value of the line at t_ref [unit] (the last segment's level)."""
+        return float(self.result.values[0])
+
+    @property
+    def b(self) -> float:
+        """Drift rate [unit/a]."""
+        return float(self.result.values[1])
+
+    @property
+    def beta(self) -> np.ndarray:
+        """Every coefficient: a, b, then the earlier segments' offsets [unit]."""
+        return self.result.values
+
+    @property
+    def cov(self) -> np.ndarray:
+        """Covariance of ``beta`` with tau2 in the weights [unit^2, ...]."""
+        return self.result.cov_noise
+
+    @property
+    def cov0(self) -> np.ndarray:
+        """The same with tau2 = 0."""
+        return self.result0.cov_noise
 
     @property
     def u_b(self) -> float:
@@ -273,10 +309,8 @@ def fit_drift(t, x, u, prior: FleetPrior | None = None, prior_dof: float = PRIOR
         raise ValueError("no degrees of freedom for the between-campaign scatter "
                          "(too few campaigns and no fleet of the same model)")
     tau2 = max(0.0, num / dof)
-    beta, cov, _ = _wls(X, x, u ** 2 + tau2)
-    _, cov0, _ = _wls(X, x, u ** 2)
-    return DriftFit(t_ref, float(beta[0]), float(beta[1]), cov, cov0, tau2, dof, t, x, u,
-                    tau2_own=own, beta=beta)
+    return DriftFit(t_ref, _wls_fit(X, x, u ** 2 + tau2), _wls_fit(X, x, u ** 2), tau2, dof, t, x, u,
+                    tau2_own=own)
 
 
 def slope_change_p(t, x, u, start: int, prior: FleetPrior | None = None,
