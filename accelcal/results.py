@@ -260,3 +260,60 @@ class FitCheck:
         if good is None:
             return ("—", "")
         return (self.yes if good else self.no, "ok" if good else "bad")
+
+
+@dataclass(frozen=True)
+class MonteCarloCheck:
+    """The JCGM 101 §8 check of one coefficient's GUM budget, as stored in
+    ``extras['mc_check']`` under ``'<method>:<rig_id>:<coefficient>'``
+    (:func:`accelcal.estimators.uncertainty.budget_check` writes one).
+
+    Attributes
+    ----------
+    key : str
+        Its key in the stored extras.
+    method, rig_id, coefficient : str
+        The coefficient checked.
+    validated : bool
+        The GUM interval's end points are within ``delta`` of the Monte Carlo ones (PASS).
+    gum_u, mc_u : float or None
+        Standard uncertainty by the GUM and by the propagated distribution [coefficient unit].
+    mc_low, mc_high : float or None
+        The 95 % coverage interval of the propagated distribution [coefficient unit].
+    delta : float or None
+        Numerical tolerance of the comparison (JCGM 101 7.9.2) [coefficient unit].
+    """
+    key: str
+    method: str = ""
+    rig_id: str = ""
+    coefficient: str = ""
+    validated: bool = False
+    gum_u: float | None = None
+    mc_u: float | None = None
+    mc_low: float | None = None
+    mc_high: float | None = None
+    delta: float | None = None
+
+    def meaning(self) -> str:
+        """In words, what a FAIL says of the stated U (empty for a PASS or when the
+        interval is not stored)."""
+        if self.validated or None in (self.gum_u, self.mc_low, self.mc_high):
+            return ""
+        from scipy.stats import norm
+        half_gum = float(norm.ppf(0.975)) * self.gum_u
+        if (self.mc_high - self.mc_low) / 2 < half_gum:
+            return ("U is conservative: the output is flatter than normal (uniform type-B terms "
+                    "dominate), so y ± U covers more than 95 %")
+        return "U covers less than 95 %: the Monte Carlo interval is the 95 % coverage interval"
+
+
+def monte_carlo_checks(extras: dict[str, Any] | None) -> list[MonteCarloCheck]:
+    """The JCGM 101 checks of a stored result, in key order (entries that are not a
+    check's record are passed over)."""
+    out = []
+    for key, m in sorted(((extras or {}).get("mc_check") or {}).items()):
+        if isinstance(m, dict):
+            out.append(MonteCarloCheck(
+                key, str(m.get("method") or ""), str(m.get("rig_id") or ""), str(m.get("coefficient") or ""),
+                bool(m.get("validated")), *(m.get(k) for k in ("gum_u", "mc_u", "mc_low", "mc_high", "delta"))))
+    return out

@@ -192,6 +192,26 @@ def test_a_monte_carlo_fail_says_what_it_means_for_U():
     assert mc_meaning({**flat, "validated": True}) == ""
 
 
+def test_a_stored_monte_carlo_fail_reaches_the_flags_and_the_table():
+    """The report reads the JCGM 101 checks as typed records (issue 23): an adopted
+    coefficient whose stored check fails is flagged with what it means, and its table row
+    says FAIL; a check of a paper method's value is listed but not flagged."""
+    from accelcal.ops.report_sections import _sec_flags, _sec_mc
+    from accelcal.results import monte_carlo_checks
+    fail = {"method": "joint_ml", "rig_id": "", "coefficient": "K0", "validated": False, "gum_u": 1e-5,
+            "mc_u": 1e-5, "mc_low": -2.3e-5, "mc_high": 2.3e-5, "delta": 1e-7}
+    ok = {**fail, "method": "tumble_lm", "rig_id": "DH-1", "validated": True}
+    d = {"extras": {"mc_check": {"joint_ml::K0": fail, "tumble_lm:DH-1:K0": ok, "note": "not a check"}},
+         "coefficients": [{"name": "K0", "unit": "m/s2", "method": "joint_ml", "rig_id": "", "adopted": True},
+                          {"name": "K0", "unit": "m/s2", "method": "tumble_lm", "rig_id": "DH-1"}],
+         "flags": [], "radii": [], "result": {"completeness": "complete"}}
+    assert [m.key for m in monte_carlo_checks(d["extras"])] == ["joint_ml::K0", "tumble_lm:DH-1:K0"]
+    flags = _sec_flags(d)
+    assert flags.count("Monte Carlo check FAIL") == 1 and "U covers less than 95 %" in flags
+    table = _sec_mc(d)
+    assert "1 of 2 budgets pass" in table and table.count(">FAIL<") == 1
+
+
 def test_cross_checks_beyond_their_combined_U_are_flagged(lab, tmp_path):
     """Issue 27: a cross-check more than its combined U from the adopted value (|En| > 1,
     ISO 13528 9.7) is flagged; En computed here from the stored values."""

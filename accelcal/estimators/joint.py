@@ -638,6 +638,45 @@ def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
             "aliased_pairs": list(dict.fromkeys(pairs))}
 
 
+def stored_adequacy(extras: Mapping[str, Any] | None) -> str | None:
+    """The joint fit's lack-of-fit status in a stored result ('adequate', 'inadequate',
+    'untestable'), or None when the result has no joint fit: what the certificate's
+    method section states, read where the joint fit writes it (:func:`_records`).
+
+    Parameters
+    ----------
+    extras : mapping or None
+        The stored result's extras.
+
+    Returns
+    -------
+    str or None
+    """
+    return (((extras or {}).get("joint") or {}).get("lack_of_fit") or {}).get("status")
+
+
+def stored_missing_rig_inputs(extras: Mapping[str, Any] | None) -> list[dict] | None:
+    """The rig inputs a stored joint fit found entering its budgets without a stated
+    uncertainty (``{'input', 'rig', 'key'}`` each; issue 27); [] without a joint fit, None
+    for a joint fit stored before the rig inputs entered the budgets.
+
+    Parameters
+    ----------
+    extras : mapping or None
+        The stored result's extras.
+
+    Returns
+    -------
+    list of dict or None
+    """
+    jx = (extras or {}).get("joint")
+    if not jx:
+        return []
+    if "rig_inputs" not in jx:
+        return None
+    return list(jx["rig_inputs"].get("missing") or [])
+
+
 def _mc_checks(coefficients: Sequence[CoefficientResult], budget: Sequence[BudgetTerm]) -> dict[str, dict]:
     """JCGM 101 check of each adopted coefficient's budget: its inputs (the readings' type-A
     term, normal; the type-B terms, uniform or normal as the budget says) propagated as distributions and the 95 %

@@ -61,18 +61,17 @@ def _adopted(d) -> list[dict[str, Any]]:
 def missing_rig_inputs(d) -> list[tuple[str, str]]:
     """The rig inputs whose uncertainty the budgets of this result leave out (issue 27), as
     (what, how to state it): each input the joint fit found entering without a stated u
-    (``extras['joint']['rig_inputs']['missing']``); a joint fit stored before the rig
+    (:func:`accelcal.estimators.joint.stored_missing_rig_inputs`); a joint fit stored before the rig
     inputs entered the budgets is one entry of its own.  Any entry keeps a certificate DRAFT."""
-    jx = (d.get("extras") or {}).get("joint")
-    if not jx:
-        return []
-    if "rig_inputs" not in jx:
+    from ..estimators.joint import stored_missing_rig_inputs
+    missing = stored_missing_rig_inputs(d.get("extras"))
+    if missing is None:
         return [("uncertainties of the rig inputs (g_local, table tilt, temperature)",
                  "this result was computed before they entered the budgets: state them in "
                  "accelcal.toml and process the drops again")]
     return [(f"u({m['input']}) of {m['rig']}",
              f"set [rigs.\"{m['rig']}\"] {m['key']} in accelcal.toml and process the drops again")
-            for m in jx["rig_inputs"].get("missing") or []]
+            for m in missing]
 
 
 # ------------------------------------------------------------------ reading --

@@ -9,7 +9,9 @@ import re
 from pathlib import Path
 from typing import Any
 
+from ..estimators.joint import stored_adequacy
 from ..estimators.registry import fit_checks, residual_figures
+from ..results import MonteCarloCheck, monte_carlo_checks
 from .certificate import COVERAGE_PROBABILITY, _adopted, _k, _u_unknown, method_text, missing_rig_inputs
 from .plots import K_COVERAGE, radius_plot, residual_figure
 from .report_display import (_at_digit, _coefficient_scale, _e, _fmt, _img, _keep, _kv, _ph, _same_minute,
@@ -129,8 +131,6 @@ def _sec_method(d) -> str:
     methods = sorted({c.get("method") for c in d["coefficients"] if c.get("method")})
     adopted = sorted({c.get("method") for c in _adopted(d) if c.get("method")})
     if "joint_ml" in adopted:
-        jx = (d.get("extras") or {}).get("joint") or {}
-        lof = jx.get("lack_of_fit") or {}
         rows.insert(0, [("Adopted values: joint fit", "nw"), ", ".join(sorted({str(x.get("rig_id")) for x in d["lineage"]})),
                         (str(len(d["lineage"])), "num"),
                         "one maximum-likelihood fit of every reading of every run through the instrument "
@@ -141,7 +141,7 @@ def _sec_method(d) -> str:
                         ", temperature reading by reading, nuisance parameters where the design determines "
                         "them; weights from a noise model fitted to "
                         "the data of each run; model adequacy by a lack-of-fit test against the replicated "
-                        f"readings (status: {lof.get('status', '—')}). The paper methods below are computed "
+                        f"readings (status: {stored_adequacy(d.get('extras')) or '—'}). The paper methods below are computed "
                         "beside it as cross-checks (Annex A)."])
     out = _table(["test", "rig", "runs", "procedure"], rows)
     out += (f"<p class='note'>Methods computed: {_e(', '.join(methods))}; adopted values from: "
@@ -226,15 +226,10 @@ def _sec_traceability(d, cfg) -> str:
     return "".join(parts)
 
 
-def _mc_entry(d, c) -> dict | None:
+def _mc_entry(d, c) -> MonteCarloCheck | None:
     """The JCGM 101 check stored for this coefficient by the method that computed it."""
-    for key, m in ((d.get("extras") or {}).get("mc_check") or {}).items():
-        if not isinstance(m, dict):
-            continue
-        if (m.get("method") == c.get("method") and m.get("coefficient") == c["name"]
-                and (m.get("rig_id") or "") == (c.get("rig_id") or "")):
-            return m
-    return None
+    return next((m for m in monte_carlo_checks(d.get("extras")) if m.method == c.get("method")
+                 and m.coefficient == c["name"] and m.rig_id == (c.get("rig_id") or "")), None)
 
 
 def _mc_verdict(d, c) -> tuple[str, str]:
@@ -242,7 +237,7 @@ def _mc_verdict(d, c) -> tuple[str, str]:
     m = _mc_entry(d, c)
     if m is None:
         return ("not checked", "nw")
-    return ("PASS", "ok") if m.get("validated") else ("FAIL", "bad")
+    return ("PASS", "ok") if m.validated else ("FAIL", "bad")
 
 
 def _coef_rows(d, coefs) -> list[list[Any]]:
@@ -366,28 +361,23 @@ def _sec_budgets(d) -> str:
 
 
 def _sec_mc(d) -> str:
-    mc = (d.get("extras") or {}).get("mc_check") or {}
     adopted = {(c.get("method"), c.get("rig_id") or "", c["name"]) for c in _adopted(d)}
     from ..rounding import format_sig, round_sig
     units = {c["name"]: c.get("unit") for c in d["coefficients"]}
     rows = []
-    for key, m in sorted(mc.items()):
-        if not isinstance(m, dict):
-            continue
-        ok = bool(m.get("validated"))
-        mine = (m.get("method"), m.get("rig_id") or "", m.get("coefficient")) in adopted
-        f, dunit = _coefficient_scale(m.get("coefficient") or "", units.get(m.get("coefficient")))
-        mc_u, delta = m.get("mc_u"), m.get("delta")
+    for m in monte_carlo_checks(d.get("extras")):
+        mine = (m.method, m.rig_id, m.coefficient) in adopted
+        f, dunit = _coefficient_scale(m.coefficient, units.get(m.coefficient))
         # the interval's end points to the digit of the numerical tolerance (JCGM 101 7.9.2),
         # else to the last digit of u(MC) at two significant digits
-        exp = (round_sig(delta / f, 1)[1] if delta else
-               round_sig(mc_u / f)[1] if mc_u else None)
-        lo, hi = (None if m.get(x) is None else m[x] / f for x in ("mc_low", "mc_high"))
-        rows.append([(key, "nw"), ("yes" if mine else "", "nw"),
-                     (_u_text(m.get("gum_u"), f), "num"), (_u_text(mc_u, f), "num"),
+        exp = (round_sig(m.delta / f, 1)[1] if m.delta else
+               round_sig(m.mc_u / f)[1] if m.mc_u else None)
+        lo, hi = (None if x is None else x / f for x in (m.mc_low, m.mc_high))
+        rows.append([(m.key, "nw"), ("yes" if mine else "", "nw"),
+                     (_u_text(m.gum_u, f), "num"), (_u_text(m.mc_u, f), "num"),
                      (f"[{_at_digit(lo, exp)}, {_at_digit(hi, exp)}]", "nw"),
-                     ("—" if not delta else format_sig(delta / f, 1), "num"), (dunit, "nw"),
-                     ("PASS" if ok else "FAIL", "ok" if ok else "bad"), mc_meaning(m)])
+                     ("—" if not m.delta else format_sig(m.delta / f, 1), "num"), (dunit, "nw"),
+                     ("PASS" if m.validated else "FAIL", "ok" if m.validated else "bad"), m.meaning()])
     methods = sorted({c.get("method") for c in _adopted(d)})
     if not rows:
         return (f"<p>No Monte Carlo check is stored for this result (methods "
@@ -408,16 +398,9 @@ def _sec_mc(d) -> str:
 
 
 def mc_meaning(m: dict) -> str:
-    """In words, what a JCGM 101 check says of the stated U (empty for a PASS)."""
-    from scipy.stats import norm
-    if m.get("validated") or None in (m.get("gum_u"), m.get("mc_low"), m.get("mc_high")):
-        return ""
-    half_gum = float(norm.ppf(0.975)) * m["gum_u"]
-    half_mc = (m["mc_high"] - m["mc_low"]) / 2
-    if half_mc < half_gum:
-        return ("U is conservative: the output is flatter than normal (uniform type-B terms "
-                "dominate), so y ± U covers more than 95 %")
-    return "U covers less than 95 %: the Monte Carlo interval is the 95 % coverage interval"
+    """In words, what a JCGM 101 check (its stored record) says of the stated U (empty
+    for a PASS): :meth:`accelcal.results.MonteCarloCheck.meaning`."""
+    return monte_carlo_checks({"mc_check": {"": m}})[0].meaning()
 
 
 def _u_text(u: float | None, f: float) -> str:
@@ -539,12 +522,12 @@ def _ug_g2(x) -> str:
 
 def _sec_flags(d) -> str:
     items = [f"<div class='flag'>{_e(f)}</div>" for f in d["flags"] + _cross_check_flags(d)]
-    mc = (d.get("extras") or {}).get("mc_check") or {}
+    mc = {m.key: m for m in monte_carlo_checks(d.get("extras"))}
     for c in _adopted(d):
         m = mc.get(f"{c.get('method')}:{c.get('rig_id') or ''}:{c['name']}")
-        if isinstance(m, dict) and not m.get("validated"):
+        if m is not None and not m.validated:
             items.append(f"<div class='flag'>Monte Carlo check FAIL for the adopted {_e(c['name'])}: "
-                         f"{_e(mc_meaning(m))} (see Monte Carlo check of the uncertainty).</div>")
+                         f"{_e(m.meaning())} (see Monte Carlo check of the uncertainty).</div>")
     if d["result"].get("completeness") == "incomplete":
         items.append("<div class='flag'>Incomplete campaign: "
                      + _e("; ".join(d.get("completeness_reasons") or [])) + "</div>")
