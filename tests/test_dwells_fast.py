@@ -136,3 +136,25 @@ def test_tumble_position_means_same(examples, monkeypatch):
     monkeypatch.setattr(tumble, "_position_means_fast", lambda df: None)
     for f, pm in zip(frames, fast):
         _same(pm, tumble.position_means(f))
+
+
+def test_groups_of_a_long_run_by_counting_and_slices(monkeypatch):
+    """Issue 28: integer keys are grouped by counting (np.unique's keys and inverse, the
+    same arrays), and the within-dwell sum of squares of a long run is taken a slice of
+    whole dwells at a time: the same sums to the last bit as the whole-array form, here
+    with the slice lowered to 97 readings."""
+    rng = np.random.default_rng(28)
+    step = np.repeat(np.arange(40), rng.integers(1, 60, 40))
+    v = rng.normal(size=step.size) * 1e-3 + step
+    g = dwells._Groups(step)
+    keys, inv = np.unique(step, return_inverse=True)
+    assert np.array_equal(g.keys, keys) and g.keys.dtype == keys.dtype and np.array_equal(g.ids, inv)
+    m = g.mean(v)
+    dev = v - m[g.ids]
+    whole = g.sum(dev * dev)
+    monkeypatch.setattr(dwells, "ROW_SLICE", 97)
+    sliced = g.sum_squares_about(v, m)
+    assert np.array_equal(sliced, whole)
+    # a float key (rounded azimuths) still goes to np.unique
+    az = dwells._Groups(np.round(rng.uniform(0, 360, 50), 3))
+    assert az.keys.dtype.kind == "f"

@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 
 from ..fitting.core import lstsq_svd_x
+from ..fitting.data import ROW_SLICE, unique_small_ints
 from ..physics.rigs import omega_z
 
 
@@ -221,7 +222,12 @@ class _Groups:
     """Rows grouped by a key as ``groupby(key, sort=True)`` groups them, with its reductions."""
 
     def __init__(self, key: np.ndarray):
-        self.keys, ids = np.unique(key, return_inverse=True)
+        # integer keys (a run's steps, a tumble's positions) by counting: np.unique's arrays
+        # without sorting a long run's readings (issue 28)
+        if key.dtype.kind in "iu":
+            self.keys, _, ids = unique_small_ints(key)
+        else:
+            self.keys, ids = np.unique(key, return_inverse=True)
         self.ids = ids.reshape(-1).astype(np.intp, copy=False)
         self.ngroups = len(self.keys)
         self.counts = np.bincount(self.ids, minlength=self.ngroups).astype(np.int64)
@@ -266,6 +272,24 @@ class _Groups:
     def min(self, v: np.ndarray) -> np.ndarray | None:
         return self._reduceat(v, "min")
 
+    def sum_squares_about(self, v: np.ndarray, mean: np.ndarray) -> np.ndarray:
+        """``sum((v - mean[group])**2)`` per group, as :meth:`sum` of the squared
+        deviations gives it; the groups of a long run a slice of whole groups at a time
+        (each group's sum is the same sequential sum, issue 28)."""
+        if not self.monotonic or self.ids.size <= ROW_SLICE or np.isnan(v).any():
+            dev = v - mean[self.ids]
+            return self.sum(dev * dev)
+        out = np.empty(self.ngroups)
+        g = 0
+        while g < self.ngroups:
+            a = self.starts[g]
+            h = max(int(np.searchsorted(self.starts, a + ROW_SLICE, side="right")), g + 1)
+            b = self.starts[h] if h < self.ngroups else self.ids.size
+            dev = v[a:b] - mean[self.ids[a:b]]
+            out[g:h] = np.add.reduceat(dev * dev, self.starts[g:h] - a)
+            g = h
+        return out
+
 
 def _dwell_columns(meta: Mapping, data, eff: Mapping[str, float]) -> dict[str, np.ndarray] | None:
     """The columns of :func:`dwell_table`, or None where the fast path does not apply."""
@@ -286,8 +310,7 @@ def _dwell_columns(meta: Mapping, data, eff: Mapping[str, float]) -> dict[str, n
     if not grp.monotonic:
         return None
     mean_out = grp.mean(out_)
-    dev = out_ - mean_out[grp.ids]             # about each dwell's own mean
-    ss = grp.sum(dev * dev)
+    ss = grp.sum_squares_about(out_, mean_out)  # about each dwell's own mean
     n = grp.counts
     rate_std = grp.std(rate)
     rate_std[np.isnan(rate_std)] = 0.0        # fillna(0.0)

@@ -843,8 +843,9 @@ def _labels(run: RunCells, t: np.ndarray) -> dict:
     attrs["time_frac"] = (tm - tm.min()) / max(float(np.ptp(tm)), 1e-12) if k else tm
     if "temp_c" in run.cols:
         T = run.cols["temp_c"]
-        if np.isfinite(T).any():
-            attrs["temperature"] = run.cell_mean(np.nan_to_num(T, nan=float(np.nanmean(T))))
+        if np.isfinite(T).any():            # a copy only where there are gaps to fill (issue 28)
+            attrs["temperature"] = run.cell_mean(np.nan_to_num(T, nan=float(np.nanmean(T)))
+                                                 if np.isnan(T).any() else T)
     if run.test == "tilt_rotation":
         attrs["temperature"] = run.cell_mean(run.cols["temp_set_c"])
         attrs["position"] = run.cell_mean(run.cols["rotation_deg"]) % 360.0
