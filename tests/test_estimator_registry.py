@@ -168,5 +168,5 @@ def test_toy_estimator_fit_check_reaches_the_certificate():
         ("tumble", "t2", "not testable", "0", None, "no replicated positions beyond the parameters"),
         ("thermal", "T1", "χ² = 12, Birge 2", "3", float(stats.chi2.sf(12.0, 3)), "NOT adequate"),
         ("thermal", "T1", "χ² = —, Birge —", "3", None, "—"),
-        ("thermal", "T1", "0.5 ± 0.1 ppm/h", "—", None, "significant"),
+        ("thermal", "T1", "0.50 ± 0.10 ppm/h", "—", None, "significant"),
         ("sine", "S1", "F = 0.5", "2 / 30", 0.61, "not needed (model adequate without)")]

@@ -49,6 +49,7 @@ from ..fitting.data import ROW_SLICE, unique_small_ints
 from ..physics.geometry import geometry_of
 from ..physics.instrument import indicated_acceleration, output_derivative
 from ..physics.rigs import tilt_rotation_specific_force
+from ..rounding import round_gum
 from ..results import (BudgetTerm, CoefficientResult, FitCheck, ResidualFigure, ResidualPanel, ResidualSeries,
                        display_number)
 from . import uncertainty as unc
@@ -1157,8 +1158,10 @@ def fit_checks(extras: Mapping[str, Any]) -> list[FitCheck]:
                                 f"χ² = {f(chi2, '.3g')}, Birge {f(m.get(f'birge_ratio_{k}'), '.3g')}", f(nu), p))
         tr = (t or {}).get("scale_factor_time_trend") or {}
         if tr:
+            # u to two significant digits, the slope to its last digit (GUM 7.2.6)
+            r = round_gum(tr.get("slope_ppm_per_h"), tr.get("u_slope_ppm_per_h"))
             out.append(FitCheck("thermal", run, "K1 drift in time (residual trend)",
-                                f"{f(tr.get('slope_ppm_per_h'), '.3g')} ± {f(tr.get('u_slope_ppm_per_h'), '.2g')} ppm/h",
+                                f"{r.value} ± {r.uncertainty} ppm/h",
                                 "—", passes=not bool(tr.get("significant")), yes="not significant", no="significant"))
     return out
 

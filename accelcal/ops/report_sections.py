@@ -373,7 +373,10 @@ def _sec_mc(d) -> str:
         exp = (round_sig(m.delta / f, 1)[1] if m.delta else
                round_sig(m.mc_u / f)[1] if m.mc_u else None)
         lo, hi = (None if x is None else x / f for x in (m.mc_low, m.mc_high))
-        rows.append([(m.key, "nw"), ("yes" if mine else "", "nw"),
+        # the key may break after each ':' and before each term of a combination (a long
+        # combination name would push the table past the page)
+        key = m.key.replace(":", ":\u200b").replace("+", "\u200b+")
+        rows.append([key, ("yes" if mine else "", "nw"),
                      (_u_text(m.gum_u, f), "num"), (_u_text(m.mc_u, f), "num"),
                      (f"[{_at_digit(lo, exp)}, {_at_digit(hi, exp)}]", "nw"),
                      ("—" if not m.delta else format_sig(m.delta / f, 1), "num"), (dunit, "nw"),
