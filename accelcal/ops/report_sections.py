@@ -50,7 +50,7 @@ h1{font-size:21px;margin:0 0 2px 0} h2{font-size:15px;border-bottom:2px solid #1
 table{border-collapse:collapse;margin:6px 0 10px 0;width:100%}
 th,td{border:1px solid #bbb;padding:3px 6px;text-align:left;vertical-align:top}
 th{background:#e9eef5;font-weight:600}
-td.nw{white-space:nowrap} td.num{text-align:right;font-variant-numeric:tabular-nums;white-space:nowrap}
+td.nw{white-space:nowrap} td.brk{overflow-wrap:anywhere} td.num{text-align:right;font-variant-numeric:tabular-nums;white-space:nowrap}
 td.ok{color:#176b2c;font-weight:600} td.bad{color:#a61b1b;font-weight:600}
 td.mono,.mono{font-family:"DejaVu Sans Mono",monospace;font-size:10px;word-break:normal}
 tr.total td{font-weight:700;background:#f3f5f8}
@@ -373,10 +373,8 @@ def _sec_mc(d) -> str:
         exp = (round_sig(m.delta / f, 1)[1] if m.delta else
                round_sig(m.mc_u / f)[1] if m.mc_u else None)
         lo, hi = (None if x is None else x / f for x in (m.mc_low, m.mc_high))
-        # the key may break after each ':' and before each term of a combination (a long
-        # combination name would push the table past the page)
-        key = m.key.replace(":", ":\u200b").replace("+", "\u200b+")
-        rows.append([key, ("yes" if mine else "", "nw"),
+        # a long combination's key may break anywhere (it would push the table past the page)
+        rows.append([(m.key, "brk"), ("yes" if mine else "", "nw"),
                      (_u_text(m.gum_u, f), "num"), (_u_text(m.mc_u, f), "num"),
                      (f"[{_at_digit(lo, exp)}, {_at_digit(hi, exp)}]", "nw"),
                      ("—" if not m.delta else format_sig(m.delta / f, 1), "num"), (dunit, "nw"),
