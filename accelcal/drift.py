@@ -100,30 +100,37 @@ def from_years(y: float) -> np.datetime64:
 
 # ------------------------------------------------------------- the line fit ----
 
-def _wls_fit(X: np.ndarray, x: np.ndarray, var: np.ndarray) -> FitResult:
+def _solve(X: np.ndarray, x: np.ndarray, var: np.ndarray):
     """Weighted least squares through the fitting core (:func:`accelcal.fitting.core.
-    lstsq_svd`, W = 1/var) as a :class:`~accelcal.fitting.core.FitResult`: coefficients
-    ``a``, ``b`` and the segment offsets, covariance (X'WX)^-1 (the between-campaign
-    scatter is in ``var`` as tau^2, eq 2, not a Birge factor).  A design the data cannot
-    determine (rank below its columns) raises ``LinAlgError``, as the callers expect of a
-    step position or segment with no calibration of its own."""
+    lstsq_svd`, W = 1/var): the core's solution, the whitened design and the weights.  A
+    design the data cannot determine (rank below its columns) raises ``LinAlgError``, as
+    the callers expect of a step position or segment with no calibration of its own."""
     w = 1.0 / np.sqrt(var)
     Jw = X * w[:, None]
     sol = lstsq_svd(Jw, x * w)
     if sol.rank < X.shape[1]:
         raise np.linalg.LinAlgError("singular design: a parameter of the drift line is not determined")
+    return sol, Jw, w
+
+
+def _wls(X: np.ndarray, x: np.ndarray, var: np.ndarray):
+    """:func:`_solve` as (coefficients, covariance (X'WX)^-1, residuals [unit]): what the
+    step and scatter tests need, without a FitResult."""
+    sol, _, _ = _solve(X, x, var)
+    return sol.x, sol.cov, x - X @ sol.x
+
+
+def _wls_fit(X: np.ndarray, x: np.ndarray, var: np.ndarray) -> FitResult:
+    """:func:`_solve` as a :class:`~accelcal.fitting.core.FitResult`: coefficients ``a``,
+    ``b`` and the segment offsets, covariance (X'WX)^-1 (the between-campaign scatter is in
+    ``var`` as tau^2, eq 2, not a Birge factor)."""
+    sol, Jw, w = _solve(X, x, var)
     z = (x - X @ sol.x) * w
     chi2, dof = float(z @ z), x.size - sol.rank
     lof = LackOfFit("untestable" if dof <= 0 else "adequate", chi2 / dof if dof > 0 else None, None, dof, 0,
                     1.0, "the scatter between campaigns is tau^2 in the weights (eq 2)")
     names = ParameterSet(Parameter(n, n) for n in ["a", "b"] + [f"offset{k}" for k in range(X.shape[1] - 2)])
     return FitResult(names, sol.x, sol.cov, sol.cov, sol.estimable, chi2, dof, x.size, sol.rank, lof, z, Jw)
-
-
-def _wls(X: np.ndarray, x: np.ndarray, var: np.ndarray):
-    """:func:`_wls_fit` as (coefficients, covariance, residuals [unit])."""
-    f = _wls_fit(X, x, var)
-    return f.values, f.cov_noise, x - X @ f.values
 
 
 def scatter_moments(X: np.ndarray, x: np.ndarray, u: np.ndarray) -> tuple[float, float, float]:

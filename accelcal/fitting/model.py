@@ -1279,15 +1279,35 @@ def _aliased_names(reason: str) -> list[str]:
     return [n.strip() for n in reason[len(head):].split(",")] if reason.startswith(head) else []
 
 
-def pure_error_runs(model: "CampaignModel", p: np.ndarray, at_rho_hi: bool = False) -> list[tuple[float, int]]:
-    """Each run's weighted pure-error chi-square and its degrees of freedom (Draper &
-    Smith §2.1); the lack of fit tests against their sums.
+def residual_cell_variance(model: "CampaignModel", p: np.ndarray) -> list[np.ndarray]:
+    """Each run's within-cell sample variance of the residual readings at ``p``
+    (:meth:`RunCells.cell_variance` of output minus model): what the pure error of
+    :func:`pure_error_runs` rests on, worked out once for both its rho variants.
 
     Parameters
     ----------
     model : CampaignModel
     p : ndarray
         Parameter vector [parameter units].
+
+    Returns
+    -------
+    list of (ncell,) ndarray
+        Per run [output_unit^2]; nan for 1-reading cells.
+    """
+    return [r.cell_variance(r.y_rows - model.predict_rows(p, j)) for j, r in enumerate(model.runs)]
+
+
+def pure_error_runs(model: "CampaignModel", scatter: Sequence[np.ndarray],
+                    at_rho_hi: bool = False) -> list[tuple[float, int]]:
+    """Each run's weighted pure-error chi-square and its degrees of freedom (Draper &
+    Smith §2.1); the lack of fit tests against their sums.
+
+    Parameters
+    ----------
+    model : CampaignModel
+    scatter : sequence of ndarray
+        Each run's within-cell residual variance (:func:`residual_cell_variance`).
     at_rho_hi : bool
         Count the dof at the upper end of each run's rho interval (``NoiseModel.rho_hi``;
         the scatter's scale is the noise model's, refitted at that rho it is the same).
@@ -1301,9 +1321,7 @@ def pure_error_runs(model: "CampaignModel", p: np.ndarray, at_rho_hi: bool = Fal
         (0.0, 0) for a run without replicates or noise model.
     """
     out = []
-    for j, r in enumerate(model.runs):
-        res = r.y_rows - model.predict_rows(p, j)
-        s2 = r.cell_variance(res)
+    for r, s2 in zip(model.runs, scatter):
         ok = (r.n >= 2) & np.isfinite(s2)
         if not ok.any() or r.noise is None or not math.isfinite(r.noise.a):
             out.append((0.0, 0))
@@ -1395,7 +1413,7 @@ def lack_of_fit_reference(model: "CampaignModel", dof_runs: np.ndarray,
     return (k1, k2, k3) if owned else None
 
 
-def lack_of_fit_at_rho_hi(model: "CampaignModel", p: np.ndarray, z: np.ndarray, dof_lof: int,
+def lack_of_fit_at_rho_hi(model: "CampaignModel", scatter: Sequence[np.ndarray], z: np.ndarray, dof_lof: int,
                           alpha: float, dof_runs: np.ndarray | None = None) -> LackOfFit | None:
     """The lack-of-fit test with each run's AR(1) correlation at the upper end of its
     sampling interval (``NoiseModel.rho_hi``), or None when every run is white.
@@ -1410,8 +1428,8 @@ def lack_of_fit_at_rho_hi(model: "CampaignModel", p: np.ndarray, z: np.ndarray, 
     Parameters
     ----------
     model : CampaignModel
-    p : ndarray
-        Parameter vector [parameter units].
+    scatter : sequence of ndarray
+        Each run's within-cell residual variance at the fit (:func:`residual_cell_variance`).
     z : (N,) ndarray
         Whitened cell residuals at p [1].
     dof_lof : int
@@ -1438,7 +1456,7 @@ def lack_of_fit_at_rho_hi(model: "CampaignModel", p: np.ndarray, z: np.ndarray, 
         k = (ar1_variance_factor(r.n, hi) * ar1_mean_factor(r.n, lo)
              / (ar1_variance_factor(r.n, lo) * ar1_mean_factor(r.n, hi)))
         chi += float(np.sum(zj * zj * k))
-    pe_runs = pure_error_runs(model, p, at_rho_hi=True)
+    pe_runs = pure_error_runs(model, scatter, at_rho_hi=True)
     chi_pe, dof_pe = sum(c for c, _ in pe_runs), sum(d for _, d in pe_runs)
     return lack_of_fit(chi, dof_lof, chi_pe if dof_pe > 0 else None, dof_pe, alpha=alpha,
                        reference=lack_of_fit_reference(model, dof_runs, pe_runs) if dof_runs is not None else None)

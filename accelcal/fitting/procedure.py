@@ -28,7 +28,7 @@ import numpy as np
 from .core import ALPHA, FitResult, finish_fit, gauss_newton, lack_of_fit
 from .data import fit_noise, pool_missing_noise
 from .model import (CampaignModel, lack_of_fit_at_rho_hi, lack_of_fit_reference, pure_error_runs,
-                    residual_dof_runs)
+                    residual_cell_variance, residual_dof_runs)
 
 
 @dataclass
@@ -182,7 +182,8 @@ def fit_model(model: CampaignModel, p: np.ndarray, held: dict[str, str], *,
                 gn = replace(gn, p=np.where(free, gn.p, model.params.values()))
         gn = gauss_newton(model.residual, model.jacobian, gn.p, free, max_iter=max_iter, lower=lower)
         its += gn.iterations
-    pe_runs = pure_error_runs(model, gn.p)
+    scatter = residual_cell_variance(model, gn.p)          # once, for both rho variants
+    pe_runs = pure_error_runs(model, scatter)
     chi_pe, dof_pe = sum(c for c, _ in pe_runs), sum(d for _, d in pe_runs)
     plain = finish_fit(model.params, gn)
     rank = plain.rank
@@ -191,11 +192,12 @@ def fit_model(model: CampaignModel, p: np.ndarray, held: dict[str, str], *,
     lof = lack_of_fit(gn.chi2, model.N - rank, chi_pe if dof_pe > 0 else None, dof_pe, alpha=alpha,
                       reference=lack_of_fit_reference(model, dof_runs, pe_runs))
     # coloured noise: inadequate only if inadequate at the upper end of rho's interval too
-    hi = (lack_of_fit_at_rho_hi(model, gn.p, gn.z, model.N - rank, alpha, dof_runs)
+    hi = (lack_of_fit_at_rho_hi(model, scatter, gn.z, model.N - rank, alpha, dof_runs)
           if lof.p_value is not None else None)
     if hi is not None and hi.p_value is not None and hi.p_value > lof.p_value:
         lof = hi
-    fit = finish_fit(model.params, gn, lof)
+    # the covariance finish_fit gives with this lack of fit, from the one SVD already done
+    fit = replace(plain, lof=lof, cov=plain.cov_noise * lof.factor ** 2)
     active = model.params.free() & (np.linalg.norm(gn.J, axis=0) > 0)
     return ModelFit(model, fit, dict(held), its, {"chi2": chi_pe, "dof": dof_pe}, active, list(effects))
 

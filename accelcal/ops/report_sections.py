@@ -398,12 +398,6 @@ def _sec_mc(d) -> str:
                           "95 % interval (Monte Carlo)", "δ", "unit", "result", "what it means"], rows)
 
 
-def mc_meaning(m: dict) -> str:
-    """In words, what a JCGM 101 check (its stored record) says of the stated U (empty
-    for a PASS): :meth:`accelcal.results.MonteCarloCheck.meaning`."""
-    return monte_carlo_checks({"mc_check": {"": m}})[0].meaning()
-
-
 def _u_text(u: float | None, f: float) -> str:
     from ..rounding import format_sig
     return format_sig(None if u is None else u / f)
