@@ -42,23 +42,56 @@ def atomic_write(target: str | Path, write: Callable[[IO[Any]], None], mode: str
     anything fails.  fsync: flush to disk before the rename.  The file gets the mode an
     ordinary ``open`` would give it (0666 less the umask): a lab shares what we write,
     where ``mkstemp`` alone would leave it 0600."""
-    target = Path(target)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    f = AtomicFile(target, mode, **open_kw)
     try:
-        os.fchmod(fd, 0o666 & ~current_umask())
-        with os.fdopen(fd, mode, **open_kw) as fh:
-            write(fh)
-            if fsync:
-                fh.flush()
-                os.fsync(fh.fileno())
-        os.replace(tmp, target)
+        write(f.fh)
+        if fsync:
+            f.fh.flush()
+            os.fsync(f.fh.fileno())
+        return f.commit()
     except BaseException:
+        f.abort()
+        raise
+
+
+class AtomicFile:
+    """:func:`atomic_write`'s temporary file kept open across calls, for a file written
+    while something else is read (a run's Parquet file as its raw file is parsed, issue
+    28): write to ``fh``, then :meth:`commit` (renamed onto the target) or :meth:`abort`
+    (removed).  Either may be called again, and abort after commit does nothing."""
+
+    def __init__(self, target: str | Path, mode: str = "wb", **open_kw):
+        self.target = Path(target)
+        fd, self.tmp = tempfile.mkstemp(prefix=f".{self.target.name}.", suffix=".tmp",
+                                        dir=self.target.parent)
         try:
-            os.unlink(tmp)
+            os.fchmod(fd, 0o666 & ~current_umask())
+            self.fh = os.fdopen(fd, mode, **open_kw)
+        except BaseException:
+            os.close(fd)
+            os.unlink(self.tmp)
+            raise
+        self.done = False
+
+    def commit(self) -> Path:
+        if not self.done:
+            self.fh.close()
+            os.replace(self.tmp, self.target)
+            self.done = True
+        return self.target
+
+    def abort(self) -> None:
+        if self.done:
+            return
+        self.done = True
+        try:
+            self.fh.close()
+        except OSError:
+            pass
+        try:
+            os.unlink(self.tmp)
         except FileNotFoundError:
             pass
-        raise
-    return target
 
 
 def sync_files(paths: list[str | Path]) -> None:

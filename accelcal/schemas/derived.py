@@ -98,14 +98,24 @@ def _derive(test: str, run: RunFile, step_means: np.ndarray | None = None) -> di
     columns are its arrays (RunFile.arrays): a pandas column lookup costs more than most
     of the arithmetic here.  ``step_means``: for a centrifuge run, its mean turning rate
     per step when already known (:func:`_turning_step_means`)."""
-    d = dict(run.arrays)
+    src = run.arrays
     n = run.n_rows
-    d.setdefault("line", np.full(n, -1))
-    cols = [c for c in COLUMNS[test] if c in d]
-    out: dict[str, np.ndarray] = {c: d[c] for c in cols}
+    lazy = hasattr(src, "rows")     # the run is in its Parquet file: read when needed
+    if lazy:
+        # every column is read for the rows table a slice at a time; a whole column only
+        # while a run-level figure is made from it (issue 28)
+        d = src
+        out: dict[str, np.ndarray] = {c: _stored(src, c) for c in (*COLUMNS[test], "line")
+                                      if c in src}
+        cols = [c for c in COLUMNS[test] if c in out]
+    else:
+        d = dict(src)
+        d.setdefault("line", np.full(n, -1))
+        cols = [c for c in COLUMNS[test] if c in d]
+        out = {c: d[c] for c in cols}
     meta = run.meta
     nullable = NULLABLE_COLUMNS[test]
-    checked = [(d[c], c in nullable) for c in cols if c != "output" and c not in INT_COLUMNS]
+    checked = [(out[c], c in nullable) for c in cols if c != "output" and c not in INT_COLUMNS]
 
     def nonfinite(*vs):
         bad = np.zeros(len(vs[0]) if vs else 0, np.int64)
@@ -116,7 +126,11 @@ def _derive(test: str, run: RunFile, step_means: np.ndarray | None = None) -> di
     out["nonfinite_cells"] = (_elementwise(n, np.int64, nonfinite, *[v for v, _ in checked]) if checked
                               else np.zeros(n, np.int64))
     with np.errstate(all="ignore"):
-        t = d["time_s"].astype(np.float64, copy=False) if "time_s" in d else np.full(n, np.nan)
+        if lazy:
+            t = out["time_s"] if "time_s" in out else RowColumn(n, np.float64,
+                                                                 lambda lo, hi: np.full(hi - lo, np.nan))
+        else:
+            t = d["time_s"].astype(np.float64, copy=False) if "time_s" in d else np.full(n, np.nan)
         period = float(meta.get("sample_period_s", np.nan) or np.nan)
 
         def d_time(lo, hi):
@@ -129,15 +143,18 @@ def _derive(test: str, run: RunFile, step_means: np.ndarray | None = None) -> di
             return np.where(dt > 0, dt / period, np.nan) if period > 0 else np.full(hi - lo, np.nan)
         out["d_time_s"] = RowColumn(n, np.float64, d_time)
         out["dt_over_period"] = RowColumn(n, np.float64, dt_over_period)
-        dt = d_time(0, n) if n else np.zeros(0)
         try:
-            keys = _dwell_keys(test, d)
-            same = np.r_[False, keys[1:] == keys[:-1]] & np.isfinite(dt) & (dt > 0)
-            within = dt[same]
+            if lazy:
+                within = _within_dwell_steps(test, src, d_time, n)
+            else:
+                dt = d_time(0, n) if n else np.zeros(0)
+                keys = _dwell_keys(test, d)
+                same = np.r_[False, keys[1:] == keys[:-1]] & np.isfinite(dt) & (dt > 0)
+                within = dt[same]
+                del dt
             perr = abs(float(np.median(within)) / period - 1.0) if within.size and period > 0 else np.nan
         except KeyError:
             perr = np.nan
-        del dt
         out["period_error"] = _first_only(n, perr)
 
         if test == "tumble" and {"position", "angle_deg"} <= d.keys():
@@ -157,9 +174,10 @@ def _derive(test: str, run: RunFile, step_means: np.ndarray | None = None) -> di
                 step = 360.0 / npos
 
                 def grid_dev(rot):
-                    r = np.mod(rot, step)
+                    r = np.mod(rot.astype(np.float64, copy=False), step)
                     return np.minimum(r, step - r)
-                out["rotation_grid_dev_deg"] = _elementwise(n, np.float64, grid_dev, rot)
+                out["rotation_grid_dev_deg"] = _elementwise(n, np.float64, grid_dev,
+                                                            out["rotation_deg"] if lazy else rot)
             else:
                 out["rotation_grid_dev_deg"] = _sparse(n, np.zeros(0), np.zeros(0))
             seg = _segments(d["temp_set_c"].astype(np.float64, copy=False))
@@ -168,13 +186,51 @@ def _derive(test: str, run: RunFile, step_means: np.ndarray | None = None) -> di
             out["positions_error"] = _sparse(n, first, _distinct_per_segment(seg, rk)[seg[first]] - npos)
             del seg, rk
         if test == "sine_centrifuge" and "table_rate_rad_s" in d:
-            ratio, resid = _sine_fit(t, d["table_rate_rad_s"].astype(np.float64, copy=False), meta)
+            ratio, resid = _sine_fit(t[:] if lazy else t, d["table_rate_rad_s"].astype(np.float64, copy=False), meta)
             out["rate_amplitude_ratio"] = _first_only(n, ratio)
             out["rate_fit_residual"] = _first_only(n, resid)
     for k, v in out.items():         # a scalar stands for every row (as a column would)
         if not isinstance(v, RowColumn) and np.ndim(v) == 0:
             out[k] = np.full(n, v, dtype=np.float64)
     return out
+
+
+class _RowsOf:
+    """Rows ``lo`` to ``hi`` of every column of a run in its Parquet file, each read when
+    asked for (what :func:`_dwell_keys` reads of a slice)."""
+
+    def __init__(self, src, lo: int, hi: int):
+        self.src, self.lo, self.hi = src, lo, hi
+
+    def __getitem__(self, c: str) -> np.ndarray:
+        return self.src.rows(c, self.lo, self.hi)
+
+
+#: Rows of a run in its Parquet file whose time steps are looked at together.
+_STEP_ROWS = 1 << 22
+
+
+def _within_dwell_steps(test: str, src, d_time, n: int) -> np.ndarray:
+    """The forward time steps between consecutive rows of one dwell, of a run in its
+    Parquet file, found a slice of rows at a time: the values, in order, that the whole
+    run's ``dt[same]`` gives (:func:`_derive`)."""
+    parts = []
+    for lo in range(0, n, _STEP_ROWS):
+        hi = min(lo + _STEP_ROWS, n)
+        a = max(lo - 1, 0)
+        keys = _dwell_keys(test, _RowsOf(src, a, hi))
+        same = keys[1:] == keys[:-1]
+        if lo == 0:
+            same = np.r_[False, same]
+        dt = d_time(lo, hi)
+        parts.append(dt[same & np.isfinite(dt) & (dt > 0)])
+    return np.concatenate(parts) if parts else np.zeros(0)
+
+
+def _stored(src, c: str) -> RowColumn:
+    """Column ``c`` of a run in its Parquet file (tables.ParquetColumns), read a slice of
+    rows at a time."""
+    return RowColumn(src.n_rows, src.dtype(c), lambda lo, hi: src.rows(c, lo, hi))
 
 
 def _distinct_per_segment(seg: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -195,17 +251,16 @@ def _distinct_per_segment(seg: np.ndarray, values: np.ndarray) -> np.ndarray:
 
 def _rest_dwell_error(d: dict[str, np.ndarray]) -> float:
     """Worst spacing error (deg) of the leading rest dwells' azimuths; 999 if < 2 of them."""
-    rate = d["table_rate_rad_s"].astype(np.float64, copy=False)
-    step = d["step"]
-    ang = d["table_angle_deg"].astype(np.float64, copy=False)
-    # the dwells (runs of equal steps) as slices: the same rows, in order, as a mask each
-    edges = _run_edges(step)
+    # the dwells (runs of equal steps) as slices: the same rows, in order, as a mask each;
+    # only the leading ones' rates and azimuths are read (a run in its Parquet file is read
+    # a dwell at a time, issue 28)
+    rows = d.rows if hasattr(d, "rows") else (lambda c, lo, hi: d[c][lo:hi])
+    edges = _run_edges(d["step"])
     az = []
     for lo, hi in zip(edges[:-1], edges[1:]):
-        m = slice(lo, hi)
-        if not np.all(np.abs(rate[m]) < REST_RATE):
+        if not np.all(np.abs(rows("table_rate_rad_s", lo, hi).astype(np.float64, copy=False)) < REST_RATE):
             break
-        a = ang[m]
+        a = rows("table_angle_deg", lo, hi).astype(np.float64, copy=False)
         a = a[np.isfinite(a)]
         if a.size == 0:
             return 999.0

@@ -81,12 +81,17 @@ class _Frame:
             raise AttributeError("data")
         d = run.__dict__
         if d.get("_data") is None:
-            d["_data"] = pd.DataFrame(d["_arrays"], copy=False)  # in one go: adding a column copies
+            a = d["_arrays"]
+            if hasattr(a, "rows"):      # a run in its Parquet file: read whole, not kept
+                return pd.DataFrame({c: a[c] for c in a}, copy=False)
+            d["_data"] = pd.DataFrame(a, copy=False)  # in one go: adding a column copies
         return d["_data"]
 
     def __set__(self, run, value) -> None:
         if isinstance(value, pd.DataFrame):
             run.__dict__.update(_data=value, _arrays=None)
+        elif hasattr(value, "rows"):    # columns in a Parquet file, read when asked for
+            run.__dict__.update(_data=None, _arrays=value)
         else:
             run.__dict__.update(_data=None, _arrays=dict(value))
 
@@ -99,7 +104,9 @@ class RunFile:
     ``meta_raw``: the values exactly as written (stripped); ``data``: the test's
     columns in COLUMNS order (float64, ``step``/``position`` int64, empty cells NaN)
     plus ``line`` (int64), the 1-based line number of each row (a DataFrame; may be
-    given as a dict of arrays, see :attr:`arrays`); ``header_line``: the line number
+    given as a dict of arrays, see :attr:`arrays`, or as the columns of the run's Parquet
+    file, :class:`accelcal.schemas.tables.ParquetColumns`, read when asked for and never
+    kept: a run parsed into that file, issue 28); ``header_line``: the line number
     of the CSV header; ``meta_lines``: the line of each metadata key (so later checks
     can name it; empty when unknown).
     """
@@ -124,7 +131,10 @@ class RunFile:
 
     @property
     def n_rows(self) -> int:
-        return len(next(iter(self.arrays.values()), ()))
+        a = self.arrays
+        if hasattr(a, "n_rows"):        # columns in a Parquet file: counted there
+            return int(a.n_rows)
+        return len(next(iter(a.values()), ()))
 
     @property
     def test(self) -> str:
@@ -365,26 +375,39 @@ def read_run(path) -> RunFile:
         return parse_run(fh, path)
 
 
-def parse_run(fh, path) -> RunFile:
+def parse_run(fh, path, stream=None) -> RunFile:
     """:func:`read_run` on an open binary file object (or ``io.BytesIO``); ``path`` names
-    it in messages.  ``RunFile.sha256`` and ``size_bytes`` are those of the bytes read."""
+    it in messages.  ``RunFile.sha256`` and ``size_bytes`` are those of the bytes read.
+
+    ``stream``: a :class:`accelcal.schemas.tables.RunParquetStream` that takes the rows as
+    they are parsed (issue 28): it is opened with the run's metadata once the head is read,
+    gets every chunk's rows, and the RunFile's columns are then those of its Parquet file,
+    read when asked for.  The caller commits or aborts it."""
     spath = str(path)
     st = _Stream(fh, spath)
     meta, raw_meta, key_line, names, header_line, hterm = _parse_head(st, spath)
     test = meta["test"]
+    if stream is not None:
+        stream.open(RunFile(path=spath, sha256=stream.sha256, size_bytes=stream.size_bytes,
+                            meta=meta, meta_raw=raw_meta, data={}, header_line=header_line,
+                            meta_lines=key_line))
 
     # ---- rows, a chunk at a time (numpy finds the lines, pyarrow parses the numbers)
     try:
         size_hint = os.fstat(fh.fileno()).st_size
     except (AttributeError, OSError, ValueError, io.UnsupportedOperation):
         size_hint = len(fh.getbuffer()) if hasattr(fh, "getbuffer") else None
-    body = _Body(spath, test, names, size_hint)
+    body = _Body(spath, test, names, size_hint, sink=stream)
     if hterm:
         for chunk, first, offset, last in st.chunks():
             body.add(chunk, first, offset, last)
     if body.n_rows == 0:
         raise DropFormatError(spath, header_line, "no-data", "a header but no data rows")
-    data = body.columns()       # RunFile.data makes the DataFrame when it is asked for
+    if stream is not None:
+        from .tables import ParquetColumns
+        data = ParquetColumns(stream.target, (*COLUMNS[test], "line"), body.n_rows)
+    else:
+        data = body.columns()       # RunFile.data makes the DataFrame when it is asked for
     return RunFile(path=spath, sha256=st.hash.hexdigest(), size_bytes=st.size, meta=meta,
                    meta_raw=raw_meta, data=data, header_line=header_line, meta_lines=key_line)
 

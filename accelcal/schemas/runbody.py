@@ -106,9 +106,12 @@ VIEW_BYTES = 16 << 20
 class _Body:
     """The data rows of one run, parsed a chunk at a time into per-column arrays."""
 
-    def __init__(self, path: str, test: str, names: list[str], size_hint: int | None = None):
+    def __init__(self, path: str, test: str, names: list[str], size_hint: int | None = None,
+                 sink=None):
         self.path, self.test, self.names = path, test, names
         self.size_hint = size_hint          # bytes of the file, to size the arrays once
+        #: where each chunk's rows go instead of these arrays (tables.RunParquetStream)
+        self.sink = sink
         self.cols: dict[str, np.ndarray] = {}
         self.n_rows = 0
         self.bytes_seen = 0
@@ -255,6 +258,10 @@ class _Body:
         only when later rows are denser: no list of pieces to concatenate at the end."""
         n = self.n_rows
         self.bytes_seen += nbytes
+        if self.sink is not None:           # handed over, not kept (issue 28)
+            self.sink.write(cols, m)
+            self.n_rows = n + m
+            return
         cap = len(self.cols["line"]) if self.cols else 0
         if n + m > cap:
             est = (n + m) * (self.size_hint or 0) / max(self.bytes_seen, 1)

@@ -256,12 +256,12 @@ class _Rows:
         for c in self.names:
             dt = self.dtypes[c]
             parts = [self.items[j][2].get(c) for j, _, _ in cuts]
-            # a derived column made a slice at a time (RowColumn) is sliced even when whole
-            parts = [p[:] if isinstance(p, RowColumn) and len(parts) == 1 else p for p in parts]
             if all(p is not None for p in parts):
-                data[c] = np.concatenate([p[lo:hi] for p, (_, lo, hi) in zip(parts, cuts)]) \
-                    if len(parts) != 1 or cuts[0][1] != 0 or cuts[0][2] != len(parts[0]) \
-                    else parts[0]
+                # a column made a slice at a time (RowColumn) makes only the rows asked for
+                if len(parts) != 1 or cuts[0][1] != 0 or cuts[0][2] != len(parts[0]):
+                    data[c] = np.concatenate([p[lo:hi] for p, (_, lo, hi) in zip(parts, cuts)])
+                else:
+                    data[c] = parts[0][:] if isinstance(parts[0], RowColumn) else parts[0]
                 if data[c].dtype != dt:
                     data[c] = data[c].astype(dt)
                 continue

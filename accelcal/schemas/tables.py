@@ -17,13 +17,15 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Mapping
 from pathlib import Path
 from urllib.parse import quote
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from ..fileio import atomic_write
+from ..fileio import AtomicFile, StoreError, atomic_write, os_error_text
 from .dropformat import RunFile
 from .dropspec import COLUMNS, INT_COLUMNS
 
@@ -100,13 +102,18 @@ def _batches(run: RunFile, schema: pa.Schema):
     step = _row_group_rows(run)
     for a in range(0, max(n, 1), step):
         b = min(a + step, n)
-        arrays = []
-        for f in schema:
-            if f.name in ("run_id", "sha256"):      # a constant: repeated in Arrow, no Python list
-                arrays.append(pa.repeat(pa.scalar(getattr(run, f.name), pa.string()), b - a))
-            else:
-                arrays.append(pa.array(cols[f.name][a:b], type=f.type))
-        yield pa.RecordBatch.from_arrays(arrays, schema=schema)
+        yield _record_batch(run, schema, {c: v[a:b] for c, v in cols.items()}, b - a)
+
+
+def _record_batch(run: RunFile, schema: pa.Schema, cols: dict, m: int) -> pa.RecordBatch:
+    """``m`` rows of the run's columns ``cols`` as a batch of ``schema``."""
+    arrays = []
+    for f in schema:
+        if f.name in ("run_id", "sha256"):      # a constant: repeated in Arrow, no Python list
+            arrays.append(pa.repeat(pa.scalar(getattr(run, f.name), pa.string()), m))
+        else:
+            arrays.append(pa.array(cols[f.name], type=f.type))
+    return pa.RecordBatch.from_arrays(arrays, schema=schema)
 
 
 def run_table(run: RunFile) -> pa.Table:
@@ -155,12 +162,157 @@ def _whole(path: Path) -> bool:
     return True
 
 
+class RunParquetStream:
+    """A run's Parquet file written as its raw file is parsed (issue 28): the parser hands
+    each chunk of rows over (:meth:`write`, one row group each) and keeps none, so a run
+    file of any length is parsed in the memory of a chunk.  The file is the one
+    :func:`write_run_parquet` writes -- same place, schema, metadata and values, in row
+    groups of a chunk -- and as atomic: a temporary file renamed into place by
+    :meth:`commit`, removed by :meth:`abort` (a refusal, a file that changed).  The
+    run's sha256 and size are those of the ingest's hashing pass, read before the parse
+    (the parser's own are compared with them before the commit).
+
+    Parameters
+    ----------
+    root : path
+        The Parquet store.
+    sha256 : str
+        sha256 of the raw file [hex].
+    size_bytes : int
+        Its size [byte].
+    """
+
+    def __init__(self, root, sha256: str, size_bytes: int):
+        self.root, self.sha256, self.size_bytes = Path(root), sha256, int(size_bytes)
+        self.head: RunFile | None = None
+        self.target: Path | None = None
+        self._file: AtomicFile | None = None
+        self._writer = None
+
+    def open(self, head: RunFile) -> None:
+        """Start the file of ``head`` (the run's metadata, no rows).  A whole file already
+        at its place (the same bytes ingested before) is left alone: nothing is written."""
+        self.head, self.target = head, parquet_path(head, self.root)
+        if _whole(self.target):
+            return
+        try:
+            self.target.parent.mkdir(parents=True, exist_ok=True)
+            self._file = AtomicFile(self.target)
+            self._schema = _schema_with_metadata(head)
+            self._writer = pq.ParquetWriter(self._file.fh, self._schema, compression="zstd")
+        except OSError as err:
+            self.abort()
+            raise self._store_error(err) from None
+
+    def write(self, cols: dict[str, np.ndarray], m: int) -> None:
+        """Append ``m`` rows: the test's columns and ``line``, as the parser typed them."""
+        if self._writer is None:
+            return
+        try:
+            self._writer.write_batch(_record_batch(self.head, self._schema, cols, m))
+        except OSError as err:
+            self.abort()
+            raise self._store_error(err) from None
+
+    def commit(self) -> Path:
+        """Close the file and put it in its place; its path."""
+        if self._writer is not None:
+            try:
+                self._writer.close()
+                self._writer = None
+                self._file.commit()
+            except OSError as err:
+                self.abort()
+                raise self._store_error(err) from None
+        return self.target
+
+    def abort(self) -> None:
+        """Remove the temporary file (nothing is left of an unfinished run)."""
+        if self._writer is not None:
+            try:
+                self._writer.close()
+            except Exception:
+                pass
+            self._writer = None
+        if self._file is not None:
+            self._file.abort()
+
+    def _store_error(self, err: OSError) -> StoreError:
+        where = self.target.parent if self.target is not None else self.root
+        return StoreError(os_error_text(OSError(err.errno, err.strerror, str(where)),
+                                        "cannot write the Parquet store"))
+
+
+class ParquetColumns(Mapping):
+    """A run's columns in its Parquet file, read when asked for and not kept (issue 28):
+    what ``RunFile.arrays`` is for a run parsed into its Parquet file
+    (:class:`RunParquetStream`).  ``cols[c]`` reads column ``c`` whole (a numpy array,
+    as the parser types it); :meth:`rows` reads rows ``lo`` to ``hi`` of it, from the row
+    groups that hold them.
+
+    Parameters
+    ----------
+    path : path
+        The Parquet file.
+    names : sequence of str
+        Its run columns, in order (the test's columns and ``line``).
+    n_rows : int
+        Rows in the file [1].
+    """
+
+    def __init__(self, path, names, n_rows: int):
+        self.path, self.names, self.n_rows = Path(path), list(names), int(n_rows)
+        self._starts: np.ndarray | None = None
+
+    def __getitem__(self, c: str) -> np.ndarray:
+        if c not in self.names:
+            raise KeyError(c)
+        return self.rows(c, 0, self.n_rows)
+
+    def __iter__(self):
+        return iter(self.names)
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def dtype(self, c: str) -> np.dtype:
+        """The numpy type of column ``c`` (int64 for ``line`` and the integer columns)."""
+        return np.dtype(np.int64) if c == "line" or c in INT_COLUMNS else np.dtype(np.float64)
+
+    def rows(self, c: str, lo: int, hi: int) -> np.ndarray:
+        """Rows ``lo`` to ``hi`` of column ``c``, read row group by row group into one
+        array (the file's row groups are a parser chunk each)."""
+        pf = pq.ParquetFile(self.path)
+        if self._starts is None:
+            md = pf.metadata
+            self._starts = np.cumsum([0] + [md.row_group(i).num_rows
+                                            for i in range(md.num_row_groups)])
+        lo, hi = max(int(lo), 0), min(int(hi), self.n_rows)
+        out = np.empty(max(hi - lo, 0), self.dtype(c))
+        if hi <= lo:
+            return out
+        first = int(np.searchsorted(self._starts, lo, side="right")) - 1
+        last = int(np.searchsorted(self._starts, hi, side="left"))
+        for g in range(first, last):
+            a, b = int(self._starts[g]), int(self._starts[g + 1])
+            part = pf.read_row_group(g, columns=[c]).column(0).to_numpy()
+            s, e = max(lo, a), min(hi, b)
+            out[s - lo:e - lo] = part[s - a:e - a]
+        return out
+
+
 #: Rows of a run read back from Parquet after which Arrow's pool gives back what it freed.
 BIG_READ_ROWS = 1 << 20
 
 
-def read_run_parquet(path) -> RunFile:
-    """Read back what :func:`write_run_parquet` wrote, as an equal RunFile."""
+def read_run_parquet(path, blocks=None) -> RunFile:
+    """Read back what :func:`write_run_parquet` wrote, as an equal RunFile.
+
+    ``blocks``: a function ``blocks(test, n_rows, columns)`` of the run's test, its rows
+    and its :class:`ParquetColumns`, giving the columns the run is to be taken as (a dict
+    of arrays, and what to add to its metadata) or None to read it as it is: the science's
+    block means of a long run (issue 28, :func:`accelcal.fitting.data.block_means`), made
+    from the file a column and a slice at a time."""
     pf = pq.ParquetFile(path)
     md = pf.schema_arrow.metadata or {}
     if META_KEY not in md:
@@ -168,15 +320,22 @@ def read_run_parquet(path) -> RunFile:
     info = json.loads(md[META_KEY])
     meta = info["meta"]
     test = str(meta["test"])
-    table = pf.read(columns=list(COLUMNS[test]) + ["line"])
-    # one column at a time, each Arrow buffer freed once converted: the run is in memory
-    # once, not twice
-    data = table.to_pandas(split_blocks=True, self_destruct=True)
-    del table
-    data = data[list(COLUMNS[test]) + ["line"]]
-    if len(data) >= BIG_READ_ROWS:
-        # Arrow's pool keeps what the conversion freed (60 MB of a 5 M-row run, issue 28)
-        pa.default_memory_pool().release_unused()
+    names = list(COLUMNS[test]) + ["line"]
+    taken = None if blocks is None else blocks(test, pf.metadata.num_rows,
+                                               ParquetColumns(path, names, pf.metadata.num_rows))
+    if taken is not None:
+        data, more = taken
+        meta = {**meta, **more}
+    else:
+        table = pf.read(columns=names)
+        # one column at a time, each Arrow buffer freed once converted: the run is in memory
+        # once, not twice
+        data = table.to_pandas(split_blocks=True, self_destruct=True)
+        del table
+        data = data[names]
+        if len(data) >= BIG_READ_ROWS:
+            # Arrow's pool keeps what the conversion freed (60 MB of a 5 M-row run, issue 28)
+            pa.default_memory_pool().release_unused()
     return RunFile(path=info["source_path"], sha256=info["sha256"], size_bytes=int(info["size_bytes"]),
                    meta=meta, meta_raw=info["meta_raw"], data=data,
                    header_line=int(info["header_line"]),

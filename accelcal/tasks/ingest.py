@@ -17,7 +17,7 @@ import hashlib
 import io
 import os
 import stat
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -329,29 +329,37 @@ def _ingest_open_file(fd, e, src, out, known, vv, parquet_root, warehouse_root,
         # parse can wait for the next files' (parsed together, _take_parsed)
         pending.add((src, raw, head, base))
         return
+    # a big file's rows go to its Parquet file as they are parsed (issue 28): the run is
+    # never in memory whole; the file is put in place only once the bytes parsed are the
+    # bytes hashed and the file did not change, else removed
+    stream = tables.RunParquetStream(parquet_root, sha, size)
     try:
-        if raw is not None:
-            run = dropformat.parse_run(io.BytesIO(raw), src)
-        else:
+        try:
             os.lseek(fd, 0, os.SEEK_SET)
             with io.FileIO(fd, "rb", closefd=False) as fh:
-                run = dropformat.parse_run(fh, src)
-    except DropFormatError as err:
-        refuse(src, sha, size, err.rule, err.detail, err.line, head)
-        return
-    except OSError as err:
-        detail = f"cannot read: {err.strerror or err}"
-        refuse(src, sha, size, "unreadable", detail, None, head)
-        return
-    del raw
-    if run.sha256 != sha:
-        raise _Held("changed while being read: not read this time")
-    _check_unchanged(fd, st, size)
-    _accept(run, base, out, parquet_root, pool, writes)
+                run = dropformat.parse_run(fh, src, stream)
+        except DropFormatError as err:
+            refuse(src, sha, size, err.rule, err.detail, err.line, head)
+            return
+        except StoreError:
+            raise
+        except OSError as err:
+            detail = f"cannot read: {err.strerror or err}"
+            refuse(src, sha, size, "unreadable", detail, None, head)
+            return
+        if run.sha256 != sha:
+            raise _Held("changed while being read: not read this time")
+        _check_unchanged(fd, st, size)
+        written = stream.commit()
+    finally:
+        stream.abort()              # nothing once committed
+    _accept(run, base, out, parquet_root, pool, writes, written)
 
 
-def _accept(run, base: dict, out: DropIngest, parquet_root, pool, writes) -> None:
-    """Record an accepted run and start its Parquet write."""
+def _accept(run, base: dict, out: DropIngest, parquet_root, pool, writes,
+            written: Path | None = None) -> None:
+    """Record an accepted run and start its Parquet write (``written``: the run's Parquet
+    file, already written as it was parsed)."""
     src, sha = base["source_path"], base["sha256"]
     m = run.meta
     rec = RunRecord(
@@ -362,7 +370,11 @@ def _accept(run, base: dict, out: DropIngest, parquet_root, pool, writes) -> Non
         n_rows=run.n_rows)
     # the Parquet file is written beside the next files' reading; its path is filled in
     # when it is in place, before the batch returns (_finish_writes)
-    fut = pool.submit(tables.write_run_parquet, run, parquet_root)
+    if written is None:
+        fut = pool.submit(tables.write_run_parquet, run, parquet_root)
+    else:
+        fut = Future()
+        fut.set_result(written)
     writes.append((src, rec, fut))
     out.keys.append((sha, src))
     out.records.append(rec)
