@@ -36,7 +36,7 @@ import numpy as np
 from ..constants import MOUNT_ANGLE_TOLERANCE_RAD
 from ..effects import combination_name, si_unit
 from ..fitting.core import lstsq_svd, normalised_error
-from ..fitting.data import RunCells, drop_duplicate_cells, fit_noise, make_run, pool_missing_noise
+from ..fitting.data import BLOCK_META_KEY, RunCells, drop_duplicate_cells, fit_noise, make_run, pool_missing_noise
 from ..fitting.model import ACTING, CampaignModel, mount_runs, processing_effects
 from ..fitting.procedure import ModelFit, fit_selected
 from ..physics.axes import AXES
@@ -131,7 +131,8 @@ def fit_campaign_model(runs: Sequence[RunCells], effects: Sequence[str], *, shar
 def prepare(runs) -> tuple[list[RunCells], list[str]]:
     """RunFile-like objects (meta, data, sha256) -> cells with a first noise model."""
     cells = [make_run(r.meta, r.data, j, getattr(r, "sha256", "")) for j, r in enumerate(runs)]
-    notes = drop_duplicate_cells(cells)
+    notes = [c.notes[-1] for c in cells if BLOCK_META_KEY in c.meta]   # make_run's last
+    notes += drop_duplicate_cells(cells)
     for c in cells:
         fit_noise(c)
     pool_missing_noise(cells)
@@ -322,7 +323,8 @@ def campaign_results(runs, rig_ids: Sequence[str] | None = None, effects: Sequen
     jf.notes += notes
     out = _records(jf, cells, rig_uncertainty or {})
     pairs = out.pop("aliased_pairs")
-    readings = sum(int(c.y_rows.size) for c in cells)
+    readings = sum(int(c.meta[BLOCK_META_KEY][0]) if BLOCK_META_KEY in c.meta else int(c.y_rows.size)
+                   for c in cells)
     if pairs and readings > SEPARATION_MAX_READINGS:
         out["flags"].append(f"{', '.join(f'{a}/{b}' for a, b in pairs[:MAX_SEPARATIONS])}: the run that "
                             f"would separate them was not sought on {readings:,} readings "

@@ -675,6 +675,114 @@ def fitted_drive(t: np.ndarray, logged: np.ndarray, f: float, harmonics: int = 3
 BLOCK_CELLS = 1 << 20
 
 
+#: A stepped run of more readings than this is taken as means of blocks of consecutive
+#: readings of one dwell (issue 28, :func:`block_bounds`): the science then holds arrays of
+#: at most about this length whatever the run's, where every reading of a 1 GB run was 2.6
+#: GB.  No sample drop's run comes near (the longest has a few thousand readings).
+BLOCK_READINGS = 1 << 21
+#: The columns whose runs of equal values are a run's dwells, by test (a block never
+#: straddles two); sine runs have no dwells and are never taken as blocks.
+DWELL_KEYS = {"centrifuge": ("step",), "tumble": ("position",),
+              "tilt_rotation": ("temp_set_c", "rotation_deg")}
+#: Key of a run's metadata that says it was taken as block means: (readings, blocks,
+#: most readings in a block).
+BLOCK_META_KEY = "block_means"
+
+
+def block_bounds(keys: Sequence[np.ndarray], most: int) -> np.ndarray:
+    """Blocks of consecutive readings that a long stepped run is taken as (issue 28).
+
+    Each dwell (a run of readings with equal ``keys``) of m readings is cut into
+    q = ceil(m / most) blocks of near-equal length (floor or ceil of m / q readings): the
+    mean of a block is a reading of the run with its noise divided by about the block's
+    length, so a dwell's blocks are alike (the noise model's cell scatter stays that of one
+    kind of reading) and their mean is the dwell's mean to within the unequal lengths.
+
+    Parameters
+    ----------
+    keys : sequence of (n,) ndarray
+        The dwell columns (:data:`DWELL_KEYS`) [their units].
+    most : int
+        Most readings in a block [1].
+
+    Returns
+    -------
+    (nblock + 1,) ndarray of int
+        Row of each block's first reading, then n: block i is rows
+        ``bounds[i]:bounds[i + 1]``.
+    """
+    n = len(keys[0])
+    if n == 0:
+        return np.zeros(1, np.int64)
+    change = np.zeros(n, bool)
+    change[0] = True
+    for k in keys:
+        change[1:] |= k[1:] != k[:-1]
+    first = np.flatnonzero(change)
+    del change
+    m = np.diff(np.r_[first, n])
+    q = -(-m // max(int(most), 1))
+    dwell = np.repeat(np.arange(first.size), q)
+    i = np.arange(int(q.sum())) - np.repeat(np.cumsum(q) - q, q)
+    return np.r_[first[dwell] + (i * m[dwell]) // q[dwell], n].astype(np.int64)
+
+
+def block_means(rows_of, names: Sequence[str], bounds: np.ndarray, first: Sequence[str],
+                rows_at_once: int = ROW_SLICE) -> dict[str, np.ndarray]:
+    """The columns of a run as block means (:func:`block_bounds`), one column and about
+    ``rows_at_once`` readings at a time.
+
+    Parameters
+    ----------
+    rows_of : callable
+        ``rows_of(c, lo, hi)`` gives readings ``lo`` to ``hi`` of column ``c``.
+    names : sequence of str
+        The columns to make.
+    bounds : (nblock + 1,) ndarray of int
+        From :func:`block_bounds`.
+    first : sequence of str
+        Columns constant in a block (the dwell keys) or naming where it starts (``line``):
+        their first reading's value, in its own type.
+    rows_at_once : int
+        Readings read at a time [1].
+
+    Returns
+    -------
+    dict of str to (nblock,) ndarray
+        Per block: the mean of each other column over its finite readings (nan where it
+        has none: an empty cell of a nullable column) [the column's unit]; the first
+        reading's value of the ``first`` columns.
+    """
+    nb = int(bounds.size) - 1
+    # ranges of whole blocks of about rows_at_once readings each
+    cuts = [0]
+    while cuts[-1] < nb:
+        lo = bounds[cuts[-1]]
+        cuts.append(max(int(np.searchsorted(bounds, lo + rows_at_once, side="right")) - 1,
+                        cuts[-1] + 1))
+        cuts[-1] = min(cuts[-1], nb)
+    out: dict[str, np.ndarray] = {}
+    for c in names:
+        col = None
+        for a, b in zip(cuts[:-1], cuts[1:]):
+            lo, hi = int(bounds[a]), int(bounds[b])
+            v = rows_of(c, lo, hi)
+            at = bounds[a:b] - lo
+            if c in first:
+                part = v[at]
+            else:
+                ok = np.isfinite(v)
+                total = np.add.reduceat(np.where(ok, v, 0.0), at)
+                count = np.add.reduceat(ok.astype(np.int64), at)
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    part = np.where(count > 0, total / np.maximum(count, 1), np.nan)
+            if col is None:
+                col = np.empty(nb, part.dtype)
+            col[a:b] = part
+        out[c] = col if col is not None else np.zeros(0)
+    return out
+
+
 def _float_columns(data, names: Sequence[str]) -> dict[str, np.ndarray]:
     """``{c: np.asarray(data[c], float)}`` of every column but ``line``.
 
@@ -771,6 +879,11 @@ def make_run(meta: Mapping, data, index: int = 0, sha256: str = "", sine_segment
     run.attrs = _labels(run, t)
     if test == "sine_centrifuge":
         run.notes.append(drive_note)
+    if BLOCK_META_KEY in meta:
+        readings, blocks, most = meta[BLOCK_META_KEY]
+        run.notes.append(f"{run.run_id}: its {readings:,} readings are taken as the means of "
+                         f"{blocks:,} blocks of at most {most} consecutive readings of one dwell "
+                         "(a long run, issue 28)")
     return run
 
 

@@ -22,7 +22,7 @@ def load_campaign_runs(warehouse_root: str, inputs: list[dict[str, Any]]) -> lis
     for i in inputs:
         pq = Path(warehouse_root) / i["parquet_path"] if i.get("parquet_path") else None
         if pq is not None and pq.exists():
-            run = tables.read_run_parquet(pq)
+            run = tables.read_run_parquet(pq, blocks=long_run_blocks)
         else:
             src = Path(i["source_path"])
             if not src.exists() or hashlib.sha256(src.read_bytes()).hexdigest() != i["sha256"]:
@@ -35,6 +35,20 @@ def load_campaign_runs(warehouse_root: str, inputs: list[dict[str, Any]]) -> lis
                              f"the warehouse expects {i['sha256'][:12]}")
         runs.append(run)
     return runs
+
+
+def long_run_blocks(test: str, n_rows: int, cols) -> tuple[dict, dict] | None:
+    """A stepped run of more than BLOCK_READINGS readings as the science takes it: the
+    means of blocks of consecutive readings of one dwell (accelcal.fitting.data.
+    block_bounds), read from its Parquet file ``cols`` a column and a slice at a time, and
+    the metadata that says so (issue 28); None for any other run (read whole)."""
+    from ..fitting.data import BLOCK_META_KEY, BLOCK_READINGS, DWELL_KEYS, block_bounds, block_means
+    if n_rows <= BLOCK_READINGS or test not in DWELL_KEYS:
+        return None
+    most = -(-n_rows // BLOCK_READINGS)
+    bounds = block_bounds([cols[k] for k in DWELL_KEYS[test]], most)
+    data = block_means(cols.rows, list(cols), bounds, first=(*DWELL_KEYS[test], "line"))
+    return data, {BLOCK_META_KEY: [int(n_rows), int(bounds.size - 1), int(most)]}
 
 
 def run_science(runs: list, parameters: dict[str, Any] | None = None):
