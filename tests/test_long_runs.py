@@ -1,0 +1,163 @@
+"""Long run files in bounded memory (issue 28): a big file parsed into its Parquet file as it
+is read, validated from that file a slice at a time, and taken by the science as block
+means of its dwells.  Every check here is against the in-memory path or a hand count, never
+against numbers the new path printed."""
+from __future__ import annotations
+
+import hashlib
+import io
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from accelcal.fitting import data as fdata
+from accelcal.fitting.data import block_bounds, block_means
+from accelcal.schemas import derived, dropformat, suites, tables
+from accelcal.schemas.dropspec import DropFormatError
+from accelcal.tasks import ingest, science
+
+from conftest import EXAMPLES, require_shared
+
+require_shared()
+RUNS = sorted(EXAMPLES.glob("**/*.csv"))
+
+
+def _streamed(src: Path, root: Path):
+    """parse_run of ``src`` with its rows going to its Parquet file (committed)."""
+    raw = src.read_bytes()
+    stream = tables.RunParquetStream(root, hashlib.sha256(raw).hexdigest(), len(raw))
+    try:
+        run = dropformat.parse_run(io.BytesIO(raw), str(src), stream)
+        stream.commit()
+    finally:
+        stream.abort()
+    return run
+
+
+@pytest.mark.parametrize("src", RUNS, ids=lambda p: p.name)
+def test_streamed_parse_and_validation_equal_the_in_memory_ones(src, tmp_path, monkeypatch):
+    # slices of a few rows, so every sliced path is taken on the samples' short runs
+    monkeypatch.setattr(suites, "VALIDATE_ROWS", 37)
+    monkeypatch.setattr(derived, "_STEP_ROWS", 29)
+    try:
+        ref = dropformat.read_run(src)
+    except DropFormatError as e:
+        with pytest.raises(DropFormatError) as got:
+            _streamed(src, tmp_path)
+        assert str(got.value) == str(e)
+        # a refused file leaves nothing in the store, not even a temporary file
+        assert [f for _, _, fs in os.walk(tmp_path) for f in fs] == []
+        return
+    run = _streamed(src, tmp_path)
+    assert isinstance(run.arrays, tables.ParquetColumns)
+    assert run == ref                                      # every value, line and key
+    assert tables.read_run_parquet(tables.parquet_path(run, tmp_path)) == ref
+    assert suites.validate_runs([run]) == suites.validate_runs([ref])
+
+
+def test_a_batch_of_streamed_and_in_memory_runs_validates_as_in_memory(tmp_path, monkeypatch):
+    monkeypatch.setattr(suites, "VALIDATE_ROWS", 53)
+    bad = sorted((EXAMPLES / "drop-bad").glob("*.csv"))
+    good = sorted((EXAMPLES / "drop-2026-11-20").glob("**/*.csv"))[:3]
+    refs, mixed = [], []
+    for k, src in enumerate(good + bad):
+        try:
+            ref = dropformat.read_run(src)
+        except DropFormatError:
+            continue
+        refs.append(ref)
+        mixed.append(_streamed(src, tmp_path) if k % 2 else ref)
+    assert len(refs) >= 5
+    assert suites.validate_runs(mixed) == suites.validate_runs(refs)
+
+
+def test_ingest_of_a_big_file_writes_its_parquet_as_it_parses(tmp_path, monkeypatch):
+    monkeypatch.setattr(ingest, "SMALL_FILE", 1000)       # every sample file is "big"
+    drop = tmp_path / "drop"
+    shutil.copytree(EXAMPLES / "drop-2026-11-20", drop)
+    bad = drop / "centrifuge" / "LXJ100-20261120-0003.csv"
+    os.chmod(bad.parent, 0o755)
+    text = bad.read_text().splitlines()
+    bad.unlink()
+    bad.write_text("\n".join(text[:-40] + ["1,2,x"] + text[-39:]) + "\n")
+    pq_root = tmp_path / "pq"
+    out = ingest.ingest_drop(str(drop), str(pq_root), str(tmp_path))
+    status = {Path(r.source_path).name: r.status for r in out.records}
+    assert status.pop("LXJ100-20261120-0003.csv") == "refused"
+    assert set(status.values()) == {"accepted"}
+    files = sorted(p.name for p in pq_root.rglob("*") if p.is_file())
+    assert not [f for f in files if f.endswith(".tmp")]
+    assert len(files) == len(status)                      # the refused file left nothing
+    for rec in out.records:
+        if rec.status == "accepted":
+            got = tables.read_run_parquet(tmp_path / rec.parquet_path)
+            assert got == dropformat.read_run(rec.source_path)
+
+
+def test_block_bounds_cut_each_dwell_into_near_equal_blocks():
+    # dwells of 5, 23, 1 and 40 readings, at most 7 a block: by hand, ceil(m / 7) blocks
+    # of floor or ceil of m / q: 5 | 5 6 6 6 | 1 | 6 7 7 6 7 7
+    step = np.repeat([0, 1, 2, 3], [5, 23, 1, 40])
+    b = block_bounds([step], 7)
+    assert np.diff(b).tolist() == [5, 5, 6, 6, 6, 1, 6, 7, 7, 6, 7, 7]
+    assert b[-1] == step.size
+    assert all(np.unique(step[lo:hi]).size == 1 for lo, hi in zip(b[:-1], b[1:]))
+    # two keys: a change of either starts a dwell
+    b2 = block_bounds([np.zeros(10), np.r_[np.zeros(4), np.ones(6)]], 100)
+    assert b2.tolist() == [0, 4, 10]
+
+
+def test_block_means_are_each_blocks_mean_over_its_finite_readings():
+    rng = np.random.default_rng(5)
+    step = np.repeat([0, 1, 2], [9, 31, 17])
+    temp = np.where(rng.random(step.size) < 0.4, np.nan, rng.normal(20, 1, step.size))
+    temp[:4] = np.nan                                     # a block with no temperature
+    cols = {"step": step, "output": rng.normal(size=step.size), "temp_c": temp,
+            "line": np.arange(step.size) + 12}
+    b = block_bounds([step], 4)
+    got = block_means(lambda c, lo, hi: cols[c][lo:hi], list(cols), b, ("step", "line"),
+                      rows_at_once=10)
+    for k, (lo, hi) in enumerate(zip(b[:-1], b[1:])):
+        assert got["step"][k] == step[lo] and got["line"][k] == lo + 12
+        assert got["output"][k] == pytest.approx(sum(cols["output"][lo:hi]) / (hi - lo), rel=1e-13)
+        t = [x for x in temp[lo:hi] if x == x]
+        assert (np.isnan(got["temp_c"][k]) if not t else
+                got["temp_c"][k] == pytest.approx(sum(t) / len(t), rel=1e-13))
+    assert got["step"].dtype == np.int64 and got["line"].dtype == np.int64
+
+
+def test_a_run_taken_as_block_means_gives_the_in_memory_results(tmp_path, monkeypatch):
+    """The sample SNJ-1-03 campaign with every reading repeated four times, taken as block
+    means of at most four readings (BLOCK_READINGS lowered so these runs count as long):
+    each block is then one reading of the sample, so every coefficient and uncertainty is
+    the in-memory result on the sample itself (to the rounding of a mean of four equal
+    numbers) -- the blocks' bounds, means, keys and lines all go through the science."""
+    import pandas as pd
+    from accelcal.estimators.campaign import process_campaign
+    files = sorted((EXAMPLES / "drop-2026-11-20").glob("**/*.csv"))
+    runs = [dropformat.read_run(f) for f in files]
+    whole = process_campaign(runs)
+    monkeypatch.setattr(fdata, "BLOCK_READINGS", 240)     # 4 x 184 and 4 x 240: blocks of 4
+    taken = []
+    for r in runs:
+        four = dropformat.RunFile(path=r.path, sha256=r.sha256, size_bytes=r.size_bytes,
+                                  meta=r.meta, meta_raw=r.meta_raw,
+                                  data=pd.DataFrame({c: np.repeat(v, 4) for c, v in r.arrays.items()}),
+                                  header_line=r.header_line, meta_lines=r.meta_lines)
+        p = tables.write_run_parquet(four, tmp_path)
+        taken.append(tables.read_run_parquet(p, blocks=science.long_run_blocks))
+        assert taken[-1].meta[fdata.BLOCK_META_KEY] == [4 * r.n_rows, r.n_rows, 4]
+        assert taken[-1].arrays["line"].tolist() == r.arrays["line"].tolist()
+    blocks = process_campaign(taken)
+    a = {(c.name, c.method): c for c in whole.coefficients}
+    b = {(c.name, c.method): c for c in blocks.coefficients}
+    assert a.keys() == b.keys()
+    for k in a:
+        u = a[k].std_uncertainty
+        assert b[k].value == pytest.approx(a[k].value, abs=1e-9 * u, rel=1e-12), k
+        assert b[k].std_uncertainty == pytest.approx(u, rel=1e-6), k
+    note = [f for f in blocks.flags if "blocks of at most 4" in f]
+    assert len(note) == len(runs)
