@@ -108,6 +108,11 @@ def test_block_bounds_cut_each_dwell_into_near_equal_blocks():
     # two keys: a change of either starts a dwell
     b2 = block_bounds([np.zeros(10), np.r_[np.zeros(4), np.ones(6)]], 100)
     assert b2.tolist() == [0, 4, 10]
+    # a logged angle's noise within the cells' tolerance is one dwell, a step beyond it two
+    # (the cells of make_run: fitting.data.CELL_KEYS)
+    ang = np.r_[90 + 0.05 * np.sin(np.arange(8)), 180 + 0.05 * np.cos(np.arange(6))]
+    b3 = block_bounds([np.zeros(14), ang], 100, [0.0, fdata.ANGLE_TOL_DEG])
+    assert b3.tolist() == [0, 8, 14]
 
 
 def test_block_means_are_each_blocks_mean_over_its_finite_readings():

@@ -617,16 +617,22 @@ def unique_small_ints(key: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return uniq, first_of[uniq], rank[key]
 
 
-def _blocks(keys: Sequence[np.ndarray], tols: Sequence[float] | None = None) -> np.ndarray:
-    """Consecutive readings with equal keys (within ``tols``, default exact) form one block;
-    the block index of each."""
+def _changes(keys: Sequence[np.ndarray], tols: Sequence[float] | None = None) -> np.ndarray:
+    """True at each reading whose keys differ from the reading before's (by more than
+    ``tols``, default exact; a missing key equals a missing key); False at the first."""
     n = len(keys[0])
     change = np.zeros(n, bool)
     for k, tol in zip(keys, tols or [0.0] * len(keys)):
         k = np.asarray(k, float)
         kk = np.where(np.isfinite(k), k, -1e300)
         change[1:] |= (np.abs(kk[1:] - kk[:-1]) > tol) if tol > 0 else (kk[1:] != kk[:-1])
-    return np.cumsum(change)
+    return change
+
+
+def _blocks(keys: Sequence[np.ndarray], tols: Sequence[float] | None = None) -> np.ndarray:
+    """Consecutive readings with equal keys (within ``tols``, default exact) form one block;
+    the block index of each."""
+    return np.cumsum(_changes(keys, tols))
 
 
 def fitted_drive(t: np.ndarray, logged: np.ndarray, f: float, harmonics: int = 3
@@ -680,30 +686,37 @@ BLOCK_CELLS = 1 << 20
 #: at most about this length whatever the run's, where every reading of a 1 GB run was 2.6
 #: GB.  No sample drop's run comes near (the longest has a few thousand readings).
 BLOCK_READINGS = 1 << 21
-#: The columns whose runs of equal values are a run's dwells, by test (a block never
-#: straddles two); sine runs have no dwells and are never taken as blocks.
-DWELL_KEYS = {"centrifuge": ("step",), "tumble": ("position",),
-              "tilt_rotation": ("temp_set_c", "rotation_deg")}
+#: The keys of a stepped run's cells (its dwells), by test: (column, largest step within
+#: a dwell [its unit]); consecutive readings whose keys stay within these are one cell of
+#: :func:`make_run`, and a block of :func:`block_bounds` never straddles two.  Sine runs
+#: have no dwells and are never taken as blocks.
+CELL_KEYS = {"centrifuge": (("step", 0.0),),
+             "tumble": (("position", 0.0), ("angle_deg", ANGLE_TOL_DEG)),
+             "tilt_rotation": (("temp_set_c", 0.0), ("rotation_deg", ANGLE_TOL_DEG))}
 #: Key of a run's metadata that says it was taken as block means: (readings, blocks,
 #: most readings in a block).
 BLOCK_META_KEY = "block_means"
 
 
-def block_bounds(keys: Sequence[np.ndarray], most: int) -> np.ndarray:
+def block_bounds(keys: Sequence[np.ndarray], most: int,
+                 tols: Sequence[float] | None = None) -> np.ndarray:
     """Blocks of consecutive readings that a long stepped run is taken as (issue 28).
 
-    Each dwell (a run of readings with equal ``keys``) of m readings is cut into
-    q = ceil(m / most) blocks of near-equal length (floor or ceil of m / q readings): the
-    mean of a block is a reading of the run with its noise divided by about the block's
-    length, so a dwell's blocks are alike (the noise model's cell scatter stays that of one
-    kind of reading) and their mean is the dwell's mean to within the unequal lengths.
+    Each dwell (a run of readings with equal ``keys``, within ``tols``: a cell of
+    :func:`make_run`) of m readings is cut into q = ceil(m / most) blocks of near-equal
+    length (floor or ceil of m / q readings): the mean of a block is a reading of the run
+    with its noise divided by about the block's length, so a dwell's blocks are alike (the
+    noise model's cell scatter stays that of one kind of reading) and their mean is the
+    dwell's mean to within the unequal lengths.
 
     Parameters
     ----------
     keys : sequence of (n,) ndarray
-        The dwell columns (:data:`DWELL_KEYS`) [their units].
+        The cell keys (:data:`CELL_KEYS`) [their units].
     most : int
         Most readings in a block [1].
+    tols : sequence of float, optional
+        Largest step of each key within a dwell (default exact) [its unit].
 
     Returns
     -------
@@ -714,10 +727,8 @@ def block_bounds(keys: Sequence[np.ndarray], most: int) -> np.ndarray:
     n = len(keys[0])
     if n == 0:
         return np.zeros(1, np.int64)
-    change = np.zeros(n, bool)
+    change = _changes(keys, tols)
     change[0] = True
-    for k in keys:
-        change[1:] |= k[1:] != k[:-1]
     first = np.flatnonzero(change)
     del change
     m = np.diff(np.r_[first, n])
@@ -842,12 +853,8 @@ def make_run(meta: Mapping, data, index: int = 0, sha256: str = "", sine_segment
     t = cols.get("time_s", np.arange(nrow, dtype=float))
     lines = np.asarray(data["line"], float) if "line" in all_names else np.zeros(nrow)
     wdot = None
-    if test == "centrifuge":
-        cid = _blocks([cols["step"]])
-    elif test == "tumble":
-        cid = _blocks([cols["position"], cols["angle_deg"]], [0.0, ANGLE_TOL_DEG])
-    elif test == "tilt_rotation":
-        cid = _blocks([cols["temp_set_c"], cols["rotation_deg"]], [0.0, ANGLE_TOL_DEG])
+    if test in CELL_KEYS:
+        cid = _blocks([cols[c] for c, _ in CELL_KEYS[test]], [tol for _, tol in CELL_KEYS[test]])
     elif test == "sine_centrifuge":
         f = float(meta["rate_frequency_hz"])
         rate, wdot, drive_note = drive_rate(meta, t, cols["table_rate_rad_s"])

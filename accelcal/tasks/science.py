@@ -42,12 +42,14 @@ def long_run_blocks(test: str, n_rows: int, cols) -> tuple[dict, dict] | None:
     means of blocks of consecutive readings of one dwell (accelcal.fitting.data.
     block_bounds), read from its Parquet file ``cols`` a column and a slice at a time, and
     the metadata that says so (issue 28); None for any other run (read whole)."""
-    from ..fitting.data import BLOCK_META_KEY, BLOCK_READINGS, DWELL_KEYS, block_bounds, block_means
-    if n_rows <= BLOCK_READINGS or test not in DWELL_KEYS:
+    from ..fitting.data import BLOCK_META_KEY, BLOCK_READINGS, CELL_KEYS, block_bounds, block_means
+    if n_rows <= BLOCK_READINGS or test not in CELL_KEYS:
         return None
     most = -(-n_rows // BLOCK_READINGS)
-    bounds = block_bounds([cols[k] for k in DWELL_KEYS[test]], most)
-    data = block_means(cols.rows, list(cols), bounds, first=(*DWELL_KEYS[test], "line"))
+    keys = CELL_KEYS[test]
+    bounds = block_bounds([cols[c] for c, _ in keys], most, [tol for _, tol in keys])
+    exact = tuple(c for c, tol in keys if tol == 0)      # the same in every reading of a block
+    data = block_means(cols.rows, list(cols), bounds, first=(*exact, "line"))
     return data, {BLOCK_META_KEY: [int(n_rows), int(bounds.size - 1), int(most)]}
 
 
