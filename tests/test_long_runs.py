@@ -17,7 +17,7 @@ from accelcal.fitting import data as fdata
 from accelcal.fitting.data import block_bounds, block_means
 from accelcal.schemas import derived, dropformat, suites, tables
 from accelcal.schemas.dropspec import DropFormatError
-from accelcal.tasks import ingest, science
+from accelcal.tasks import ingest
 
 from conftest import EXAMPLES, require_shared
 
@@ -153,7 +153,7 @@ def test_a_run_taken_as_block_means_gives_the_in_memory_results(tmp_path, monkey
                                   data=pd.DataFrame({c: np.repeat(v, 4) for c, v in r.arrays.items()}),
                                   header_line=r.header_line, meta_lines=r.meta_lines)
         p = tables.write_run_parquet(four, tmp_path)
-        taken.append(tables.read_run_parquet(p, blocks=science.long_run_blocks))
+        taken.append(tables.read_run_parquet(p, blocks=fdata.long_run_blocks))
         assert taken[-1].meta[fdata.BLOCK_META_KEY] == [4 * r.n_rows, r.n_rows, 4]
         assert taken[-1].arrays["line"].tolist() == r.arrays["line"].tolist()
     blocks = process_campaign(taken)
@@ -166,3 +166,26 @@ def test_a_run_taken_as_block_means_gives_the_in_memory_results(tmp_path, monkey
         assert b[k].std_uncertainty == pytest.approx(u, rel=1e-6), k
     note = [f for f in blocks.flags if "blocks of at most 4" in f]
     assert len(note) == len(runs)
+
+
+def test_a_full_store_while_a_big_file_is_parsed_stops_the_run_and_leaves_nothing(tmp_path, monkeypatch):
+    """The Parquet store cannot take a streamed run's rows (ENOSPC from the writer): the
+    ingest stops with the store's one-line error (no verdict is recorded for the file),
+    and no temporary file is left."""
+    import errno
+    import pyarrow.parquet as pq
+    from accelcal.fileio import StoreError
+    monkeypatch.setattr(ingest, "SMALL_FILE", 1000)
+    drop = tmp_path / "drop"
+    drop.mkdir()
+    shutil.copy(EXAMPLES / "drop-2026-11-20" / "DH1-20261120-0001.csv", drop)
+
+    def full(self, batch, *a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device")
+    monkeypatch.setattr(pq.ParquetWriter, "write_batch", full)
+    with pytest.raises(StoreError) as err:
+        ingest.ingest_drop(str(drop), str(tmp_path / "pq"), str(tmp_path))
+    msg = str(err.value)
+    assert "cannot write the Parquet store" in msg and "No space left" in msg
+    assert "\n" not in msg
+    assert [p for p in (tmp_path / "pq").rglob("*") if p.is_file()] == []

@@ -794,6 +794,41 @@ def block_means(rows_of, names: Sequence[str], bounds: np.ndarray, first: Sequen
     return out
 
 
+def long_run_blocks(test: str, n_rows: int, cols: Mapping) -> tuple[dict, dict] | None:
+    """How the science takes a run: a stepped run of more than :data:`BLOCK_READINGS`
+    readings as the means of blocks of consecutive readings of one dwell (issue 28), else
+    whole.
+
+    Parameters
+    ----------
+    test : str
+        The run's test kind.
+    n_rows : int
+        Its readings [1].
+    cols : mapping
+        Its columns (the test's and ``line``), each read whole by ``cols[c]`` and a slice
+        of readings at a time by ``cols.rows(c, lo, hi)`` (a run in its Parquet file,
+        :class:`accelcal.schemas.tables.ParquetColumns`).
+
+    Returns
+    -------
+    (dict of ndarray, dict) or None
+        The block means of every column (:func:`block_bounds`, at most
+        ceil(n_rows / BLOCK_READINGS) readings a block; :func:`block_means`, the exact
+        cell keys and ``line`` from a block's first reading) and what to add to the run's
+        metadata (:data:`BLOCK_META_KEY`: readings, blocks, most readings in a block);
+        None for a run to be read whole (a sine run, or one of at most BLOCK_READINGS).
+    """
+    if n_rows <= BLOCK_READINGS or test not in CELL_KEYS:
+        return None
+    most = -(-n_rows // BLOCK_READINGS)
+    keys = CELL_KEYS[test]
+    bounds = block_bounds([cols[c] for c, _ in keys], most, [tol for _, tol in keys])
+    exact = tuple(c for c, tol in keys if tol == 0)      # the same in every reading of a block
+    data = block_means(cols.rows, list(cols), bounds, first=(*exact, "line"))
+    return data, {BLOCK_META_KEY: [int(n_rows), int(bounds.size - 1), int(most)]}
+
+
 def _float_columns(data, names: Sequence[str]) -> dict[str, np.ndarray]:
     """``{c: np.asarray(data[c], float)}`` of every column but ``line``.
 

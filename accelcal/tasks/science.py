@@ -18,6 +18,7 @@ def load_campaign_runs(warehouse_root: str, inputs: list[dict[str, Any]]) -> lis
     Falls back to the raw file when its Parquet copy is gone, if its bytes still
     hash to the recorded sha256.
     """
+    from ..fitting.data import long_run_blocks     # a long run: block means (issue 28)
     runs = []
     for i in inputs:
         pq = Path(warehouse_root) / i["parquet_path"] if i.get("parquet_path") else None
@@ -35,22 +36,6 @@ def load_campaign_runs(warehouse_root: str, inputs: list[dict[str, Any]]) -> lis
                              f"the warehouse expects {i['sha256'][:12]}")
         runs.append(run)
     return runs
-
-
-def long_run_blocks(test: str, n_rows: int, cols) -> tuple[dict, dict] | None:
-    """A stepped run of more than BLOCK_READINGS readings as the science takes it: the
-    means of blocks of consecutive readings of one dwell (accelcal.fitting.data.
-    block_bounds), read from its Parquet file ``cols`` a column and a slice at a time, and
-    the metadata that says so (issue 28); None for any other run (read whole)."""
-    from ..fitting.data import BLOCK_META_KEY, BLOCK_READINGS, CELL_KEYS, block_bounds, block_means
-    if n_rows <= BLOCK_READINGS or test not in CELL_KEYS:
-        return None
-    most = -(-n_rows // BLOCK_READINGS)
-    keys = CELL_KEYS[test]
-    bounds = block_bounds([cols[c] for c, _ in keys], most, [tol for _, tol in keys])
-    exact = tuple(c for c, tol in keys if tol == 0)      # the same in every reading of a block
-    data = block_means(cols.rows, list(cols), bounds, first=(*exact, "line"))
-    return data, {BLOCK_META_KEY: [int(n_rows), int(bounds.size - 1), int(most)]}
 
 
 def run_science(runs: list, parameters: dict[str, Any] | None = None):
