@@ -56,6 +56,11 @@ def test_streamed_parse_and_validation_equal_the_in_memory_ones(src, tmp_path, m
     assert run == ref                                      # every value, line and key
     assert tables.read_run_parquet(tables.parquet_path(run, tmp_path)) == ref
     assert suites.validate_runs([run]) == suites.validate_runs([ref])
+    # every derived column the suites check, row by row (NaN where NaN)
+    got, want = derived._derive(run.test, run), derived._derive(ref.test, ref)
+    assert set(want) <= set(got)
+    for c in want:
+        np.testing.assert_array_equal(got[c][:], want[c][:], err_msg=c)
 
 
 def test_a_batch_of_streamed_and_in_memory_runs_validates_as_in_memory(tmp_path, monkeypatch):
@@ -97,21 +102,27 @@ def test_ingest_of_a_big_file_writes_its_parquet_as_it_parses(tmp_path, monkeypa
             assert got == dropformat.read_run(rec.source_path)
 
 
-def test_block_bounds_cut_each_dwell_into_near_equal_blocks():
+def _bounds(cols: dict, most: int, tols=None, rows_at_once=fdata.ROW_SLICE):
+    return block_bounds(lambda c, lo, hi: cols[c][lo:hi], list(cols), len(next(iter(cols.values()))),
+                        most, tols, rows_at_once)
+
+
+@pytest.mark.parametrize("rows_at_once", [fdata.ROW_SLICE, 5, 1])
+def test_block_bounds_cut_each_dwell_into_near_equal_blocks(rows_at_once):
     # dwells of 5, 23, 1 and 40 readings, at most 7 a block: by hand, ceil(m / 7) blocks
-    # of floor or ceil of m / q: 5 | 5 6 6 6 | 1 | 6 7 7 6 7 7
+    # of floor or ceil of m / q: 5 | 5 6 6 6 | 1 | 6 7 7 6 7 7 (found whole or in slices)
     step = np.repeat([0, 1, 2, 3], [5, 23, 1, 40])
-    b = block_bounds([step], 7)
+    b = _bounds({"step": step}, 7, rows_at_once=rows_at_once)
     assert np.diff(b).tolist() == [5, 5, 6, 6, 6, 1, 6, 7, 7, 6, 7, 7]
     assert b[-1] == step.size
     assert all(np.unique(step[lo:hi]).size == 1 for lo, hi in zip(b[:-1], b[1:]))
     # two keys: a change of either starts a dwell
-    b2 = block_bounds([np.zeros(10), np.r_[np.zeros(4), np.ones(6)]], 100)
+    b2 = _bounds({"a": np.zeros(10), "b": np.r_[np.zeros(4), np.ones(6)]}, 100, rows_at_once=rows_at_once)
     assert b2.tolist() == [0, 4, 10]
     # a logged angle's noise within the cells' tolerance is one dwell, a step beyond it two
     # (the cells of make_run: fitting.data.CELL_KEYS)
     ang = np.r_[90 + 0.05 * np.sin(np.arange(8)), 180 + 0.05 * np.cos(np.arange(6))]
-    b3 = block_bounds([np.zeros(14), ang], 100, [0.0, fdata.ANGLE_TOL_DEG])
+    b3 = _bounds({"t": np.zeros(14), "ang": ang}, 100, [0.0, fdata.ANGLE_TOL_DEG], rows_at_once)
     assert b3.tolist() == [0, 8, 14]
 
 
@@ -122,7 +133,7 @@ def test_block_means_are_each_blocks_mean_over_its_finite_readings():
     temp[:4] = np.nan                                     # a block with no temperature
     cols = {"step": step, "output": rng.normal(size=step.size), "temp_c": temp,
             "line": np.arange(step.size) + 12}
-    b = block_bounds([step], 4)
+    b = _bounds({"step": step}, 4)
     got = block_means(lambda c, lo, hi: cols[c][lo:hi], list(cols), b, ("step", "line"),
                       rows_at_once=10)
     for k, (lo, hi) in enumerate(zip(b[:-1], b[1:])):
@@ -189,3 +200,31 @@ def test_a_full_store_while_a_big_file_is_parsed_stops_the_run_and_leaves_nothin
     assert "cannot write the Parquet store" in msg and "No space left" in msg
     assert "\n" not in msg
     assert [p for p in (tmp_path / "pq").rglob("*") if p.is_file()] == []
+
+
+def test_positions_per_temperature_point_found_in_slices_as_whole(tmp_path, monkeypatch):
+    """A tilt-rotation run whose second temperature point has a 13th rotation: the counts
+    per point, found a few rows at a time from its Parquet
+    file, are the whole run's, and the run is refused alike."""
+    import pandas as pd
+    monkeypatch.setattr(derived, "_STEP_ROWS", 31)
+    ref = dropformat.read_run(EXAMPLES / "drop-2026-11-18-thermal" / "TT1-20261118-0001.csv")
+    df = ref.data.copy()
+    seg = np.flatnonzero(np.r_[True, np.diff(df["temp_set_c"].to_numpy()) != 0])
+    lo = int(seg[1])
+    df.loc[lo + 3:lo + 9, "rotation_deg"] = 15.0
+    changed = dropformat.RunFile(path=ref.path, sha256=ref.sha256, size_bytes=ref.size_bytes,
+                                 meta=ref.meta, meta_raw=ref.meta_raw, data=pd.DataFrame(df),
+                                 header_line=ref.header_line, meta_lines=ref.meta_lines)
+    p = tables.write_run_parquet(changed, tmp_path)
+    lazy = dropformat.RunFile(path=ref.path, sha256=ref.sha256, size_bytes=ref.size_bytes,
+                              meta=ref.meta, meta_raw=ref.meta_raw,
+                              data=tables.ParquetColumns(p, list(df.columns), len(df)),
+                              header_line=ref.header_line, meta_lines=ref.meta_lines)
+    got = derived._derive("tilt_rotation", lazy)["positions_error"][:]
+    want = derived._derive("tilt_rotation", changed)["positions_error"][:]
+    np.testing.assert_array_equal(got, want)
+    assert np.nanmax(want) >= 1
+    v = suites.validate_runs([lazy])[ref.path]
+    assert v == suites.validate_runs([changed])[ref.path]
+    assert any(r.rule == "positions-mismatch" for r in v)

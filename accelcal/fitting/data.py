@@ -698,8 +698,8 @@ CELL_KEYS = {"centrifuge": (("step", 0.0),),
 BLOCK_META_KEY = "block_means"
 
 
-def block_bounds(keys: Sequence[np.ndarray], most: int,
-                 tols: Sequence[float] | None = None) -> np.ndarray:
+def block_bounds(rows_of, keys: Sequence[str], n: int, most: int,
+                 tols: Sequence[float] | None = None, rows_at_once: int = ROW_SLICE) -> np.ndarray:
     """Blocks of consecutive readings that a long stepped run is taken as (issue 28).
 
     Each dwell (a run of readings with equal ``keys``, within ``tols``: a cell of
@@ -707,16 +707,24 @@ def block_bounds(keys: Sequence[np.ndarray], most: int,
     length (floor or ceil of m / q readings): the mean of a block is a reading of the run
     with its noise divided by about the block's length, so a dwell's blocks are alike (the
     noise model's cell scatter stays that of one kind of reading) and their mean is the
-    dwell's mean to within the unequal lengths.
+    dwell's mean to within the unequal lengths.  The dwells are found ``rows_at_once``
+    readings at a time (each slice with the reading before it): the same dwells as the
+    whole run's keys give.
 
     Parameters
     ----------
-    keys : sequence of (n,) ndarray
-        The cell keys (:data:`CELL_KEYS`) [their units].
+    rows_of : callable
+        ``rows_of(c, lo, hi)`` gives readings ``lo`` to ``hi`` of column ``c``.
+    keys : sequence of str
+        The cell keys (:data:`CELL_KEYS`).
+    n : int
+        Readings in the run [1].
     most : int
         Most readings in a block [1].
     tols : sequence of float, optional
         Largest step of each key within a dwell (default exact) [its unit].
+    rows_at_once : int
+        Readings read at a time [1].
 
     Returns
     -------
@@ -724,13 +732,19 @@ def block_bounds(keys: Sequence[np.ndarray], most: int,
         Row of each block's first reading, then n: block i is rows
         ``bounds[i]:bounds[i + 1]``.
     """
-    n = len(keys[0])
     if n == 0:
         return np.zeros(1, np.int64)
-    change = _changes(keys, tols)
-    change[0] = True
-    first = np.flatnonzero(change)
-    del change
+    parts = []
+    for lo in range(0, n, rows_at_once):
+        hi = min(lo + rows_at_once, n)
+        a = max(lo - 1, 0)
+        change = _changes([rows_of(c, a, hi) for c in keys], tols)
+        if lo == 0:
+            change[0] = True
+            parts.append(np.flatnonzero(change))
+        else:
+            parts.append(np.flatnonzero(change[1:]) + lo)
+    first = np.concatenate(parts)
     m = np.diff(np.r_[first, n])
     q = -(-m // max(int(most), 1))
     dwell = np.repeat(np.arange(first.size), q)
@@ -806,8 +820,8 @@ def long_run_blocks(test: str, n_rows: int, cols: Mapping) -> tuple[dict, dict] 
     n_rows : int
         Its readings [1].
     cols : mapping
-        Its columns (the test's and ``line``), each read whole by ``cols[c]`` and a slice
-        of readings at a time by ``cols.rows(c, lo, hi)`` (a run in its Parquet file,
+        Its columns (the test's and ``line``), read a slice of readings at a time by
+        ``cols.rows(c, lo, hi)`` (a run in its Parquet file,
         :class:`accelcal.schemas.tables.ParquetColumns`).
 
     Returns
@@ -823,7 +837,7 @@ def long_run_blocks(test: str, n_rows: int, cols: Mapping) -> tuple[dict, dict] 
         return None
     most = -(-n_rows // BLOCK_READINGS)
     keys = CELL_KEYS[test]
-    bounds = block_bounds([cols[c] for c, _ in keys], most, [tol for _, tol in keys])
+    bounds = block_bounds(cols.rows, [c for c, _ in keys], n_rows, most, [tol for _, tol in keys])
     exact = tuple(c for c, tol in keys if tol == 0)      # the same in every reading of a block
     data = block_means(cols.rows, list(cols), bounds, first=(*exact, "line"))
     return data, {BLOCK_META_KEY: [int(n_rows), int(bounds.size - 1), int(most)]}

@@ -169,7 +169,7 @@ def _derive(test: str, run: RunFile, step_means: np.ndarray | None = None) -> di
             del one_g
         if test == "tilt_rotation" and {"temp_set_c", "rotation_deg"} <= d.keys():
             npos = int(meta.get("positions", 0) or 0)
-            rot = d["rotation_deg"].astype(np.float64, copy=False)
+            rot = None if lazy else d["rotation_deg"].astype(np.float64, copy=False)
             if npos >= 1:
                 step = 360.0 / npos
 
@@ -180,11 +180,15 @@ def _derive(test: str, run: RunFile, step_means: np.ndarray | None = None) -> di
                                                             out["rotation_deg"] if lazy else rot)
             else:
                 out["rotation_grid_dev_deg"] = _sparse(n, np.zeros(0), np.zeros(0))
-            seg = _segments(d["temp_set_c"].astype(np.float64, copy=False))
-            rk = np.round(np.mod(rot, 360.0) / ANGLE_TOL_DEG)
-            first = np.flatnonzero(np.r_[True, seg[1:] != seg[:-1]]) if n else np.zeros(0, np.int64)
-            out["positions_error"] = _sparse(n, first, _distinct_per_segment(seg, rk)[seg[first]] - npos)
-            del seg, rk
+            if lazy:
+                first, count = _positions_by_slices(src, n)
+            else:
+                seg = _segments(d["temp_set_c"].astype(np.float64, copy=False))
+                rk = np.round(np.mod(rot, 360.0) / ANGLE_TOL_DEG)
+                first = np.flatnonzero(np.r_[True, seg[1:] != seg[:-1]]) if n else np.zeros(0, np.int64)
+                count = _distinct_per_segment(seg, rk)[seg[first]]
+                del seg, rk
+            out["positions_error"] = _sparse(n, first, count - npos)
         if test == "sine_centrifuge" and "table_rate_rad_s" in d:
             ratio, resid = _sine_fit(t[:] if lazy else t, d["table_rate_rad_s"].astype(np.float64, copy=False), meta)
             out["rate_amplitude_ratio"] = _first_only(n, ratio)
@@ -227,6 +231,33 @@ def _within_dwell_steps(test: str, src, d_time, n: int) -> np.ndarray:
     return np.concatenate(parts) if parts else np.zeros(0)
 
 
+def _positions_by_slices(src, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """A tilt-rotation run in its Parquet file: the first row of each temperature point
+    (segment of equal ``temp_set_c``) and the number of distinct rotation keys in it --
+    what :func:`_derive` finds from the whole run's columns, found a slice of rows at a
+    time (each with the row before it): the same rows and counts."""
+    rows, new_seg, keys = [], [], []
+    for lo in range(0, n, _STEP_ROWS):
+        hi = min(lo + _STEP_ROWS, n)
+        a = max(lo - 1, 0)
+        ts = src.rows("temp_set_c", a, hi).astype(np.float64, copy=False)
+        rk = np.round(np.mod(src.rows("rotation_deg", a, hi).astype(np.float64, copy=False), 360.0)
+                      / ANGLE_TOL_DEG)
+        t_ch, k_ch = ts[1:] != ts[:-1], rk[1:] != rk[:-1]
+        if lo == 0:
+            t_ch, k_ch = np.r_[True, t_ch], np.r_[True, k_ch]
+        else:
+            rk = rk[1:]
+        at = np.flatnonzero(t_ch | k_ch)
+        rows.append(at + lo)
+        new_seg.append(t_ch[at])
+        keys.append(rk[at])
+    rows_, new_ = np.concatenate(rows), np.concatenate(new_seg)
+    bs = np.cumsum(new_) - 1                  # the segment of each block's first row
+    nseg = int(bs[-1]) + 1 if bs.size else 0
+    return rows_[new_], _distinct_of_blocks(bs, np.concatenate(keys), nseg)
+
+
 def _stored(src, c: str) -> RowColumn:
     """Column ``c`` of a run in its Parquet file (tables.ParquetColumns), read a slice of
     rows at a time."""
@@ -240,13 +271,18 @@ def _distinct_per_segment(seg: np.ndarray, values: np.ndarray) -> np.ndarray:
     if seg.size == 0:
         return np.zeros(0, np.int64)
     starts = np.flatnonzero(np.r_[True, (seg[1:] != seg[:-1]) | (values[1:] != values[:-1])])
-    bs, bv = seg[starts], values[starts]
+    return _distinct_of_blocks(seg[starts], values[starts], int(seg[-1]) + 1)
+
+
+def _distinct_of_blocks(bs: np.ndarray, bv: np.ndarray, nseg: int) -> np.ndarray:
+    """:func:`_distinct_per_segment` from the segment ``bs`` and value ``bv`` of the first
+    row of each block of consecutive equal (segment, value) rows; ``nseg`` segments."""
     ok = ~np.isnan(bv)
     bs, bv = bs[ok], bv[ok]
     order = np.lexsort((bv, bs))
     bs, bv = bs[order], bv[order]
     new = np.r_[True, (bs[1:] != bs[:-1]) | (bv[1:] != bv[:-1])] if bs.size else np.zeros(0, bool)
-    return np.bincount(bs[new], minlength=int(seg[-1]) + 1)
+    return np.bincount(bs[new], minlength=nseg)
 
 
 def _rest_dwell_error(d: dict[str, np.ndarray]) -> float:
