@@ -163,10 +163,7 @@ def _derive(test: str, run: RunFile, step_means: np.ndarray | None = None) -> di
             out["angle_dev_deg"] = np.abs(ang - med)
         if test == "centrifuge" and {"step", "table_rate_rad_s", "table_angle_deg"} <= d.keys():
             out["rest_dwell_error_deg"] = _first_only(n, _rest_dwell_error(d))
-            one_g = _one_g(d, meta, n, step_means)
-            at = np.flatnonzero(~np.isnan(one_g))
-            out["one_g_error"] = _sparse(n, at, one_g[at])
-            del one_g
+            out["one_g_error"] = _sparse(n, *_one_g(d, meta, n, step_means))
         if test == "tilt_rotation" and {"temp_set_c", "rotation_deg"} <= d.keys():
             npos = int(meta.get("positions", 0) or 0)
             rot = None if lazy else d["rotation_deg"].astype(np.float64, copy=False)
@@ -309,23 +306,23 @@ def _rest_dwell_error(d: dict[str, np.ndarray]) -> float:
 
 
 def _one_g(d: dict[str, np.ndarray], meta: dict, n: int,
-           means: np.ndarray | None = None) -> np.ndarray:
-    """min over turning dwells of |omega^2 R / g - 1|, placed on the first turning row.
+           means: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """min over turning dwells of |omega^2 R / g - 1|, placed on the first turning row (999
+    on row 0 when no dwell turns or R or g is not positive): (rows, values), the one row
+    and its value, or none (no rows); not a column of the run's length (issue 28).
     ``means``: the mean turning rate [rad/s] per step, ascending steps (see
     :func:`_turning_step_means`), or None to compute them here."""
     rate = d["table_rate_rad_s"].astype(np.float64, copy=False)
     R = float(meta.get("arm_radius_m", np.nan))
     g = float(meta.get("g_local_m_s2", np.nan))
     turning = rate >= REST_RATE
-    out = np.full(n, np.nan)
     if not turning.any() or not (R > 0 and g > 0):
-        out[0] = 999.0 if n else np.nan
-        return out
+        return (np.zeros(1, np.int64), np.array([999.0])) if n else (np.zeros(0, np.int64), np.zeros(0))
     if means is None:
         means = pd.Series(rate[turning]).groupby(d["step"][turning]).mean().to_numpy()
     err = np.abs(means ** 2 * R / g - 1.0)
-    out[int(np.flatnonzero(turning)[0])] = float(np.nanmin(err)) if np.isfinite(err).any() else 999.0
-    return out
+    value = float(np.nanmin(err)) if np.isfinite(err).any() else 999.0
+    return np.array([int(np.argmax(turning))], np.int64), np.array([value])
 
 
 def _turning_step_means(runs: list[RunFile]) -> dict[int, np.ndarray]:
