@@ -37,6 +37,17 @@ def _streamed(src: Path, root: Path):
     return run
 
 
+def _both(ref, df, root):
+    """The run ``ref`` with the columns ``df``: in memory, and in its Parquet file (columns
+    read when asked for, as a big file's run is)."""
+    import pandas as pd
+    kw = dict(path=ref.path, sha256=ref.sha256, size_bytes=ref.size_bytes, meta=ref.meta,
+              meta_raw=ref.meta_raw, header_line=ref.header_line, meta_lines=ref.meta_lines)
+    run = dropformat.RunFile(data=pd.DataFrame(df), **kw)
+    p = tables.write_run_parquet(run, root)
+    return run, dropformat.RunFile(data=tables.ParquetColumns(p, list(df.columns), len(df)), **kw)
+
+
 @pytest.mark.parametrize("src", RUNS, ids=lambda p: p.name)
 def test_streamed_parse_and_validation_equal_the_in_memory_ones(src, tmp_path, monkeypatch):
     # slices of a few rows, so every sliced path is taken on the samples' short runs
@@ -204,23 +215,15 @@ def test_a_full_store_while_a_big_file_is_parsed_stops_the_run_and_leaves_nothin
 
 def test_positions_per_temperature_point_found_in_slices_as_whole(tmp_path, monkeypatch):
     """A tilt-rotation run whose second temperature point has a 13th rotation: the counts
-    per point, found a few rows at a time from its Parquet
-    file, are the whole run's, and the run is refused alike."""
-    import pandas as pd
+    per point, found a few rows at a time from its Parquet file, are the whole run's, and
+    the run is refused alike."""
     monkeypatch.setattr(derived, "_STEP_ROWS", 31)
     ref = dropformat.read_run(EXAMPLES / "drop-2026-11-18-thermal" / "TT1-20261118-0001.csv")
     df = ref.data.copy()
     seg = np.flatnonzero(np.r_[True, np.diff(df["temp_set_c"].to_numpy()) != 0])
     lo = int(seg[1])
     df.loc[lo + 3:lo + 9, "rotation_deg"] = 15.0
-    changed = dropformat.RunFile(path=ref.path, sha256=ref.sha256, size_bytes=ref.size_bytes,
-                                 meta=ref.meta, meta_raw=ref.meta_raw, data=pd.DataFrame(df),
-                                 header_line=ref.header_line, meta_lines=ref.meta_lines)
-    p = tables.write_run_parquet(changed, tmp_path)
-    lazy = dropformat.RunFile(path=ref.path, sha256=ref.sha256, size_bytes=ref.size_bytes,
-                              meta=ref.meta, meta_raw=ref.meta_raw,
-                              data=tables.ParquetColumns(p, list(df.columns), len(df)),
-                              header_line=ref.header_line, meta_lines=ref.meta_lines)
+    changed, lazy = _both(ref, df, tmp_path)
     got = derived._derive("tilt_rotation", lazy)["positions_error"][:]
     want = derived._derive("tilt_rotation", changed)["positions_error"][:]
     np.testing.assert_array_equal(got, want)
@@ -228,3 +231,40 @@ def test_positions_per_temperature_point_found_in_slices_as_whole(tmp_path, monk
     v = suites.validate_runs([lazy])[ref.path]
     assert v == suites.validate_runs([changed])[ref.path]
     assert any(r.rule == "positions-mismatch" for r in v)
+
+
+@pytest.mark.parametrize("change", ["steps go down", "never turns", "one turning step twice"])
+def test_centrifuge_dwell_checks_read_a_dwell_at_a_time_as_whole(change, tmp_path, monkeypatch):
+    """The 1 g and rest-dwell figures of a centrifuge run in its Parquet file, read a dwell
+    at a time, on runs that take each branch: turning steps that go down (the whole-run
+    groupby), a run that never turns, a step turning in two dwells with a rest between."""
+    monkeypatch.setattr(derived, "_STEP_ROWS", 23)
+    ref = dropformat.read_run(EXAMPLES / "drop-2026-11-20" / "centrifuge" / "LXJ100-20261120-0002.csv")
+    df = ref.data.copy()
+    step = df["step"].to_numpy()
+    if change == "steps go down":
+        df["step"] = np.where(step > 2, 100 - step, step)
+    elif change == "never turns":
+        df["table_rate_rad_s"] = 0.0
+    else:
+        top = step == step.max()
+        df.loc[top, "step"] = step.max() - 2
+    run, lazy = _both(ref, df, tmp_path)
+    means_l, means_m = derived._turning_step_means([lazy]), derived._turning_step_means([run])
+    assert means_l.keys() == means_m.keys()
+    for j in means_m:
+        np.testing.assert_array_equal(means_l[j], means_m[j])
+    got = derived._derive("centrifuge", lazy, means_l.get(0))
+    want = derived._derive("centrifuge", run, means_m.get(0))
+    for c in ("one_g_error", "rest_dwell_error_deg"):
+        np.testing.assert_array_equal(got[c][:], want[c][:], err_msg=c)
+    assert suites.validate_runs([lazy]) == suites.validate_runs([run])
+
+
+@pytest.mark.parametrize("size", [1, 2, 7, 8, 1001, 1000])
+def test_median_of_counts_is_numpys_median(size):
+    rng = np.random.default_rng(size)
+    x = rng.choice(np.array([0.01, 0.0099999999, 0.0100000001, 0.02, 1e-3]), size) + \
+        (rng.random(size) < 0.1) * rng.random(size)
+    vals, counts = np.unique(x, return_counts=True)
+    assert derived._median_of_counts(vals, counts) == np.median(x)

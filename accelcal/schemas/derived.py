@@ -145,14 +145,16 @@ def _derive(test: str, run: RunFile, step_means: np.ndarray | None = None) -> di
         out["dt_over_period"] = RowColumn(n, np.float64, dt_over_period)
         try:
             if lazy:
-                within = _within_dwell_steps(test, src, d_time, n)
+                vals, counts = _within_dwell_steps(test, src, d_time, n)
+                med = _median_of_counts(vals, counts) if counts.sum() else None
             else:
                 dt = d_time(0, n) if n else np.zeros(0)
                 keys = _dwell_keys(test, d)
                 same = np.r_[False, keys[1:] == keys[:-1]] & np.isfinite(dt) & (dt > 0)
                 within = dt[same]
                 del dt
-            perr = abs(float(np.median(within)) / period - 1.0) if within.size and period > 0 else np.nan
+                med = float(np.median(within)) if within.size else None
+            perr = abs(med / period - 1.0) if med is not None and period > 0 else np.nan
         except KeyError:
             perr = np.nan
         out["period_error"] = _first_only(n, perr)
@@ -162,8 +164,9 @@ def _derive(test: str, run: RunFile, step_means: np.ndarray | None = None) -> di
             med = pd.Series(ang).groupby(d["position"]).transform("median").to_numpy(np.float64)
             out["angle_dev_deg"] = np.abs(ang - med)
         if test == "centrifuge" and {"step", "table_rate_rad_s", "table_angle_deg"} <= d.keys():
-            out["rest_dwell_error_deg"] = _first_only(n, _rest_dwell_error(d))
-            out["one_g_error"] = _sparse(n, *_one_g(d, meta, n, step_means))
+            scan = _centrifuge_dwells(src, n) if lazy else None
+            out["rest_dwell_error_deg"] = _first_only(n, _rest_dwell_error(d, scan and scan.edges))
+            out["one_g_error"] = _sparse(n, *_one_g(d, meta, n, step_means, scan))
         if test == "tilt_rotation" and {"temp_set_c", "rotation_deg"} <= d.keys():
             npos = int(meta.get("positions", 0) or 0)
             rot = None if lazy else d["rotation_deg"].astype(np.float64, copy=False)
@@ -211,11 +214,13 @@ class _RowsOf:
 _STEP_ROWS = 1 << 22
 
 
-def _within_dwell_steps(test: str, src, d_time, n: int) -> np.ndarray:
+def _within_dwell_steps(test: str, src, d_time, n: int) -> tuple[np.ndarray, np.ndarray]:
     """The forward time steps between consecutive rows of one dwell, of a run in its
-    Parquet file, found a slice of rows at a time: the values, in order, that the whole
-    run's ``dt[same]`` gives (:func:`_derive`)."""
-    parts = []
+    Parquet file, found a slice of rows at a time, as their distinct values (ascending)
+    and how often each occurs: the multiset the whole run's ``dt[same]`` holds
+    (:func:`_derive`), in memory of the order of its distinct steps -- a DAQ's clock
+    gives a handful -- not of its rows (issue 28)."""
+    vals, counts = np.zeros(0), np.zeros(0, np.int64)
     for lo in range(0, n, _STEP_ROWS):
         hi = min(lo + _STEP_ROWS, n)
         a = max(lo - 1, 0)
@@ -224,8 +229,24 @@ def _within_dwell_steps(test: str, src, d_time, n: int) -> np.ndarray:
         if lo == 0:
             same = np.r_[False, same]
         dt = d_time(lo, hi)
-        parts.append(dt[same & np.isfinite(dt) & (dt > 0)])
-    return np.concatenate(parts) if parts else np.zeros(0)
+        u, c = np.unique(dt[same & np.isfinite(dt) & (dt > 0)], return_counts=True)
+        vals, inv = np.unique(np.r_[vals, u], return_inverse=True)
+        counts = np.bincount(inv, weights=np.r_[counts, c], minlength=vals.size).astype(np.int64)
+    return vals, counts
+
+
+def _median_of_counts(vals: np.ndarray, counts: np.ndarray) -> float:
+    """``np.median`` of the multiset holding each of the ascending ``vals`` ``counts`` times:
+    its middle element, or the mean of its two middle ones (the same float np.median
+    gives: their sum halved)."""
+    total = int(counts.sum())
+    cum = np.cumsum(counts)
+
+    def kth(k: int) -> float:
+        return vals[int(np.searchsorted(cum, k, side="right"))]
+    if total % 2:
+        return float(kth(total // 2))
+    return float(np.mean([kth(total // 2 - 1), kth(total // 2)]))
 
 
 def _positions_by_slices(src, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -282,13 +303,15 @@ def _distinct_of_blocks(bs: np.ndarray, bv: np.ndarray, nseg: int) -> np.ndarray
     return np.bincount(bs[new], minlength=nseg)
 
 
-def _rest_dwell_error(d: dict[str, np.ndarray]) -> float:
-    """Worst spacing error (deg) of the leading rest dwells' azimuths; 999 if < 2 of them."""
+def _rest_dwell_error(d: dict[str, np.ndarray], edges: np.ndarray | None = None) -> float:
+    """Worst spacing error (deg) of the leading rest dwells' azimuths; 999 if < 2 of them.
+    ``edges``: the run's dwells (:func:`_run_edges` of ``step``) when already found."""
     # the dwells (runs of equal steps) as slices: the same rows, in order, as a mask each;
     # only the leading ones' rates and azimuths are read (a run in its Parquet file is read
     # a dwell at a time, issue 28)
     rows = d.rows if hasattr(d, "rows") else (lambda c, lo, hi: d[c][lo:hi])
-    edges = _run_edges(d["step"])
+    if edges is None:
+        edges = _run_edges(d["step"])
     az = []
     for lo, hi in zip(edges[:-1], edges[1:]):
         if not np.all(np.abs(rows("table_rate_rad_s", lo, hi).astype(np.float64, copy=False)) < REST_RATE):
@@ -305,24 +328,85 @@ def _rest_dwell_error(d: dict[str, np.ndarray]) -> float:
     return float(np.max(np.abs(gaps - 360.0 / len(az))))
 
 
-def _one_g(d: dict[str, np.ndarray], meta: dict, n: int,
-           means: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def _one_g(d: dict[str, np.ndarray], meta: dict, n: int, means: np.ndarray | None = None,
+           scan: "_Dwells | None" = None) -> tuple[np.ndarray, np.ndarray]:
     """min over turning dwells of |omega^2 R / g - 1|, placed on the first turning row (999
     on row 0 when no dwell turns or R or g is not positive): (rows, values), the one row
     and its value, or none (no rows); not a column of the run's length (issue 28).
     ``means``: the mean turning rate [rad/s] per step, ascending steps (see
-    :func:`_turning_step_means`), or None to compute them here."""
-    rate = d["table_rate_rad_s"].astype(np.float64, copy=False)
+    :func:`_turning_step_means`), or None to compute them here; ``scan``: the run's dwells
+    read one at a time (:func:`_centrifuge_dwells`), whose first turning row and means
+    are used when it has them."""
     R = float(meta.get("arm_radius_m", np.nan))
     g = float(meta.get("g_local_m_s2", np.nan))
-    turning = rate >= REST_RATE
-    if not turning.any() or not (R > 0 and g > 0):
+    if scan is not None and (scan.means is not None or scan.first_turning is None):
+        first, means = scan.first_turning, scan.means if means is None else means
+    else:
+        rate = d["table_rate_rad_s"].astype(np.float64, copy=False)
+        turning = rate >= REST_RATE
+        first = int(np.argmax(turning)) if turning.any() else None
+        if first is not None and means is None:
+            means = pd.Series(rate[turning]).groupby(d["step"][turning]).mean().to_numpy()
+        del rate, turning
+    if first is None or not (R > 0 and g > 0):
         return (np.zeros(1, np.int64), np.array([999.0])) if n else (np.zeros(0, np.int64), np.zeros(0))
-    if means is None:
-        means = pd.Series(rate[turning]).groupby(d["step"][turning]).mean().to_numpy()
     err = np.abs(means ** 2 * R / g - 1.0)
     value = float(np.nanmin(err)) if np.isfinite(err).any() else 999.0
-    return np.array([int(np.argmax(turning))], np.int64), np.array([value])
+    return np.array([first], np.int64), np.array([value])
+
+
+class _Dwells:
+    """A centrifuge run's dwells read one at a time (:func:`_centrifuge_dwells`):
+    ``edges`` (:func:`_run_edges` of ``step``), ``first_turning`` (the first row turning at
+    REST_RATE or more, None when none does) and ``means`` (:func:`_turning_step_means`'
+    figure, None when the turning steps go down)."""
+
+    def __init__(self, edges, first_turning, means):
+        self.edges, self.first_turning, self.means = edges, first_turning, means
+
+
+def _centrifuge_dwells(src, n: int) -> _Dwells:
+    """What the 1 g and rest-dwell checks need of a centrifuge run in its Parquet file,
+    read a slice of steps and a dwell of rates at a time (issue 28): the same edges, first
+    turning row and per-step means, bit for bit, as the whole run's columns give (each
+    step's turning rates are summed as one ``np.add.reduceat`` segment, as there)."""
+    parts, steps = [], []
+    for lo in range(0, n, _STEP_ROWS):
+        hi = min(lo + _STEP_ROWS, n)
+        a = max(lo - 1, 0)
+        st = src.rows("step", a, hi)
+        at = np.flatnonzero(st[1:] != st[:-1]) + 1
+        if lo == 0:
+            at = np.r_[0, at]
+        parts.append(at + a)
+        steps.append(st[at])
+    edges = np.r_[np.concatenate(parts), n].astype(np.int64) if n else np.zeros(0, np.int64)
+    step_at = np.concatenate(steps) if n else np.zeros(0, np.int64)
+    first, means, monotone = None, [], True
+    group, step_of = [], None
+
+    def flush():
+        if group:
+            x = group[0] if len(group) == 1 else np.concatenate(group)
+            means.append(np.add.reduceat(x, [0])[0] / x.size)
+            group.clear()
+    for k, (lo, hi) in enumerate(zip(edges[:-1], edges[1:])):
+        rate = src.rows("table_rate_rad_s", int(lo), int(hi))
+        turning = rate >= REST_RATE
+        if not turning.any():
+            continue
+        if first is None:
+            first = int(lo) + int(np.argmax(turning))
+        s = int(step_at[k])
+        if step_of is not None and s < step_of:
+            monotone = False
+            break
+        if s != step_of:
+            flush()
+        group.append(rate[turning])
+        step_of = s
+    flush()
+    return _Dwells(edges, first, np.asarray(means, np.float64) if monotone and first is not None else None)
 
 
 def _turning_step_means(runs: list[RunFile]) -> dict[int, np.ndarray]:
@@ -338,6 +422,11 @@ def _turning_step_means(runs: list[RunFile]) -> dict[int, np.ndarray]:
     for j, r in enumerate(runs):
         a = r.arrays
         if r.test != "centrifuge" or not {"step", "table_rate_rad_s", "table_angle_deg"} <= a.keys():
+            continue
+        if hasattr(a, "rows"):          # in its Parquet file: a dwell at a time
+            m = _centrifuge_dwells(a, r.n_rows).means
+            if m is not None and m.size:
+                out[j] = m
             continue
         rate, step = a["table_rate_rad_s"], a["step"]
         if rate.dtype != np.float64 or step.dtype != np.int64:
