@@ -43,6 +43,8 @@ CASES = {
     "centrifuge-1000": ("drop-2026-11-20", "centrifuge/LXJ100-20261120-0002.csv", ("step",), 1000),
     "thermal-1000": ("drop-2026-11-18-thermal", "TT1-20261118-0001.csv",
                      ("temp_set_c", "rotation_deg"), 1000),
+    # no bound: that the peak no longer grows with the file (issue 28, "What to build")
+    "centrifuge-3000": ("drop-2026-11-20", "centrifuge/LXJ100-20261120-0002.csv", ("step",), 3000),
 }
 #: the bounds issue 28 asks for (MB of peak RSS), by file size
 BOUND_MB = {200: 1000, 1000: 1500}
@@ -191,7 +193,8 @@ def table(results: list[dict], before: dict[str, dict] | None = None) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--cases", nargs="+", default=["centrifuge-200", "thermal-200", "centrifuge-1000"],
+    ap.add_argument("--cases", nargs="+", default=["centrifuge-200", "thermal-200", "centrifuge-1000",
+                                                   "thermal-1000", "centrifuge-3000"],
                     choices=sorted(CASES))
     ap.add_argument("--size-mb", type=float, help="make every case's run this big instead "
                     "(a quick check; no bound applies)")
