@@ -268,3 +268,17 @@ def test_median_of_counts_is_numpys_median(size):
         (rng.random(size) < 0.1) * rng.random(size)
     vals, counts = np.unique(x, return_counts=True)
     assert derived._median_of_counts(vals, counts) == np.median(x)
+
+
+def test_parquet_columns_are_read_only_when_a_value_is_asked_for(tmp_path, monkeypatch):
+    """``in``, ``keys()``, ``len`` and the dtypes of a run in its Parquet file read no column
+    (Mapping's own ``in`` reads the value: a whole column of a 3 GB run, several times
+    over in the validation)."""
+    run = _streamed(RUNS[0], tmp_path)
+    cols = run.arrays
+    reads = []
+    real = cols.rows
+    monkeypatch.setattr(cols, "rows", lambda *a: reads.append(a) or real(*a))
+    assert "output" in cols and "nope" not in cols and "line" in cols.keys()
+    assert {"time_s", "output"} <= cols.keys() and len(cols) == len(list(cols))
+    assert run.n_rows == len(cols["output"]) and reads == [("output", 0, run.n_rows)]

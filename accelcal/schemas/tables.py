@@ -269,6 +269,9 @@ class ParquetColumns(Mapping):
             raise KeyError(c)
         return self.rows(c, 0, self.n_rows)
 
+    def __contains__(self, c) -> bool:        # by name: Mapping's own would read the column
+        return c in self.names
+
     def __iter__(self):
         return iter(self.names)
 
