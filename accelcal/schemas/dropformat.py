@@ -404,8 +404,7 @@ def parse_run(fh, path, stream=None) -> RunFile:
     if body.n_rows == 0:
         raise DropFormatError(spath, header_line, "no-data", "a header but no data rows")
     if stream is not None:
-        from .tables import ParquetColumns
-        data = ParquetColumns(stream.target, (*COLUMNS[test], "line"), body.n_rows)
+        data = stream.columns((*COLUMNS[test], "line"), body.n_rows)
     else:
         data = body.columns()       # RunFile.data makes the DataFrame when it is asked for
     return RunFile(path=spath, sha256=st.hash.hexdigest(), size_bytes=st.size, meta=meta,

@@ -226,6 +226,11 @@ class RunParquetStream:
                 raise self._store_error(err) from None
         return self.target
 
+    def columns(self, names, n_rows: int) -> "ParquetColumns":
+        """The run's columns ``names`` in its file, read when asked for (after :meth:`commit`,
+        or from the file already in place)."""
+        return ParquetColumns(self.target, names, n_rows)
+
     def abort(self) -> None:
         """Remove the temporary file (nothing is left of an unfinished run)."""
         if self._writer is not None:
