@@ -38,6 +38,7 @@ by file and line (the batch carries ``file`` and ``line`` columns).
 """
 from __future__ import annotations
 
+import gc
 import os
 import re
 import threading
@@ -593,6 +594,11 @@ def _validate_slices(name: str, table: str, rows: _Rows, specs: list, which: lis
             _merge_result(prev.result, er.result)
             if want_json and i in full_json:
                 _merge_result(out_json[i].get("result"), full_json[i].get("result"))
+        # a slice's table sits in great-expectations' reference cycles: collected here, the
+        # next slice reuses its memory (a 3 GB run's validation peaked 556 MB without this,
+        # 449 MB with it, in the same time; the young generations only -- a full collection
+        # per slice cost 50 ms)
+        gc.collect(1)
     return out, out_json
 
 
