@@ -100,7 +100,13 @@ def test_ingest_of_a_big_file_writes_its_parquet_as_it_parses(tmp_path, monkeypa
     bad.unlink()
     bad.write_text("\n".join(text[:-40] + ["1,2,x"] + text[-39:]) + "\n")
     pq_root = tmp_path / "pq"
-    out = ingest.ingest_drop(str(drop), str(pq_root), str(tmp_path))
+    old = os.umask(0o022)
+    try:
+        out = ingest.ingest_drop(str(drop), str(pq_root), str(tmp_path))
+    finally:
+        os.umask(old)
+    # written as it was parsed, each file follows the umask like every other (0644)
+    assert {oct(p.stat().st_mode & 0o777) for p in pq_root.rglob("*.parquet")} == {"0o644"}
     status = {Path(r.source_path).name: r.status for r in out.records}
     assert status.pop("LXJ100-20261120-0003.csv") == "refused"
     assert set(status.values()) == {"accepted"}
@@ -282,3 +288,22 @@ def test_parquet_columns_are_read_only_when_a_value_is_asked_for(tmp_path, monke
     assert "output" in cols and "nope" not in cols and "line" in cols.keys()
     assert {"time_s", "output"} <= cols.keys() and len(cols) == len(list(cols))
     assert run.n_rows == len(cols["output"]) and reads == [("output", 0, run.n_rows)]
+
+
+def test_diagnosis_reads_a_big_run_file_as_the_pipeline_does(tmp_path, monkeypatch):
+    """``accelcal diagnose`` / ``design`` on run files: a file over SMALL_FILE is parsed into
+    a temporary Parquet file and read back -- whole when short (the RunFile read_run
+    gives), as block means of its dwells when long -- and the temporary folder is gone."""
+    import tempfile
+    from accelcal.diagnosis import runfiles
+    monkeypatch.setattr(runfiles, "SMALL_FILE", 1000)        # every sample file is "big"
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    drop = EXAMPLES / "drop-2026-11-20"
+    files = sorted(drop.glob("**/*.csv"))
+    got = runfiles.read_paths([drop])
+    assert [r.path for r in got] == [str(f) for f in files]
+    assert all(a == dropformat.read_run(f) for a, f in zip(got, files))
+    monkeypatch.setattr(fdata, "BLOCK_READINGS", 100)
+    long = runfiles.read_paths([drop])
+    assert all(fdata.BLOCK_META_KEY in r.meta and r.n_rows < o.n_rows for r, o in zip(long, got))
+    assert list(tmp_path.iterdir()) == []

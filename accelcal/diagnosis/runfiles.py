@@ -1,6 +1,7 @@
 """The runs a diagnosis reads: run files or folders of them, in the drop format."""
 from __future__ import annotations
 
+from ..schemas.dropspec import SMALL_FILE
 from ..textout import warn
 
 
@@ -31,7 +32,37 @@ def read_paths(paths) -> list:
     out = []
     for f in files:
         try:
-            out.append(read_run(f))
+            out.append(read_run(f) if f.stat().st_size <= SMALL_FILE else _read_long(f))
         except Exception as e:  # noqa: BLE001 - a refused file: say so, diagnose the rest
             warn(f"diagnose: skipping {f}: {e}")
     return out
+
+
+def _read_long(path) -> object:
+    """A run file over SMALL_FILE as the pipeline's science takes it (issue 28): parsed into
+    a Parquet file in a temporary folder as it is read, then read back a slice at a time
+    as the block means of its dwells when it is long
+    (:func:`accelcal.fitting.data.long_run_blocks`), whole otherwise; the folder is gone
+    when the run is returned.  Raises what the parser raises, and ValueError when the
+    file changed while it was read."""
+    import hashlib
+    import tempfile
+
+    from ..fitting.data import long_run_blocks
+    from ..schemas import dropformat, tables
+    h, size = hashlib.sha256(), 0
+    with open(path, "rb", buffering=0) as fh:
+        for b in iter(lambda: fh.read(1 << 20), b""):
+            h.update(b)
+            size += len(b)
+    with tempfile.TemporaryDirectory(prefix="accelcal-run-") as tmp:
+        stream = tables.RunParquetStream(tmp, h.hexdigest(), size)
+        try:
+            with open(path, "rb", buffering=0) as fh:
+                run = dropformat.parse_run(fh, str(path), stream)
+            if run.sha256 != stream.sha256:
+                raise ValueError("the file changed while it was read")
+            written = stream.commit()
+        finally:
+            stream.abort()
+        return tables.read_run_parquet(written, blocks=long_run_blocks)

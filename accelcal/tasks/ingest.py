@@ -27,13 +27,10 @@ from ..fileio import StoreError, os_error_text, path_text, sync_files
 from ..warehouse.db import Refusal, RunRecord
 from ..warehouse.lineage import validator_version
 from ..schemas import dropformat, dropscan, dropspec, tables
+from ..schemas.dropspec import SMALL_FILE
 from . import progress
 
 _SNIFF_KEYS = ("run_id", "test", "unit_serial", "unit_model", "campaign", "rig_id", "started_at")
-#: Files up to this size are read into memory once (hash, then parse from the bytes);
-#: bigger ones are hashed in one pass and parsed as a stream in a second, straight into
-#: their Parquet file (tables.RunParquetStream: no column of theirs is held, issue 28).
-SMALL_FILE = 4 << 20
 _OPEN_FLAGS = os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0) | \
     getattr(os, "O_CLOEXEC", 0)
 
