@@ -307,3 +307,16 @@ def test_diagnosis_reads_a_big_run_file_as_the_pipeline_does(tmp_path, monkeypat
     long = runfiles.read_paths([drop])
     assert all(fdata.BLOCK_META_KEY in r.meta and r.n_rows < o.n_rows for r, o in zip(long, got))
     assert list(tmp_path.iterdir()) == []
+
+
+def test_an_azimuth_logged_about_zero_is_averaged_on_the_circle():
+    """A rest dwell at azimuth 0 logged as 359.99 and 0.01 (a DAQ's [0, 360)): its block
+    means are near 0, not 180; a block away from the wrap keeps its plain mean exactly."""
+    az = np.r_[359.99, 0.01, 359.98, 0.02, 359.99, 0.01, 90.01, 89.99, 90.02, 89.98]
+    cols = {"step": np.repeat([0, 1], [6, 4]), "table_angle_deg": az,
+            "line": np.arange(10)}
+    b = _bounds({"step": cols["step"]}, 10)
+    got = block_means(lambda c, lo, hi: cols[c][lo:hi], list(cols), b, ("step", "line"))
+    dev = np.mod(got["table_angle_deg"][0] + 180.0, 360.0) - 180.0
+    assert abs(dev) < 1e-9
+    assert got["table_angle_deg"][1] == np.sum(az[6:]) / 4

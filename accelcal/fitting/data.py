@@ -696,6 +696,9 @@ BLOCK_READINGS = ROW_SLICE
 CELL_KEYS = {"centrifuge": (("step", 0.0),),
              "tumble": (("position", 0.0), ("angle_deg", ANGLE_TOL_DEG)),
              "tilt_rotation": (("temp_set_c", 0.0), ("rotation_deg", ANGLE_TOL_DEG))}
+#: The drop format's angle columns [deg]: a block whose readings straddle the wrap of
+#: the circle (0/360, or +-180) is averaged on the circle (:func:`block_means`).
+ANGLE_COLUMNS = frozenset({"table_angle_deg", "angle_deg", "rotation_deg"})
 #: Key of a run's metadata that says it was taken as block means: (readings, blocks,
 #: most readings in a block).
 BLOCK_META_KEY = "block_means"
@@ -804,11 +807,30 @@ def block_means(rows_of, names: Sequence[str], bounds: np.ndarray, first: Sequen
                 count = np.add.reduceat(ok.astype(np.int64), at)
                 with np.errstate(invalid="ignore", divide="ignore"):
                     part = np.where(count > 0, total / np.maximum(count, 1), np.nan)
+                if c in ANGLE_COLUMNS:
+                    part = _circular_means(v, ok, at, count, part)
             if col is None:
                 col = np.empty(nb, part.dtype)
             col[a:b] = part
         out[c] = col if col is not None else np.zeros(0)
     return out
+
+
+def _circular_means(v: np.ndarray, ok: np.ndarray, at: np.ndarray, count: np.ndarray,
+                    part: np.ndarray) -> np.ndarray:
+    """Block means of an angle column [deg] (:func:`block_means`' ``part``) with each block
+    whose readings straddle the circle's wrap -- spread over more than 180 deg, as an
+    azimuth logged about 0 as 359.99 and 0.01 is -- averaged on the circle instead: its
+    readings below the middle of their range turned once round (+360 deg), then the mean
+    taken back into [0, 360).  Every other block keeps its plain mean, bit for bit."""
+    lo = np.fmin.reduceat(np.where(ok, v, np.inf), at)
+    hi = np.fmax.reduceat(np.where(ok, v, -np.inf), at)
+    wrap = (count > 0) & (hi - lo > 180.0)
+    if not wrap.any():
+        return part
+    mid = np.repeat(0.5 * (lo + hi), np.diff(np.r_[at, v.size]))
+    turned = np.add.reduceat(np.where(ok, np.where(v < mid, v + 360.0, v), 0.0), at)
+    return np.where(wrap, np.mod(turned / np.maximum(count, 1), 360.0), part)
 
 
 def long_run_blocks(test: str, n_rows: int, cols: Mapping) -> tuple[dict, dict] | None:
