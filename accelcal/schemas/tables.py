@@ -267,6 +267,7 @@ class ParquetColumns(Mapping):
 
     def __init__(self, path, names, n_rows: int):
         self.path, self.names, self.n_rows = Path(path), list(names), int(n_rows)
+        self._file: pq.ParquetFile | None = None
         self._starts: np.ndarray | None = None
 
     def __getitem__(self, c: str) -> np.ndarray:
@@ -290,7 +291,11 @@ class ParquetColumns(Mapping):
     def rows(self, c: str, lo: int, hi: int) -> np.ndarray:
         """Rows ``lo`` to ``hi`` of column ``c``, read row group by row group into one
         array (the file's row groups are a parser chunk each)."""
-        pf = pq.ParquetFile(self.path)
+        if self._file is None:
+            # opened once, when first read (after the stream's commit): parsing the footer
+            # of a 3 GB run (700 row groups) cost 3.7 ms a time, seven row-group reads
+            self._file = pq.ParquetFile(self.path)
+        pf = self._file
         if self._starts is None:
             md = pf.metadata
             self._starts = np.cumsum([0] + [md.row_group(i).num_rows
