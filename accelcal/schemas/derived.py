@@ -416,18 +416,16 @@ def _turning_step_means(runs: list[RunFile]) -> dict[int, np.ndarray]:
     same numbers, bit for bit: tests/test_validation.py).  So only runs whose turning steps
     never go down are taken (then each step's turning rows are one block); the others, and
     runs whose columns are not the parser's dtypes, are left out (computed per run by
-    :func:`_one_g`).  One run at a time, without a table of the batch: a pandas groupby of a
+    :func:`_one_g`), as are runs in their Parquet file (:func:`_centrifuge_dwells`, in
+    :func:`_derive`, finds theirs).  One run at a time, without a table of the batch: a pandas groupby of a
     1 GB run's rows was the peak of its whole intake (issue 28)."""
     out: dict[int, np.ndarray] = {}
     for j, r in enumerate(runs):
         a = r.arrays
         if r.test != "centrifuge" or not {"step", "table_rate_rad_s", "table_angle_deg"} <= a.keys():
             continue
-        if hasattr(a, "rows"):          # in its Parquet file: a dwell at a time
-            m = _centrifuge_dwells(a, r.n_rows).means
-            if m is not None and m.size:
-                out[j] = m
-            continue
+        if hasattr(a, "rows"):          # in its Parquet file: _derive's own scan of its
+            continue                    # dwells gives them (one pass over its columns)
         rate, step = a["table_rate_rad_s"], a["step"]
         if rate.dtype != np.float64 or step.dtype != np.int64:
             continue
