@@ -4,6 +4,7 @@ as one line of text."""
 from __future__ import annotations
 
 import errno
+import hashlib
 import os
 import re
 import tempfile
@@ -92,6 +93,18 @@ class AtomicFile:
             os.unlink(self.tmp)
         except FileNotFoundError:
             pass
+
+
+def sha256_fd(fd: int) -> tuple[str, int]:
+    """sha256 (hex) and size [byte] of what is read from ``fd`` to its end, 1 MiB at a time
+    (a big run file is hashed in a pass of its own before it is parsed)."""
+    h, n = hashlib.sha256(), 0
+    while True:
+        b = os.read(fd, 1 << 20)
+        if not b:
+            return h.hexdigest(), n
+        h.update(b)
+        n += len(b)
 
 
 def sync_files(paths: list[str | Path]) -> None:

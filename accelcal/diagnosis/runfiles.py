@@ -45,18 +45,15 @@ def _read_long(path) -> object:
     (:func:`accelcal.fitting.data.long_run_blocks`), whole otherwise; the folder is gone
     when the run is returned.  Raises what the parser raises, and ValueError when the
     file changed while it was read."""
-    import hashlib
     import tempfile
 
+    from ..fileio import sha256_fd
     from ..fitting.data import long_run_blocks
     from ..schemas import dropformat, tables
-    h, size = hashlib.sha256(), 0
     with open(path, "rb", buffering=0) as fh:
-        for b in iter(lambda: fh.read(1 << 20), b""):
-            h.update(b)
-            size += len(b)
+        sha, size = sha256_fd(fh.fileno())
     with tempfile.TemporaryDirectory(prefix="accelcal-run-") as tmp:
-        stream = tables.RunParquetStream(tmp, h.hexdigest(), size)
+        stream = tables.RunParquetStream(tmp, sha, size)
         try:
             with open(path, "rb", buffering=0) as fh:
                 run = dropformat.parse_run(fh, str(path), stream)

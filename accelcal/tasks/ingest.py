@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from ..provenance import metadata_lines, simulated_line
-from ..fileio import StoreError, os_error_text, path_text, sync_files
+from ..fileio import StoreError, os_error_text, path_text, sha256_fd, sync_files
 from ..warehouse.db import Refusal, RunRecord
 from ..warehouse.lineage import validator_version
 from ..schemas import dropformat, dropscan, dropspec, tables
@@ -303,7 +303,7 @@ def _ingest_open_file(fd, e, src, out, known, vv, parquet_root, warehouse_root,
             sha, size, head = hashlib.sha256(raw).hexdigest(), len(raw), raw
         else:
             raw = None
-            sha, size = _hash_fd(fd)
+            sha, size = sha256_fd(fd)
             head = os.pread(fd, 65536, 0)
     except OSError as err:
         detail = f"cannot read: {err.strerror or err}"
@@ -390,16 +390,6 @@ def _read_all(fd: int, size: int) -> bytes:
         if n > SMALL_FILE + 1:
             break
     return b"".join(chunks)
-
-
-def _hash_fd(fd: int) -> tuple[str, int]:
-    h, n = hashlib.sha256(), 0
-    while True:
-        b = os.read(fd, 1 << 20)
-        if not b:
-            return h.hexdigest(), n
-        h.update(b)
-        n += len(b)
 
 
 def _check_unchanged(fd: int, st: os.stat_result, size: int) -> None:
