@@ -36,7 +36,8 @@ import numpy as np
 from ..constants import MOUNT_ANGLE_TOLERANCE_RAD
 from ..effects import combination_name, si_unit
 from ..fitting.core import lstsq_svd, normalised_error
-from ..fitting.data import BLOCK_META_KEY, RunCells, drop_duplicate_cells, fit_noise, make_run, pool_missing_noise
+from ..fitting.data import (BLOCK_META_KEY, RunCells, block_note, drop_duplicate_cells, fit_noise, make_run,
+                            pool_missing_noise)
 from ..fitting.model import ACTING, CampaignModel, mount_runs, processing_effects
 from ..fitting.procedure import ModelFit, fit_selected
 from ..physics.axes import AXES
@@ -131,7 +132,7 @@ def fit_campaign_model(runs: Sequence[RunCells], effects: Sequence[str], *, shar
 def prepare(runs) -> tuple[list[RunCells], list[str]]:
     """RunFile-like objects (meta, data, sha256) -> cells with a first noise model."""
     cells = [make_run(r.meta, r.data, j, getattr(r, "sha256", "")) for j, r in enumerate(runs)]
-    notes = [c.notes[-1] for c in cells if BLOCK_META_KEY in c.meta]   # make_run's last
+    notes = [n for n in map(block_note, cells) if n]
     notes += drop_duplicate_cells(cells)
     for c in cells:
         fit_noise(c)

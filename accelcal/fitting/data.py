@@ -961,11 +961,28 @@ def make_run(meta: Mapping, data, index: int = 0, sha256: str = "", sine_segment
     if test == "sine_centrifuge":
         run.notes.append(drive_note)
     if BLOCK_META_KEY in meta:
-        readings, blocks, most = meta[BLOCK_META_KEY]
-        run.notes.append(f"{run.run_id}: its {readings:,} readings are taken as the means of "
-                         f"{blocks:,} blocks of at most {most} consecutive readings of one dwell "
-                         "(a long run, issue 28)")
+        run.notes.append(block_note(run))
     return run
+
+
+def block_note(run: RunCells) -> str | None:
+    """What a run taken as block means (:func:`long_run_blocks`) says of it, for its notes
+    and the joint fit's; None for a run taken reading by reading.
+
+    Parameters
+    ----------
+    run : RunCells
+        The run (its ``meta`` holds :data:`BLOCK_META_KEY` when it was taken so).
+
+    Returns
+    -------
+    str or None
+    """
+    if BLOCK_META_KEY not in run.meta:
+        return None
+    readings, blocks, most = run.meta[BLOCK_META_KEY]
+    return (f"{run.run_id}: its {readings:,} readings are taken as the means of {blocks:,} "
+            f"blocks of at most {most} consecutive readings of one dwell (a long run, issue 28)")
 
 
 def drive_rate(meta: Mapping, t: np.ndarray, logged: np.ndarray, alpha: float = 1e-6,
