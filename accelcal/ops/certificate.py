@@ -231,19 +231,26 @@ def run_conditions(root: Path, lineage: list[dict[str, Any]]) -> list[dict[str, 
                 meta = json.loads((pf.schema_arrow.metadata or {})[META_KEY]).get("meta", {})
                 names = set(pf.schema_arrow.names)
                 cols = [c for c in ("time_s", "temp_c", "temp_set_c") if c in names]
-                t = pf.read(columns=cols)
-                tmax = float(np.nanmax(t.column("time_s").to_numpy(zero_copy_only=False)))
+                # a batch of rows at a time (issue 28: a long run's columns are never held
+                # whole); a run of one batch -- every sample's -- gives np.mean's own mean
+                tmax, temps = np.nan, {c: [np.inf, -np.inf, 0.0, 0] for c in cols if c != "time_s"}
+                for b in pf.iter_batches(batch_size=1 << 20, columns=cols):
+                    tm = b.column(cols.index("time_s")).to_numpy(zero_copy_only=False)
+                    tmax = float(np.fmax(tmax, np.nanmax(tm))) if np.isfinite(tm).any() else tmax
+                    for c, acc in temps.items():
+                        v = b.column(cols.index(c)).to_numpy(zero_copy_only=False).astype(float)
+                        v = v[np.isfinite(v)]
+                        if v.size:
+                            acc[0], acc[1] = min(acc[0], float(v.min())), max(acc[1], float(v.max()))
+                            acc[2], acc[3] = acc[2] + float(np.add.reduce(v)), acc[3] + v.size
                 row.update(data=True, g_local=meta.get("g_local_m_s2"),
                            latitude=meta.get("site_latitude_deg"),
                            ambient=meta.get("ambient_temp_c"), operator=meta.get("operator"))
                 if start is not None and math.isfinite(tmax):
                     row["end"] = start + _dt.timedelta(seconds=tmax)
-                for c in ("temp_c", "temp_set_c"):
-                    if c in cols:
-                        v = t.column(c).to_numpy(zero_copy_only=False).astype(float)
-                        v = v[np.isfinite(v)]
-                        if v.size:
-                            row[c] = (float(v.min()), float(v.mean()), float(v.max()))
+                for c, (lo, hi, total, n) in temps.items():
+                    if n:
+                        row[c] = (lo, total / n, hi)
             except Exception as e:      # a damaged copy: say so, keep the certificate
                 row["error"] = f"{type(e).__name__}: {e}"[:200]
         out.append(row)
