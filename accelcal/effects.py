@@ -129,7 +129,7 @@ class RigInput:
     read_through: tuple[str, ...] = ()
 
 
-#: Rig inputs with a lab-stated uncertainty (issue 27): local gravity at every rig, the
+#: Rig inputs with a lab-stated uncertainty: local gravity at every rig, the
 #: tilt of the thermal table, the temperature reading of a thermal run.
 RIG_INPUTS: dict[str, RigInput] = {r.id: r for r in [
     RigInput("g_local", "g_local_u_m_s2", "m/s2", "g_local_m_s2", None, TESTS, False,
@@ -152,7 +152,7 @@ def coefficient_spec(name: str) -> Coefficient | None:
 
 def combination_name(name: str, terms: Mapping[str, float]) -> str:
     """The name of what a row measures when the runs determine a coefficient only together
-    with others (issue 30; IEEE 1293 names the tumble's ``K2 - Koo``).
+    with others (IEEE 1293 names the tumble's ``K2 - Koo``).
 
     Parameters
     ----------

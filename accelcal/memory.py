@@ -1,4 +1,4 @@
-"""Handing freed memory back to the OS between the stages of a big run (issue 28).
+"""Handing freed memory back to the OS between the stages of a big run.
 
 A stage that worked on a long run leaves free memory the process keeps: Python objects in
 reference cycles until the next collection, Arrow's pool what a conversion freed, glibc's

@@ -107,7 +107,7 @@ class CampaignResult:
 
 # ------------------------------------------------------------------ what the report draws
 #
-# The science-to-report contract of the residual figures (issue 23): each paper method
+# The science-to-report contract of the residual figures: each paper method
 # turns what it stored (its own ``extras``) into ResidualFigure records
 # (:attr:`accelcal.estimators.registry.Estimator.figures`); the certificate draws those
 # (:func:`accelcal.ops.plots.residual_figure`) and never reads a method's extras itself.

@@ -198,7 +198,7 @@ def _in_time_order(data: pd.DataFrame, fresh: bool = False) -> pd.DataFrame:
     """``data`` sorted by ``time_s`` (stable), with a 0.. index when ``fresh`` (a new frame
     whose columns may be added to).  A run already in time order, as every accepted run is,
     is not copied: the sort would be the identity, and a copy of a day-long run is
-    hundreds of MB (issue 28)."""
+    hundreds of MB."""
     if not data["time_s"].is_monotonic_increasing:
         d = data.sort_values("time_s", kind="stable")
         return d.reset_index(drop=True).copy() if fresh else d
@@ -268,7 +268,7 @@ def position_means(labelled: pd.DataFrame) -> pd.DataFrame:
     m_out = mean(out)
     dev = out - m_out[gid]
     sd = np.sqrt(np.bincount(gid, weights=dev * dev, minlength=k) / np.maximum(n - 1, 1))
-    del dev                          # (each series of a long run let go once used, issue 28)
+    del dev                          # (each series of a long run let go once used)
     sd[n < 2] = np.nan
     T = labelled["temp_c"].to_numpy(float)
     fin = np.isfinite(T)
@@ -586,7 +586,7 @@ def fit_temperature_model(temp_c: Sequence[float], K0: Sequence[float], u_K0: Se
 def _temperature_sensitivity(x, u_K0, u_K1, p_K0, p_K1, levels) -> dict[str, float]:
     """Root-sum-square over the temperature levels of d(coefficient)/d(T_k) [coefficient
     unit per degC]: the sensitivity to a temperature reading whose error is the same at
-    every return to one set point and independent from one set point to the next (issue 27).
+    every return to one set point and independent from one set point to the next.
 
     The weighted line p = A y, A = (X^T W X)^-1 X^T W, X = [1, T - T_ref], takes a reading
     error dT_k as a shift of the point's abscissa: dp = -A[:, k] p1 dT_k, summed over the
@@ -789,7 +789,7 @@ def temperature_correlation(series, temp_c) -> dict[str, float | None]:
     if n < 3 or np.ptp(T) == 0:
         return {"n": int(n), "slope_m_s2_per_degC": None, "u_slope_m_s2_per_degC": None,
                 "slope_ug_per_degC": None, "u_slope_ug_per_degC": None, "r": None}
-    # r first: np.corrcoef copies both series, which is the peak of a long run (issue 28)
+    # r first: np.corrcoef copies both series, which is the peak of a long run
     r = float(np.corrcoef(T, y)[0, 1]) if np.std(y) > 0 else 0.0
     Tc = T - T.mean()
     sxx = float(Tc @ Tc)
@@ -931,11 +931,11 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = "", *,
         Kx = float(np.mean([p["cross_term"] for p in fitted])) if fitted else 0.0
         rot = d["rotation_deg"].to_numpy(float)
         inp = np.empty(rot.shape)
-        for lo in range(0, rot.size, ROW_SLICE):    # a slice at a time: the same numbers (issue 28)
+        for lo in range(0, rot.size, ROW_SLICE):    # a slice at a time: the same numbers
             inp[lo:lo + ROW_SLICE] = indicated_acceleration({geo["cross_term"]: Kx},
                                                             specific_force_at(meta, rot[lo:lo + ROW_SLICE]))
         E = d["output"].to_numpy(float)
-        # one series of the run's length at a time (issue 28)
+        # one series of the run's length at a time
         before = temperature_correlation(compensate(E, T, {"K0": model["K0"], "K1": model["K1"]}, inp), T)
         after = temperature_correlation(compensate(E, T, model, inp), T)
         extras["compensation"] = {"series": "run readings minus nominal IA input (m/s2)",
@@ -952,7 +952,7 @@ _GRAVITY_POWER = {"K0": 1.0, "K0T": 1.0, "K1": -1.0, "K1T": 0.0}
 def input_sensitivities(coefficients: Sequence[CoefficientResult], model: Mapping[str, Any],
                         g: float, gamma_rad: float) -> dict[str, dict[str, float]]:
     """Sensitivity of paper 001's coefficients to the rig inputs the drop gives as known
-    (:data:`accelcal.effects.RIG_INPUTS`; issue 27), in closed form.
+    (:data:`accelcal.effects.RIG_INPUTS`), in closed form.
 
     With K1 = sigma b / (g sin gamma) and K0 = a / K1 (paper 001), a coefficient that scales
     as (g sin gamma)^n has dC/dg = n C / g and dC/dgamma = n C cot(gamma); the temperature
@@ -1099,7 +1099,7 @@ def mc_truth(c: Mapping[str, float], eff: Mapping[str, float], test: Mapping[str
 def residual_figures(extras: Mapping[str, Any]) -> list[ResidualFigure]:
     """Per temperature point, the point's K0 and K1 minus the temperature model at its
     temperature, in units of the point's standard uncertainty (paper 001), from what
-    :func:`campaign_records` stored (``extras['thermal']``), for the certificate (issue 23).
+    :func:`campaign_records` stored (``extras['thermal']``), for the certificate.
 
     Parameters
     ----------

@@ -232,7 +232,7 @@ def first_order_lag(x: np.ndarray, time_s: np.ndarray, tau: float) -> np.ndarray
     attenuates them by a further omega^2 D dt / 2 that a continuous lag of the same delay
     does not: the data tell the two forms apart.  Data of an independent reference
     simulator (``../shared/diagnosis-dev``, ``sine-lag-*``) follow this form to the noise,
-    and reject the continuous one (issue 10).
+    and reject the continuous one.
 
     ``x`` may be (n,) or (n, k): k series filtered at once along the time axis.
 

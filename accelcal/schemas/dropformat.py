@@ -106,7 +106,7 @@ class RunFile:
     plus ``line`` (int64), the 1-based line number of each row (a DataFrame; may be
     given as a dict of arrays, see :attr:`arrays`, or as the columns of the run's Parquet
     file, :class:`accelcal.schemas.tables.ParquetColumns`, read when asked for and never
-    kept: a run parsed into that file, issue 28); ``header_line``: the line number
+    kept: a run parsed into that file); ``header_line``: the line number
     of the CSV header; ``meta_lines``: the line of each metadata key (so later checks
     can name it; empty when unknown).
     """
@@ -380,7 +380,7 @@ def parse_run(fh, path, stream=None) -> RunFile:
     it in messages.  ``RunFile.sha256`` and ``size_bytes`` are those of the bytes read.
 
     ``stream``: a :class:`accelcal.schemas.tables.RunParquetStream` that takes the rows as
-    they are parsed (issue 28): it is opened with the run's metadata once the head is read,
+    they are parsed: it is opened with the run's metadata once the head is read,
     gets every chunk's rows, and the RunFile's columns are then those of its Parquet file,
     read when asked for.  The caller commits or aborts it."""
     spath = str(path)

@@ -1,4 +1,4 @@
-"""A drop, scanned (drop-format.md, "A drop"), and the file rules of issue 12: which
+"""A drop, scanned (drop-format.md, "A drop"), and the drop-format file rules: which
 entries of a drop are run files, which are refused as they stand without being opened
 (:data:`ENTRY_RULES`: links, FIFOs, devices, unreadable folders, bad names), and when a
 file being written has settled (:func:`settle_wait`).  The run files themselves are read
@@ -29,7 +29,7 @@ class Entry:
     refusal: tuple[str, str] | None = None
 
 
-#: Rules of entries refused without being read (the file rules of issue 12).
+#: Rules of entries refused without being read (the drop-format file rules).
 ENTRY_RULES = {
     "link": "a symbolic link: links are not followed (copy the file into the drop)",
     "not-a-file": "a FIFO, socket or device named *.csv: not a regular file",

@@ -129,7 +129,7 @@ BLOCK_BYTES = 1 << 20
 CHUNK_BYTES = 4 << 20
 #: Files up to this size are read into memory once (hash, then parse from the bytes);
 #: bigger ones are hashed in one pass and parsed as a stream in a second, straight into
-#: their Parquet file (tables.RunParquetStream: no column of theirs is held, issue 28).
+#: their Parquet file (tables.RunParquetStream: no column of theirs is held).
 SMALL_FILE = 4 << 20
 #: Longest line a run file may have.  The spec's lines are short (a key, a header of a few
 #: names, a row of a few numbers); a longer one is refused (``line-too-long``) without

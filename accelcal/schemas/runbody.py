@@ -258,7 +258,7 @@ class _Body:
         only when later rows are denser: no list of pieces to concatenate at the end."""
         n = self.n_rows
         self.bytes_seen += nbytes
-        if self.sink is not None:           # handed over, not kept (issue 28)
+        if self.sink is not None:           # handed over, not kept
             self.sink.write(cols, m)
             self.n_rows = n + m
             return

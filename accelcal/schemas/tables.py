@@ -163,7 +163,7 @@ def _whole(path: Path) -> bool:
 
 
 class RunParquetStream:
-    """A run's Parquet file written as its raw file is parsed (issue 28): the parser hands
+    """A run's Parquet file written as its raw file is parsed: the parser hands
     each chunk of rows over (:meth:`write`, one row group each) and keeps none, so a run
     file of any length is parsed in the memory of a chunk.  The file is the one
     :func:`write_run_parquet` writes -- same place, schema, metadata and values, in row
@@ -249,7 +249,7 @@ class RunParquetStream:
 
 
 class ParquetColumns(Mapping):
-    """A run's columns in its Parquet file, read when asked for and not kept (issue 28):
+    """A run's columns in its Parquet file, read when asked for and not kept:
     what ``RunFile.arrays`` is for a run parsed into its Parquet file
     (:class:`RunParquetStream`).  ``cols[c]`` reads column ``c`` whole (a numpy array,
     as the parser types it); :meth:`rows` reads rows ``lo`` to ``hi`` of it, from the row
@@ -324,7 +324,7 @@ def read_run_parquet(path, blocks=None) -> RunFile:
     ``blocks``: a function ``blocks(test, n_rows, columns)`` of the run's test, its rows
     and its :class:`ParquetColumns`, giving the columns the run is to be taken as (a dict
     of arrays, and what to add to its metadata) or None to read it as it is: the science's
-    block means of a long run (issue 28, :func:`accelcal.fitting.data.block_means`), made
+    block means of a long run (:func:`accelcal.fitting.data.block_means`), made
     from the file a column and a slice at a time."""
     pf = pq.ParquetFile(path)
     md = pf.schema_arrow.metadata or {}
@@ -347,7 +347,7 @@ def read_run_parquet(path, blocks=None) -> RunFile:
         del table
         data = data[names]
         if len(data) >= BIG_READ_ROWS:
-            # Arrow's pool keeps what the conversion freed (60 MB of a 5 M-row run, issue 28)
+            # Arrow's pool keeps what the conversion freed (60 MB of a 5 M-row run)
             pa.default_memory_pool().release_unused()
     return RunFile(path=info["source_path"], sha256=info["sha256"], size_bytes=int(info["size_bytes"]),
                    meta=meta, meta_raw=info["meta_raw"], data=data,

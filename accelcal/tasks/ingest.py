@@ -327,7 +327,7 @@ def _ingest_open_file(fd, e, src, out, known, vv, parquet_root, warehouse_root,
         # parse can wait for the next files' (parsed together, _take_parsed)
         pending.add((src, raw, head, base))
         return
-    # a big file's rows go to its Parquet file as they are parsed (issue 28): the run is
+    # a big file's rows go to its Parquet file as they are parsed: the run is
     # never in memory whole; the file is put in place only once the bytes parsed are the
     # bytes hashed and the file did not change, else removed
     stream = tables.RunParquetStream(parquet_root, sha, size)

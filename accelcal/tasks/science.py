@@ -18,7 +18,7 @@ def load_campaign_runs(warehouse_root: str, inputs: list[dict[str, Any]]) -> lis
     Falls back to the raw file when its Parquet copy is gone, if its bytes still
     hash to the recorded sha256.
     """
-    from ..fitting.data import long_run_blocks     # a long run: block means (issue 28)
+    from ..fitting.data import long_run_blocks     # a long run: block means
     runs = []
     for i in inputs:
         pq = Path(warehouse_root) / i["parquet_path"] if i.get("parquet_path") else None

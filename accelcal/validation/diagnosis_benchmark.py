@@ -15,10 +15,10 @@ output counts, rare spikes, a bias random walk):
   when the diagnosis says the gap is unexplained;
 * clean campaigns (>= 200 in the full run): the false-alarm rate (a verdict on clean data)
   with its Wilson interval, and how often a clean campaign is said to keep a gap;
-* big designs (issue 26): a centrifuge with BIG_LEVELS g levels in six mounts (480 cells),
+* big designs: a centrifuge with BIG_LEVELS g levels in six mounts (480 cells),
   one effect at z = BIG_SNR, right when named and estimated within 25 % (the held-out
   shrink is reported, not asked); and clean big designs (false alarms);
-* a sweep hysteresis (issue 26; right when a gap is said to remain: the omnibus test
+* a sweep hysteresis (right when a gap is said to remain: the omnibus test
   dilutes it, the targeted rising-minus-falling contrast sees it).
 
 Section 2: the dev set of the independent reference simulator (``../shared/diagnosis-dev``)
@@ -48,10 +48,10 @@ from .simruns import SimRunFile
 
 KINDS = ("centrifuge", "tumble", "tilt_rotation", "sine_centrifuge")
 SNR_RANGE = (12.0, 60.0)
-#: the big-design family (issue 26): g levels of the centrifuge, and the effect's z
+#: the big-design family: g levels of the centrifuge, and the effect's z
 BIG_LEVELS = 40
 BIG_SNR = 10.0
-#: the sweep-hysteresis family (issue 26): h of a_IA [1]
+#: the sweep-hysteresis family: h of a_IA [1]
 HYSTERESIS_REL = 6e-7
 #: the dev set's baselines per test kind (thinner than the processing model)
 DEV_BASELINE = {"centrifuge": ["earth_rate", "mass_centre_offset"], "sine_centrifuge": ["earth_rate"],
@@ -109,7 +109,7 @@ def scenario(kind: str, effects: dict, disturbance: dict | None = None, noise: d
             "disturbance": disturbance or {}, "test": [design(kind, levels)]}
 
 
-#: IEEE 836 mount sets of the IA-PA plane (issue 26's clean family)
+#: IEEE 836 mount sets of the IA-PA plane (the clean family)
 MOUNT_SETS = {"IA pair": (0, 180), "+ 90/270": (0, 180, 90, 270), "+ 45/225": (0, 180, 45, 225),
               "+ 45/135": (0, 180, 45, 135), "full set": (0, 45, 90, 135, 180, 225, 270, 315)}
 #: a unit with everyday misalignments and cross terms (the lab's sample unit SNJ-1-03)
@@ -279,7 +279,7 @@ def simulated_cases(quick: bool, seeds: int, n_clean: int, rng_seed: int = 20261
         kind = KINDS[i % len(KINDS)]
         base = processing_effects([kind]) if (i // len(KINDS)) % 2 == 0 else DEV_BASELINE[kind]
         yield (f"{kind}/clean", kind, scenario(kind, {}), 7000 + i, base, None, None, None, False, "clean")
-    # big designs (issue 26): a centrifuge with BIG_LEVELS g levels in six mounts, each
+    # big designs: a centrifuge with BIG_LEVELS g levels in six mounts, each
     # observable candidate at z = BIG_SNR; and clean ones.  Named and within 25 % is right:
     # the held-out shrink, a ratio of gaps, is only reported (it reads 0.3-0.5 here)
     base = processing_effects(["centrifuge"])
@@ -298,21 +298,21 @@ def simulated_cases(quick: bool, seeds: int, n_clean: int, rng_seed: int = 20261
     for i in range(2 if quick else 10 * seeds):
         yield ("centrifuge/clean/big", "centrifuge", scenario("centrifuge", {}, levels=BIG_LEVELS), 9500 + i,
                base, None, None, None, False, "big-clean")
-    # clean IEEE 836 mount sets, a unit with everyday misalignments (issue 26): the unit's
+    # clean IEEE 836 mount sets, a unit with everyday misalignments: the unit's
     # Kp is not a mount angle error
     for i in range(len(MOUNT_SETS) if quick else 4 * len(MOUNT_SETS) * seeds):
         name = list(MOUNT_SETS)[i % len(MOUNT_SETS)]
         if fnmatch.fnmatch("centrifuge/clean: mount set", only):
             yield ("centrifuge/clean: mount set", "centrifuge", mount_set_scenario(name), 9800 + i,
                    list(MOUNT_SET_BASELINE), None, None, None, False, "mount-set")
-    # clean runs whose output noise is AR(1) between consecutive readings (issue 26)
+    # clean runs whose output noise is AR(1) between consecutive readings
     for kind in ("centrifuge", "tumble"):
         for rho in AR1_RHOS:
             for i in range(1 if quick else 4 * seeds):
                 if fnmatch.fnmatch(f"{kind}/clean: AR(1)", only):
                     yield (f"{kind}/clean: AR(1)", kind, ar1_scenario(kind, rho), 9900 + 10 * i + int(10 * rho),
                            DEV_BASELINE[kind], None, None, None, False, "coloured")
-    # a sweep hysteresis (issue 26): rising steps read h a_IA higher than falling ones, at a
+    # a sweep hysteresis: rising steps read h a_IA higher than falling ones, at a
     # size the targeted rising-minus-falling contrast sees at z ~ 4-6, the case temperature
     # held (a drifting one would make it K1T's); right when a gap is said to remain
     for i in range(1 if quick else 5 * seeds):
@@ -345,7 +345,7 @@ def run_section1(quick: bool = False, seeds: int = 2, n_clean: int = 200, log=pr
         res = diagnose(runs_of(sc, seed), base)
         row = {"case": label, "kind": kind, "category": cat, "truth": truth, "param": param, "also": also,
                "baseline": base, "seed": seed, **score_case(res, truth, param, also, unknown, cat == "big")}
-        if cat == "shaped":          # the targeted contrast's own z (issue 26: at z >= 4 a gap must remain)
+        if cat == "shaped":          # the targeted contrast's own z (at z >= 4 a gap must remain)
             row["shape_z"] = max((abs(t["z"]) for t in res.get("shape_tests") or [] if "IA input" in t["test"]),
                                  default=None)
         if cat == "unobservable":

@@ -1,4 +1,4 @@
--- accelcal drift and due dates (issue 29): adjustments and the stored forecast.
+-- accelcal drift and due dates: adjustments and the stored forecast.
 --
 -- Applied by accelcal.ops.due when it first writes (`accelcal campaign adjust`,
 -- `accelcal due --store`), inside that write's transaction: a warehouse that never uses

@@ -1,4 +1,4 @@
--- accelcal operations views (issue 5): recalibration history, fleet SQL, rig comparisons.
+-- accelcal operations views: recalibration history, fleet SQL, rig comparisons.
 --
 -- Applied idempotently after schema.sql (accelcal.warehouse.views.apply_views); every
 -- statement is CREATE OR REPLACE and only reads the append-only history tables
