@@ -52,11 +52,13 @@ with its analytic derivative), ``'fitted'`` (the logged rate fitted by a constan
 """
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
+from scipy.sparse.csgraph import connected_components
 
 from ..effects import si_unit, typical_size
 from ..fitting.core import (RCOND, FitResult, Parameter, ParameterSet, gauss_newton, lstsq_svd, lstsq_svd_x,
@@ -125,14 +127,10 @@ def _five_point(t: np.ndarray, w: np.ndarray) -> np.ndarray:
     h = float(np.median(np.diff(t)))
     if w.size < 5:
         return np.gradient(w, t)
-    d = np.empty_like(w)
-    d[2:-2] = (w[:-4] - 8 * w[1:-3] + 8 * w[3:-1] - w[4:]) / (12 * h)
-    a, b = w[:5], w[-5:][::-1]
-    d[0] = (-25 * a[0] + 48 * a[1] - 36 * a[2] + 16 * a[3] - 3 * a[4]) / (12 * h)
-    d[1] = (-3 * a[0] - 10 * a[1] + 18 * a[2] - 6 * a[3] + a[4]) / (12 * h)
-    d[-1] = -(-25 * b[0] + 48 * b[1] - 36 * b[2] + 16 * b[3] - 3 * b[4]) / (12 * h)
-    d[-2] = -(-3 * b[0] - 10 * b[1] + 18 * b[2] - 6 * b[3] + b[4]) / (12 * h)
-    return d
+    edge = [(-25, 48, -36, 16, -3), (-3, -10, 18, -6, 1)]       # one-sided stencils [1/(12 h)]
+    first = [sum(c * v for c, v in zip(e, w[:5])) for e in edge]
+    last = [-sum(c * v for c, v in zip(e, w[::-1][:5])) for e in edge]
+    return np.r_[first, w[:-4] - 8 * w[1:-3] + 8 * w[3:-1] - w[4:], last[::-1]] / (12 * h)
 
 
 def prepare_runs(runs: Sequence, rate_source: str = "drive", rate_derivative: str | None = None,
@@ -172,44 +170,33 @@ def prepare_runs(runs: Sequence, rate_source: str = "drive", rate_derivative: st
         if rate_source not in rates:
             raise ValueError(f"rate_source {rate_source!r}")
         cols["table_rate_rad_s"] = rates[rate_source]
+        wdots = {"drive": None, "fitted": fit_d, "numeric": _five_point(t, w)}
         deriv = rate_derivative or ("fitted" if rate_source == "fitted" else "drive")
-        if deriv not in ("drive", "fitted", "numeric"):
+        if deriv not in wdots:
             raise ValueError(f"rate_derivative {rate_derivative!r}")
-        wdot = {"drive": None, "fitted": fit_d}.get(deriv)
-        if deriv == "numeric":
-            wdot = _five_point(t, w)
         cols["table_angle_deg"] = np.nan_to_num(cols["table_angle_deg"])
-        out.append(_Run(meta=meta, data=cols, y=cols["output"], t=t, wdot=wdot, cell=make_run(meta, cols, i).cid,
-                        label=str(meta.get("run_id", f"run{i}")), attitude=_attitude(meta)))
+        out.append(_Run(meta, cols, cols["output"], t, wdots[deriv], make_run(meta, cols, i).cid,
+                        str(meta.get("run_id", f"run{i}")), _attitude(meta)))
     return out
 
 
 # --------------------------------------------------------------------------- the model
 
-def _param(name: str, key: str, kind: str, run: int | None, scale: float) -> Parameter:
-    """A parameter of this fit in the core's terms: ``group`` is its kind ('coef' an
-    effects.md coefficient, 'extra' paper 002's KPPP/KOOO, 'tool' an effects.md rig effect),
-    ``runs`` the one run it belongs to (None: shared by every run)."""
-    return Parameter(name, key, _unit(key), scale, None if run is None else (run,), kind)
-
-
 def _build_params(prep: list[_Run], per_run_bias: bool, extra_terms: Sequence[str],
                   tool_errors: Mapping[str, str], K1_scale: float) -> list[Parameter]:
-    ps = []
-    for c in COEFFS:
-        if c == "K0" and per_run_bias:
-            ps += [_param(f"K0[{r.label}]", "K0", "coef", i, typical_size("K0")) for i, r in enumerate(prep)]
-        else:
-            ps.append(_param(c, c, "coef", None, K1_scale if c == "K1" else typical_size(c)))
-    ps += [_param(e, e, "extra", None, typical_size(e)) for e in extra_terms]
-    for eid, scope in tool_errors.items():
-        if scope == "shared":
-            ps.append(_param(eid, eid, "tool", None, typical_size(eid)))
-        elif scope == "per_run":
-            ps += [_param(f"{eid}[{r.label}]", eid, "tool", i, typical_size(eid)) for i, r in enumerate(prep)]
-        else:
+    """The parameters of the fit in the core's terms: ``group`` is the kind ('coef' an
+    effects.md coefficient, 'extra' paper 002's KPPP/KOOO, 'tool' an effects.md rig effect),
+    ``runs`` the one run a per-run parameter belongs to (None: shared by every run), the
+    scale the catalogue's typical size (K1: ``K1_scale``)."""
+    def scoped(key: str, kind: str, scope: str) -> list[Parameter]:
+        scale = K1_scale if key == "K1" else typical_size(key)
+        if scope not in ("shared", "per_run"):
             raise ValueError(f"tool-error scope {scope!r} (use 'shared' or 'per_run')")
-    return ps
+        return [Parameter(key, key, _unit(key), scale, None, kind)] if scope == "shared" else \
+            [Parameter(f"{key}[{r.label}]", key, _unit(key), scale, (i,), kind) for i, r in enumerate(prep)]
+    return [q for c in COEFFS for q in scoped(c, "coef", "per_run" if c == "K0" and per_run_bias else "shared")] \
+        + [q for e in extra_terms for q in scoped(e, "extra", "shared")] \
+        + [q for e, scope in tool_errors.items() for q in scoped(e, "tool", scope)]
 
 
 def _run_values(params: list[Parameter], x: np.ndarray, i: int) -> tuple[dict, dict, dict]:
@@ -222,10 +209,9 @@ def _run_values(params: list[Parameter], x: np.ndarray, i: int) -> tuple[dict, d
 
 
 def _kw(run: _Run, eff: Mapping) -> dict:
-    if run.wdot is None:
-        return {}
-    eps = float(eff.get("rate_scale_error", 0.0))
-    return {"rate_derivative": rigs.rotation_sign(run.meta) * (1.0 + eps) * run.wdot}
+    """The forward model's rate derivative of a run whose source is not the drive's own [rad/s2]."""
+    return {} if run.wdot is None else \
+        {"rate_derivative": rigs.rotation_sign(run.meta) * (1.0 + float(eff.get("rate_scale_error", 0.0))) * run.wdot}
 
 
 def _extra_accel(extra: Mapping, F: np.ndarray) -> np.ndarray:
@@ -326,18 +312,6 @@ def _jacobian(params: list[Parameter], prep: list[_Run], x: np.ndarray, w: np.nd
 
 # --------------------------------------------------------------------------- diagnostics
 
-def _svd(J: np.ndarray, rtol: float) -> tuple[np.ndarray, np.ndarray, int]:
-    """(relative singular values, null directions (k, p), rank) of the column-scaled design at
-    the relative cut ``rtol`` (:func:`accelcal.fitting.core.lstsq_svd`).  A column that is
-    identically zero counts as one zero singular value with its unit vector as a null
-    direction."""
-    sol = lstsq_svd(J, np.zeros(J.shape[0]), rtol)
-    S, zero = sol.singular_values, np.flatnonzero(sol.column_norm <= 0)
-    rel = np.r_[S / S[0] if S.size and S[0] > 0 else S, np.zeros(zero.size)]
-    null = np.vstack([sol.null_space.T.reshape(-1, J.shape[1]), np.eye(J.shape[1])[zero]])
-    return rel, null, sol.rank
-
-
 def design_diagnostics(J: np.ndarray, names: Sequence[str], rtol: float = ALIAS_RTOL) -> dict:
     """Rank / conditioning of a design (Jacobian) after scaling every column to unit norm.
 
@@ -352,15 +326,20 @@ def design_diagnostics(J: np.ndarray, names: Sequence[str], rtol: float = ALIAS_
     Returns
     -------
     dict
-        n_params, rank (relative singular value > ``rtol``), condition_number (inf when a
+        n_params, rank (relative singular value > ``rtol``, by
+        :func:`accelcal.fitting.core.lstsq_svd`; an identically zero column counts as one zero
+        singular value with its unit vector as a null direction), condition_number (inf when a
         relative singular value is below the core's rank rule :data:`~accelcal.fitting.core.RCOND`),
         effective_rank_roy_vetterli exp(H(sigma / sum sigma)), relative_singular_values, and
         the aliased groups (:func:`_alias_groups`).
     """
-    rel, null, rank = _svd(J, rtol)
+    sol = lstsq_svd(J, np.zeros(J.shape[0]), rtol)
+    S, zero = sol.singular_values, np.flatnonzero(sol.column_norm <= 0)      # a zero column: a zero value
+    rel = np.r_[S / S[0] if S.size and S[0] > 0 else S, np.zeros(zero.size)]
+    null = np.vstack([sol.null_space.T.reshape(-1, J.shape[1]), np.eye(J.shape[1])[zero]])
     p = rel / rel.sum() if rel.sum() > 0 else rel
     p = p[p > 0]
-    return {"n_params": len(names), "rank": int(rank),
+    return {"n_params": len(names), "rank": int(sol.rank),
             "condition_number": float(rel[0] / rel[-1]) if rel[-1] > RCOND else float("inf"),
             "effective_rank_roy_vetterli": float(np.exp(-np.sum(p * np.log(p)))),
             "relative_singular_values": [float(v) for v in rel],
@@ -374,30 +353,15 @@ def _alias_groups(null: np.ndarray, rel_null: np.ndarray, names: Sequence[str]) 
     depend on the choice of null basis.  Two parameters are aliased when |P_jk| is not
     negligible; groups are the connected components.  Each null direction is also returned as
     a combination {name: weight} (weights of unit-norm scaled columns)."""
-    names = list(names)
-    out: dict[str, Any] = {"aliased_groups": [], "null_combinations": []}
-    if null.shape[0] == 0:
-        return out
     P = null.T @ null
-    involved = np.diag(P) > 1e-3
-    adj = (np.abs(P) > 1e-3) & involved[:, None] & involved[None, :]
-    seen: set[int] = set()
-    for j in np.flatnonzero(involved):
-        if j in seen:
-            continue
-        stack, comp = [j], []
-        while stack:
-            k = stack.pop()
-            if k not in seen:
-                seen.add(k)
-                comp.append(k)
-                stack += [m for m in np.flatnonzero(adj[k]) if m not in seen]
-        out["aliased_groups"].append([names[k] for k in sorted(comp)])
-    for v, sv in zip(null, rel_null):
-        out["null_combinations"].append({"relative_singular_value": float(sv),
-                                         "weights": {names[k]: round(float(v[k]), 4)
-                                                     for k in np.argsort(-np.abs(v)) if abs(v[k]) > 0.05}})
-    return out
+    involved = np.flatnonzero(np.diag(P) > 1e-3)
+    label = connected_components(np.abs(P[np.ix_(involved, involved)]) > 1e-3, directed=False)[1]
+    return {"aliased_groups": [[names[involved[k]] for k in np.flatnonzero(label == g)]
+                               for g in dict.fromkeys(label)],
+            "null_combinations": [{"relative_singular_value": float(sv),
+                                   "weights": {names[k]: round(float(v[k]), 4)
+                                               for k in np.argsort(-np.abs(v)) if abs(v[k]) > 0.05}}
+                                  for v, sv in zip(null, rel_null)]}
 
 
 def _collinearity(J: np.ndarray, j: int) -> float:
@@ -430,8 +394,6 @@ class SineFit:
         Rank, condition and aliasing of the joint design (:func:`design_diagnostics`).
     dropped : dict
         Optional parameters held as unidentifiable, with the reason.
-    tool_errors : dict
-        Identified tool errors (effects.md ids) [SI].
     options : dict
         The configuration of the fit.
     attitudes, mounts, rows : dict
@@ -443,7 +405,6 @@ class SineFit:
     residual_rms: dict[str, float]
     diagnostics: dict[str, Any]
     dropped: dict[str, str]
-    tool_errors: dict[str, float]
     options: dict[str, Any]
     attitudes: dict[str, str]
     rows: dict[str, tuple[int, int]] = field(default_factory=dict)
@@ -465,13 +426,14 @@ class SineFit:
         return {n: float(v) for n, v in zip(self.names, np.sqrt(np.clip(np.diag(self.result.cov), 0.0, None)))}
 
     @property
+    def tool_errors(self) -> dict[str, float]:
+        """Identified tool errors by effects.md id [SI]."""
+        return {p.name: p.value for p in self.result.params if p.group == "tool"}
+
+    @property
     def dof(self) -> int:
         """Readings minus parameters [1]."""
         return int(self.result.dof)
-
-    @property
-    def success(self) -> bool:
-        return bool(self.result.converged)
 
 
 def _linear_start(params: list[Parameter], prep: list[_Run], w: np.ndarray, tau: float = 0.0,
@@ -487,11 +449,11 @@ def _linear_start(params: list[Parameter], prep: list[_Run], w: np.ndarray, tau:
     b = lstsq_svd_x(J1, y)
     if rss is not None:
         rss.append(float(np.sum((y - J1 @ b) ** 2)))
-    K1 = float(b[[params[j].key for j in lin].index("K1")])
-    K1 = K1 if np.isfinite(K1) and K1 != 0.0 else 1.0
+    k1 = next(j for j, p in enumerate(params) if p.key == "K1")
+    K1 = float(b[lin.index(k1)]) if np.isfinite(b[lin.index(k1)]) and b[lin.index(k1)] != 0.0 else 1.0
     x = np.zeros(len(params))
-    for k, j in enumerate(lin):
-        x[j] = K1 if params[j].key == "K1" else b[k] / K1
+    x[lin] = b / K1
+    x[k1] = K1
     return x
 
 
@@ -507,9 +469,8 @@ def _lag_start(params: list[Parameter], prep: list[_Run], x0: np.ndarray) -> np.
     taus = [0.0] + [k * dt for k in (0.2, 0.5, 1.0, 2.0, 5.0)]
     rss: list[float] = []
     starts = [_linear_start(params, prep, np.ones(len(prep)), tau, rss) for tau in taus]
-    best = int(np.argmin(rss))
-    x = starts[best]
-    x[j] = taus[best]
+    x = starts[int(np.argmin(rss))]
+    x[j] = taus[int(np.argmin(rss))]
     return x
 
 
@@ -621,14 +582,13 @@ def identify_sine_campaign(runs: Sequence | None, *, tool_errors: Mapping[str, s
     n_all = len(params)
     dropped, x0 = _select(params, prep, x0, alias_rtol)
     nonlinear = any(p.group == "tool" for p in params)
-    lower = np.array([0.0 if p.key in NON_NEGATIVE else -np.inf for p in params])
     w, x = ones, x0
     success, message = True, "linear least squares (no tool-error parameter)"
     rw_runs = reweight and len(prep) > 1
     for k in range(2 if rw_runs else 1):
         if nonlinear:
-            gn = gauss_newton(lambda p: _residual(params, prep, p, w), lambda p: _jacobian(params, prep, p, w),
-                              x, max_iter=50, lower=lower)
+            gn = gauss_newton(lambda p: _residual(params, prep, p, w), lambda p: _jacobian(params, prep, p, w), x,
+                              max_iter=50, lower=np.array([0.0 if p.key in NON_NEGATIVE else -np.inf for p in params]))
             x, success, message = gn.p, gn.converged, gn.message
         elif k > 0 or len(params) < n_all:   # no tool error: (K1, K1*Kj) reparametrise a linear model
             x = _linear_start(params, prep, w)
@@ -655,8 +615,7 @@ def _finish(params: list[Parameter], prep: list[_Run], x: np.ndarray, w: np.ndar
     dof = rw.size - len(params)
     s2 = float(rw @ rw / dof)
     sol = lstsq_svd(Jw, np.zeros(rw.size))
-    cells = np.concatenate([r.cell + i * (1 + int(r.cell.max())) for i, r in enumerate(prep)]) \
-        if len(prep) > 1 else prep[0].cell
+    cells = np.concatenate([i + len(prep) * r.cell for i, r in enumerate(prep)])      # unique across runs
     lof = replace(pure_error_lack_of_fit(rw, cells, len(params)), factor=float(np.sqrt(s2)),
                   note="covariance scaled by the residual variance (paper 002's least squares)")
     result = FitResult(ParameterSet(replace(p, value=float(v)) for p, v in zip(params, x)), x, sol.cov,
@@ -668,8 +627,7 @@ def _finish(params: list[Parameter], prep: list[_Run], x: np.ndarray, w: np.ndar
         sigma=float(np.sqrt(s2) / np.exp(np.mean(np.log(w)))),
         residual_rms={r.label: float(np.sqrt(np.mean(e ** 2))) for r, e in zip(prep, raw)},
         diagnostics=design_diagnostics(Jw, [p.name for p in params], options["alias_rtol"]), dropped=dropped,
-        tool_errors={p.name: float(v) for p, v in zip(params, x) if p.group == "tool"}, options=options,
-        attitudes={r.label: r.attitude for r in prep},
+        options=options, attitudes={r.label: r.attitude for r in prep},
         rows={r.label: (int(a), int(b)) for r, a, b in zip(prep, n[:-1], n[1:])},
         mounts={r.label: f"{r.meta['mount_plane']}@{float(r.meta['mount_angle_deg']):g} {r.meta['vertical_axis']}"
                 for r in prep})
@@ -764,17 +722,14 @@ def compare_compensation(runs: Sequence | None, tool_errors: Mapping[str, str] |
     f1 = uncompensated or identify_sine_campaign(None, tool_errors={}, prepared=prep, **kw)
     f2 = identify_sine_campaign(None, tool_errors=tool_errors, prepared=prep, **kw)
     coef = [n for n in f1.names if n in f2.values]
-    cmp = {
-        "uncompensated": _summary(f1),
-        "compensated": _summary(f2),
+    return f1, f2, {
+        "uncompensated": _summary(f1), "compensated": _summary(f2),
         "shift": {n: f2.values[n] - f1.values[n] for n in coef},
         "shift_in_sigma": {n: (f2.values[n] - f1.values[n]) / f2.std[n] if f2.std[n] > 0 else None for n in coef},
-        "tool_errors": {n: {"value": f2.values[n], "std": f2.std[n], "unit": f2.units[n]} for n in f2.tool_errors},
+        "tool_errors": {n: v for n, v in _summary(f2).items() if n in f2.tool_errors},
         "dropped_as_unidentifiable": f2.dropped,
         "residual_rms": {"uncompensated": f1.residual_rms, "compensated": f2.residual_rms},
-        "f_test_tool_errors": _f_test(f1, f2),
-    }
-    return f1, f2, cmp
+        "f_test_tool_errors": _f_test(f1, f2)}
 
 
 def rate_source_comparison(runs: Sequence, **kw) -> dict[str, Any]:
@@ -840,10 +795,9 @@ def process_sine_campaign(runs: Sequence, rig_id: str = "", *, tool_errors: Mapp
     """
     prep = prepare_runs(runs, rate_source, rate_derivative)
     out_unit = str(prep[0].meta.get("output_unit", ""))
-    flags: list[str] = []
     atts = sorted({r.attitude for r in prep})
-    if not set(ATTITUDES) <= set(atts):
-        flags.append(f"attitudes present {atts}: paper 002 needs a, b and c for every term")
+    missing = sorted(set(ATTITUDES) - set(atts))
+    flags = [f"attitudes present {atts}: paper 002 needs a, b and c for every term"] if missing else []
     # third-order terms the data support
     base = identify_sine_campaign(None, tool_errors={}, prepared=prep)
     third = identify_sine_campaign(None, tool_errors={}, extra_terms=EXTRA_TERMS, prepared=prep)
@@ -857,7 +811,7 @@ def process_sine_campaign(runs: Sequence, rig_id: str = "", *, tool_errors: Mapp
     # identify-then-compensate
     f1, fit, cmp = compare_compensation(None, tool_errors, prepared=prep, extra_terms=keep,
                                         uncompensated=None if keep else base)
-    if not fit.success:
+    if not fit.result.converged:
         flags.append(f"compensated fit did not converge: {fit.result.message}")
     per_run = identify_sine_campaign(None, tool_errors={}, per_run_bias=True, extra_terms=keep, prepared=prep)
     bias_test = _f_test(f1, per_run)          # on the nominal-input model (cheap; tool errors ~ K1/K0)
@@ -867,7 +821,6 @@ def process_sine_campaign(runs: Sequence, rig_id: str = "", *, tool_errors: Mapp
         flags.append("K0 differs between attitudes (p < 0.01): shared-bias fit questionable")
     if fit.diagnostics["rank"] < fit.diagnostics["n_params"]:
         flags.append(f"joint design rank {fit.diagnostics['rank']} < {fit.diagnostics['n_params']} parameters")
-    missing = sorted(set(ATTITUDES) - set(atts))
     if missing:
         # paper 002's method is the joint least squares of the three attitudes; with one of
         # them missing its coefficients alias in ways its normal equations do not show
@@ -878,57 +831,31 @@ def process_sine_campaign(runs: Sequence, rig_id: str = "", *, tool_errors: Mapp
         rig_id=rig_id, dof=float(fit.dof),
         note="paper 002 joint 3-attitude LS, tool errors identified and compensated; "
              "residual-scaled covariance") for n in ([] if missing else fit.names) if n not in fit.tool_errors]
-    lof = fit.result.lof
-    extras = {
-        "method": METHOD,
-        "aliasing": aliasing_report(fit),
-        "aliasing_coefficients_only": aliasing_report(f1),
-        "tool_errors": cmp["tool_errors"],
-        "compensation": cmp,
-        "residual_rms": fit.residual_rms,
-        "sigma": fit.sigma,
-        "dof": fit.dof,
-        "diagnostics": fit.diagnostics,
-        "lack_of_fit": {"status": lof.status, "F": lof.statistic, "df1": lof.dof_lof, "df2": lof.dof_pe,
-                        "p_value": lof.p_value},
-        "per_run_bias": bias_test,
-        "third_order": third_info,
-        "attitudes": fit.attitudes,
-        "options": {**fit.options, "tool_errors": dict(fit.options["tool_errors"])},
-        "flags": flags,
-    }
+    extras = {"method": METHOD, "aliasing": aliasing_report(fit), "aliasing_coefficients_only": aliasing_report(f1),
+              "tool_errors": cmp["tool_errors"], "compensation": cmp, "residual_rms": fit.residual_rms,
+              "sigma": fit.sigma, "dof": fit.dof, "diagnostics": fit.diagnostics, "per_run_bias": bias_test,
+              "third_order": third_info, "attitudes": fit.attitudes, "options": fit.options, "flags": flags}
     if compare_rate_sources:
         extras["rate_sources"] = rate_source_comparison(runs)
+    lof = fit.result.lof
+    extras["lack_of_fit"] = {"status": lof.status, "F": lof.statistic, "df1": lof.dof_lof, "df2": lof.dof_pe,
+                             "p_value": lof.p_value}
     return results, _jsonable(extras)
 
 
 def _jsonable(o):
-    if isinstance(o, dict):
-        return {str(k): _jsonable(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_jsonable(v) for v in o]
-    if isinstance(o, np.ndarray):
-        return [_jsonable(v) for v in o.tolist()]
-    if isinstance(o, (np.floating, float)):
-        v = float(o)
-        return v if np.isfinite(v) else None
-    if isinstance(o, (np.integer,)):
-        return int(o)
-    if isinstance(o, (np.bool_,)):
-        return bool(o)
-    return o
+    """A JSON-able copy: numpy values as Python ones, non-finite floats as None."""
+    return json.loads(json.dumps(o, default=lambda v: v.tolist()), parse_constant=lambda _: None)
 
 
 def budget_terms(coefficients: Sequence[CoefficientResult]) -> list[BudgetTerm]:
     """GUM budget lines of paper 002's coefficients: one type-A line each, the joint
     three-attitude least squares with its residual-scaled covariance s^2 (J^T W J)^+ (the tool
     errors identified and compensated, so they leave no type-B term of their own)."""
-    out = []
-    for c in coefficients:
-        terms = [("joint 3-attitude LS (paper 002), residual-scaled s^2 (J'WJ)^-1", c.value, c.std_uncertainty,
-                  1.0, "A", "normal")]
-        out += unc.linear_budget(c.name, terms, method=c.method, rig_id=c.rig_id, value=c.value).terms
-    return out
+    term = "joint 3-attitude LS (paper 002), residual-scaled s^2 (J'WJ)^-1"
+    return [b for c in coefficients for b in unc.linear_budget(
+        c.name, [(term, c.value, c.std_uncertainty, 1.0, "A", "normal")], method=c.method, rig_id=c.rig_id,
+        value=c.value).terms]
 
 
 # ----------------------------------------------------------------------------- the campaign's sine step
@@ -937,16 +864,12 @@ def campaign_records(runs: Sequence, steps: Mapping[str, Any]) -> list:
     """Paper 002 on the sinusoidal-centrifuge runs of each rig of a campaign
     (:func:`process_sine_campaign`), with the budgets; a rig that fails is a flag, and so is
     a rig whose attitudes leave paper 002 without values."""
-    from collections import defaultdict
-
     from .records import Records
-    by_rig = defaultdict(list)
-    for r in runs:
-        by_rig[str(r.meta.get("rig_id", ""))].append(r)
     out = []
-    for rig, rr in by_rig.items():
+    for rig in dict.fromkeys(str(r.meta.get("rig_id", "")) for r in runs):
         try:
-            coeffs, extras = process_sine_campaign([(r.meta, r.data) for r in rr], rig)
+            coeffs, extras = process_sine_campaign([(r.meta, r.data) for r in runs
+                                                    if str(r.meta.get("rig_id", "")) == rig], rig)
         except Exception as exc:
             out.append(Records(flags=[f"sine_centrifuge {rig}: {type(exc).__name__}: {exc}"]))
             continue
