@@ -216,11 +216,12 @@ def test_monte_carlo_stated_uncertainty_matches_spread():
 def _pure_error_F(fit, runs):
     """F of the fit's weighted residuals: between the drive's phases (one cell per sample of the
     1-Hz period at 50 Hz, per run) against within them, derived here independently."""
-    z, between, within, cells = fit.result.z, 0.0, 0.0, 0
-    for (meta, data), (a, b) in zip(runs, fit.rows.values()):
+    z, between, within, cells, a = fit.result.z, 0.0, 0.0, 0, 0
+    for meta, data in runs:
         phase = np.rint(np.asarray(data["time_s"]) * 50.0).astype(int) % 50
+        zr, a = z[a:a + phase.size], a + phase.size
         for k in range(50):
-            zk = z[a:b][phase == k]
+            zk = zr[phase == k]
             between += zk.size * zk.mean() ** 2
             within += np.sum((zk - zk.mean()) ** 2)
             cells += 1

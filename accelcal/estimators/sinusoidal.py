@@ -54,7 +54,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -241,8 +241,7 @@ def model_output(run: _Run, coeffs: Mapping, extra: Mapping, eff: Mapping) -> np
     kw = _kw(run, eff)
     E = rigs.rig_output(TEST, run.meta, run.data, coeffs, eff, **kw)
     if any(extra.values()):
-        F = rigs.specific_force(TEST, run.meta, run.data, eff, **kw)
-        x = float(coeffs.get("K1", 1.0)) * _extra_accel(extra, F)
+        x = float(coeffs.get("K1", 1.0)) * _extra_accel(extra, rigs.specific_force(TEST, run.meta, run.data, eff, **kw))
         E = E + instrument.first_order_lag(x, run.t, float(eff.get("sensor_lag", 0.0)))
     return E
 
@@ -280,13 +279,10 @@ def _jacobian_run(params: list[Parameter], x: np.ndarray, run: _Run, i: int,
         elif p.group == "extra":
             J[:, j] = float(coeffs.get("K1", 1.0)) * _extra_accel({p.key: 1.0}, F)
         else:
-            h = 1e-2 * p.scale
-            lo = p.key == "sensor_lag" and x[j] < h           # one-sided at the tau >= 0 bound
-            xp, xm = x.copy(), x.copy()
-            xp[j] += h
-            xm[j] -= 0.0 if lo else h
-            J[:, j] = (model_output(run, *_run_values(params, xp, i))
-                       - model_output(run, *_run_values(params, xm, i))) / (h if lo else 2 * h)
+            h = np.eye(len(x))[j] * (1e-2 * p.scale)
+            lo = p.key == "sensor_lag" and x[j] < h[j]           # one-sided at the tau >= 0 bound
+            J[:, j] = (model_output(run, *_run_values(params, x + h, i))
+                       - model_output(run, *_run_values(params, x - h * (not lo), i))) / (h[j] * (1 if lo else 2))
             continue
         lin.append(j)
     tau = float(eff.get("sensor_lag", 0.0))
@@ -396,8 +392,8 @@ class SineFit:
         Optional parameters held as unidentifiable, with the reason.
     options : dict
         The configuration of the fit.
-    attitudes, mounts, rows : dict
-        Per run label: attitude 'a' | 'b' | 'c', mount description, rows of the design.
+    runs : list
+        The prepared runs (:func:`prepare_runs`), in the order of the design's rows.
     """
     result: FitResult
     units: dict[str, str]
@@ -406,9 +402,12 @@ class SineFit:
     diagnostics: dict[str, Any]
     dropped: dict[str, str]
     options: dict[str, Any]
-    attitudes: dict[str, str]
-    rows: dict[str, tuple[int, int]] = field(default_factory=dict)
-    mounts: dict[str, str] = field(default_factory=dict)
+    runs: list[_Run]
+
+    @property
+    def attitudes(self) -> dict[str, str]:
+        """Attitude 'a' | 'b' | 'c' by run label."""
+        return {r.label: r.attitude for r in self.runs}
 
     @property
     def names(self) -> list[str]:
@@ -596,11 +595,11 @@ def identify_sine_campaign(runs: Sequence | None, *, tool_errors: Mapping[str, s
             sig = np.array([np.sqrt(np.mean(e ** 2)) for e in _split(_residual(params, prep, x, ones), prep)])
             w = 1.0 / np.where(sig > 0, sig, 1.0)
             w = w / np.exp(np.mean(np.log(w)))      # geometric-mean-one weights
-    return _finish(params, prep, x, w, dropped, success, message,
-                   options={"tool_errors": tool_errors, "per_run_bias": per_run_bias,
-                            "extra_terms": list(extra_terms), "rate_source": rate_source,
-                            "rate_derivative": rate_derivative or ("fitted" if rate_source == "fitted" else "drive"),
-                            "n_harmonics": n_harmonics, "reweight": reweight, "alias_rtol": alias_rtol})
+    derivative = rate_derivative or ("fitted" if rate_source == "fitted" else "drive")
+    options = {"tool_errors": tool_errors, "per_run_bias": per_run_bias, "extra_terms": list(extra_terms),
+               "rate_source": rate_source, "rate_derivative": derivative, "n_harmonics": n_harmonics,
+               "reweight": reweight, "alias_rtol": alias_rtol}
+    return _finish(params, prep, x, w, dropped, success, message, options)
 
 
 def _finish(params: list[Parameter], prep: list[_Run], x: np.ndarray, w: np.ndarray, dropped: dict[str, str],
@@ -611,7 +610,6 @@ def _finish(params: list[Parameter], prep: list[_Run], x: np.ndarray, w: np.ndar
     Jw = _jacobian(params, prep, x, w)
     raw = _split(_residual(params, prep, x, np.ones(len(prep))), prep)
     rw = np.concatenate([wi * e for wi, e in zip(w, raw)])
-    n = np.cumsum([0] + [r.y.size for r in prep])
     dof = rw.size - len(params)
     s2 = float(rw @ rw / dof)
     sol = lstsq_svd(Jw, np.zeros(rw.size))
@@ -627,10 +625,7 @@ def _finish(params: list[Parameter], prep: list[_Run], x: np.ndarray, w: np.ndar
         sigma=float(np.sqrt(s2) / np.exp(np.mean(np.log(w)))),
         residual_rms={r.label: float(np.sqrt(np.mean(e ** 2))) for r, e in zip(prep, raw)},
         diagnostics=design_diagnostics(Jw, [p.name for p in params], options["alias_rtol"]), dropped=dropped,
-        options=options, attitudes={r.label: r.attitude for r in prep},
-        rows={r.label: (int(a), int(b)) for r, a, b in zip(prep, n[:-1], n[1:])},
-        mounts={r.label: f"{r.meta['mount_plane']}@{float(r.meta['mount_angle_deg']):g} {r.meta['vertical_axis']}"
-                for r in prep})
+        options=options, runs=prep)
 
 
 # --------------------------------------------------------------------------- aliasing, comparisons
@@ -647,13 +642,13 @@ def aliasing_report(fit: SineFit, rtol: float = ALIAS_RTOL) -> list[dict[str, An
     sign and Koq separates from K2.
     """
     out = []
-    for label, (a, b) in fit.rows.items():
-        Jr = fit.result.J[a:b]
+    for r, Jr in zip(fit.runs, np.split(fit.result.J, np.cumsum([q.y.size for q in fit.runs])[:-1])):
         act = [j for j in range(Jr.shape[1]) if np.any(Jr[:, j] != 0.0)]
         names = [fit.names[j] for j in act]
         d = design_diagnostics(Jr[:, act], names, rtol)
         grouped = {n for g in d["aliased_groups"] for n in g}
-        d.update({"run": label, "attitude": fit.attitudes[label], "mount": fit.mounts.get(label, ""),
+        mount = f"{r.meta['mount_plane']}@{float(r.meta['mount_angle_deg']):g} {r.meta['vertical_axis']}"
+        d.update({"run": r.label, "attitude": r.attitude, "mount": mount,
                   "parameters": names, "separable": [n for n in names if n not in grouped],
                   "not_excited": [fit.names[j] for j in range(Jr.shape[1]) if j not in act]})
         out.append(d)
@@ -902,9 +897,9 @@ def residual_figures(extras: Mapping[str, Any]) -> list[ResidualFigure]:
     list of ResidualFigure
         One ``'bars'`` figure, or none.
     """
-    rigs = [(rig, s) for rig, s in (extras.get("sine") or {}).items()
-            if isinstance(s, dict) and isinstance(s.get("residual_rms"), dict) and s.get("sigma")]
-    bars = [(f"{rig} {run}", rms / s["sigma"]) for rig, s in rigs for run, rms in sorted(s["residual_rms"].items())]
+    bars = [(f"{rig} {run}", rms / s["sigma"]) for rig, s in (extras.get("sine") or {}).items()
+            if isinstance(s, dict) and isinstance(s.get("residual_rms"), dict) and s.get("sigma")
+            for run, rms in sorted(s["residual_rms"].items())]
     if not bars:
         return []
     return [ResidualFigure("bars", "Residual rms of the joint sine fit per run, relative to its pooled σ "
@@ -930,19 +925,13 @@ def fit_checks(extras: Mapping[str, Any]) -> list[FitCheck]:
     list of FitCheck
     """
     f = display_number
-    out = []
-    for rig, s in (extras.get("sine") or {}).items():
-        s = s or {}
-        tests = [("tool-error terms (joint F test)", (s.get("compensation") or {}).get("f_test_tool_errors")),
-                 ("third-order terms Kppp, Kooo (F test)", (s.get("third_order") or {}).get("f_test")),
-                 ("per-run bias (F test)", s.get("per_run_bias"))]
-        for label, t in tests:
-            if not isinstance(t, dict) or t.get("p_value") is None:
-                continue
-            out.append(FitCheck("sine", rig, label, f"F = {f(t.get('F'), '.3g')}",
-                                f"{f(t.get('df1'))} / {f(t.get('df2'))}", t.get("p_value"),
-                                yes="not needed (model adequate without)", no="significant: model needs them"))
-    return out
+    tests = [(rig, label, t) for rig, s in (extras.get("sine") or {}).items() for label, t in (
+        ("tool-error terms (joint F test)", ((s or {}).get("compensation") or {}).get("f_test_tool_errors")),
+        ("third-order terms Kppp, Kooo (F test)", ((s or {}).get("third_order") or {}).get("f_test")),
+        ("per-run bias (F test)", (s or {}).get("per_run_bias")))]
+    return [FitCheck("sine", rig, label, f"F = {f(t.get('F'), '.3g')}", f"{f(t.get('df1'))} / {f(t.get('df2'))}",
+                     t.get("p_value"), yes="not needed (model adequate without)", no="significant: model needs them")
+            for rig, label, t in tests if isinstance(t, dict) and t.get("p_value") is not None]
 
 
 ESTIMATOR = register(Estimator(
