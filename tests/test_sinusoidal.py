@@ -252,3 +252,11 @@ def test_lack_of_fit_detects_an_unmodelled_tool_error():
     full = S.identify_sine_campaign(runs, reweight=False, tool_errors={k: "shared" for k in effects})
     assert full.result.lof.status == "adequate"
     assert full.result.lof.statistic == pytest.approx(_pure_error_F(full, runs)[0], rel=1e-9)
+
+
+def test_certificate_lists_the_lack_of_fit(processed):
+    _, ex = processed
+    checks = S.fit_checks({"sine": {"DC-1": ex}})
+    lof = [c for c in checks if c.check.startswith("lack of fit")]
+    assert len(lof) == 1 and lof[0].p == ex["lack_of_fit"]["p_value"] and lof[0].yes == "adequate"
+    assert lof[0].dof == "135 / 2850"

@@ -116,14 +116,12 @@ def _attitude(meta: Mapping) -> str:
     :attr:`~accelcal.physics.geometry.CentrifugeMount.radial_axis`: IA, OA, PA), else the
     mount description."""
     g = geometry_of(meta)
-    radial = g.radial_axis
-    return {0: "a", 2: "b", 1: "c"}[radial[0]] if radial is not None else f"{g.plane}@{g.phi_deg:g}"
+    return {0: "a", 2: "b", 1: "c"}[g.radial_axis[0]] if g.radial_axis is not None else f"{g.plane}@{g.phi_deg:g}"
 
 
 def _five_point(t: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Numerical derivative of the logged rate [rad/s2]: 5-point (4th-order) stencils,
     central inside and one-sided at the two first and last samples (uniform sampling)."""
-    w = np.asarray(w, float)
     h = float(np.median(np.diff(t)))
     if w.size < 5:
         return np.gradient(w, t)
@@ -818,7 +816,7 @@ def process_sine_campaign(runs: Sequence, rig_id: str = "", *, tool_errors: Mapp
         flags.append(f"joint design rank {fit.diagnostics['rank']} < {fit.diagnostics['n_params']} parameters")
     if missing:
         # paper 002's method is the joint least squares of the three attitudes; with one of
-        # them missing its coefficients alias in ways its normal equations do not show
+        # them missing its coefficients alias in ways its own design does not show
         # (K2 with Koq where a_I >= 0, Kp with Ko): no value of it is reported
         flags.append(_no_values_flag(missing))
     results = [CoefficientResult(
@@ -911,9 +909,10 @@ def residual_figures(extras: Mapping[str, Any]) -> list[ResidualFigure]:
 
 
 def fit_checks(extras: Mapping[str, Any]) -> list[FitCheck]:
-    """The certificate's fit statistics of a stored sine result: per rig the F tests of
-    the tool-error terms, the third-order terms Kppp, Kooo and the per-run bias (paper 002
-    §3; a term passes when it is not needed).
+    """The certificate's fit statistics of a stored sine result: per rig the lack-of-fit test
+    of the compensated fit (passes when adequate) and the F tests of the tool-error terms,
+    the third-order terms Kppp, Kooo and the per-run bias (paper 002 §3; a term passes when
+    it is not needed).
 
     Parameters
     ----------
@@ -925,13 +924,16 @@ def fit_checks(extras: Mapping[str, Any]) -> list[FitCheck]:
     list of FitCheck
     """
     f = display_number
-    tests = [(rig, label, t) for rig, s in (extras.get("sine") or {}).items() for label, t in (
-        ("tool-error terms (joint F test)", ((s or {}).get("compensation") or {}).get("f_test_tool_errors")),
-        ("third-order terms Kppp, Kooo (F test)", ((s or {}).get("third_order") or {}).get("f_test")),
-        ("per-run bias (F test)", (s or {}).get("per_run_bias")))]
+    term = ("not needed (model adequate without)", "significant: model needs them")
+    tests = [(rig, label, t, words) for rig, s in (extras.get("sine") or {}).items() for label, t, words in (
+        ("lack of fit (F test against the pure error of the drive's phases)", (s or {}).get("lack_of_fit"),
+         ("adequate", "the model misses the data")),
+        ("tool-error terms (joint F test)", ((s or {}).get("compensation") or {}).get("f_test_tool_errors"), term),
+        ("third-order terms Kppp, Kooo (F test)", ((s or {}).get("third_order") or {}).get("f_test"), term),
+        ("per-run bias (F test)", (s or {}).get("per_run_bias"), term))]
     return [FitCheck("sine", rig, label, f"F = {f(t.get('F'), '.3g')}", f"{f(t.get('df1'))} / {f(t.get('df2'))}",
-                     t.get("p_value"), yes="not needed (model adequate without)", no="significant: model needs them")
-            for rig, label, t in tests if isinstance(t, dict) and t.get("p_value") is not None]
+                     t.get("p_value"), yes=words[0], no=words[1])
+            for rig, label, t, words in tests if isinstance(t, dict) and t.get("p_value") is not None]
 
 
 ESTIMATOR = register(Estimator(
