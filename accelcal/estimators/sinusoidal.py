@@ -331,8 +331,7 @@ def design_diagnostics(J: np.ndarray, names: Sequence[str], rtol: float = ALIAS_
     S, zero = sol.singular_values, np.flatnonzero(sol.column_norm <= 0)      # a zero column: a zero value
     rel = np.r_[S / S[0] if S.size and S[0] > 0 else S, np.zeros(zero.size)]
     null = np.vstack([sol.null_space.T.reshape(-1, J.shape[1]), np.eye(J.shape[1])[zero]])
-    p = rel / rel.sum() if rel.sum() > 0 else rel
-    p = p[p > 0]
+    p = rel[rel > 0] / rel.sum()
     return {"n_params": len(names), "rank": int(sol.rank),
             "condition_number": float(rel[0] / rel[-1]) if rel[-1] > RCOND else float("inf"),
             "effective_rank_roy_vetterli": float(np.exp(-np.sum(p * np.log(p)))),
@@ -576,7 +575,6 @@ def identify_sine_campaign(runs: Sequence | None, *, tool_errors: Mapping[str, s
     x0 = _linear_start(params, prep, ones)
     params = [replace(p, scale=abs(x0[j])) if p.key == "K1" else p for j, p in enumerate(params)]
     x0 = _lag_start(params, prep, x0)
-    n_all = len(params)
     dropped, x0 = _select(params, prep, x0, alias_rtol)
     nonlinear = any(p.group == "tool" for p in params)
     w, x = ones, x0
@@ -587,7 +585,7 @@ def identify_sine_campaign(runs: Sequence | None, *, tool_errors: Mapping[str, s
             gn = gauss_newton(lambda p: _residual(params, prep, p, w), lambda p: _jacobian(params, prep, p, w), x,
                               max_iter=50, lower=np.array([0.0 if p.key in NON_NEGATIVE else -np.inf for p in params]))
             x, success, message = gn.p, gn.converged, gn.message
-        elif k > 0 or len(params) < n_all:   # no tool error: (K1, K1*Kj) reparametrise a linear model
+        elif k > 0 or dropped:   # no tool error: (K1, K1*Kj) reparametrise a linear model
             x = _linear_start(params, prep, w)
         if rw_runs:           # the weights of the next pass, and of the covariance after the last
             sig = np.array([np.sqrt(np.mean(e ** 2)) for e in _split(_residual(params, prep, x, ones), prep)])
