@@ -209,3 +209,54 @@ def test_monte_carlo_stated_uncertainty_matches_spread():
     ratio = np.mean(unc) / spread
     assert 0.7 < ratio < 1.4, (ratio, spread, np.mean(unc))
     assert abs(np.mean(est) - COEFFS["K2"]) < 4 * spread / np.sqrt(len(est))
+
+
+# ----------------------------------------------------------------- lack of fit (pure error of the drive's phases)
+
+def _pure_error_F(fit, runs):
+    """F of the fit's weighted residuals: between the drive's phases (one cell per sample of the
+    1-Hz period at 50 Hz, per run) against within them, derived here independently."""
+    z, between, within, cells, a = fit.result.z, 0.0, 0.0, 0, 0
+    for meta, data in runs:
+        phase = np.rint(np.asarray(data["time_s"]) * 50.0).astype(int) % 50
+        zr, a = z[a:a + phase.size], a + phase.size
+        for k in range(50):
+            zk = zr[phase == k]
+            between += zk.size * zk.mean() ** 2
+            within += np.sum((zk - zk.mean()) ** 2)
+            cells += 1
+    n, p = z.size, len(fit.names)
+    return (between / (cells - p)) / (within / (n - cells)), cells - p, n - cells
+
+
+def test_sample_lack_of_fit_is_a_pure_error_test(processed):
+    _, ex = processed
+    lof = ex["lack_of_fit"]
+    assert (lof["df1"], lof["df2"]) == (3 * 50 - 15, 3 * (1000 - 50))    # 15 parameters, 50 phases a run
+    # the sample is made by the model paper 002 fits: no lack of fit
+    assert lof["status"] == "adequate" and lof["p_value"] > 0.01
+
+
+def test_lack_of_fit_detects_an_unmodelled_tool_error():
+    """Tool errors left out of the model show as a lack of fit between the drive's phases;
+    with them identified the fit is adequate.  The F statistic is checked against an
+    independent derivation."""
+    rng = np.random.default_rng(5)
+    effects = {"spindle_tilt": 3e-4, "mass_centre_offset": 2e-3, "rate_scale_error": 2e-4}
+    runs = _campaign(COEFFS, effects, 2e-6, rng)
+    nominal = S.identify_sine_campaign(runs, reweight=False)
+    F, df1, df2 = _pure_error_F(nominal, runs)
+    lof = nominal.result.lof
+    assert lof.status == "inadequate" and lof.p_value < 1e-6
+    assert (lof.dof_lof, lof.dof_pe) == (df1, df2) and lof.statistic == pytest.approx(F, rel=1e-9)
+    full = S.identify_sine_campaign(runs, reweight=False, tool_errors={k: "shared" for k in effects})
+    assert full.result.lof.status == "adequate"
+    assert full.result.lof.statistic == pytest.approx(_pure_error_F(full, runs)[0], rel=1e-9)
+
+
+def test_certificate_lists_the_lack_of_fit(processed):
+    _, ex = processed
+    checks = S.fit_checks({"sine": {"DC-1": ex}})
+    lof = [c for c in checks if c.check.startswith("lack of fit")]
+    assert len(lof) == 1 and lof[0].p == ex["lack_of_fit"]["p_value"] and lof[0].yes == "adequate"
+    assert lof[0].dof == "135 / 2850"

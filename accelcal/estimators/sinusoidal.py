@@ -14,67 +14,57 @@ Each attitude alone leaves some coefficient combinations aliased (e.g. in (a)
 a_I ≥ 0, so K2·a_I² and Koq·a_I·|a_I| are the same regressor); together they
 identify every second-order term, K3 and some rig ("tool") errors.
 
-What this module does (all SI, effects.md names and units):
+Paper 002 is a configuration of the one fit (all SI, effects.md names and units):
 
-* The input is *the* forward model (:mod:`accelcal.physics.rigs`):
-  :func:`~accelcal.physics.rigs.rig_output` with the drop format's NOMINAL
-  effects (earth rate) plus the tool errors being identified.  Nothing of the
-  rig kinematics is re-implemented here.  The coefficients enter linearly, so
-  their Jacobian columns are evaluated exactly through
-  :func:`~accelcal.physics.instrument.output_derivative`; tool-error
-  columns are central differences of the forward model (both tested against
-  central differences of ``rig_output`` in tests/test_design_columns.py).
-* The fit is a joint nonlinear least squares (the fitting core's
-  :func:`~accelcal.fitting.core.gauss_newton`, linear solves by
-  :func:`~accelcal.fitting.core.lstsq_svd`) over the three attitudes, with K1 shared (one instrument; in attitude (c) IA
-  only sees +g, so a per-run K1 there is inseparable from its K0) and K0 shared
-  by default (a repeatable bias makes K1 absolute through gravity: the
-  constant of (c) minus that of (a) is K1·g; this is also what separates
-  ``mass_centre_offset`` from ``rate_scale_error``).  ``per_run_bias=True``
-  frees K0 per run; an F test of the two is returned.
-* Covariance: s²·(JᵀJ)⁺ with s² the residual variance (residual-scaled);
-  rank, condition number and Roy–Vetterli effective rank of the column-scaled
-  Jacobian are reported, and optional parameters (tool errors, KPPP, KOOO)
-  whose column is (numerically) inside the span of the others are dropped and
-  named as unidentifiable.
-* :func:`aliasing_report` analyses each attitude's columns alone (SVD of the
-  column-scaled Jacobian, projector onto its near-null space) and returns the
-  groups of parameters that only enter as combinations.
-* :func:`compare_compensation` is paper 002's identify-then-compensate
-  comparison: coefficients fitted with the nominal input versus with the tool
-  errors identified and compensated.
+* Model: the forward model of :mod:`accelcal.physics.rigs`
+  (:func:`~accelcal.physics.rigs.rig_output` with the drop format's NOMINAL effects,
+  earth rate, plus the tool errors being identified) and paper 002's KPPP·a_P³ +
+  KOOO·a_O³.  Coefficient columns of the Jacobian are exact
+  (:func:`~accelcal.physics.instrument.output_derivative`); tool-error columns are
+  central differences of the forward model (tests/test_design_columns.py).
+* Parameters: the core's :class:`~accelcal.fitting.core.ParameterSet`; K1 shared (in
+  attitude (c) IA only sees +g, so a per-run K1 there is inseparable from its K0) and K0
+  shared by default (a repeatable bias makes K1 absolute through gravity; this is also
+  what separates ``mass_centre_offset`` from ``rate_scale_error``); ``per_run_bias=True``
+  frees K0 per run, and an F test compares the two.
+* Fit: the core's solves (:func:`~accelcal.fitting.core.lstsq_svd` for the linear
+  start and the covariance, :func:`~accelcal.fitting.core.gauss_newton` when tool errors
+  are fitted), with paper 002's reweighting: one weight per run from its residual RMS
+  (a second pass, weights of geometric mean one).
+* Reporting: the residual-scaled covariance s²·(JᵀWJ)⁺ of paper 002's least squares;
+  rank, condition number and Roy–Vetterli effective rank of the column-scaled design;
+  optional parameters (tool errors, KPPP, KOOO) aliased in the joint design or weakly
+  determined are held at zero and named.  The lack of fit is tested against the pure
+  error of the drive's phases (:func:`~accelcal.fitting.core.pure_error_lack_of_fit`).
+* :func:`aliasing_report` analyses each attitude's columns alone;
+  :func:`compare_compensation` is paper 002's identify-then-compensate comparison.
 
-Rate source (checked on the 2026-11-19 sample, see the report in
-``rate_source_comparison``).  The logged ``table_rate_rad_s`` is the drive
-Ω·sin 2πft plus white measurement noise (σ ≈ 9e-6 rad/s; amplitude equal to Ω
-within 3e-8) that is *not* in the table's motion: squaring it for the
-centripetal input puts that noise into the regressors (errors in variables;
-attitude (a) residual 2.6e-5 mA instead of 1.36e-6 mA), and differentiating it
-numerically amplifies it (5-point stencil: ≈ 6e-4 rad/s²; attitude (b)
-residual ~1e-4 mA; np.gradient also carries a 0.26 % truncation bias at 50 Hz).
-Even a harmonic fit of the logged rate leaves an amplitude error (~3e-8 of Ω)
-that is visible at this output noise.  ``rate_source`` selects:
-``'drive'`` (default; Ω·sin 2πft from ``rate_amplitude_rad_s`` and
-``rate_frequency_hz`` with the physics default analytic derivative),
-``'fitted'`` (the logged rate least-squares fitted by a constant and
-``n_harmonics`` harmonics of f, with its analytic derivative; for a rig whose
-motion departs from the command) or ``'logged'`` (raw logged rate);
-``rate_derivative`` may be forced to ``'drive'``, ``'fitted'`` or ``'numeric'``.
+Rate source.  The logged ``table_rate_rad_s`` of the 2026-11-19 sample is the drive
+Ω·sin 2πft plus white measurement noise (σ ≈ 9e-6 rad/s) that is *not* in the table's
+motion: squaring it for the centripetal input puts that noise into the regressors (errors
+in variables; attitude (a) residual 2.6e-5 mA instead of 1.36e-6 mA), and differentiating
+it numerically amplifies it (5-point stencil: ≈ 6e-4 rad/s²).  ``rate_source`` selects
+``'drive'`` (default; Ω·sin 2πft from ``rate_amplitude_rad_s`` and ``rate_frequency_hz``
+with its analytic derivative), ``'fitted'`` (the logged rate fitted by a constant and
+``n_harmonics`` harmonics of f, for a rig whose motion departs from the command) or
+``'logged'``; ``rate_derivative`` may be forced to ``'drive'``, ``'fitted'`` or
+``'numeric'`` (:func:`rate_source_comparison`).
 """
 from __future__ import annotations
 
-import math
+import json
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
-import pandas as pd
-from scipy.stats import f as f_dist
+from scipy.sparse.csgraph import connected_components
 
 from ..effects import si_unit, typical_size
-from ..fitting.core import FitResult, LackOfFit, Parameter, ParameterSet, gauss_newton, lstsq_gram
-from ..fitting.data import fitted_drive
+from ..fitting.core import (RCOND, FitResult, Parameter, ParameterSet, gauss_newton, lstsq_svd, lstsq_svd_x,
+                            pure_error_lack_of_fit)
+from ..fitting.data import fitted_drive, make_run
+from ..fitting.distributions import f_sf
 from ..physics import instrument, rigs
 from ..physics.geometry import geometry_of
 from ..results import (BudgetTerm, CoefficientResult, FitCheck, ResidualFigure, ResidualPanel, ResidualSeries,
@@ -94,9 +84,12 @@ EXTRA_TERMS = ("Kppp", "Kooo")
 #: Tool errors visible to the design (effects.md ids) and their default scope.
 DEFAULT_TOOL_ERRORS: dict[str, str] = {"spindle_tilt": "shared", "mass_centre_offset": "shared",
                                         "rate_scale_error": "shared", "sensor_lag": "shared"}
-
+#: Parameters bounded below by 0 (effects.md: a lag time constant is not negative).
+NON_NEGATIVE = ("sensor_lag",)
 #: Relative singular value below which a direction of the column-scaled design is aliased.
 ALIAS_RTOL = 1e-4
+#: The three attitudes of paper 002.
+ATTITUDES = ("a", "b", "c")
 
 
 def _unit(name: str, output_unit: str = "") -> str:
@@ -110,9 +103,10 @@ def _unit(name: str, output_unit: str = "") -> str:
 class _Run:
     meta: dict
     data: dict                  # column -> array, as the forward model reads them (rate per rate_source)
-    y: np.ndarray               # output, output_unit
-    t: np.ndarray
-    wdot: np.ndarray | None     # unsigned d(omega)/dt of the chosen source; None = physics default
+    y: np.ndarray               # output [output_unit]
+    t: np.ndarray               # time [s]
+    wdot: np.ndarray | None     # unsigned d(omega)/dt of the chosen source [rad/s2]; None = physics default
+    cell: np.ndarray            # drive phase of each reading (the run's cells, fitting.data.make_run)
     label: str
     attitude: str
 
@@ -122,25 +116,19 @@ def _attitude(meta: Mapping) -> str:
     :attr:`~accelcal.physics.geometry.CentrifugeMount.radial_axis`: IA, OA, PA), else the
     mount description."""
     g = geometry_of(meta)
-    radial = g.radial_axis
-    return {0: "a", 2: "b", 1: "c"}[radial[0]] if radial is not None else f"{g.plane}@{g.phi_deg:g}"
+    return {0: "a", 2: "b", 1: "c"}[g.radial_axis[0]] if g.radial_axis is not None else f"{g.plane}@{g.phi_deg:g}"
 
 
 def _five_point(t: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Numerical derivative of the logged rate: 5-point (4th-order) stencils, central inside
-    and one-sided at the two first and last samples (uniform sampling assumed)."""
-    w = np.asarray(w, float)
+    """Numerical derivative of the logged rate [rad/s2]: 5-point (4th-order) stencils,
+    central inside and one-sided at the two first and last samples (uniform sampling)."""
     h = float(np.median(np.diff(t)))
     if w.size < 5:
         return np.gradient(w, t)
-    d = np.empty_like(w)
-    d[2:-2] = (w[:-4] - 8 * w[1:-3] + 8 * w[3:-1] - w[4:]) / (12 * h)
-    a, b = w[:5], w[-5:][::-1]
-    d[0] = (-25 * a[0] + 48 * a[1] - 36 * a[2] + 16 * a[3] - 3 * a[4]) / (12 * h)
-    d[1] = (-3 * a[0] - 10 * a[1] + 18 * a[2] - 6 * a[3] + a[4]) / (12 * h)
-    d[-1] = -(-25 * b[0] + 48 * b[1] - 36 * b[2] + 16 * b[3] - 3 * b[4]) / (12 * h)
-    d[-2] = -(-3 * b[0] - 10 * b[1] + 18 * b[2] - 6 * b[3] + b[4]) / (12 * h)
-    return d
+    edge = [(-25, 48, -36, 16, -3), (-3, -10, 18, -6, 1)]       # one-sided stencils [1/(12 h)]
+    first = [sum(c * v for c, v in zip(e, w[:5])) for e in edge]
+    last = [-sum(c * v for c, v in zip(e, w[::-1][:5])) for e in edge]
+    return np.r_[first, w[:-4] - 8 * w[1:-3] + 8 * w[3:-1] - w[4:], last[::-1]] / (12 * h)
 
 
 def prepare_runs(runs: Sequence, rate_source: str = "drive", rate_derivative: str | None = None,
@@ -156,15 +144,15 @@ def prepare_runs(runs: Sequence, rate_source: str = "drive", rate_derivative: st
         Centripetal rate: 'drive' (Omega sin(2 pi f t)), 'fitted' (harmonic fit of the
         logged rate) or 'logged' (module doc).
     rate_derivative : str, optional
-        None (the source's own: the fit's analytic derivative, or the drive's for
-        'drive'/'logged'), 'drive', 'fitted' or 'numeric' (5-point stencil).
+        None (the source's own: the fit's analytic derivative for 'fitted', the drive's
+        otherwise), 'drive', 'fitted' or 'numeric' (5-point stencil).
     n_harmonics : int
         Harmonics of f in the fitted rate.
 
     Returns
     -------
     list
-        One prepared run each (plain arrays, attitude a/b/c).
+        One prepared run each (plain arrays, attitude a/b/c, drive-phase cells).
     """
     out = []
     for i, r in enumerate(runs):
@@ -173,81 +161,55 @@ def prepare_runs(runs: Sequence, rate_source: str = "drive", rate_derivative: st
         if str(meta.get("test", TEST)) != TEST:
             raise ValueError(f"run {meta.get('run_id', i)} is a {meta.get('test')!r} run, not {TEST}")
         meta["test"] = TEST
-        d = pd.DataFrame({k: np.asarray(data[k], float) for k in ("time_s", "table_rate_rad_s",
-                                                                  "table_angle_deg", "output")})
-        t = d["time_s"].to_numpy()
-        w = d["table_rate_rad_s"].to_numpy()
-        f = float(meta["rate_frequency_hz"])
-        fit_w, fit_d = fitted_drive(t, w, f, n_harmonics)
-        if rate_source == "fitted":
-            d["table_rate_rad_s"] = fit_w
-        elif rate_source == "drive":
-            d["table_rate_rad_s"] = rigs.sine_drive(meta, t)
-        elif rate_source != "logged":
+        cols = {k: np.asarray(data[k], float) for k in ("time_s", "table_rate_rad_s", "table_angle_deg", "output")}
+        t, w = cols["time_s"], cols["table_rate_rad_s"]
+        fit_w, fit_d = fitted_drive(t, w, float(meta["rate_frequency_hz"]), n_harmonics)
+        rates = {"fitted": fit_w, "drive": rigs.sine_drive(meta, t), "logged": w}
+        if rate_source not in rates:
             raise ValueError(f"rate_source {rate_source!r}")
+        cols["table_rate_rad_s"] = rates[rate_source]
+        wdots = {"drive": None, "fitted": fit_d, "numeric": _five_point(t, w)}
         deriv = rate_derivative or ("fitted" if rate_source == "fitted" else "drive")
-        wdot = {"drive": None, "fitted": fit_d, "numeric": None}[deriv] if deriv in ("drive", "fitted", "numeric") \
-            else None
-        if deriv == "numeric":
-            wdot = _five_point(t, w)
-        elif deriv not in ("drive", "fitted"):
+        if deriv not in wdots:
             raise ValueError(f"rate_derivative {rate_derivative!r}")
-        d["table_angle_deg"] = np.nan_to_num(d["table_angle_deg"].to_numpy())
-        # plain arrays for the forward model (a DataFrame column lookup per evaluation was a
-        # fifth of this method's time)
-        cols = {k: d[k].to_numpy() for k in d.columns}
-        out.append(_Run(meta=meta, data=cols, y=cols["output"], t=t, wdot=wdot,
-                        label=str(meta.get("run_id", f"run{i}")), attitude=_attitude(meta)))
+        cols["table_angle_deg"] = np.nan_to_num(cols["table_angle_deg"])
+        out.append(_Run(meta, cols, cols["output"], t, wdots[deriv], make_run(meta, cols, i).cid,
+                        str(meta.get("run_id", f"run{i}")), _attitude(meta)))
     return out
 
 
-# --------------------------------------------------------------------------- parameters
-
-def _param(name: str, key: str, kind: str, run: int | None, scale: float) -> Parameter:
-    """A parameter of this fit in the core's terms: ``group`` is its kind ('coef' an
-    effects.md coefficient, 'extra' paper 002's KPPP/KOOO, 'tool' an effects.md rig effect),
-    ``runs`` the one run it belongs to (None: shared by every run)."""
-    return Parameter(name, key, _unit(key), scale, None if run is None else (run,), kind)
-
-
-def _kind(p: Parameter) -> str:
-    return p.group
-
+# --------------------------------------------------------------------------- the model
 
 def _build_params(prep: list[_Run], per_run_bias: bool, extra_terms: Sequence[str],
                   tool_errors: Mapping[str, str], K1_scale: float) -> list[Parameter]:
-    ps = []
-    for c in COEFFS:
-        if c == "K0" and per_run_bias:
-            ps += [_param(f"K0[{r.label}]", "K0", "coef", i, typical_size("K0")) for i, r in enumerate(prep)]
-        else:
-            ps.append(_param(c, c, "coef", None, K1_scale if c == "K1" else typical_size(c)))
-    ps += [_param(e, e, "extra", None, typical_size(e)) for e in extra_terms]
-    for eid, scope in tool_errors.items():
-        if scope == "shared":
-            ps.append(_param(eid, eid, "tool", None, typical_size(eid)))
-        elif scope == "per_run":
-            ps += [_param(f"{eid}[{r.label}]", eid, "tool", i, typical_size(eid)) for i, r in enumerate(prep)]
-        else:
+    """The parameters of the fit in the core's terms: ``group`` is the kind ('coef' an
+    effects.md coefficient, 'extra' paper 002's KPPP/KOOO, 'tool' an effects.md rig effect),
+    ``runs`` the one run a per-run parameter belongs to (None: shared by every run), the
+    scale the catalogue's typical size (K1: ``K1_scale``)."""
+    def scoped(key: str, kind: str, scope: str) -> list[Parameter]:
+        scale = K1_scale if key == "K1" else typical_size(key)
+        if scope not in ("shared", "per_run"):
             raise ValueError(f"tool-error scope {scope!r} (use 'shared' or 'per_run')")
-    return ps
+        return [Parameter(key, key, _unit(key), scale, None, kind)] if scope == "shared" else \
+            [Parameter(f"{key}[{r.label}]", key, _unit(key), scale, (i,), kind) for i, r in enumerate(prep)]
+    return [q for c in COEFFS for q in scoped(c, "coef", "per_run" if c == "K0" and per_run_bias else "shared")] \
+        + [q for e in extra_terms for q in scoped(e, "extra", "shared")] \
+        + [q for e, scope in tool_errors.items() for q in scoped(e, "tool", scope)]
 
 
 def _run_values(params: list[Parameter], x: np.ndarray, i: int) -> tuple[dict, dict, dict]:
     """(coefficients, extra terms, effects) of run i for the parameter vector x."""
     coeffs, extra, eff = {}, {}, dict(rigs.NOMINAL)
     for p, v in zip(params, x):
-        if not p.acts_on(i):
-            continue
-        {"coef": coeffs, "extra": extra, "tool": eff}[_kind(p)][p.key] = float(v)
+        if p.acts_on(i):
+            {"coef": coeffs, "extra": extra, "tool": eff}[p.group][p.key] = float(v)
     return coeffs, extra, eff
 
 
 def _kw(run: _Run, eff: Mapping) -> dict:
-    if run.wdot is None:
-        return {}
-    eps = float(eff.get("rate_scale_error", 0.0))
-    return {"rate_derivative": rigs.rotation_sign(run.meta) * (1.0 + eps) * run.wdot}
+    """The forward model's rate derivative of a run whose source is not the drive's own [rad/s2]."""
+    return {} if run.wdot is None else \
+        {"rate_derivative": rigs.rotation_sign(run.meta) * (1.0 + float(eff.get("rate_scale_error", 0.0))) * run.wdot}
 
 
 def _extra_accel(extra: Mapping, F: np.ndarray) -> np.ndarray:
@@ -277,8 +239,7 @@ def model_output(run: _Run, coeffs: Mapping, extra: Mapping, eff: Mapping) -> np
     kw = _kw(run, eff)
     E = rigs.rig_output(TEST, run.meta, run.data, coeffs, eff, **kw)
     if any(extra.values()):
-        F = rigs.specific_force(TEST, run.meta, run.data, eff, **kw)
-        x = float(coeffs.get("K1", 1.0)) * _extra_accel(extra, F)
+        x = float(coeffs.get("K1", 1.0)) * _extra_accel(extra, rigs.specific_force(TEST, run.meta, run.data, eff, **kw))
         E = E + instrument.first_order_lag(x, run.t, float(eff.get("sensor_lag", 0.0)))
     return E
 
@@ -300,67 +261,50 @@ def _jacobian_run(params: list[Parameter], x: np.ndarray, run: _Run, i: int,
         [output_unit per parameter unit]: exact columns for the instrument coefficients
         (:func:`accelcal.physics.instrument.output_derivative`, lagged like the output),
         K1 times a_P^3, a_O^3 for paper 002's extra terms, and central differences of the
-        forward model (:func:`model_output`) for tool errors (one-sided at the tau >= 0 bound
-        of the sensor lag).
+        forward model (:func:`model_output`) with step 1e-2 of the parameter's scale for
+        tool errors (one-sided at the tau >= 0 bound of the sensor lag).
     """
     coeffs, extra, eff = _run_values(params, x, i)
-    kw = _kw(run, eff)
-    F = rigs.specific_force(TEST, run.meta, run.data, eff, **kw)
-    tau = float(eff.get("sensor_lag", 0.0))
-    K1 = float(coeffs.get("K1", 1.0))
+    F = rigs.specific_force(TEST, run.meta, run.data, eff, **_kw(run, eff))
     J = np.zeros((run.y.size, len(params)))
     lin = []
     for j in (range(len(params)) if cols is None else cols):
         p = params[j]
         if not p.acts_on(i):
             continue
-        kind = _kind(p)
-        if kind == "coef":
-            lin.append(j)
-            J[:, j] = instrument.output_derivative(p.key, coeffs, F)
-            if p.key == "K1":
-                J[:, j] += _extra_accel(extra, F)
-        elif kind == "extra":
-            lin.append(j)
-            J[:, j] = K1 * _extra_accel({p.key: 1.0}, F)
+        if p.group == "coef":
+            J[:, j] = instrument.output_derivative(p.key, coeffs, F) + (_extra_accel(extra, F) if p.key == "K1" else 0)
+        elif p.group == "extra":
+            J[:, j] = float(coeffs.get("K1", 1.0)) * _extra_accel({p.key: 1.0}, F)
         else:
-            h = 1e-2 * p.scale
-            xp, xm = x.copy(), x.copy()
-            if p.key == "sensor_lag" and x[j] < h:      # one-sided at the tau >= 0 bound
-                xp[j] = x[j] + h
-                xm[j] = x[j]
-                den = h
-            else:
-                xp[j] += h
-                xm[j] -= h
-                den = 2 * h
-            Ep = model_output(run, *_run_values(params, xp, i))
-            Em = model_output(run, *_run_values(params, xm, i))
-            J[:, j] = (Ep - Em) / den
-    if tau > 0:                # the lag is linear: lagged columns are the columns of the lagged model
-        for j in lin:
-            J[:, j] = instrument.first_order_lag(J[:, j], run.t, tau)
+            h = np.eye(len(x))[j] * (1e-2 * p.scale)
+            lo = p.key == "sensor_lag" and x[j] < h[j]           # one-sided at the tau >= 0 bound
+            J[:, j] = (model_output(run, *_run_values(params, x + h, i))
+                       - model_output(run, *_run_values(params, x - h * (not lo), i))) / (h[j] * (1 if lo else 2))
+            continue
+        lin.append(j)
+    tau = float(eff.get("sensor_lag", 0.0))
+    for j in lin if tau > 0 else ():      # the lag is linear: lagged columns of the lagged model
+        J[:, j] = instrument.first_order_lag(J[:, j], run.t, tau)
     return J
 
 
+def _residual(params: list[Parameter], prep: list[_Run], x: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Weighted residual y - E of every run [output_unit times the run weight]."""
+    return np.concatenate([w[i] * (r.y - model_output(r, *_run_values(params, x, i))) for i, r in enumerate(prep)])
+
+
+def _split(v: np.ndarray, prep: list[_Run]) -> list[np.ndarray]:
+    """A stacked per-reading vector cut into its runs."""
+    return np.split(v, np.cumsum([r.y.size for r in prep])[:-1])
+
+
+def _jacobian(params: list[Parameter], prep: list[_Run], x: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Weighted design of every run [output_unit per parameter unit times the run weight]."""
+    return np.vstack([w[i] * _jacobian_run(params, x, r, i) for i, r in enumerate(prep)])
+
+
 # --------------------------------------------------------------------------- diagnostics
-
-def _svd(J: np.ndarray, rtol: float) -> tuple[np.ndarray, np.ndarray, int]:
-    """(relative singular values, null directions (k, p), rank) of the column-scaled design at
-    the relative cut ``rtol``, through the core's SVD (:func:`accelcal.fitting.core.lstsq_svd`).
-    A column that is identically zero counts as one zero singular value with its unit
-    vector as a null direction."""
-    p = J.shape[1]
-    sol = lstsq_gram(J, None, rtol)
-    S = sol.singular_values
-    zero = np.flatnonzero(sol.column_norm <= 0)
-    rel = S / S[0] if S.size and S[0] > 0 else S
-    null = sol.null_space.T if sol.null_space.size else np.zeros((0, p))
-    if zero.size:
-        rel = np.r_[rel, np.zeros(zero.size)]
-        null = np.vstack([null, np.eye(p)[zero]])
-    return rel, null, sol.rank
-
 
 def design_diagnostics(J: np.ndarray, names: Sequence[str], rtol: float = ALIAS_RTOL) -> dict:
     """Rank / conditioning of a design (Jacobian) after scaling every column to unit norm.
@@ -371,20 +315,25 @@ def design_diagnostics(J: np.ndarray, names: Sequence[str], rtol: float = ALIAS_
         Design [output_unit per parameter unit].
     names : sequence of str
     rtol : float
-        Relative singular value below which a direction is aliased.
+        Relative singular value below which a direction is aliased [1].
 
     Returns
     -------
     dict
-        n_params, rank (relative singular value > ``rtol``), condition_number,
+        n_params, rank (relative singular value > ``rtol``, by
+        :func:`accelcal.fitting.core.lstsq_svd`; an identically zero column counts as one zero
+        singular value with its unit vector as a null direction), condition_number (inf when a
+        relative singular value is below the core's rank rule :data:`~accelcal.fitting.core.RCOND`),
         effective_rank_roy_vetterli exp(H(sigma / sum sigma)), relative_singular_values, and
         the aliased groups (:func:`_alias_groups`).
     """
-    rel, null, rank = _svd(J, rtol)
-    p = rel / rel.sum() if rel.sum() > 0 else rel
-    p = p[p > 0]
-    return {"n_params": len(names), "rank": int(rank),
-            "condition_number": float(rel[0] / rel[-1]) if rel[-1] > 0 else float("inf"),
+    sol = lstsq_svd(J, np.zeros(J.shape[0]), rtol)
+    S, zero = sol.singular_values, np.flatnonzero(sol.column_norm <= 0)      # a zero column: a zero value
+    rel = np.r_[S / S[0] if S.size and S[0] > 0 else S, np.zeros(zero.size)]
+    null = np.vstack([sol.null_space.T.reshape(-1, J.shape[1]), np.eye(J.shape[1])[zero]])
+    p = rel[rel > 0] / rel.sum()
+    return {"n_params": len(names), "rank": int(sol.rank),
+            "condition_number": float(rel[0] / rel[-1]) if rel[-1] > RCOND else float("inf"),
             "effective_rank_roy_vetterli": float(np.exp(-np.sum(p * np.log(p)))),
             "relative_singular_values": [float(v) for v in rel],
             **_alias_groups(null, rel[rel <= rtol], names)}
@@ -397,40 +346,23 @@ def _alias_groups(null: np.ndarray, rel_null: np.ndarray, names: Sequence[str]) 
     depend on the choice of null basis.  Two parameters are aliased when |P_jk| is not
     negligible; groups are the connected components.  Each null direction is also returned as
     a combination {name: weight} (weights of unit-norm scaled columns)."""
-    names = list(names)
-    out: dict[str, Any] = {"aliased_groups": [], "null_combinations": []}
-    if null.shape[0] == 0:
-        return out
     P = null.T @ null
-    involved = np.diag(P) > 1e-3
-    adj = (np.abs(P) > 1e-3) & involved[:, None] & involved[None, :]
-    seen = set()
-    for j in range(len(names)):
-        if not involved[j] or j in seen:
-            continue
-        stack, comp = [j], []
-        while stack:
-            k = stack.pop()
-            if k in seen:
-                continue
-            seen.add(k)
-            comp.append(k)
-            stack += [m for m in np.nonzero(adj[k])[0] if m not in seen]
-        out["aliased_groups"].append(sorted((names[k] for k in comp), key=names.index))
-    for v, sv in zip(null, rel_null):
-        out["null_combinations"].append({"relative_singular_value": float(sv),
-                                         "weights": {names[k]: round(float(v[k]), 4)
-                                                     for k in np.argsort(-np.abs(v)) if abs(v[k]) > 0.05}})
-    return out
+    involved = np.flatnonzero(np.diag(P) > 1e-3)
+    label = connected_components(np.abs(P[np.ix_(involved, involved)]) > 1e-3, directed=False)[1]
+    return {"aliased_groups": [[names[involved[k]] for k in np.flatnonzero(label == g)]
+                               for g in dict.fromkeys(label)],
+            "null_combinations": [{"relative_singular_value": float(sv),
+                                   "weights": {names[k]: round(float(v[k]), 4)
+                                               for k in np.argsort(-np.abs(v)) if abs(v[k]) > 0.05}}
+                                  for v, sv in zip(null, rel_null)]}
 
 
 def _collinearity(J: np.ndarray, j: int) -> float:
     """Norm of unit-scaled column j left after projecting it onto the other columns
-    (1/sqrt(VIF)); ~0 means the parameter is aliased with the others."""
+    (1/sqrt(VIF)) [1]; ~0 means the parameter is aliased with the others."""
     Js = J / np.where(np.linalg.norm(J, axis=0) > 0, np.linalg.norm(J, axis=0), 1.0)
     others = np.delete(Js, j, axis=1)
-    b = lstsq_gram(others, Js[:, j]).x
-    return float(np.linalg.norm(Js[:, j] - others @ b))
+    return float(np.linalg.norm(Js[:, j] - others @ lstsq_svd_x(others, Js[:, j])))
 
 
 # --------------------------------------------------------------------------- the fit
@@ -442,39 +374,37 @@ class SineFit:
 
     Attributes
     ----------
-    names, values, std, units : list, dict, dict, dict
-        Parameters with their values and standard uncertainties [SI, per ``units``]
-        (names, values and std read from ``result``).
-    cov : ndarray
-        Residual-scaled s^2 (J^T W J)^+ (``result.cov``).
-    sigma, dof, n_obs
-        Weighted pooled residual standard deviation [output_unit], dof and readings (the
-        last two from ``result``).
-    residual_rms, run_sigma : dict
-        Per run label [output_unit]: RMS residual and the noise used as its weight.
+    result : FitResult
+        The fitting core's result: values, residual-scaled covariance s^2 (J^T W J)^+, the
+        weighted design and residual, and the pure-error lack-of-fit test.
+    units : dict
+        Parameter name -> SI unit.
+    sigma : float
+        Weighted pooled residual standard deviation [output_unit].
+    residual_rms : dict
+        Per run label: RMS residual [output_unit].
     diagnostics : dict
         Rank, condition and aliasing of the joint design (:func:`design_diagnostics`).
     dropped : dict
-        Optional parameters dropped as unidentifiable, with the reason.
-    tool_errors : dict
-        Identified tool errors (effects.md ids) [SI].
-    result : FitResult
-        The fitting core's result.
+        Optional parameters held as unidentifiable, with the reason.
+    options : dict
+        The configuration of the fit.
+    runs : list
+        The prepared runs (:func:`prepare_runs`), in the order of the design's rows.
     """
-    #: the fitting core's result (values, residual-scaled covariance, whitened design): names,
-    #: values, std, cov, dof, n_obs and the correlation are read from it, never restated
     result: FitResult
     units: dict[str, str]
-    sigma: float                          # residual standard deviation (output_unit), weighted pooled
-    residual_rms: dict[str, float]        # per run label, output_unit
-    run_sigma: dict[str, float]           # per-run noise used as weight
-    diagnostics: dict[str, Any]           # rank / condition / aliasing of the joint design
-    dropped: dict[str, str]               # optional parameters dropped as unidentifiable -> why
-    tool_errors: dict[str, float]
+    sigma: float
+    residual_rms: dict[str, float]
+    diagnostics: dict[str, Any]
+    dropped: dict[str, str]
     options: dict[str, Any]
-    attitudes: dict[str, str]             # run label -> 'a' | 'b' | 'c'
-    rows: dict[str, tuple[int, int]] = field(default_factory=dict)   # run label -> rows of the Jacobian
-    mounts: dict[str, str] = field(default_factory=dict)             # run label -> 'IA-PA@0 +OA'
+    runs: list[_Run]
+
+    @property
+    def attitudes(self) -> dict[str, str]:
+        """Attitude 'a' | 'b' | 'c' by run label."""
+        return {r.label: r.attitude for r in self.runs}
 
     @property
     def names(self) -> list[str]:
@@ -487,93 +417,42 @@ class SineFit:
         return {n: float(v) for n, v in zip(self.result.names, self.result.values)}
 
     @property
-    def cov(self) -> np.ndarray:
-        """Residual-scaled s^2 (J^T W J)^+ in ``names`` order."""
-        return self.result.cov
-
-    @property
     def std(self) -> dict[str, float]:
-        """Standard uncertainties by name [SI]."""
-        return {n: float(v) for n, v in zip(self.result.names, np.sqrt(np.clip(np.diag(self.cov), 0.0, None)))}
+        """Standard uncertainties by name [SI], from the residual-scaled covariance."""
+        return {n: float(v) for n, v in zip(self.names, np.sqrt(np.clip(np.diag(self.result.cov), 0.0, None)))}
 
     @property
-    def correlation(self) -> np.ndarray:
-        """Correlation matrix in ``names`` order."""
-        sd = np.sqrt(np.clip(np.diag(self.cov), 0.0, None))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return self.cov / np.outer(sd, sd)
+    def tool_errors(self) -> dict[str, float]:
+        """Identified tool errors by effects.md id [SI]."""
+        return {p.name: p.value for p in self.result.params if p.group == "tool"}
 
     @property
     def dof(self) -> int:
+        """Readings minus parameters [1]."""
         return int(self.result.dof)
-
-    @property
-    def n_obs(self) -> int:
-        return int(self.result.n_obs)
-
-    @property
-    def success(self) -> bool:
-        return bool(self.result.converged)
-
-    @property
-    def message(self) -> str:
-        return self.result.message
-
-    @property
-    def _jac(self) -> np.ndarray:
-        """The whitened (run-weighted) design at the solution."""
-        return self.result.J
-
-    def value(self, name: str) -> float:
-        return self.values[name]
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-able summary."""
-        return {"values": self.values, "std": self.std, "units": self.units, "sigma": self.sigma,
-                "dof": self.dof, "n_obs": self.n_obs, "residual_rms": self.residual_rms,
-                "run_sigma": self.run_sigma, "diagnostics": self.diagnostics, "dropped": self.dropped,
-                "tool_errors": self.tool_errors, "options": self.options, "attitudes": self.attitudes,
-                "success": self.success, "message": self.message}
 
 
 def _linear_start(params: list[Parameter], prep: list[_Run], w: np.ndarray, tau: float = 0.0,
                   rss: list | None = None) -> np.ndarray:
     """Weighted LS optimum of the model with every tool error at zero (``sensor_lag`` at
-    ``tau``): E is linear in (K1, K1*Kj) (one-to-one with (K1, Kj) for K1 != 0); solved by
-    the core's scaled SVD.  The residual sum of squares is appended to ``rss`` when given."""
+    ``tau``): E is linear in (K1, K1*Kj) (one-to-one with (K1, Kj) for K1 != 0), solved by
+    :func:`accelcal.fitting.core.lstsq_svd_x`.  The residual sum of squares is appended to
+    ``rss`` when given."""
     x1 = np.array([1.0 if p.key == "K1" else (tau if p.key == "sensor_lag" else 0.0) for p in params])
-    lin = [j for j, p in enumerate(params) if _kind(p) != "tool"]
+    lin = [j for j, p in enumerate(params) if p.group != "tool"]
     J1 = np.vstack([w[i] * _jacobian_run(params, x1, r, i, lin) for i, r in enumerate(prep)])[:, lin]
     y = np.concatenate([w[i] * r.y for i, r in enumerate(prep)])
-    b = lstsq_gram(J1, y).x
+    b = lstsq_svd_x(J1, y)
     if rss is not None:
         rss.append(float(np.sum((y - J1 @ b) ** 2)))
-    K1 = float(b[[params[j].key for j in lin].index("K1")])
-    if not np.isfinite(K1) or K1 == 0.0:
-        K1 = 1.0
+    k1 = next(j for j, p in enumerate(params) if p.key == "K1")
+    K1 = float(b[lin.index(k1)]) if np.isfinite(b[lin.index(k1)]) and b[lin.index(k1)] != 0.0 else 1.0
     x = np.zeros(len(params))
-    for k, j in enumerate(lin):
-        x[j] = K1 if params[j].key == "K1" else b[k] / K1
+    x[lin] = b / K1
+    x[k1] = K1
     return x
 
 
-#: Parameters bounded below by 0 (effects.md: a lag time constant is not negative).
-NON_NEGATIVE = ("sensor_lag",)
-
-
-def _solve_nonlinear(params: list[Parameter], prep: list[_Run], x0: np.ndarray, w: np.ndarray):
-    """Weighted least squares of the forward model by the core's Gauss-Newton
-    (:func:`accelcal.fitting.core.gauss_newton`) with its lower bounds: :data:`NON_NEGATIVE`
-    parameters stay >= 0."""
-    def resid(x):
-        return np.concatenate([w[i] * (r.y - model_output(r, *_run_values(params, x, i)))
-                               for i, r in enumerate(prep)])
-
-    def jac(x):
-        return np.vstack([w[i] * _jacobian_run(params, x, r, i) for i, r in enumerate(prep)])
-
-    lower = np.array([0.0 if p.key in NON_NEGATIVE else -np.inf for p in params])
-    return gauss_newton(resid, jac, x0, max_iter=50, lower=lower)
 def _lag_start(params: list[Parameter], prep: list[_Run], x0: np.ndarray) -> np.ndarray:
     """Start of ``sensor_lag``: a sampled first-order lag shows nothing of a tau far below
     the sample period (its derivative vanishes at 0, physics.instrument.first_order_lag), so
@@ -586,18 +465,59 @@ def _lag_start(params: list[Parameter], prep: list[_Run], x0: np.ndarray) -> np.
     taus = [0.0] + [k * dt for k in (0.2, 0.5, 1.0, 2.0, 5.0)]
     rss: list[float] = []
     starts = [_linear_start(params, prep, np.ones(len(prep)), tau, rss) for tau in taus]
-    best = int(np.argmin(rss))
-    x = starts[best]
-    x[j] = taus[best]
+    x = starts[int(np.argmin(rss))]
+    x[j] = taus[int(np.argmin(rss))]
     return x
 
 
-def identify_sine_campaign(runs: Sequence, *, tool_errors: Mapping[str, str] | None = None,
+def _select(params: list[Parameter], prep: list[_Run], x0: np.ndarray,
+            alias_rtol: float) -> tuple[dict[str, str], np.ndarray]:
+    """Hold the optional parameters (tool errors, KPPP, KOOO) the joint design does not
+    determine at the start x0: removes them from ``params`` and returns (name -> why, the
+    start of the parameters kept).
+
+    First, while the core finds the column-scaled design rank deficient at ``alias_rtol``
+    (:func:`accelcal.fitting.core.lstsq_svd`), the optional parameter whose column is most
+    nearly inside the span of the others (:func:`_collinearity` below sqrt(alias_rtol)) is
+    aliased.  Then, while an optional parameter's standard uncertainty (design times the
+    noise of one linearised step with every parameter free, so that a large tool error is
+    not taken for noise) exceeds its typical size, the worst is weakly determined.
+    """
+    J0 = _jacobian(params, prep, x0, np.ones(len(prep)))
+    dropped: dict[str, str] = {}
+
+    def drop(j: int, why: str) -> None:
+        nonlocal J0, x0
+        dropped[params[j].name] = why
+        params.pop(j)
+        x0, J0 = np.delete(x0, j), np.delete(J0, j, axis=1)
+
+    while lstsq_svd(J0, np.zeros(J0.shape[0]), alias_rtol).rank < len(params):
+        cand = [(c, j) for j, p in enumerate(params) if p.group != "coef"
+                for c in [_collinearity(J0, j)] if c < alias_rtol ** 0.5]
+        if not cand:
+            break                                     # a core coefficient is aliased: reported
+        c, j = min(cand)
+        drop(j, f"aliased in the joint design (column residual {c:.2e} after projection)")
+    if any(p.group != "coef" for p in params):
+        r0 = _residual(params, prep, x0, np.ones(len(prep)))
+        r0 = r0 - J0 @ lstsq_svd_x(J0, r0)
+        s2_0 = float(r0 @ r0 / max(r0.size - len(params), 1))
+    while any(p.group != "coef" for p in params):
+        sd0 = np.sqrt(s2_0 * np.clip(np.diag(lstsq_svd(J0, np.zeros(J0.shape[0])).cov), 0.0, None))
+        q, j = max((sd0[j] / p.scale, j) for j, p in enumerate(params) if p.group != "coef")
+        if q <= 1.0:
+            break
+        drop(j, f"weakly determined: u = {sd0[j]:.2e} exceeds its typical size "
+                f"{params[j].scale:.0e} {_unit(params[j].key)}")
+    return dropped, x0
+
+
+def identify_sine_campaign(runs: Sequence | None, *, tool_errors: Mapping[str, str] | None = None,
                            per_run_bias: bool = False, extra_terms: Sequence[str] = (),
                            rate_source: str = "drive", rate_derivative: str | None = None,
                            n_harmonics: int = 3, reweight: bool = True,
-                           alias_rtol: float = ALIAS_RTOL, prepared: list[_Run] | None = None,
-                           _prepared: list[_Run] | None = None) -> SineFit:
+                           alias_rtol: float = ALIAS_RTOL, prepared: list[_Run] | None = None) -> SineFit:
     """Joint least squares over the attitudes of a sinusoidal-rate campaign (paper 002).
 
     .. math::
@@ -625,26 +545,23 @@ def identify_sine_campaign(runs: Sequence, *, tool_errors: Mapping[str, str] | N
     rate_source, rate_derivative, n_harmonics
         How the rate and its derivative are formed (:func:`prepare_runs`).
     reweight : bool
-        One weight per run from its residual RMS (a second pass).
+        Paper 002's reweighting: one weight per run from its residual RMS (a second pass).
     alias_rtol : float
-        Relative singular value below which a direction is aliased: optional parameters
-        whose column lies in the span of the others are dropped (``SineFit.dropped``).
+        Relative singular value below which a direction is aliased [1] (:func:`_select`).
     prepared : list, optional
         Output of :func:`prepare_runs` (then ``runs`` and the rate options are ignored).
 
     Returns
     -------
     SineFit
-        Values [SI], residual-scaled covariance s^2 (J^T W J)^+, design diagnostics.
+        Values [SI], residual-scaled covariance s^2 (J^T W J)^+, design diagnostics and the
+        lack-of-fit test against the pure error of the drive's phases.
 
     Notes
     -----
-    The design columns are derivatives of the forward model (:func:`_jacobian_run`); every
-    solve is the fitting core's: :func:`accelcal.fitting.core.lstsq_svd` (on the equivalent
-    small problem, :func:`accelcal.fitting.core.lstsq_gram`) for the linear start (the model is linear in (K1, K1 Kj)
-    with the tool errors at zero), the identifiability checks and the covariance, and
-    :func:`accelcal.fitting.core.gauss_newton` when tool errors are fitted.  The result
-    carries the core's :class:`~accelcal.fitting.core.FitResult`.
+    With the tool errors at zero the model is linear in (K1, K1 Kj): the start (and the fit
+    when no tool error is identified) is one linear solve; with tool errors the fit is the
+    core's :func:`accelcal.fitting.core.gauss_newton` (``sensor_lag`` >= 0).
 
     References
     ----------
@@ -652,117 +569,59 @@ def identify_sine_campaign(runs: Sequence, *, tool_errors: Mapping[str, str] | N
     ``shared/docs/methods.md``).
     """
     tool_errors = dict(tool_errors or {})
-    prep = prepared if prepared is not None else _prepared
-    if prep is None:
-        prep = prepare_runs(runs, rate_source, rate_derivative, n_harmonics)
+    prep = prepared if prepared is not None else prepare_runs(runs, rate_source, rate_derivative, n_harmonics)
     params = _build_params(prep, per_run_bias, extra_terms, tool_errors, 1.0)
     ones = np.ones(len(prep))
-
-    # 0) starting point: with the tool errors at zero the model is linear in (K1, K1*Kj),
-    #    so the coefficient-only optimum is one linear solve (exact start for the solver)
     x0 = _linear_start(params, prep, ones)
-    K1_0 = float(x0[[p.key for p in params].index("K1")])
-    params = [replace(p, scale=abs(K1_0)) if p.key == "K1" else p for p in params]
+    params = [replace(p, scale=abs(x0[j])) if p.key == "K1" else p for j, p in enumerate(params)]
     x0 = _lag_start(params, prep, x0)
-
-    # 1) identifiability of the optional parameters at the starting point (design only)
-    J0 = np.vstack([_jacobian_run(params, x0, r, i) for i, r in enumerate(prep)])
-    dropped: dict[str, str] = {}
-    changed = False
-    while True:
-        rel, _, _ = _svd(J0, alias_rtol)
-        if rel[-1] > alias_rtol:
-            break
-        cand = [(j, _collinearity(J0, j)) for j, p in enumerate(params) if _kind(p) != "coef"]
-        cand = [c for c in cand if c[1] < alias_rtol ** 0.5]
-        if not cand:
-            break                                     # a core coefficient is aliased: report it
-        j, c = min(cand, key=lambda z: z[1])
-        dropped[params[j].name] = f"aliased in the joint design (column residual {c:.2e} after projection)"
-        params.pop(j)
-        x0 = np.delete(x0, j)
-        J0 = np.delete(J0, j, axis=1)
-        changed = True
-    # weakly determined optional parameters: standard uncertainty (design + noise of the
-    # coefficient-only fit) larger than the parameter's typical magnitude
-    # (noise from one linearised step with every parameter free, so that a large tool error
-    # is not taken for noise)
-    optional = [j for j, p in enumerate(params) if _kind(p) != "coef"]
-    if optional:
-        r0 = np.concatenate([r.y - model_output(r, *_run_values(params, x0, i)) for i, r in enumerate(prep)])
-        r0 = r0 - J0 @ lstsq_gram(J0, r0).x
-        s2_0 = float(r0 @ r0 / max(r0.size - len(params), 1))
-    while optional:
-        sd0 = np.sqrt(s2_0 * np.clip(np.diag(lstsq_gram(J0).cov), 0.0, None))
-        ratio = [(sd0[j] / p.scale, j) for j, p in enumerate(params) if _kind(p) != "coef"]
-        if not ratio or max(ratio)[0] <= 1.0:
-            break
-        q, j = max(ratio)
-        dropped[params[j].name] = (f"weakly determined: u = {sd0[j]:.2e} exceeds its typical size "
-                                   f"{params[j].scale:.0e} {_unit(params[j].key)}")
-        params.pop(j)
-        x0 = np.delete(x0, j)
-        J0 = np.delete(J0, j, axis=1)
-        changed = True
-
-    def resid(x, w):
-        return np.concatenate([w[i] * (r.y - model_output(r, *_run_values(params, x, i)))
-                               for i, r in enumerate(prep)])
-
-    nonlinear = any(_kind(p) == "tool" for p in params)
-    w_run = ones.copy()
-    x = x0
+    dropped, x0 = _select(params, prep, x0, alias_rtol)
+    nonlinear = any(p.group == "tool" for p in params)
+    w, x = ones, x0
     success, message = True, "linear least squares (no tool-error parameter)"
-    for k in range(2 if reweight else 1):
+    rw_runs = reweight and len(prep) > 1
+    for k in range(2 if rw_runs else 1):
         if nonlinear:
-            gn = _solve_nonlinear(params, prep, x, w_run)
+            gn = gauss_newton(lambda p: _residual(params, prep, p, w), lambda p: _jacobian(params, prep, p, w), x,
+                              max_iter=50, lower=np.array([0.0 if p.key in NON_NEGATIVE else -np.inf for p in params]))
             x, success, message = gn.p, gn.converged, gn.message
-        elif k > 0 or changed:   # no tool error: (K1, K1*Kj) reparametrise a linear model
-            x = _linear_start(params, prep, w_run)
-        raw = resid(x, ones)
-        n_i = np.array([r.y.size for r in prep])
-        splits = np.split(raw, np.cumsum(n_i)[:-1])
-        sig = np.array([np.sqrt(np.mean(s_ ** 2)) for s_ in splits])
-        if not reweight or len(prep) == 1:
-            break
-        w_run = 1.0 / np.where(sig > 0, sig, 1.0)
-        w_run = w_run / np.exp(np.mean(np.log(w_run)))   # geometric-mean-one weights
-    if not nonlinear and not changed and np.array_equal(x, x0) and np.all(w_run == 1.0):
-        Jw = J0                                         # the design at the solution, already built
-    else:
-        Jw = np.vstack([w_run[i] * _jacobian_run(params, x, r, i) for i, r in enumerate(prep)])
-    splits = np.split(raw, np.cumsum([r.y.size for r in prep])[:-1])
-    rw = np.concatenate([w * e for w, e in zip(w_run, splits)])
-    n_obs, p_n = rw.size, len(params)
-    dof = n_obs - p_n
+        elif k > 0 or dropped:   # no tool error: (K1, K1*Kj) reparametrise a linear model
+            x = _linear_start(params, prep, w)
+        if rw_runs:           # the weights of the next pass, and of the covariance after the last
+            sig = np.array([np.sqrt(np.mean(e ** 2)) for e in _split(_residual(params, prep, x, ones), prep)])
+            w = 1.0 / np.where(sig > 0, sig, 1.0)
+            w = w / np.exp(np.mean(np.log(w)))      # geometric-mean-one weights
+    derivative = rate_derivative or ("fitted" if rate_source == "fitted" else "drive")
+    options = {"tool_errors": tool_errors, "per_run_bias": per_run_bias, "extra_terms": list(extra_terms),
+               "rate_source": rate_source, "rate_derivative": derivative, "n_harmonics": n_harmonics,
+               "reweight": reweight, "alias_rtol": alias_rtol}
+    return _finish(params, prep, x, w, dropped, success, message, options)
+
+
+def _finish(params: list[Parameter], prep: list[_Run], x: np.ndarray, w: np.ndarray, dropped: dict[str, str],
+            success: bool, message: str, options: dict) -> SineFit:
+    """Paper 002's reporting of a fit at x with run weights w: the residual-scaled covariance
+    s^2 (J^T W J)^+ (the core's :func:`~accelcal.fitting.core.lstsq_svd`, s^2 the weighted
+    residual variance on n - p dof) and the pure-error lack-of-fit test of the drive's phases."""
+    Jw = _jacobian(params, prep, x, w)
+    raw = _split(_residual(params, prep, x, np.ones(len(prep))), prep)
+    rw = np.concatenate([wi * e for wi, e in zip(w, raw)])
+    dof = rw.size - len(params)
     s2 = float(rw @ rw / dof)
-    # the fit in the core's terms: residual-scaled covariance s^2 (J^T W J)^+ (the core's
-    # solver on the equivalent small problem, :func:`accelcal.fitting.core.lstsq_gram`)
-    pset = ParameterSet(replace(p, value=float(v)) for p, v in zip(params, x))
-    sol = lstsq_gram(Jw)
-    lof = LackOfFit("adequate", s2, None, dof, 0, math.sqrt(s2),
-                    "covariance scaled by the residual variance (paper 002's LS)")
-    result = FitResult(pset, x, sol.cov, sol.cov * s2, sol.estimable, float(rw @ rw), dof, n_obs, sol.rank, lof,
-                       rw, Jw, bool(success), str(message))
-    names = [p.name for p in params]
+    sol = lstsq_svd(Jw, np.zeros(rw.size))
+    cells = np.concatenate([i + len(prep) * r.cell for i, r in enumerate(prep)])      # unique across runs
+    lof = replace(pure_error_lack_of_fit(rw, cells, len(params)), factor=float(np.sqrt(s2)),
+                  note="covariance scaled by the residual variance (paper 002's least squares)")
+    result = FitResult(ParameterSet(replace(p, value=float(v)) for p, v in zip(params, x)), x, sol.cov,
+                       sol.cov * s2, sol.estimable, float(rw @ rw), dof, rw.size, sol.rank, lof, rw, Jw,
+                       bool(success), str(message))
     out_unit = str(prep[0].meta.get("output_unit", ""))
-    diag = design_diagnostics(Jw, names, alias_rtol)
     return SineFit(
         result=result, units={p.name: _unit(p.key, out_unit) for p in params},
-        sigma=float(np.sqrt(s2) / np.exp(np.mean(np.log(w_run)))),
-        residual_rms={r.label: float(np.sqrt(np.mean(e ** 2))) for r, e in zip(prep, splits)},
-        run_sigma={r.label: float(1.0 / w) * float(np.sqrt(s2)) for r, w in zip(prep, w_run)},
-        diagnostics=diag, dropped=dropped,
-        tool_errors={p.name: float(v) for p, v in zip(params, x) if _kind(p) == "tool"},
-        options={"tool_errors": tool_errors, "per_run_bias": per_run_bias, "extra_terms": list(extra_terms),
-                 "rate_source": rate_source, "rate_derivative": rate_derivative or
-                 ("fitted" if rate_source == "fitted" else "drive"), "n_harmonics": n_harmonics,
-                 "reweight": reweight, "alias_rtol": alias_rtol},
-        attitudes={r.label: r.attitude for r in prep},
-        rows={r.label: (int(a), int(a + r.y.size)) for r, a in
-              zip(prep, np.concatenate([[0], np.cumsum([q.y.size for q in prep])[:-1]]))},
-        mounts={r.label: f"{r.meta['mount_plane']}@{float(r.meta['mount_angle_deg']):g} {r.meta['vertical_axis']}"
-                for r in prep})
+        sigma=float(np.sqrt(s2) / np.exp(np.mean(np.log(w)))),
+        residual_rms={r.label: float(np.sqrt(np.mean(e ** 2))) for r, e in zip(prep, raw)},
+        diagnostics=design_diagnostics(Jw, [p.name for p in params], options["alias_rtol"]), dropped=dropped,
+        options=options, runs=prep)
 
 
 # --------------------------------------------------------------------------- aliasing, comparisons
@@ -778,15 +637,14 @@ def aliasing_report(fit: SineFit, rtol: float = ALIAS_RTOL) -> list[dict[str, An
     a_I² ≡ a_I·|a_I| and K2 and Koq fall in one group; in (b) the tangential a_I changes
     sign and Koq separates from K2.
     """
-    J = fit._jac
     out = []
-    for label, (a, b) in fit.rows.items():
-        Jr = J[a:b]
+    for r, Jr in zip(fit.runs, np.split(fit.result.J, np.cumsum([q.y.size for q in fit.runs])[:-1])):
         act = [j for j in range(Jr.shape[1]) if np.any(Jr[:, j] != 0.0)]
         names = [fit.names[j] for j in act]
         d = design_diagnostics(Jr[:, act], names, rtol)
         grouped = {n for g in d["aliased_groups"] for n in g}
-        d.update({"run": label, "attitude": fit.attitudes[label], "mount": fit.mounts.get(label, ""),
+        mount = f"{r.meta['mount_plane']}@{float(r.meta['mount_angle_deg']):g} {r.meta['vertical_axis']}"
+        d.update({"run": r.label, "attitude": r.attitude, "mount": mount,
                   "parameters": names, "separable": [n for n in names if n not in grouped],
                   "not_excited": [fit.names[j] for j in range(Jr.shape[1]) if j not in act]})
         out.append(d)
@@ -813,16 +671,31 @@ def _summary(fit: SineFit) -> dict[str, Any]:
     return {n: {"value": fit.values[n], "std": fit.std[n], "unit": fit.units[n]} for n in fit.names}
 
 
-def compare_compensation(runs: Sequence, tool_errors: Mapping[str, str] | None = None,
+def _f_test(f_small: SineFit, f_big: SineFit) -> dict[str, Any]:
+    """F test of the nested fits (the terms f_big adds), on paper 002's residual variances."""
+    rss1, rss2 = f_small.sigma ** 2 * f_small.dof, f_big.sigma ** 2 * f_big.dof
+    q = f_small.dof - f_big.dof
+    if q <= 0 or rss2 <= 0:
+        return {"F": None, "df1": int(q), "df2": int(f_big.dof), "p_value": None}
+    F = ((rss1 - rss2) / q) / (rss2 / f_big.dof)
+    return {"F": float(F), "df1": int(q), "df2": int(f_big.dof), "p_value": float(f_sf(F, q, f_big.dof))}
+
+
+def compare_compensation(runs: Sequence | None, tool_errors: Mapping[str, str] | None = None, *,
+                         prepared: list[_Run] | None = None, uncompensated: SineFit | None = None,
                          **kw) -> tuple[SineFit, SineFit, dict[str, Any]]:
     """Paper 002's identify-then-compensate comparison (Sun, Ren & Wang).
 
     Parameters
     ----------
     runs : sequence
-        As for :func:`prepare_runs` (or ``_prepared=`` prepared runs).
+        As for :func:`prepare_runs` (or ``prepared=`` prepared runs).
     tool_errors : mapping, optional
         effects.md ids to identify (default :data:`DEFAULT_TOOL_ERRORS`).
+    prepared : list, optional
+        Output of :func:`prepare_runs`.
+    uncompensated : SineFit, optional
+        Fit 1 when it is already made.
     **kw
         Passed to :func:`identify_sine_campaign`.
 
@@ -835,30 +708,19 @@ def compare_compensation(runs: Sequence, tool_errors: Mapping[str, str] | None =
         the identified tool errors and an F test of the tool-error terms.
     """
     tool_errors = dict(DEFAULT_TOOL_ERRORS if tool_errors is None else tool_errors)
-    prep = kw.pop("_prepared", None) or prepare_runs(runs, kw.get("rate_source", "drive"),
-                                                     kw.get("rate_derivative"), kw.get("n_harmonics", 3))
-    f1 = kw.pop("_uncompensated", None)
-    kw = {k: v for k, v in kw.items() if k not in ("rate_source", "rate_derivative", "n_harmonics")}
-    if f1 is None:
-        f1 = identify_sine_campaign(None, tool_errors={}, _prepared=prep, **kw)
-    f2 = identify_sine_campaign(None, tool_errors=tool_errors, _prepared=prep, **kw)
+    rate = {k: kw.pop(k) for k in ("rate_source", "rate_derivative", "n_harmonics") if k in kw}
+    prep = prepared or prepare_runs(runs, **rate)
+    f1 = uncompensated or identify_sine_campaign(None, tool_errors={}, prepared=prep, **kw)
+    f2 = identify_sine_campaign(None, tool_errors=tool_errors, prepared=prep, **kw)
     coef = [n for n in f1.names if n in f2.values]
-    rss1 = f1.sigma ** 2 * f1.dof
-    rss2 = f2.sigma ** 2 * f2.dof
-    q = len(f2.names) - len(f1.names)
-    F = ((rss1 - rss2) / q) / (rss2 / f2.dof) if q > 0 and rss2 > 0 else float("nan")
-    cmp = {
-        "uncompensated": _summary(f1),
-        "compensated": _summary(f2),
+    return f1, f2, {
+        "uncompensated": _summary(f1), "compensated": _summary(f2),
         "shift": {n: f2.values[n] - f1.values[n] for n in coef},
         "shift_in_sigma": {n: (f2.values[n] - f1.values[n]) / f2.std[n] if f2.std[n] > 0 else None for n in coef},
-        "tool_errors": {n: {"value": f2.values[n], "std": f2.std[n], "unit": f2.units[n]} for n in f2.tool_errors},
+        "tool_errors": {n: v for n, v in _summary(f2).items() if n in f2.tool_errors},
         "dropped_as_unidentifiable": f2.dropped,
         "residual_rms": {"uncompensated": f1.residual_rms, "compensated": f2.residual_rms},
-        "f_test_tool_errors": {"F": float(F), "df1": int(q), "df2": int(f2.dof),
-                               "p_value": float(f_dist.sf(F, q, f2.dof)) if np.isfinite(F) else None},
-    }
-    return f1, f2, cmp
+        "f_test_tool_errors": _f_test(f1, f2)}
 
 
 def rate_source_comparison(runs: Sequence, **kw) -> dict[str, Any]:
@@ -875,7 +737,7 @@ def rate_source_comparison(runs: Sequence, **kw) -> dict[str, Any]:
     -------
     dict
         'rate=<source>,derivative=<source>' -> residual RMS per run and sigma [output_unit]
-        of the coefficient-only fit (five linear fits; about 0.1 s on the sample campaign).
+        of the coefficient-only fit (five linear fits).
     """
     out = {}
     for rs, rd in (("drive", "drive"), ("fitted", "fitted"), ("logged", "drive"), ("drive", "numeric"),
@@ -885,13 +747,11 @@ def rate_source_comparison(runs: Sequence, **kw) -> dict[str, Any]:
     return out
 
 
-def _f_test(f_small: SineFit, f_big: SineFit) -> dict[str, Any]:
-    rss1, rss2 = f_small.sigma ** 2 * f_small.dof, f_big.sigma ** 2 * f_big.dof
-    q = f_small.dof - f_big.dof
-    if q <= 0 or rss2 <= 0:
-        return {"F": None, "df1": int(q), "df2": int(f_big.dof), "p_value": None}
-    F = ((rss1 - rss2) / q) / (rss2 / f_big.dof)
-    return {"F": float(F), "df1": int(q), "df2": int(f_big.dof), "p_value": float(f_dist.sf(F, q, f_big.dof))}
+def _no_values_flag(missing: Sequence[str]) -> str:
+    """The flag of a campaign whose attitudes do not separate paper 002's coefficients."""
+    return (f"sine_ls: no values: attitude(s) {', '.join(missing)} missing, and paper 002's "
+            "least squares needs a, b and c to separate its coefficients; the joint fit "
+            "says what these runs determine")
 
 
 def process_sine_campaign(runs: Sequence, rig_id: str = "", *, tool_errors: Mapping[str, str] | None = None,
@@ -916,21 +776,22 @@ def process_sine_campaign(runs: Sequence, rig_id: str = "", *, tool_errors: Mapp
     (coefficients, extras)
         Coefficients of the compensated fit (tool errors identified and compensated),
         method 'sine_ls', SI units, K0 and K1 shared over the attitudes; paper 002's KPPP
-        and KOOO are tried and kept only when identifiable and significant (|z| > 3).
-        extras (JSON-able): 'aliasing' (per attitude), 'tool_errors', 'compensation' (with
-        vs without), 'residual_rms', 'sigma', 'diagnostics' (rank, condition, effective
-        rank), 'per_run_bias' (F test shared vs per-run K0), 'third_order', 'rate_sources',
-        'options', 'flags'.  :func:`budget_terms` gives their GUM budgets.
+        and KOOO are tried and kept only when identifiable and significant (|z| > 3); no
+        coefficient when an attitude is missing.  extras (JSON-able): 'aliasing' (per
+        attitude), 'tool_errors', 'compensation' (with vs without), 'residual_rms',
+        'sigma', 'diagnostics' (rank, condition, effective rank), 'lack_of_fit' (pure error
+        of the drive's phases), 'per_run_bias' (F test shared vs per-run K0),
+        'third_order', 'attitudes', 'rate_sources', 'options', 'flags'.
+        :func:`budget_terms` gives their GUM budgets.
     """
     prep = prepare_runs(runs, rate_source, rate_derivative)
     out_unit = str(prep[0].meta.get("output_unit", ""))
-    flags: list[str] = []
     atts = sorted({r.attitude for r in prep})
-    if not {"a", "b", "c"} <= set(atts):
-        flags.append(f"attitudes present {atts}: paper 002 needs a, b and c for every term")
+    missing = sorted(set(ATTITUDES) - set(atts))
+    flags = [f"attitudes present {atts}: paper 002 needs a, b and c for every term"] if missing else []
     # third-order terms the data support
-    base = identify_sine_campaign(None, tool_errors={}, _prepared=prep)
-    third = identify_sine_campaign(None, tool_errors={}, extra_terms=EXTRA_TERMS, _prepared=prep)
+    base = identify_sine_campaign(None, tool_errors={}, prepared=prep)
+    third = identify_sine_campaign(None, tool_errors={}, extra_terms=EXTRA_TERMS, prepared=prep)
     keep = [e for e in EXTRA_TERMS if e in third.values and third.std[e] > 0
             and abs(third.values[e]) > 3 * third.std[e]]
     third_info = {"K3": {"identifiable": True, "in_model": True},
@@ -939,12 +800,11 @@ def process_sine_campaign(runs: Sequence, rig_id: str = "", *, tool_errors: Mapp
                          "in_model": e in keep} for e in EXTRA_TERMS},
                   "f_test": _f_test(base, third), "dropped": third.dropped}
     # identify-then-compensate
-    f1, f2, cmp = compare_compensation(None, tool_errors, _prepared=prep, extra_terms=keep,
-                                       _uncompensated=None if keep else base)
-    fit = f2
-    if not fit.success:
-        flags.append(f"compensated fit did not converge: {fit.message}")
-    per_run = identify_sine_campaign(None, tool_errors={}, per_run_bias=True, extra_terms=keep, _prepared=prep)
+    f1, fit, cmp = compare_compensation(None, tool_errors, prepared=prep, extra_terms=keep,
+                                        uncompensated=None if keep else base)
+    if not fit.result.converged:
+        flags.append(f"compensated fit did not converge: {fit.result.message}")
+    per_run = identify_sine_campaign(None, tool_errors={}, per_run_bias=True, extra_terms=keep, prepared=prep)
     bias_test = _f_test(f1, per_run)          # on the nominal-input model (cheap; tool errors ~ K1/K0)
     bias_test["K0_per_run"] = {n: {"value": per_run.values[n], "std": per_run.std[n]}
                                for n in per_run.names if n.startswith("K0[")}
@@ -952,98 +812,62 @@ def process_sine_campaign(runs: Sequence, rig_id: str = "", *, tool_errors: Mapp
         flags.append("K0 differs between attitudes (p < 0.01): shared-bias fit questionable")
     if fit.diagnostics["rank"] < fit.diagnostics["n_params"]:
         flags.append(f"joint design rank {fit.diagnostics['rank']} < {fit.diagnostics['n_params']} parameters")
-    results = []
-    missing = sorted({"a", "b", "c"} - set(atts))
     if missing:
         # paper 002's method is the joint least squares of the three attitudes; with one of
-        # them missing its coefficients alias in ways its normal equations do not show
+        # them missing its coefficients alias in ways its own design does not show
         # (K2 with Koq where a_I >= 0, Kp with Ko): no value of it is reported
-        flags.append(f"sine_ls: no values: attitude(s) {', '.join(missing)} missing, and paper 002's "
-                     "least squares needs a, b and c to separate its coefficients; the joint fit "
-                     "says what these runs determine")
-    for n in ([] if missing else fit.names):
-        p_kind = "tool" if n in fit.tool_errors else "coef"
-        if p_kind == "tool":
-            continue
-        results.append(CoefficientResult(
-            name=n, value=fit.values[n], std_uncertainty=fit.std[n], unit=_unit(n, out_unit), method=METHOD,
-            rig_id=rig_id, dof=float(fit.dof),
-            note="paper 002 joint 3-attitude LS, tool errors identified and compensated; "
-                 "residual-scaled covariance"))
-    alias = aliasing_report(fit)
-    alias_nominal = aliasing_report(f1)
-    extras = {
-        "method": METHOD,
-        "aliasing": [{k: v for k, v in a.items()} for a in alias],
-        "aliasing_coefficients_only": alias_nominal,
-        "tool_errors": cmp["tool_errors"],
-        "compensation": cmp,
-        "residual_rms": fit.residual_rms,
-        "sigma": fit.sigma,
-        "dof": fit.dof,
-        "diagnostics": fit.diagnostics,
-        "per_run_bias": bias_test,
-        "third_order": third_info,
-        "attitudes": fit.attitudes,
-        "options": {**fit.options, "tool_errors": dict(fit.options["tool_errors"])},
-        "flags": flags,
-    }
+        flags.append(_no_values_flag(missing))
+    results = [CoefficientResult(
+        name=n, value=fit.values[n], std_uncertainty=fit.std[n], unit=_unit(n, out_unit), method=METHOD,
+        rig_id=rig_id, dof=float(fit.dof),
+        note="paper 002 joint 3-attitude LS, tool errors identified and compensated; "
+             "residual-scaled covariance") for n in ([] if missing else fit.names) if n not in fit.tool_errors]
+    extras = {"method": METHOD, "aliasing": aliasing_report(fit), "aliasing_coefficients_only": aliasing_report(f1),
+              "tool_errors": cmp["tool_errors"], "compensation": cmp, "residual_rms": fit.residual_rms,
+              "sigma": fit.sigma, "dof": fit.dof, "diagnostics": fit.diagnostics, "per_run_bias": bias_test,
+              "third_order": third_info, "attitudes": fit.attitudes, "options": fit.options, "flags": flags}
     if compare_rate_sources:
         extras["rate_sources"] = rate_source_comparison(runs)
+    lof = fit.result.lof
+    extras["lack_of_fit"] = {"status": lof.status, "F": lof.statistic, "df1": lof.dof_lof, "df2": lof.dof_pe,
+                             "p_value": lof.p_value}
     return results, _jsonable(extras)
 
 
 def _jsonable(o):
-    if isinstance(o, dict):
-        return {str(k): _jsonable(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_jsonable(v) for v in o]
-    if isinstance(o, np.ndarray):
-        return [_jsonable(v) for v in o.tolist()]
-    if isinstance(o, (np.floating, float)):
-        v = float(o)
-        return v if np.isfinite(v) else None
-    if isinstance(o, (np.integer,)):
-        return int(o)
-    if isinstance(o, (np.bool_,)):
-        return bool(o)
-    return o
+    """A JSON-able copy: numpy values as Python ones, non-finite floats as None."""
+    return json.loads(json.dumps(o, default=lambda v: v.tolist()), parse_constant=lambda _: None)
 
 
 def budget_terms(coefficients: Sequence[CoefficientResult]) -> list[BudgetTerm]:
     """GUM budget lines of paper 002's coefficients: one type-A line each, the joint
     three-attitude least squares with its residual-scaled covariance s^2 (J^T W J)^+ (the tool
     errors identified and compensated, so they leave no type-B term of their own)."""
-    out = []
-    for c in coefficients:
-        terms = [("joint 3-attitude LS (paper 002), residual-scaled s^2 (J'WJ)^-1", c.value, c.std_uncertainty,
-                  1.0, "A", "normal")]
-        out += unc.linear_budget(c.name, terms, method=c.method, rig_id=c.rig_id, value=c.value).terms
-    return out
+    term = "joint 3-attitude LS (paper 002), residual-scaled s^2 (J'WJ)^-1"
+    return [b for c in coefficients for b in unc.linear_budget(
+        c.name, [(term, c.value, c.std_uncertainty, 1.0, "A", "normal")], method=c.method, rig_id=c.rig_id,
+        value=c.value).terms]
 
 
 # ----------------------------------------------------------------------------- the campaign's sine step
 
 def campaign_records(runs: Sequence, steps: Mapping[str, Any]) -> list:
     """Paper 002 on the sinusoidal-centrifuge runs of each rig of a campaign
-    (:func:`process_sine_campaign`), with the budgets; a rig that fails is a flag."""
-    from collections import defaultdict
-
+    (:func:`process_sine_campaign`), with the budgets; a rig that fails is a flag, and so is
+    a rig whose attitudes leave paper 002 without values."""
     from .records import Records
-    by_rig = defaultdict(list)
-    for r in runs:
-        by_rig[str(r.meta.get("rig_id", ""))].append(r)
     out = []
-    for rig, rr in by_rig.items():
+    for rig in dict.fromkeys(str(r.meta.get("rig_id", "")) for r in runs):
         try:
-            coeffs, extras = process_sine_campaign([(r.meta, r.data) for r in rr], rig)
+            coeffs, extras = process_sine_campaign([(r.meta, r.data) for r in runs
+                                                    if str(r.meta.get("rig_id", "")) == rig], rig)
         except Exception as exc:
             out.append(Records(flags=[f"sine_centrifuge {rig}: {type(exc).__name__}: {exc}"]))
             continue
         # the method's own flags stay in its extras; that it gave no values is the campaign's
+        missing = sorted(set(ATTITUDES) - set(extras["attitudes"].values()))
         out.append(Records(coefficients=coeffs, budget=budget_terms(coeffs), extras={"sine": {rig: extras}},
-                           flags=[f"{rig}: {f}" for f in extras.get("flags", ())
-                                  if f.startswith("sine_ls: no values")]).checked())
+                           flags=[f"{rig}: {_no_values_flag(missing)}"] if missing else []).checked())
     return out
 
 
@@ -1051,15 +875,13 @@ def mc_truth(c, eff, test, g, notes) -> dict[tuple[str, str], tuple[float, str]]
     """What each paper-002 coefficient estimates in a simulated test: the instrument values
     of the 12 coefficients (K0 shared by the attitudes, K1 at the run temperature)
     (signature of :data:`accelcal.estimators.registry.TruthMapping`)."""
-    rig = str(test["rig_id"])
-    return {(k, rig): (c[k], "instrument value")
-            for k in ("K0", "K1", "Kp", "Ko", "K2", "K3", "Koq", "Kip", "Kio", "Kpo", "Kpp", "Koo")}
+    return {(k, str(test["rig_id"])): (c[k], "instrument value") for k in COEFFS}
 
 
 def residual_figures(extras: Mapping[str, Any]) -> list[ResidualFigure]:
     """Per run, the rms residual of the sine fit relative to its pooled sigma (a run whose
     model misses shows as a bar well above 1), from what :func:`campaign_records` stored
-    (``extras['sine']``; the fit stores no residual series), for the certificate (issue 23).
+    (``extras['sine']``; the fit stores no residual series), for the certificate.
 
     Parameters
     ----------
@@ -1071,9 +893,9 @@ def residual_figures(extras: Mapping[str, Any]) -> list[ResidualFigure]:
     list of ResidualFigure
         One ``'bars'`` figure, or none.
     """
-    rigs = [(rig, s) for rig, s in (extras.get("sine") or {}).items()
-            if isinstance(s, dict) and isinstance(s.get("residual_rms"), dict) and s.get("sigma")]
-    bars = [(f"{rig} {run}", rms / s["sigma"]) for rig, s in rigs for run, rms in sorted(s["residual_rms"].items())]
+    bars = [(f"{rig} {run}", rms / s["sigma"]) for rig, s in (extras.get("sine") or {}).items()
+            if isinstance(s, dict) and isinstance(s.get("residual_rms"), dict) and s.get("sigma")
+            for run, rms in sorted(s["residual_rms"].items())]
     if not bars:
         return []
     return [ResidualFigure("bars", "Residual rms of the joint sine fit per run, relative to its pooled σ "
@@ -1085,9 +907,10 @@ def residual_figures(extras: Mapping[str, Any]) -> list[ResidualFigure]:
 
 
 def fit_checks(extras: Mapping[str, Any]) -> list[FitCheck]:
-    """The certificate's fit statistics of a stored sine result: per rig the F tests of
-    the tool-error terms, the third-order terms Kppp, Kooo and the per-run bias (paper 002
-    §3; a term passes when it is not needed).
+    """The certificate's fit statistics of a stored sine result: per rig the lack-of-fit test
+    of the compensated fit (passes when adequate) and the F tests of the tool-error terms,
+    the third-order terms Kppp, Kooo and the per-run bias (paper 002 §3; a term passes when
+    it is not needed).
 
     Parameters
     ----------
@@ -1099,19 +922,16 @@ def fit_checks(extras: Mapping[str, Any]) -> list[FitCheck]:
     list of FitCheck
     """
     f = display_number
-    out = []
-    for rig, s in (extras.get("sine") or {}).items():
-        s = s or {}
-        tests = [("tool-error terms (joint F test)", (s.get("compensation") or {}).get("f_test_tool_errors")),
-                 ("third-order terms Kppp, Kooo (F test)", (s.get("third_order") or {}).get("f_test")),
-                 ("per-run bias (F test)", s.get("per_run_bias"))]
-        for label, t in tests:
-            if not isinstance(t, dict) or t.get("p_value") is None:
-                continue
-            out.append(FitCheck("sine", rig, label, f"F = {f(t.get('F'), '.3g')}",
-                                f"{f(t.get('df1'))} / {f(t.get('df2'))}", t.get("p_value"),
-                                yes="not needed (model adequate without)", no="significant: model needs them"))
-    return out
+    term = ("not needed (model adequate without)", "significant: model needs them")
+    tests = [(rig, label, t, words) for rig, s in (extras.get("sine") or {}).items() for label, t, words in (
+        ("lack of fit (F test against the pure error of the drive's phases)", (s or {}).get("lack_of_fit"),
+         ("adequate", "the model misses the data")),
+        ("tool-error terms (joint F test)", ((s or {}).get("compensation") or {}).get("f_test_tool_errors"), term),
+        ("third-order terms Kppp, Kooo (F test)", ((s or {}).get("third_order") or {}).get("f_test"), term),
+        ("per-run bias (F test)", (s or {}).get("per_run_bias"), term))]
+    return [FitCheck("sine", rig, label, f"F = {f(t.get('F'), '.3g')}", f"{f(t.get('df1'))} / {f(t.get('df2'))}",
+                     t.get("p_value"), yes=words[0], no=words[1])
+            for rig, label, t, words in tests if isinstance(t, dict) and t.get("p_value") is not None]
 
 
 ESTIMATOR = register(Estimator(

@@ -321,68 +321,31 @@ def lstsq_svd_x(J: np.ndarray, z: np.ndarray, rcond: float = RCOND) -> np.ndarra
     return _svd_solve(J, z, rcond)[0]
 
 
-def gram_reduce(J: np.ndarray, z: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The (p, p) least-squares problem equivalent to a tall one, to hand to the core's solver.
-
-    With J = Js diag(c) (columns scaled to unit norm) and Js^T Js = V diag(s^2) V^T, the
-    matrix M = diag(s) V^T diag(c) has M^T M = J^T J and the same column norms, so
-    :func:`lstsq_svd` (M, b) with b = diag(1/s) V^T Js^T z returns the
-    solution, covariance, singular values, rank and null space of (J, z).  The Gram matrix
-    is formed by one matrix product; no LAPACK routine runs on the tall matrix (a 3000 x 16
-    SVD takes 14-150 ms under threaded OpenBLAS on a loaded 2-core machine, 0.9 ms with one
-    thread; the product and a 16 x 16 eigen-decomposition take 0.1 ms).  Precision is that of
-    the normal equations, ~1e-8 relative singular value (paper 002's least squares uses a
-    1e-4 alias cut).
+def pure_error_lack_of_fit(z: np.ndarray, cell: np.ndarray, n_params: int, alpha: float = ALPHA) -> "LackOfFit":
+    """Lack-of-fit test of a fit to every reading against the pure error of its replicate
+    cells (Draper & Smith §2.1): readings of one cell share the model's inputs.
 
     Parameters
     ----------
-    J : (n, p) ndarray
-        Whitened design [1 per parameter unit].
-    z : (n,) ndarray or None
-        Whitened right-hand side [1]; None gives b = 0 (structure only).
+    z : (n,) ndarray
+        Whitened (or equally weighted within each cell) residual of every reading [1].
+    cell : (n,) ndarray of int
+        Cell of each reading (readings with the same inputs; unique across runs).
+    n_params : int
+        Fitted parameters [1].
+    alpha : float
+        Significance level [1].
 
     Returns
     -------
-    M : (p, p) ndarray
-        Reduced design [1 per parameter unit], same J^T J and column norms as J.
-    b : (p,) ndarray
-        Reduced right-hand side [1].
+    LackOfFit
+        :func:`lack_of_fit` of the between-cell sum of squares sum n_j zbar_j^2 on
+        (cells - n_params) dof against the within-cell sum of squares on (n - cells) dof.
     """
-    c = np.linalg.norm(J, axis=0)
-    c = np.where(c > 0, c, 1.0)
-    Js = J / c
-    lam, V = np.linalg.eigh(Js.T @ Js)
-    order = np.argsort(lam)[::-1]
-    sv = np.sqrt(np.clip(lam[order], 0.0, None))
-    V = V[:, order]
-    M = (sv[:, None] * V.T) * c[None, :]
-    b = np.zeros(sv.size)
-    if z is not None:
-        ok = sv > 0
-        b[ok] = (V.T @ (Js.T @ z))[ok] / sv[ok]
-    return M, b
-
-
-def lstsq_gram(J: np.ndarray, z: np.ndarray | None = None, rcond: float = 1e-9) -> "LinearSolution":
-    """:func:`lstsq_svd` of a tall (J, z) through :func:`gram_reduce` (paper 002's least
-    squares, :mod:`accelcal.estimators.sinusoidal`).
-
-    Parameters
-    ----------
-    J : (n, p) ndarray
-        Whitened design [1 per parameter unit].
-    z : (n,) ndarray or None
-        Whitened right-hand side [1].
-    rcond : float
-        Relative singular-value cut [1].
-
-    Returns
-    -------
-    LinearSolution
-        As :func:`lstsq_svd` of (J, z), to normal-equation precision.
-    """
-    M, b = gram_reduce(J, z)
-    return lstsq_svd(M, b, rcond)
+    _, inv, n = np.unique(cell, return_inverse=True, return_counts=True)
+    mean = np.bincount(inv, weights=z) / n
+    return lack_of_fit(float(n @ mean ** 2), n.size - int(n_params), float(np.sum((z - mean[inv]) ** 2)),
+                       z.size - n.size, alpha)
 
 
 def thin_svd(A: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
