@@ -333,14 +333,10 @@ def fit_run(meta: Mapping, data, extra_terms: Sequence[str] = ()) -> TumbleRun:
                      lof, dict(zip(names, map(float, p0))))
 
 
-def _mean_at(pm: pd.DataFrame, angle: float, tol: float) -> tuple[float, float, int] | None:
-    d = (pm["angle_deg"] - angle + 180.0) % 360.0 - 180.0
-    sel = pm[np.abs(d) <= tol]
-    if sel.empty:
-        return None
-    w = sel["n"].to_numpy(float)
-    return (float(np.average(sel["mean_output"], weights=w)),
-            float(np.average(sel["angle_deg"], weights=w)), int(w.sum()))
+def _mean_at(pm: pd.DataFrame, angle: float, tol: float) -> float | None:
+    """Mean output at the head angle ``angle`` [deg] (within ``tol``), None where there is none."""
+    sel = pm[np.abs((pm["angle_deg"] - angle + 180.0) % 360.0 - 180.0) <= tol]
+    return None if sel.empty else float(np.average(sel["mean_output"], weights=sel["n"].to_numpy(float)))
 
 
 def two_position(meta: Mapping, data, angle_tol_deg: float = 1e-3) -> dict:
@@ -369,21 +365,18 @@ def two_position(meta: Mapping, data, angle_tol_deg: float = 1e-3) -> dict:
     """
     g = float(meta["g_local_m_s2"])
     phase = _head(meta).ia_phase_deg
-    df = _clean(data)
-    pm = position_means(df)
-    up, down = _mean_at(pm, phase, angle_tol_deg), _mean_at(pm, phase + 180.0, angle_tol_deg)
-    if up is None or down is None:
+    pm = position_means(_clean(data))
+    Eu, Ed = _mean_at(pm, phase, angle_tol_deg), _mean_at(pm, phase + 180.0, angle_tol_deg)
+    if Eu is None or Ed is None:
         raise ValueError(f"two-position method needs readings at head angles {phase:g} and "
                          f"{(phase + 180) % 360:g} deg (IA up and down)")
-    Eu, Ed = up[0], down[0]
     SH = (Eu - Ed) / (2 * g)
     KH = (Eu + Ed) / 2
     out = {"E_up": Eu, "E_down": Ed, "SH": SH, "KH": KH, "K1": SH, "K0": KH / SH,
            "g_local_m_s2": g, "ia_phase_deg": phase, "output_unit": str(meta.get("output_unit", "")),
            "four_point": None}
-    q90, q270 = _mean_at(pm, phase + 90.0, angle_tol_deg), _mean_at(pm, phase + 270.0, angle_tol_deg)
-    if q90 is not None and q270 is not None:
-        E90, E270 = q90[0], q270[0]
+    E90, E270 = _mean_at(pm, phase + 90.0, angle_tol_deg), _mean_at(pm, phase + 270.0, angle_tol_deg)
+    if E90 is not None and E270 is not None:
         c = (Eu - Ed) / (2 * g)            # K1 cos theta0
         s = (E270 - E90) / (2 * g)         # K1 sin theta0
         K1 = float(np.hypot(c, s))
@@ -588,7 +581,7 @@ def tumble_records(pooled: Mapping[str, Pooled], *, square_terms: Mapping[str, t
     items = ([(n, q) for n, q in pooled.items() if q.key in ("K0", "K1")] + list(k2_rows.items())
              + [(n, q) for n, q in pooled.items() if q.key not in ("K0", "K1", "K2")])
     for name, q in items:
-        terms, note = _fit_terms(q), []
+        (terms, pool_notes), note = _fit_terms(q), []
         value = q.value
         unit = si_unit(q.key, out_unit)
         if q.key == "K2":
@@ -623,7 +616,7 @@ def tumble_records(pooled: Mapping[str, Pooled], *, square_terms: Mapping[str, t
                 note.insert(0, _NOTES[q.key])
         if q.key == "theta0" and "[" in name:
             note.append("initial misalignment of this dividing head (never pooled across heads)")
-        note += _pool_notes(q)
+        note += pool_notes
         gb = unc.linear_budget(name, terms, method=method, rig_id=_rig(q), value=value)
         u = float(gb.u_c) if math.isfinite(q.u) else float("nan")
         dof = float(q.runs[0].dof) if len(q.runs) == 1 else None
@@ -637,41 +630,32 @@ def _rig(q: Pooled) -> str:
     return rigs[0] if len(rigs) == 1 else "+".join(rigs)
 
 
-def _fit_terms(q: Pooled) -> list[tuple]:
-    """Type-A lines of a pooled quantity: per run its fit (reading noise and lack-of-fit scaling
-    apart for one run), and the Birge scatter of several runs."""
+def _fit_terms(q: Pooled) -> tuple[list[tuple], list[str]]:
+    """Type-A lines and notes of a pooled quantity: per run its fit (reading noise and
+    lack-of-fit scaling apart for one run), and the Birge scatter of several runs."""
     if len(q.runs) == 1:
         r = q.runs[0]
         u, u_noise, factor = r.u_parts(q.key)
         rows = [(f"readings of {r.run_id}: LM fit (paper 003), s^2 (J'J)^-1", r.values[q.key], u_noise, 1.0,
                  "A", "normal")]
+        notes = ["covariance from readings"]
         if factor > 1.0:
             rows.append((f"model inadequacy of {r.run_id}: lack-of-fit scaling sqrt(F) = {factor:.3g}", 0.0,
                          u_noise * math.sqrt(factor ** 2 - 1.0), 1.0, "A", "normal"))
-        return rows
+        if r.lack_of_fit and r.lack_of_fit["p"] < 0.01:
+            notes.append(f"lack of fit: F = {r.lack_of_fit['F']:.3g}, p = {r.lack_of_fit['p']:.2g}")
+        if r.result.lof.status == "untestable":
+            notes.append("untestable: as many head positions as parameters, u from reading noise only")
+        return rows, notes
     rows = [(f"{r.run_id}: LM fit (paper 003)", r.values[q.key], r.u_parts(q.key)[0], float(w), "A", "normal")
             for r, w in zip(q.runs, q.weights)]
+    notes = [f"weighted mean of {len(q.runs)} tumble runs"]
     if math.isfinite(q.birge) and q.birge > 1.0:
         rows.append((f"between-run scatter: Birge ratio {q.birge:.3g} ({len(q.runs)} runs)", 0.0,
                      q.u_internal * math.sqrt(q.birge ** 2 - 1.0), 1.0, "A", "normal"))
-    return rows
-
-
-def _pool_notes(q: Pooled) -> list[str]:
-    if len(q.runs) == 1:
-        r = q.runs[0]
-        out = ["covariance from readings"]
-        lof = r.lack_of_fit
-        if lof and lof["p"] < 0.01:
-            out.append(f"lack of fit: F = {lof['F']:.3g}, p = {lof['p']:.2g}")
-        if r.result.lof.status == "untestable":
-            out.append("untestable: as many head positions as parameters, u from reading noise only")
-        return out
-    out = [f"weighted mean of {len(q.runs)} tumble runs"]
     if math.isfinite(q.birge):
-        out.append(f"Birge ratio {q.birge:.3g} (p = {q.p_value:.2g})"
-                   + ("; u scaled by it" if q.birge > 1 else ""))
-    return out
+        notes.append(f"Birge ratio {q.birge:.3g} (p = {q.p_value:.2g})" + ("; u scaled by it" if q.birge > 1 else ""))
+    return rows, notes
 
 
 def pooling_flags(pooled: Mapping[str, Pooled]) -> list[str]:
