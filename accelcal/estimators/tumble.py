@@ -339,7 +339,7 @@ def _mean_at(pm: pd.DataFrame, angle: float, tol: float) -> float | None:
     return None if sel.empty else float(np.average(sel["mean_output"], weights=sel["n"].to_numpy(float)))
 
 
-def two_position(meta: Mapping, data, angle_tol_deg: float = 1e-3) -> dict:
+def two_position(meta: Mapping, data, angle_tol_deg: float = 1e-3, means: pd.DataFrame | None = None) -> dict:
     """Two-position (and four-point) closed forms (paper 003), for comparison with the LM fit.
 
     With E_up, E_down the mean outputs where IA nominally points up and down (head angles
@@ -359,13 +359,15 @@ def two_position(meta: Mapping, data, angle_tol_deg: float = 1e-3) -> dict:
         K1 K2 g^2 cos(2 theta0) = (E_0 + E_180 - E_90 - E_270)/2
         K1 (K0 + K2 g^2 / 2) = (E_0 + E_90 + E_180 + E_270)/4
 
+    ``means``, when given, are the run's :func:`position_means` (``data`` is then not read).
+
     Returns dict: E_up, E_down (output_unit), SH, KH, K1, K0 (two-position), and when
     available 'four_point': dict(K0, K1, K2, theta0, E_90, E_270); g_local_m_s2; ia_phase_deg.
     Raises ValueError if the up/down positions are missing.
     """
     g = float(meta["g_local_m_s2"])
     phase = _head(meta).ia_phase_deg
-    pm = position_means(_clean(data))
+    pm = position_means(_clean(data)) if means is None else means
     Eu, Ed = _mean_at(pm, phase, angle_tol_deg), _mean_at(pm, phase + 180.0, angle_tol_deg)
     if Eu is None or Ed is None:
         raise ValueError(f"two-position method needs readings at head angles {phase:g} and "
@@ -425,7 +427,7 @@ def fit_tumble_run(meta: Mapping, data, alpha: float = 0.01) -> TumbleRun:
                      f"{len(fit.result.names)} parameters leave no degrees of freedom to test the model; "
                      "its u counts reading noise only")
     try:
-        tp = two_position(meta, data)
+        tp = two_position(meta, data, means=fit.position_means)
     except Exception as exc:
         tp = {"error": str(exc)}
     return replace(fit, two_position=tp, model_choice=choice, flags=tuple(flags))
