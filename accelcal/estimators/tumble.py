@@ -48,7 +48,7 @@ import numpy as np
 import pandas as pd
 
 from ..effects import CROSS_AXIS_TERM, CROSS_TERM, SQUARE_TERM, combination_name, si_unit
-from ..fitting.core import FitResult, GaussNewton, Parameter, ParameterSet, birge_ratio, finish_fit, gauss_newton, lstsq_svd
+from ..fitting.core import FitResult, Parameter, ParameterSet, birge_ratio, finish_fit, gauss_newton, lstsq_svd
 from ..fitting.data import RunCells
 from ..fitting.distributions import chi2_sf
 from ..fitting.model import ACTING, CampaignModel
@@ -324,8 +324,7 @@ def fit_run(meta: Mapping, data, extra_terms: Sequence[str] = ()) -> TumbleRun:
     w = 1.0 / np.sqrt(s2) if np.isfinite(s2) and s2 > 0 else 1.0
     unit = str(meta.get("output_unit", "out"))
     params = ParameterSet(Parameter(nm, nm, si_unit(nm, unit), value=float(v)) for nm, v in zip(names, p0))
-    result = finish_fit(params, GaussNewton(gn.p, r * w, gn.J * w, rss * w * w, gn.iterations, gn.converged,
-                                            gn.message), test)
+    result = finish_fit(params, replace(gn, z=r * w, J=gn.J * w, chi2=rss * w * w), test)
     if result.rank < npar:
         raise ValueError(f"tumble fit is singular: the head angles do not separate {names}")
     return TumbleRun(str(meta.get("run_id")), str(meta.get("rig_id", "")), geometry_of(meta), result,
