@@ -102,6 +102,28 @@ def test_stated_uncertainty_matches_monte_carlo_spread():
     assert np.all(np.abs(est.mean(axis=0) - truth) < 4 * spread / np.sqrt(len(est)))
 
 
+def test_covariance_is_s2_times_inverse_normal_matrix_of_the_closed_form_design():
+    """Paper 003, +IA/+OA: E = K1 (K0 + g c + K2 g^2 c^2), c = cos(psi), psi = theta + theta0;
+    dE/dK0 = K1, dE/dK1 = K0 + g c + K2 g^2 c^2, dE/dK2 = K1 g^2 c^2,
+    dE/dtheta0 = -K1 g sin(psi) (1 + 2 K2 g c).  The fit's noise covariance is
+    s^2 (X'X)^-1 of this design at its estimate, s^2 = RSS / (n - 4)."""
+    rng = np.random.default_rng(7)
+    meta = tumble_meta()
+    d = simulate(meta, tumble_data(step_deg=15.0, nrep=3), TRUTH, np.radians(0.4), 3e-7, rng)
+    fit = fit_run(meta, d)
+    K0, K1, K2, t0 = (fit.values[k] for k in ("K0", "K1", "K2", "theta0"))
+    psi = np.radians(d["angle_deg"].to_numpy()) + t0
+    c = np.cos(psi)
+    X = np.column_stack([np.full(c.size, K1), K0 + G * c + K2 * G**2 * c**2, K1 * G**2 * c**2,
+                         -K1 * G * np.sin(psi) * (1 + 2 * K2 * G * c)])
+    r = d["output"].to_numpy() - K1 * (K0 + G * c + K2 * G**2 * c**2)
+    s2 = r @ r / (len(r) - 4)
+    assert fit.s ** 2 == pytest.approx(s2, rel=1e-9)
+    cov = s2 * np.linalg.inv(X.T @ X)
+    sd = np.sqrt(np.diag(cov))
+    np.testing.assert_allclose(fit.result.cov_noise / np.outer(sd, sd), cov / np.outer(sd, sd), atol=1e-6)
+
+
 @pytest.mark.parametrize("theta0_deg", [0.5, 1.0])
 def test_misalignment_of_paper_003_recovered(theta0_deg):
     """Paper 003: runs offset by 0.5 and 1.0 deg gave 0.4998 and 0.9963 deg. ES-U2: 10 V/g

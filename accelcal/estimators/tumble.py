@@ -54,12 +54,10 @@ from ..fitting.distributions import chi2_sf
 from ..fitting.model import ACTING, CampaignModel
 from ..physics.axes import AXES, parse_signed_axis
 from ..physics.geometry import TumbleHead, geometry_of
-from ..physics.rigs import tumble_specific_force
 from ..results import BudgetTerm, CoefficientResult, FitCheck, display_number
 from . import registry
 from . import uncertainty as unc
 from .adequacy import pure_error_test
-from .registry import Estimator, register
 
 #: Method id of the tumble fit's records (paper 003).
 METHOD = "tumble_lm"
@@ -223,16 +221,6 @@ def _readings_model(meta: Mapping, df: pd.DataFrame) -> CampaignModel:
     return CampaignModel([cells], ["initial_misalignment"], include=("Kip", *ACTING["tumble"]), acting=ACTING)
 
 
-def _start(meta: Mapping, df: pd.DataFrame) -> np.ndarray:
-    """Start values: theta0 = 0 and a linear least-squares fit of E on (1, a_i, a_i^2)
-    with the nominal a_i, i.e. K1 from the amplitude of the data (paper 003 starts
-    from the nominal sensitivity)."""
-    ai = tumble_specific_force(meta, df)[:, 0]
-    b = lstsq_svd(np.column_stack([np.ones_like(ai), ai, ai**2]), df["output"].to_numpy(float)).x
-    K1 = b[1] if b[1] != 0 else 1.0
-    return np.array([b[0] / K1, K1, b[2] / K1, 0.0])
-
-
 def fit_run(meta: Mapping, data, extra_terms: Sequence[str] = ()) -> TumbleRun:
     """Levenberg-Marquardt fit of the paper 003 tumble model on every reading of a run.
 
@@ -300,7 +288,11 @@ def fit_run(meta: Mapping, data, extra_terms: Sequence[str] = ()) -> TumbleRun:
         p[idx] = q
         return p
 
-    p0 = np.r_[_start(meta, df), np.zeros(len(extras))]
+    # start (paper 003: from the nominal sensitivity): theta0 = 0 and E linear in (K1 K0, K1,
+    # K1 K2), fitted on the model's columns (1, a_i, a_i^2) at the nominal instrument
+    b = lstsq_svd(model.jacobian(point(np.r_[0.0, 1.0, np.zeros(npar - 2)]), idx[:3]), model.y).x
+    K1 = b[1] if b[1] != 0 else 1.0
+    p0 = np.r_[b[0] / K1, K1, b[2] / K1, np.zeros(npar - 3)]
     gn = gauss_newton(lambda q: model.residual(point(q)), lambda q: model.jacobian(point(q), idx), p0,
                       max_iter=100, rtol=1e-14)
     r, y = gn.z, model.y
@@ -697,7 +689,7 @@ class Reference:
     u_K2: float
     from_tumble: bool = True
     #: the cross-coupling terms the tumble determines, name -> (value [s2/m], u): the
-    #: centrifuge's K_iv where its own mount pairs leave it undetermined (issue 27)
+    #: centrifuge's K_iv where its own mount pairs leave it undetermined
     cross: tuple[tuple[str, float, float], ...] = ()
 
 
@@ -829,7 +821,7 @@ def campaign_records(runs: Sequence, steps: Mapping[str, Any]) -> list:
 
 def name_combinations(runs: Sequence, coeffs: list[CoefficientResult], budget: list[BudgetTerm],
                       effects: Sequence[str] = (), corrected: set[str] = frozenset()) -> list[str]:
-    """Name each tumble row after what the tumble runs determine (issue 30; IEEE 1293): one
+    """Name each tumble row after what the tumble runs determine (IEEE 1293): one
     head measures K0 + Koo g^2, K2 - Koo and theta0 - Ko (head about PA), not K0, K2, theta0.
 
     The answer is the campaign model's (:meth:`accelcal.fitting.model.CampaignModel.measures`)
@@ -974,7 +966,7 @@ def fit_checks(extras: Mapping[str, Any]) -> list[FitCheck]:
     return out
 
 
-ESTIMATOR = register(Estimator(
+ESTIMATOR = registry.register(registry.Estimator(
     method=METHOD, tests=("tumble",),
     certificate=("paper 003 (Zhan & Cai): Levenberg–Marquardt fit of K0, K1, K2 and the head's "
                  "initial misalignment through the forward model, with a lack-of-fit test; "
