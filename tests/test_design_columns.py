@@ -44,22 +44,28 @@ def _tumble(cos_axis="+IA", sin_axis="+OA", head="PA"):
     return meta, data
 
 
-def test_tumble_jacobian_columns_are_derivatives_of_rig_output():
-    from accelcal.estimators.tumble import tumble_jacobian
+def test_tumble_design_columns_are_derivatives_of_rig_output():
+    from accelcal.estimators.tumble import fit_run
+    rng = np.random.default_rng(1)
     for axes in (("+IA", "+OA", "PA"), ("+OA", "-IA", "PA"), ("-IA", "+PA", "OA")):
         meta, data = _tumble(*axes)
         extras = ("K3", "Koq", "Kio" if axes[2] == "PA" else "Kip")
-        p = np.array([4e-4, 0.1325, 3.9e-7, 2e-3, 2e-10, 3e-8, 2e-7])
-        coeffs = {"K0": p[0], "K1": p[1], "K2": p[2], **dict(zip(extras, p[4:]))}
-        eff = {"initial_misalignment": p[3]}
-        J = tumble_jacobian(meta, data, p, extras)
+        truth = dict(zip(("K0", "K1", "K2", *extras), (4e-4, 0.1325, 3.9e-7, 2e-10, 3e-8, 2e-7)))
+        data["output"] = (rig_output("tumble", meta, data, truth, {"initial_misalignment": 2e-3})
+                          + rng.normal(0, 1e-6, len(data)))
+        fit = fit_run(meta, data, extras)
+        p = fit.values
+        coeffs = {k: p[k] for k in ("K0", "K1", "K2", *extras)}
+        eff = {"initial_misalignment": p["theta0"]}
+        J = fit.result.J * fit.s                       # the design at the solution, unwhitened
         steps = {"K0": 1e-3, "K1": 1e-3, "K2": 1e-6, "K3": 1e-9, "Koq": 1e-7, "Kio": 1e-6, "Kip": 1e-6}
-        for j, name in enumerate(("K0", "K1", "K2")):
-            assert_columns_equal(J[:, j], central("tumble", meta, data, coeffs, eff, name, steps[name]))
-        for j, name in enumerate(extras, start=4):
-            assert_columns_equal(J[:, j], central("tumble", meta, data, coeffs, eff, name, steps[name]))
-        th = central("tumble", meta, data, coeffs, eff, "initial_misalignment", 1e-5, effect=True)
-        assert_columns_equal(J[:, 3], th, rtol=1e-6)
+        for j, name in enumerate(fit.result.names):
+            if name == "theta0":
+                col = central("tumble", meta, data, coeffs, eff, "initial_misalignment", 1e-5, effect=True)
+                assert_columns_equal(J[:, j], col, rtol=1e-6, what=name)
+            else:
+                assert_columns_equal(J[:, j], central("tumble", meta, data, coeffs, eff, name, steps[name]),
+                                     what=name)
 
 
 # ----------------------------------------------------------------- paper 001: tilted rotation

@@ -120,24 +120,6 @@ def test_tumble_clean_same_frame(examples):
         _same(_clean(d), _clean_reference(d))
 
 
-def test_tumble_position_means_same(examples, monkeypatch):
-    from accelcal.estimators import tumble
-    runs = [read_run(p) for p in sorted(examples.parent.rglob("*.csv"))
-            if "drop-bad" not in str(p) and "diagnosis" not in str(p)]
-    frames = [tumble._clean(r.data) for r in runs if str(r.meta.get("test")) == "tumble"]
-    rng = np.random.default_rng(9)
-    for f in list(frames):
-        g = f.copy()
-        g["position"] = rng.permutation(g["position"].to_numpy())      # not in row order
-        frames.append(g)
-        frames.append(f[f["position"] != f["position"].iloc[0]].reset_index(drop=True))
-    fast = [tumble.position_means(f) for f in frames]
-    assert all(tumble._position_means_fast(f) is not None for f in frames)
-    monkeypatch.setattr(tumble, "_position_means_fast", lambda df: None)
-    for f, pm in zip(frames, fast):
-        _same(pm, tumble.position_means(f))
-
-
 def test_groups_of_a_long_run_by_counting_and_slices(monkeypatch):
     """Issue 28: integer keys are grouped by counting (np.unique's keys and inverse, the
     same arrays), and the within-dwell sum of squares of a long run is taken a slice of

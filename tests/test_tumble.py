@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from accelcal.estimators.tumble import fit_tumble, tumble_coefficients, two_position
+from accelcal.estimators.tumble import fit_run, pool_runs, tumble_records, two_position
 from accelcal.physics import rig_output
 
 from conftest import EXAMPLES, needs_shared  # ../shared/examples relative to the repository root
@@ -68,8 +68,8 @@ def test_recovers_truth_within_3_sigma(cos_axis, sin_axis, head):
     meta = tumble_meta(cos_axis, sin_axis, head)
     theta0 = np.radians(0.3)
     d = simulate(meta, tumble_data(), TRUTH, theta0, 3e-7, rng)
-    fit = fit_tumble(meta, d)
-    assert fit.success
+    fit = fit_run(meta, d)
+    assert fit.result.converged
     assert fit.dof == len(d) - 4
     _within_3sigma(fit, {**TRUTH, "theta0": theta0})
     # the noise is white, so s estimates sigma and the lack-of-fit test sees nothing
@@ -90,7 +90,7 @@ def test_stated_uncertainty_matches_monte_carlo_spread():
     for _ in range(200):
         d = data.copy()
         d["output"] = clean + rng.normal(0, sigma, len(d))
-        f = fit_tumble(meta, d)
+        f = fit_run(meta, d)
         est.append([f.values[k] for k in keys])
         stated.append([f.std_uncertainties[k] for k in keys])
     est, stated = np.array(est), np.array(stated)
@@ -102,6 +102,28 @@ def test_stated_uncertainty_matches_monte_carlo_spread():
     assert np.all(np.abs(est.mean(axis=0) - truth) < 4 * spread / np.sqrt(len(est)))
 
 
+def test_covariance_is_s2_times_inverse_normal_matrix_of_the_closed_form_design():
+    """Paper 003, +IA/+OA: E = K1 (K0 + g c + K2 g^2 c^2), c = cos(psi), psi = theta + theta0;
+    dE/dK0 = K1, dE/dK1 = K0 + g c + K2 g^2 c^2, dE/dK2 = K1 g^2 c^2,
+    dE/dtheta0 = -K1 g sin(psi) (1 + 2 K2 g c).  The fit's noise covariance is
+    s^2 (X'X)^-1 of this design at its estimate, s^2 = RSS / (n - 4)."""
+    rng = np.random.default_rng(7)
+    meta = tumble_meta()
+    d = simulate(meta, tumble_data(step_deg=15.0, nrep=3), TRUTH, np.radians(0.4), 3e-7, rng)
+    fit = fit_run(meta, d)
+    K0, K1, K2, t0 = (fit.values[k] for k in ("K0", "K1", "K2", "theta0"))
+    psi = np.radians(d["angle_deg"].to_numpy()) + t0
+    c = np.cos(psi)
+    X = np.column_stack([np.full(c.size, K1), K0 + G * c + K2 * G**2 * c**2, K1 * G**2 * c**2,
+                         -K1 * G * np.sin(psi) * (1 + 2 * K2 * G * c)])
+    r = d["output"].to_numpy() - K1 * (K0 + G * c + K2 * G**2 * c**2)
+    s2 = r @ r / (len(r) - 4)
+    assert fit.s ** 2 == pytest.approx(s2, rel=1e-9)
+    cov = s2 * np.linalg.inv(X.T @ X)
+    sd = np.sqrt(np.diag(cov))
+    np.testing.assert_allclose(fit.result.cov_noise / np.outer(sd, sd), cov / np.outer(sd, sd), atol=1e-6)
+
+
 @pytest.mark.parametrize("theta0_deg", [0.5, 1.0])
 def test_misalignment_of_paper_003_recovered(theta0_deg):
     """Paper 003: runs offset by 0.5 and 1.0 deg gave 0.4998 and 0.9963 deg. ES-U2: 10 V/g
@@ -111,7 +133,7 @@ def test_misalignment_of_paper_003_recovered(theta0_deg):
     coeffs = {"K0": 3e-3, "K1": 10.0 / 9.80665, "K2": 2e-6}
     theta0 = np.radians(theta0_deg)
     d = simulate(meta, tumble_data(step_deg=30.0, nrep=3), coeffs, theta0, 1e-5, rng)
-    fit = fit_tumble(meta, d)
+    fit = fit_run(meta, d)
     _within_3sigma(fit, {**coeffs, "theta0": theta0})
     assert abs(np.degrees(fit.values["theta0"]) - theta0_deg) < 1e-4   # far better than 0.4998
     assert fit.start["theta0"] == 0.0
@@ -155,11 +177,11 @@ def test_ko_aliases_with_theta0_and_koo_with_k2():
     meta = tumble_meta()
     data = tumble_data(step_deg=15.0, nrep=1)
     t0, Ko = np.radians(0.2), 2e-3
-    f = fit_tumble(meta, simulate(meta, data, {**TRUTH, "Ko": Ko}, t0, 0.0, None))
+    f = fit_run(meta, simulate(meta, data, {**TRUTH, "Ko": Ko}, t0, 0.0, None))
     assert f.values["theta0"] == pytest.approx(t0 - np.arctan(Ko), abs=5e-9)
     assert f.values["K1"] == pytest.approx(TRUTH["K1"] * np.hypot(1, Ko), rel=1e-8)
     Koo = 5e-8
-    f = fit_tumble(meta, simulate(meta, data, {**TRUTH, "Koo": Koo}, t0, 0.0, None))
+    f = fit_run(meta, simulate(meta, data, {**TRUTH, "Koo": Koo}, t0, 0.0, None))
     assert f.values["K2"] == pytest.approx(TRUTH["K2"] - Koo, rel=1e-7)
     assert f.values["K0"] == pytest.approx(TRUTH["K0"] + Koo * G**2, rel=1e-7)
 
@@ -169,13 +191,13 @@ def test_kio_extra_term_is_separable():
     meta = tumble_meta()
     truth = {**TRUTH, "Kio": 2e-7}
     d = simulate(meta, tumble_data(step_deg=15.0, nrep=3), truth, 1e-4, 2e-7, rng)
-    plain = fit_tumble(meta, d)
+    plain = fit_run(meta, d)
     assert plain.lack_of_fit["p"] < 1e-6          # the sin(2 psi) term shows as lack of fit
-    full = fit_tumble(meta, d, extra_terms=("Kio",))
+    full = fit_run(meta, d, extra_terms=("Kio",))
     _within_3sigma(full, {**truth, "theta0": 1e-4})
     assert full.lack_of_fit["p"] > 1e-3
     with pytest.raises(ValueError):
-        fit_tumble(meta, d, extra_terms=("Ko",))
+        fit_run(meta, d, extra_terms=("Ko",))
 
 
 def test_ia_on_head_axis_is_refused():
@@ -183,36 +205,39 @@ def test_ia_on_head_axis_is_refused():
     d = tumble_data()
     d["output"] = 0.0
     with pytest.raises(ValueError, match="head axis"):
-        fit_tumble(meta, d)
+        fit_run(meta, d)
 
 
 @needs_shared
 def test_sample_run_k2_matches_truth_of_the_drop():
     meta, d = read_run(EXAMPLES / "drop-2026-11-20" / "DH1-20261120-0001.csv")
-    fit = fit_tumble(meta, d)
-    assert fit.success and fit.n == 240
+    fit = fit_run(meta, d)
+    assert fit.result.converged and fit.n == 240
     z = (fit.values["K2"] - 3.94e-7) / fit.std_uncertainties["K2"]
     assert abs(z) < 3.0, z
     # the 4-term model leaves a sin(2 psi) lack of fit in this run; Kio + K3 remove it
     assert fit.lack_of_fit["p"] < 1e-6
-    full = fit_tumble(meta, d, extra_terms=("Kio", "K3"))
+    full = fit_run(meta, d, extra_terms=("Kio", "K3"))
     assert full.lack_of_fit["p"] > 0.01
     # A single tumble measures K2 - Koo; with Koo = 3.0e-8 and Kio = 2.0e-7 (the truth quoted
     # in accelcal/simulate/scenarios/snj103-lxj100.toml) the fuller fit agrees with both.
     assert abs(full.values["K2"] - (3.94e-7 - 3.0e-8)) < 3 * full.std_uncertainties["K2"]
     assert abs(full.values["Kio"] - 2.0e-7) < 3 * full.std_uncertainties["Kio"]
-    res = tumble_coefficients(fit, meta["rig_id"])
-    assert [c.name for c in res] == ["K0", "K1", "K2", "theta0"]
+    res, _, corrected = tumble_records(pool_runs([fit]), out_unit=meta["output_unit"])
+    assert [c.name for c in res] == ["K0", "K1", "K2", "theta0"] and not corrected
     assert [c.unit for c in res] == ["m/s2", "mA/(m/s2)", "s2/m", "rad"]
     assert all(c.method == "tumble_lm" and c.rig_id == "DH-1" and c.dof == 236 for c in res)
     assert "lack of fit" in res[2].note
+    # one run: u is the fit's, its reading-noise part times the lack-of-fit factor sqrt(F)
+    F = fit.lack_of_fit["F"]
+    assert res[2].std_uncertainty == pytest.approx(fit.result.std_noise("K2") * math.sqrt(F), rel=1e-9)
 
 
 @needs_shared
 def test_small_run_fits_without_error():
     meta, d = read_run(EXAMPLES / "drop-bad" / "ok-small.csv")
-    fit = fit_tumble(meta, d)
-    assert fit.success and fit.n == 12 and fit.dof == 8
+    fit = fit_run(meta, d)
+    assert fit.result.converged and fit.n == 12 and fit.dof == 8
     assert len(fit.position_means) == 4
     assert all(np.isfinite(v) and v > 0 for v in fit.std_uncertainties.values())
     tp = two_position(meta, d)
@@ -236,12 +261,12 @@ def _runs(specs, rng, extra=None):
 
 
 def test_runs_that_agree_are_pooled_without_a_flag():
-    from accelcal.estimators.tumble import pool_runs, pooling_flags
+    from accelcal.estimators.tumble import pooling_flags
     rng = np.random.default_rng(3)
     runs = _runs([("+IA", "+OA", "PA", 4e-4, 1e-3, "A"), ("+IA", "+OA", "PA", 4e-4, 1e-3, "B")], rng)
     pooled = pool_runs(runs)
     k0 = pooled["K0"]
-    u1, u2 = (r.fit.std_uncertainties["K0"] for r in runs)
+    u1, u2 = (r.std_uncertainties["K0"] for r in runs)
     assert k0.u_internal == pytest.approx(1 / math.sqrt(u1 ** -2 + u2 ** -2), rel=1e-12)
     assert not k0.disagree and not pooling_flags(pooled)
     assert abs(k0.value - 4e-4) < 3 * k0.u
@@ -249,13 +274,13 @@ def test_runs_that_agree_are_pooled_without_a_flag():
 
 
 def test_runs_that_disagree_are_flagged_and_their_u_scaled_by_birge():
-    from accelcal.estimators.tumble import pool_runs, pooling_flags, tumble_records
+    from accelcal.estimators.tumble import pooling_flags
     rng = np.random.default_rng(4)
     runs = _runs([("+IA", "+OA", "PA", 4e-4, 1e-3, "A"), ("+IA", "+OA", "PA", 4.5e-4, 1e-3, "B")], rng)
     pooled = pool_runs(runs)
     k0 = pooled["K0"]
-    vals = np.array([r.fit.values["K0"] for r in runs])
-    us = np.array([r.fit.std_uncertainties["K0"] for r in runs])
+    vals = np.array([r.values["K0"] for r in runs])
+    us = np.array([r.std_uncertainties["K0"] for r in runs])
     w = us ** -2
     mean = np.sum(w * vals) / np.sum(w)
     chi2 = np.sum(w * (vals - mean) ** 2)                               # dof 1
@@ -263,7 +288,7 @@ def test_runs_that_disagree_are_flagged_and_their_u_scaled_by_birge():
     assert k0.u == pytest.approx(math.sqrt(chi2) / math.sqrt(np.sum(w)), rel=1e-9)
     flags = pooling_flags(pooled)
     assert len(flags) == 1 and "disagree on K0" in flags[0] and "A" in flags[0] and "B" in flags[0]
-    coeffs, budget = tumble_records(pooled, out_unit="mA")
+    coeffs, budget, _ = tumble_records(pooled, out_unit="mA")
     c = next(c for c in coeffs if c.name == "K0")
     assert c.std_uncertainty == pytest.approx(k0.u, rel=1e-9) and "Birge" in c.note
     assert any("Birge" in b.quantity for b in budget if b.coefficient == "K0")
@@ -271,7 +296,6 @@ def test_runs_that_disagree_are_flagged_and_their_u_scaled_by_birge():
 
 def test_theta0_is_never_pooled_across_heads():
     """Two heads about different axes, with different misalignments: one theta0 row per head."""
-    from accelcal.estimators.tumble import pool_runs, tumble_records
     rng = np.random.default_rng(5)
     th_pa, th_oa = np.radians(0.3), np.radians(-0.5)
     square = {"Koo": 3.0e-8, "Kpp": 4.7e-8}
@@ -281,7 +305,8 @@ def test_theta0_is_never_pooled_across_heads():
     assert abs(pooled["theta0[PA]"].value - th_pa) < 3 * pooled["theta0[PA]"].u
     assert abs(pooled["theta0[OA]"].value - th_oa) < 3 * pooled["theta0[OA]"].u
     assert [r.run_id for r in pooled["theta0[PA]"].runs] == ["HPA"]
-    coeffs, _ = tumble_records(pooled, out_unit="mA")
+    coeffs, _, corrected = tumble_records(pooled, out_unit="mA")
+    assert not corrected
     names = [c.name for c in coeffs]
     assert "theta0[PA]" in names and "theta0[OA]" in names and "theta0" not in names
     # without centrifuge square terms each head's K2 stays its own quantity (K2 - Koo, K2 - Kpp)
@@ -290,7 +315,9 @@ def test_theta0_is_never_pooled_across_heads():
     assert abs(k2pa.value - (TRUTH["K2"] - square["Koo"])) < 3 * k2pa.std_uncertainty
     assert abs(k2oa.value - (TRUTH["K2"] - square["Kpp"])) < 3 * k2oa.std_uncertainty
     # with them, both heads measure K2 and are pooled into one row
-    coeffs, budget = tumble_records(pooled, square_terms={k: (v, 1e-9) for k, v in square.items()}, out_unit="mA")
+    coeffs, budget, corrected = tumble_records(pooled, square_terms={k: (v, 1e-9) for k, v in square.items()},
+                                               out_unit="mA")
+    assert corrected == {"K2"}
     k2 = next(c for c in coeffs if c.name == "K2")
     assert abs(k2.value - (TRUTH["K2"])) < 3 * k2.std_uncertainty
     assert {b.quantity.split(" ")[0] for b in budget if b.coefficient == "K2"} >= {"HPA:", "HOA:", "Koo", "Kpp"}

@@ -107,6 +107,26 @@ def for_test(test: str) -> list[Estimator]:
     return [e for e in estimators() if test in e.tests]
 
 
+def prepared(steps: Mapping[str, Any], test: str) -> list:
+    """The first-pass outcomes (``prepare``) of the estimators that take runs of test kind
+    ``test``, in run order: what one method reads of another, found by the runs it takes,
+    never by its method id.
+
+    Parameters
+    ----------
+    steps : mapping
+        Method id -> first-pass outcome, as the campaign builds it.
+    test : str
+        Drop-format test kind (``'centrifuge'``, ``'tilt_rotation'``, ...).
+
+    Returns
+    -------
+    list
+        The outcomes present in ``steps``.
+    """
+    return [steps[e.method] for e in for_test(test) if e.method in steps]
+
+
 def adoption_order() -> tuple[str, ...]:
     """Method ids in the order a value is adopted: the joint fit, then the paper methods."""
     ranked = sorted(estimators(), key=lambda e: e.adoption)

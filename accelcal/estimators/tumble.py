@@ -12,20 +12,26 @@ and the instrument model (effects.md) reduces to
 
 with E in the run's ``output_unit``, K0 in m/s^2, K1 in output_unit per m/s^2,
 K2 in s^2/m and theta0 in rad.  Other axis assignments (``-IA``, IA on the
-``sin_axis``) only change the phase and sign of a_i; the prediction always comes
-from the one forward model, :func:`accelcal.physics.rigs.rig_output`, with
-theta0 passed as the ``initial_misalignment`` effect.
+``sin_axis``) only change the phase and sign of a_i.
+
+Paper 003 is a configuration of the one fit: the run's readings are the cells of a
+:class:`accelcal.fitting.model.CampaignModel` (the forward model
+:func:`accelcal.physics.rigs.rig_output` with theta0 as the ``initial_misalignment``
+effect), K0, K1, K2, theta0 (and any extra terms) free, every other coefficient held at
+0, solved by :func:`accelcal.fitting.core.gauss_newton` with equal weights; the paper's
+reporting (lack of fit against the pure error of the head positions, two-position values,
+Birge-ratio pooling of a campaign's runs, theta0 per head) is this module's.
 
 **Aliasing (paper 003, note; effects.md).**  In a single tumble an OA (or, more
 generally, the other in-plane axis) cross-axis sensitivity Ko cannot be told apart
 from theta0: K1 (g cos psi + Ko g sin psi) = K1 sqrt(1 + Ko^2) g cos(psi - atan Ko),
 so with +IA/+OA the fit returns theta0 - atan(Ko) (and K1 sqrt(1 + Ko^2)), up to a
-K2-sized residual.  :func:`fit_tumble` does **not** estimate Ko; its theta0 is
+K2-sized residual.  The fit does **not** estimate Ko; its theta0 is
 "misalignment + cross-axis term" and must be reported as such.  Likewise the
 quadratic term of the other in-plane axis aliases: Koo g^2 sin^2 psi = Koo g^2 -
 Koo g^2 cos^2 psi, so the fitted K2 is K2 - Koo and the fitted K0 is K0 + Koo g^2.
 The IA x OA cross term Kio (g^2 sin(2 psi)/2) and the cubic K3 are separable and
-may be added with ``extra_terms``; without them they show up as lack of fit (and,
+may be added as extra terms; without them they show up as lack of fit (and,
 on a symmetric set of head angles, do not bias K0, K2, theta0; K3 scales K1 by
 1 + 3 K3 g^2 / 4).  K3 and the odd quadratic Koq are nearly aliased: a_i |a_i| =
 g^2 (8/(3 pi) cos psi + 8/(15 pi) cos 3 psi - ...), so a K3-only fit returns about
@@ -35,24 +41,23 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from typing import Any
-from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 
 from ..effects import CROSS_AXIS_TERM, CROSS_TERM, SQUARE_TERM, combination_name, si_unit
-from ..fitting.core import (FitResult, GaussNewton, LackOfFit, Parameter, ParameterSet, birge_ratio,
-                            finish_fit, gauss_newton, lstsq_svd)
+from ..fitting.core import FitResult, Parameter, ParameterSet, birge_ratio, finish_fit, gauss_newton, lstsq_svd
+from ..fitting.data import RunCells
+from ..fitting.distributions import chi2_sf
+from ..fitting.model import ACTING, CampaignModel
 from ..physics.axes import AXES, parse_signed_axis
 from ..physics.geometry import TumbleHead, geometry_of
-from ..physics.instrument import output_derivative
-from ..physics.rigs import rig_output, tumble_specific_force
 from ..results import BudgetTerm, CoefficientResult, FitCheck, display_number
+from . import registry
 from . import uncertainty as unc
-from .registry import Estimator, register
 from .adequacy import pure_error_test
-from ..fitting.distributions import chi2_sf
 
 #: Method id of the tumble fit's records (paper 003).
 METHOD = "tumble_lm"
@@ -64,112 +69,11 @@ _ALIAS_NOTE = ("theta0 aliases with an OA cross-axis sensitivity Ko in a single 
                "(paper 003): the value is theta0 - atan(Ko) for +IA/+OA")
 
 
-@dataclass
-class TumbleFit:
-    """Result of :func:`fit_tumble` (Zhan & Cai, paper 003: LM fit of K0, K1, K2, theta0).
-
-    Attributes
-    ----------
-    values, std_uncertainties : dict (properties, read from ``result``)
-        K0 [m/s2], K1 [output_unit/(m/s2)], K2 [s2/m], theta0 [rad] and the extra terms;
-        std = sqrt(diag(cov)).
-    cov : (p, p) ndarray (property)
-        Covariance in ``param_names`` order: s^2 (J^T J)^+ (s^2 = RSS / dof, J the design at
-        the solution, :func:`tumble_jacobian`), times F when the lack-of-fit test fails.
-    corr : (p, p) ndarray (property)
-    extras : tuple of str
-        Extra instrument terms fitted (``extra_terms``), also in ``values``.
-    lack_of_fit : dict or None
-        F, p, dof_lof = P - p, dof_pe = n - P, s_pure_error [output_unit], status: the
-        position means against the within-position scatter; None when untestable.
-    adequacy : LackOfFit
-        The core's test ('adequate' / 'inadequate' / 'untestable').
-    result : FitResult
-        The core's result (whitened by s).
-    cov_positions : ndarray or None
-        [sum_k n_k rbar_k^2 / (P - p)] (J^T J)^+: the covariance from the scatter of the
-        position means (valid when errors are common to a dwell: head-angle error,
-        unmodelled terms); None if P <= p.
-    residuals : ndarray
-        Output minus prediction, one per reading [output_unit].
-    residual_rms, s : float
-        sqrt(mean(r^2)) and sqrt(RSS / dof) [output_unit].
-    n, dof : int
-        Readings used and n - p.
-    position_means : DataFrame
-        Per head position: position, angle_deg, n, mean_output, std_output, sem_output,
-        predicted, mean_residual [output_unit].
-    ia_phase_deg : float
-        Head angle at which IA nominally points up [deg] (0 for +IA on cos_axis).
-    """
-    #: the core's fit result (whitened by s; cov scaled by sqrt(F) when inadequate): values,
-    #: covariance and correlation are read from it, never restated
-    result: FitResult
-    residuals: np.ndarray
-    residual_rms: float
-    s: float
-    n: int
-    dof: int
-    position_means: pd.DataFrame
-    output_unit: str
-    g_local_m_s2: float
-    ia_phase_deg: float
-    success: bool
-    message: str
-    nfev: int
-    start: dict[str, float] = field(default_factory=dict)
-    note: str = _ALIAS_NOTE
-    extras: tuple[str, ...] = ()
-    lack_of_fit: dict | None = None
-    cov_positions: np.ndarray | None = None
-    param_names: tuple[str, ...] = PARAMS
-    #: the core's lack-of-fit test ('adequate' / 'inadequate' / 'untestable')
-    adequacy: LackOfFit | None = None
-
-    @property
-    def values(self) -> dict[str, float]:
-        """Estimates by name [SI units of each parameter]."""
-        return dict(zip(self.param_names, map(float, self.result.values)))
-
-    @property
-    def cov(self) -> np.ndarray:
-        """Covariance in ``param_names`` order (NaN without degrees of freedom)."""
-        n = len(self.param_names)
-        return self.result.cov if self.dof > 0 else np.full((n, n), np.nan)
-
-    @property
-    def std_uncertainties(self) -> dict[str, float]:
-        """sqrt(diag(cov)) by name [SI units]."""
-        return dict(zip(self.param_names, map(float, np.sqrt(np.diag(self.cov)))))
-
-    @property
-    def corr(self) -> np.ndarray:
-        """Correlation matrix in ``param_names`` order."""
-        cov = self.cov
-        sd = np.sqrt(np.diag(cov))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return cov / np.outer(sd, sd)
-
-    @property
-    def coeffs(self) -> dict[str, float]:
-        """Instrument coefficients for :func:`accelcal.physics.rig_output` (K0, K1, K2, extras)."""
-        return {k: self.values[k] for k in ("K0", "K1", "K2", *self.extras)}
-
-    @property
-    def effects(self) -> dict[str, float]:
-        """Rig effects for :func:`accelcal.physics.rig_output` (initial_misalignment)."""
-        return {"initial_misalignment": self.values["theta0"]}
-
-    def __getitem__(self, name: str) -> float:
-        return self.values[name]
-
-
-def _ia_phase_deg(meta: Mapping) -> float:
-    """Head angle (deg) at which IA nominally points up; raises if IA lies on the head axis."""
-    for key, base in (("cos_axis", 0.0), ("sin_axis", 90.0)):
-        ax, sign = parse_signed_axis(meta[key])
-        if ax == 0:
-            return (base + (0.0 if sign > 0 else 180.0)) % 360.0
+def _head(meta: Mapping) -> TumbleHead:
+    """The dividing head's axes (IA up at ``ia_phase_deg``); raises if IA lies on the head axis."""
+    head = geometry_of(meta)
+    if head.ia_phase_deg is not None:
+        return head
     raise ValueError(f"tumble run has IA on the head axis ({meta.get('head_axis')!r}): "
                      "IA never turns in the vertical plane, K0/K1/K2 cannot be calibrated")
 
@@ -185,21 +89,10 @@ def _clean(data) -> pd.DataFrame:
     if any(len(v) != n for v in cols.values()):
         raise ValueError(f"tumble columns of different lengths: { {k: len(v) for k, v in cols.items()} }")
     ok = np.isfinite(cols["output"].astype(float)) & np.isfinite(cols["angle_deg"].astype(float))
-    # the finite rows, as one frame (column by column into a frame was ~1 ms of pandas a column)
     df = pd.DataFrame({k: v[ok] for k, v in cols.items()})
     if "position" not in df:
         df["position"] = pd.factorize(df["angle_deg"].round(9))[0]
     return df
-
-
-def _predict(meta: Mapping, df: pd.DataFrame, p: np.ndarray, extras: tuple[str, ...] = ()) -> np.ndarray:
-    """E (output_unit) of the forward model for p = (K0, K1, K2, theta0, *extras).
-
-    Temperature terms are not part of this fit: the forward model sees K0T = K1T = 0,
-    so temp_c has no effect."""
-    K0, K1, K2, th0 = p[:4]
-    coeffs = {"K0": K0, "K1": K1, "K2": K2, **dict(zip(extras, p[4:]))}
-    return rig_output("tumble", meta, df, coeffs, {"initial_misalignment": th0})
 
 
 def separable_extra_terms(meta: Mapping) -> dict[str, str]:
@@ -217,60 +110,7 @@ def separable_extra_terms(meta: Mapping) -> dict[str, str]:
         in-plane axis (Kio for OA, Kip for PA) [s2/m].  Ko/Kp (alias theta0) and Koo/Kpp
         (alias K2, K0) are not separable (paper 003 note); head-axis terms are zero.
     """
-    _ia_phase_deg(meta)
-    other = {parse_signed_axis(meta[k])[0] for k in ("cos_axis", "sin_axis")} - {0}
-    cross = {1: "Kip", 2: "Kio"}[other.pop()]
-    return {k: si_unit(k) for k in ("K3", "Koq", cross)}
-
-
-def tumble_jacobian(meta: Mapping, df: pd.DataFrame, p: np.ndarray,
-                    extras: tuple[str, ...] = ()) -> np.ndarray:
-    """Design (Jacobian) dE/dp of the tumble model at p = (K0, K1, K2, theta0, *extras).
-
-    Parameters
-    ----------
-    meta : mapping
-        Typed run metadata.
-    df : DataFrame
-        Readings (``angle_deg`` [deg], ...).
-    p : ndarray
-        K0 [m/s2], K1 [output_unit/(m/s2)], K2 [s2/m], theta0 [rad], extras [SI].
-    extras : tuple of str
-        Extra instrument terms (:func:`separable_extra_terms`).
-
-    Returns
-    -------
-    (n, 4 + len(extras)) ndarray
-        [output_unit per parameter unit].  The instrument-coefficient columns are the exact
-        derivatives of the forward model (:func:`accelcal.physics.instrument.output_derivative`
-        at the specific force of :func:`accelcal.physics.rigs.tumble_specific_force`); the
-        theta0 column is the central difference of
-        :func:`accelcal.physics.rigs.rig_output` (h = 1e-6 rad, error O(h^2)).
-    """
-    K0, K1, K2, th0 = p[:4]
-    coeffs = {"K0": K0, "K1": K1, "K2": K2, **dict(zip(extras, p[4:]))}
-    F = tumble_specific_force(meta, df, {"initial_misalignment": th0})
-    J = np.empty((F.shape[0], len(p)))
-    for j, name in enumerate(("K0", "K1", "K2")):
-        J[:, j] = output_derivative(name, coeffs, F)
-    for j, name in enumerate(extras, start=4):
-        J[:, j] = output_derivative(name, coeffs, F)
-    h = 1e-6
-    dp = np.zeros_like(p)
-    dp[3] = h
-    J[:, 3] = (_predict(meta, df, p + dp, extras) - _predict(meta, df, p - dp, extras)) / (2 * h)
-    return J
-
-
-def _start(meta: Mapping, df: pd.DataFrame, g: float) -> np.ndarray:
-    """Start values: theta0 = 0 and a linear least-squares fit of E on (1, a_i, a_i^2)
-    with the nominal a_i, i.e. K1 from the amplitude of the data (paper 003 starts
-    from the nominal sensitivity)."""
-    ai = tumble_specific_force(meta, df)[:, 0]
-    A = np.column_stack([np.ones_like(ai), ai, ai**2])
-    b = lstsq_svd(A, df["output"].to_numpy(float)).x
-    K1 = b[1] if b[1] != 0 else 1.0
-    return np.array([b[0] / K1, K1, b[2] / K1, 0.0])
+    return {k: si_unit(k) for k in ("K3", "Koq", CROSS_TERM[frozenset((0, _head(meta).other_axis))])}
 
 
 def position_means(df: pd.DataFrame) -> pd.DataFrame:
@@ -284,23 +124,104 @@ def position_means(df: pd.DataFrame) -> pd.DataFrame:
     Returns
     -------
     DataFrame
-        position, angle_deg, n, mean_output, std_output, sem_output [output_unit].
+        position, angle_deg [deg], n, mean_output, std_output, sem_output [output_unit].
     """
-    fast = _position_means_fast(df)
-    if fast is not None:
-        return fast
     grp = df.groupby("position", sort=True)
-    out = pd.DataFrame({
-        "angle_deg": grp["angle_deg"].mean(),
-        "n": grp["output"].size(),
-        "mean_output": grp["output"].mean(),
-        "std_output": grp["output"].std(ddof=1),
-    })
+    out = pd.DataFrame({"angle_deg": grp["angle_deg"].mean(), "n": grp["output"].size(),
+                        "mean_output": grp["output"].mean(), "std_output": grp["output"].std(ddof=1)})
     out["sem_output"] = out["std_output"] / np.sqrt(out["n"])
     return out.reset_index()
 
 
-def fit_tumble(meta: Mapping, data, extra_terms: tuple[str, ...] | list[str] = ()) -> TumbleFit:
+@dataclass(frozen=True)
+class TumbleRun:
+    """Paper 003 on one run: the one fit's result and the paper's reporting of it.
+
+    Attributes
+    ----------
+    run_id, rig_id : str
+    head : TumbleHead
+        The dividing head's axis assignment (physics.geometry).
+    result : FitResult
+        The core's result in :data:`PARAMS` order (+ ``extras``): K0 [m/s2], K1
+        [output_unit/(m/s2)], K2 [s2/m], theta0 [rad]; residuals whitened by s, so its
+        ``cov_noise`` is s^2 (J^T J)^+ and ``cov`` that times F when the lack-of-fit test fails.
+    s, residual_rms : float
+        sqrt(RSS / dof) and sqrt(mean(r^2)) of the readings [output_unit].
+    n : int
+        Readings used.
+    position_means : DataFrame
+        Per head position: position, angle_deg, n, mean_output, predicted, mean_residual
+        [output_unit].
+    g_local_m_s2 : float
+    extras : tuple of str
+        Extra instrument terms fitted (:func:`separable_extra_terms`).
+    lack_of_fit : dict or None
+        F, p, dof_lof = P - p, dof_pe = n - P, s_pure_error [output_unit], status: the
+        position means against the within-position scatter; None when untestable.
+    start : dict
+        Start values by name (theta0 = 0; K0, K1, K2 from the nominal input).
+    two_position : dict
+        :func:`two_position` (or {'error': ...}).
+    model_choice : dict or None
+        The extended model chosen when the basic one failed its lack-of-fit test.
+    flags : tuple of str
+    """
+    run_id: str
+    rig_id: str
+    head: TumbleHead
+    result: FitResult
+    s: float
+    residual_rms: float
+    n: int
+    position_means: pd.DataFrame
+    g_local_m_s2: float
+    extras: tuple[str, ...] = ()
+    lack_of_fit: dict | None = None
+    start: dict = field(default_factory=dict)
+    two_position: dict = field(default_factory=dict)
+    model_choice: dict | None = None
+    flags: tuple[str, ...] = ()
+
+    @property
+    def values(self) -> dict[str, float]:
+        """Estimates by name [SI units of each parameter]."""
+        return {k: self.result.value(k) for k in self.result.names}
+
+    @property
+    def std_uncertainties(self) -> dict[str, float]:
+        """Standard uncertainties by name, lack-of-fit scaled [SI units]."""
+        return {k: self.result.std(k) for k in self.result.names}
+
+    @property
+    def dof(self) -> int:
+        """Readings minus parameters."""
+        return self.result.dof
+
+    @property
+    def group(self) -> str:
+        """Instrument axis on the head axis: the runs of one group measure the same K0, K2 and
+        theta0 (the other turning axis, whose square term aliases into K2, is the same)."""
+        return AXES[self.head.head_axis]
+
+    def u_parts(self, name: str) -> tuple[float, float, float]:
+        """(u, u from the reading noise, lack-of-fit factor) of a fitted parameter."""
+        return self.result.std(name), self.result.std_noise(name), float(self.result.lof.factor)
+
+
+def _readings_model(meta: Mapping, df: pd.DataFrame) -> CampaignModel:
+    """The campaign model of one tumble run whose cells are its readings (paper 003 fits
+    every reading), unweighted: the run's noise model is left unset."""
+    y = df["output"].to_numpy(float)
+    n = y.size
+    cells = RunCells(index=0, meta=dict(meta), geometry=geometry_of(meta),
+                     cols={k: df[k].to_numpy() for k in df.columns}, rate_derivative=None,
+                     cid=np.arange(n), n=np.ones(n), y_rows=y, y=y, x_rows=np.zeros(n), x=np.zeros(n),
+                     lines=np.zeros(n, int))
+    return CampaignModel([cells], ["initial_misalignment"], include=("Kip", *ACTING["tumble"]), acting=ACTING)
+
+
+def fit_run(meta: Mapping, data, extra_terms: Sequence[str] = ()) -> TumbleRun:
     """Levenberg-Marquardt fit of the paper 003 tumble model on every reading of a run.
 
     .. math::
@@ -324,9 +245,9 @@ def fit_tumble(meta: Mapping, data, extra_terms: tuple[str, ...] | list[str] = (
 
     Returns
     -------
-    TumbleFit
+    TumbleRun
         K0 [m/s2], K1 [output_unit/(m/s2)], K2 [s2/m], theta0 [rad] (+ extras) with their
-        covariance.
+        covariance and lack of fit.
 
     Raises
     ------
@@ -336,29 +257,17 @@ def fit_tumble(meta: Mapping, data, extra_terms: tuple[str, ...] | list[str] = (
 
     Notes
     -----
-    The prediction is :func:`accelcal.physics.rigs.rig_output` with coefficients (K0, K1,
-    K2, extras) and effect ``initial_misalignment`` = theta0; the design is
-    :func:`tumble_jacobian` (exact coefficient columns, central difference for theta0).
-    Start: theta0 = 0, K0, K1, K2 from a linear fit on the nominal input (paper 003 starts
-    from the nominal sensitivity).  Solver: :func:`accelcal.fitting.core.gauss_newton`
-    (Gauss-Newton with Marquardt damping), unweighted (equal-variance readings).
-    Covariance: s^2 (J^T J)^+ with s^2 = RSS / (n - p) (the core's scaled SVD), multiplied
-    by the lack-of-fit factor F when the core's test of the position means against the
-    within-position scatter (:func:`accelcal.fitting.core.lack_of_fit`) fails; with as many
-    positions as parameters the test is 'untestable' (``adequacy``) and the covariance
-    counts reading noise only.  ``cov_positions`` = [sum_k n_k rbar_k^2 / (P - p)]
-    (J^T J)^+ rests on the P position means instead.
-
-    theta0 aliases with the cross-axis sensitivity of the other turning axis (Ko for
-    +IA/+OA): it is not estimated (module docstring; Koo likewise aliases into K2 and K0).
-
-    References
-    ----------
-    Zhan & Cai, gravity calibration with an initial misalignment angle (paper 003;
-    ``shared/docs/methods.md``).
+    The model is :func:`_readings_model` with every coefficient but K0, K1, K2 and the
+    extras held at 0; its Jacobian columns are the exact coefficient derivatives and the
+    central difference of ``rig_output`` in theta0
+    (:meth:`~accelcal.fitting.model.CampaignModel.jacobian`).  Start: theta0 = 0, K0, K1,
+    K2 from a linear fit on the nominal input (paper 003 starts from the nominal
+    sensitivity).  Solver: :func:`accelcal.fitting.core.gauss_newton` (Marquardt damping),
+    unweighted (equal-variance readings).  Covariance: s^2 (J^T J)^+ with
+    s^2 = RSS / (n - p), times the lack-of-fit factor F when the test of the position means
+    against the within-position scatter fails; with as many positions as parameters the
+    test is 'untestable' and the covariance counts reading noise only.
     """
-    g = float(meta["g_local_m_s2"])
-    phase = _ia_phase_deg(meta)
     extras = tuple(extra_terms)
     allowed = separable_extra_terms(meta)
     bad = [e for e in extras if e not in allowed]
@@ -371,96 +280,57 @@ def fit_tumble(meta: Mapping, data, extra_terms: tuple[str, ...] | list[str] = (
     if len(df) < npar + 1 or n_ang < npar - 1:
         raise ValueError(f"tumble fit of {npar} parameters needs >= {npar + 1} readings at >= "
                          f"{npar - 1} head angles, got {len(df)} readings at {n_ang} angles")
-    y = df["output"].to_numpy(float)
-    p0 = np.r_[_start(meta, df, g), np.zeros(len(extras))]
-    out_unit = str(meta.get("output_unit", "out"))
-    params = ParameterSet(Parameter(nm, nm, si_unit(nm, out_unit), value=float(v)) for nm, v in zip(names, p0))
+    model = _readings_model(meta, df)
+    idx = [model.params.index[k] for k in ("K0", "K1", "K2", "initial_misalignment", *extras)]
 
-    # the model reads the same columns as numpy arrays, taken once (not per evaluation)
-    cols = {k: df[k].to_numpy() for k in df.columns}
+    def point(q):
+        p = np.zeros(len(model.params))
+        p[idx] = q
+        return p
 
-    def resid(p):
-        return y - _predict(meta, cols, p, extras)
-
-    def jac(p):
-        return tumble_jacobian(meta, cols, p, extras)
-
-    # Levenberg-Marquardt from the nominal sensitivity (paper 003), unweighted: every reading
-    # has the same variance; the core's Gauss-Newton with Marquardt damping
-    gn = gauss_newton(resid, jac, p0, max_iter=100, rtol=1e-14)
-    p = gn.p
-    r = gn.z
-    pred = y - r
-    n = len(y)
-    dof = n - npar
-    rss = float(r @ r)
-    s2 = rss / dof if dof > 0 else np.nan
-    sol = lstsq_svd(gn.J, np.zeros(n))
-    if sol.rank < npar:
-        raise ValueError(f"tumble fit is singular: the head angles do not separate {names}")
-
+    # start (paper 003: from the nominal sensitivity): theta0 = 0 and E linear in (K1 K0, K1,
+    # K1 K2), fitted on the model's columns (1, a_i, a_i^2) at the nominal instrument
+    b = lstsq_svd(model.jacobian(point(np.r_[0.0, 1.0, np.zeros(npar - 2)]), idx[:3]), model.y).x
+    K1 = b[1] if b[1] != 0 else 1.0
+    p0 = np.r_[b[0] / K1, K1, b[2] / K1, np.zeros(npar - 3)]
+    gn = gauss_newton(lambda q: model.residual(point(q)), lambda q: model.jacobian(point(q), idx), p0,
+                      max_iter=100, rtol=1e-14)
+    r, y = gn.z, model.y
+    n, rss = y.size, float(gn.z @ gn.z)
+    s2 = rss / (n - npar)
     pm = position_means(df)
     pos = df["position"].to_numpy()
-    pm["predicted"] = pd.Series(pred).groupby(pos).mean().to_numpy()
+    pm["predicted"] = pd.Series(y - r).groupby(pos).mean().to_numpy()
     pm["mean_residual"] = pm["mean_output"] - pm["predicted"]
-
-    # Lack of fit: position-mean residuals against the within-position (pure error) scatter,
-    # the fitting core's one test
-    P = len(pm)
+    # lack of fit: position-mean residuals against the within-position (pure error) scatter
     ss_lof = float((pm["n"] * pm["mean_residual"] ** 2).sum())
     ss_pe = float(((r - pd.Series(r).groupby(pos).transform("mean").to_numpy()) ** 2).sum())
-    dof_lof, dof_pe = P - npar, n - P
+    dof_lof, dof_pe = len(pm) - npar, n - len(pm)
     test = pure_error_test(ss_lof, dof_lof, ss_pe, dof_pe)
     lof = None
     if test.status != "untestable":
         lof = {"F": float(test.statistic), "p": float(test.p_value), "dof_lof": dof_lof,
                "dof_pe": dof_pe, "s_pure_error": float(np.sqrt(ss_pe / dof_pe)), "status": test.status}
-    # the fit in the core's terms: residuals whitened by s (equal-variance readings), so the
-    # noise-model covariance is s^2 (J^T J)^+; the reported one is scaled by sqrt(F) when
-    # the lack-of-fit test fails (fitting.core.FitResult)
+    # residuals whitened by s (equal-variance readings): the noise-model covariance is
+    # s^2 (J^T J)^+, scaled by sqrt(F) when the lack-of-fit test fails
     w = 1.0 / np.sqrt(s2) if np.isfinite(s2) and s2 > 0 else 1.0
-    result = finish_fit(params, GaussNewton(p, r * w, gn.J * w, rss * w * w, gn.iterations, gn.converged,
-                                            gn.message), test)
-    cov_pos = (ss_lof / dof_lof) * sol.cov if dof_lof > 0 else None
-
-    return TumbleFit(
-        result=result, residuals=r,
-        residual_rms=float(np.sqrt(rss / n)), s=float(np.sqrt(s2)), n=n, dof=dof,
-        position_means=pm, output_unit=str(meta.get("output_unit", "")), g_local_m_s2=g,
-        ia_phase_deg=phase, success=bool(gn.converged), message=str(gn.message),
-        nfev=int(gn.iterations), start=dict(zip(names, map(float, p0))), extras=extras,
-        lack_of_fit=lof, cov_positions=cov_pos, param_names=names, adequacy=test)
+    unit = str(meta.get("output_unit", "out"))
+    params = ParameterSet(Parameter(nm, nm, si_unit(nm, unit), value=float(v)) for nm, v in zip(names, p0))
+    result = finish_fit(params, replace(gn, z=r * w, J=gn.J * w, chi2=rss * w * w), test)
+    if result.rank < npar:
+        raise ValueError(f"tumble fit is singular: the head angles do not separate {names}")
+    return TumbleRun(str(meta.get("run_id")), str(meta.get("rig_id", "")), geometry_of(meta), result,
+                     float(np.sqrt(s2)), float(np.sqrt(rss / n)), n, pm, float(meta["g_local_m_s2"]), extras,
+                     lof, dict(zip(names, map(float, p0))))
 
 
-def _position_means_fast(df: pd.DataFrame) -> pd.DataFrame | None:
-    """:func:`position_means` by numpy and pandas' own groupby kernels, taking pandas' path
-    for each reduction (:class:`.dwells._Groups`: the same floats); None where it does not
-    apply (then pandas itself)."""
-    from .dwells import _PANDAS_FOLLOWED, _Groups, _plain
-    if pd.__version__ != _PANDAS_FOLLOWED or any(c not in df for c in ("position", "angle_deg", "output")):
-        return None
-    pos, ang, out = _plain(df["position"], "i"), _plain(df["angle_deg"], "f"), _plain(df["output"], "f")
-    if pos is None or ang is None or out is None or len(pos) == 0:
-        return None
-    if not (np.isfinite(ang).all() and np.isfinite(out).all()):
-        return None
-    grp = _Groups(pos)
-    std = grp.std(out)
-    return pd.DataFrame({"position": grp.keys, "angle_deg": grp.mean(ang), "n": grp.counts,
-                         "mean_output": grp.mean(out), "std_output": std, "sem_output": std / np.sqrt(grp.counts)})
+def _mean_at(pm: pd.DataFrame, angle: float, tol: float) -> float | None:
+    """Mean output at the head angle ``angle`` [deg] (within ``tol``), None where there is none."""
+    sel = pm[np.abs((pm["angle_deg"] - angle + 180.0) % 360.0 - 180.0) <= tol]
+    return None if sel.empty else float(np.average(sel["mean_output"], weights=sel["n"].to_numpy(float)))
 
 
-def _mean_at(pm: pd.DataFrame, angle: float, tol: float) -> tuple[float, float, int] | None:
-    d = (pm["angle_deg"] - angle + 180.0) % 360.0 - 180.0
-    sel = pm[np.abs(d) <= tol]
-    if sel.empty:
-        return None
-    w = sel["n"].to_numpy(float)
-    return (float(np.average(sel["mean_output"], weights=w)),
-            float(np.average(sel["angle_deg"], weights=w)), int(w.sum()))
-
-
-def two_position(meta: Mapping, data, angle_tol_deg: float = 1e-3) -> dict:
+def two_position(meta: Mapping, data, angle_tol_deg: float = 1e-3, means: pd.DataFrame | None = None) -> dict:
     """Two-position (and four-point) closed forms (paper 003), for comparison with the LM fit.
 
     With E_up, E_down the mean outputs where IA nominally points up and down (head angles
@@ -480,27 +350,26 @@ def two_position(meta: Mapping, data, angle_tol_deg: float = 1e-3) -> dict:
         K1 K2 g^2 cos(2 theta0) = (E_0 + E_180 - E_90 - E_270)/2
         K1 (K0 + K2 g^2 / 2) = (E_0 + E_90 + E_180 + E_270)/4
 
+    ``means``, when given, are the run's :func:`position_means` (``data`` is then not read).
+
     Returns dict: E_up, E_down (output_unit), SH, KH, K1, K0 (two-position), and when
     available 'four_point': dict(K0, K1, K2, theta0, E_90, E_270); g_local_m_s2; ia_phase_deg.
     Raises ValueError if the up/down positions are missing.
     """
     g = float(meta["g_local_m_s2"])
-    phase = _ia_phase_deg(meta)
-    df = _clean(data)
-    pm = position_means(df)
-    up, down = _mean_at(pm, phase, angle_tol_deg), _mean_at(pm, phase + 180.0, angle_tol_deg)
-    if up is None or down is None:
+    phase = _head(meta).ia_phase_deg
+    pm = position_means(_clean(data)) if means is None else means
+    Eu, Ed = _mean_at(pm, phase, angle_tol_deg), _mean_at(pm, phase + 180.0, angle_tol_deg)
+    if Eu is None or Ed is None:
         raise ValueError(f"two-position method needs readings at head angles {phase:g} and "
                          f"{(phase + 180) % 360:g} deg (IA up and down)")
-    Eu, Ed = up[0], down[0]
     SH = (Eu - Ed) / (2 * g)
     KH = (Eu + Ed) / 2
     out = {"E_up": Eu, "E_down": Ed, "SH": SH, "KH": KH, "K1": SH, "K0": KH / SH,
            "g_local_m_s2": g, "ia_phase_deg": phase, "output_unit": str(meta.get("output_unit", "")),
            "four_point": None}
-    q90, q270 = _mean_at(pm, phase + 90.0, angle_tol_deg), _mean_at(pm, phase + 270.0, angle_tol_deg)
-    if q90 is not None and q270 is not None:
-        E90, E270 = q90[0], q270[0]
+    E90, E270 = _mean_at(pm, phase + 90.0, angle_tol_deg), _mean_at(pm, phase + 270.0, angle_tol_deg)
+    if E90 is not None and E270 is not None:
         c = (Eu - Ed) / (2 * g)            # K1 cos theta0
         s = (E270 - E90) / (2 * g)         # K1 sin theta0
         K1 = float(np.hypot(c, s))
@@ -512,91 +381,11 @@ def two_position(meta: Mapping, data, angle_tol_deg: float = 1e-3) -> dict:
     return out
 
 
-def tumble_coefficients(fit: TumbleFit, rig_id: str, covariance: str = "readings") -> list[CoefficientResult]:
-    """Coefficient records (method 'tumble_lm') of one :class:`TumbleFit`.
-
-    Parameters
-    ----------
-    fit : TumbleFit
-    rig_id : str
-    covariance : str
-        'readings' (default): u from fit.cov (s^2 (J^T J)^+, lack-of-fit scaled), dof n - p;
-        'positions': from fit.cov_positions (scatter of the position means), dof P - p.
-
-    Returns
-    -------
-    list of CoefficientResult
-        K0 [m/s2], K1 [output_unit/(m/s2)], K2 [s2/m], theta0 [rad] and the extra terms; a
-        significant lack of fit (p < 0.01) is written into every note.  A campaign's runs go
-        through :func:`pool_runs` and :func:`tumble_records` instead.
-    """
-    if covariance == "readings":
-        sd, dof = fit.std_uncertainties, float(fit.dof)
-    elif covariance == "positions":
-        if fit.cov_positions is None:
-            raise ValueError("no position-based covariance: too few head positions")
-        sd = dict(zip(fit.param_names, np.sqrt(np.diag(fit.cov_positions)).tolist()))
-        dof = float(fit.lack_of_fit["dof_lof"]) if fit.lack_of_fit else float(len(fit.position_means) - len(fit.param_names))
-    else:
-        raise ValueError(f"covariance {covariance!r} is not 'readings' or 'positions'")
-    notes = {"theta0": _ALIAS_NOTE, "K2": "a single tumble gives K2 - Koo (Koo aliases)"}
-    lof = ""
-    if fit.lack_of_fit and fit.lack_of_fit["p"] < 0.01:
-        lof = f"lack of fit: F = {fit.lack_of_fit['F']:.3g}, p = {fit.lack_of_fit['p']:.2g}"
-    out = []
-    for k in fit.param_names:
-        note = "; ".join(x for x in (notes.get(k, ""), f"covariance from {covariance}", lof) if x)
-        out.append(CoefficientResult(name=k, value=fit.values[k], std_uncertainty=float(sd[k]),
-                                     unit=si_unit(k, fit.output_unit or "out"), method=METHOD,
-                                     rig_id=rig_id, dof=dof, note=note))
-    return out
-
-
-# --------------------------------------------------------------------------- a campaign's tumble runs
-
-@dataclass(frozen=True)
-class TumbleRun:
-    """One tumble run fitted by :func:`fit_tumble_run`.
-
-    Attributes
-    ----------
-    run_id, rig_id : str
-    head : TumbleHead
-        The dividing head's axis assignment (physics.geometry).
-    fit : TumbleFit
-    two_position : dict
-        :func:`two_position` (or {'error': ...}).
-    model_choice : dict or None
-        The extended model chosen when the basic one failed its lack-of-fit test.
-    flags : tuple of str
-    """
-    run_id: str
-    rig_id: str
-    head: TumbleHead
-    fit: TumbleFit
-    two_position: dict
-    model_choice: dict | None = None
-    flags: tuple[str, ...] = ()
-
-    @property
-    def group(self) -> str:
-        """Instrument axis on the head axis: the runs of one group measure the same K0, K2 and
-        theta0 (the other turning axis, whose square term aliases into K2, is the same)."""
-        return AXES[self.head.head_axis]
-
-    def u_parts(self, name: str) -> tuple[float, float, float]:
-        """(u, u from the reading noise, lack-of-fit factor) of a fitted parameter."""
-        u = float(self.fit.std_uncertainties[name])
-        res = self.fit.result
-        if res is None:
-            return u, u, 1.0
-        return u, float(res.std_noise(name)), float(res.lof.factor)
-
 
 def fit_tumble_run(meta: Mapping, data, alpha: float = 0.01) -> TumbleRun:
     """Paper 003 on one run, with its model adequacy.
 
-    Fits K0, K1, K2, theta0 (:func:`fit_tumble`); when that fails its lack-of-fit test the IA
+    Fits K0, K1, K2, theta0 (:func:`fit_run`); when that fails its lack-of-fit test the IA
     cross term with the other in-plane axis (separable from theta0 in one tumble) is added
     and kept if it improves the fit.  A fit that stays inadequate is used and flagged (its u
     carries the lack-of-fit factor); one with as many positions as parameters is flagged as
@@ -605,15 +394,16 @@ def fit_tumble_run(meta: Mapping, data, alpha: float = 0.01) -> TumbleRun:
     Returns
     -------
     TumbleRun
+        With ``two_position``, ``model_choice`` and ``flags``.
     """
     run_id = str(meta.get("run_id"))
-    fit = fit_tumble(meta, data)
+    fit = fit_run(meta, data)
     choice, flags = None, []
     lof = fit.lack_of_fit
     if lof and lof["p"] < alpha:
         cross = tuple(k for k in separable_extra_terms(meta) if k in ("Kio", "Kip"))
         try:
-            fit2 = fit_tumble(meta, data, cross)
+            fit2 = fit_run(meta, data, cross)
         except Exception:
             fit2 = None
         if fit2 is not None and fit2.lack_of_fit and fit2.lack_of_fit["p"] > lof["p"]:
@@ -623,15 +413,15 @@ def fit_tumble_run(meta: Mapping, data, alpha: float = 0.01) -> TumbleRun:
         if fit.lack_of_fit and fit.lack_of_fit["p"] < alpha:
             flags.append(f"tumble {run_id}: model inadequate (lack-of-fit p = {fit.lack_of_fit['p']:.2g}); "
                          f"used and flagged, u scaled by sqrt(F) = {math.sqrt(fit.lack_of_fit['F']):.3g}")
-    if fit.adequacy is not None and fit.adequacy.status == "untestable":
+    if fit.result.lof.status == "untestable":
         flags.append(f"tumble {run_id}: untestable: {len(fit.position_means)} head positions for "
-                     f"{len(fit.param_names)} parameters leave no degrees of freedom to test the model; "
+                     f"{len(fit.result.names)} parameters leave no degrees of freedom to test the model; "
                      "its u counts reading noise only")
     try:
-        tp = two_position(meta, data)
+        tp = two_position(meta, data, means=fit.position_means)
     except Exception as exc:
         tp = {"error": str(exc)}
-    return TumbleRun(run_id, str(meta.get("rig_id", "")), geometry_of(meta), fit, tp, choice, tuple(flags))
+    return replace(fit, two_position=tp, model_choice=choice, flags=tuple(flags))
 
 
 @dataclass(frozen=True)
@@ -694,7 +484,7 @@ def pool(name: str, key: str, runs: Sequence[TumbleRun], alpha: float = 0.01) ->
     -------
     Pooled
     """
-    vals = [r.fit.values[key] for r in runs]
+    vals = [r.values[key] for r in runs]
     us = [r.u_parts(key)[0] for r in runs]
     if len(runs) == 1:
         return Pooled(name, key, float(vals[0]), float(us[0]), float(us[0]), tuple(runs))
@@ -728,8 +518,8 @@ def pool_runs(runs: Sequence[TumbleRun]) -> dict[str, Pooled]:
     for g, rr in groups.items():
         for k in ("K2", "theta0"):
             out[_group_name(k, g, several)] = pool(_group_name(k, g, several), k, rr)
-    for k in sorted({e for r in runs for e in r.fit.extras}):
-        out[k] = pool(k, k, [r for r in runs if k in r.fit.extras])
+    for k in sorted({e for r in runs for e in r.extras}):
+        out[k] = pool(k, k, [r for r in runs if k in r.extras])
     return out
 
 
@@ -748,7 +538,7 @@ _NOTES = {"theta0": _ALIAS_NOTE, "K2": "a single tumble gives K2 - Koo (Koo alia
 
 def tumble_records(pooled: Mapping[str, Pooled], *, square_terms: Mapping[str, tuple[float, float]] | None = None,
                    k1: tuple[float, float] | None = None, g: float = 9.80665, out_unit: str = "out",
-                   method: str = METHOD) -> tuple[list[CoefficientResult], list[BudgetTerm]]:
+                   method: str = METHOD) -> tuple[list[CoefficientResult], list[BudgetTerm], set[str]]:
     """Coefficient records and GUM budgets of the campaign's tumble quantities (paper 003).
 
     Parameters
@@ -767,30 +557,33 @@ def tumble_records(pooled: Mapping[str, Pooled], *, square_terms: Mapping[str, t
 
     Returns
     -------
-    (coefficients, budget)
+    (coefficients, budget, corrected)
         Budgets: one type-A line per run (its fit; split into reading noise and lack-of-fit
         scaling for a single run), the between-run scatter (Birge ratio) when it exceeds the
         runs' u, and the centrifuge terms of a correction.  u = the budget's combined u.
+        ``corrected``: the names of the rows the centrifuge's terms corrected (a K2 with its
+        square terms added back, a K1 with Koq and K3 removed).
     """
     square_terms = square_terms or {}
-    coeffs, budget = [], []
+    coeffs, budget, corrected = [], [], set()
     # K2: a head measures K2 minus the square term of its other turning axis; that is added
     # back per head, and the heads are pooled only when every one of them is corrected
     k2_rows = {n: q for n, q in pooled.items() if q.key == "K2"}
-    if len(k2_rows) > 1 and all(_other_square(q.runs[0].head) in square_terms for q in k2_rows.values()):
+    if len(k2_rows) > 1 and all(SQUARE_TERM[q.runs[0].head.other_axis] in square_terms for q in k2_rows.values()):
         k2_rows = {"K2": pool("K2", "K2", tuple(r for q in k2_rows.values() for r in q.runs))}
     items = ([(n, q) for n, q in pooled.items() if q.key in ("K0", "K1")] + list(k2_rows.items())
              + [(n, q) for n, q in pooled.items() if q.key not in ("K0", "K1", "K2")])
     for name, q in items:
-        terms, note = _fit_terms(q), []
+        (terms, pool_notes), note = _fit_terms(q), []
         value = q.value
         unit = si_unit(q.key, out_unit)
         if q.key == "K2":
             adds = {}
             for r in q.runs:
-                sq = _other_square(r.head)
+                sq = SQUARE_TERM[r.head.other_axis]
                 adds[sq] = adds.get(sq, 0.0) + q.weights[q.runs.index(r)]
             if all(sq in square_terms for sq in adds):
+                corrected.add(name)
                 for sq, wsum in adds.items():
                     v, u = square_terms[sq]
                     value += wsum * v
@@ -802,6 +595,7 @@ def tumble_records(pooled: Mapping[str, Pooled], *, square_terms: Mapping[str, t
                             + "/".join(adds) + " to correct it)")
         elif q.key == "K1":
             if k1 is not None:
+                corrected.add(name)
                 delta, u_delta = k1
                 value = q.value / (1.0 + delta)
                 terms = [(t[0], t[1], t[2], t[3] / (1.0 + delta), t[4], t[5]) for t in terms]
@@ -815,18 +609,13 @@ def tumble_records(pooled: Mapping[str, Pooled], *, square_terms: Mapping[str, t
                 note.insert(0, _NOTES[q.key])
         if q.key == "theta0" and "[" in name:
             note.append("initial misalignment of this dividing head (never pooled across heads)")
-        note += _pool_notes(q)
+        note += pool_notes
         gb = unc.linear_budget(name, terms, method=method, rig_id=_rig(q), value=value)
         u = float(gb.u_c) if math.isfinite(q.u) else float("nan")
-        dof = float(q.runs[0].fit.dof) if len(q.runs) == 1 else None
+        dof = float(q.runs[0].dof) if len(q.runs) == 1 else None
         coeffs.append(CoefficientResult(name, float(value), u, unit, method, _rig(q), dof, "; ".join(note)))
         budget += gb.terms
-    return coeffs, budget
-
-
-def _other_square(head: TumbleHead) -> str:
-    """The square term of the head's other turning axis (Kpp for PA, Koo for OA)."""
-    return {1: "Kpp", 2: "Koo"}.get(head.other_axis, "K2")
+    return coeffs, budget, corrected
 
 
 def _rig(q: Pooled) -> str:
@@ -834,41 +623,32 @@ def _rig(q: Pooled) -> str:
     return rigs[0] if len(rigs) == 1 else "+".join(rigs)
 
 
-def _fit_terms(q: Pooled) -> list[tuple]:
-    """Type-A lines of a pooled quantity: per run its fit (reading noise and lack-of-fit scaling
-    apart for one run), and the Birge scatter of several runs."""
+def _fit_terms(q: Pooled) -> tuple[list[tuple], list[str]]:
+    """Type-A lines and notes of a pooled quantity: per run its fit (reading noise and
+    lack-of-fit scaling apart for one run), and the Birge scatter of several runs."""
     if len(q.runs) == 1:
         r = q.runs[0]
         u, u_noise, factor = r.u_parts(q.key)
-        rows = [(f"readings of {r.run_id}: LM fit (paper 003), s^2 (J'J)^-1", r.fit.values[q.key], u_noise, 1.0,
+        rows = [(f"readings of {r.run_id}: LM fit (paper 003), s^2 (J'J)^-1", r.values[q.key], u_noise, 1.0,
                  "A", "normal")]
+        notes = ["covariance from readings"]
         if factor > 1.0:
             rows.append((f"model inadequacy of {r.run_id}: lack-of-fit scaling sqrt(F) = {factor:.3g}", 0.0,
                          u_noise * math.sqrt(factor ** 2 - 1.0), 1.0, "A", "normal"))
-        return rows
-    rows = [(f"{r.run_id}: LM fit (paper 003)", r.fit.values[q.key], r.u_parts(q.key)[0], float(w), "A", "normal")
+        if r.lack_of_fit and r.lack_of_fit["p"] < 0.01:
+            notes.append(f"lack of fit: F = {r.lack_of_fit['F']:.3g}, p = {r.lack_of_fit['p']:.2g}")
+        if r.result.lof.status == "untestable":
+            notes.append("untestable: as many head positions as parameters, u from reading noise only")
+        return rows, notes
+    rows = [(f"{r.run_id}: LM fit (paper 003)", r.values[q.key], r.u_parts(q.key)[0], float(w), "A", "normal")
             for r, w in zip(q.runs, q.weights)]
+    notes = [f"weighted mean of {len(q.runs)} tumble runs"]
     if math.isfinite(q.birge) and q.birge > 1.0:
         rows.append((f"between-run scatter: Birge ratio {q.birge:.3g} ({len(q.runs)} runs)", 0.0,
                      q.u_internal * math.sqrt(q.birge ** 2 - 1.0), 1.0, "A", "normal"))
-    return rows
-
-
-def _pool_notes(q: Pooled) -> list[str]:
-    if len(q.runs) == 1:
-        r = q.runs[0]
-        out = ["covariance from readings"]
-        lof = r.fit.lack_of_fit
-        if lof and lof["p"] < 0.01:
-            out.append(f"lack of fit: F = {lof['F']:.3g}, p = {lof['p']:.2g}")
-        if r.fit.adequacy is not None and r.fit.adequacy.status == "untestable":
-            out.append("untestable: as many head positions as parameters, u from reading noise only")
-        return out
-    out = [f"weighted mean of {len(q.runs)} tumble runs"]
     if math.isfinite(q.birge):
-        out.append(f"Birge ratio {q.birge:.3g} (p = {q.p_value:.2g})"
-                   + ("; u scaled by it" if q.birge > 1 else ""))
-    return out
+        notes.append(f"Birge ratio {q.birge:.3g} (p = {q.p_value:.2g})" + ("; u scaled by it" if q.birge > 1 else ""))
+    return rows, notes
 
 
 def pooling_flags(pooled: Mapping[str, Pooled]) -> list[str]:
@@ -888,7 +668,7 @@ def pooling_flags(pooled: Mapping[str, Pooled]) -> list[str]:
     out = []
     for name, q in pooled.items():
         if q.disagree:
-            vals = ", ".join(f"{r.run_id} {r.fit.values[q.key]:.6g} ± {r.u_parts(q.key)[0]:.2g}" for r in q.runs)
+            vals = ", ".join(f"{r.run_id} {r.values[q.key]:.6g} ± {r.u_parts(q.key)[0]:.2g}" for r in q.runs)
             out.append(f"tumble runs disagree on {name}: {vals} (Birge ratio {q.birge:.3g}, p = {q.p_value:.2g}); "
                        f"not averaged silently: weighted mean {q.value:.6g} with u scaled by the Birge ratio")
     return out
@@ -909,7 +689,7 @@ class Reference:
     u_K2: float
     from_tumble: bool = True
     #: the cross-coupling terms the tumble determines, name -> (value [s2/m], u): the
-    #: centrifuge's K_iv where its own mount pairs leave it undetermined (issue 27)
+    #: centrifuge's K_iv where its own mount pairs leave it undetermined
     cross: tuple[tuple[str, float, float], ...] = ()
 
 
@@ -941,7 +721,7 @@ class TumbleStep:
     @property
     def g(self) -> float:
         """Local gravity of the tumble [m/s2]."""
-        return float(self.runs[0].fit.g_local_m_s2)
+        return float(self.runs[0].g_local_m_s2)
 
 
 def tumble_step(runs: Sequence) -> TumbleStep | None:
@@ -975,10 +755,10 @@ def tumble_step(runs: Sequence) -> TumbleStep | None:
 
 
 def _tumble_extras(step: TumbleStep) -> dict:
-    out = {"tumble": [{"run_id": r.run_id, "values": r.fit.values, "std": r.fit.std_uncertainties,
-                       "residual_rms": r.fit.residual_rms, "dof": r.fit.dof, "lack_of_fit": r.fit.lack_of_fit,
-                       "adequacy": r.fit.adequacy.status if r.fit.adequacy else None,
-                       "two_position": r.two_position, "note": r.fit.note} for r in step.runs]}
+    out = {"tumble": [{"run_id": r.run_id, "values": r.values, "std": r.std_uncertainties,
+                       "residual_rms": r.residual_rms, "dof": r.dof, "lack_of_fit": r.lack_of_fit,
+                       "adequacy": r.result.lof.status,
+                       "two_position": r.two_position, "note": _ALIAS_NOTE} for r in step.runs]}
     choices = [r.model_choice for r in step.runs if r.model_choice]
     if choices:
         out["tumble_model_choice"] = choices
@@ -1001,13 +781,19 @@ def _square_terms(rigs: Sequence) -> dict[str, tuple[float, float]]:
     return out
 
 
+def _centrifuge_rigs(steps: Mapping[str, Any]) -> list:
+    """The rigs of the campaign's centrifuge steps (the first passes of the estimators that
+    take ``centrifuge`` runs, :func:`.registry.prepared`: (rigs, flags))."""
+    return [rig for step in registry.prepared(steps, "centrifuge") for rig in step[0]]
+
+
 def campaign_k1_correction(steps: Mapping[str, Any]) -> tuple[float, float] | None:
     """(delta, u_delta) of the tumble K1 from the first centrifuge rig's Koq and K3
     (:func:`k1_correction`); None without a tumble or a rig that gives Koq."""
     tumble = steps.get(METHOD)
     if tumble is None:
         return None
-    for rig in steps.get("centrifuge_eq9", ((), ()))[0]:
+    for rig in _centrifuge_rigs(steps):
         koq = rig.coefficient("Koq")
         if koq is not None:
             k3 = rig.coefficient("K3")
@@ -1023,20 +809,19 @@ def campaign_records(runs: Sequence, steps: Mapping[str, Any]) -> list:
     tumble = steps.get(METHOD)
     if tumble is None:
         return []
-    rigs = steps.get("centrifuge_eq9", ((), ()))[0]
-    coeffs, budget = tumble_records(tumble.pooled, square_terms=_square_terms(rigs),
-                                    k1=campaign_k1_correction(steps), g=tumble.g,
-                                    out_unit=str(runs[0].meta.get("output_unit", "out")))
+    coeffs, budget, corrected = tumble_records(tumble.pooled, square_terms=_square_terms(_centrifuge_rigs(steps)),
+                                               k1=campaign_k1_correction(steps), g=tumble.g,
+                                               out_unit=str(runs[0].meta.get("output_unit", "out")))
     # where the campaign measures the temperature coefficients, K0 and K1 mean their values
     # at 20 degC, and a tumble's are at its own temperature
-    thermal = ("bias_temperature", "scale_temperature") if steps.get("tilt_rotation_ls") else ()
-    flags = list(tumble.flags) + name_combinations(runs, coeffs, budget, thermal)
+    thermal = ("bias_temperature", "scale_temperature") if any(registry.prepared(steps, "tilt_rotation")) else ()
+    flags = list(tumble.flags) + name_combinations(runs, coeffs, budget, thermal, corrected)
     return [Records(coefficients=coeffs, budget=budget, extras=_tumble_extras(tumble), flags=flags).checked()]
 
 
 def name_combinations(runs: Sequence, coeffs: list[CoefficientResult], budget: list[BudgetTerm],
-                      effects: Sequence[str] = ()) -> list[str]:
-    """Name each tumble row after what the tumble runs determine (issue 30; IEEE 1293): one
+                      effects: Sequence[str] = (), corrected: set[str] = frozenset()) -> list[str]:
+    """Name each tumble row after what the tumble runs determine (IEEE 1293): one
     head measures K0 + Koo g^2, K2 - Koo and theta0 - Ko (head about PA), not K0, K2, theta0.
 
     The answer is the campaign model's (:meth:`accelcal.fitting.model.CampaignModel.measures`)
@@ -1044,8 +829,8 @@ def name_combinations(runs: Sequence, coeffs: list[CoefficientResult], budget: l
     method fits free and every other coefficient held: a row is renamed to the combination
     of the coefficients held at 0 that it takes up, where a typical size of them would move
     it by more than half its u (K0T and K1T of a campaign that measures them: a tumble's K0
-    and K1 are at its own temperature).  A K2 to which the centrifuge's square
-    term was added is K2 itself.  K0 and K1, pooled over the heads, are renamed only when
+    and K1 are at its own temperature).  A row the centrifuge's terms corrected (a K2 with
+    its square term added back, a K1 with Koq and K3 removed) is the coefficient itself.  K0 and K1, pooled over the heads, are renamed only when
     every head measures the same combination; otherwise a flag says what each head measures.
 
     Parameters
@@ -1057,13 +842,14 @@ def name_combinations(runs: Sequence, coeffs: list[CoefficientResult], budget: l
     effects : sequence of str
         effects.md ids besides ``initial_misalignment`` in the model of the tumble runs
         (``bias_temperature``, ``scale_temperature`` where the campaign measures K0T, K1T).
+    corrected : set of str
+        Names of the rows the centrifuge's terms corrected (:func:`tumble_records`).
 
     Returns
     -------
     list of str
         Flags: each renamed row, and K0/K1 rows whose heads measure different combinations.
     """
-    from ..fitting.model import ACTING, CampaignModel
     from .joint import prepare
     groups: dict[str, list] = {}
     for r in runs:
@@ -1089,8 +875,7 @@ def name_combinations(runs: Sequence, coeffs: list[CoefficientResult], budget: l
     flags = []
     for c in coeffs:
         key, _, grp = c.name.rstrip("]").partition("[")
-        if (key == "K2" and "from the centrifuge added" in c.note) or (
-                key == "K1" and "corrected for Koq and K3" in c.note):
+        if c.name in corrected:
             continue
         combos = [answer[g].get(key, {}) for g in ([grp] if grp else groups)]
         if len({combination_name(key, t) for t in combos}) > 1:
@@ -1143,7 +928,7 @@ def mc_truth(c: Mapping[str, float], eff: Mapping[str, float], test: Mapping[str
     Kss, Ks = c[SQUARE_TERM[si]], c[CROSS_AXIS_TERM[si]]
     sq, cr = SQUARE_TERM[si], CROSS_AXIS_TERM[si]
     corrected = "from the centrifuge added" in notes.get("K2", "")
-    cross = {1: "Kip", 2: "Kio"}[si]
+    cross = CROSS_TERM[frozenset((0, si))]
     return {("K0", rig): (c["K0"] + c["K0T"] * dT + Kss * g * g, f"K0(T) + {sq} g^2 (apparent bias of a tumble)"),
             ("K1", rig): (c["K1"] * (1 + c["K1T"] * dT), "K1(T)"),
             ("K2", rig): ((c["K2"], "K2 (centrifuge " + sq + " added)") if corrected
@@ -1181,7 +966,7 @@ def fit_checks(extras: Mapping[str, Any]) -> list[FitCheck]:
     return out
 
 
-ESTIMATOR = register(Estimator(
+ESTIMATOR = registry.register(registry.Estimator(
     method=METHOD, tests=("tumble",),
     certificate=("paper 003 (Zhan & Cai): Levenberg–Marquardt fit of K0, K1, K2 and the head's "
                  "initial misalignment through the forward model, with a lack-of-fit test; "
