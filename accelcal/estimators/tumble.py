@@ -50,6 +50,7 @@ from ..physics.instrument import output_derivative
 from ..physics.rigs import rig_output, tumble_specific_force
 from ..results import BudgetTerm, CoefficientResult, FitCheck, display_number
 from . import uncertainty as unc
+from .dwells import Groups
 from .registry import Estimator, register
 from .adequacy import pure_error_test
 from ..fitting.distributions import chi2_sf
@@ -286,18 +287,11 @@ def position_means(df: pd.DataFrame) -> pd.DataFrame:
     DataFrame
         position, angle_deg, n, mean_output, std_output, sem_output [output_unit].
     """
-    fast = _position_means_fast(df)
-    if fast is not None:
-        return fast
-    grp = df.groupby("position", sort=True)
-    out = pd.DataFrame({
-        "angle_deg": grp["angle_deg"].mean(),
-        "n": grp["output"].size(),
-        "mean_output": grp["output"].mean(),
-        "std_output": grp["output"].std(ddof=1),
-    })
-    out["sem_output"] = out["std_output"] / np.sqrt(out["n"])
-    return out.reset_index()
+    grp = Groups(np.asarray(df["position"]))
+    std = grp.std(df["output"])
+    return pd.DataFrame({"position": grp.keys, "angle_deg": grp.mean(df["angle_deg"]), "n": grp.counts,
+                         "mean_output": grp.mean(df["output"]), "std_output": std,
+                         "sem_output": std / np.sqrt(grp.counts)})
 
 
 def fit_tumble(meta: Mapping, data, extra_terms: tuple[str, ...] | list[str] = ()) -> TumbleFit:
@@ -430,24 +424,6 @@ def fit_tumble(meta: Mapping, data, extra_terms: tuple[str, ...] | list[str] = (
         ia_phase_deg=phase, success=bool(gn.converged), message=str(gn.message),
         nfev=int(gn.iterations), start=dict(zip(names, map(float, p0))), extras=extras,
         lack_of_fit=lof, cov_positions=cov_pos, param_names=names, adequacy=test)
-
-
-def _position_means_fast(df: pd.DataFrame) -> pd.DataFrame | None:
-    """:func:`position_means` by numpy and pandas' own groupby kernels, taking pandas' path
-    for each reduction (:class:`.dwells._Groups`: the same floats); None where it does not
-    apply (then pandas itself)."""
-    from .dwells import _PANDAS_FOLLOWED, _Groups, _plain
-    if pd.__version__ != _PANDAS_FOLLOWED or any(c not in df for c in ("position", "angle_deg", "output")):
-        return None
-    pos, ang, out = _plain(df["position"], "i"), _plain(df["angle_deg"], "f"), _plain(df["output"], "f")
-    if pos is None or ang is None or out is None or len(pos) == 0:
-        return None
-    if not (np.isfinite(ang).all() and np.isfinite(out).all()):
-        return None
-    grp = _Groups(pos)
-    std = grp.std(out)
-    return pd.DataFrame({"position": grp.keys, "angle_deg": grp.mean(ang), "n": grp.counts,
-                         "mean_output": grp.mean(out), "std_output": std, "sem_output": std / np.sqrt(grp.counts)})
 
 
 def _mean_at(pm: pd.DataFrame, angle: float, tol: float) -> tuple[float, float, int] | None:
