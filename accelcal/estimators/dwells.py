@@ -5,10 +5,7 @@ table azimuths, then dwells at rising and falling constant rates.  Each row is
 the DAQ's mean over a reading window, so the rows of one dwell are replicated
 readings: their scatter is the *pure error* of the lack-of-fit test.
 
-The per-dwell reductions are numpy's (:class:`Groups`), each in a fixed summation order:
-segment sums by ``np.add.reduceat`` where the rows of each group are consecutive and the
-column is complete, else a compensated (Kahan) sequential sum over each group's finite
-values in row order; standard deviations by Welford's sequential update.
+The per-dwell reductions are :class:`accelcal.fitting.data.Groups`'.
 """
 from __future__ import annotations
 
@@ -18,106 +15,8 @@ import numpy as np
 import pandas as pd
 
 from ..fitting.core import lstsq_svd_x
-from ..fitting.data import unique_small_ints
+from ..fitting.data import Groups
 from ..physics.rigs import omega_z
-
-
-class Groups:
-    """Rows grouped by a key, the groups in sorted key order, with their reductions.
-
-    Parameters
-    ----------
-    key : (n,) array_like
-        Group key of each row; a missing (nan) key leaves its row out of every group.
-    """
-
-    def __init__(self, key):
-        key = np.asarray(key)
-        if key.dtype.kind in "iu":
-            self.keys, _, ids = unique_small_ints(key)
-        else:
-            ok = ~pd.isna(key)
-            self.keys, inv = np.unique(key[ok], return_inverse=True)
-            ids = np.full(key.size, -1, np.intp)
-            ids[ok] = inv.reshape(-1)
-        self.ids = ids.reshape(-1).astype(np.intp, copy=False)
-        self.ngroups = len(self.keys)
-        self.counts = np.bincount(self.ids[self.ids >= 0], minlength=self.ngroups).astype(np.int64)
-        #: the rows of each group are consecutive (missing keys, if any, first)
-        self.monotonic = bool(np.all(self.ids[1:] >= self.ids[:-1]))
-
-    def _segments(self, v: np.ndarray, skip_nan: bool = True):
-        """The values of the rows in groups (nan values left out), ordered by group and within
-        it by row, with each group's first index and size."""
-        keep = self.ids >= 0
-        if skip_nan and v.dtype.kind == "f":
-            keep &= ~np.isnan(v)
-        rows = np.flatnonzero(keep)
-        if not self.monotonic:
-            rows = rows[np.argsort(self.ids[rows], kind="stable")]
-        sizes = np.bincount(self.ids[rows], minlength=self.ngroups)
-        return v[rows], np.cumsum(sizes) - sizes, sizes
-
-    def _reduceat(self, v: np.ndarray) -> np.ndarray | None:
-        """Segment sums of a complete column whose groups are consecutive, else None."""
-        if not self.monotonic or (v.dtype.kind == "f" and np.isnan(v).any()):
-            return None
-        vs, starts, _ = self._segments(v, skip_nan=False)
-        return np.add.reduceat(vs, starts) if vs.size else np.zeros(self.ngroups, vs.dtype)
-
-    def _sequential(self, v: np.ndarray, welford: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(sum or mean, compensation or M2, count) of each group's finite values taken one at
-        a time in row order: the Kahan-compensated sum, or Welford's mean and sum of squared
-        deviations.  All groups step together, the largest first."""
-        vs, starts, sizes = self._segments(v)
-        by_size = np.argsort(-sizes, kind="stable")
-        st, sz = starts[by_size], sizes[by_size]
-        a, b = np.zeros(self.ngroups), np.zeros(self.ngroups)
-        active = np.searchsorted(-sz, -np.arange(sz[0] if sz.size else 0), side="left")
-        for k, c in enumerate(active):
-            x = vs[st[:c] + k]
-            if welford:
-                old = a[:c].copy()
-                a[:c] += (x - old) / (k + 1)
-                b[:c] += (x - a[:c]) * (x - old)
-            else:
-                y = x - b[:c]
-                t = a[:c] + y
-                comp = (t - a[:c]) - y
-                comp[np.isnan(comp)] = 0.0          # an infinite value: no compensation
-                b[:c], a[:c] = comp, t
-        out_a, out_b = np.empty_like(a), np.empty_like(b)
-        out_a[by_size], out_b[by_size] = a, b
-        return out_a, out_b, sizes
-
-    def sum(self, v) -> np.ndarray:
-        """Sum of each group's finite values (0 where none)."""
-        v = np.asarray(v, np.float64)
-        r = self._reduceat(v)
-        return r if r is not None else self._sequential(v, welford=False)[0]
-
-    def mean(self, v) -> np.ndarray:
-        """Mean of each group's finite values (nan where none)."""
-        v = np.asarray(v, np.float64)
-        r = self._reduceat(v)
-        if r is not None:
-            return r / self.counts.astype(np.float64)
-        s, _, n = self._sequential(v, welford=False)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(n > 0, s / n, np.nan)
-
-    def std(self, v, ddof: int = 1) -> np.ndarray:
-        """Sample standard deviation of each group's finite values (nan where <= ddof)."""
-        _, m2, n = self._sequential(np.asarray(v, np.float64), welford=True)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(n > ddof, np.sqrt(m2 / (n - ddof).astype(np.float64)), np.nan)
-
-    def min(self, v) -> np.ndarray:
-        """Least of each group's values, nan skipped (nan where none)."""
-        v = np.asarray(v)
-        vs, starts, sizes = self._segments(v)
-        out = np.fmin.reduceat(vs, np.minimum(starts, max(vs.size - 1, 0))) if vs.size else vs
-        return np.where(sizes > 0, out, np.nan) if (sizes == 0).any() else out
 
 
 def _nargsort(v: np.ndarray) -> np.ndarray:

@@ -44,13 +44,13 @@ import pandas as pd
 from ..effects import CROSS_AXIS_TERM, CROSS_TERM, SQUARE_TERM, combination_name, si_unit
 from ..fitting.core import (FitResult, GaussNewton, LackOfFit, Parameter, ParameterSet, birge_ratio,
                             finish_fit, gauss_newton, lstsq_svd)
+from ..fitting.data import Groups
 from ..physics.axes import AXES, parse_signed_axis
 from ..physics.geometry import TumbleHead, geometry_of
 from ..physics.instrument import output_derivative
 from ..physics.rigs import rig_output, tumble_specific_force
 from ..results import BudgetTerm, CoefficientResult, FitCheck, display_number
 from . import uncertainty as unc
-from .dwells import Groups
 from .registry import Estimator, register
 from .adequacy import pure_error_test
 from ..fitting.distributions import chi2_sf
