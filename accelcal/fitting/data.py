@@ -825,11 +825,11 @@ def dwell_starts(test: str, cols, n: int) -> np.ndarray:
 def block_bounds(rows_of, test: str, n: int, most: int, rows_at_once: int = ROW_SLICE) -> np.ndarray:
     """Blocks of consecutive readings that a long stepped run is taken as (issue 28).
 
-    Each dwell (:func:`dwell_starts`: a cell of :func:`make_run`) of m readings is cut into q = ceil(m / most) blocks of near-equal
-    length (floor or ceil of m / q readings): the mean of a block is a reading of the run
-    with its noise divided by about the block's length, so a dwell's blocks are alike (the
-    noise model's cell scatter stays that of one kind of reading) and their mean is the
-    dwell's mean to within the unequal lengths.  The dwells are found ``rows_at_once``
+    Each dwell (:func:`dwell_starts`: a cell of :func:`make_run`) of m readings is cut into
+    q = ceil(m / most) blocks of near-equal length (floor or ceil of m / q readings): the
+    mean of a block is a reading of the run with its noise divided by about the block's
+    length, so a dwell's blocks are alike (the noise model's cell scatter stays that of one
+    kind of reading) and their mean is the dwell's mean to within the unequal lengths.  The dwells are found ``rows_at_once``
     readings at a time (each slice with the reading before it): the same dwells as the
     whole run's keys give.
 
