@@ -145,9 +145,7 @@ def measure(drop: str, repeat: int) -> dict:
         def derive_and_table():
             made = []
             for b in runs:
-                means = suites._turning_step_means(b)
-                items = [(r, r.test, suites._derive(r.test, r, means.get(j)))
-                         for j, r in enumerate(b)]
+                items = [(r, r.test, suites._derive(r.test, r)) for r in b]
                 tables, columns, *_ = suites._batch_table(items)
                 kinds = list(dict.fromkeys(r.test for r in b))
                 made.append((tables, suites._batch_specs(kinds, columns)))

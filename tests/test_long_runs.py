@@ -11,12 +11,14 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from accelcal.fitting import data as fdata
 from accelcal.fitting.data import block_bounds, block_means
 from accelcal.schemas import derived, dropformat, suites, tables
 from accelcal.schemas.dropspec import DropFormatError
+from accelcal.schemas.rules import REST_RATE
 from accelcal.tasks import ingest
 
 from conftest import EXAMPLES, require_shared
@@ -119,9 +121,9 @@ def test_ingest_of_a_big_file_writes_its_parquet_as_it_parses(tmp_path, monkeypa
             assert got == dropformat.read_run(rec.source_path)
 
 
-def _bounds(cols: dict, most: int, tols=None, rows_at_once=fdata.ROW_SLICE):
-    return block_bounds(lambda c, lo, hi: cols[c][lo:hi], list(cols), len(next(iter(cols.values()))),
-                        most, tols, rows_at_once)
+def _bounds(cols: dict, test: str, most: int, rows_at_once=fdata.ROW_SLICE):
+    return block_bounds(lambda c, lo, hi: cols[c][lo:hi], test, len(next(iter(cols.values()))),
+                        most, rows_at_once)
 
 
 @pytest.mark.parametrize("rows_at_once", [fdata.ROW_SLICE, 5, 1])
@@ -129,17 +131,18 @@ def test_block_bounds_cut_each_dwell_into_near_equal_blocks(rows_at_once):
     # dwells of 5, 23, 1 and 40 readings, at most 7 a block: by hand, ceil(m / 7) blocks
     # of floor or ceil of m / q: 5 | 5 6 6 6 | 1 | 6 7 7 6 7 7 (found whole or in slices)
     step = np.repeat([0, 1, 2, 3], [5, 23, 1, 40])
-    b = _bounds({"step": step}, 7, rows_at_once=rows_at_once)
+    b = _bounds({"step": step}, "centrifuge", 7, rows_at_once=rows_at_once)
     assert np.diff(b).tolist() == [5, 5, 6, 6, 6, 1, 6, 7, 7, 6, 7, 7]
     assert b[-1] == step.size
     assert all(np.unique(step[lo:hi]).size == 1 for lo, hi in zip(b[:-1], b[1:]))
     # two keys: a change of either starts a dwell
-    b2 = _bounds({"a": np.zeros(10), "b": np.r_[np.zeros(4), np.ones(6)]}, 100, rows_at_once=rows_at_once)
-    assert b2.tolist() == [0, 4, 10]
+    b2 = _bounds({"temp_set_c": np.r_[np.zeros(4), np.ones(6)], "rotation_deg": np.r_[np.zeros(7), 90 * np.ones(3)]},
+                 "tilt_rotation", 100, rows_at_once=rows_at_once)
+    assert b2.tolist() == [0, 4, 7, 10]
     # a logged angle's noise within the cells' tolerance is one dwell, a step beyond it two
     # (the cells of make_run: fitting.data.CELL_KEYS)
     ang = np.r_[90 + 0.05 * np.sin(np.arange(8)), 180 + 0.05 * np.cos(np.arange(6))]
-    b3 = _bounds({"t": np.zeros(14), "ang": ang}, 100, [0.0, fdata.ANGLE_TOL_DEG], rows_at_once)
+    b3 = _bounds({"position": np.zeros(14), "angle_deg": ang}, "tumble", 100, rows_at_once)
     assert b3.tolist() == [0, 8, 14]
 
 
@@ -150,7 +153,7 @@ def test_block_means_are_each_blocks_mean_over_its_finite_readings():
     temp[:4] = np.nan                                     # a block with no temperature
     cols = {"step": step, "output": rng.normal(size=step.size), "temp_c": temp,
             "line": np.arange(step.size) + 12}
-    b = _bounds({"step": step}, 4)
+    b = _bounds({"step": step}, "centrifuge", 4)
     got = block_means(lambda c, lo, hi: cols[c][lo:hi], list(cols), b, ("step", "line"),
                       rows_at_once=10)
     for k, (lo, hi) in enumerate(zip(b[:-1], b[1:])):
@@ -258,13 +261,13 @@ def test_centrifuge_dwell_checks_read_a_dwell_at_a_time_as_whole(change, tmp_pat
     run, lazy = _both(ref, df, tmp_path)
     # the per-step means of the dwell scan are the whole run's, bit for bit (or both absent)
     means_l = derived._centrifuge_dwells(lazy.arrays, lazy.n_rows).means
-    means_m = derived._turning_step_means([run]).get(0)
-    assert (means_l is None or means_l.size == 0) == (means_m is None)
-    if means_m is not None:
-        np.testing.assert_array_equal(means_l, means_m)
-    assert derived._turning_step_means([lazy]) == {}       # left to _derive's own scan
+    rate, step = run.arrays["table_rate_rad_s"], run.arrays["step"]
+    turning = rate >= REST_RATE
+    if means_l is not None and turning.any():
+        want_means = pd.Series(rate[turning]).groupby(step[turning]).mean().to_numpy()
+        np.testing.assert_array_equal(means_l, want_means)
     got = derived._derive("centrifuge", lazy)
-    want = derived._derive("centrifuge", run, means_m)
+    want = derived._derive("centrifuge", run)
     for c in ("one_g_error", "rest_dwell_error_deg"):
         np.testing.assert_array_equal(got[c][:], want[c][:], err_msg=c)
     assert suites.validate_runs([lazy]) == suites.validate_runs([run])
@@ -318,7 +321,7 @@ def test_an_azimuth_logged_about_zero_is_averaged_on_the_circle():
     az = np.r_[359.99, 0.01, 359.98, 0.02, 359.99, 0.01, 90.01, 89.99, 90.02, 89.98]
     cols = {"step": np.repeat([0, 1], [6, 4]), "table_angle_deg": az,
             "line": np.arange(10)}
-    b = _bounds({"step": cols["step"]}, 10)
+    b = _bounds({"step": cols["step"]}, "centrifuge", 10)
     got = block_means(lambda c, lo, hi: cols[c][lo:hi], list(cols), b, ("step", "line"))
     dev = np.mod(got["table_angle_deg"][0] + 180.0, 360.0) - 180.0
     assert abs(dev) < 1e-9

@@ -22,7 +22,7 @@ from ..physics.geometry import geometry_of
 from ..physics.instrument import indicated_acceleration
 from ..physics.rigs import NOMINAL, centrifuge_specific_force
 from .adequacy import DwellFit, weighted_dwell_fit
-from .dwells import dwell_table, merge_rest, merged_dwell_columns, noise_model, rest_mean
+from .dwells import dwell_table, merged_dwell_columns, noise_model, rest_mean
 
 
 def ia_polarity(meta: Mapping) -> int | None:
@@ -285,22 +285,15 @@ class PairData:
     @classmethod
     def from_runs(cls, runs: list[tuple[Mapping, pd.DataFrame, int]], K1: float) -> "PairData":
         metas = {pol: meta for meta, _, pol in runs}
-        fast = [merged_dwell_columns(meta, data) for meta, data, _ in runs]
-        if runs and all(c is not None for c in fast):
-            # the same table as below, built from the columns at once (dwells.py fast path)
-            cols = {k: np.concatenate([c[k] for c in fast]) for k in fast[0]}
-            cols["pol"] = np.concatenate([np.full(len(c["n"]), pol, dtype=np.int64)
-                                          for c, (_, _, pol) in zip(fast, runs)])
-            cols["run_id"] = np.concatenate([np.full(len(c["n"]), str(meta.get("run_id", "")), dtype=object)
-                                             for c, (meta, _, _) in zip(fast, runs)])
-            return cls(pd.DataFrame(cols), K1, metas)
-        rows = []
-        for meta, data, pol in runs:
-            t = merge_rest(dwell_table(meta, data))
-            t["pol"] = pol
-            t["run_id"] = str(meta.get("run_id", ""))
-            rows.append(t)
-        return cls(pd.concat(rows, ignore_index=True), K1, metas)
+        runs_cols = [merged_dwell_columns(meta, data) for meta, data, _ in runs]
+        if not runs_cols:
+            raise ValueError("a mount pair needs its runs")
+        cols = {k: np.concatenate([c[k] for c in runs_cols]) for k in runs_cols[0]}
+        cols["pol"] = np.concatenate([np.full(len(c["n"]), pol, dtype=np.int64)
+                                      for c, (_, _, pol) in zip(runs_cols, runs)])
+        cols["run_id"] = np.concatenate([np.full(len(c["n"]), str(meta.get("run_id", "")), dtype=object)
+                                         for c, (meta, _, _) in zip(runs_cols, runs)])
+        return cls(pd.DataFrame(cols), K1, metas)
 
     def column(self, name: str) -> np.ndarray:
         """``table[name].to_numpy()``, taken once (the table is not changed after it is built)."""

@@ -49,7 +49,7 @@ import pandas as pd
 
 from ..effects import CROSS_AXIS_TERM, CROSS_TERM, SQUARE_TERM, combination_name, si_unit
 from ..fitting.core import FitResult, Parameter, ParameterSet, birge_ratio, finish_fit, gauss_newton, lstsq_svd
-from ..fitting.data import RunCells
+from ..fitting.data import Groups, RunCells
 from ..fitting.distributions import chi2_sf
 from ..fitting.model import ACTING, CampaignModel
 from ..physics.axes import AXES, parse_signed_axis
@@ -126,11 +126,11 @@ def position_means(df: pd.DataFrame) -> pd.DataFrame:
     DataFrame
         position, angle_deg [deg], n, mean_output, std_output, sem_output [output_unit].
     """
-    grp = df.groupby("position", sort=True)
-    out = pd.DataFrame({"angle_deg": grp["angle_deg"].mean(), "n": grp["output"].size(),
-                        "mean_output": grp["output"].mean(), "std_output": grp["output"].std(ddof=1)})
-    out["sem_output"] = out["std_output"] / np.sqrt(out["n"])
-    return out.reset_index()
+    grp = Groups(np.asarray(df["position"]))
+    std = grp.std(df["output"])
+    return pd.DataFrame({"position": grp.keys, "angle_deg": grp.mean(df["angle_deg"]), "n": grp.counts,
+                         "mean_output": grp.mean(df["output"]), "std_output": std,
+                         "sem_output": std / np.sqrt(grp.counts)})
 
 
 @dataclass(frozen=True)
@@ -299,12 +299,12 @@ def fit_run(meta: Mapping, data, extra_terms: Sequence[str] = ()) -> TumbleRun:
     n, rss = y.size, float(gn.z @ gn.z)
     s2 = rss / (n - npar)
     pm = position_means(df)
-    pos = df["position"].to_numpy()
-    pm["predicted"] = pd.Series(y - r).groupby(pos).mean().to_numpy()
+    grp = Groups(df["position"].to_numpy())
+    pm["predicted"] = grp.mean(y - r)
     pm["mean_residual"] = pm["mean_output"] - pm["predicted"]
     # lack of fit: position-mean residuals against the within-position (pure error) scatter
     ss_lof = float((pm["n"] * pm["mean_residual"] ** 2).sum())
-    ss_pe = float(((r - pd.Series(r).groupby(pos).transform("mean").to_numpy()) ** 2).sum())
+    ss_pe = float(((r - grp.mean(r)[grp.ids]) ** 2).sum())
     dof_lof, dof_pe = len(pm) - npar, n - len(pm)
     test = pure_error_test(ss_lof, dof_lof, ss_pe, dof_pe)
     lof = None

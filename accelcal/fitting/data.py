@@ -617,22 +617,108 @@ def unique_small_ints(key: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return uniq, first_of[uniq], rank[key]
 
 
-def _changes(keys: Sequence[np.ndarray], tols: Sequence[float] | None = None) -> np.ndarray:
-    """True at each reading whose keys differ from the reading before's (by more than
-    ``tols``, default exact; a missing key equals a missing key); False at the first."""
-    n = len(keys[0])
-    change = np.zeros(n, bool)
-    for k, tol in zip(keys, tols or [0.0] * len(keys)):
-        k = np.asarray(k, float)
-        kk = np.where(np.isfinite(k), k, -1e300)
-        change[1:] |= (np.abs(kk[1:] - kk[:-1]) > tol) if tol > 0 else (kk[1:] != kk[:-1])
-    return change
+class Groups:
+    """Rows grouped by a key, the groups in sorted key order, with their reductions.
 
+    Each reduction is taken in a fixed order: segment sums by ``np.add.reduceat`` where the
+    rows of each group are consecutive and the column is complete, else a compensated
+    (Kahan) sequential sum over each group's finite values in row order; standard
+    deviations by Welford's sequential update.  These are the orders of pandas' groupby,
+    so the values are its, bit for bit.
 
-def _blocks(keys: Sequence[np.ndarray], tols: Sequence[float] | None = None) -> np.ndarray:
-    """Consecutive readings with equal keys (within ``tols``, default exact) form one block;
-    the block index of each."""
-    return np.cumsum(_changes(keys, tols))
+    Parameters
+    ----------
+    key : (n,) array_like
+        Group key of each row; a missing (nan) key leaves its row out of every group.
+    """
+
+    def __init__(self, key):
+        key = np.asarray(key)
+        if key.dtype.kind in "iu":
+            self.keys, _, ids = unique_small_ints(key)
+        else:
+            ok = ~np.isnan(key) if key.dtype.kind == "f" else np.ones(key.size, bool)
+            self.keys, inv = np.unique(key[ok], return_inverse=True)
+            ids = np.full(key.size, -1, np.intp)
+            ids[ok] = inv.reshape(-1)
+        self.ids = ids.reshape(-1).astype(np.intp, copy=False)
+        self.ngroups = len(self.keys)
+        self.counts = np.bincount(self.ids[self.ids >= 0], minlength=self.ngroups).astype(np.int64)
+        #: the rows of each group are consecutive (missing keys, if any, first)
+        self.monotonic = bool(np.all(self.ids[1:] >= self.ids[:-1]))
+
+    def _segments(self, v: np.ndarray, skip_nan: bool = True):
+        """The values of the rows in groups (nan values left out), ordered by group and within
+        it by row, with each group's first index and size."""
+        keep = self.ids >= 0
+        if skip_nan and v.dtype.kind == "f":
+            keep &= ~np.isnan(v)
+        rows = np.flatnonzero(keep)
+        if not self.monotonic:
+            rows = rows[np.argsort(self.ids[rows], kind="stable")]
+        sizes = np.bincount(self.ids[rows], minlength=self.ngroups)
+        return v[rows], np.cumsum(sizes) - sizes, sizes
+
+    def _reduceat(self, v: np.ndarray) -> np.ndarray | None:
+        """Segment sums of a complete column whose groups are consecutive, else None."""
+        if not self.monotonic or (v.dtype.kind == "f" and np.isnan(v).any()):
+            return None
+        vs, starts, _ = self._segments(v, skip_nan=False)
+        return np.add.reduceat(vs, starts) if vs.size else np.zeros(self.ngroups, vs.dtype)
+
+    def _sequential(self, v: np.ndarray, welford: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(sum or mean, compensation or M2, count) of each group's finite values taken one at
+        a time in row order: the Kahan-compensated sum, or Welford's mean and sum of squared
+        deviations.  All groups step together, the largest first."""
+        vs, starts, sizes = self._segments(v)
+        by_size = np.argsort(-sizes, kind="stable")
+        st, sz = starts[by_size], sizes[by_size]
+        a, b = np.zeros(self.ngroups), np.zeros(self.ngroups)
+        active = np.searchsorted(-sz, -np.arange(sz[0] if sz.size else 0), side="left")
+        for k, c in enumerate(active):
+            x = vs[st[:c] + k]
+            if welford:
+                old = a[:c].copy()
+                a[:c] += (x - old) / (k + 1)
+                b[:c] += (x - a[:c]) * (x - old)
+            else:
+                y = x - b[:c]
+                t = a[:c] + y
+                comp = (t - a[:c]) - y
+                comp[np.isnan(comp)] = 0.0          # an infinite value: no compensation
+                b[:c], a[:c] = comp, t
+        out_a, out_b = np.empty_like(a), np.empty_like(b)
+        out_a[by_size], out_b[by_size] = a, b
+        return out_a, out_b, sizes
+
+    def sum(self, v) -> np.ndarray:
+        """Sum of each group's finite values (0 where none)."""
+        v = np.asarray(v, np.float64)
+        r = self._reduceat(v)
+        return r if r is not None else self._sequential(v, welford=False)[0]
+
+    def mean(self, v) -> np.ndarray:
+        """Mean of each group's finite values (nan where none)."""
+        v = np.asarray(v, np.float64)
+        r = self._reduceat(v)
+        if r is not None:
+            return r / self.counts.astype(np.float64)
+        s, _, n = self._sequential(v, welford=False)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(n > 0, s / n, np.nan)
+
+    def std(self, v, ddof: int = 1) -> np.ndarray:
+        """Sample standard deviation of each group's finite values (nan where <= ddof)."""
+        _, m2, n = self._sequential(np.asarray(v, np.float64), welford=True)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(n > ddof, np.sqrt(m2 / (n - ddof).astype(np.float64)), np.nan)
+
+    def min(self, v) -> np.ndarray:
+        """Least of each group's values, nan skipped (nan where none)."""
+        v = np.asarray(v)
+        vs, starts, sizes = self._segments(v)
+        out = np.fmin.reduceat(vs, np.minimum(starts, max(vs.size - 1, 0))) if vs.size else vs
+        return np.where(sizes > 0, out, np.nan) if (sizes == 0).any() else out
 
 
 def fitted_drive(t: np.ndarray, logged: np.ndarray, f: float, harmonics: int = 3
@@ -704,16 +790,46 @@ ANGLE_COLUMNS = frozenset({"table_angle_deg", "angle_deg", "rotation_deg"})
 BLOCK_META_KEY = "block_means"
 
 
-def block_bounds(rows_of, keys: Sequence[str], n: int, most: int,
-                 tols: Sequence[float] | None = None, rows_at_once: int = ROW_SLICE) -> np.ndarray:
+def dwell_starts(test: str, cols, n: int) -> np.ndarray:
+    """The first reading of each dwell of a run: the one segmentation of a run into dwells,
+    for the science's cells (:func:`make_run`), its blocks (:func:`block_bounds`) and the
+    validation's within-dwell checks (:mod:`accelcal.schemas.derived`).
+
+    A dwell is a run of consecutive readings whose keys (:data:`CELL_KEYS`) each stay
+    within their tolerance of the reading before's (a missing key equals a missing key);
+    a run without dwells (a sine run) is one dwell.
+
+    Parameters
+    ----------
+    test : str
+        The run's test kind.
+    cols : mapping
+        The run's key columns, ``cols[c]`` an array of its readings.
+    n : int
+        Readings in the run [1].
+
+    Returns
+    -------
+    (ndwell,) ndarray of int
+        Row of each dwell's first reading, ascending (0 first; empty when n is 0).
+    """
+    change = np.zeros(n, bool)
+    change[:1] = True
+    for c, tol in CELL_KEYS.get(test, ()):
+        k = np.asarray(cols[c], float)
+        k = np.where(np.isfinite(k), k, -1e300)
+        change[1:] |= (np.abs(k[1:] - k[:-1]) > tol) if tol > 0 else (k[1:] != k[:-1])
+    return np.flatnonzero(change)
+
+
+def block_bounds(rows_of, test: str, n: int, most: int, rows_at_once: int = ROW_SLICE) -> np.ndarray:
     """Blocks of consecutive readings that a long stepped run is taken as (issue 28).
 
-    Each dwell (a run of readings with equal ``keys``, within ``tols``: a cell of
-    :func:`make_run`) of m readings is cut into q = ceil(m / most) blocks of near-equal
-    length (floor or ceil of m / q readings): the mean of a block is a reading of the run
-    with its noise divided by about the block's length, so a dwell's blocks are alike (the
-    noise model's cell scatter stays that of one kind of reading) and their mean is the
-    dwell's mean to within the unequal lengths.  The dwells are found ``rows_at_once``
+    Each dwell (:func:`dwell_starts`: a cell of :func:`make_run`) of m readings is cut into
+    q = ceil(m / most) blocks of near-equal length (floor or ceil of m / q readings): the
+    mean of a block is a reading of the run with its noise divided by about the block's
+    length, so a dwell's blocks are alike (the noise model's cell scatter stays that of one
+    kind of reading) and their mean is the dwell's mean to within the unequal lengths.  The dwells are found ``rows_at_once``
     readings at a time (each slice with the reading before it): the same dwells as the
     whole run's keys give.
 
@@ -721,14 +837,12 @@ def block_bounds(rows_of, keys: Sequence[str], n: int, most: int,
     ----------
     rows_of : callable
         ``rows_of(c, lo, hi)`` gives readings ``lo`` to ``hi`` of column ``c``.
-    keys : sequence of str
-        The cell keys (:data:`CELL_KEYS`).
+    test : str
+        The run's test kind (its dwell keys, :data:`CELL_KEYS`).
     n : int
         Readings in the run [1].
     most : int
         Most readings in a block [1].
-    tols : sequence of float, optional
-        Largest step of each key within a dwell (default exact) [its unit].
     rows_at_once : int
         Readings read at a time [1].
 
@@ -744,12 +858,8 @@ def block_bounds(rows_of, keys: Sequence[str], n: int, most: int,
     for lo in range(0, n, rows_at_once):
         hi = min(lo + rows_at_once, n)
         a = max(lo - 1, 0)
-        change = _changes([rows_of(c, a, hi) for c in keys], tols)
-        if lo == 0:
-            change[0] = True
-            parts.append(np.flatnonzero(change))
-        else:
-            parts.append(np.flatnonzero(change[1:]) + lo)
+        starts = dwell_starts(test, {c: rows_of(c, a, hi) for c, _ in CELL_KEYS[test]}, hi - a)
+        parts.append(starts if lo == 0 else starts[1:] + a)
     first = np.concatenate(parts)
     m = np.diff(np.r_[first, n])
     q = -(-m // max(int(most), 1))
@@ -861,9 +971,8 @@ def long_run_blocks(test: str, n_rows: int, cols: Mapping) -> tuple[dict, dict] 
     if n_rows <= BLOCK_READINGS or test not in CELL_KEYS:
         return None
     most = -(-n_rows // BLOCK_READINGS)
-    keys = CELL_KEYS[test]
-    bounds = block_bounds(cols.rows, [c for c, _ in keys], n_rows, most, [tol for _, tol in keys])
-    exact = tuple(c for c, tol in keys if tol == 0)      # the same in every reading of a block
+    bounds = block_bounds(cols.rows, test, n_rows, most)
+    exact = tuple(c for c, tol in CELL_KEYS[test] if tol == 0)      # the same in every reading of a block
     data = block_means(cols.rows, list(cols), bounds, first=(*exact, "line"))
     return data, {BLOCK_META_KEY: [int(n_rows), int(bounds.size - 1), int(most)]}
 
@@ -928,7 +1037,8 @@ def make_run(meta: Mapping, data, index: int = 0, sha256: str = "", sine_segment
     lines = np.asarray(data["line"], float) if "line" in all_names else np.zeros(nrow)
     wdot = None
     if test in CELL_KEYS:
-        cid = _blocks([cols[c] for c, _ in CELL_KEYS[test]], [tol for _, tol in CELL_KEYS[test]])
+        starts = dwell_starts(test, cols, nrow)
+        cid = np.repeat(np.arange(starts.size), np.diff(np.r_[starts, nrow]))
     elif test == "sine_centrifuge":
         f = float(meta["rate_frequency_hz"])
         rate, wdot, drive_note = drive_rate(meta, t, cols["table_rate_rad_s"])

@@ -7,6 +7,7 @@ import numpy as np
 import pandas as pd
 
 from ..fitting.core import lstsq_min_norm
+from ..fitting.data import Groups, dwell_starts
 from .dropformat import RunFile
 from .dropspec import COLUMNS, INT_COLUMNS, NULLABLE_COLUMNS, REQUIRED_KEYS
 from .rules import ANGLE_TOL_DEG, METADATA_RANGES, REST_RATE, SINE_RESID_MAX
@@ -63,19 +64,6 @@ def _elementwise(n: int, dtype, fn, *cols: np.ndarray) -> RowColumn:
     return RowColumn(n, dtype, lambda lo, hi: fn(*(c[lo:hi] for c in cols)))
 
 
-def _dwell_keys(test: str, d: dict[str, np.ndarray]) -> np.ndarray:
-    """Consecutive rows of one dwell share a key (the DAQ logs at sample_period within it)."""
-    if test == "tumble":
-        k = d["position"].astype(np.float64)
-    elif test == "centrifuge":
-        k = d["step"].astype(np.float64)
-    elif test == "tilt_rotation":
-        k = d["temp_set_c"].astype(np.float64) * 1e4 + d["rotation_deg"].astype(np.float64)
-    else:
-        k = np.zeros(len(d["line"]))
-    return k
-
-
 def _segments(values: np.ndarray) -> np.ndarray:
     """Index of the run of equal consecutive values each row belongs to."""
     if len(values) == 0:
@@ -84,20 +72,12 @@ def _segments(values: np.ndarray) -> np.ndarray:
     return np.cumsum(change)
 
 
-def _run_edges(values: np.ndarray) -> np.ndarray:
-    """Where each run of equal consecutive values starts, then the end: run k is
-    ``values[edges[k]:edges[k + 1]]`` (the slices of :func:`_segments`' labels)."""
-    if len(values) == 0:
-        return np.zeros(0, np.int64)
-    return np.flatnonzero(np.r_[True, values[1:] != values[:-1], True])
-
-
-def _derive(test: str, run: RunFile, step_means: np.ndarray | None = None) -> dict[str, np.ndarray]:
+def _derive(test: str, run: RunFile) -> dict[str, np.ndarray]:
     """The run's columns plus the derived columns the suite checks, as numpy arrays of the
     run's length (no DataFrame per run: the batch is one table, made once).  The run's
     columns are its arrays (RunFile.arrays): a pandas column lookup costs more than most
-    of the arithmetic here.  ``step_means``: for a centrifuge run, its mean turning rate
-    per step when already known (:func:`_turning_step_means`)."""
+    of the arithmetic here.  A dwell is :func:`accelcal.fitting.data.dwell_starts`' (the
+    science's)."""
     src = run.arrays
     n = run.n_rows
     lazy = hasattr(src, "rows")     # the run is in its Parquet file: read when needed
@@ -149,8 +129,8 @@ def _derive(test: str, run: RunFile, step_means: np.ndarray | None = None) -> di
                 med = _median_of_counts(vals, counts) if counts.sum() else None
             else:
                 dt = d_time(0, n) if n else np.zeros(0)
-                keys = _dwell_keys(test, d)
-                same = np.r_[False, keys[1:] == keys[:-1]] & np.isfinite(dt) & (dt > 0)
+                same = np.isfinite(dt) & (dt > 0)
+                same[dwell_starts(test, d, n)] = False
                 within = dt[same]
                 del dt
                 med = float(np.median(within)) if within.size else None
@@ -166,7 +146,7 @@ def _derive(test: str, run: RunFile, step_means: np.ndarray | None = None) -> di
         if test == "centrifuge" and {"step", "table_rate_rad_s", "table_angle_deg"} <= d.keys():
             scan = _centrifuge_dwells(src, n) if lazy else None
             out["rest_dwell_error_deg"] = _first_only(n, _rest_dwell_error(d, scan and scan.edges))
-            out["one_g_error"] = _sparse(n, *_one_g(d, meta, n, step_means, scan))
+            out["one_g_error"] = _sparse(n, *_one_g(d, meta, n, scan))
         if test == "tilt_rotation" and {"temp_set_c", "rotation_deg"} <= d.keys():
             npos = int(meta.get("positions", 0) or 0)
             rot = None if lazy else d["rotation_deg"].astype(np.float64, copy=False)
@@ -201,7 +181,7 @@ def _derive(test: str, run: RunFile, step_means: np.ndarray | None = None) -> di
 
 class _RowsOf:
     """Rows ``lo`` to ``hi`` of every column of a run in its Parquet file, each read when
-    asked for (what :func:`_dwell_keys` reads of a slice)."""
+    asked for (the dwell keys of a slice)."""
 
     def __init__(self, src, lo: int, hi: int):
         self.src, self.lo, self.hi = src, lo, hi
@@ -224,10 +204,10 @@ def _within_dwell_steps(test: str, src, d_time, n: int) -> tuple[np.ndarray, np.
     for lo in range(0, n, _STEP_ROWS):
         hi = min(lo + _STEP_ROWS, n)
         a = max(lo - 1, 0)
-        keys = _dwell_keys(test, _RowsOf(src, a, hi))
-        same = keys[1:] == keys[:-1]
-        if lo == 0:
-            same = np.r_[False, same]
+        same = np.ones(hi - a, bool)
+        same[dwell_starts(test, _RowsOf(src, a, hi), hi - a)] = False
+        if lo > 0:
+            same = same[1:]
         dt = d_time(lo, hi)
         u, c = np.unique(dt[same & np.isfinite(dt) & (dt > 0)], return_counts=True)
         vals, inv = np.unique(np.r_[vals, u], return_inverse=True)
@@ -305,13 +285,13 @@ def _distinct_of_blocks(bs: np.ndarray, bv: np.ndarray, nseg: int) -> np.ndarray
 
 def _rest_dwell_error(d: dict[str, np.ndarray], edges: np.ndarray | None = None) -> float:
     """Worst spacing error (deg) of the leading rest dwells' azimuths; 999 if < 2 of them.
-    ``edges``: the run's dwells (:func:`_run_edges` of ``step``) when already found."""
+    ``edges``: the first row of each dwell, then the run's length, when already found."""
     # the dwells (runs of equal steps) as slices: the same rows, in order, as a mask each;
     # only the leading ones' rates and azimuths are read (a run in its Parquet file is read
     # a dwell at a time, issue 28)
     rows = d.rows if hasattr(d, "rows") else (lambda c, lo, hi: d[c][lo:hi])
     if edges is None:
-        edges = _run_edges(d["step"])
+        edges = np.r_[dwell_starts("centrifuge", d, len(d["step"])), len(d["step"])]
     az = []
     for lo, hi in zip(edges[:-1], edges[1:]):
         if not np.all(np.abs(rows("table_rate_rad_s", lo, hi).astype(np.float64, copy=False)) < REST_RATE):
@@ -328,25 +308,24 @@ def _rest_dwell_error(d: dict[str, np.ndarray], edges: np.ndarray | None = None)
     return float(np.max(np.abs(gaps - 360.0 / len(az))))
 
 
-def _one_g(d: dict[str, np.ndarray], meta: dict, n: int, means: np.ndarray | None = None,
+def _one_g(d: dict[str, np.ndarray], meta: dict, n: int,
            scan: "_Dwells | None" = None) -> tuple[np.ndarray, np.ndarray]:
-    """min over turning dwells of |omega^2 R / g - 1|, placed on the first turning row (999
-    on row 0 when no dwell turns or R or g is not positive): (rows, values), the one row
-    and its value, or none (no rows); not a column of the run's length (issue 28).
-    ``means``: the mean turning rate [rad/s] per step, ascending steps (see
-    :func:`_turning_step_means`), or None to compute them here; ``scan``: the run's dwells
-    read one at a time (:func:`_centrifuge_dwells`), whose first turning row and means
-    are used when it has them."""
+    """min over turning steps of |omega^2 R / g - 1|, omega the step's mean turning rate
+    [rad/s], placed on the first turning row (999 on row 0 when no dwell turns or R or g is
+    not positive): (rows, values), the one row and its value, or none (no rows); not a
+    column of the run's length.  ``scan``: the run's dwells read one at a time
+    (:func:`_centrifuge_dwells`), whose first turning row and means are used when it has
+    them."""
     R = float(meta.get("arm_radius_m", np.nan))
     g = float(meta.get("g_local_m_s2", np.nan))
     if scan is not None and (scan.means is not None or scan.first_turning is None):
-        first, means = scan.first_turning, scan.means if means is None else means
+        first, means = scan.first_turning, scan.means
     else:
         rate = d["table_rate_rad_s"].astype(np.float64, copy=False)
         turning = rate >= REST_RATE
         first = int(np.argmax(turning)) if turning.any() else None
-        if first is not None and means is None:
-            means = pd.Series(rate[turning]).groupby(d["step"][turning]).mean().to_numpy()
+        if first is not None:
+            means = Groups(d["step"][turning]).mean(rate[turning])
         del rate, turning
     if first is None or not (R > 0 and g > 0):
         return (np.zeros(1, np.int64), np.array([999.0])) if n else (np.zeros(0, np.int64), np.zeros(0))
@@ -357,9 +336,9 @@ def _one_g(d: dict[str, np.ndarray], meta: dict, n: int, means: np.ndarray | Non
 
 class _Dwells:
     """A centrifuge run's dwells read one at a time (:func:`_centrifuge_dwells`):
-    ``edges`` (:func:`_run_edges` of ``step``), ``first_turning`` (the first row turning at
-    REST_RATE or more, None when none does) and ``means`` (:func:`_turning_step_means`'
-    figure, None when the turning steps go down)."""
+    ``edges`` (the first row of each dwell, then the run's length), ``first_turning`` (the
+    first row turning at REST_RATE or more, None when none does) and ``means`` (the mean
+    turning rate of each step, None when the turning steps go down)."""
 
     def __init__(self, edges, first_turning, means):
         self.edges, self.first_turning, self.means = edges, first_turning, means
@@ -375,9 +354,9 @@ def _centrifuge_dwells(src, n: int) -> _Dwells:
         hi = min(lo + _STEP_ROWS, n)
         a = max(lo - 1, 0)
         st = src.rows("step", a, hi)
-        at = np.flatnonzero(st[1:] != st[:-1]) + 1
-        if lo == 0:
-            at = np.r_[0, at]
+        at = dwell_starts("centrifuge", {"step": st}, hi - a)
+        if lo > 0:
+            at = at[1:]
         parts.append(at + a)
         steps.append(st[at])
     edges = np.r_[np.concatenate(parts), n].astype(np.int64) if n else np.zeros(0, np.int64)
@@ -407,37 +386,6 @@ def _centrifuge_dwells(src, n: int) -> _Dwells:
         step_of = s
     flush()
     return _Dwells(edges, first, np.asarray(means, np.float64) if monotone and first is not None else None)
-
-
-def _turning_step_means(runs: list[RunFile]) -> dict[int, np.ndarray]:
-    """What :func:`_one_g` needs of each centrifuge run ``runs[j]`` -- the mean rate [rad/s]
-    of its turning rows per step, ascending steps -- as ``np.add.reduceat`` over each step's
-    rows, which is how pandas' groupby mean sums a group whose rows are sorted by it (the
-    same numbers, bit for bit: tests/test_validation.py).  So only runs whose turning steps
-    never go down are taken (then each step's turning rows are one block); the others, and
-    runs whose columns are not the parser's dtypes, are left out (computed per run by
-    :func:`_one_g`), as are runs in their Parquet file (:func:`_centrifuge_dwells`, in
-    :func:`_derive`, finds theirs).  One run at a time, without a table of the batch: a pandas groupby of a
-    1 GB run's rows was the peak of its whole intake (issue 28)."""
-    out: dict[int, np.ndarray] = {}
-    for j, r in enumerate(runs):
-        a = r.arrays
-        if r.test != "centrifuge" or not {"step", "table_rate_rad_s", "table_angle_deg"} <= a.keys():
-            continue
-        if hasattr(a, "rows"):          # in its Parquet file: _derive's own scan of its
-            continue                    # dwells gives them (one pass over its columns)
-        rate, step = a["table_rate_rad_s"], a["step"]
-        if rate.dtype != np.float64 or step.dtype != np.int64:
-            continue
-        turning = rate >= REST_RATE
-        s = step[turning]
-        if len(s) > 1 and not (s[1:] >= s[:-1]).all():
-            continue
-        if not len(s):
-            continue
-        starts = _run_edges(s)
-        out[j] = np.add.reduceat(rate[turning], starts[:-1]) / np.diff(starts)
-    return out
 
 
 def _sine_fit(t: np.ndarray, rate: np.ndarray, meta: dict) -> tuple[float, float]:

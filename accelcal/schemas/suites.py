@@ -49,7 +49,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .derived import RowColumn, _derive, _meta_record, _turning_step_means
+from .derived import RowColumn, _derive, _meta_record
 from .dropformat import RunFile
 from .dropspec import COLUMNS, INT_COLUMNS, NULLABLE_COLUMNS, DropFormatError, Refusal, check_test
 from .rules import ANGLE_TOL_DEG, TEMP_RANGE_C, ValidationReport, _expectation, _suite_specs, build_suites
@@ -383,13 +383,9 @@ def validate_report(runs: list[RunFile], docs_dir: Path | None = None,
                                             f"columns missing: {', '.join(miss)}"))
             continue
         todo.append((r, test))
-    try:
-        step_means = _turning_step_means([r for r, _ in todo])
-    except Exception:       # then each run's own, so that only its run is refused
-        step_means = {}
-    for j, (r, test) in enumerate(todo):
+    for r, test in todo:
         try:
-            items.append((r, test, _derive(test, r, step_means.get(j))))
+            items.append((r, test, _derive(test, r)))
         except Exception as e:  # a bug or data beyond the checks: refuse, don't stop the drop
             refusals[r.path].append(Refusal(r.path, None, "validation-error",
                                             f"{type(e).__name__}: {e}"[:300]))
