@@ -651,7 +651,7 @@ class _Diagnosis:
                     if abs(cs) > ALIAS_COS:
                         e["aliases"].append(d)
                         e.setdefault("alias_cos", {})[d] = cs
-            co = [k for k, why in held.items() if c in why.split("candidate effect ", 1)[-1].split(" (")[0].split(", ")]
+            co = [k for k, h in held.items() if c in h.aliased_with]
             if co:
                 e["coefficient_aliases"] = [{"coefficient": k, "note": "instrument coefficient, not a catalogue "
                                              "effect: held in the bare model so that the effect can be seen; the "
@@ -675,7 +675,7 @@ class _Diagnosis:
             The bare model (its Jacobian has every column, held ones included).
         """
         m = bare.model
-        held = [(k, why) for k, why in bare.held.items()
+        held = [(k, h.reason) for k, h in bare.held.items()
                 if k in m.params.index and m.roles[m.params.index[k]].kind == "coef"
                 and m.roles[m.params.index[k]].key in NON_CATALOGUE]
         if not held:
@@ -765,7 +765,7 @@ class _Diagnosis:
             "gap": g,
             "selection_steps": steps,
             "alpha": self.alpha, "gap_alpha": GAP_ALPHA, "heldout_gate": HELDOUT_GATE, "heldout_z": HELDOUT_Z,
-            "held": dict(bare0.held),
+            "held": {k: h.reason for k, h in bare0.held.items()},
             "notes": self.notes,
             "runs": [{"run_id": r.run_id, "test": r.test, "campaign": r.campaign, "cells": r.ncell,
                       "noise": {"a": r.noise.a, "b": r.noise.b, "rho": r.noise.rho, "dof": r.noise.dof,
@@ -812,7 +812,7 @@ def _noise_si(f: Fit) -> float:
 
 def _bare_text(f: Fit) -> str:
     free = [p.name for p, v in zip(f.model.params, f.free) if v]
-    held = [f"{k} ({v})" for k, v in f.held.items()]
+    held = [f"{k} ({h.reason})" for k, h in f.held.items()]
     return ("the forward model with the baseline effects; free: " + ", ".join(free)
             + ("; held: " + "; ".join(held) if held else ""))
 

@@ -34,10 +34,11 @@ from typing import Any
 import numpy as np
 
 from ..constants import MOUNT_ANGLE_TOLERANCE_RAD
-from ..effects import combination_name, si_unit
+from ..effects import si_unit
 from ..fitting.core import lstsq_svd, normalised_error
 from ..fitting.data import (BLOCK_META_KEY, RunCells, block_note, drop_duplicate_cells, fit_noise, make_run,
                             pool_missing_noise)
+from ..fitting.identify import Combination, Why, dependence_text, display_name
 from ..fitting.model import ACTING, CampaignModel, mount_runs, processing_effects
 from ..fitting.procedure import ModelFit, fit_selected
 from ..physics.axes import AXES
@@ -107,7 +108,7 @@ def fit_campaign_model(runs: Sequence[RunCells], effects: Sequence[str], *, shar
     model = build()
     # a term that only acts (a square term on a tilted table) is held while the designed
     # model fits: at 0.45 deg of tilt it is invisible, and would only dilute the others' u;
-    # it is named in what the held terms leave in the rows (CampaignModel.measures)
+    # it is named in what the held terms leave in the rows (CampaignModel.combinations)
     hold = {n: "acts on these runs, held: the model fits without it" for n in model.acting_only}
     jf = fit_selected(model, keep=keep, noise_passes=noise_passes, effects=effects, hold=hold)
     if hold and jf.fit.lof.status == "inadequate":
@@ -142,35 +143,31 @@ def prepare(runs) -> tuple[list[RunCells], list[str]]:
 
 # ----------------------------------------------------------------------------- results
 
-def what_it_measures(measures: dict[str, tuple[dict[str, float], list[str]]], name: str, label: str
-                     ) -> tuple[str, str]:
+def what_it_measures(comb: Combination | None, label: str) -> tuple[str, str]:
     """The row name and note of a free parameter: the combination the runs determine.
 
     Parameters
     ----------
-    measures : dict
-        :meth:`accelcal.fitting.model.CampaignModel.measures` of the fit.
-    name : str
-        The parameter's name in the model.
+    comb : Combination or None
+        What the parameter measures (:meth:`accelcal.fitting.model.CampaignModel.combinations`);
+        None when it takes nothing up.
     label : str
         Its row name when the runs determine it alone (``'K2'``, ``'theta0[PA]'``).
 
     Returns
     -------
     (str, str)
-        Row name: ``label`` itself, or its combination with the instrument coefficients held
-        at 0 that it takes up (:func:`accelcal.effects.combination_name`, e.g. ``'K2-Koo'``);
-        note: what is aliased and which other held parameters it depends on, or ``''``.
+        Row name (:func:`accelcal.fitting.identify.display_name`, e.g. ``'K2-Koo'``); note:
+        what is aliased and which other held parameters it depends on, or ``''``.
     """
-    coef, other = measures.get(name, ({}, []))
     notes = []
-    if coef:
-        exact = label + "".join(f" {'-' if f < 0 else '+'} {abs(f):.6g}·{k}" for k, f in coef.items())
+    if comb is not None and comb.terms:
+        exact = label + "".join(f" {'-' if f < 0 else '+'} {abs(f):.6g}·{k}" for k, f in comb.terms)
         notes.append(f"aliased in this design: the runs determine {exact}, not {label} alone "
-                     f"({', '.join(coef)} held at 0)")
-    if other:
-        notes.append("not determined alone by these runs: " + "; ".join(other))
-    return combination_name(label, coef), "; ".join(notes)
+                     f"({', '.join(k for k, _ in comb.terms)} held at 0)")
+    if comb is not None and comb.depends:
+        notes.append("not determined alone by these runs: " + "; ".join(dependence_text(comb)))
+    return display_name(label, comb), "; ".join(notes)
 
 
 def nearly_aliased(jf: JointFit, r_min: float = NEAR_ALIAS_R) -> list[tuple[str, str, float, float]]:
@@ -378,14 +375,14 @@ def type_b_terms(jf: JointFit, tolerance: float = MOUNT_ANGLE_TOLERANCE_RAD) -> 
     # type-B term, bounded like the fixture's angle tolerance (the instrument's IA is
     # referenced to its mounting surface)
     absorbers: dict[str, set[str]] = {}
-    for name, why in jf.held.items():
+    for name, h in jf.held.items():
         i = model.params.index[name]
-        if model.roles[i].key in ("Kp", "Ko") and why.startswith("aliased with "):
+        if model.roles[i].key in ("Kp", "Ko") and h.why is Why.ALIASED and h.aliased_with:
             q = f"{name} (type B, uniform ±{tolerance:.3g} rad: aliased, absorbed at first order)"
             held.append((q, model.jacobian(fit.values, [i])[:, 0]))
             # the parameters it is aliased with report it as part of their value (their
             # note says so): what they take of it is their definition, not an error
-            absorbers[q] = {x.strip() for x in why[len("aliased with "):].split(",")}
+            absorbers[q] = set(h.aliased_with)
     for quantity, col in held:
         sol = lstsq_svd(fit.J[:, free], col)
         for c, i in enumerate(free):
@@ -523,14 +520,14 @@ def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
                      + "; ".join(f"{m['input']} of {m['rig']} ([rigs.\"{m['rig']}\"] {m['key']})" for m in missing)
                      + " (accelcal.toml)")
     rig_of = _dominant_rigs(jf)
-    measures = model.measures(fit.values, {prm.name: fit.std(prm.name) for prm in model.params if prm.vary})
+    measures = model.combinations(fit.values, {prm.name: fit.std(prm.name) for prm in model.params if prm.vary})
     near = nearly_aliased(jf)
     pairs: list[tuple[str, str]] = [tuple(model.roles[model.params.index[n]].key for n in (a, b))
                                     for a, b, _, _ in near]
     near_note: dict[str, str] = {}
     for a, b, t, r in near:
         ka, kb = (model.roles[model.params.index[n]].key for n in (a, b))
-        comb = combination_name(ka, {kb: float(f"{t:.2g}")})
+        comb = display_name(ka, Combination(ka, ((kb, float(f"{t:.2g}")),)))
         row = " (its own row)" if si_unit(ka) == si_unit(kb) and fit.converged else ""
         for n, other in ((a, kb), (b, ka)):
             near_note[n] = "; ".join(x for x in (near_note.get(n, ""), (
@@ -541,8 +538,8 @@ def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
         role = model.roles[i]
         if role.kind != "coef" or not prm.vary or not fit.estimable[i]:
             continue
-        name, alias = what_it_measures(measures, prm.name, role.key)
-        pairs += [(role.key, k) for k in measures.get(prm.name, ({}, []))[0]]
+        name, alias = what_it_measures(measures.get(prm.name), role.key)
+        pairs += [(role.key, k) for k, _ in getattr(measures.get(prm.name), "terms", ())]
         if prm.name in near_note:
             alias = "; ".join(x for x in (alias, near_note[prm.name]) if x)
         if alias:
@@ -572,7 +569,7 @@ def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
         if si_unit(ka) != si_unit(kb) or not fit.converged:
             continue
         t = float(f"{t:.2g}")
-        name = combination_name(ka, {kb: t})
+        name = display_name(ka, Combination(ka, ((kb, t),)))
         c = np.zeros(len(model.params))
         c[ia], c[ib] = 1.0, t
         value = float(c @ fit.values)
@@ -595,7 +592,7 @@ def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
             1 for q in model.params if model.roles[model.params.index[q.name]].key == "initial_misalignment") > 1 \
             else "theta0"
         u = float("nan") if untestable else fit.std(prm.name)
-        label, alias = what_it_measures(measures, prm.name, label)
+        label, alias = what_it_measures(measures.get(prm.name), label)
         if alias:
             flags.append(f"{label}: {alias}")
         coefficients.append(CoefficientResult(
@@ -623,7 +620,7 @@ def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
         "parameters": [{"name": prm.name, "key": prm.key, "unit": prm.unit, "group": prm.group,
                         "value": float(fit.values[i]),
                         "u": (fit.std(prm.name) if prm.vary and fit.estimable[i] else None),
-                        "held": jf.held.get(prm.name)} for i, prm in enumerate(model.params)],
+                        "held": jf.reason(prm.name)} for i, prm in enumerate(model.params)],
         "correlation": {"names": names, "matrix": np.round(R, 4).tolist()},
         "lack_of_fit": {"status": lof.status, "F": lof.statistic, "p": lof.p_value, "dof_lof": lof.dof_lof,
                         "dof_pe": lof.dof_pe, "factor": lof.factor, "note": lof.note},
@@ -762,7 +759,7 @@ def _geometry_records(jf: JointFit) -> tuple[list[RadiusResult], list[dict]]:
         role = model.roles[i]
         if role.kind in ("radius",) or (role.kind == "effect" and role.key != "initial_misalignment"):
             geo[prm.name] = {"value": float(p[i]), "u": fit.std(prm.name) if prm.vary and fit.estimable[i] else None,
-                             "unit": prm.unit, "held": jf.held.get(prm.name)}
+                             "unit": prm.unit, "held": jf.reason(prm.name)}
     if geo:
         alignment.append({"kind": "joint", "method": METHOD, "parameters": geo})
     return radii, alignment

@@ -27,6 +27,7 @@ import numpy as np
 
 from .core import ALPHA, FitResult, finish_fit, gauss_newton, lack_of_fit
 from .data import fit_noise, pool_missing_noise
+from .identify import Hold, as_holds
 from .model import (CampaignModel, lack_of_fit_at_rho_hi, lack_of_fit_reference, pure_error_runs,
                     residual_cell_variance, residual_dof_runs)
 
@@ -43,8 +44,8 @@ class ModelFit:
     fit : FitResult
         Values [parameter units], covariance, chi-square [1], dof, lack of fit, whitened
         residual and Jacobian, Fisher information.
-    held : dict
-        Parameter name -> why it is held (aliased, not excited, weakly determined).
+    held : dict of str to Hold
+        Parameter name -> why it is held (:class:`~accelcal.fitting.identify.Hold`).
     iterations : int
         Gauss–Newton iterations over all passes.
     pure_error : dict
@@ -59,7 +60,7 @@ class ModelFit:
     """
     model: CampaignModel
     fit: FitResult
-    held: dict[str, str]
+    held: dict[str, Hold]
     iterations: int
     pure_error: dict[str, float] = field(default_factory=dict)
     active: np.ndarray | None = None
@@ -80,6 +81,12 @@ class ModelFit:
             Estimate, or the held value when held [parameter unit].
         """
         return self.fit.value(name)
+
+    def reason(self, name: str) -> str | None:
+        """Why one parameter is held, in words (:attr:`~accelcal.fitting.identify.Hold.reason`);
+        None when it is free."""
+        h = self.held.get(name)
+        return None if h is None else h.reason
 
     def std(self, name: str) -> float:
         """Standard uncertainty of one parameter, lack-of-fit scaled
@@ -122,11 +129,11 @@ def refit_noise(model: CampaignModel, p: np.ndarray, noise_level: str = "design"
     model.refresh_noise()
 
 
-def fit_model(model: CampaignModel, p: np.ndarray, held: dict[str, str], *,
+def fit_model(model: CampaignModel, p: np.ndarray, held: Mapping[str, Hold | str], *,
               keep: Sequence[str] = (), noise_passes: int = 1, reselect: bool = True,
               bounded: bool = True, noise_level: str = "design", max_iter: int = 40,
               alpha: float = ALPHA, effects: Sequence[str] = (),
-              hold: Mapping[str, str] | None = None, cautious: bool = False) -> ModelFit:
+              hold: Mapping[str, Hold | str] | None = None, cautious: bool = False) -> ModelFit:
     """Fit a campaign model whose holds are decided (:meth:`CampaignModel.select`).
 
     Parameters
@@ -136,8 +143,8 @@ def fit_model(model: CampaignModel, p: np.ndarray, held: dict[str, str], *,
     p : ndarray
         Start [parameter units] (:meth:`CampaignModel.start`), held parameters at their
         held values.
-    held : dict
-        Name -> reason of the parameters held.
+    held : mapping of str to Hold or str
+        Name -> hold of the parameters held (the caller's words for a given one).
     keep : sequence of str
         Names never held for being weakly determined (at the re-selection).
     noise_passes : int
@@ -155,7 +162,7 @@ def fit_model(model: CampaignModel, p: np.ndarray, held: dict[str, str], *,
         Level of the lack-of-fit test (:func:`accelcal.fitting.core.lack_of_fit`).
     effects : sequence of str
         Kept in the result (the effects.md ids the model was built with).
-    hold : mapping of str to str, optional
+    hold : mapping of str to Hold or str, optional
         Parameters held whatever the design, at the re-selection too
         (:meth:`CampaignModel.select`).
     cautious : bool
@@ -168,6 +175,7 @@ def fit_model(model: CampaignModel, p: np.ndarray, held: dict[str, str], *,
         The covariance is the noise-model covariance scaled by the lack-of-fit factor; the
         lack of fit tests the cell means against the pure error (Draper & Smith §2.1).
     """
+    held = as_holds(held)
     free = model.params.free()
     lower = model.lower_bounds() if bounded else None
     gn = gauss_newton(model.residual, model.jacobian, p, free, max_iter=max_iter, lower=lower)
@@ -199,11 +207,11 @@ def fit_model(model: CampaignModel, p: np.ndarray, held: dict[str, str], *,
     # the covariance finish_fit gives with this lack of fit, from the one SVD already done
     fit = replace(plain, lof=lof, cov=plain.cov_noise * lof.factor ** 2)
     active = model.params.free() & (np.linalg.norm(gn.J, axis=0) > 0)
-    return ModelFit(model, fit, dict(held), its, {"chi2": chi_pe, "dof": dof_pe}, active, list(effects))
+    return ModelFit(model, fit, held, its, {"chi2": chi_pe, "dof": dof_pe}, active, list(effects))
 
 
 def fit_selected(model: CampaignModel, *, keep: Sequence[str] = (), noise_passes: int = 1,
-                 effects: Sequence[str] = (), hold: Mapping[str, str] | None = None) -> ModelFit:
+                 effects: Sequence[str] = (), hold: Mapping[str, Hold | str] | None = None) -> ModelFit:
     """Fit a campaign model as the adopted calibration does: from its start
     (:meth:`CampaignModel.start`), with what the design cannot determine held
     (:meth:`CampaignModel.select`), judged again after the first noise pass, a time
@@ -218,8 +226,8 @@ def fit_selected(model: CampaignModel, *, keep: Sequence[str] = (), noise_passes
         :func:`fit_model`.
     effects : sequence of str
         Kept in the result (the effects.md ids the model was built with).
-    hold : mapping of str to str, optional
-        Parameters held whatever the design (name -> reason).
+    hold : mapping of str to Hold or str, optional
+        Parameters held whatever the design (name -> hold, or the caller's words).
 
     Returns
     -------
