@@ -44,7 +44,7 @@ from ..fitting.procedure import ModelFit, fit_selected
 from ..physics.axes import AXES
 from ..results import AdequacyResult, BudgetTerm, CoefficientResult, RadiusResult
 from .adequacy import runs_test, trend_test
-from ..fitting.distributions import chi2_sf, f_sf, t_ppf
+from ..fitting.distributions import chi2_sf, t_ppf
 
 METHOD = "joint_ml"
 #: Level of the extra-sum-of-squares test of the terms that only act on the runs, when the
@@ -117,16 +117,13 @@ def fit_campaign_model(runs: Sequence[RunCells], effects: Sequence[str], *, shar
         # tilted by 10 deg or more shows its square terms; a campaign that fails the test by
         # chance keeps its model
         wider = fit_selected(build(), keep=keep, noise_passes=noise_passes, effects=effects)
-        extra = wider.fit.rank - jf.fit.rank
-        if extra > 0 and wider.fit.dof > 0 and wider.fit.chi2 > 0:
-            F = (jf.fit.chi2 - wider.fit.chi2) / extra / (wider.fit.chi2 / wider.fit.dof)
-            p = float(f_sf(F, extra, wider.fit.dof)) if F > 0 else 1.0
-            if p < ACTING_ALPHA:
-                wider.notes.append(
-                    f"the designed model did not fit (lack-of-fit F = {jf.fit.lof.statistic:.3g}); the terms "
-                    f"that act on these runs explain it (F = {F:.3g} on {extra} terms, p = {p:.2g}) and were "
-                    f"let in: {', '.join(n for n in hold if n not in wider.held)}")
-                jf = wider
+        t = wider.compare(jf, always_scaled=True)
+        if wider.fit.rank > jf.fit.rank and t.p_value is not None and t.p_value < ACTING_ALPHA:
+            wider.notes.append(
+                f"the designed model did not fit (lack-of-fit F = {jf.fit.lof.statistic:.3g}); the terms "
+                f"that act on these runs explain it (F = {t.statistic:.3g} on {t.q} terms, p = {t.p_value:.2g}) "
+                f"and were let in: {', '.join(n for n in hold if n not in wider.held)}")
+            jf = wider
     return jf
 
 
