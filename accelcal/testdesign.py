@@ -594,10 +594,10 @@ def _advise(cells, baseline, targets, separate, max_runs, candidates, top) -> Ad
     if seen:
         cands = [c for c in cands if any(c.test in EFFECTS[t].tests for t in seen)]
     # the runs made, fitted as the advice model (noise refitted to its residuals, which is
-    # the noise a fit of the augmented campaign will see); copies, the caller's are kept
-    cells = [replace(c) for c in cells]
+    # the noise a fit of the augmented campaign will see)
     made = _model(cells, effects, extra)
-    p_made = fit_selected(made).fit.values
+    made_fit = fit_selected(made)
+    cells, p_made = made_fit.model.runs, made_fit.fit.values
     cand_cells = [candidate_cells(c, cells, len(cells) + k) for k, c in enumerate(cands)]
     model = _model(cells + cand_cells, effects, extra)
     p = model.params.values()

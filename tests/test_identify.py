@@ -85,3 +85,24 @@ def test_a_given_hold_keeps_the_callers_words():
     from accelcal.fitting.identify import as_holds
     h = as_holds({"Koq": "acts on these runs, held"})["Koq"]
     assert h.why is Why.GIVEN and str(h) == "acts on these runs, held"
+
+
+def test_the_nested_test_is_the_extra_sum_of_squares_f_and_the_likelihood_ratio():
+    from types import SimpleNamespace
+
+    from scipy import stats
+
+    from accelcal.fitting.procedure import ModelFit
+
+    def mf(chi2, rank, dof):
+        return ModelFit(None, SimpleNamespace(chi2=chi2, rank=rank, dof=dof), {}, 0)
+
+    small, big = mf(130.0, 3, 52), mf(60.0, 5, 50)
+    t = big.compare(small, always_scaled=True)           # Draper & Smith §6.1
+    F = (130.0 - 60.0) / 2 / (60.0 / 50)
+    assert (t.q, t.dof, t.scaled) == (2, 50, True) and t.statistic == pytest.approx(F)
+    assert t.p_value == pytest.approx(stats.f.sf(F, 2, 50), rel=1e-10)
+    # chi2/dof below 1: the noise model is taken as known, delta chi2 ~ chi2(q)
+    t = mf(40.0, 5, 50).compare(small)
+    assert not t.scaled and t.p_value == pytest.approx(stats.chi2.sf(90.0, 2), rel=1e-10)
+    assert mf(0.0, 5, 0).compare(small).p_value is None

@@ -44,8 +44,9 @@ from scipy import stats
 from ..effects import EFFECTS
 from ..fitting.core import lstsq_min_norm
 from ..fitting.data import (RunCells, drop_duplicate_cells, fit_noise, make_run, pool_missing_noise,
-                            reject_spikes)
-from ..fitting.model import BASE, processing_effects
+                            reject_spikes, with_noise)
+from ..fitting.identify import BASE
+from ..fitting.model import processing_effects
 from ..physics.rigs import INSTRUMENT_EFFECTS, specific_force
 from ._blas import single_thread
 from .fits import (GAP_ALPHA, NON_CATALOGUE, Fit, Fitter, folds, gap_rms, gap_test, heldout_gap, heldout_parts,
@@ -205,9 +206,8 @@ def prepare_cells(runs) -> tuple[list[RunCells], list[str]]:
         if reject_spikes(c):
             notes += [n for n in c.notes if "spikes" in n]
         angle_level(c)
-        fit_noise(c, use_level=noise_grows(c), cautious=True)
-    pool_missing_noise(cells)
-    return cells, notes
+    noise = pool_missing_noise(cells, [fit_noise(c, use_level=noise_grows(c), cautious=True) for c in cells])
+    return [with_noise(c, m) for c, m in zip(cells, noise)], notes
 
 
 def angle_level(run: RunCells) -> None:
@@ -769,7 +769,7 @@ class _Diagnosis:
             "notes": self.notes,
             "runs": [{"run_id": r.run_id, "test": r.test, "campaign": r.campaign, "cells": r.ncell,
                       "noise": {"a": r.noise.a, "b": r.noise.b, "rho": r.noise.rho, "dof": r.noise.dof,
-                                "source": r.noise.source}, "notes": r.notes} for r in self.cells],
+                                "source": r.noise.source}, "notes": r.notes} for r in self.F.cells],
             "K1": K1,
             "where_all": rows_b,
             "elapsed_s": None,

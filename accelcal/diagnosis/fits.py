@@ -391,6 +391,8 @@ class Fitter:
         mf = fit_model(m, p, held, noise_passes=noise_passes, reselect=start is None and not self.extra_held,
                        bounded=False, noise_level="spread", max_iter=max_iter, alpha=GAP_ALPHA, effects=effects,
                        cautious=True)
+        if noise_passes:                         # the noise the next fits compare on
+            self.cells = list(mf.model.runs)
         return Fit(**vars(mf))
 
     @staticmethod

@@ -37,7 +37,7 @@ from ..constants import MOUNT_ANGLE_TOLERANCE_RAD
 from ..effects import si_unit
 from ..fitting.core import lstsq_svd, normalised_error
 from ..fitting.data import (BLOCK_META_KEY, RunCells, block_note, drop_duplicate_cells, fit_noise, make_run,
-                            pool_missing_noise)
+                            pool_missing_noise, with_noise)
 from ..fitting.identify import Combination, Why, dependence_text, display_name
 from ..fitting.model import ACTING, CampaignModel, mount_runs, processing_effects
 from ..fitting.procedure import ModelFit, fit_selected
@@ -102,10 +102,10 @@ def fit_campaign_model(runs: Sequence[RunCells], effects: Sequence[str], *, shar
     # Kip is a designed coefficient of a tumble too (a head about OA turns IA through PA,
     # IEEE 1293), not only the centrifuge's cross_coupling effect; the terms that act on a
     # tumble or a tilted table come in there too (ACTING)
-    def build():
+    def build(runs):
         return CampaignModel(runs, effects, shared=shared, per_run_bias=per_run_bias,
                              per_run_scale=per_run_scale, include=ACTING_TERMS, acting=ACTING)
-    model = build()
+    model = build(runs)
     # a term that only acts (a square term on a tilted table) is held while the designed
     # model fits: at 0.45 deg of tilt it is invisible, and would only dilute the others' u;
     # it is named in what the held terms leave in the rows (CampaignModel.combinations)
@@ -116,7 +116,7 @@ def fit_campaign_model(runs: Sequence[RunCells], effects: Sequence[str], *, shar
         # the terms let in explain it (extra sum of squares, Draper & Smith §6.1): a table
         # tilted by 10 deg or more shows its square terms; a campaign that fails the test by
         # chance keeps its model
-        wider = fit_selected(build(), keep=keep, noise_passes=noise_passes, effects=effects)
+        wider = fit_selected(build(jf.model.runs), keep=keep, noise_passes=noise_passes, effects=effects)
         t = wider.compare(jf, always_scaled=True)
         if wider.fit.rank > jf.fit.rank and t.p_value is not None and t.p_value < ACTING_ALPHA:
             wider.notes.append(
@@ -132,10 +132,8 @@ def prepare(runs) -> tuple[list[RunCells], list[str]]:
     cells = [make_run(r.meta, r.data, j, getattr(r, "sha256", "")) for j, r in enumerate(runs)]
     notes = [n for n in map(block_note, cells) if n]
     notes += drop_duplicate_cells(cells)
-    for c in cells:
-        fit_noise(c)
-    pool_missing_noise(cells)
-    return cells, notes
+    noise = pool_missing_noise(cells, [fit_noise(c) for c in cells])
+    return [with_noise(c, m) for c, m in zip(cells, noise)], notes
 
 
 # ----------------------------------------------------------------------------- results
@@ -316,6 +314,7 @@ def campaign_results(runs, rig_ids: Sequence[str] | None = None, effects: Sequen
     eff = processing_effects(tests) if effects is None else list(effects)
     jf = fit_campaign_model(cells, eff)
     jf.notes += notes
+    cells = jf.model.runs                          # with the noise models the fit refitted
     out = _records(jf, cells, rig_uncertainty or {})
     pairs = out.pop("aliased_pairs")
     readings = sum(int(c.meta[BLOCK_META_KEY][0]) if BLOCK_META_KEY in c.meta else int(c.y_rows.size)
@@ -355,7 +354,7 @@ def type_b_terms(jf: JointFit, tolerance: float = MOUNT_ANGLE_TOLERANCE_RAD) -> 
     held = []
     for label, runs in model.unseparable_angles.items():
         held.append((f"mount angle of {label} (type B, uniform ±{tolerance:.3g} rad: not separable, eq 8)",
-                     model.held_direction(fit.values, "mount_angle_error", runs)))
+                     model.signature(fit.values, "mount_angle_error", runs=runs)))
     # a tilt of IA out of the table plane (effects.md ia_tilt) is a constant g sin(lambda)
     # at first order (the run biases take it) and a cross-coupling term at second order
     # (Kip lambda a_i^2 where the vertical axis is PA, -Kio lambda a_i^2 where it is OA)
@@ -366,7 +365,7 @@ def type_b_terms(jf: JointFit, tolerance: float = MOUNT_ANGLE_TOLERANCE_RAD) -> 
             by_rig.setdefault(model.runs[j].rig_id, []).append(j)
         for rig, runs in by_rig.items():
             held.append((f"IA tilt out of the table plane on {rig} (type B, uniform ±{tolerance:.3g} rad: "
-                         "not separable)", model.held_direction(fit.values, "ia_tilt", runs)))
+                         "not separable)", model.signature(fit.values, "ia_tilt", runs=runs)))
     # cross-axis sensitivities the design aliases with the mount angles or theta0: the fit
     # absorbs them at first order; what leaks at second order (eq 8 through Kip, Kio) is a
     # type-B term, bounded like the fixture's angle tolerance (the instrument's IA is

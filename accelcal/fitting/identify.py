@@ -115,11 +115,6 @@ class Hold:
         return self.reason
 
 
-def given(note: str | Hold) -> Hold:
-    """A hold the caller decides (:attr:`Why.GIVEN`, in its words); a :class:`Hold` as it is."""
-    return note if isinstance(note, Hold) else Hold(Why.GIVEN, note=note)
-
-
 @dataclass(frozen=True)
 class Column:
     """A candidate parameter as the rank decision sees it.
@@ -145,13 +140,6 @@ class Column:
     unit: str
     priority: int
     value: float = 0.0
-
-    @property
-    def base(self) -> bool:
-        """Never held for being weakly determined (:data:`BASE`)."""
-        cls = "theta0" if self.key == "initial_misalignment" else (
-            self.key if self.kind in ("coef", "bias", "radius") else "effect")
-        return cls in BASE
 
 
 @dataclass(frozen=True)
@@ -328,10 +316,11 @@ def holds(J: np.ndarray, columns: Sequence[Column], tol: float = ALIAS_TOL, keep
         u = np.sqrt(np.clip(np.diag(sol.cov), 0, None))
         worst, ratio = None, 1.0
         for c, k in enumerate(kept):
-            if columns[k].base or columns[k].name in keep:
-                continue
-            lim = plausible_size(columns[k].key)
-            if lim is None:
+            ck = columns[k]
+            lim = plausible_size(ck.key)
+            base = ("theta0" if ck.key == "initial_misalignment"
+                    else ck.key if ck.kind in ("coef", "bias", "radius") else "")
+            if base in BASE or ck.name in keep or lim is None:
                 continue
             if u[c] / lim > ratio:
                 worst, ratio = c, u[c] / lim
@@ -429,4 +418,4 @@ def dependence_text(comb: Combination) -> list[str]:
 
 def as_holds(held: Mapping[str, Hold | str] | None) -> dict[str, Hold]:
     """A mapping of holds with the caller's words made :attr:`Why.GIVEN` holds."""
-    return {k: given(v) for k, v in (held or {}).items()}
+    return {k: v if isinstance(v, Hold) else Hold(Why.GIVEN, note=v) for k, v in (held or {}).items()}

@@ -36,9 +36,10 @@ sensor lag is in the model), central differences of ``rig_output`` for everythin
 """
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -49,9 +50,10 @@ from ..physics.instrument import first_order_lag
 from ..physics.rigs import INSTRUMENT_EFFECTS, rig_output, rotation_sign, specific_force
 from ..constants import T_REF_C
 from .core import LackOfFit, Parameter, ParameterSet, lack_of_fit, lstsq_svd
+# BASE, SCALE_TERMS and scale_referenced_columns are read here by accelcal.validation.montecarlo
 from .identify import (ALIAS_TOL, BASE, PRIORITY, SCALE_TERMS, Column, Combination, Hold, absorbed,  # noqa: F401
-                       as_holds, combinations, dependence_text, holds, scale_referenced_columns)
-from .data import RunCells, ar1_mean_factor, ar1_scatter_dof, ar1_variance_factor
+                       as_holds, combinations, holds, scale_referenced_columns)
+from .data import NoiseModel, RunCells, ar1_mean_factor, ar1_scatter_dof, ar1_variance_factor, with_noise
 
 CENTRIFUGES = ("centrifuge", "sine_centrifuge")
 #: coefficient -> the catalogue effect that is it (effects.md)
@@ -316,8 +318,27 @@ class CampaignModel:
             return list(mounts.items())
         return [("", idx)]
 
+    def with_noise(self, noise: Sequence[NoiseModel]) -> "CampaignModel":
+        """The same model on copies of its runs that carry ``noise`` (one per run), whitened
+        by it; this model and its runs are not changed.
+
+        Parameters
+        ----------
+        noise : sequence of NoiseModel
+
+        Returns
+        -------
+        CampaignModel
+            Sharing the parameters, roles and kept predictions (which do not depend on the
+            noise).
+        """
+        out = copy.copy(self)
+        out.runs = [with_noise(r, m) for r, m in zip(self.runs, noise)]
+        out.refresh_noise()
+        return out
+
     def refresh_noise(self) -> None:
-        """Take each run's current ``var_mean`` (after its noise model changed)."""
+        """Whiten by each run's ``var_mean``."""
         if self.runs and all(r.var_mean is not None for r in self.runs):
             self.sig = np.sqrt(np.concatenate([r.var_mean for r in self.runs]))
         else:
@@ -680,44 +701,12 @@ class CampaignModel:
                 del cache[next(iter(cache))]
         return J / self.sig[:, None]
 
-    def signature(self, p: np.ndarray, effect: str, h: float | None = None) -> np.ndarray:
+    def signature(self, p: np.ndarray, effect: str, h: float | None = None,
+                  runs: Sequence[int] | None = None) -> np.ndarray:
         """Whitened derivative of the model with respect to an effect *not* in it (a
-        candidate of the diagnosis): central differences of ``rig_output``.
-
-        Parameters
-        ----------
-        p : ndarray
-            Parameter vector [parameter units].
-        effect : str
-            effects.md id of the candidate.
-        h : float, optional
-            Difference step [effect unit]; None (or 0) = 1e-3 times the effect's typical
-            size.
-
-        Returns
-        -------
-        (N,) ndarray
-            Difference of the cell means (:meth:`predict_run` with the effect at +-h on top
-            of the model) divided by sigma [1 per effect unit]; a forward difference for
-            ``sensor_lag`` (a time constant is >= 0); 0 in the runs whose test the effect
-            does not apply to.
-        """
-        h = h or 1e-3 * typical_size(effect)
-        out = np.zeros(self.N)
-        for j, r in enumerate(self.runs):
-            if r.test not in EFFECTS[effect].tests:
-                continue
-            sl = self.rows(j)
-            if effect == "sensor_lag":
-                out[sl] = (self.predict_run(p, j, {effect: h}) - self.predict_run(p, j)) / h
-            else:
-                out[sl] = (self.predict_run(p, j, {effect: h}) - self.predict_run(p, j, {effect: -h})) / (2 * h)
-        return out / self.sig
-
-    def held_direction(self, p: np.ndarray, effect: str, runs: Sequence[int], h: float | None = None) -> np.ndarray:
-        """Whitened derivative of the model with respect to an effect acting on ``runs`` only,
-        on top of the model's own value (for a parameter the design cannot separate, e.g.
-        the angle of a radial mount, :attr:`unseparable_angles`: a type-B term).
+        candidate of the diagnosis; a parameter the design cannot separate, e.g. the angle
+        of a radial mount, :attr:`unseparable_angles`: a type-B term), on top of the
+        model's own value: central differences of ``rig_output``.
 
         Parameters
         ----------
@@ -725,23 +714,30 @@ class CampaignModel:
             Parameter vector [parameter units].
         effect : str
             effects.md id.
-        runs : sequence of int
-            Indices of the runs in the model the effect acts on.
         h : float, optional
             Difference step [effect unit]; None (or 0) = 1e-3 times the effect's typical
             size.
+        runs : sequence of int, optional
+            Indices of the runs the effect acts on; None = every run whose test it applies
+            to.
 
         Returns
         -------
         (N,) ndarray
-            Central difference of the cell means of ``runs`` divided by sigma, 0 in every
-            other row [1 per effect unit].
+            Difference of the cell means (:meth:`predict_run` with the effect at +-h on top
+            of the model) divided by sigma [1 per effect unit]; a forward difference for
+            ``sensor_lag`` (a time constant is >= 0); 0 in every other row.
         """
         h = h or 1e-3 * typical_size(effect)
         out = np.zeros(self.N)
+        if runs is None:
+            runs = [j for j, r in enumerate(self.runs) if r.test in EFFECTS[effect].tests]
         for j in runs:
             sl = self.rows(j)
-            out[sl] = (self.predict_run(p, j, {effect: h}) - self.predict_run(p, j, {effect: -h})) / (2 * h)
+            if effect == "sensor_lag":
+                out[sl] = (self.predict_run(p, j, {effect: h}) - self.predict_run(p, j)) / h
+            else:
+                out[sl] = (self.predict_run(p, j, {effect: h}) - self.predict_run(p, j, {effect: -h})) / (2 * h)
         return out / self.sig
 
     def input_direction(self, p: np.ndarray, rig_input: str, runs: Sequence[int],
@@ -821,8 +817,7 @@ class CampaignModel:
 
         The nominal input is the model's cell means at the parameters' start values (K1 = 1,
         the other coefficients and the effects 0); the regression is of the centred outputs
-        on it (K1 = 1 when it has no amplitude).  Each K1 parameter's ``scale`` is set to
-        the size of its start, in place.
+        on it (K1 = 1 when it has no amplitude).  The model is not changed.
 
         Parameters
         ----------
@@ -860,9 +855,6 @@ class CampaignModel:
                 offs = [float(np.mean(r.y - self.predict_run(p, j))) / K1 for j, r in enumerate(self.runs)
                         if r.campaign == c and i0 in self.run_params[j]]
                 p[i0] += float(np.mean(offs)) if offs else 0.0
-        for i, prm in enumerate(self.params):
-            if self.roles[i].key == "K1":
-                self.params._p[i] = replace(prm, scale=max(abs(p[i]), 1e-12))
         return self.start_lag(p) if profile_lag else p
 
     def start_lag(self, p: np.ndarray) -> np.ndarray:
@@ -926,11 +918,11 @@ class CampaignModel:
 
     def select(self, p: np.ndarray, tol: float = ALIAS_TOL, keep: Sequence[str] = (),
                hold: Mapping[str, Hold | str] | None = None) -> dict[str, Hold]:
-        """Hold the parameters the design cannot determine at p
-        (:func:`accelcal.fitting.identify.holds`); returns the holds.  Every candidate is
-        considered afresh (a parameter held at the start, where the instrument coefficients
-        are still 0, may be determined at the estimate).  ``params`` becomes
-        :attr:`candidates` with those held.
+        """The parameters the design cannot determine at p
+        (:func:`accelcal.fitting.identify.holds`).  Every candidate is considered afresh (a
+        parameter held at the start, where the instrument coefficients are still 0, may be
+        determined at the estimate); the model is not changed (:meth:`with_holds` makes the
+        model that holds them).
 
         Parameters
         ----------
@@ -948,12 +940,26 @@ class CampaignModel:
         -------
         dict of str to Hold
         """
-        self.params = self.candidates
         hold = as_holds(hold)
-        cols = [i for i, prm in enumerate(self.params) if prm.name not in hold]
-        held = {**holds(self.jacobian(p, cols), self.columns(cols), tol, keep), **hold}
-        self.params = self.params.held(held)
-        return held
+        cols = [i for i, prm in enumerate(self.candidates) if prm.name not in hold]
+        return {**holds(self.jacobian(p, cols), self.columns(cols), tol, keep), **hold}
+
+    def with_holds(self, held: Mapping[str, Hold]) -> "CampaignModel":
+        """The same model with ``params`` the :attr:`candidates` with ``held`` held (at their
+        candidate values); this model is not changed.
+
+        Parameters
+        ----------
+        held : mapping of str to Hold
+            :meth:`select`.
+
+        Returns
+        -------
+        CampaignModel
+        """
+        out = copy.copy(self)
+        out.params = self.candidates.held(held)
+        return out
 
     def combinations(self, p: np.ndarray, u: Mapping[str, float] | None = None) -> dict[str, Combination]:
         """What each free parameter measures besides itself: the held parameters it absorbs
@@ -986,12 +992,6 @@ class CampaignModel:
                      np.array([typical_size(self.roles[i].key) for i in held]))
         return combinations(self.columns(free, p), self.columns(held, p), A,
                             [self.roles[i].kind == "coef" for i in held])
-
-    def measures(self, p: np.ndarray, u: Mapping[str, float] | None = None
-                 ) -> dict[str, tuple[dict[str, float], list[str]]]:
-        """:meth:`combinations` as (coefficient -> factor, texts of the other held
-        parameters) per free parameter."""
-        return {k: (c.factors, dependence_text(c)) for k, c in self.combinations(p, u).items()}
 
     # ----------------------------------------------------------------- derived geometry
     def polarity_radius(self, p: np.ndarray, j: int) -> float:

@@ -15,6 +15,10 @@ between them is a handful of options, named here, not a second driver:
   ``"spread"``: every run whose regressor varies);
 * ``alpha``: level of the lack-of-fit test.
 
+The fit changes neither the model nor the runs it is given: a new hold or a refitted noise
+model makes a new model value (:meth:`CampaignModel.with_holds`,
+:meth:`CampaignModel.with_noise`), which the result carries.
+
 References: Draper & Smith, *Applied Regression Analysis*, §2.1 (pure error, lack of fit);
 Marquardt 1963 (the damped Gauss–Newton step).
 """
@@ -27,7 +31,7 @@ import numpy as np
 
 from .core import ALPHA, FitResult, finish_fit, gauss_newton, lack_of_fit
 from .distributions import chi2_sf, f_sf
-from .data import fit_noise, pool_missing_noise
+from .data import NoiseModel, fit_noise, pool_missing_noise
 from .identify import Hold, as_holds
 from .model import (CampaignModel, lack_of_fit_at_rho_hi, lack_of_fit_reference, pure_error_runs,
                     residual_cell_variance, residual_dof_runs)
@@ -69,7 +73,8 @@ class ModelFit:
     Attributes
     ----------
     model : CampaignModel
-        The model at the solution (its parameters carry the holds).
+        The model at the solution: its parameters carry the holds, its runs (copies of the
+        caller's) the noise models refitted to its residuals (:attr:`noise`).
     fit : FitResult
         Values [parameter units], covariance, chi-square [1], dof, lack of fit, whitened
         residual and Jacobian, Fisher information.
@@ -111,6 +116,11 @@ class ModelFit:
         """
         return self.fit.value(name)
 
+    @property
+    def noise(self) -> list[NoiseModel]:
+        """Each run's noise model as the fit whitened it (refitted to its residuals)."""
+        return [r.noise for r in self.model.runs]
+
     def reason(self, name: str) -> str | None:
         """Why one parameter is held, in words (:attr:`~accelcal.fitting.identify.Hold.reason`);
         None when it is free."""
@@ -141,10 +151,10 @@ class ModelFit:
         if dof <= 0 or (always_scaled and self.fit.chi2 <= 0):
             return NestedTest(dchi, q, dof, None, None, False)
         s2 = self.fit.chi2 / dof
-        if always_scaled or s2 > 1.0:
-            F = dchi / q / s2
-            return NestedTest(dchi, q, dof, F, float(f_sf(F, q, dof)) if F > 0 else 1.0, True)
-        return NestedTest(dchi, q, dof, dchi / q, float(chi2_sf(dchi, q)) if dchi > 0 else 1.0, False)
+        scaled = always_scaled or s2 > 1.0
+        F = dchi / q / s2 if scaled else dchi / q
+        p = (f_sf(F, q, dof) if scaled else chi2_sf(dchi, q)) if dchi > 0 else 1.0
+        return NestedTest(dchi, q, dof, F, float(p), scaled)
 
     def std(self, name: str) -> float:
         """Standard uncertainty of one parameter, lack-of-fit scaled
@@ -164,9 +174,10 @@ class ModelFit:
         return self.fit.std(name)
 
 
-def refit_noise(model: CampaignModel, p: np.ndarray, noise_level: str = "design", cautious: bool = False) -> None:
-    """Refit every run's noise model to the residual readings of the model at ``p`` and
-    whiten the model again (:func:`accelcal.fitting.data.fit_noise`).
+def refit_noise(model: CampaignModel, p: np.ndarray, noise_level: str = "design",
+                cautious: bool = False) -> list[NoiseModel]:
+    """Every run's noise model refitted to the residual readings of the model at ``p``
+    (:func:`accelcal.fitting.data.fit_noise`); the runs are not changed.
 
     Parameters
     ----------
@@ -179,12 +190,17 @@ def refit_noise(model: CampaignModel, p: np.ndarray, noise_level: str = "design"
         ``'spread'``: every run whose regressor x varies.
     cautious : bool
         AR(1) correlation at the upper end of its interval (:func:`fit_noise`).
+
+    Returns
+    -------
+    list of NoiseModel
+        One per run of the model, runs without replicates pooled
+        (:func:`~accelcal.fitting.data.pool_missing_noise`).
     """
-    for j, r in enumerate(model.runs):
-        level = None if noise_level == "design" else bool(r.x.size and np.ptp(r.x) > 0)
-        fit_noise(r, r.y_rows - model.predict_rows(p, j), use_level=level, cautious=cautious)
-    pool_missing_noise(model.runs)
-    model.refresh_noise()
+    return pool_missing_noise(model.runs, [
+        fit_noise(r, r.y_rows - model.predict_rows(p, j), cautious=cautious,
+                  use_level=None if noise_level == "design" else bool(r.x.size and np.ptp(r.x) > 0))
+        for j, r in enumerate(model.runs)])
 
 
 def fit_model(model: CampaignModel, p: np.ndarray, held: Mapping[str, Hold | str], *,
@@ -197,7 +213,7 @@ def fit_model(model: CampaignModel, p: np.ndarray, held: Mapping[str, Hold | str
     Parameters
     ----------
     model : CampaignModel
-        With ``model.params`` holding what ``held`` names.
+        With ``model.params`` holding what ``held`` names (:meth:`CampaignModel.with_holds`).
     p : ndarray
         Start [parameter units] (:meth:`CampaignModel.start`), held parameters at their
         held values.
@@ -239,11 +255,11 @@ def fit_model(model: CampaignModel, p: np.ndarray, held: Mapping[str, Hold | str
     gn = gauss_newton(model.residual, model.jacobian, p, free, max_iter=max_iter, lower=lower)
     its = gn.iterations
     for k in range(noise_passes):
-        refit_noise(model, gn.p, noise_level, cautious)
+        model = model.with_noise(refit_noise(model, gn.p, noise_level, cautious))
         if k == 0 and reselect:
             held2 = model.select(gn.p, keep=keep, hold=hold)
             if set(held2) != set(held):
-                held = held2
+                held, model = held2, model.with_holds(held2)
                 free = model.params.free()
                 gn = replace(gn, p=np.where(free, gn.p, model.params.values()))
         gn = gauss_newton(model.residual, model.jacobian, gn.p, free, max_iter=max_iter, lower=lower)
@@ -293,6 +309,7 @@ def fit_selected(model: CampaignModel, *, keep: Sequence[str] = (), noise_passes
     """
     p = model.start()
     held = model.select(p, keep=keep, hold=hold)
+    model = model.with_holds(held)
     # the start's linear refit (:meth:`CampaignModel.start_lag`) spreads a minimum-norm
     # solution over aliased coefficients too: those held start at their held values
     p = np.where(model.params.free(), p, model.params.values())
