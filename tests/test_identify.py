@@ -106,3 +106,21 @@ def test_the_nested_test_is_the_extra_sum_of_squares_f_and_the_likelihood_ratio(
     t = mf(40.0, 5, 50).compare(small)
     assert not t.scaled and t.p_value == pytest.approx(stats.chi2.sf(90.0, 2), rel=1e-10)
     assert mf(0.0, 5, 0).compare(small).p_value is None
+
+
+def test_near_aliases_name_the_combination_of_least_variance():
+    from accelcal.fitting.identify import near_aliases
+    r, u = -0.9995, np.array([3.0, 0.5])
+    (na,) = near_aliases(["Kip", "Kpp"], np.array([[1.0, r], [r, 1.0]]), u)
+    var = lambda t: u[0] ** 2 + 2 * t * r * u[0] * u[1] + t ** 2 * u[1] ** 2  # noqa: E731
+    assert (na.a, na.b, na.r) == ("Kip", "Kpp", r) and var(na.t) < min(var(na.t - 1e-3), var(na.t + 1e-3))
+    assert near_aliases(["Kip", "Kpp"], np.array([[1.0, 0.99], [0.99, 1.0]]), u) == []
+
+
+def test_taken_up_splits_a_direction_over_the_columns_that_make_it():
+    from accelcal.fitting.identify import taken_up
+    J = design({0: 2.0}, {1: 4.0}, {2: 1.0})
+    s = 2.0 * J[:, 0] - 0.5 * J[:, 1]                      # |s|^2 = 16 + 4 = 20
+    got = taken_up(J, s)
+    assert [k for k, _, _ in got] == [0, 1]
+    np.testing.assert_allclose([(sh, x) for _, sh, x in got], [(16 / 20, 2.0), (4 / 20, -0.5)], atol=1e-12)

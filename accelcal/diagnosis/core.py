@@ -42,10 +42,9 @@ import numpy as np
 from scipy import stats
 
 from ..effects import EFFECTS
-from ..fitting.core import lstsq_min_norm
 from ..fitting.data import (RunCells, drop_duplicate_cells, fit_noise, make_run, pool_missing_noise,
                             reject_spikes, with_noise)
-from ..fitting.identify import BASE
+from ..fitting.identify import ALIAS_COS, BASE, TAKEN_SHARE, UNOBSERVABLE_FRACTION, taken_up
 from ..fitting.model import processing_effects
 from ..physics.rigs import INSTRUMENT_EFFECTS, specific_force
 from ._blas import single_thread
@@ -53,12 +52,6 @@ from .fits import (GAP_ALPHA, NON_CATALOGUE, Fit, Fitter, folds, gap_rms, gap_te
                    heldout_test, lr_test, project_out, shrink)
 from .localise import localise, residual_si, shape, shape_tests, summary, where
 
-#: |cos| between projected signatures above which two effects are reported as aliases
-ALIAS_COS = 0.95
-#: share of an absorbed signature an instrument coefficient must take to be named its alias
-ALIAS_SHARE = 0.25
-#: observable fraction |P s| / |s| below which the bare model absorbs a candidate
-UNOBSERVABLE_FRACTION = 1e-3
 #: held-out shrink that names an effect (it removes half the gap on cells it was not fitted to)
 HELDOUT_GATE = 0.5
 #: held-out z that names an effect whatever the shrink (:func:`.fits.heldout_test`: the
@@ -428,13 +421,8 @@ class _Diagnosis:
             [parameter unit / effect unit].
         """
         idx = np.flatnonzero(f.free)
-        J = f.J[:, idx]
-        x = lstsq_min_norm(J / np.linalg.norm(J, axis=0), s, rcond=1e-10) / np.linalg.norm(J, axis=0)
-        n2 = float(s @ s)
-        out = [{"parameter": f.model.params[i].name, "share": float((J[:, k] * x[k]) @ s / n2),
-                "per_unit": float(x[k])} for k, i in enumerate(idx)]
-        out.sort(key=lambda a: -abs(a["share"]))
-        return [a for a in out if abs(a["share"]) > 1e-3][:6]
+        return [{"parameter": f.model.params[idx[k]].name, "share": share, "per_unit": x}
+                for k, share, x in taken_up(f.J[:, idx], s)]
 
     def select(self, bare: Fit, obs: dict) -> tuple[Fit, list[str], list[dict], dict]:
         """Forward selection: score, refit the best, likelihood ratio and held-out gates."""
@@ -608,7 +596,7 @@ class _Diagnosis:
         for a in e["absorbed_by"]:
             k = a["parameter"]
             i = m.params.index.get(k)
-            if i is None or m.roles[i].kind != "coef" or abs(a["share"]) < ALIAS_SHARE or not a["per_unit"]:
+            if i is None or m.roles[i].kind != "coef" or abs(a["share"]) < TAKEN_SHARE or not a["per_unit"]:
                 continue
             e["aliases"].append(k)
             if m.roles[i].key not in BASE:   # a cross term's whole estimate could be the effect; K1's not

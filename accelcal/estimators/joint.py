@@ -38,7 +38,7 @@ from ..effects import si_unit
 from ..fitting.core import lstsq_svd, normalised_error
 from ..fitting.data import (BLOCK_META_KEY, RunCells, block_note, drop_duplicate_cells, fit_noise, make_run,
                             pool_missing_noise, with_noise)
-from ..fitting.identify import Combination, Why, dependence_text, display_name
+from ..fitting.identify import Combination, NearAlias, Why, dependence_text, display_name, near_aliases
 from ..fitting.model import ACTING, CampaignModel, mount_runs, processing_effects
 from ..fitting.procedure import ModelFit, fit_selected
 from ..physics.axes import AXES
@@ -53,9 +53,6 @@ METHOD = "joint_ml"
 ACTING_ALPHA = 1e-3
 #: coefficients the adopted fit takes where a test is designed for them or acts on them
 ACTING_TERMS = ("Kip", *sorted({k for ks in ACTING.values() for k in ks} - {"Kip"}))
-#: |correlation| of two coefficients' estimates from which each is said to be determined only
-#: through their combination (:func:`nearly_aliased`)
-NEAR_ALIAS_R = 0.999
 
 #: Reported coefficients and what an aliased design leaves in them
 NOTES = {
@@ -165,35 +162,16 @@ def what_it_measures(comb: Combination | None, label: str) -> tuple[str, str]:
     return display_name(label, comb), "; ".join(notes)
 
 
-def nearly_aliased(jf: JointFit, r_min: float = NEAR_ALIAS_R) -> list[tuple[str, str, float, float]]:
-    """Pairs of instrument coefficients the runs determine far better together than alone.
-
-    Two free coefficients whose estimates correlate with |r| >= ``r_min`` are determined
-    through their combination ``K_a + t K_b`` with ``t = -r u_a / u_b`` (the combination of
-    least variance) far better than either alone (Kip and Kpp from IA-PA 0/180 and 45/225
-    without 90/270).
-
-    Parameters
-    ----------
-    jf : JointFit
-    r_min : float
-        Smallest |correlation| named [1] (:data:`NEAR_ALIAS_R`).
-
-    Returns
-    -------
-    list of (str, str, float, float)
-        (parameter a, parameter b, t [unit a / unit b], r [1]) for each such pair.
-    """
+def nearly_aliased(jf: JointFit) -> list[NearAlias]:
+    """Pairs of free instrument coefficients the runs determine far better together than
+    alone (:func:`accelcal.fitting.identify.near_aliases` of their estimates)."""
     model, fit = jf.model, jf.fit
     coef = [prm.name for i, prm in enumerate(model.params)
             if model.roles[i].kind == "coef" and prm.vary and fit.estimable[i]]
     if len(coef) < 2:
         return []
     names, R = fit.correlation(coef)
-    u = np.array([fit.std(n) for n in names])
-    return [(names[a], names[b], float(-R[a, b] * u[a] / u[b]), float(R[a, b]))
-            for a in range(len(names)) for b in range(a + 1, len(names))
-            if np.isfinite(R[a, b]) and abs(R[a, b]) >= r_min]
+    return near_aliases(names, R, np.array([fit.std(n) for n in names]))
 
 
 #: Aliased pairs of one campaign for which the run that separates them is sought (each

@@ -27,11 +27,12 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from enum import Enum
+from typing import NamedTuple
 
 import numpy as np
 
 from ..effects import combination_name, plausible_size
-from .core import lstsq_svd, lstsq_svd_x, separable_columns
+from .core import lstsq_min_norm, lstsq_svd, lstsq_svd_x, separable_columns
 
 #: A parameter whose Jacobian column (unit-scaled) has less than this relative norm outside
 #: the span of the parameters before it is aliased: its variance would be inflated 1e6-fold.
@@ -44,6 +45,18 @@ ALIASES_NAMED = 4
 #: A held parameter is part of what a free one measures when a typical size of it would
 #: move the free one's estimate by more than this many of its standard uncertainties.
 ABSORBED_SHARE = 1.0
+#: |correlation| of two estimates from which each is said to be determined only through
+#: their combination (:func:`near_aliases`).
+NEAR_ALIAS_R = 0.999
+#: |cos| of two directions, each projected off a fitted model, above which the runs do not
+#: tell them apart (two candidate effects; an effect and a held coefficient).
+ALIAS_COS = 0.95
+#: Share of a direction a fitted parameter must take up to be named as what absorbs it
+#: (:func:`taken_up`) [1].
+TAKEN_SHARE = 0.25
+#: Observable fraction |P s| / |s| (what is left of a direction off a fitted model) below
+#: which the model absorbs it: what is left is rounding.
+UNOBSERVABLE_FRACTION = 1e-3
 #: Order in which parameters claim directions of the design (earlier first).  The
 #: instrument's own terms come before the rig's effects: in one mount plane Kp a_P is exactly
 #: a rotation of the mount (Kp = -dphi), Ko a_O a tilt of IA towards OA, and Kp is what the
@@ -419,3 +432,65 @@ def dependence_text(comb: Combination) -> list[str]:
 def as_holds(held: Mapping[str, Hold | str] | None) -> dict[str, Hold]:
     """A mapping of holds with the caller's words made :attr:`Why.GIVEN` holds."""
     return {k: v if isinstance(v, Hold) else Hold(Why.GIVEN, note=v) for k, v in (held or {}).items()}
+
+
+class NearAlias(NamedTuple):
+    """Two free parameters the runs determine far better together than alone: the
+    combination ``a + t b`` of least variance, ``t = -r u_a / u_b``."""
+    a: str
+    b: str
+    t: float
+    r: float
+
+
+def near_aliases(names: Sequence[str], R: np.ndarray, u: np.ndarray, r_min: float = NEAR_ALIAS_R
+                 ) -> list[NearAlias]:
+    """The pairs of estimates that correlate with |r| >= ``r_min`` (Kip and Kpp from IA-PA
+    0/180 and 45/225 without 90/270).
+
+    Parameters
+    ----------
+    names : sequence of str
+        Free parameters.
+    R : (k, k) ndarray
+        Correlation matrix of their estimates [1].
+    u : (k,) ndarray
+        Their standard uncertainties [their units].
+    r_min : float
+        Smallest |correlation| named [1].
+
+    Returns
+    -------
+    list of NearAlias
+        t [unit a / unit b], r [1].
+    """
+    return [NearAlias(names[a], names[b], float(-R[a, b] * u[a] / u[b]), float(R[a, b]))
+            for a in range(len(names)) for b in range(a + 1, len(names))
+            if np.isfinite(R[a, b]) and abs(R[a, b]) >= r_min]
+
+
+def taken_up(J: np.ndarray, s: np.ndarray, top: int = 6) -> list[tuple[int, float, float]]:
+    """How the columns of a fitted design take up a direction s: the minimum-norm least
+    squares of s on the unit-scaled columns.
+
+    Parameters
+    ----------
+    J : (m, k) ndarray
+        Whitened design of the free parameters [1 / parameter unit].
+    s : (m,) ndarray
+        Whitened direction (an effect's signature) [1 per its unit].
+    top : int
+        Most columns returned.
+
+    Returns
+    -------
+    list of (int, float, float)
+        (column, share of |s|^2 [1], how far one unit of s moves that parameter [parameter
+        unit / its unit]), largest share first, shares above 1e-3 only.
+    """
+    nrm = np.linalg.norm(J, axis=0)
+    x = lstsq_min_norm(J / nrm, s, rcond=1e-10) / nrm
+    n2 = float(s @ s)
+    out = sorted(((k, float((J[:, k] * x[k]) @ s / n2), float(x[k])) for k in range(J.shape[1])),
+                 key=lambda a: -abs(a[1]))
+    return [a for a in out if abs(a[1]) > 1e-3][:top]
