@@ -1,6 +1,7 @@
 """What a design determines: the one rank decision of a campaign model, the aliases as
 determined combinations, and the holds, with one set of thresholds for every consumer (the
-adopted fit, the test-design advice, the diagnosis, the Monte Carlo bound).
+adopted fit, the test-design advice, the diagnosis; the Monte Carlo bound reads its
+thresholds).
 
 A design is a whitened Jacobian J (rows: cells, columns: candidate parameters
 [1 / parameter unit]); any matrix with the same J^T J judges the same.  The decision is
