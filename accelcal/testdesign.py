@@ -39,6 +39,7 @@ from .effects import EFFECTS, coefficient_spec, plausible_size, typical_size
 from .fitting.blas import single_thread
 from .fitting.core import information_root, lstsq_svd
 from .fitting.data import RunCells, mean_variance, pooled_noise
+from .fitting.identify import ALIAS_SHARE, Why, holds
 from .fitting.model import CANDIDATE_SHARED, CampaignModel
 from .fitting.procedure import fit_selected
 from .physics.axes import AXES
@@ -51,9 +52,6 @@ INSTRUMENT_TERMS = tuple(INSTRUMENT_EFFECTS.values())
 SEPARATED = 0.9
 #: Mount angles a candidate may take [deg].
 ANGLES_DEG = tuple(range(0, 360, 45))
-#: Share of a held (aliased) parameter's column that a free one must carry to count as
-#: mixed with it (as :meth:`CampaignModel.holds` names aliases).
-ALIAS_SHARE = 0.05
 #: Planes a centrifuge candidate may use (first axis first, drop-format.md).
 PLANES = ("IA-PA", "IA-OA", "PA-OA")
 
@@ -400,10 +398,12 @@ class _Information:
         self.cols_made = sorted({i for j in range(n_made) for i in model.run_params[j]})
         J = model.jacobian(p)
         self.R0 = information_root(J[made_rows][:, self.cols_made])
-        # the radius rule of CampaignModel.holds matters only where the runs made leave the
+        # the radius rule of the rank decision matters only where the runs made leave the
         # radius to K1 (no gravity reference); a run added only adds information
-        self.scale_rule = (model.holds(self.R0, self.cols_made, reasons=False)
-                           != model.holds(self.R0, self.cols_made, reasons=False, scale_rule=False))
+        made = model.columns(self.cols_made)
+        self.scale_rule = ({k: h.reason for k, h in holds(self.R0, made, name_aliases=False).items()}
+                           != {k: h.reason for k, h in holds(self.R0, made, name_aliases=False,
+                                                             scale_rule=False).items()})
         new = [i for i, r in enumerate(model.roles) if r.kind == "effect" and i not in set(self.cols_made)]
         self.Js = [J]
         for sign in (1.0, -1.0):
@@ -426,7 +426,7 @@ class _Information:
     def solve(self, runs: Sequence[int], J: np.ndarray):
         """(columns, names held, lstsq_svd solution over the others) of the runs made plus
         ``runs`` (model indices) with candidate rows from J: the parameters the joint fit of
-        those runs would hold (:meth:`CampaignModel.holds` on the stacked square root) are
+        those runs would hold (:func:`accelcal.fitting.identify.holds` on the stacked square root) are
         held here too."""
         cols = self.cols(runs)
         pos = {c: k for k, c in enumerate(cols)}
@@ -435,13 +435,13 @@ class _Information:
             R[:, pos[c]] = self.R0[:, k]
         blocks = [R] + [J[self.model.rows(j)][:, cols] for j in runs]
         A = np.vstack(blocks)
-        held = self.model.holds(A, cols, reasons=False, scale_rule=self.scale_rule)
+        held = holds(A, self.model.columns(cols), name_aliases=False, scale_rule=self.scale_rule)
         free = [c for c in cols if self.model.candidates[c].name not in held]
         Af = A[:, [pos[c] for c in free]]
         sol = lstsq_svd(Af, np.zeros(A.shape[0]))
         # a free parameter that makes up a column held as aliased is that combination, not
         # itself (one 45 deg mount: Kpp held, the Kip fitted is Kip + Kpp): not determined
-        ali = [c for c in cols if held.get(self.model.candidates[c].name) == "aliased"]
+        ali = [c for c in cols if getattr(held.get(self.model.candidates[c].name), "why", None) is Why.ALIASED]
         mixed: set[int] = set()
         if ali:
             Ah = A[:, [pos[c] for c in ali]]
@@ -594,10 +594,10 @@ def _advise(cells, baseline, targets, separate, max_runs, candidates, top) -> Ad
     if seen:
         cands = [c for c in cands if any(c.test in EFFECTS[t].tests for t in seen)]
     # the runs made, fitted as the advice model (noise refitted to its residuals, which is
-    # the noise a fit of the augmented campaign will see); copies, the caller's are kept
-    cells = [replace(c) for c in cells]
+    # the noise a fit of the augmented campaign will see)
     made = _model(cells, effects, extra)
-    p_made = fit_selected(made).fit.values
+    made_fit = fit_selected(made)
+    cells, p_made = made_fit.model.runs, made_fit.fit.values
     cand_cells = [candidate_cells(c, cells, len(cells) + k) for k, c in enumerate(cands)]
     model = _model(cells + cand_cells, effects, extra)
     p = model.params.values()
@@ -702,8 +702,7 @@ def fitted_uncertainty(cells: Sequence[RunCells], baseline: Sequence[str], targe
     tmap = resolve_targets(model, targets)
     mf = fit_selected(model)
     out: dict[str, float | None] = {}
-    mixed = {n.strip() for why in mf.held.values() if why.startswith("aliased with ")
-             for n in why[len("aliased with "):].split(",")}
+    mixed = {n for h in mf.held.values() if h.why is Why.ALIASED for n in h.aliased_with}
     for t, idx in tmap.items():
         for i in idx:
             name = model.params.names[i]

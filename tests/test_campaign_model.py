@@ -80,3 +80,23 @@ def test_a_big_runs_model_taken_a_slice_at_a_time_fits_as_whole(drop, monkeypatc
     np.testing.assert_allclose(b.fit.values, a.fit.values, rtol=1e-9, atol=1e-15)
     np.testing.assert_allclose(np.sqrt(np.diag(b.fit.cov)), np.sqrt(np.diag(a.fit.cov)), rtol=1e-6)
     assert whole > 97
+
+
+def test_a_fit_changes_neither_the_model_nor_the_runs_it_is_given():
+    """The model is a value: the start, the selection and the fit leave the caller's model
+    (its parameters) and runs (their noise models) as they were; the refitted noise and the
+    holds are the result's."""
+    from accelcal.fitting.model import CampaignModel
+    from accelcal.fitting.procedure import fit_selected
+
+    cells, truth = _case("cent-k0t-d0")
+    noise = [(c.noise, c.var_mean.copy()) for c in cells]
+    model = CampaignModel(cells, truth["baseline"])
+    params = list(model.params)
+    held = model.select(model.start())
+    assert held and list(model.params) == params
+    mf = fit_selected(model)
+    assert list(model.params) == params and all(a is b for a, b in zip(model.runs, cells))
+    assert all(c.noise is n and (c.var_mean == v).all() for c, (n, v) in zip(cells, noise))
+    assert all(m.source in ("residuals", "pooled") for m in mf.noise) and mf.model is not model
+    assert {p.name for p in mf.model.params if not p.vary} == set(mf.held)

@@ -32,8 +32,7 @@ def test_spikes_dropped_and_noise_not_inflated():
     n = reject_spikes(run)
     assert n == int(truth.sum()) and n > 0
     assert np.all(run.cid[truth] == -1) and np.all(run.cid[~truth] >= 0)
-    fit_noise(run, run.y_rows - clean)
-    assert np.sqrt(run.noise.a) < 1.2 * 2e-6
+    assert np.sqrt(fit_noise(run, run.y_rows - clean).a) < 1.2 * 2e-6
 
 
 def test_big_frame_cells_are_the_frame_columns(monkeypatch):

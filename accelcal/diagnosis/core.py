@@ -42,22 +42,16 @@ import numpy as np
 from scipy import stats
 
 from ..effects import EFFECTS
-from ..fitting.core import lstsq_min_norm
 from ..fitting.data import (RunCells, drop_duplicate_cells, fit_noise, make_run, pool_missing_noise,
-                            reject_spikes)
-from ..fitting.model import BASE, processing_effects
+                            reject_spikes, with_noise)
+from ..fitting.identify import ALIAS_COS, BASE, TAKEN_SHARE, UNOBSERVABLE_FRACTION, taken_up
+from ..fitting.model import processing_effects
 from ..physics.rigs import INSTRUMENT_EFFECTS, specific_force
 from ._blas import single_thread
 from .fits import (GAP_ALPHA, NON_CATALOGUE, Fit, Fitter, folds, gap_rms, gap_test, heldout_gap, heldout_parts,
                    heldout_test, lr_test, project_out, shrink)
 from .localise import localise, residual_si, shape, shape_tests, summary, where
 
-#: |cos| between projected signatures above which two effects are reported as aliases
-ALIAS_COS = 0.95
-#: share of an absorbed signature an instrument coefficient must take to be named its alias
-ALIAS_SHARE = 0.25
-#: observable fraction |P s| / |s| below which the bare model absorbs a candidate
-UNOBSERVABLE_FRACTION = 1e-3
 #: held-out shrink that names an effect (it removes half the gap on cells it was not fitted to)
 HELDOUT_GATE = 0.5
 #: held-out z that names an effect whatever the shrink (:func:`.fits.heldout_test`: the
@@ -205,9 +199,8 @@ def prepare_cells(runs) -> tuple[list[RunCells], list[str]]:
         if reject_spikes(c):
             notes += [n for n in c.notes if "spikes" in n]
         angle_level(c)
-        fit_noise(c, use_level=noise_grows(c), cautious=True)
-    pool_missing_noise(cells)
-    return cells, notes
+    noise = pool_missing_noise(cells, [fit_noise(c, use_level=noise_grows(c), cautious=True) for c in cells])
+    return [with_noise(c, m) for c, m in zip(cells, noise)], notes
 
 
 def angle_level(run: RunCells) -> None:
@@ -428,13 +421,8 @@ class _Diagnosis:
             [parameter unit / effect unit].
         """
         idx = np.flatnonzero(f.free)
-        J = f.J[:, idx]
-        x = lstsq_min_norm(J / np.linalg.norm(J, axis=0), s, rcond=1e-10) / np.linalg.norm(J, axis=0)
-        n2 = float(s @ s)
-        out = [{"parameter": f.model.params[i].name, "share": float((J[:, k] * x[k]) @ s / n2),
-                "per_unit": float(x[k])} for k, i in enumerate(idx)]
-        out.sort(key=lambda a: -abs(a["share"]))
-        return [a for a in out if abs(a["share"]) > 1e-3][:6]
+        return [{"parameter": f.model.params[idx[k]].name, "share": share, "per_unit": x}
+                for k, share, x in taken_up(f.J[:, idx], s)]
 
     def select(self, bare: Fit, obs: dict) -> tuple[Fit, list[str], list[dict], dict]:
         """Forward selection: score, refit the best, likelihood ratio and held-out gates."""
@@ -608,7 +596,7 @@ class _Diagnosis:
         for a in e["absorbed_by"]:
             k = a["parameter"]
             i = m.params.index.get(k)
-            if i is None or m.roles[i].kind != "coef" or abs(a["share"]) < ALIAS_SHARE or not a["per_unit"]:
+            if i is None or m.roles[i].kind != "coef" or abs(a["share"]) < TAKEN_SHARE or not a["per_unit"]:
                 continue
             e["aliases"].append(k)
             if m.roles[i].key not in BASE:   # a cross term's whole estimate could be the effect; K1's not
@@ -651,7 +639,7 @@ class _Diagnosis:
                     if abs(cs) > ALIAS_COS:
                         e["aliases"].append(d)
                         e.setdefault("alias_cos", {})[d] = cs
-            co = [k for k, why in held.items() if c in why.split("candidate effect ", 1)[-1].split(" (")[0].split(", ")]
+            co = [k for k, h in held.items() if c in h.aliased_with]
             if co:
                 e["coefficient_aliases"] = [{"coefficient": k, "note": "instrument coefficient, not a catalogue "
                                              "effect: held in the bare model so that the effect can be seen; the "
@@ -675,7 +663,7 @@ class _Diagnosis:
             The bare model (its Jacobian has every column, held ones included).
         """
         m = bare.model
-        held = [(k, why) for k, why in bare.held.items()
+        held = [(k, h.reason) for k, h in bare.held.items()
                 if k in m.params.index and m.roles[m.params.index[k]].kind == "coef"
                 and m.roles[m.params.index[k]].key in NON_CATALOGUE]
         if not held:
@@ -765,11 +753,11 @@ class _Diagnosis:
             "gap": g,
             "selection_steps": steps,
             "alpha": self.alpha, "gap_alpha": GAP_ALPHA, "heldout_gate": HELDOUT_GATE, "heldout_z": HELDOUT_Z,
-            "held": dict(bare0.held),
+            "held": {k: h.reason for k, h in bare0.held.items()},
             "notes": self.notes,
             "runs": [{"run_id": r.run_id, "test": r.test, "campaign": r.campaign, "cells": r.ncell,
                       "noise": {"a": r.noise.a, "b": r.noise.b, "rho": r.noise.rho, "dof": r.noise.dof,
-                                "source": r.noise.source}, "notes": r.notes} for r in self.cells],
+                                "source": r.noise.source}, "notes": r.notes} for r in self.F.cells],
             "K1": K1,
             "where_all": rows_b,
             "elapsed_s": None,
@@ -812,7 +800,7 @@ def _noise_si(f: Fit) -> float:
 
 def _bare_text(f: Fit) -> str:
     free = [p.name for p, v in zip(f.model.params, f.free) if v]
-    held = [f"{k} ({v})" for k, v in f.held.items()]
+    held = [f"{k} ({h.reason})" for k, h in f.held.items()]
     return ("the forward model with the baseline effects; free: " + ", ".join(free)
             + ("; held: " + "; ".join(held) if held else ""))
 

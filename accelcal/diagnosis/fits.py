@@ -21,6 +21,7 @@ from ..effects import EFFECTS
 from ..fitting.core import (LackOfFit, ParameterSet, column_space_basis, separable_columns,
                             thin_svd)
 from ..fitting.data import RunCells
+from ..fitting.identify import Hold, Why
 from ..fitting.model import ALIAS_TOL, CANDIDATE_SHARED, PRIORITY, CampaignModel, effect_claim
 from ..fitting.procedure import ModelFit, fit_model
 from ..physics.rigs import INSTRUMENT_EFFECTS
@@ -263,7 +264,7 @@ class Fitter:
         self.baseline = list(baseline)
         self.include = tuple(include)
         #: non-catalogue coefficients held in every model: name -> reason
-        self.extra_held: dict[str, str] = {}
+        self.extra_held: dict[str, Hold] = {}
         self.sample_period = {j: float(np.median(np.diff(r.cols["time_s"]))) if r.y_rows.size > 1 else 1.0
                               for j, r in enumerate(self.cells)}
 
@@ -390,10 +391,12 @@ class Fitter:
         mf = fit_model(m, p, held, noise_passes=noise_passes, reselect=start is None and not self.extra_held,
                        bounded=False, noise_level="spread", max_iter=max_iter, alpha=GAP_ALPHA, effects=effects,
                        cautious=True)
+        if noise_passes:                         # the noise the next fits compare on
+            self.cells = list(mf.model.runs)
         return Fit(**vars(mf))
 
     @staticmethod
-    def _nested(m: CampaignModel, p: np.ndarray, held: dict[str, str], start: Fit) -> dict[str, str]:
+    def _nested(m: CampaignModel, p: np.ndarray, held: dict[str, Hold], start: Fit) -> dict[str, Hold]:
         """Holds of a model that extends ``start``: the parameters they share keep the status
         they had there (so that the two are nested and their chi-squares comparable); the new
         ones claim directions, in the model's priority order, among the free ones only (a
@@ -412,11 +415,12 @@ class Fitter:
             if c not in kept:
                 with_ = [m.params[cols[k]].name for k in kept
                          if abs(float(J[:, k] @ J[:, c])) > 1e-3 * np.linalg.norm(J[:, k]) * np.linalg.norm(J[:, c])]
-                out[m.params[i].name] = "aliased with " + ", ".join(with_[:4]) if with_ else "not excited by these runs"
+                out[m.params[i].name] = (Hold(Why.ALIASED, aliased_with=tuple(with_[:4])) if with_
+                                         else Hold(Why.NOT_EXCITED))
         for i in new:
-            why = held.get(m.params[i].name, "")
-            if why.startswith("weakly"):
-                out[m.params[i].name] = why
+            h = held.get(m.params[i].name)
+            if h is not None and h.why is Why.WEAK:
+                out[m.params[i].name] = h
         return out
 
     # ------------------------------------------------------------------ bare model
@@ -448,7 +452,7 @@ class Fitter:
             sigs = {c: self.signature(f.model, f.p, c) for c in candidates}
         return f, sigs
 
-    def _competing(self, f: Fit, sigs: Mapping[str, np.ndarray]) -> dict[str, str]:
+    def _competing(self, f: Fit, sigs: Mapping[str, np.ndarray]) -> dict[str, Hold]:
         """Non-catalogue coefficients (free in the fit) whose direction a candidate effect
         takes when the candidates claim directions before them."""
         m = f.model
@@ -483,8 +487,7 @@ class Fitter:
             for c in ncs:
                 if c in kept0 and c not in kept:
                     out.setdefault(m.params[free[c]].name, []).append(e)
-        return {k: "aliased with candidate effect " + ", ".join(v) + " (the effect claims the direction)"
-                for k, v in out.items()}
+        return {k: Hold(Why.CLAIMED, aliased_with=tuple(v)) for k, v in out.items()}
 
 
 # ----------------------------------------------------------------------------- statistics

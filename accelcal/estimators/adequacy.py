@@ -27,7 +27,7 @@ from ..fitting.core import ALPHA, FitResult, LackOfFit, linear_fit
 from ..fitting.core import lack_of_fit as core_lack_of_fit
 from ..fitting.distributions import norm_sf, t_ppf
 
-__all__ = ["ALPHA", "DwellFit", "choose_order", "lack_of_fit", "pure_error_test", "runs_test", "sweep_test", "trend_test",
+__all__ = ["ALPHA", "DwellFit", "choose_order", "pure_error_test", "runs_test", "sweep_test", "trend_test",
            "weighted_dwell_fit"]
 
 
@@ -90,41 +90,6 @@ class DwellFit:
         return float(self.beta[self.names.index(name)])
 
 
-def lack_of_fit(ybar: np.ndarray, yhat: np.ndarray, n: np.ndarray, ss_within: np.ndarray,
-                sigma2: np.ndarray, n_params: int, dof_pe: int | None = None) -> tuple[float, float, float, float, int, int]:
-    """Weighted lack-of-fit F test of dwell means (module docstring), through the one test of
-    the fitting core (:func:`accelcal.fitting.core.lack_of_fit`).
-
-    Parameters
-    ----------
-    ybar, yhat : ndarray
-        Dwell means and model values [y unit].
-    n : ndarray
-        Readings per dwell.
-    ss_within : ndarray
-        Sum of squares about each dwell mean [y unit squared].
-    sigma2 : ndarray
-        Reading variance of each dwell from the noise model [y unit squared].
-    n_params : int
-        Fitted parameters.
-    dof_pe : int, optional
-        Pure-error degrees of freedom (default: sum(n - 1)).
-
-    Returns
-    -------
-    tuple
-        (F, p, SS_LOF, SS_PE, dof_lof, dof_pe); F and p are NaN when the test is
-        'untestable' (no lack-of-fit or pure-error degrees of freedom).
-    """
-    W = n / sigma2
-    ss_lof = float(np.sum(W * (ybar - yhat) ** 2))
-    ss_pe = float(np.sum(ss_within / sigma2))
-    dof_lof = int(len(ybar) - n_params)
-    dof_pe = int(np.sum(n - 1)) if dof_pe is None else int(dof_pe)
-    t = _test(ss_lof, dof_lof, ss_pe, dof_pe)
-    return t[0], t[1], ss_lof, ss_pe, dof_lof, dof_pe
-
-
 def pure_error_test(ss_lof: float, dof_lof: int, ss_pe: float, dof_pe: int) -> LackOfFit:
     """The core's lack-of-fit test (:func:`accelcal.fitting.core.lack_of_fit`) against the
     pure error of replicated readings, at :data:`ALPHA`.
@@ -146,14 +111,6 @@ def pure_error_test(ss_lof: float, dof_lof: int, ss_pe: float, dof_pe: int) -> L
         return LackOfFit("untestable", None, None, int(dof_lof), 0, 1.0,
                          "no replicated readings: no pure error to test the model against")
     return core_lack_of_fit(ss_lof, dof_lof, ss_pe, dof_pe, ALPHA)
-
-
-def _test(ss_lof: float, dof_lof: int, ss_pe: float, dof_pe: int) -> tuple[float, float, LackOfFit]:
-    """(F, p, LackOfFit) of :func:`pure_error_test`; NaN F and p when it cannot be made."""
-    lof = pure_error_test(ss_lof, dof_lof, ss_pe, dof_pe)
-    if lof.status == "untestable" or lof.statistic is None:
-        return float("nan"), float("nan"), lof
-    return float(lof.statistic), float(lof.p_value), lof
 
 
 def trend_test(t: np.ndarray, r: np.ndarray) -> float:
@@ -301,9 +258,12 @@ def weighted_dwell_fit(X: np.ndarray, names: list[str], ybar: np.ndarray, n: np.
     res = linear_fit(X, ybar, 1.0 / sw, list(names), residual_scale=False)
     beta = res.values
     yhat = X @ beta
-    F, p, ss_lof, ss_pe, dof_lof, dof_pe = lack_of_fit(
-        ybar, yhat, n, ss_within, sigma2, X.shape[1],
-        None if dof_pe_rows is None else int(np.sum(dof_pe_rows)))
+    ss_lof, ss_pe = float(np.sum(W * (ybar - yhat) ** 2)), float(np.sum(ss_within / sigma2))
+    dof_lof = int(len(ybar) - X.shape[1])
+    dof_pe = int(np.sum(n - 1)) if dof_pe_rows is None else int(np.sum(dof_pe_rows))
+    lof = pure_error_test(ss_lof, dof_lof, ss_pe, dof_pe)
+    F, p = ((float("nan"), float("nan")) if lof.status == "untestable" or lof.statistic is None
+            else (float(lof.statistic), float(lof.p_value)))
     N = int(np.sum(n))
     s2 = (ss_lof + ss_pe) / max(N - X.shape[1], 1)
     cov = res.cov_noise * s2

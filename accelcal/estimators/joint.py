@@ -34,16 +34,17 @@ from typing import Any
 import numpy as np
 
 from ..constants import MOUNT_ANGLE_TOLERANCE_RAD
-from ..effects import combination_name, si_unit
+from ..effects import si_unit
 from ..fitting.core import lstsq_svd, normalised_error
 from ..fitting.data import (BLOCK_META_KEY, RunCells, block_note, drop_duplicate_cells, fit_noise, make_run,
-                            pool_missing_noise)
+                            pool_missing_noise, with_noise)
+from ..fitting.identify import Combination, NearAlias, Why, dependence_text, display_name, near_aliases
 from ..fitting.model import ACTING, CampaignModel, mount_runs, processing_effects
 from ..fitting.procedure import ModelFit, fit_selected
 from ..physics.axes import AXES
 from ..results import AdequacyResult, BudgetTerm, CoefficientResult, RadiusResult
 from .adequacy import runs_test, trend_test
-from ..fitting.distributions import chi2_sf, f_sf, t_ppf
+from ..fitting.distributions import chi2_sf, t_ppf
 
 METHOD = "joint_ml"
 #: Level of the extra-sum-of-squares test of the terms that only act on the runs, when the
@@ -52,9 +53,6 @@ METHOD = "joint_ml"
 ACTING_ALPHA = 1e-3
 #: coefficients the adopted fit takes where a test is designed for them or acts on them
 ACTING_TERMS = ("Kip", *sorted({k for ks in ACTING.values() for k in ks} - {"Kip"}))
-#: |correlation| of two coefficients' estimates from which each is said to be determined only
-#: through their combination (:func:`nearly_aliased`)
-NEAR_ALIAS_R = 0.999
 
 #: Reported coefficients and what an aliased design leaves in them
 NOTES = {
@@ -101,13 +99,13 @@ def fit_campaign_model(runs: Sequence[RunCells], effects: Sequence[str], *, shar
     # Kip is a designed coefficient of a tumble too (a head about OA turns IA through PA,
     # IEEE 1293), not only the centrifuge's cross_coupling effect; the terms that act on a
     # tumble or a tilted table come in there too (ACTING)
-    def build():
+    def build(runs):
         return CampaignModel(runs, effects, shared=shared, per_run_bias=per_run_bias,
                              per_run_scale=per_run_scale, include=ACTING_TERMS, acting=ACTING)
-    model = build()
+    model = build(runs)
     # a term that only acts (a square term on a tilted table) is held while the designed
     # model fits: at 0.45 deg of tilt it is invisible, and would only dilute the others' u;
-    # it is named in what the held terms leave in the rows (CampaignModel.measures)
+    # it is named in what the held terms leave in the rows (CampaignModel.combinations)
     hold = {n: "acts on these runs, held: the model fits without it" for n in model.acting_only}
     jf = fit_selected(model, keep=keep, noise_passes=noise_passes, effects=effects, hold=hold)
     if hold and jf.fit.lof.status == "inadequate":
@@ -115,17 +113,14 @@ def fit_campaign_model(runs: Sequence[RunCells], effects: Sequence[str], *, shar
         # the terms let in explain it (extra sum of squares, Draper & Smith §6.1): a table
         # tilted by 10 deg or more shows its square terms; a campaign that fails the test by
         # chance keeps its model
-        wider = fit_selected(build(), keep=keep, noise_passes=noise_passes, effects=effects)
-        extra = wider.fit.rank - jf.fit.rank
-        if extra > 0 and wider.fit.dof > 0 and wider.fit.chi2 > 0:
-            F = (jf.fit.chi2 - wider.fit.chi2) / extra / (wider.fit.chi2 / wider.fit.dof)
-            p = float(f_sf(F, extra, wider.fit.dof)) if F > 0 else 1.0
-            if p < ACTING_ALPHA:
-                wider.notes.append(
-                    f"the designed model did not fit (lack-of-fit F = {jf.fit.lof.statistic:.3g}); the terms "
-                    f"that act on these runs explain it (F = {F:.3g} on {extra} terms, p = {p:.2g}) and were "
-                    f"let in: {', '.join(n for n in hold if n not in wider.held)}")
-                jf = wider
+        wider = fit_selected(build(jf.model.runs), keep=keep, noise_passes=noise_passes, effects=effects)
+        t = wider.compare(jf, always_scaled=True)
+        if wider.fit.rank > jf.fit.rank and t.p_value is not None and t.p_value < ACTING_ALPHA:
+            wider.notes.append(
+                f"the designed model did not fit (lack-of-fit F = {jf.fit.lof.statistic:.3g}); the terms "
+                f"that act on these runs explain it (F = {t.statistic:.3g} on {t.q} terms, p = {t.p_value:.2g}) "
+                f"and were let in: {', '.join(n for n in hold if n not in wider.held)}")
+            jf = wider
     return jf
 
 
@@ -134,74 +129,49 @@ def prepare(runs) -> tuple[list[RunCells], list[str]]:
     cells = [make_run(r.meta, r.data, j, getattr(r, "sha256", "")) for j, r in enumerate(runs)]
     notes = [n for n in map(block_note, cells) if n]
     notes += drop_duplicate_cells(cells)
-    for c in cells:
-        fit_noise(c)
-    pool_missing_noise(cells)
-    return cells, notes
+    noise = pool_missing_noise(cells, [fit_noise(c) for c in cells])
+    return [with_noise(c, m) for c, m in zip(cells, noise)], notes
 
 
 # ----------------------------------------------------------------------------- results
 
-def what_it_measures(measures: dict[str, tuple[dict[str, float], list[str]]], name: str, label: str
-                     ) -> tuple[str, str]:
+def what_it_measures(comb: Combination | None, label: str) -> tuple[str, str]:
     """The row name and note of a free parameter: the combination the runs determine.
 
     Parameters
     ----------
-    measures : dict
-        :meth:`accelcal.fitting.model.CampaignModel.measures` of the fit.
-    name : str
-        The parameter's name in the model.
+    comb : Combination or None
+        What the parameter measures (:meth:`accelcal.fitting.model.CampaignModel.combinations`);
+        None when it takes nothing up.
     label : str
         Its row name when the runs determine it alone (``'K2'``, ``'theta0[PA]'``).
 
     Returns
     -------
     (str, str)
-        Row name: ``label`` itself, or its combination with the instrument coefficients held
-        at 0 that it takes up (:func:`accelcal.effects.combination_name`, e.g. ``'K2-Koo'``);
-        note: what is aliased and which other held parameters it depends on, or ``''``.
+        Row name (:func:`accelcal.fitting.identify.display_name`, e.g. ``'K2-Koo'``); note:
+        what is aliased and which other held parameters it depends on, or ``''``.
     """
-    coef, other = measures.get(name, ({}, []))
     notes = []
-    if coef:
-        exact = label + "".join(f" {'-' if f < 0 else '+'} {abs(f):.6g}·{k}" for k, f in coef.items())
+    if comb is not None and comb.terms:
+        exact = label + "".join(f" {'-' if f < 0 else '+'} {abs(f):.6g}·{k}" for k, f in comb.terms)
         notes.append(f"aliased in this design: the runs determine {exact}, not {label} alone "
-                     f"({', '.join(coef)} held at 0)")
-    if other:
-        notes.append("not determined alone by these runs: " + "; ".join(other))
-    return combination_name(label, coef), "; ".join(notes)
+                     f"({', '.join(k for k, _ in comb.terms)} held at 0)")
+    if comb is not None and comb.depends:
+        notes.append("not determined alone by these runs: " + "; ".join(dependence_text(comb)))
+    return display_name(label, comb), "; ".join(notes)
 
 
-def nearly_aliased(jf: JointFit, r_min: float = NEAR_ALIAS_R) -> list[tuple[str, str, float, float]]:
-    """Pairs of instrument coefficients the runs determine far better together than alone.
-
-    Two free coefficients whose estimates correlate with |r| >= ``r_min`` are determined
-    through their combination ``K_a + t K_b`` with ``t = -r u_a / u_b`` (the combination of
-    least variance) far better than either alone (Kip and Kpp from IA-PA 0/180 and 45/225
-    without 90/270).
-
-    Parameters
-    ----------
-    jf : JointFit
-    r_min : float
-        Smallest |correlation| named [1] (:data:`NEAR_ALIAS_R`).
-
-    Returns
-    -------
-    list of (str, str, float, float)
-        (parameter a, parameter b, t [unit a / unit b], r [1]) for each such pair.
-    """
+def nearly_aliased(jf: JointFit) -> list[NearAlias]:
+    """Pairs of free instrument coefficients the runs determine far better together than
+    alone (:func:`accelcal.fitting.identify.near_aliases` of their estimates)."""
     model, fit = jf.model, jf.fit
     coef = [prm.name for i, prm in enumerate(model.params)
             if model.roles[i].kind == "coef" and prm.vary and fit.estimable[i]]
     if len(coef) < 2:
         return []
     names, R = fit.correlation(coef)
-    u = np.array([fit.std(n) for n in names])
-    return [(names[a], names[b], float(-R[a, b] * u[a] / u[b]), float(R[a, b]))
-            for a in range(len(names)) for b in range(a + 1, len(names))
-            if np.isfinite(R[a, b]) and abs(R[a, b]) >= r_min]
+    return near_aliases(names, R, np.array([fit.std(n) for n in names]))
 
 
 #: Aliased pairs of one campaign for which the run that separates them is sought (each
@@ -322,6 +292,7 @@ def campaign_results(runs, rig_ids: Sequence[str] | None = None, effects: Sequen
     eff = processing_effects(tests) if effects is None else list(effects)
     jf = fit_campaign_model(cells, eff)
     jf.notes += notes
+    cells = jf.model.runs                          # with the noise models the fit refitted
     out = _records(jf, cells, rig_uncertainty or {})
     pairs = out.pop("aliased_pairs")
     readings = sum(int(c.meta[BLOCK_META_KEY][0]) if BLOCK_META_KEY in c.meta else int(c.y_rows.size)
@@ -361,7 +332,7 @@ def type_b_terms(jf: JointFit, tolerance: float = MOUNT_ANGLE_TOLERANCE_RAD) -> 
     held = []
     for label, runs in model.unseparable_angles.items():
         held.append((f"mount angle of {label} (type B, uniform ±{tolerance:.3g} rad: not separable, eq 8)",
-                     model.held_direction(fit.values, "mount_angle_error", runs)))
+                     model.signature(fit.values, "mount_angle_error", runs=runs)))
     # a tilt of IA out of the table plane (effects.md ia_tilt) is a constant g sin(lambda)
     # at first order (the run biases take it) and a cross-coupling term at second order
     # (Kip lambda a_i^2 where the vertical axis is PA, -Kio lambda a_i^2 where it is OA)
@@ -372,20 +343,20 @@ def type_b_terms(jf: JointFit, tolerance: float = MOUNT_ANGLE_TOLERANCE_RAD) -> 
             by_rig.setdefault(model.runs[j].rig_id, []).append(j)
         for rig, runs in by_rig.items():
             held.append((f"IA tilt out of the table plane on {rig} (type B, uniform ±{tolerance:.3g} rad: "
-                         "not separable)", model.held_direction(fit.values, "ia_tilt", runs)))
+                         "not separable)", model.signature(fit.values, "ia_tilt", runs=runs)))
     # cross-axis sensitivities the design aliases with the mount angles or theta0: the fit
     # absorbs them at first order; what leaks at second order (eq 8 through Kip, Kio) is a
     # type-B term, bounded like the fixture's angle tolerance (the instrument's IA is
     # referenced to its mounting surface)
     absorbers: dict[str, set[str]] = {}
-    for name, why in jf.held.items():
+    for name, h in jf.held.items():
         i = model.params.index[name]
-        if model.roles[i].key in ("Kp", "Ko") and why.startswith("aliased with "):
+        if model.roles[i].key in ("Kp", "Ko") and h.why is Why.ALIASED and h.aliased_with:
             q = f"{name} (type B, uniform ±{tolerance:.3g} rad: aliased, absorbed at first order)"
             held.append((q, model.jacobian(fit.values, [i])[:, 0]))
             # the parameters it is aliased with report it as part of their value (their
             # note says so): what they take of it is their definition, not an error
-            absorbers[q] = {x.strip() for x in why[len("aliased with "):].split(",")}
+            absorbers[q] = set(h.aliased_with)
     for quantity, col in held:
         sol = lstsq_svd(fit.J[:, free], col)
         for c, i in enumerate(free):
@@ -523,14 +494,14 @@ def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
                      + "; ".join(f"{m['input']} of {m['rig']} ([rigs.\"{m['rig']}\"] {m['key']})" for m in missing)
                      + " (accelcal.toml)")
     rig_of = _dominant_rigs(jf)
-    measures = model.measures(fit.values, {prm.name: fit.std(prm.name) for prm in model.params if prm.vary})
+    measures = model.combinations(fit.values, {prm.name: fit.std(prm.name) for prm in model.params if prm.vary})
     near = nearly_aliased(jf)
     pairs: list[tuple[str, str]] = [tuple(model.roles[model.params.index[n]].key for n in (a, b))
                                     for a, b, _, _ in near]
     near_note: dict[str, str] = {}
     for a, b, t, r in near:
         ka, kb = (model.roles[model.params.index[n]].key for n in (a, b))
-        comb = combination_name(ka, {kb: float(f"{t:.2g}")})
+        comb = display_name(ka, Combination(ka, ((kb, float(f"{t:.2g}")),)))
         row = " (its own row)" if si_unit(ka) == si_unit(kb) and fit.converged else ""
         for n, other in ((a, kb), (b, ka)):
             near_note[n] = "; ".join(x for x in (near_note.get(n, ""), (
@@ -541,8 +512,8 @@ def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
         role = model.roles[i]
         if role.kind != "coef" or not prm.vary or not fit.estimable[i]:
             continue
-        name, alias = what_it_measures(measures, prm.name, role.key)
-        pairs += [(role.key, k) for k in measures.get(prm.name, ({}, []))[0]]
+        name, alias = what_it_measures(measures.get(prm.name), role.key)
+        pairs += [(role.key, k) for k, _ in getattr(measures.get(prm.name), "terms", ())]
         if prm.name in near_note:
             alias = "; ".join(x for x in (alias, near_note[prm.name]) if x)
         if alias:
@@ -572,7 +543,7 @@ def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
         if si_unit(ka) != si_unit(kb) or not fit.converged:
             continue
         t = float(f"{t:.2g}")
-        name = combination_name(ka, {kb: t})
+        name = display_name(ka, Combination(ka, ((kb, t),)))
         c = np.zeros(len(model.params))
         c[ia], c[ib] = 1.0, t
         value = float(c @ fit.values)
@@ -595,7 +566,7 @@ def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
             1 for q in model.params if model.roles[model.params.index[q.name]].key == "initial_misalignment") > 1 \
             else "theta0"
         u = float("nan") if untestable else fit.std(prm.name)
-        label, alias = what_it_measures(measures, prm.name, label)
+        label, alias = what_it_measures(measures.get(prm.name), label)
         if alias:
             flags.append(f"{label}: {alias}")
         coefficients.append(CoefficientResult(
@@ -623,7 +594,7 @@ def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
         "parameters": [{"name": prm.name, "key": prm.key, "unit": prm.unit, "group": prm.group,
                         "value": float(fit.values[i]),
                         "u": (fit.std(prm.name) if prm.vary and fit.estimable[i] else None),
-                        "held": jf.held.get(prm.name)} for i, prm in enumerate(model.params)],
+                        "held": jf.reason(prm.name)} for i, prm in enumerate(model.params)],
         "correlation": {"names": names, "matrix": np.round(R, 4).tolist()},
         "lack_of_fit": {"status": lof.status, "F": lof.statistic, "p": lof.p_value, "dof_lof": lof.dof_lof,
                         "dof_pe": lof.dof_pe, "factor": lof.factor, "note": lof.note},
@@ -762,7 +733,7 @@ def _geometry_records(jf: JointFit) -> tuple[list[RadiusResult], list[dict]]:
         role = model.roles[i]
         if role.kind in ("radius",) or (role.kind == "effect" and role.key != "initial_misalignment"):
             geo[prm.name] = {"value": float(p[i]), "u": fit.std(prm.name) if prm.vary and fit.estimable[i] else None,
-                             "unit": prm.unit, "held": jf.held.get(prm.name)}
+                             "unit": prm.unit, "held": jf.reason(prm.name)}
     if geo:
         alignment.append({"kind": "joint", "method": METHOD, "parameters": geo})
     return radii, alignment

@@ -824,7 +824,7 @@ def name_combinations(runs: Sequence, coeffs: list[CoefficientResult], budget: l
     """Name each tumble row after what the tumble runs determine (IEEE 1293): one
     head measures K0 + Koo g^2, K2 - Koo and theta0 - Ko (head about PA), not K0, K2, theta0.
 
-    The answer is the campaign model's (:meth:`accelcal.fitting.model.CampaignModel.measures`)
+    The answer is the campaign model's (:meth:`accelcal.fitting.model.CampaignModel.combinations`)
     of the tumble runs of each head axis alone, judged at its start, with what the paper
     method fits free and every other coefficient held: a row is renamed to the combination
     of the coefficients held at 0 that it takes up, where a typical size of them would move
@@ -866,12 +866,13 @@ def name_combinations(runs: Sequence, coeffs: list[CoefficientResult], budget: l
         # term of the model is what its rows take up, where the runs cannot tell it apart
         fitted = {"K0", "K1", "K2", "initial_misalignment"} | {c.name.split("[", 1)[0] for c in coeffs}
         p = model.start()
-        model.select(p, hold={prm.name: "not a parameter of the tumble fit" for i, prm in enumerate(model.params)
-                              if model.roles[i].kind == "coef" and model.roles[i].key not in fitted})
+        model = model.with_holds(model.select(p, hold={
+            prm.name: "not a parameter of the tumble fit" for i, prm in enumerate(model.params)
+            if model.roles[i].kind == "coef" and model.roles[i].key not in fitted}))
         rows = {"K0": "K0", "K1": "K1", "K2": _group_name("K2", grp, several),
                 "initial_misalignment": _group_name("theta0", grp, several)}
-        meas = model.measures(p, {k: u[v] for k, v in rows.items() if math.isfinite(u.get(v, math.nan))})
-        answer[grp] = {("theta0" if k == "initial_misalignment" else k): coef for k, (coef, _) in meas.items()}
+        meas = model.combinations(p, {k: u[v] for k, v in rows.items() if math.isfinite(u.get(v, math.nan))})
+        answer[grp] = {("theta0" if k == "initial_misalignment" else k): c.factors for k, c in meas.items()}
     flags = []
     for c in coeffs:
         key, _, grp = c.name.rstrip("]").partition("[")

@@ -30,7 +30,7 @@ import hashlib
 import math
 from functools import lru_cache
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import minimize_scalar
@@ -316,7 +316,7 @@ class RunCells:
         Labels per cell for localisation: time, time_frac, position, g_level, polarity,
         sweep, temperature, mount.
     noise : NoiseModel or None
-        Set by :func:`fit_noise` or :func:`pool_missing_noise`.
+        Set by :func:`with_noise` (a copy of the run).
     var_mean : ndarray or None
         Variance of each cell mean [output_unit^2].
     sha256 : str
@@ -1311,18 +1311,18 @@ def _restrict(run: RunCells, keep: np.ndarray) -> None:
 
 def fit_noise(run: RunCells, residual_rows: np.ndarray | None = None, *, use_level: bool | None = None,
               cautious: bool = False) -> NoiseModel:
-    """Fit the run's :class:`NoiseModel` to the within-cell scatter of ``residual_rows``
-    (output minus model per reading; default the outputs themselves) and set
-    ``run.var_mean``.
+    """The run's :class:`NoiseModel`, fitted to the within-cell scatter of ``residual_rows``
+    (output minus model per reading; default the outputs themselves); the run is not
+    changed (:func:`with_noise` makes the run that carries it).
 
     The within-cell variances are corrected for the AR(1) bias
     (:func:`ar1_variance_factor`) and a + b x^2 is fitted to them by the Gamma (chi-square)
-    likelihood; ``run.var_mean`` = sigma^2(x) times :func:`ar1_mean_factor` over n.
+    likelihood.
 
     Parameters
     ----------
     run : RunCells
-        The run; ``run.noise`` and ``run.var_mean`` are set in place.
+        The run.
     residual_rows : (nrow,) ndarray, optional
         Output minus model per reading [output_unit]; None uses the outputs.
     use_level : bool, optional
@@ -1331,7 +1331,7 @@ def fit_noise(run: RunCells, residual_rows: np.ndarray | None = None, *, use_lev
     cautious : bool
         Take rho at the upper end of its sampling interval (``rho_hi``) for everything: a
         cell mean's noise is then not put too low where short cells read rho low (the
-        diagnosis, which must not call coloured noise a gap; issue 26).
+        diagnosis, which must not call coloured noise a gap).
 
     Returns
     -------
@@ -1358,9 +1358,13 @@ def fit_noise(run: RunCells, residual_rows: np.ndarray | None = None, *, use_lev
         model.rho_hi = rho_hi
         model.dof = int(nu.sum())
         model.source = "outputs" if residual_rows is None else "residuals"
-    run.noise = model
-    run.var_mean = model.reading_variance(run.x) * ar1_mean_factor(run.n, model.rho) / run.n
     return model
+
+
+def with_noise(run: RunCells, model: NoiseModel) -> RunCells:
+    """A copy of the run (its arrays shared) that carries a noise model and the variance of
+    each cell mean under it (``var_mean``, :func:`mean_variance`)."""
+    return replace(run, noise=model, var_mean=mean_variance(run, model))
 
 
 @lru_cache(maxsize=1)
@@ -1435,8 +1439,8 @@ def pooled_noise(runs: Sequence[RunCells]) -> NoiseModel | None:
 
 
 def mean_variance(run: RunCells, model: NoiseModel) -> np.ndarray:
-    """Variance of each cell mean of ``run`` under a noise model (as :func:`fit_noise` sets
-    ``var_mean``).
+    """Variance of each cell mean of ``run`` under a noise model: sigma^2(x) times
+    :func:`ar1_mean_factor` over n (``var_mean`` of :func:`with_noise`).
 
     Parameters
     ----------
@@ -1451,9 +1455,10 @@ def mean_variance(run: RunCells, model: NoiseModel) -> np.ndarray:
     return model.reading_variance(run.x) * ar1_mean_factor(run.n, model.rho) / run.n
 
 
-def pool_missing_noise(runs: Sequence[RunCells]) -> None:
-    """Runs without replicates (no noise estimate) take the median reading variance of the
-    runs of the same test kind that have one.
+def pool_missing_noise(runs: Sequence[RunCells], noise: Sequence[NoiseModel]) -> list[NoiseModel]:
+    """The noise models of runs with those without replicates (no estimate) replaced by the
+    median reading variance of the runs of the same test kind that have one (a run pooled
+    so counts for the runs after it).
 
     Without such peers the variance of the run's outputs is used (1 if that is 0).  The
     pooled model is white (b = 0, rho = 0), source 'pooled'.
@@ -1461,13 +1466,19 @@ def pool_missing_noise(runs: Sequence[RunCells]) -> None:
     Parameters
     ----------
     runs : sequence of RunCells
-        Runs, changed in place (``noise`` and ``var_mean`` of those without an estimate).
+    noise : sequence of NoiseModel
+        Each run's own estimate (:func:`fit_noise`).
+
+    Returns
+    -------
+    list of NoiseModel
+        One per run.
     """
-    for run in runs:
-        if run.noise is not None and math.isfinite(run.noise.a):
+    out = list(noise)
+    for j, run in enumerate(runs):
+        if math.isfinite(out[j].a):
             continue
-        peers = [r.noise.a for r in runs if r.test == run.test and r.noise is not None
-                 and math.isfinite(r.noise.a)]
+        peers = [m.a for r, m in zip(runs, out) if r.test == run.test and math.isfinite(m.a)]
         a = float(np.median(peers)) if peers else float(np.var(run.y_rows)) or 1.0
-        run.noise = NoiseModel(a=a, source="pooled")
-        run.var_mean = run.noise.reading_variance(run.x) / run.n
+        out[j] = NoiseModel(a=a, source="pooled")
+    return out

@@ -36,20 +36,24 @@ sensor lag is in the model), central differences of ``rig_output`` for everythin
 """
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
-from ..effects import EFFECTS, plausible_size, si_unit, typical_size
+from ..effects import EFFECTS, si_unit, typical_size
 from ..physics import instrument
 from ..physics.geometry import CentrifugeMount
 from ..physics.instrument import first_order_lag
 from ..physics.rigs import INSTRUMENT_EFFECTS, rig_output, rotation_sign, specific_force
 from ..constants import T_REF_C
-from .core import LackOfFit, Parameter, ParameterSet, lack_of_fit, lstsq_svd, lstsq_svd_x, separable_columns
-from .data import RunCells, ar1_mean_factor, ar1_scatter_dof, ar1_variance_factor
+from .core import LackOfFit, Parameter, ParameterSet, lack_of_fit, lstsq_svd
+# BASE, SCALE_TERMS and scale_referenced_columns are read here by accelcal.validation.montecarlo
+from .identify import (ALIAS_TOL, BASE, PRIORITY, SCALE_TERMS, Column, Combination, Hold, absorbed,  # noqa: F401
+                       as_holds, combinations, holds, scale_referenced_columns)
+from .data import NoiseModel, RunCells, ar1_mean_factor, ar1_scatter_dof, ar1_variance_factor, with_noise
 
 CENTRIFUGES = ("centrifuge", "sine_centrifuge")
 #: coefficient -> the catalogue effect that is it (effects.md)
@@ -65,7 +69,7 @@ DESIGNED: dict[str, tuple[str, ...]] = {
 #: Coefficients that act on a test's readings though it is not designed to determine them:
 #: the fundamental of a tumble's IA input takes Koq g 8/(3 pi) and K3 g^2 3/4
 #: (:func:`accelcal.estimators.tumble.k1_correction`).  The adopted fit holds them while the
-#: designed model fits, names what they leave in its rows (:meth:`CampaignModel.measures`),
+#: designed model fits, names what they leave in its rows (:meth:`CampaignModel.combinations`),
 #: and lets them in where they explain a lack of fit
 #: (:func:`accelcal.estimators.joint.fit_campaign_model`).
 ACTING: dict[str, tuple[str, ...]] = {
@@ -74,17 +78,6 @@ ACTING: dict[str, tuple[str, ...]] = {
     # g cos(tilt): every square and cross term acts (visible from about 10 deg of tilt)
     "tilt_rotation": ("K2", "Kip", "Kio", "Kpo", "Kpp", "Koo", "Koq", "K3"),
 }
-#: A parameter whose Jacobian column (unit-scaled) has less than this relative norm outside
-#: the span of the parameters before it is aliased: its variance would be inflated 1e6-fold.
-ALIAS_TOL = 1e-3
-#: order in which parameters claim directions of the design (higher first)
-#: The instrument's own terms come before the rig's effects (issue 26): in one mount plane
-#: Kp a_P is exactly a rotation of the mount (Kp = -dphi), Ko a_O a tilt of IA towards OA,
-#: and Kp is what the calibration exists to measure; a mount angle error or an IA tilt then
-#: claims only what the instrument's terms leave (a difference between mounts).  Kp comes
-#: before Kpo: with one vertical axis Kpo a_O a_P is Kp times g.
-PRIORITY = ("K1", "K0", "theta0", "K2", "bias", "radius", "K3", "Koq", "Kip", "Kio", "Kpp", "Koo",
-            "K0T", "K1T", "Kp", "Ko", "Kpo", "mass_centre_offset", "mount_angle_error", "effect")
 #: Effects a diagnosis or a test-design advice looks for, when the baseline leaves them out,
 #: as one parameter shared by every run they apply to (a mount angle error: one angle, not
 #: one per mount)
@@ -111,19 +104,9 @@ def effect_claim(effect: str) -> str:
     return key if key in PRIORITY else "effect"
 
 
-#: Coefficients that scale a centrifuge's output as its radius does: K1, and IA's cross
-#: terms with an axis along gravity (K1 (1 + Kio g) a_I with OA up; a tumble turning IA
-#: through OA in 24 positions separates Kio, one in 4 positions does not)
-SCALE_TERMS = ("K1", "Kio", "Kip")
-#: A held parameter is part of what a free one measures when a typical size of it would
-#: move the free one's estimate by more than this many of its standard uncertainties.
-ABSORBED_SHARE = 1.0
 #: fewest effective pure-error dof a run's own noise estimate is counted with in the
 #: lack-of-fit reference (:func:`lack_of_fit_reference`; the third moment of F(d, m) needs m > 6)
 MIN_NOISE_DOF = 7.0
-#: coefficients never held for being weakly determined (the base of every design)
-BASE = ("K0", "K1", "K2", "theta0", "bias")
-
 
 #: Effects the lab's processing models, per test kind (the default model; the diagnosis
 #: uses the same list as its default baseline).
@@ -335,8 +318,27 @@ class CampaignModel:
             return list(mounts.items())
         return [("", idx)]
 
+    def with_noise(self, noise: Sequence[NoiseModel]) -> "CampaignModel":
+        """The same model on copies of its runs that carry ``noise`` (one per run), whitened
+        by it; this model and its runs are not changed.
+
+        Parameters
+        ----------
+        noise : sequence of NoiseModel
+
+        Returns
+        -------
+        CampaignModel
+            Sharing the parameters, roles and kept predictions (which do not depend on the
+            noise).
+        """
+        out = copy.copy(self)
+        out.runs = [with_noise(r, m) for r, m in zip(self.runs, noise)]
+        out.refresh_noise()
+        return out
+
     def refresh_noise(self) -> None:
-        """Take each run's current ``var_mean`` (after its noise model changed)."""
+        """Whiten by each run's ``var_mean``."""
         if self.runs and all(r.var_mean is not None for r in self.runs):
             self.sig = np.sqrt(np.concatenate([r.var_mean for r in self.runs]))
         else:
@@ -699,44 +701,12 @@ class CampaignModel:
                 del cache[next(iter(cache))]
         return J / self.sig[:, None]
 
-    def signature(self, p: np.ndarray, effect: str, h: float | None = None) -> np.ndarray:
+    def signature(self, p: np.ndarray, effect: str, h: float | None = None,
+                  runs: Sequence[int] | None = None) -> np.ndarray:
         """Whitened derivative of the model with respect to an effect *not* in it (a
-        candidate of the diagnosis): central differences of ``rig_output``.
-
-        Parameters
-        ----------
-        p : ndarray
-            Parameter vector [parameter units].
-        effect : str
-            effects.md id of the candidate.
-        h : float, optional
-            Difference step [effect unit]; None (or 0) = 1e-3 times the effect's typical
-            size.
-
-        Returns
-        -------
-        (N,) ndarray
-            Difference of the cell means (:meth:`predict_run` with the effect at +-h on top
-            of the model) divided by sigma [1 per effect unit]; a forward difference for
-            ``sensor_lag`` (a time constant is >= 0); 0 in the runs whose test the effect
-            does not apply to.
-        """
-        h = h or 1e-3 * typical_size(effect)
-        out = np.zeros(self.N)
-        for j, r in enumerate(self.runs):
-            if r.test not in EFFECTS[effect].tests:
-                continue
-            sl = self.rows(j)
-            if effect == "sensor_lag":
-                out[sl] = (self.predict_run(p, j, {effect: h}) - self.predict_run(p, j)) / h
-            else:
-                out[sl] = (self.predict_run(p, j, {effect: h}) - self.predict_run(p, j, {effect: -h})) / (2 * h)
-        return out / self.sig
-
-    def held_direction(self, p: np.ndarray, effect: str, runs: Sequence[int], h: float | None = None) -> np.ndarray:
-        """Whitened derivative of the model with respect to an effect acting on ``runs`` only,
-        on top of the model's own value (for a parameter the design cannot separate, e.g.
-        the angle of a radial mount, :attr:`unseparable_angles`: a type-B term).
+        candidate of the diagnosis; a parameter the design cannot separate, e.g. the angle
+        of a radial mount, :attr:`unseparable_angles`: a type-B term), on top of the
+        model's own value: central differences of ``rig_output``.
 
         Parameters
         ----------
@@ -744,23 +714,30 @@ class CampaignModel:
             Parameter vector [parameter units].
         effect : str
             effects.md id.
-        runs : sequence of int
-            Indices of the runs in the model the effect acts on.
         h : float, optional
             Difference step [effect unit]; None (or 0) = 1e-3 times the effect's typical
             size.
+        runs : sequence of int, optional
+            Indices of the runs the effect acts on; None = every run whose test it applies
+            to.
 
         Returns
         -------
         (N,) ndarray
-            Central difference of the cell means of ``runs`` divided by sigma, 0 in every
-            other row [1 per effect unit].
+            Difference of the cell means (:meth:`predict_run` with the effect at +-h on top
+            of the model) divided by sigma [1 per effect unit]; a forward difference for
+            ``sensor_lag`` (a time constant is >= 0); 0 in every other row.
         """
         h = h or 1e-3 * typical_size(effect)
         out = np.zeros(self.N)
+        if runs is None:
+            runs = [j for j, r in enumerate(self.runs) if r.test in EFFECTS[effect].tests]
         for j in runs:
             sl = self.rows(j)
-            out[sl] = (self.predict_run(p, j, {effect: h}) - self.predict_run(p, j, {effect: -h})) / (2 * h)
+            if effect == "sensor_lag":
+                out[sl] = (self.predict_run(p, j, {effect: h}) - self.predict_run(p, j)) / h
+            else:
+                out[sl] = (self.predict_run(p, j, {effect: h}) - self.predict_run(p, j, {effect: -h})) / (2 * h)
         return out / self.sig
 
     def input_direction(self, p: np.ndarray, rig_input: str, runs: Sequence[int],
@@ -840,8 +817,7 @@ class CampaignModel:
 
         The nominal input is the model's cell means at the parameters' start values (K1 = 1,
         the other coefficients and the effects 0); the regression is of the centred outputs
-        on it (K1 = 1 when it has no amplitude).  Each K1 parameter's ``scale`` is set to
-        the size of its start, in place.
+        on it (K1 = 1 when it has no amplitude).  The model is not changed.
 
         Parameters
         ----------
@@ -879,9 +855,6 @@ class CampaignModel:
                 offs = [float(np.mean(r.y - self.predict_run(p, j))) / K1 for j, r in enumerate(self.runs)
                         if r.campaign == c and i0 in self.run_params[j]]
                 p[i0] += float(np.mean(offs)) if offs else 0.0
-        for i, prm in enumerate(self.params):
-            if self.roles[i].key == "K1":
-                self.params._p[i] = replace(prm, scale=max(abs(p[i]), 1e-12))
         return self.start_lag(p) if profile_lag else p
 
     def start_lag(self, p: np.ndarray) -> np.ndarray:
@@ -923,154 +896,79 @@ class CampaignModel:
                 best, p_best = c, q
         return p_best
 
-    def select(self, p: np.ndarray, tol: float = ALIAS_TOL, keep: Sequence[str] = (),
-               hold: Mapping[str, str] | None = None) -> dict[str, str]:
-        """Hold the parameters the design cannot determine at p (module docstring); returns
-        {name: reason} of those held.  ``keep`` names are never held for being weak.  Every
-        candidate is considered afresh (a parameter held at the start, where the instrument
-        coefficients are still 0, may be determined at the estimate).
+    def columns(self, cols: Sequence[int] | None = None, p: np.ndarray | None = None) -> list[Column]:
+        """The candidate parameters ``cols`` as the rank decision sees them
+        (:class:`accelcal.fitting.identify.Column`).
 
-        In :data:`PRIORITY` order, a parameter whose unit-scaled Jacobian column adds less
-        than ``tol`` of new direction is held as aliased (or not excited); then, one at a
-        time, the kept parameter outside :data:`BASE` whose design uncertainty most exceeds
-        its plausible size (:func:`accelcal.effects.plausible_size`) is held as weakly
-        determined.  ``params`` becomes :attr:`candidates` with those held.
+        Parameters
+        ----------
+        cols : sequence of int, optional
+            Indices into :attr:`candidates`; None = every one.
+        p : ndarray, optional
+            Point whose values the columns take [parameter units]; None = the candidates'
+            own values.
+
+        Returns
+        -------
+        list of Column
+        """
+        cols = range(len(self.candidates)) if cols is None else cols
+        return [Column(self.candidates[i].name, self.roles[i].kind, self.roles[i].key, self.candidates[i].unit,
+                       self.priority[i], float(self.candidates[i].value if p is None else p[i])) for i in cols]
+
+    def select(self, p: np.ndarray, tol: float = ALIAS_TOL, keep: Sequence[str] = (),
+               hold: Mapping[str, Hold | str] | None = None) -> dict[str, Hold]:
+        """The parameters the design cannot determine at p
+        (:func:`accelcal.fitting.identify.holds`).  Every candidate is considered afresh (a
+        parameter held at the start, where the instrument coefficients are still 0, may be
+        determined at the estimate); the model is not changed (:meth:`with_holds` makes the
+        model that holds them).
 
         Parameters
         ----------
         p : ndarray
             Point at which the design is judged [parameter units].
         tol : float
-            Relative norm of a column outside the span of those before it below which it
-            is aliased [1] (:data:`ALIAS_TOL`).
+            :data:`~accelcal.fitting.identify.ALIAS_TOL` [1].
         keep : sequence of str
             Parameter names never held for being weakly determined.
-        hold : mapping of str to str, optional
-            Parameters held whatever the design (name -> reason), before it is judged.
+        hold : mapping of str to Hold or str, optional
+            Parameters held whatever the design (name -> hold, or the caller's words),
+            before it is judged.
 
         Returns
         -------
-        dict of str to str
-            Name -> reason of each parameter held (``'aliased with ...'``, ``'not excited by
-            these runs'``, ``'weakly determined: ...'``, or the reason given in ``hold``).
+        dict of str to Hold
         """
-        self.params = self.candidates
-        hold = dict(hold or {})
-        if hold:
-            cols = [i for i, prm in enumerate(self.params) if prm.name not in hold]
-            held = {**self.holds(self.jacobian(p, cols), cols, tol, keep), **hold}
-        else:
-            held = self.holds(self.jacobian(p), range(len(self.params)), tol, keep)
-        self.params = self.params.held(held)
-        return held
+        hold = as_holds(hold)
+        cols = [i for i, prm in enumerate(self.candidates) if prm.name not in hold]
+        return {**holds(self.jacobian(p, cols), self.columns(cols), tol, keep), **hold}
 
-    def holds(self, J: np.ndarray, cols: Sequence[int], tol: float = ALIAS_TOL,
-              keep: Sequence[str] = (), reasons: bool = True, scale_rule: bool = True) -> dict[str, str]:
-        """What :meth:`select` holds, judged on a given design: aliased or not excited in
-        :data:`PRIORITY` order, then weakly determined one at a time.
+    def with_holds(self, held: Mapping[str, Hold]) -> "CampaignModel":
+        """The same model with ``params`` the :attr:`candidates` with ``held`` held (at their
+        candidate values); this model is not changed.
 
         Parameters
         ----------
-        J : (m, k) ndarray
-            Whitened design whose columns are the candidate parameters ``cols``
-            [1 / parameter unit]; any matrix with the same J^T J judges the same (the
-            square root of the information of runs made, stacked over a proposed run's
-            rows: :mod:`accelcal.testdesign`).
-        cols : sequence of int
-            Indices into :attr:`candidates` of J's columns.
-        tol : float
-            :data:`ALIAS_TOL` [1].
-        keep : sequence of str
-            Names never held for being weakly determined.
-        reasons : bool
-            Name what an aliased parameter is aliased with (one more solve per parameter
-            held); False gives ``'aliased'``.
-        scale_rule : bool
-            Apply :func:`scale_referenced_columns` (False: where the caller knows the runs
-            fix the radius, the test-design advice judging many candidates).
+        held : mapping of str to Hold
+            :meth:`select`.
 
         Returns
         -------
-        dict of str to str
-            Name -> reason of each parameter held.
+        CampaignModel
         """
-        cols = list(cols)
-        prm_of = [self.candidates[i] for i in cols]
-        order = sorted(range(len(cols)), key=lambda c: (self.priority[cols[c]], cols[c]))
+        out = copy.copy(self)
+        out.params = self.candidates.held(held)
+        return out
 
-        def separable(weak):
-            o = [c for c in order if c not in weak]
-            return self._scale_reference(J, cols, o, tol) if scale_rule else separable_columns(J, o, tol)
-
-        def aliased(kept):
-            out: dict[str, str] = {}
-            kept_set = set(kept)
-            for c in range(len(cols)):
-                if c not in kept_set and c not in weak:
-                    if not reasons:
-                        out[prm_of[c].name] = "aliased"
-                        continue
-                    ali = [prm_of[k].name for k in self._aliased_with(J, c, kept)]
-                    out[prm_of[c].name] = ("aliased with " + ", ".join(ali)) if ali else "not excited by these runs"
-            return out
-
-        weak: set[int] = set()
-        kept = separable(weak)
-        held = aliased(kept)
-        # weakly determined extension terms; a direction one of them had claimed (Kp's
-        # rounding-level column in an IA pair, before the mass-centre offset) goes back to
-        # an effect of the model it had displaced (coefficients it displaced stay held: the
-        # runs did not determine them before it either)
-        while True:
-            sol = lstsq_svd(J[:, kept], np.zeros(J.shape[0]))
-            u = np.sqrt(np.clip(np.diag(sol.cov), 0, None))
-            worst, ratio = None, 1.0
-            for c, k in enumerate(kept):
-                prm, role = prm_of[k], self.roles[cols[k]]
-                kind = "theta0" if role.key == "initial_misalignment" else (
-                    role.key if role.kind in ("coef", "bias", "radius") else "effect")
-                if kind in BASE or prm.name in keep:
-                    continue
-                lim = plausible_size(role.key)
-                if lim is None:
-                    continue
-                if u[c] / lim > ratio:
-                    worst, ratio = c, u[c] / lim
-            if worst is None:
-                break
-            k = kept.pop(worst)
-            weak.add(k)
-            why = (f"weakly determined: design uncertainty {u[worst]:.2g} "
-                   f"{prm_of[k].unit} exceeds its plausible size")
-            kept_set = set(kept)
-            stay = weak | {c for c in range(len(cols)) if c not in kept_set and self.roles[cols[c]].kind != "effect"}
-            back = [c for c in separable(stay)
-                    if c not in kept_set and prm_of[k].name in _aliased_names(held.get(prm_of[c].name, ""))]
-            if back:
-                kept = kept + back
-                for c in back:
-                    held.pop(prm_of[c].name, None)
-            held[prm_of[k].name] = why
-        return held
-
-    def _scale_reference(self, J: np.ndarray, cols: Sequence[int], order: list[int], tol: float) -> list[int]:
-        """:func:`scale_referenced_columns` with this model's roles."""
-        return scale_referenced_columns(J, order, tol,
-                                        radius=[self.roles[c].kind == "radius" for c in cols],
-                                        scale=[self.roles[c].key in SCALE_TERMS for c in cols])
-
-    def absorbed(self, p: np.ndarray, u: Mapping[str, float] | None = None,
-                 share: float = ABSORBED_SHARE) -> dict[str, dict[str, float]]:
-        """What each free parameter measures besides itself: the held parameters it absorbs.
+    def combinations(self, p: np.ndarray, u: Mapping[str, float] | None = None) -> dict[str, Combination]:
+        """What each free parameter measures besides itself: the held parameters it absorbs
+        (:func:`accelcal.fitting.identify.absorbed`, :func:`~accelcal.fitting.identify.combinations`).
 
         A parameter held where the data cannot determine it (:meth:`select`) is not gone
-        from the readings: the free parameters take up its part.  Linearised at p, the
-        estimate of free parameter k is ``x_k + sum_h A_kh (x_h - p_h)`` with
-        ``A = (J_f^T J_f)^+ J_f^T J_h`` (the alias matrix of the design, Draper & Smith
-        §10.2), J_f and J_h the whitened columns of the free and the held parameters.
-        A held parameter counts when a size of it typical of an ordinary unit
-        (:func:`accelcal.effects.typical_size`) would move the estimate by more than
-        ``share`` of its uncertainty.
+        from the readings: the free parameters take up its part.  A held parameter counts
+        when a size of it typical of an ordinary unit (:func:`accelcal.effects.typical_size`)
+        would move the estimate by more than its uncertainty.
 
         Parameters
         ----------
@@ -1078,99 +976,22 @@ class CampaignModel:
             Parameter vector, held parameters at their held values [parameter units].
         u : mapping of str to float, optional
             Standard uncertainty of each free parameter [parameter unit] (default: the
-            design's, from J_f).
-        share : float
-            Smallest shift, in units of u, that makes a held parameter part of what a free
-            one measures [1].
+            design's).
 
         Returns
         -------
-        dict of str to dict of str to float
-            Free parameter name -> {held parameter name: A_kh [free unit / held unit]}, only
-            for free parameters that absorb something.
+        dict of str to Combination
+            Free parameter name -> what it measures, only for those that take something up.
         """
         free = [i for i, prm in enumerate(self.params) if prm.vary]
         held = [i for i, prm in enumerate(self.params) if not prm.vary]
         if not free or not held:
             return {}
-        Jf, Jh = self.jacobian(p, free), self.jacobian(p, held)
-        A = np.column_stack([lstsq_svd_x(Jf, Jh[:, c]) for c in range(len(held))])
-        if u is None:
-            sol = lstsq_svd(Jf, np.zeros(Jf.shape[0]))
-            u_f = np.sqrt(np.clip(np.diag(sol.cov), 0, None))
-        else:
-            u_f = np.array([u.get(self.params[i].name, np.nan) for i in free])
-        typ = np.array([typical_size(self.roles[i].key if self.roles[i].kind != "radius" else "radius")
-                        for i in held])
-        out: dict[str, dict[str, float]] = {}
-        for a, i in enumerate(free):
-            terms = {self.params[h].name: float(A[a, b]) for b, h in enumerate(held)
-                     if abs(A[a, b]) * typ[b] > share * u_f[a]}
-            if terms:
-                out[self.params[i].name] = terms
-        return out
-
-    def measures(self, p: np.ndarray, u: Mapping[str, float] | None = None
-                 ) -> dict[str, tuple[dict[str, float], list[str]]]:
-        """:meth:`absorbed`, said as what each free parameter measures: the instrument
-        coefficients held at 0 that it takes up (its row is their combination,
-        :func:`accelcal.effects.combination_name`), and the other held parameters (a rig
-        quantity at its nominal value, an effect) it depends on.
-
-        Parameters
-        ----------
-        p : ndarray
-            Parameter vector, held parameters at their held values [parameter units].
-        u : mapping of str to float, optional
-            :meth:`absorbed`.
-
-        Returns
-        -------
-        dict of str to (dict of str to float, list of str)
-            Free parameter name -> ({coefficient: factor [free unit / its unit]}, [text of
-            each other held parameter: its held value and the factor on its departure]).
-        """
-        out = {}
-        for name, terms in self.absorbed(p, u).items():
-            coef, other = {}, []
-            for h, f in terms.items():
-                i = self.params.index[h]
-                v = float(p[i])
-                if self.roles[i].kind == "coef" and v == 0.0:
-                    coef[self.roles[i].key] = f
-                else:
-                    other.append(f"{h} held at {v:.6g} {self.params[i].unit} (the value includes "
-                                 f"{f:+.3g}·({h} − {v:.6g}))")
-            out[name] = (coef, other)
-        return out
-
-    def _aliased_with(self, J: np.ndarray, i: int, kept: Sequence[int], share: float = 0.05) -> list[int]:
-        """Positions (in J) of the kept columns that make up column i (at most four, by
-        their share of it).
-
-        Parameters
-        ----------
-        J : (m, k) ndarray
-            Whitened design [1 / parameter unit].
-        i : int
-            Position of the column held.
-        kept : sequence of int
-            Positions of the columns kept.
-        share : float
-            Smallest share of column i a kept column must carry [1].
-
-        Returns
-        -------
-        list of int
-        """
-        if not kept or not np.any(J[:, i]):
-            return []
-        sol = lstsq_svd(J[:, list(kept)], J[:, i])
-        contrib = np.abs(sol.x) * np.linalg.norm(J[:, list(kept)], axis=0)
-        tot = contrib.sum()
-        if tot == 0:
-            return []
-        return [kept[c] for c in np.argsort(-contrib) if contrib[c] > share * tot][:4]
+        u_f = None if u is None else np.array([u.get(self.params[i].name, np.nan) for i in free])
+        A = absorbed(self.jacobian(p, free), self.jacobian(p, held), u_f,
+                     np.array([typical_size(self.roles[i].key) for i in held]))
+        return combinations(self.columns(free, p), self.columns(held, p), A,
+                            [self.roles[i].kind == "coef" for i in held])
 
     # ----------------------------------------------------------------- derived geometry
     def polarity_radius(self, p: np.ndarray, j: int) -> float:
@@ -1199,58 +1020,6 @@ class CampaignModel:
         return float(math.hypot(R * math.cos(phi) - off, R * math.sin(phi)))
 
 
-def scale_referenced_columns(J: np.ndarray, order: Sequence[int], tol: float, *, radius: Sequence[bool],
-                             scale: Sequence[bool]) -> list[int]:
-    """:func:`~accelcal.fitting.core.separable_columns` in ``order``, with one rule of physics
-    on top: a rig's radius that only the scale factor K1 (with the terms that scale with it)
-    can stand in for is held at its nominal value, not the others.
-
-    Without a gravity reference (no tumble, no axis along gravity) the readings fix K1 R,
-    not K1 and R: scaling R by s and K1, K2, Koq, K3 and the mass-centre offset by the
-    matching powers of 1/s leaves every output unchanged.  Judged in priority order at a
-    point where K2 is not 0, the radius would be kept and the last term of that scale
-    direction held (the offset: an inadequate fit).  So each kept radius is judged again
-    last, and held when K1 or a cross term of IA with the vertical axis
-    (:data:`SCALE_TERMS`) is among what it is aliased with
-    (:meth:`CampaignModel.holds`; the Cramér–Rao bound of the Monte Carlo study uses the
-    same rule).
-
-    Parameters
-    ----------
-    J : (m, k) ndarray
-        Whitened design [1 / parameter unit].
-    order : sequence of int
-        Column positions in priority order.
-    tol : float
-        :data:`ALIAS_TOL` [1].
-    radius, scale : sequence of bool
-        Per column: a rig radius; the scale factor K1.
-
-    Returns
-    -------
-    list of int
-        Positions of the columns kept.
-    """
-    order = list(order)
-    kept = separable_columns(J, order, tol)
-    for c in [k for k in kept if radius[k]]:
-        others = [k for k in order if k != c and np.any(J[:, k])]
-        if others:
-            # a radius that adds a direction to every other column is kept however late it
-            # is judged (every design with a gravity reference): one solve, not a second pass
-            col = J[:, c] / np.linalg.norm(J[:, c])
-            Jo = J[:, others] / np.linalg.norm(J[:, others], axis=0)
-            if np.linalg.norm(col - Jo @ lstsq_svd_x(Jo, col)) > tol:
-                continue
-        last = separable_columns(J, [k for k in order if k != c] + [c], tol)
-        if c not in last:
-            sol = lstsq_svd_x(J[:, last], J[:, c])
-            share = np.abs(sol) * np.linalg.norm(J[:, last], axis=0)
-            if any(scale[k] and share[i] > 0.05 * share.sum() for i, k in enumerate(last)):
-                kept = last
-    return kept
-
-
 def mount_runs(model: CampaignModel) -> dict[tuple[str, str, float], list[int]]:
     """Centrifuge runs grouped by (rig, plane, phi mod 180).
 
@@ -1270,13 +1039,6 @@ def mount_runs(model: CampaignModel) -> dict[tuple[str, str, float], list[int]]:
         if isinstance(r.geometry, CentrifugeMount):
             out.setdefault((r.rig_id, *r.geometry.mount_key), []).append(j)
     return out
-
-
-def _aliased_names(reason: str) -> list[str]:
-    """The parameters a hold's reason names (``'aliased with A, B'`` -> [A, B]; [] for any
-    other reason)."""
-    head = "aliased with "
-    return [n.strip() for n in reason[len(head):].split(",")] if reason.startswith(head) else []
 
 
 def residual_cell_variance(model: "CampaignModel", p: np.ndarray) -> list[np.ndarray]:

@@ -15,6 +15,10 @@ between them is a handful of options, named here, not a second driver:
   ``"spread"``: every run whose regressor varies);
 * ``alpha``: level of the lack-of-fit test.
 
+The fit changes neither the model nor the runs it is given: a new hold or a refitted noise
+model makes a new model value (:meth:`CampaignModel.with_holds`,
+:meth:`CampaignModel.with_noise`), which the result carries.
+
 References: Draper & Smith, *Applied Regression Analysis*, §2.1 (pure error, lack of fit);
 Marquardt 1963 (the damped Gauss–Newton step).
 """
@@ -26,9 +30,39 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .core import ALPHA, FitResult, finish_fit, gauss_newton, lack_of_fit
-from .data import fit_noise, pool_missing_noise
+from .distributions import chi2_sf, f_sf
+from .data import NoiseModel, fit_noise, pool_missing_noise
+from .identify import Hold, as_holds
 from .model import (CampaignModel, lack_of_fit_at_rho_hi, lack_of_fit_reference, pure_error_runs,
                     residual_cell_variance, residual_dof_runs)
+
+
+@dataclass(frozen=True)
+class NestedTest:
+    """The nested test of a model against a smaller one it extends (:meth:`ModelFit.compare`).
+
+    Attributes
+    ----------
+    delta_chi2 : float
+        Drop of the whitened chi-square [1].
+    q : int
+        Parameters gained (rank difference, at least 1) [1].
+    dof : int
+        Residual dof of the larger model [1].
+    statistic : float or None
+        F = delta_chi2 / q / s2 when scaled by the larger model's s2 = chi2 / dof, else
+        delta_chi2 / q; None without dof.
+    p_value : float or None
+        F(q, dof) when scaled, chi-square(q) of delta_chi2 otherwise; None without dof.
+    scaled : bool
+        Whether the statistic is scaled by s2.
+    """
+    delta_chi2: float
+    q: int
+    dof: int
+    statistic: float | None
+    p_value: float | None
+    scaled: bool
 
 
 @dataclass
@@ -39,12 +73,13 @@ class ModelFit:
     Attributes
     ----------
     model : CampaignModel
-        The model at the solution (its parameters carry the holds).
+        The model at the solution: its parameters carry the holds, its runs (copies of the
+        caller's) the noise models refitted to its residuals (:attr:`noise`).
     fit : FitResult
         Values [parameter units], covariance, chi-square [1], dof, lack of fit, whitened
         residual and Jacobian, Fisher information.
-    held : dict
-        Parameter name -> why it is held (aliased, not excited, weakly determined).
+    held : dict of str to Hold
+        Parameter name -> why it is held (:class:`~accelcal.fitting.identify.Hold`).
     iterations : int
         Gauss–Newton iterations over all passes.
     pure_error : dict
@@ -59,7 +94,7 @@ class ModelFit:
     """
     model: CampaignModel
     fit: FitResult
-    held: dict[str, str]
+    held: dict[str, Hold]
     iterations: int
     pure_error: dict[str, float] = field(default_factory=dict)
     active: np.ndarray | None = None
@@ -81,6 +116,46 @@ class ModelFit:
         """
         return self.fit.value(name)
 
+    @property
+    def noise(self) -> list[NoiseModel]:
+        """Each run's noise model as the fit whitened it (refitted to its residuals)."""
+        return [r.noise for r in self.model.runs]
+
+    def reason(self, name: str) -> str | None:
+        """Why one parameter is held, in words (:attr:`~accelcal.fitting.identify.Hold.reason`);
+        None when it is free."""
+        h = self.held.get(name)
+        return None if h is None else h.reason
+
+    def compare(self, smaller: "ModelFit", always_scaled: bool = False) -> NestedTest:
+        """The nested test (extra sum of squares, Draper & Smith §6.1; the likelihood ratio
+        of whitened Gaussian residuals) of this fit against a smaller model it extends.
+
+        Parameters
+        ----------
+        smaller : ModelFit
+            The fit of the model this one extends.
+        always_scaled : bool
+            Scale by this fit's s2 = chi2 / dof whatever its size (the F test); False: only
+            when s2 exceeds 1 (a gap the larger model leaves), else the chi-square test with
+            the noise model taken as known.
+
+        Returns
+        -------
+        NestedTest
+            Untestable (statistic and p None) without dof, or with chi2 = 0 when always scaled.
+        """
+        q = max(self.fit.rank - smaller.fit.rank, 1)
+        dchi = float(smaller.fit.chi2 - self.fit.chi2)
+        dof = int(self.fit.dof)
+        if dof <= 0 or (always_scaled and self.fit.chi2 <= 0):
+            return NestedTest(dchi, q, dof, None, None, False)
+        s2 = self.fit.chi2 / dof
+        scaled = always_scaled or s2 > 1.0
+        F = dchi / q / s2 if scaled else dchi / q
+        p = (f_sf(F, q, dof) if scaled else chi2_sf(dchi, q)) if dchi > 0 else 1.0
+        return NestedTest(dchi, q, dof, F, float(p), scaled)
+
     def std(self, name: str) -> float:
         """Standard uncertainty of one parameter, lack-of-fit scaled
         (:meth:`accelcal.fitting.core.FitResult.std`).
@@ -99,9 +174,10 @@ class ModelFit:
         return self.fit.std(name)
 
 
-def refit_noise(model: CampaignModel, p: np.ndarray, noise_level: str = "design", cautious: bool = False) -> None:
-    """Refit every run's noise model to the residual readings of the model at ``p`` and
-    whiten the model again (:func:`accelcal.fitting.data.fit_noise`).
+def refit_noise(model: CampaignModel, p: np.ndarray, noise_level: str = "design",
+                cautious: bool = False) -> list[NoiseModel]:
+    """Every run's noise model refitted to the residual readings of the model at ``p``
+    (:func:`accelcal.fitting.data.fit_noise`); the runs are not changed.
 
     Parameters
     ----------
@@ -114,30 +190,35 @@ def refit_noise(model: CampaignModel, p: np.ndarray, noise_level: str = "design"
         ``'spread'``: every run whose regressor x varies.
     cautious : bool
         AR(1) correlation at the upper end of its interval (:func:`fit_noise`).
+
+    Returns
+    -------
+    list of NoiseModel
+        One per run of the model, runs without replicates pooled
+        (:func:`~accelcal.fitting.data.pool_missing_noise`).
     """
-    for j, r in enumerate(model.runs):
-        level = None if noise_level == "design" else bool(r.x.size and np.ptp(r.x) > 0)
-        fit_noise(r, r.y_rows - model.predict_rows(p, j), use_level=level, cautious=cautious)
-    pool_missing_noise(model.runs)
-    model.refresh_noise()
+    return pool_missing_noise(model.runs, [
+        fit_noise(r, r.y_rows - model.predict_rows(p, j), cautious=cautious,
+                  use_level=None if noise_level == "design" else bool(r.x.size and np.ptp(r.x) > 0))
+        for j, r in enumerate(model.runs)])
 
 
-def fit_model(model: CampaignModel, p: np.ndarray, held: dict[str, str], *,
+def fit_model(model: CampaignModel, p: np.ndarray, held: Mapping[str, Hold | str], *,
               keep: Sequence[str] = (), noise_passes: int = 1, reselect: bool = True,
               bounded: bool = True, noise_level: str = "design", max_iter: int = 40,
               alpha: float = ALPHA, effects: Sequence[str] = (),
-              hold: Mapping[str, str] | None = None, cautious: bool = False) -> ModelFit:
+              hold: Mapping[str, Hold | str] | None = None, cautious: bool = False) -> ModelFit:
     """Fit a campaign model whose holds are decided (:meth:`CampaignModel.select`).
 
     Parameters
     ----------
     model : CampaignModel
-        With ``model.params`` holding what ``held`` names.
+        With ``model.params`` holding what ``held`` names (:meth:`CampaignModel.with_holds`).
     p : ndarray
         Start [parameter units] (:meth:`CampaignModel.start`), held parameters at their
         held values.
-    held : dict
-        Name -> reason of the parameters held.
+    held : mapping of str to Hold or str
+        Name -> hold of the parameters held (the caller's words for a given one).
     keep : sequence of str
         Names never held for being weakly determined (at the re-selection).
     noise_passes : int
@@ -155,7 +236,7 @@ def fit_model(model: CampaignModel, p: np.ndarray, held: dict[str, str], *,
         Level of the lack-of-fit test (:func:`accelcal.fitting.core.lack_of_fit`).
     effects : sequence of str
         Kept in the result (the effects.md ids the model was built with).
-    hold : mapping of str to str, optional
+    hold : mapping of str to Hold or str, optional
         Parameters held whatever the design, at the re-selection too
         (:meth:`CampaignModel.select`).
     cautious : bool
@@ -168,16 +249,17 @@ def fit_model(model: CampaignModel, p: np.ndarray, held: dict[str, str], *,
         The covariance is the noise-model covariance scaled by the lack-of-fit factor; the
         lack of fit tests the cell means against the pure error (Draper & Smith §2.1).
     """
+    held = as_holds(held)
     free = model.params.free()
     lower = model.lower_bounds() if bounded else None
     gn = gauss_newton(model.residual, model.jacobian, p, free, max_iter=max_iter, lower=lower)
     its = gn.iterations
     for k in range(noise_passes):
-        refit_noise(model, gn.p, noise_level, cautious)
+        model = model.with_noise(refit_noise(model, gn.p, noise_level, cautious))
         if k == 0 and reselect:
             held2 = model.select(gn.p, keep=keep, hold=hold)
             if set(held2) != set(held):
-                held = held2
+                held, model = held2, model.with_holds(held2)
                 free = model.params.free()
                 gn = replace(gn, p=np.where(free, gn.p, model.params.values()))
         gn = gauss_newton(model.residual, model.jacobian, gn.p, free, max_iter=max_iter, lower=lower)
@@ -199,11 +281,11 @@ def fit_model(model: CampaignModel, p: np.ndarray, held: dict[str, str], *,
     # the covariance finish_fit gives with this lack of fit, from the one SVD already done
     fit = replace(plain, lof=lof, cov=plain.cov_noise * lof.factor ** 2)
     active = model.params.free() & (np.linalg.norm(gn.J, axis=0) > 0)
-    return ModelFit(model, fit, dict(held), its, {"chi2": chi_pe, "dof": dof_pe}, active, list(effects))
+    return ModelFit(model, fit, held, its, {"chi2": chi_pe, "dof": dof_pe}, active, list(effects))
 
 
 def fit_selected(model: CampaignModel, *, keep: Sequence[str] = (), noise_passes: int = 1,
-                 effects: Sequence[str] = (), hold: Mapping[str, str] | None = None) -> ModelFit:
+                 effects: Sequence[str] = (), hold: Mapping[str, Hold | str] | None = None) -> ModelFit:
     """Fit a campaign model as the adopted calibration does: from its start
     (:meth:`CampaignModel.start`), with what the design cannot determine held
     (:meth:`CampaignModel.select`), judged again after the first noise pass, a time
@@ -218,8 +300,8 @@ def fit_selected(model: CampaignModel, *, keep: Sequence[str] = (), noise_passes
         :func:`fit_model`.
     effects : sequence of str
         Kept in the result (the effects.md ids the model was built with).
-    hold : mapping of str to str, optional
-        Parameters held whatever the design (name -> reason).
+    hold : mapping of str to Hold or str, optional
+        Parameters held whatever the design (name -> hold, or the caller's words).
 
     Returns
     -------
@@ -227,6 +309,7 @@ def fit_selected(model: CampaignModel, *, keep: Sequence[str] = (), noise_passes
     """
     p = model.start()
     held = model.select(p, keep=keep, hold=hold)
+    model = model.with_holds(held)
     # the start's linear refit (:meth:`CampaignModel.start_lag`) spreads a minimum-norm
     # solution over aliased coefficients too: those held start at their held values
     p = np.where(model.params.free(), p, model.params.values())

@@ -1,0 +1,497 @@
+"""What a design determines: the one rank decision of a campaign model, the aliases as
+determined combinations, and the holds, with one set of thresholds for every consumer (the
+adopted fit, the test-design advice, the diagnosis; the Monte Carlo bound reads its
+thresholds).
+
+A design is a whitened Jacobian J (rows: cells, columns: candidate parameters
+[1 / parameter unit]); any matrix with the same J^T J judges the same.  The decision is
+
+1. in :data:`PRIORITY` order, a column that adds less than :data:`ALIAS_TOL` of new
+   direction (unit-scaled, relative norm outside the span of those kept before it) is held
+   as aliased with the kept columns that make it up, or as not excited when it is zero
+   (:func:`accelcal.fitting.core.separable_columns`, with the radius rule of
+   :func:`scale_referenced_columns`);
+2. then, one at a time, the kept parameter outside :data:`BASE` whose design uncertainty
+   most exceeds its plausible size (:func:`accelcal.effects.plausible_size`) is held as
+   weakly determined.
+
+What a free parameter then measures is itself plus the held parameters it absorbs, through
+the alias matrix A = (J_f^T J_f)^+ J_f^T J_h (Draper & Smith, *Applied Regression
+Analysis*, 3rd ed., §10.2): a :class:`Combination` with structured coefficients.
+
+Every decision is a typed record (:class:`Hold`, :class:`Combination`); the words a reader
+sees are rendered from the record (:attr:`Hold.reason`, :func:`display_name`), never read
+back.
+"""
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from enum import Enum
+from typing import NamedTuple
+
+import numpy as np
+
+from ..effects import combination_name, plausible_size
+from .core import lstsq_min_norm, lstsq_svd, lstsq_svd_x, separable_columns
+
+#: A parameter whose Jacobian column (unit-scaled) has less than this relative norm outside
+#: the span of the parameters before it is aliased: its variance would be inflated 1e6-fold.
+ALIAS_TOL = 1e-3
+#: Smallest share of a held column a kept column must carry to be named among what it is
+#: aliased with, or to count as mixed with it [1].
+ALIAS_SHARE = 0.05
+#: At most this many parameters are named as what a held one is aliased with.
+ALIASES_NAMED = 4
+#: A held parameter is part of what a free one measures when a typical size of it would
+#: move the free one's estimate by more than this many of its standard uncertainties.
+ABSORBED_SHARE = 1.0
+#: |correlation| of two estimates from which each is said to be determined only through
+#: their combination (:func:`near_aliases`).
+NEAR_ALIAS_R = 0.999
+#: |cos| of two directions, each projected off a fitted model, above which the runs do not
+#: tell them apart (two candidate effects; an effect and a held coefficient).
+ALIAS_COS = 0.95
+#: Share of a direction a fitted parameter must take up to be named as what absorbs it
+#: (:func:`taken_up`) [1].
+TAKEN_SHARE = 0.25
+#: Observable fraction |P s| / |s| (what is left of a direction off a fitted model) below
+#: which the model absorbs it: what is left is rounding.
+UNOBSERVABLE_FRACTION = 1e-3
+#: Order in which parameters claim directions of the design (earlier first).  The
+#: instrument's own terms come before the rig's effects: in one mount plane Kp a_P is exactly
+#: a rotation of the mount (Kp = -dphi), Ko a_O a tilt of IA towards OA, and Kp is what the
+#: calibration exists to measure; a mount angle error or an IA tilt then claims only what
+#: the instrument's terms leave (a difference between mounts).  Kp comes before Kpo: with
+#: one vertical axis Kpo a_O a_P is Kp times g.
+PRIORITY = ("K1", "K0", "theta0", "K2", "bias", "radius", "K3", "Koq", "Kip", "Kio", "Kpp", "Koo",
+            "K0T", "K1T", "Kp", "Ko", "Kpo", "mass_centre_offset", "mount_angle_error", "effect")
+#: Coefficients never held for being weakly determined (the base of every design).
+BASE = ("K0", "K1", "K2", "theta0", "bias")
+#: Coefficients that scale a centrifuge's output as its radius does: K1, and IA's cross
+#: terms with an axis along gravity (K1 (1 + Kio g) a_I with OA up).
+SCALE_TERMS = ("K1", "Kio", "Kip")
+
+
+class Why(Enum):
+    """Why a parameter is held."""
+    ALIASED = "aliased"              #: its column lies in the span of those kept
+    NOT_EXCITED = "not excited"      #: its column is zero in these runs
+    WEAK = "weakly determined"       #: design uncertainty above its plausible size
+    CLAIMED = "claimed by an effect"  #: a candidate effect of the diagnosis takes its direction
+    GIVEN = "given"                  #: held by the caller, whatever the design
+
+
+@dataclass(frozen=True)
+class Hold:
+    """One held parameter: why, at what value, with what prior uncertainty.
+
+    Attributes
+    ----------
+    why : Why
+    value : float
+        Held value [parameter unit].
+    u : float or None
+        Prior standard uncertainty of the held value [parameter unit]; None: none stated.
+    aliased_with : tuple of str
+        The kept parameters (or, for :attr:`Why.CLAIMED`, the candidate effects) that make
+        up its column, largest share first.
+    design_u : float or None
+        Design uncertainty of a weakly determined parameter [parameter unit].
+    unit : str
+        Its unit (effects.md notation).
+    note : str
+        The caller's words for a :attr:`Why.GIVEN` hold.
+    """
+    why: Why
+    value: float = 0.0
+    u: float | None = None
+    aliased_with: tuple[str, ...] = ()
+    design_u: float | None = None
+    unit: str = ""
+    note: str = ""
+
+    @property
+    def reason(self) -> str:
+        """The hold said in words (shown in flags, extras and reports)."""
+        if self.why is Why.ALIASED:
+            return "aliased with " + ", ".join(self.aliased_with) if self.aliased_with else "aliased"
+        if self.why is Why.NOT_EXCITED:
+            return "not excited by these runs"
+        if self.why is Why.WEAK:
+            return f"weakly determined: design uncertainty {self.design_u:.2g} {self.unit} exceeds its plausible size"
+        if self.why is Why.CLAIMED:
+            return ("aliased with candidate effect " + ", ".join(self.aliased_with)
+                    + " (the effect claims the direction)")
+        return self.note
+
+    def __str__(self) -> str:
+        return self.reason
+
+
+@dataclass(frozen=True)
+class Column:
+    """A candidate parameter as the rank decision sees it.
+
+    Attributes
+    ----------
+    name : str
+        Parameter name.
+    kind : str
+        ``'coef'``, ``'bias'``, ``'radius'``, ``'scale'`` or ``'effect'``.
+    key : str
+        Instrument coefficient or effects.md id.
+    unit : str
+        Its unit.
+    priority : int
+        Position of its claim in :data:`PRIORITY`.
+    value : float
+        Value it is held at [unit].
+    """
+    name: str
+    kind: str
+    key: str
+    unit: str
+    priority: int
+    value: float = 0.0
+
+
+@dataclass(frozen=True)
+class Combination:
+    """What a free parameter's estimate measures: itself plus factors times the instrument
+    coefficients held at 0 that it takes up, and the other held parameters it depends on.
+
+    Attributes
+    ----------
+    kept : str
+        The free parameter's name.
+    terms : tuple of (str, float)
+        (held instrument coefficient, factor [kept unit / its unit]), in parameter order.
+    depends : tuple of (str, float, str, float)
+        (held parameter, held value [its unit], its unit, factor [kept unit / its unit]) of
+        every other held parameter it takes up (a rig quantity at its nominal value, an
+        effect).
+    """
+    kept: str
+    terms: tuple[tuple[str, float], ...] = ()
+    depends: tuple[tuple[str, float, str, float], ...] = ()
+
+    @property
+    def factors(self) -> dict[str, float]:
+        """:attr:`terms` as a mapping coefficient -> factor."""
+        return dict(self.terms)
+
+
+def display_name(label: str, comb: Combination | None) -> str:
+    """The row name of what a parameter measures: ``label`` with the combination's terms
+    (:func:`accelcal.effects.combination_name`, ``'K2-Koo'``); ``label`` itself when it
+    takes up nothing."""
+    return combination_name(label, comb.factors if comb is not None else {})
+
+
+def aliased_with(J: np.ndarray, i: int, kept: Sequence[int], share: float = ALIAS_SHARE) -> list[int]:
+    """Positions of the kept columns that make up column i (at most :data:`ALIASES_NAMED`,
+    by their share of it).
+
+    Parameters
+    ----------
+    J : (m, k) ndarray
+        Whitened design [1 / parameter unit].
+    i : int
+        Position of the column held.
+    kept : sequence of int
+        Positions of the columns kept.
+    share : float
+        Smallest share of column i a kept column must carry [1].
+
+    Returns
+    -------
+    list of int
+    """
+    if not kept or not np.any(J[:, i]):
+        return []
+    sol = lstsq_svd(J[:, list(kept)], J[:, i])
+    contrib = np.abs(sol.x) * np.linalg.norm(J[:, list(kept)], axis=0)
+    tot = contrib.sum()
+    if tot == 0:
+        return []
+    return [kept[c] for c in np.argsort(-contrib) if contrib[c] > share * tot][:ALIASES_NAMED]
+
+
+def scale_referenced_columns(J: np.ndarray, order: Sequence[int], tol: float, *, radius: Sequence[bool],
+                             scale: Sequence[bool]) -> list[int]:
+    """:func:`~accelcal.fitting.core.separable_columns` in ``order``, with one rule of physics
+    on top: a rig's radius that only the scale factor K1 (with the terms that scale with it)
+    can stand in for is held at its nominal value, not the others.
+
+    Without a gravity reference (no tumble, no axis along gravity) the readings fix K1 R,
+    not K1 and R: scaling R by s and K1, K2, Koq, K3 and the mass-centre offset by the
+    matching powers of 1/s leaves every output unchanged.  Judged in priority order at a
+    point where K2 is not 0, the radius would be kept and the last term of that scale
+    direction held (the offset: an inadequate fit).  So each kept radius is judged again
+    last, and held when K1 or a cross term of IA with the vertical axis
+    (:data:`SCALE_TERMS`) is among what it is aliased with.
+
+    Parameters
+    ----------
+    J : (m, k) ndarray
+        Whitened design [1 / parameter unit].
+    order : sequence of int
+        Column positions in priority order.
+    tol : float
+        :data:`ALIAS_TOL` [1].
+    radius, scale : sequence of bool
+        Per column: a rig radius; a term of :data:`SCALE_TERMS`.
+
+    Returns
+    -------
+    list of int
+        Positions of the columns kept.
+    """
+    order = list(order)
+    kept = separable_columns(J, order, tol)
+    for c in [k for k in kept if radius[k]]:
+        others = [k for k in order if k != c and np.any(J[:, k])]
+        if others:
+            # a radius that adds a direction to every other column is kept however late it
+            # is judged (every design with a gravity reference): one solve, not a second pass
+            col = J[:, c] / np.linalg.norm(J[:, c])
+            Jo = J[:, others] / np.linalg.norm(J[:, others], axis=0)
+            if np.linalg.norm(col - Jo @ lstsq_svd_x(Jo, col)) > tol:
+                continue
+        last = separable_columns(J, [k for k in order if k != c] + [c], tol)
+        if c not in last:
+            sol = lstsq_svd_x(J[:, last], J[:, c])
+            share = np.abs(sol) * np.linalg.norm(J[:, last], axis=0)
+            if any(scale[k] and share[i] > ALIAS_SHARE * share.sum() for i, k in enumerate(last)):
+                kept = last
+    return kept
+
+
+def holds(J: np.ndarray, columns: Sequence[Column], tol: float = ALIAS_TOL, keep: Sequence[str] = (),
+          name_aliases: bool = True, scale_rule: bool = True) -> dict[str, Hold]:
+    """The parameters a design cannot determine (module docstring): aliased or not excited
+    in priority order, then weakly determined one at a time.
+
+    Parameters
+    ----------
+    J : (m, k) ndarray
+        Whitened design whose columns are ``columns`` [1 / parameter unit].
+    columns : sequence of Column
+        The candidate parameters, one per column of J.
+    tol : float
+        :data:`ALIAS_TOL` [1].
+    keep : sequence of str
+        Names never held for being weakly determined.
+    name_aliases : bool
+        Name what an aliased parameter is aliased with (one more solve per parameter
+        held); False leaves :attr:`Hold.aliased_with` empty.
+    scale_rule : bool
+        Apply :func:`scale_referenced_columns` (False: where the caller knows the runs fix
+        the radius).
+
+    Returns
+    -------
+    dict of str to Hold
+        Name -> hold of each parameter held, in the order decided.
+    """
+    order = sorted(range(len(columns)), key=lambda c: (columns[c].priority, c))
+    radius = [col.kind == "radius" for col in columns]
+    scale = [col.key in SCALE_TERMS for col in columns]
+
+    def separable(out):
+        o = [c for c in order if c not in out]
+        return (scale_referenced_columns(J, o, tol, radius=radius, scale=scale) if scale_rule
+                else separable_columns(J, o, tol))
+
+    def hold(c, why, **kw):
+        return Hold(why, columns[c].value, unit=columns[c].unit, **kw)
+
+    def aliased(kept):
+        out: dict[str, Hold] = {}
+        kept_set = set(kept)
+        for c in range(len(columns)):
+            if c in kept_set or c in weak:
+                continue
+            ali = tuple(columns[k].name for k in aliased_with(J, c, kept)) if name_aliases else ()
+            excited = bool(ali) or (not name_aliases and np.any(J[:, c]))
+            out[columns[c].name] = hold(c, Why.ALIASED, aliased_with=ali) if excited else hold(c, Why.NOT_EXCITED)
+        return out
+
+    weak: set[int] = set()
+    kept = separable(weak)
+    held = aliased(kept)
+    # weakly determined extension terms; a direction one of them had claimed (Kp's
+    # rounding-level column in an IA pair, before the mass-centre offset) goes back to
+    # an effect of the model it had displaced (coefficients it displaced stay held: the
+    # runs did not determine them before it either)
+    while True:
+        sol = lstsq_svd(J[:, kept], np.zeros(J.shape[0]))
+        u = np.sqrt(np.clip(np.diag(sol.cov), 0, None))
+        worst, ratio = None, 1.0
+        for c, k in enumerate(kept):
+            ck = columns[k]
+            lim = plausible_size(ck.key)
+            base = ("theta0" if ck.key == "initial_misalignment"
+                    else ck.key if ck.kind in ("coef", "bias", "radius") else "")
+            if base in BASE or ck.name in keep or lim is None:
+                continue
+            if u[c] / lim > ratio:
+                worst, ratio = c, u[c] / lim
+        if worst is None:
+            break
+        k = kept.pop(worst)
+        weak.add(k)
+        kept_set = set(kept)
+        stay = weak | {c for c in range(len(columns)) if c not in kept_set and columns[c].kind != "effect"}
+        back = [c for c in separable(stay) if c not in kept_set
+                and columns[k].name in getattr(held.get(columns[c].name), "aliased_with", ())]
+        if back:
+            kept = kept + back
+            for c in back:
+                held.pop(columns[c].name, None)
+        held[columns[k].name] = hold(k, Why.WEAK, design_u=float(u[worst]))
+    return held
+
+
+def absorbed(Jf: np.ndarray, Jh: np.ndarray, u_f: np.ndarray | None, typical: np.ndarray,
+             share: float = ABSORBED_SHARE) -> np.ndarray:
+    """The alias matrix of the held parameters in the free ones, where it matters.
+
+    Linearised, the estimate of free parameter k is ``x_k + sum_h A_kh (x_h - p_h)`` with
+    ``A = (J_f^T J_f)^+ J_f^T J_h`` (Draper & Smith §10.2).  A held parameter counts when a
+    size of it typical of an ordinary unit would move the estimate by more than ``share``
+    of its uncertainty.
+
+    Parameters
+    ----------
+    Jf, Jh : (m, f), (m, h) ndarray
+        Whitened columns of the free and the held parameters [1 / parameter unit].
+    u_f : (f,) ndarray or None
+        Standard uncertainty of each free parameter [its unit] (None: the design's, from
+        J_f).
+    typical : (h,) ndarray
+        Typical size of each held parameter [its unit].
+    share : float
+        Smallest shift, in units of u, that counts [1].
+
+    Returns
+    -------
+    (f, h) ndarray
+        A [free unit / held unit], 0 where the shift does not count.
+    """
+    A = np.column_stack([lstsq_svd_x(Jf, Jh[:, c]) for c in range(Jh.shape[1])])
+    if u_f is None:
+        sol = lstsq_svd(Jf, np.zeros(Jf.shape[0]))
+        u_f = np.sqrt(np.clip(np.diag(sol.cov), 0, None))
+    return np.where(np.abs(A) * typical[None, :] > share * u_f[:, None], A, 0.0)
+
+
+def combinations(free: Sequence[Column], held: Sequence[Column], A: np.ndarray,
+                 coefficient: Sequence[bool]) -> dict[str, Combination]:
+    """What each free parameter measures (:class:`Combination`), from :func:`absorbed`.
+
+    Parameters
+    ----------
+    free, held : sequence of Column
+        The free and the held parameters (held ones at their held values).
+    A : (f, h) ndarray
+        :func:`absorbed`.
+    coefficient : sequence of bool
+        Per held parameter: an instrument coefficient (it becomes a term of the combination
+        when held at 0; any other held parameter is a dependence).
+
+    Returns
+    -------
+    dict of str to Combination
+        Free parameter name -> what it measures, only for those that take something up.
+    """
+    out = {}
+    for a, f in enumerate(free):
+        terms: dict[str, float] = {}
+        depends = []
+        for b, h in enumerate(held):
+            x = float(A[a, b])
+            if x == 0.0:
+                continue
+            if coefficient[b] and h.value == 0.0:
+                terms[h.key] = x
+            else:
+                depends.append((h.name, float(h.value), h.unit, x))
+        if terms or depends:
+            out[f.name] = Combination(f.name, tuple(terms.items()), tuple(depends))
+    return out
+
+
+def dependence_text(comb: Combination) -> list[str]:
+    """Each held parameter a combination depends on, said as its held value and the factor
+    on its departure."""
+    return [f"{h} held at {v:.6g} {unit} (the value includes {f:+.3g}·({h} − {v:.6g}))"
+            for h, v, unit, f in comb.depends]
+
+
+def as_holds(held: Mapping[str, Hold | str] | None) -> dict[str, Hold]:
+    """A mapping of holds with the caller's words made :attr:`Why.GIVEN` holds."""
+    return {k: v if isinstance(v, Hold) else Hold(Why.GIVEN, note=v) for k, v in (held or {}).items()}
+
+
+class NearAlias(NamedTuple):
+    """Two free parameters the runs determine far better together than alone: the
+    combination ``a + t b`` of least variance, ``t = -r u_a / u_b``."""
+    a: str
+    b: str
+    t: float
+    r: float
+
+
+def near_aliases(names: Sequence[str], R: np.ndarray, u: np.ndarray, r_min: float = NEAR_ALIAS_R
+                 ) -> list[NearAlias]:
+    """The pairs of estimates that correlate with |r| >= ``r_min`` (Kip and Kpp from IA-PA
+    0/180 and 45/225 without 90/270).
+
+    Parameters
+    ----------
+    names : sequence of str
+        Free parameters.
+    R : (k, k) ndarray
+        Correlation matrix of their estimates [1].
+    u : (k,) ndarray
+        Their standard uncertainties [their units].
+    r_min : float
+        Smallest |correlation| named [1].
+
+    Returns
+    -------
+    list of NearAlias
+        t [unit a / unit b], r [1].
+    """
+    return [NearAlias(names[a], names[b], float(-R[a, b] * u[a] / u[b]), float(R[a, b]))
+            for a in range(len(names)) for b in range(a + 1, len(names))
+            if np.isfinite(R[a, b]) and abs(R[a, b]) >= r_min]
+
+
+def taken_up(J: np.ndarray, s: np.ndarray, top: int = 6) -> list[tuple[int, float, float]]:
+    """How the columns of a fitted design take up a direction s: the minimum-norm least
+    squares of s on the unit-scaled columns.
+
+    Parameters
+    ----------
+    J : (m, k) ndarray
+        Whitened design of the free parameters [1 / parameter unit].
+    s : (m,) ndarray
+        Whitened direction (an effect's signature) [1 per its unit].
+    top : int
+        Most columns returned.
+
+    Returns
+    -------
+    list of (int, float, float)
+        (column, share of |s|^2 [1], how far one unit of s moves that parameter [parameter
+        unit / its unit]), largest share first, shares above 1e-3 only.
+    """
+    nrm = np.linalg.norm(J, axis=0)
+    x = lstsq_min_norm(J / nrm, s, rcond=1e-10) / nrm
+    n2 = float(s @ s)
+    out = sorted(((k, float((J[:, k] * x[k]) @ s / n2), float(x[k])) for k in range(J.shape[1])),
+                 key=lambda a: -abs(a[1]))
+    return [a for a in out if abs(a[1]) > 1e-3][:top]
