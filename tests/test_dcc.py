@@ -1,7 +1,8 @@
-"""The Digital Calibration Certificate (issue 27): ``accelcal report --dcc`` writes a PTB DCC
-that validates offline against the shipped XSD of its schemaVersion, whose units are D-SI,
-whose numbers follow GUM 7.2.6 (checked here independently of accelcal.rounding), and
-whose XML-DSig signature ``accelcal verify`` checks (a changed byte fails)."""
+"""The Digital Calibration Certificate: ``accelcal report --dcc`` writes a PTB DCC 3.3.0 that
+validates offline against the shipped XSD of its schemaVersion and that PTB's own Schematron
+rules (dcclib) pass without an error or a warning, whose units are D-SI, whose numbers follow
+GUM 7.2.6 (checked here independently of accelcal.rounding), whose XML-DSig signature
+``accelcal verify`` checks (a changed byte fails), and whose DRAFT is never signed."""
 from __future__ import annotations
 
 import datetime as dt
@@ -20,7 +21,9 @@ from accelcal.ops.report import build_report, load_report_data
 
 from conftest import RIG_INPUTS_TOML
 
-CAMPS = {"thermal": "HUST-M-07/2026-11-18", "centrifuge": "SNJ-1-03/2026-11-20"}
+#: the sample campaigns: the centrifuge campaign holds the tumble runs too
+CAMPS = {"thermal": "HUST-M-07/2026-11-18", "centrifuge": "SNJ-1-03/2026-11-20",
+         "sine": "QA-5512/2026-11-19"}
 SI = "{https://ptb.de/si}"
 DCC = "{https://ptb.de/dcc}"
 CONFIG = """
@@ -33,6 +36,11 @@ approver = "Dr A. Approver"
 customer = "Example Customer Ltd"
 [traceability]
 statement = "Traceable to the SI."
+[traceability.rigs]
+"LXJ-100" = "arm radius: CMM cert. 1; rate: encoder cert. 2"
+"DH-1" = "dividing head: angle cert. 3"
+"TT-1" = "thermal table: tilt cert. 4"
+"DC-1" = "disc centrifuge: cert. 5"
 """ + RIG_INPUTS_TOML + """[dcc]
 country_code = "CN"
 email = "lab@example.org"
@@ -49,7 +57,8 @@ def lab(tmp_path_factory, examples):
     from accelcal.flows.pipeline import run_pipeline
     d = tmp_path_factory.mktemp("dcc")
     (d / "accelcal.toml").write_text(CONFIG)          # found beside the warehouse
-    run_pipeline([str(examples / x) for x in ("drop-2026-11-18-thermal", "drop-2026-11-20")],
+    run_pipeline([str(examples / x) for x in ("drop-2026-11-18-thermal", "drop-2026-11-20",
+                                              "drop-2026-11-19-sine")],
                  d / "lab.duckdb", engine="local",
                  parameters={"rig_uncertainty": rig_uncertainties(d / "accelcal.toml")})
     return d / "lab.duckdb"
@@ -75,11 +84,22 @@ def no_network(monkeypatch):
     monkeypatch.setattr(socket, "create_connection", refuse)
 
 
+def _schema(folder: Path):
+    """The shipped XSD loaded as the offline copy's README says (one URL mapped to the QUDT
+    stand-in), without accelcal's loader."""
+    import xmlschema
+    return xmlschema.XMLSchema(str(folder / "dcc.xsd"), allow="local", uri_mapper={
+        "https://www.ptb.de/si/v2.2.0/qudt/quantitykind.xsd": str(folder / "qudt" / "quantitykind.xsd")})
+
+
 def test_shipped_schemas_import_only_local_files():
     folder = dccmod.SCHEMA_DIRS[dccmod.SCHEMA_VERSION]
-    for xsd in folder.glob("*.xsd"):
+    for xsd in folder.rglob("*.xsd"):
         for loc in re.findall(r'schemaLocation="([^"]*)"', xsd.read_text(encoding="utf-8")):
-            assert "://" not in loc and (folder / loc).is_file(), (xsd.name, loc)
+            if loc == "https://www.ptb.de/si/v2.2.0/qudt/quantitykind.xsd":   # mapped: the stand-in
+                loc = str(folder / "qudt" / "quantitykind.xsd")
+            assert "://" not in loc and (xsd.parent / loc).is_file(), (xsd.name, loc)
+    assert dccmod.SCHEMA_VERSION == "3.3.0" and 'version="2.2.0"' in (folder / "si" / "SI_Format.xsd").read_text()
     assert (folder / "COPYING.LESSER").is_file() and "LESSER" in (folder / "COPYING.LESSER").read_text()
 
 
@@ -88,8 +108,8 @@ def test_dcc_validates_offline_against_its_declared_schema(dccs, kind, no_networ
     import xmlschema
     root = _root(dccs[kind])
     version = root.get("schemaVersion")
-    folder = dccmod.SCHEMA_DIRS[version]             # the XSD of the version it declares
-    schema = xmlschema.XMLSchema(str(folder / "dcc.xsd"), allow="sandbox")
+    assert version == "3.3.0"
+    schema = _schema(dccmod.SCHEMA_DIRS[version])    # the XSD of the version it declares
     assert schema.version == version
     schema.validate(xmlschema.XMLResource(root, allow="none"))   # no hint of the file followed
     assert root.findtext(f"{DCC}administrativeData/{DCC}coreData/{DCC}uniqueIdentifier").startswith("IML-")
@@ -99,7 +119,29 @@ def test_dcc_validates_offline_against_its_declared_schema(dccs, kind, no_networ
     doc = root.find(f"{DCC}document")
     assert doc.findtext(f"{DCC}mimeType") == "text/html" and len(doc.findtext(f"{DCC}dataBase64")) > 1000
     assert "DRAFT" not in "".join(root.itertext())
-    assert cli.main(["verify", str(dccs[kind])]) == 0
+    assert not list(root.iter(f"{SI}expandedUnc")) and list(root.iter(f"{SI}measurementUncertaintyUnivariate"))
+    assert cli.main(["verify", str(dccs[kind])]) == 5        # valid, final, not signed
+
+
+@pytest.mark.parametrize("kind", sorted(CAMPS))
+def test_ptb_schematron_reports_no_error_and_no_warning(dccs, kind, no_network):
+    """PTB's own rules, run from dcclib directly: influence conditions declared, release
+    'v0.1.0', no empty element, a real country, refTypes declared, 3.3.0."""
+    from dcclib.validation.schematron import SchematronValidator
+    root = _root(dccs[kind])
+    res = SchematronValidator.for_dcc().validate_tree(root)
+    found = [(r.role, r.text) for r in list(res.failed_assertions) + list(res.successful_reports)
+             if r.role in ("error", "fatal", "warning")]
+    assert found == []
+    mr = root.find(f"{DCC}measurementResults/{DCC}measurementResult")
+    conds = [c.get("refType") for c in mr.iterfind(f"{DCC}influenceConditions/{DCC}influenceCondition")]
+    assert "accelcal_localGravity" in conds and "accelcal_rig" in conds
+    g = next(c for c in mr.iter(f"{DCC}influenceCondition") if c.get("refType") == "accelcal_localGravity")
+    assert g.findtext(f".//{SI}valueStandardMU") == "0.000010"     # the stated 1e-5 m/s2, 2 digits
+    used = {t for e in root.iter() for t in (e.get("refType") or "").split()}
+    defined = {e.get("refType") for e in root.iter(f"{DCC}refTypeDefinition")}
+    assert used <= defined
+    assert root.findtext(f".//{DCC}countryCodeISO3166_1") == "CN"
 
 
 def test_every_unit_parses_with_dsiunits(dccs):
@@ -134,10 +176,10 @@ def test_values_and_u_follow_gum_rounding(lab, dccs, kind):
     n = 0
     for real in _root(dccs[kind]).iter(f"{SI}real"):
         v, unit = real.findtext(f"{SI}value"), real.findtext(f"{SI}unit")
-        eu = real.find(f"{SI}expandedUnc")
+        eu = real.find(f"{SI}measurementUncertaintyUnivariate/{SI}expandedMU")
         if eu is None:
             continue
-        U, k = eu.findtext(f"{SI}uncertainty"), float(eu.findtext(f"{SI}coverageFactor"))
+        U, k = eu.findtext(f"{SI}valueExpandedMU"), float(eu.findtext(f"{SI}coverageFactor"))
         Ud = Decimal(U)
         assert Ud > 0 and len(Ud.as_tuple().digits) <= 2, U           # <= 2 significant digits
         assert Decimal(v).as_tuple().exponent == Ud.as_tuple().exponent, (v, U)
@@ -183,7 +225,7 @@ def test_signed_dcc_verifies_and_one_changed_byte_fails(lab, tmp_path, capsys, f
     html = build_report(lab, CAMPS["thermal"], tmp_path / "out", config=cfg, dcc=True)
     path = dccmod.dcc_path(html)
     root = _root(path)
-    assert root.find(f"{DCC}comment/{{http://www.w3.org/2000/09/xmldsig#}}Signature") is not None
+    assert root[-1].tag == "{http://www.w3.org/2000/09/xmldsig#}Signature"   # DCC 3.3.0's place
     assert cli.main(["verify", str(path), "--cert", str(cp)]) == 0
     assert f"{'XAdES-BES' if fmt == 'xades' else 'XML-DSig'} signature verified" in capsys.readouterr().out
     has_xades = b"QualifyingProperties" in path.read_bytes()
@@ -226,9 +268,9 @@ def test_an_invalid_dcc_is_refused_in_one_line_and_not_written(lab, tmp_path, mo
 def test_verify_refuses_a_file_that_is_not_a_valid_dcc(tmp_path, capsys):
     f = tmp_path / "x.xml"
     f.write_text('<dcc:digitalCalibrationCertificate xmlns:dcc="https://ptb.de/dcc" '
-                 'schemaVersion="3.1.2"/>')
+                 'schemaVersion="3.3.0"/>')
     assert cli.main(["verify", str(f)]) == 1
-    assert "invalid against dcc.xsd 3.1.2" in capsys.readouterr().err
+    assert "invalid against dcc.xsd 3.3.0" in capsys.readouterr().err
     f.write_text("<not-closed>")
     assert cli.main(["verify", str(f)]) == 1
 

@@ -483,3 +483,62 @@ def kip_uncertainty(u_c2: float, u_dc2: float, u_K2: float, u_Kpp: float, u_dKpp
     if mc_n > 0:
         out["mc_std"] = monte_carlo(kip, np.zeros(5), us, dists, n=mc_n, seed=seed).std
     return out
+
+
+#: Paper methods whose only acceleration reference is the local gravity field (the tumble,
+#: paper 003): a coefficient in (m/s²)^p then scales as g^p, so dC/dg = p·C/g exactly.
+GRAVITY_REFERENCED_METHODS = ("tumble_lm",)
+
+
+def _acceleration_power(name: str) -> int | None:
+    """p of a coefficient whose SI unit is (m/s²)^p times an output or temperature unit
+    (K0 +1, K1 and the second-order terms -1, K3 -2, angles 0), from the catalogue."""
+    import re
+
+    from ..effects import coefficient_spec
+    spec = coefficient_spec(name)
+    if spec is None:
+        return None
+    num, _, den = spec.unit.replace("(", "").replace(")", "").partition("/")
+    power = lambda part: sum(int(m.group(1) or 1) for m in re.finditer(r"\bm(\d?)\b", part))
+    return power(num) - power(den.split("/")[0] if den else "")
+
+
+def add_stated_g_local(rec, runs: Sequence, stated) -> None:
+    """Give each coefficient of a gravity-referenced paper method
+    (:data:`GRAVITY_REFERENCED_METHODS`) the type-B line of the local gravity's stated
+    standard uncertainty, c = p·C/g (JCGM 100 §5.1.3), and its combined u and effective
+    degrees of freedom (JCGM 100 eq G.2b) with it; its JCGM 101 check is made again.
+
+    Parameters
+    ----------
+    rec : accelcal.estimators.records.Records
+        A paper method's records, changed in place.
+    runs : sequence
+        The method's runs (``meta["g_local_m_s2"]``, ``meta["rig_id"]``).
+    stated : mapping
+        Rig id -> rig-input id -> stated standard uncertainty (``g_local`` [m/s²]).
+    """
+    from ..effects import RIG_INPUTS
+    g_in = RIG_INPUTS["g_local"]
+    g_of = {str(r.meta.get("rig_id", "")): float(r.meta[g_in.meta_key]) for r in runs
+            if r.meta.get(g_in.meta_key) is not None}
+    checks = rec.extras.get("mc_check") or {}
+    for c in rec.coefficients:
+        u_g = (stated.get(c.rig_id) or {}).get("g_local")
+        p = _acceleration_power(c.name)
+        if (c.method not in GRAVITY_REFERENCED_METHODS or u_g is None or not p
+                or c.rig_id not in g_of or any(b.coefficient == c.name and b.method == c.method
+                                               and b.quantity.startswith(g_in.what) for b in rec.budget)):
+            continue
+        g = g_of[c.rig_id]
+        sens = p * c.value / g
+        rec.budget.append(BudgetTerm(c.name, f"{g_in.what} of {c.rig_id} (type B, normal; u stated "
+                                     f"in accelcal.toml; dC/dg = {p:+d}·C/g)", g, u_g, sens,
+                                     abs(sens) * u_g, "B", "normal", c.method, c.rig_id))
+        u_old = c.std_uncertainty
+        c.std_uncertainty = math.hypot(u_old, sens * u_g)
+        if c.dof is not None and math.isfinite(c.dof):
+            c.dof = welch_satterthwaite([u_old, abs(sens) * u_g], [c.dof, math.inf])
+        checks.pop(f"{c.method}:{c.rig_id}:{c.name}", None)
+    rec.checked()
