@@ -289,3 +289,133 @@ def test_with_pdf_the_pdf_is_the_embedded_document(lab, tmp_path):
     doc = _root(path).find(f"{DCC}document")
     assert doc.findtext(f"{DCC}mimeType") == "application/pdf"
     assert base64.b64decode(doc.findtext(f"{DCC}dataBase64")) == pdf
+
+
+# ------------------------------------------------------------------ DRAFT ----
+
+def test_a_draft_dcc_has_no_number_is_never_signed_and_verify_says_draft(lab, tmp_path, capsys):
+    kp, cp = _self_signed(tmp_path)
+    cfg = tmp_path / "draft.toml"          # the customer missing; a signing key configured
+    cfg.write_text(CONFIG.replace('customer = "Example Customer Ltd"\n', "")
+                   + f'key_file = "{kp.name}"\ncert_file = "{cp.name}"\n')
+    html = build_report(lab, CAMPS["thermal"], tmp_path / "out", config=cfg, dcc=True)
+    path = dccmod.dcc_path(html)
+    root = _root(path)
+    uid = root.findtext(f"{DCC}administrativeData/{DCC}coreData/{DCC}uniqueIdentifier")
+    assert uid.startswith("DRAFT-") and "IML-" not in path.read_text()      # no final number
+    assert root.find("{http://www.w3.org/2000/09/xmldsig#}Signature") is None
+    capsys.readouterr()
+    assert cli.main(["verify", str(path), "--cert", str(cp)]) == 4
+    out = capsys.readouterr().out
+    assert out.split(": ", 1)[1].startswith("DRAFT;") and "not signed" in out
+    rc = cli.main(["report", CAMPS["thermal"], "-w", str(lab), "--out", str(tmp_path / "o2"),
+                   "--config", str(cfg), "--dcc", "--sign"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 1 and len(err.splitlines()) == 1 and "--sign refused: the DCC is a DRAFT" in err
+    assert "[certificate] customer" in err
+
+
+# ------------------------------------------------------- traceability in XML --
+
+#: A gravimetry survey's DCC, written here by hand (not by accelcal): g = 9 793 620 µm/s² with
+#: U = 60 µm/s² at k = 2, so u = 30 µm/s² = 3.0e-5 m/s².
+GRAVIMETRY = """<?xml version="1.0" encoding="UTF-8"?>
+<dcc:digitalCalibrationCertificate xmlns:dcc="https://ptb.de/dcc" xmlns:si="https://ptb.de/si" schemaVersion="3.3.0">
+ <dcc:administrativeData>
+  <dcc:coreData><dcc:uniqueIdentifier>GRAV-2026-0042</dcc:uniqueIdentifier></dcc:coreData>
+  <dcc:calibrationLaboratory><dcc:contact><dcc:name><dcc:content>National Gravimetry Service</dcc:content></dcc:name></dcc:contact></dcc:calibrationLaboratory>
+ </dcc:administrativeData>
+ <dcc:measurementResults><dcc:measurementResult><dcc:results><dcc:result><dcc:data><dcc:quantity>
+  <si:real><si:label>g</si:label><si:value>9793620</si:value><si:unit>\\micro\\metre\\second\\tothe{-2}</si:unit>
+   <si:measurementUncertaintyUnivariate><si:expandedMU><si:valueExpandedMU>60</si:valueExpandedMU>
+    <si:coverageFactor>2</si:coverageFactor><si:coverageProbability>0.95</si:coverageProbability>
+   </si:expandedMU></si:measurementUncertaintyUnivariate></si:real>
+ </dcc:quantity></dcc:data></dcc:result></dcc:results></dcc:measurementResult></dcc:measurementResults>
+</dcc:digitalCalibrationCertificate>
+"""
+U_GRAV = 30e-6          # 60 µm/s² / k = 2, in m/s²
+
+
+def _budget(wh, campaign):
+    d = load_report_data(wh, campaign)
+    return d, {c["name"]: c for c in d["coefficients"] if c.get("adopted")}
+
+
+def test_local_gravity_from_a_gravimetry_dcc_changes_the_budget_by_exactly_its_u(lab, tmp_path, examples):
+    """The u the DCC states replaces the 1e-5 m/s² of accelcal.toml: the budget line carries
+    30 µm/s², each coefficient's u_c² grows by c²(30e-6² - 1e-5²), and the certificate and
+    our DCC name the gravimetry DCC's uniqueIdentifier and issuer."""
+    from accelcal.config import rig_uncertainties
+    from accelcal.flows.pipeline import run_pipeline
+    (tmp_path / "grav.dcc.xml").write_text(GRAVIMETRY)
+    cfg = tmp_path / "accelcal.toml"
+    cfg.write_text(CONFIG.replace('[rigs."TT-1"]\ng_local_u_m_s2 = 1e-5\n',
+                                  '[rigs."TT-1"]\ng_local_dcc = "grav.dcc.xml"\n'))
+    stated = rig_uncertainties(cfg)
+    assert stated["TT-1"]["g_local"] == pytest.approx(U_GRAV, rel=1e-12)
+    run_pipeline([str(examples / "drop-2026-11-18-thermal")], tmp_path / "lab.duckdb",
+                 engine="local", parameters={"rig_uncertainty": stated})
+    _, old = _budget(lab, CAMPS["thermal"])
+    d, new = _budget(tmp_path / "lab.duckdb", CAMPS["thermal"])
+    lines = [b for b in d["budget"] if b["quantity"].startswith("local gravity g_local")
+             and b.get("method") == "joint_ml"]
+    assert lines and all(b["std_uncertainty"] == pytest.approx(U_GRAV, rel=1e-12) for b in lines)
+    for b in lines:
+        c_old, c_new = old[b["coefficient"]], new[b["coefficient"]]
+        grow = b["sensitivity"] ** 2 * (U_GRAV ** 2 - 1e-5 ** 2)
+        assert c_new["std_uncertainty"] ** 2 - c_old["std_uncertainty"] ** 2 == pytest.approx(
+            grow, rel=1e-6, abs=1e-12 * c_old["std_uncertainty"] ** 2)
+    html = build_report(tmp_path / "lab.duckdb", CAMPS["thermal"], tmp_path / "out", config=cfg,
+                        dcc=True)
+    text = html.read_text()
+    assert "u from DCC GRAV-2026-0042 of National Gravimetry Service" in text
+    root = _root(dccmod.dcc_path(html))
+    eq = [e for e in root.iter(f"{DCC}measuringEquipment") if e.get("refType") == "accelcal_referenceStandard"]
+    assert len(eq) == 1 and eq[0].findtext(f"{DCC}certificate/{DCC}referralID") == "GRAV-2026-0042"
+    assert eq[0].findtext(f".//{SI}valueStandardMU") == "0.000030"
+
+
+def test_a_tampered_or_draft_input_dcc_is_refused_in_one_line(lab, tmp_path):
+    import hashlib
+
+    from accelcal.config import ConfigError, rig_uncertainties
+    kp, cp = _self_signed(tmp_path)
+    good = tmp_path / "grav.dcc.xml"
+    good.write_text(GRAVIMETRY)
+    pin = hashlib.sha256(good.read_bytes()).hexdigest()
+    cfg = tmp_path / "accelcal.toml"
+
+    def refused(body: str, text: str) -> str:
+        cfg.write_text(f'[rigs."TT-1"]\n{body}\n')
+        with pytest.raises(ConfigError) as e:
+            rig_uncertainties(cfg)
+        msg = str(e.value)
+        assert len(msg.splitlines()) == 1 and text in msg, msg
+        return msg
+
+    cfg.write_text(f'[rigs."TT-1"]\ng_local_dcc = "grav.dcc.xml"\ng_local_dcc_sha256 = "{pin}"\n')
+    assert rig_uncertainties(cfg)["TT-1"]["g_local"] == pytest.approx(U_GRAV)
+    good.write_text(GRAVIMETRY.replace("9793620", "9793630"))          # one digit changed
+    refused(f'g_local_dcc = "grav.dcc.xml"\ng_local_dcc_sha256 = "{pin}"', "differs from the pinned")
+    refused('g_local_dcc = "grav.dcc.xml"\ng_local_u_m_s2 = 1e-5', "not both")
+
+    # a DCC accelcal signed reads back as an input; one changed byte fails its signature
+    sign_cfg = tmp_path / "sign.toml"
+    sign_cfg.write_text(CONFIG + f'key_file = "{kp.name}"\ncert_file = "{cp.name}"\n')
+    path = dccmod.dcc_path(build_report(lab, CAMPS["centrifuge"], tmp_path / "out", config=sign_cfg, dcc=True))
+    from accelcal.traceability import read_input_dcc
+    src = read_input_dcc(path, "reference_dcc", label="K2")
+    k2 = _root(path).find(f".//{SI}real[{SI}label='K2']")
+    assert src.signed and src.unique_identifier.startswith("IML-") and src.issuer == "Inertial Metrology Lab of Example"
+    eu = k2.find(f"{SI}measurementUncertaintyUnivariate/{SI}expandedMU")
+    assert src.u == pytest.approx(float(eu.findtext(f"{SI}valueExpandedMU")) / float(eu.findtext(f"{SI}coverageFactor")))
+    data = path.read_bytes()
+    i = data.index(b"<si:value>") + len(b"<si:value>") + 1
+    (tmp_path / "bad.dcc.xml").write_bytes(data[:i] + (b"7" if data[i:i + 1] != b"7" else b"8") + data[i + 1:])
+    refused('reference_dcc = "bad.dcc.xml"\ng_local_dcc = "bad.dcc.xml"', "signature does not verify")
+
+    draft_cfg = tmp_path / "draft.toml"
+    draft_cfg.write_text(CONFIG.replace('customer = "Example Customer Ltd"\n', ""))
+    draft = dccmod.dcc_path(build_report(lab, CAMPS["thermal"], tmp_path / "o3", config=draft_cfg, dcc=True))
+    (tmp_path / "draft.dcc.xml").write_bytes(draft.read_bytes())
+    refused('g_local_dcc = "draft.dcc.xml"', "is a DRAFT")

@@ -122,9 +122,10 @@ def render_html(d: dict[str, Any], plots: bool = True, config=None,
         return render_html(d, plots, cfg, customer, issued, more)
     missing += more
     if missing:
-        banners.append("<div class='draft'>DRAFT — not valid as a certificate, no certificate "
-                       "number: " + _e(", ".join(dict.fromkeys(missing))) + " not configured "
-                       "(accelcal.toml); the marked placeholders show where.</div>")
+        banners.append("<div class='draft'>DRAFT — not valid as a certificate: "
+                       + _e(", ".join(dict.fromkeys(missing))) + " not configured "
+                       "(accelcal.toml); the marked placeholders show where. A draft carries no "
+                       "certificate number and is never signed.</div>")
     page = _page_css(cfg.name or "[laboratory not configured]", number, bool(missing))
     head = (f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
             f"<title>{'DRAFT c' if missing else 'C'}alibration certificate {_e(number)} — {_e(camp)}</title>"

@@ -324,6 +324,9 @@ def _input_unit(b, coefficient_unit: str) -> str:
     for r in RIG_INPUTS.values():
         if q.startswith(r.what):
             return r.unit.replace("m/s2", "m/s²").replace("degC", "°C")
+    m = re.search(r"±\s*[0-9.eE+-]+\s*([^\s:;,)]+)", q)     # "uniform ±0.000291 rad: ..."
+    if m:
+        return m.group(1)
     sens = b.get("sensitivity")
     if sens is not None and abs(abs(sens) - 1.0) < 1e-12:
         return coefficient_unit.replace("m/s2", "m/s²").replace("s2/m", "s²/m").replace("s4/m2", "s⁴/m²")
