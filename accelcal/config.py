@@ -23,6 +23,11 @@ missing field and the certificate prints a clearly marked placeholder instead, w
     [traceability.rigs]               # per rig: its reference standards and their certificates
     "LXJ-100" = "arm radius by CMM, cert. ...; rate by encoder, cert. ..."
     "DH-1" = "dividing head angle, cert. ..."
+
+Every command reads the file through :func:`_read`, which checks it against the one
+schema (:func:`config_schema`: ``[lab]``, ``[certificate]``, ``[traceability]``,
+``[rigs."ID"]``, ``[tolerance."MODEL"]``, ``[forecast]``, ``[prior."MODEL"]``, ``[dcc]``):
+an unknown key or a value of the wrong type is one :class:`ConfigError` line.
 """
 from __future__ import annotations
 
@@ -83,9 +88,9 @@ _TEXT = ((str,), "text")
 _NUMBER = ((int, float), "a number")
 _BOOL = ((bool,), "true or false")
 #: Per-rig keys: the stated uncertainties of :data:`accelcal.effects.RIG_INPUTS` (added by
-#: :func:`config_schema`), the design's bounds and the DCCs of the rig's standards
+#: :func:`config_schema`), the design's bounds, a free-text note and the DCCs of the rig's standards
 #: (:mod:`accelcal.traceability`), each with an optional sha256 pin.
-_RIG_KEYS = {"max_g": _NUMBER, "setup_min": _NUMBER,
+_RIG_KEYS = {"max_g": _NUMBER, "setup_min": _NUMBER, "note": _TEXT,
              **{k: _TEXT for k in ("g_local_dcc", "radius_dcc", "reference_dcc")},
              **{f"{k}_sha256": _TEXT for k in ("g_local_dcc", "radius_dcc", "reference_dcc")},
              "reference_dcc_label": _TEXT}
@@ -114,12 +119,12 @@ def config_schema() -> dict[str, Any]:
 
 
 def _line_of(text: str, key: str) -> str:
-    """':N' of the first line that sets ``key`` (empty when none is found)."""
+    """' (line N)' of the first line that sets ``key`` (empty when none is found)."""
     import re
     for n, line in enumerate(text.splitlines(), start=1):
         if re.match(rf"\s*\"?{re.escape(key)}\"?\s*=", line) or re.match(
                 rf"\s*\[+[^\]]*\b{re.escape(key)}\b", line):
-            return f":{n}"
+            return f" (line {n})"
     return ""
 
 
@@ -133,22 +138,23 @@ def check_config(raw: dict[str, Any], path: Path, text: str = "") -> None:
         for key, val in node.items():
             sub = spec.get(key, spec.get("*"))
             name = (f"[{'.'.join(where)}] " if where else "") + str(key)
-            at = f"{path}{_line_of(text, str(key))}"
+            line = _line_of(text, str(key))
             if sub is None:
                 known = [k for k in spec if k != "*"]
                 near = ([k for k in known if k.startswith(str(key)) or str(key).startswith(k)]
                         or difflib.get_close_matches(str(key), known, n=1, cutoff=0.5))
                 hint = f"; did you mean {near[0]!r}?" if near else \
                     f"; known: {', '.join(k for k in spec if k != '*')}"
-                raise ConfigError(f"{at}: unknown key {name}{hint}")
+                raise ConfigError(f"{path}: unknown key {name}{line}{hint}")
             if isinstance(sub, dict):
                 if not isinstance(val, dict):
-                    raise ConfigError(f"{at}: {name} must be a table")
+                    raise ConfigError(f"{path}: {name} must be a table{line}")
                 walk(val, sub, where + [f'"{key}"' if "*" in spec and key not in spec else str(key)])
                 continue
             types, what = sub
             if not isinstance(val, types) or (bool not in types and isinstance(val, bool)):
-                raise ConfigError(f"{at}: {name} must be {what}, not {type(val).__name__} {val!r}")
+                raise ConfigError(f"{path}: {name} must be {what}, not {type(val).__name__} "
+                                  f"{val!r}{line}")
     walk(raw, config_schema(), [])
 
 

@@ -1,28 +1,35 @@
-"""Digital Calibration Certificate (PTB DCC, XML) beside the HTML/PDF certificate (issue 27).
+"""Digital Calibration Certificate (PTB DCC 3.3.0, D-SI 2.2.0, XML) beside the HTML/PDF
+certificate.
 
 ``accelcal report ... --dcc`` writes ``<report>.dcc.xml``; ``accelcal verify FILE`` checks
 one.  The DCC is built from the same data the certificate shows
 (:func:`accelcal.ops.certificate.load_report_data`) and the same lab facts (accelcal.toml):
 
-- administrativeData: software (accelcal and its version), core data (country, language,
-  unique identifier = the certificate number, performance dates from the runs' data),
-  the calibration laboratory, the person authorising, the customer and the item (model
-  and serial).  A fact the lab has not configured is written as a marked
-  ``[... not configured ...]`` text and the DCC says it is a DRAFT, as the HTML does.
-- measurementResults: every adopted coefficient as an ``si:real`` with its value, its
-  D-SI unit (:data:`DISPLAY_TO_DSI`), and ``si:expandedUnc`` (U, k, coverage probability),
-  rounded per GUM 7.2.6 (:mod:`accelcal.rounding`: U to two significant digits, the
-  value to U's last digit); the methods; and the lineage (every input run's id and
-  sha256, the result id) as ``dcc:measurementMetaData``.
+- administrativeData: software (accelcal, release ``v<version>``), the refTypes it uses
+  (``refTypeDefinitions``), core data (country, language, unique identifier = the
+  certificate number, performance and issue dates), the calibration laboratory, the person
+  authorising, the customer and the item (model and serial).  A fact the lab has not
+  configured is written as a marked ``[not configured: ...]`` text and the DCC is a DRAFT:
+  an ``accelcal_draft`` statement, a ``DRAFT-`` identifier instead of the number, never
+  signed.
+- measurementResults: the methods and software; the measuring equipment (each rig with its
+  reference standards, each standard whose own DCC gives a rig input,
+  :mod:`accelcal.traceability`); the influence conditions (each run's temperature range,
+  each rig's local g with its stated u, each rig); every adopted coefficient as an
+  ``si:real`` with its D-SI unit (:data:`DISPLAY_TO_DSI`) and
+  ``si:measurementUncertaintyUnivariate/si:expandedMU`` (U, k, coverage probability),
+  rounded per GUM 7.2.6 (:mod:`accelcal.rounding`); and the lineage (every input run's id
+  and sha256, the result id) as ``dcc:measurementMetaData``.
 - document: the human-readable certificate (the PDF when there is one, else the HTML),
   base64.
 
 Every DCC is validated on write against the schema its ``schemaVersion`` names, from the
-copies shipped in ``accelcal/schemas/dcc`` (no network; :func:`load_schema`), and an
-invalid one is refused with a one-line :class:`DccError`.  With ``[dcc] key_file`` and
-``cert_file`` in accelcal.toml the DCC carries an enveloped XML signature
-(XAdES-BES by default; ``ds:Signature`` inside ``dcc:comment``, the one place DCC 3.1.2
-admits foreign elements), checked by :func:`verify_dcc` against the lab's certificate.
+copies shipped in ``accelcal/schemas/dcc`` (no network; :func:`load_schema`), and against
+PTB's own Schematron rules from PTB's ``dcclib`` (:func:`schematron_report`); a final one
+with any finding is refused with a one-line :class:`DccError`.  With ``[dcc] key_file`` and
+``cert_file`` in accelcal.toml a final DCC carries an enveloped XML signature (XAdES-BES by
+default; ``ds:Signature`` as the root's last element, where DCC 3.3.0 admits it), checked
+by :func:`verify_dcc` against the lab's certificate.
 """
 from __future__ import annotations
 
