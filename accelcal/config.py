@@ -114,7 +114,9 @@ _SCHEMA: dict[str, Any] = {
 def config_schema() -> dict[str, Any]:
     """The schema of accelcal.toml, the rig inputs' uncertainty keys included."""
     from .effects import RIG_INPUTS
-    rig = {**_RIG_KEYS, **{r.config_key: _NUMBER for r in RIG_INPUTS.values()}}
+    rig = {**_RIG_KEYS, **{r.config_key: (_NUMBER[0], f"a positive number (a standard "
+                                                     f"uncertainty in {r.unit})")
+                           for r in RIG_INPUTS.values()}}
     return {**_SCHEMA, "rigs": {"*": rig}}
 
 

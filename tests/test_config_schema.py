@@ -42,7 +42,7 @@ def test_a_wrong_type_is_one_line_with_file_line_key_and_type(tmp_path, reader):
     p = tmp_path / "accelcal.toml"
     p.write_text('[lab]\nname = "x"\n[rigs."TT-1"]\ng_local_u_m_s2 = "1e-5"\n')
     msg = _one_line(READERS[reader], p)
-    assert msg.startswith(f'{p}: [rigs."TT-1"] g_local_u_m_s2 must be a number') and msg.endswith("(line 4)"), msg
+    assert msg.startswith(f'{p}: [rigs."TT-1"] g_local_u_m_s2 must be a positive number') and msg.endswith("(line 4)"), msg
     p.write_text('[certificate]\nstate_due_date = "yes"\n')
     assert "[certificate] state_due_date must be true or false" in _one_line(READERS[reader], p)
 

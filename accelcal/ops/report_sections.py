@@ -471,7 +471,7 @@ def _sec_adequacy(d, plots) -> str:
                          (f"{_fmt(a.get('dof_lack_of_fit'))}/{_fmt(a.get('dof_pure_error'))}", "num"),
                          (_fmt(a.get("trend_p"), ".3g"), "num"), (_fmt(a.get("sweep_p"), ".3g"), "num"),
                          (_fmt(a.get("runs_p"), ".3g"), "num"),
-                         (("not testable (no degrees of freedom)", "") if not ok and not a.get("dof_lack_of_fit")
+                         (("not testable (no degrees of freedom)", "") if not ok and (not a.get("dof_lack_of_fit") or a.get("f_statistic") is None)
                           else ("adequate", "ok") if ok else ("NOT adequate", "bad")),
                          ("✔" if ok else "used: no order tested is adequate") if a.get("chosen") else ""])
         out.append("<h3>Regressions: lack-of-fit F test and residual checks</h3>")
