@@ -23,6 +23,11 @@ missing field and the certificate prints a clearly marked placeholder instead, w
     [traceability.rigs]               # per rig: its reference standards and their certificates
     "LXJ-100" = "arm radius by CMM, cert. ...; rate by encoder, cert. ..."
     "DH-1" = "dividing head angle, cert. ..."
+
+Every command reads the file through :func:`_read`, which checks it against the one
+schema (:func:`config_schema`: ``[lab]``, ``[certificate]``, ``[traceability]``,
+``[rigs."ID"]``, ``[tolerance."MODEL"]``, ``[forecast]``, ``[prior."MODEL"]``, ``[dcc]``):
+an unknown key or a value of the wrong type is one :class:`ConfigError` line.
 """
 from __future__ import annotations
 
@@ -76,14 +81,97 @@ def find_config(explicit: str | Path | None = None,
     return next((c for c in candidates if c.is_file()), None)
 
 
+# ------------------------------------------------------------------ schema ----
+
+#: A key's expected type: (python types accepted, how an error names it).
+_TEXT = ((str,), "text")
+_NUMBER = ((int, float), "a number")
+_BOOL = ((bool,), "true or false")
+#: Per-rig keys: the stated uncertainties of :data:`accelcal.effects.RIG_INPUTS` (added by
+#: :func:`config_schema`), the design's bounds, a free-text note and the DCCs of the rig's standards
+#: (:mod:`accelcal.traceability`), each with an optional sha256 pin.
+_RIG_KEYS = {"max_g": _NUMBER, "setup_min": _NUMBER, "note": _TEXT,
+             **{k: _TEXT for k in ("g_local_dcc", "radius_dcc", "reference_dcc")},
+             **{f"{k}_sha256": _TEXT for k in ("g_local_dcc", "radius_dcc", "reference_dcc")},
+             "reference_dcc_label": _TEXT}
+#: The one schema of accelcal.toml that ``run``, ``report``, ``due``, ``design`` and
+#: ``verify`` read: table -> key -> type; ``"*"`` is any name (a rig id, a unit model, a
+#: coefficient).
+_SCHEMA: dict[str, Any] = {
+    "lab": {"name": _TEXT, "address": _TEXT, "location": _TEXT, "accreditation": _TEXT},
+    "certificate": {"number_prefix": _TEXT, "approver": _TEXT, "approver_role": _TEXT,
+                    "customer": _TEXT, "state_due_date": _BOOL},
+    "traceability": {"statement": _TEXT, "rigs": {"*": _TEXT}},
+    "rigs": {"*": _RIG_KEYS},
+    "tolerance": {"*": {"*": {"relative": _NUMBER, "absolute": _NUMBER}}},
+    "forecast": {"risk": _NUMBER},
+    "prior": {"*": {"*": {"value": _NUMBER, "u": _NUMBER}}},
+    "dcc": {k: _TEXT for k in ("country_code", "language", "email", "key_file", "cert_file",
+                               "key_password_env", "signature")},
+}
+
+
+def config_schema() -> dict[str, Any]:
+    """The schema of accelcal.toml, the rig inputs' uncertainty keys included."""
+    from .effects import RIG_INPUTS
+    rig = {**_RIG_KEYS, **{r.config_key: (_NUMBER[0], f"a positive number (a standard "
+                                                     f"uncertainty in {r.unit})")
+                           for r in RIG_INPUTS.values()}}
+    return {**_SCHEMA, "rigs": {"*": rig}}
+
+
+def _line_of(text: str, key: str) -> str:
+    """' (line N)' of the first line that sets ``key`` (empty when none is found)."""
+    import re
+    for n, line in enumerate(text.splitlines(), start=1):
+        if re.match(rf"\s*\"?{re.escape(key)}\"?\s*=", line) or re.match(
+                rf"\s*\[+[^\]]*\b{re.escape(key)}\b", line):
+            return f" (line {n})"
+    return ""
+
+
+def check_config(raw: dict[str, Any], path: Path, text: str = "") -> None:
+    """Raise a one-line :class:`ConfigError` for the first key the schema does not know
+    (naming the nearest known key) or the first value of the wrong type (file, key,
+    expected type)."""
+    import difflib
+
+    def walk(node: dict[str, Any], spec: dict[str, Any], where: list[str]) -> None:
+        for key, val in node.items():
+            sub = spec.get(key, spec.get("*"))
+            name = (f"[{'.'.join(where)}] " if where else "") + str(key)
+            line = _line_of(text, str(key))
+            if sub is None:
+                known = [k for k in spec if k != "*"]
+                near = ([k for k in known if k.startswith(str(key)) or str(key).startswith(k)]
+                        or difflib.get_close_matches(str(key), known, n=1, cutoff=0.5))
+                hint = f"; did you mean {near[0]!r}?" if near else \
+                    f"; known: {', '.join(k for k in spec if k != '*')}"
+                raise ConfigError(f"{path}: unknown key {name}{line}{hint}")
+            if isinstance(sub, dict):
+                if not isinstance(val, dict):
+                    raise ConfigError(f"{path}: {name} must be a table{line}")
+                walk(val, sub, where + [f'"{key}"' if "*" in spec and key not in spec else str(key)])
+                continue
+            types, what = sub
+            if not isinstance(val, types) or (bool not in types and isinstance(val, bool)):
+                raise ConfigError(f"{path}: {name} must be {what}, not {type(val).__name__} "
+                                  f"{val!r}{line}")
+    walk(raw, config_schema(), [])
+
+
 def _read(path: Path) -> dict[str, Any]:
-    """The config file's TOML; a file that cannot be read or parsed is one ConfigError line."""
+    """The config file's TOML, checked against :func:`config_schema`; a file that cannot be
+    read, parsed or is off the schema is one ConfigError line."""
     try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
+        raw = tomllib.loads(text)
     except (OSError, UnicodeDecodeError) as e:
         raise ConfigError(f"cannot read config {path}: {e}") from None
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"config {path} is not valid TOML: {e}") from None
+    check_config(raw, path, text)
+    return raw
 
 
 def _rig_tables(explicit: str | Path | None, warehouse: str | Path | None = None
@@ -121,6 +209,7 @@ def rig_uncertainties(explicit: str | Path | None = None,
         g_local_u_m_s2 = 1e-5      # local gravity at the rig [m/s2]
         tilt_u_deg = 0.002         # tilt of the thermal table [deg]
         temperature_u_c = 0.05     # temperature reading at each set point [degC]
+        # or: g_local_dcc = "gravimetry.dcc.xml"  (u read from that DCC, accelcal.traceability)
 
     Same look-up as :func:`lab_config`; none without a file.  A value that is not a
     positive number is one :class:`ConfigError` line naming it."""
@@ -130,6 +219,17 @@ def rig_uncertainties(explicit: str | Path | None = None,
     for rig, v in rigs.items():
         if not isinstance(v, dict):
             continue
+        if v.get("g_local_dcc"):        # local gravity from the gravimetry survey's own DCC
+            from .traceability import InputDccError, read_input_dcc
+            if RIG_INPUTS["g_local"].config_key in v:
+                raise ConfigError(f'{path}: [rigs."{rig}"] give g_local_dcc or '
+                                  f'{RIG_INPUTS["g_local"].config_key}, not both')
+            try:
+                src = read_input_dcc(path.parent / v["g_local_dcc"], "g_local_dcc",
+                                     v.get("g_local_dcc_sha256"))
+            except InputDccError as e:
+                raise ConfigError(f'{path}: [rigs."{rig}"] g_local_dcc: {e}') from None
+            out.setdefault(str(rig), {})["g_local"] = src.u
         for spec in RIG_INPUTS.values():
             if spec.config_key not in v:
                 continue

@@ -201,6 +201,26 @@ def test_pdf_has_every_element_page_numbers_and_no_gap(lab, tmp_path, kind):
     assert heads == list(range(1, len(heads) + 1)) and len(heads) >= 9, heads
 
 
+@pytest.mark.skipif(_chromium() is None or shutil.which("pdftotext") is None,
+                    reason="chromium and pdftotext (poppler-utils) needed")
+def test_a_draft_says_draft_on_every_page_and_shows_no_certificate_number(lab, tmp_path):
+    """With only the customer missing: every printed page says DRAFT in its header and its
+    footer, and the final number (prefix + the 12 hex of the result id) is on none."""
+    from accelcal.ops.certificate import certificate_number, load_report_data
+    cfg = tmp_path / "no-customer.toml"
+    cfg.write_text(CONFIG.replace('customer = "Example Customer Ltd"\n', ""))
+    pdf = build_report(lab, CAMPS["centrifuge"], tmp_path, pdf=True, config=cfg).with_suffix(".pdf")
+    text = subprocess.run(["pdftotext", "-layout", str(pdf), "-"], capture_output=True,
+                          text=True, check=True).stdout
+    pages = [p for p in text.split("\f") if p.strip()]
+    final = certificate_number(load_report_data(lab, CAMPS["centrifuge"])["result_id"], "IML")
+    assert len(pages) >= 2
+    for i, page in enumerate(pages, start=1):
+        lines = [x for x in page.splitlines() if x.strip()]
+        assert "DRAFT" in lines[0] and "DRAFT" in lines[-1], (i, lines[0], lines[-1])
+        assert final not in page and "Certificate No." not in page, i
+
+
 def test_a_rig_without_traceability_keeps_the_certificate_draft(lab, tmp_path):
     """Issue 27: with the README's one-rig accelcal.toml the certificate was final while
     DH-1 showed the traceability placeholder; any placeholder left means DRAFT."""

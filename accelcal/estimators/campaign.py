@@ -19,6 +19,7 @@ from .. import memory
 from ..constants import MOUNT_ANGLE_TOLERANCE_RAD
 from ..results import CampaignResult, CoefficientResult
 from . import registry
+from . import uncertainty as unc
 from .centrifuge import RADIUS_ORDERS, RADIUS_RANGES
 
 
@@ -74,7 +75,9 @@ def _process_campaign(runs, stated: Mapping[str, Mapping[str, float]]) -> Campai
             steps[est.method] = est.prepare(taken[est.method], steps)
     for est in registry.estimators():
         if taken[est.method]:
-            for rec in est.records(taken[est.method], steps):
+            records = est.records(taken[est.method], steps)
+            unc.add_stated_g_local(est, taken[est.method], steps, records, stated)
+            for rec in records:
                 rec.add_to(res)
     if sum(len(r.data) for r in runs) >= memory.BIG_ROWS:
         memory.give_back()     # what the paper methods freed, before the joint fit (issue 28)

@@ -18,6 +18,7 @@ Distributions (by their standard uncertainty u, JCGM 101 §6.4):
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
@@ -483,3 +484,95 @@ def kip_uncertainty(u_c2: float, u_dc2: float, u_K2: float, u_Kpp: float, u_dKpp
     if mc_n > 0:
         out["mc_std"] = monte_carlo(kip, np.zeros(5), us, dists, n=mc_n, seed=seed).std
     return out
+
+
+
+#: Step of local gravity for a paper method's derivative [m/s²] (1e-4 relative: far above
+#: the fits' convergence tolerance, far below any curvature of C(g)).
+G_LOCAL_STEP = 1e-3
+
+
+def _with_g(runs: Sequence, key: str, dg: float) -> list:
+    """Copies of the runs (data shared) with local gravity moved by ``dg``."""
+    import copy
+    out = []
+    for r in runs:
+        r2 = copy.copy(r)
+        object.__setattr__(r2, "meta", {**r.meta, key: float(r.meta[key]) + dg})
+        out.append(r2)
+    return out
+
+
+def _key(c) -> tuple[str, str, str, float]:
+    """(method, rig, the coefficient's first term, value) of a coefficient record."""
+    return c.method, c.rig_id, re.split(r"[+\-*]", c.name, maxsplit=1)[0], c.value
+
+
+def add_stated_g_local(est, runs: Sequence, steps, records: list, stated) -> None:
+    """Give a paper method's coefficients that have no local-gravity line the type-B line of
+    its stated standard uncertainty (JCGM 100 §5.1.3), with the sensitivity dC/dg of the
+    method itself: the method run again on the same readings with g ± :data:`G_LOCAL_STEP`
+    (a central difference; the other methods' outcomes it reads held), and the combined u
+    and effective degrees of freedom (JCGM 100 eq G.2b) with it; the JCGM 101 check is made
+    again.
+
+    Parameters
+    ----------
+    est : accelcal.estimators.registry.Estimator
+        The paper method.
+    runs : sequence
+        Its runs (``meta["g_local_m_s2"]``, ``meta["rig_id"]``).
+    steps : mapping
+        The campaign's first passes (``est.prepare`` outcomes by method).
+    records : list of accelcal.estimators.records.Records
+        Its records, changed in place.
+    stated : mapping
+        Rig id -> rig-input id -> stated standard uncertainty (``g_local`` [m/s²]).
+    """
+    from ..effects import RIG_INPUTS
+    g_in = RIG_INPUTS["g_local"]
+    g_of = {str(r.meta.get("rig_id", "")): float(r.meta[g_in.meta_key]) for r in runs
+            if r.meta.get(g_in.meta_key) is not None}
+
+    def lacks(rec, c) -> bool:
+        return ((stated.get(c.rig_id) or {}).get("g_local") is not None and c.rig_id in g_of
+                and not any(b.coefficient == c.name and b.method == c.method and b.rig_id == c.rig_id
+                            and b.quantity.startswith(g_in.what) for b in rec.budget))
+    if not any(lacks(rec, c) for rec in records for c in rec.coefficients):
+        return
+    moved = {}
+    try:
+        for sign in (1, -1):
+            rs = _with_g(runs, g_in.meta_key, sign * G_LOCAL_STEP)
+            st = dict(steps)
+            if est.prepare is not None:
+                st[est.method] = est.prepare(rs, st)
+            moved[sign] = [_key(c) for rec in est.records(rs, st) for c in rec.coefficients]
+    except Exception as exc:        # the values stand; the missing line is a flag
+        records[-1].flags.append(f"{est.method}: the local-gravity line of its budgets could not "
+                                 f"be evaluated ({type(exc).__name__}: {exc})")
+        return
+    # matched in order: a combination's name carries g (K0 + g²·Koo), its place does not
+    here = [_key(c) for rec in records for c in rec.coefficients]
+    if [k[:3] for k in moved[1]] != [k[:3] for k in here] or [k[:3] for k in moved[-1]] != [k[:3] for k in here]:
+        records[-1].flags.append(f"{est.method}: the local-gravity line of its budgets could not "
+                                 f"be evaluated (other coefficients with g moved)")
+        return
+    i = -1
+    for rec in records:
+        checks = rec.extras.get("mc_check") or {}
+        for c in rec.coefficients:
+            i += 1
+            if not lacks(rec, c):
+                continue
+            u_g = stated[c.rig_id]["g_local"]
+            sens = (moved[1][i][3] - moved[-1][i][3]) / (2 * G_LOCAL_STEP)
+            rec.budget.append(BudgetTerm(c.name, f"{g_in.what} of {c.rig_id} (type B, normal; u "
+                                         f"stated in accelcal.toml)", g_of[c.rig_id], u_g, sens,
+                                         abs(sens) * u_g, "B", "normal", c.method, c.rig_id))
+            u_old = c.std_uncertainty
+            c.std_uncertainty = math.hypot(u_old, sens * u_g)
+            if c.dof is not None and math.isfinite(c.dof):
+                c.dof = welch_satterthwaite([u_old, abs(sens) * u_g], [c.dof, math.inf])
+            checks.pop(f"{c.method}:{c.rig_id}:{c.name}", None)
+        rec.checked()

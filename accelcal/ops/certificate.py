@@ -74,6 +74,67 @@ def missing_rig_inputs(d) -> list[tuple[str, str]]:
             for m in missing]
 
 
+def missing_facts(d, cfg, customer: str | None = None, dcfg=None) -> list[str]:
+    """Everything a final certificate of this result needs and the lab has not given: the
+    ``[lab]``/``[certificate]`` keys, the customer, the traceability statement and each
+    rig's reference standards, the rig inputs' stated u (:func:`missing_rig_inputs`), and
+    with ``dcfg`` (the DCC) the ``[dcc]`` country and e-mail.  Any entry makes the HTML, the
+    PDF and the DCC a DRAFT (:func:`document_number`)."""
+    missing = list(cfg.missing)
+    if not (customer or cfg.customer):
+        missing.append("[certificate] customer")
+    if not cfg.traceability:
+        missing.append("[traceability] statement")
+    missing += [f'[traceability.rigs] "{rig}"' for rig in d.get("rig_ids") or []
+                if not cfg.rig_traceability.get(rig)]
+    if dcfg is not None:
+        missing += [k for k, v in (("[dcc] country_code", dcfg.country_code),
+                                   ("[dcc] email", dcfg.email)) if not v]
+    missing += [what for what, _ in missing_rig_inputs(d)]
+    return list(dict.fromkeys(missing))
+
+
+def document_number(result_id: str, prefix: str, draft: bool) -> str:
+    """The certificate number, or for a DRAFT an identifier that is not one (``DRAFT-`` and
+    the result id as the CLI prints it, without the lab's prefix): a draft never carries the
+    number its final certificate will have."""
+    return f"DRAFT-{result_id[:12]}" if draft else certificate_number(result_id, prefix)
+
+
+def rig_input_sources(d, cfg) -> dict[str, dict[str, Any]]:
+    """Rig id -> config key -> :class:`accelcal.traceability.InputDcc`: the rigs of this
+    result whose inputs come from a standard's own DCC (``[rigs."ID"] g_local_dcc`` ...).
+    A DCC that is tampered with, or whose u differs from the u this result was computed
+    with (the file changed since the drops were processed), is one ReportError line."""
+    from ..config import ConfigError, _rig_tables
+    from ..traceability import DCC_INPUTS, InputDccError, read_input_dcc
+    if cfg.path is None:
+        return {}
+    try:
+        path, rigs = _rig_tables(cfg.path)
+    except ConfigError as e:
+        raise ReportError(str(e)) from None
+    stated = (d.get("parameters") or {}).get("rig_uncertainty") or {}
+    out: dict[str, dict[str, Any]] = {}
+    for rig in d.get("rig_ids") or []:
+        t = rigs.get(rig) or {}
+        for key in DCC_INPUTS:
+            if not t.get(key):
+                continue
+            try:
+                src = read_input_dcc(Path(path).parent / t[key], key, t.get(f"{key}_sha256"),
+                                     t.get(f"{key}_label"))
+            except InputDccError as e:
+                raise ReportError(str(e)) from None
+            used = (stated.get(rig) or {}).get("g_local")
+            if key == "g_local_dcc" and (used is None or not math.isclose(used, src.u, rel_tol=1e-12)):
+                raise ReportError(f"{src.path}: states u = {src.u:g} m/s2 but result "
+                                  f"{d['result_id'][:12]} was computed with "
+                                  f"{'no u' if used is None else f'{used:g} m/s2'}; process the drops again")
+            out.setdefault(rig, {})[key] = src
+    return out
+
+
 # ------------------------------------------------------------------ reading --
 
 def _rows(con, sql: str, params: list | None = None) -> list[dict[str, Any]]:

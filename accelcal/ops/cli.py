@@ -61,19 +61,26 @@ def register_cli(sub) -> None:
                         "warehouse)")
     r.add_argument("--customer", default=None, help="customer name and address for this certificate")
     r.add_argument("--dcc", action="store_true",
-                   help="also write the PTB Digital Calibration Certificate (XML, DCC 3.1.2) beside "
-                        "it, validated against the shipped schema; signed with [dcc] key_file and "
-                        "cert_file of accelcal.toml when set")
+                   help="also write the PTB Digital Calibration Certificate (XML, DCC 3.3.0) beside "
+                        "it, validated against the shipped schema and PTB's Schematron rules; a "
+                        "final one is signed with [dcc] key_file and cert_file of accelcal.toml "
+                        "when set, a DRAFT never")
+    r.add_argument("--sign", action="store_true",
+                   help="with --dcc: the DCC must be signed; refused (one line) for a DRAFT or "
+                        "without [dcc] key_file and cert_file")
     r.add_argument("--lock-timeout", type=float, default=60.0, metavar="S")
     r.set_defaults(func=_cmd_report)
 
     v = sub.add_parser(
-        "verify", help="check a DCC file: schema validity and, if signed, its signature",
+        "verify", help="check a DCC file: schema, PTB's rules, status and signature",
         description="Validate a Digital Calibration Certificate (XML) against the schema of its "
-                    "schemaVersion shipped with accelcal (no network) and, if it carries an "
-                    "XML-DSig signature, verify it with the lab's certificate (--cert, else "
-                    "[dcc] cert_file of accelcal.toml). Exit 0 when it holds, 1 with one line "
-                    "saying what fails.")
+                    "schemaVersion shipped with accelcal and PTB's Schematron rules (dcclib; no "
+                    "network), print its status (final, DRAFT, INCOMPLETE, SIMULATED, EXCLUDED, "
+                    "NOT CURRENT) and, if it carries an XML-DSig signature, verify it with the "
+                    "lab's certificate (--cert, else [dcc] cert_file of accelcal.toml). Exit 0: "
+                    "valid, final and signed; 1: invalid (XSD, PTB's rules or signature fail; one "
+                    "line); 4: valid but not a final certificate (DRAFT, INCOMPLETE, ...); 5: "
+                    "valid and final but not signed.")
     v.add_argument("file", metavar="FILE", help="the DCC XML file")
     v.add_argument("--cert", default=None, metavar="PEM",
                    help="the signer's X.509 certificate (PEM) to check the signature with")
@@ -135,6 +142,11 @@ def register_cli(sub) -> None:
 register = register_cli
 
 
+#: ``accelcal verify`` exit codes beside 0 (valid, final, signed) and 1 (fails; one line).
+EXIT_NOT_FINAL = 4
+EXIT_UNSIGNED = 5
+
+
 def _fail(msg: str):
     try:
         from ..cli import CliError
@@ -152,7 +164,8 @@ def _cmd_report(args) -> int:
         for c in camps:
             path = build_report(args.warehouse, c, args.out, result_id=args.result,
                                 lock_timeout=args.lock_timeout, config=args.config,
-                                pdf=args.pdf, customer=args.customer, dcc=args.dcc)
+                                pdf=args.pdf, customer=args.customer, dcc=args.dcc,
+                                sign=True if args.sign else None)
             print(path)
             if args.pdf:
                 print(path.with_suffix(".pdf"))
@@ -182,9 +195,17 @@ def _cmd_verify(args) -> int:
         v = verify_dcc(args.file, cert)
     except (DccError, ConfigError) as e:
         _fail(f"{args.file}: {e}")
-    print(f"{args.file}: valid DCC {v.schema_version}; "
+    rules = v.rules
+    if rules.errors:
+        _fail(f"{args.file}: valid against dcc.xsd {v.schema_version} but not PTB's rules "
+              f"(dcclib Schematron): {rules.summary()}")
+    status = " + ".join(v.status) if v.status else "final"
+    print(f"{args.file}: {status}; valid DCC {v.schema_version}; PTB's rules: "
+          f"{len(rules.errors)} errors, {len(rules.warnings)} warnings; "
           + (f"{v.signature_format} signature verified ({v.signer})" if v.signed else "not signed"))
-    return 0
+    if v.status:
+        return EXIT_NOT_FINAL
+    return 0 if v.signed else EXIT_UNSIGNED
 
 
 def _need_warehouse(path: str) -> None:

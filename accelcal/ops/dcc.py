@@ -1,28 +1,35 @@
-"""Digital Calibration Certificate (PTB DCC, XML) beside the HTML/PDF certificate (issue 27).
+"""Digital Calibration Certificate (PTB DCC 3.3.0, D-SI 2.2.0, XML) beside the HTML/PDF
+certificate.
 
 ``accelcal report ... --dcc`` writes ``<report>.dcc.xml``; ``accelcal verify FILE`` checks
 one.  The DCC is built from the same data the certificate shows
 (:func:`accelcal.ops.certificate.load_report_data`) and the same lab facts (accelcal.toml):
 
-- administrativeData: software (accelcal and its version), core data (country, language,
-  unique identifier = the certificate number, performance dates from the runs' data),
-  the calibration laboratory, the person authorising, the customer and the item (model
-  and serial).  A fact the lab has not configured is written as a marked
-  ``[... not configured ...]`` text and the DCC says it is a DRAFT, as the HTML does.
-- measurementResults: every adopted coefficient as an ``si:real`` with its value, its
-  D-SI unit (:data:`DISPLAY_TO_DSI`), and ``si:expandedUnc`` (U, k, coverage probability),
-  rounded per GUM 7.2.6 (:mod:`accelcal.rounding`: U to two significant digits, the
-  value to U's last digit); the methods; and the lineage (every input run's id and
-  sha256, the result id) as ``dcc:measurementMetaData``.
+- administrativeData: software (accelcal, release ``v<version>``), the refTypes it uses
+  (``refTypeDefinitions``), core data (country, language, unique identifier = the
+  certificate number, performance and issue dates), the calibration laboratory, the person
+  authorising, the customer and the item (model and serial).  A fact the lab has not
+  configured is written as a marked ``[not configured: ...]`` text and the DCC is a DRAFT:
+  an ``accelcal_draft`` statement, a ``DRAFT-`` identifier instead of the number, never
+  signed.
+- measurementResults: the methods and software; the measuring equipment (each rig with its
+  reference standards, each standard whose own DCC gives a rig input,
+  :mod:`accelcal.traceability`); the influence conditions (each run's temperature range,
+  each rig's local g with its stated u, each rig); every adopted coefficient as an
+  ``si:real`` with its D-SI unit (:data:`DISPLAY_TO_DSI`) and
+  ``si:measurementUncertaintyUnivariate/si:expandedMU`` (U, k, coverage probability),
+  rounded per GUM 7.2.6 (:mod:`accelcal.rounding`); and the lineage (every input run's id
+  and sha256, the result id) as ``dcc:measurementMetaData``.
 - document: the human-readable certificate (the PDF when there is one, else the HTML),
   base64.
 
 Every DCC is validated on write against the schema its ``schemaVersion`` names, from the
-copies shipped in ``accelcal/schemas/dcc`` (no network; :func:`load_schema`), and an
-invalid one is refused with a one-line :class:`DccError`.  With ``[dcc] key_file`` and
-``cert_file`` in accelcal.toml the DCC carries an enveloped XML signature
-(XAdES-BES by default; ``ds:Signature`` inside ``dcc:comment``, the one place DCC 3.1.2
-admits foreign elements), checked by :func:`verify_dcc` against the lab's certificate.
+copies shipped in ``accelcal/schemas/dcc`` (no network; :func:`load_schema`), and against
+PTB's own Schematron rules from PTB's ``dcclib`` (:func:`schematron_report`); a final one
+with any finding is refused with a one-line :class:`DccError`.  With ``[dcc] key_file`` and
+``cert_file`` in accelcal.toml a final DCC carries an enveloped XML signature (XAdES-BES by
+default; ``ds:Signature`` as the root's last element, where DCC 3.3.0 admits it), checked
+by :func:`verify_dcc` against the lab's certificate.
 """
 from __future__ import annotations
 
@@ -30,7 +37,7 @@ import base64
 import datetime as _dt
 import math
 import os
-import tomllib
+import re
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -39,8 +46,11 @@ from typing import Any
 from .certificate import ReportError
 
 #: The DCC schema version written, and the folder of each version's shipped schemas.
-SCHEMA_VERSION = "3.1.2"
-SCHEMA_DIRS = {"3.1.2": Path(__file__).resolve().parents[1] / "schemas" / "dcc"}
+SCHEMA_VERSION = "3.3.0"
+SCHEMA_DIRS = {"3.3.0": Path(__file__).resolve().parents[1] / "schemas" / "dcc"}
+#: D-SI 2.2.0 imports the QUDT quantity kinds from this address; the shipped stand-in
+#: (schemas/dcc/qudt, see its NOTICE.md) is read instead.
+QUDT_URL = "https://www.ptb.de/si/v2.2.0/qudt/quantitykind.xsd"
 
 DCC_NS = "https://ptb.de/dcc"
 SI_NS = "https://ptb.de/si"
@@ -103,17 +113,14 @@ XADES_NS = "http://uri.etsi.org/01903/v1.3.2#"
 
 def dcc_config(path: Path | None) -> DccConfig:
     """The ``[dcc]`` table of the config file at ``path`` (None: defaults)."""
+    from ..config import ConfigError
+    from ..config import _read as read_config
     if path is None:
         return DccConfig()
     try:
-        raw = tomllib.loads(Path(path).read_text(encoding="utf-8")).get("dcc") or {}
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as e:
-        raise DccError(f"cannot read [dcc] of {path}: {e}") from None
-    if not isinstance(raw, dict):
-        raise DccError(f"{path}: [dcc] must be a table")
-    for k, v in raw.items():
-        if not isinstance(v, str):
-            raise DccError(f"{path}: [dcc] {k} must be text")
+        raw = read_config(Path(path)).get("dcc") or {}     # checked against the one schema
+    except ConfigError as e:
+        raise DccError(str(e)) from None
     cc = (raw.get("country_code") or "").strip().upper() or None
     if cc is not None and not (len(cc) == 2 and cc.isascii() and cc.isalpha()):
         raise DccError(f"{path}: [dcc] country_code must be two letters (ISO 3166-1), not {cc!r}")
@@ -203,14 +210,15 @@ def rounded_pair(value: float, U: float | None) -> tuple[str, str | None]:
 @lru_cache(maxsize=4)
 def load_schema(version: str = SCHEMA_VERSION):
     """The shipped XSD of a DCC ``schemaVersion`` (with D-SI and XML-DSig), loaded with no
-    network access at all (xmlschema ``allow="sandbox"``: only files in its folder)."""
+    network access at all (xmlschema ``allow="local"``: local files only; the D-SI import of
+    QUDT mapped to the shipped stand-in)."""
     import xmlschema
     folder = SCHEMA_DIRS.get(version)
     if folder is None:
         raise DccError(f"DCC schemaVersion {version!r} is not one accelcal ships "
                        f"({', '.join(sorted(SCHEMA_DIRS))})")
-    return xmlschema.XMLSchema(str(folder / "dcc.xsd"), allow="sandbox",
-                               locations={DS_NS: str(folder / "xmldsig-core-schema.xsd")})
+    return xmlschema.XMLSchema(str(folder / "dcc.xsd"), allow="local",
+                               uri_mapper={QUDT_URL: str(folder / "qudt" / "quantitykind.xsd")})
 
 
 def _parse(data: bytes):
@@ -260,18 +268,19 @@ def _ph(what: str) -> str:
     return f"[not configured: {what}]"
 
 
-def _contact(parent, tag: str, name: str, email: str, where: str | None, cc: str | None,
-             lang: str, strict: bool = True):
+def _contact(parent, tag: str, name: str, email: str | None, where: str | None, cc: str | None,
+             lang: str):
+    """A dcc:contactType: name, e-mail only when known (PTB's rules refuse an empty element),
+    and a location (country and/or address)."""
     c = _el(parent, DCC_NS, tag)
     _text(c, "name", name, lang)
-    if strict or email:
+    if email:
         _el(c, DCC_NS, "eMail", email)
-    if strict or where or cc:
-        loc = _el(c, DCC_NS, "location")
-        if cc:
-            _el(loc, DCC_NS, "countryCode", cc)
-        if where or not cc:
-            _text(loc, "further", where or _ph("address"), lang)
+    loc = _el(c, DCC_NS, "location")
+    if cc:
+        _el(loc, DCC_NS, "countryCode", cc)
+    if where or not cc:
+        _text(loc, "further", where or _ph("address"), lang)
     return c
 
 
@@ -282,14 +291,190 @@ def _dates(d) -> tuple[_dt.date | None, _dt.date | None]:
     return (min(starts).date(), max(ends).date()) if starts else (None, None)
 
 
-def _software_version(d) -> str:
+def _software_version(d) -> tuple[str, str]:
+    """(release as PTB's rules want it: a letter, then up to four numbers, e.g. ``v0.1.0``;
+    the full code version for the description)."""
     from importlib.metadata import PackageNotFoundError, version
     try:
         pkg = version("accelcal")
     except PackageNotFoundError:
-        pkg = None
-    cv = d["result"].get("code_version")
-    return " ".join(x for x in (pkg, f"(code {cv})" if cv and cv != pkg else None) if x) or "unknown"
+        pkg = ""
+    cv = d["result"].get("code_version") or pkg or "unknown"
+    m = re.match(r"\d{1,3}(\.\d{1,3}){0,3}", pkg or str(cv))
+    return "v" + (m.group(0) if m else "0"), f"accelcal {pkg or ''} (code version {cv})".replace("  ", " ")
+
+
+def _software(parent, d, lang: str) -> None:
+    release, about = _software_version(d)
+    sw = _el(parent, DCC_NS, "software")
+    _text(sw, "name", "accelcal", lang)
+    _el(sw, DCC_NS, "release", release)
+    _el(sw, DCC_NS, "type", "application")
+    _text(sw, "description", about, lang)
+
+
+#: Every refType the DCC uses, declared in ``refTypeDefinitions``: refType -> (namespace,
+#: link, what it marks).  ``basic_*`` is PTB's DKD refType vocabulary; ``accelcal_*`` are
+#: accelcal's own, documented in its README ("Certificates").
+REFTYPES: dict[str, tuple[str, str, str]] = {
+    "basic_measuredValue": ("basic", "https://digilab.ptb.de/dkd/refType/vocab/index.php",
+                            "a measured value of the item"),
+}
+ACCELCAL_LINK = "https://github.com/accelcal/accelcal#certificates"
+ACCELCAL_REFTYPES = {
+    "accelcal_adopted": "the value adopted for the certificate (joint fit of every reading)",
+    "accelcal_draft": "this DCC is a DRAFT, not a certificate",
+    "accelcal_incomplete": "the campaign is incomplete: not a calibration",
+    "accelcal_simulated": "computed from simulated files: not a calibration",
+    "accelcal_excluded": "the campaign was excluded from the unit's history",
+    "accelcal_notCurrent": "the result is not the campaign's current result",
+    "accelcal_result": "the accelcal result this DCC reports",
+    "accelcal_inputRun": "an input run (raw file and its sha256)",
+    "accelcal_runTemperature": "the instrument temperature logged during a run",
+    "accelcal_localGravity": "local gravity at a rig, with its stated standard uncertainty",
+    "accelcal_rig": "a rig and its reference standards",
+    "accelcal_referenceStandard": "a reference standard whose own DCC gives a rig input",
+}
+#: Statement refType -> the status word ``accelcal verify`` prints, most severe first.
+STATUS_REFTYPES = {"accelcal_draft": "DRAFT", "accelcal_incomplete": "INCOMPLETE",
+                   "accelcal_excluded": "EXCLUDED", "accelcal_simulated": "SIMULATED",
+                   "accelcal_notCurrent": "NOT CURRENT"}
+
+
+def _reftype_definitions(root, adm, lang: str) -> None:
+    used = sorted({t for e in root.iter() for t in (e.get("refType") or "").split()})
+    if not used:
+        return
+    defs = _el(adm, DCC_NS, "refTypeDefinitions")
+    for t in used:
+        if t in REFTYPES:
+            ns, link, what = REFTYPES[t]
+        elif t.startswith("accelcal_"):
+            ns, link = "accelcal", ACCELCAL_LINK
+            what = ACCELCAL_REFTYPES.get(t) or (
+                f"the test kind {t.removeprefix('accelcal_test_')} (its runs and their evaluation)"
+                if t.startswith("accelcal_test_") else
+                f"the coefficient {t.removeprefix('accelcal_coefficient_')} of the instrument model")
+        else:
+            raise DccError(f"refType {t!r} has no definition")
+        e = _el(defs, DCC_NS, "refTypeDefinition", refType=t)
+        _text(e, "name", t, lang)
+        _text(e, "description", what, lang)
+        _el(e, DCC_NS, "namespace", ns)
+        _el(e, DCC_NS, "link", link)
+
+
+def _real(parent, label: str | None, value: float, unit: str, u: float | None = None,
+          k: float | None = None):
+    """An si:real rounded per GUM 7.2.6; with ``u`` a standard uncertainty, with ``k`` too an
+    expanded one (U = k u), as D-SI 2.2 ``si:measurementUncertaintyUnivariate``."""
+    U = None if u is None else (u * k if k is not None else u)
+    v_txt, U_txt = rounded_pair(value, U)
+    real = _el(parent, SI_NS, "real")
+    if label:
+        _el(real, SI_NS, "label", label)
+    _el(real, SI_NS, "value", v_txt)
+    _el(real, SI_NS, "unit", unit)
+    if U_txt is not None:
+        mu = _el(real, SI_NS, "measurementUncertaintyUnivariate")
+        if k is None:
+            _el(_el(mu, SI_NS, "standardMU"), SI_NS, "valueStandardMU", U_txt)
+        else:
+            e = _el(mu, SI_NS, "expandedMU")
+            _el(e, SI_NS, "valueExpandedMU", U_txt)
+            _el(e, SI_NS, "coverageFactor", _k_text(k))
+            _el(e, SI_NS, "coverageProbability", COVERAGE_PROBABILITY)
+            _el(e, SI_NS, "distribution", "normal" if k == 2 else "t")
+    return real
+
+
+def _quantity(parent, name: str, lang: str, *real_args, refType: str | None = None, **kw):
+    q = _el(parent, DCC_NS, "quantity", refType=refType)
+    _text(q, "name", name, lang)
+    _real(q, *real_args, **kw)
+    return q
+
+
+def _certificate_hash(parent, src, lang: str) -> None:
+    """dcc:certificate of a reference standard: its DCC's identifier, issuer and sha256."""
+    h = _el(parent, DCC_NS, "certificate")
+    _text(h, "referral", f"DCC of {src.issuer}", lang)
+    _el(h, DCC_NS, "referralID", src.unique_identifier)
+    _el(h, DCC_NS, "procedure", "SHA-256 of the DCC file")
+    _el(h, DCC_NS, "value", src.sha256)
+    _el(h, DCC_NS, "traceable", "true")
+
+
+def _equipment_and_conditions(mr, d, cfg, lang: str) -> None:
+    """``measuringEquipments`` (each rig with its reference standards; each standard whose
+    own DCC gives a rig input) and ``influenceConditions`` (each run's temperatures, each
+    rig's local gravity with its stated u, each rig), under the measurement result, so that
+    every quantity has its conditions (PTB's rules)."""
+    from .certificate import rig_input_sources
+    rigs = list(d.get("rig_ids") or [])
+    sources = rig_input_sources(d, cfg)
+    eq = _el(mr, DCC_NS, "measuringEquipments")
+    for rig in rigs:
+        e = _el(eq, DCC_NS, "measuringEquipment", refType="accelcal_rig")
+        _text(e, "name", f"rig {rig}", lang)
+        _text(e, "description", cfg.rig_traceability.get(rig)
+              or _ph(f'[traceability.rigs] "{rig}": its reference standards'), lang)
+        for key, src in sources.get(rig, {}).items():
+            s = _el(eq, DCC_NS, "measuringEquipment", refType="accelcal_referenceStandard")
+            _text(s, "name", f"{src.what} of rig {rig}", lang)
+            _text(s, "description", f"{src.what} from {src.source()}, file sha256 {src.sha256}", lang)
+            _certificate_hash(s, src, lang)
+            ids = _el(_el(s, DCC_NS, "identifications"), DCC_NS, "identification")
+            _el(ids, DCC_NS, "issuer", "calibrationLaboratory")
+            _el(ids, DCC_NS, "value", src.unique_identifier)
+            _text(ids, "name", f"uniqueIdentifier of the DCC issued by {src.issuer}", lang)
+            q = _el(_el(s, DCC_NS, "measuringEquipmentQuantities"), DCC_NS, "measuringEquipmentQuantity")
+            _text(q, "name", src.what, lang)
+            _real(q, src.label or None, src.value, src.unit, src.u)
+
+    ic = _el(mr, DCC_NS, "influenceConditions")
+    for x in d.get("runs") or []:
+        c = _el(ic, DCC_NS, "influenceCondition", refType="accelcal_runTemperature")
+        _text(c, "name", f"instrument temperature during run {x.get('run_id')} ({x.get('test')}, "
+              f"rig {x.get('rig_id')})", lang)
+        data = _el(c, DCC_NS, "data")
+        tc = x.get("temp_c")
+        if not tc:
+            _text(data, "text", "not recorded in the run's data", lang)
+            continue
+        for what, v in (("minimum", tc[0]), ("maximum", tc[2])):
+            q = _el(data, DCC_NS, "quantity")
+            _text(q, "name", what, lang)
+            real = _el(q, SI_NS, "real")     # as logged, to 0.01 °C (the certificate's table)
+            _el(real, SI_NS, "value", f"{float(v):.2f}")
+            _el(real, SI_NS, "unit", r"\degreecelsius")
+    stated = (d.get("parameters") or {}).get("rig_uncertainty") or {}
+    for rig in rigs:
+        g = next((x["g_local"] for x in d.get("runs") or []
+                  if x.get("rig_id") == rig and x.get("g_local") is not None), None)
+        u = (stated.get(rig) or {}).get("g_local")
+        src = sources.get(rig, {}).get("g_local_dcc")
+        c = _el(ic, DCC_NS, "influenceCondition", refType="accelcal_localGravity")
+        _text(c, "name", f"local gravity at rig {rig}", lang)
+        how = ("value from the runs' metadata; standard uncertainty "
+               + (f"from {src.source()}" if src is not None else
+                  "stated by the laboratory" if u is not None else "not stated"))
+        _text(c, "description", how, lang)
+        if src is not None:
+            _certificate_hash(c, src, lang)
+        data = _el(c, DCC_NS, "data")
+        if g is None:
+            _text(data, "text", "not recorded in the run files", lang)
+        else:
+            q = _el(data, DCC_NS, "quantity")
+            _text(q, "name", "g_local", lang)
+            _real(q, "g_local", float(g), r"\metre\second\tothe{-2}", u)
+        c = _el(ic, DCC_NS, "influenceCondition", refType="accelcal_rig")
+        _text(c, "name", f"rig {rig} and its reference standards", lang)
+        other = [f"{k} = {v:g}" for k, v in sorted((stated.get(rig) or {}).items()) if k != "g_local"]
+        _text(_el(c, DCC_NS, "data"), "text", (cfg.rig_traceability.get(rig) or
+              _ph(f'[traceability.rigs] "{rig}"')) + (f"; stated standard uncertainties: "
+                                                       f"{', '.join(other)}" if other else ""), lang)
 
 
 def build_dcc(d: dict[str, Any], cfg, dcfg: DccConfig | None = None,
@@ -315,34 +500,26 @@ def build_dcc(d: dict[str, Any], cfg, dcfg: DccConfig | None = None,
     Returns
     -------
     lxml.etree._Element
-        The ``dcc:digitalCalibrationCertificate`` root.
+        The ``dcc:digitalCalibrationCertificate`` root.  A DRAFT (any fact missing) carries
+        no certificate number (:func:`accelcal.ops.certificate.document_number`) and an
+        ``accelcal_draft`` statement.
     """
     from lxml import etree
 
     from .certificate import COVERAGE_PROBABILITY as _CP_TEXT
-    from .certificate import _adopted, _k, _u_unknown, certificate_number, method_text, missing_rig_inputs
+    from .certificate import _adopted, _k, _u_unknown, document_number, method_text, missing_facts
     dcfg = dcfg or DccConfig()
     lang = dcfg.language
     r = d["result"]
-    number = certificate_number(d["result_id"], cfg.number_prefix)
+    missing = missing_facts(d, cfg, customer, dcfg)
+    number = document_number(d["result_id"], cfg.number_prefix, bool(missing))
     issued = issued or _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d")
-    missing = list(cfg.missing)
-    if not dcfg.country_code:
-        missing.append("[dcc] country_code")
-    if not dcfg.email:
-        missing.append("[dcc] email")
     cust = customer or cfg.customer
-    if not cust:
-        missing.append("[certificate] customer")
-    missing += [what for what, _ in missing_rig_inputs(d)]
 
     root = etree.Element(f"{{{DCC_NS}}}digitalCalibrationCertificate", nsmap=NSMAP)
     root.set("schemaVersion", SCHEMA_VERSION)
     adm = _el(root, DCC_NS, "administrativeData")
-    sw = _el(_el(adm, DCC_NS, "dccSoftware"), DCC_NS, "software")
-    _text(sw, "name", "accelcal", lang)
-    _el(sw, DCC_NS, "release", _software_version(d))
-    _el(sw, DCC_NS, "type", "application")
+    _software(_el(adm, DCC_NS, "dccSoftware"), d, lang)
 
     core = _el(adm, DCC_NS, "coreData")
     _el(core, DCC_NS, "countryCodeISO3166_1", dcfg.country_code or "ZZ")
@@ -362,6 +539,7 @@ def build_dcc(d: dict[str, Any], cfg, dcfg: DccConfig | None = None,
     _el(core, DCC_NS, "beginPerformanceDate", first.isoformat())
     _el(core, DCC_NS, "endPerformanceDate", last.isoformat())
     _el(core, DCC_NS, "performanceLocation", "laboratory")
+    _el(core, DCC_NS, "issueDate", issued)
 
     items = _el(adm, DCC_NS, "items")
     item = _el(items, DCC_NS, "item")
@@ -370,18 +548,19 @@ def build_dcc(d: dict[str, Any], cfg, dcfg: DccConfig | None = None,
           f"in campaign {d['campaign']}", lang)
     man = _el(item, DCC_NS, "manufacturer")
     _text(man, "name", "not recorded in the data drop", lang)
-    _el(item, DCC_NS, "model", str(r.get("unit_model") or ""))
+    if r.get("unit_model"):
+        _el(item, DCC_NS, "model", str(r["unit_model"]))
     iids = _el(item, DCC_NS, "identifications")
     i = _el(iids, DCC_NS, "identification")
     _el(i, DCC_NS, "issuer", "manufacturer")
-    _el(i, DCC_NS, "value", str(r.get("unit_serial") or ""))
+    _el(i, DCC_NS, "value", str(r.get("unit_serial") or "not recorded"))
     _text(i, "name", "serial number", lang)
 
     lab = _el(adm, DCC_NS, "calibrationLaboratory")
     if cfg.accreditation:
         _el(lab, DCC_NS, "calibrationLaboratoryCode", cfg.accreditation)
     where = ", ".join(x for x in (cfg.address, cfg.location and f"calibrations at {cfg.location}") if x)
-    _contact(lab, "contact", cfg.name or _ph("[lab] name"), dcfg.email or _ph("[dcc] email"),
+    _contact(lab, "contact", cfg.name or _ph("[lab] name"), dcfg.email,
              where or _ph("[lab] address"), dcfg.country_code, lang)
 
     rp = _el(_el(adm, DCC_NS, "respPersons"), DCC_NS, "respPerson")
@@ -391,35 +570,37 @@ def build_dcc(d: dict[str, Any], cfg, dcfg: DccConfig | None = None,
         _el(rp, DCC_NS, "role", cfg.approver_role)
     _el(rp, DCC_NS, "mainSigner", "true")
 
-    _contact(adm, "customer", cust or _ph("[certificate] customer (or --customer)"), "",
+    _contact(adm, "customer", cust or _ph("[certificate] customer (or --customer)"), None,
              cust or None, None, lang)
 
     st = _el(adm, DCC_NS, "statements")
-    statements = ["The results relate only to the item calibrated.",
-                  f"The expanded uncertainty U is the combined standard uncertainty multiplied by "
-                  f"the coverage factor k given with each value (k = 2 unless the uncertainty rests "
-                  f"on few degrees of freedom), for a coverage probability of {_CP_TEXT}. Values and "
-                  f"U are rounded per GUM 7.2.6 (U to two significant digits, the value to the same "
-                  f"decimal place).",
-                  cfg.traceability or _ph("[traceability] statement"),
-                  f"Date of issue: {issued}."]
+    statements = [(None, "The results relate only to the item calibrated."),
+                  (None, f"The expanded uncertainty U is the combined standard uncertainty "
+                         f"multiplied by the coverage factor k given with each value (k = 2 unless "
+                         f"the uncertainty rests on few degrees of freedom), for a coverage "
+                         f"probability of {_CP_TEXT}. Values and U are rounded per GUM 7.2.6 (U to "
+                         f"two significant digits, the value to the same decimal place)."),
+                  (None, cfg.traceability or _ph("[traceability] statement")),
+                  (None, f"Date of issue: {issued}.")]
     if r.get("simulated"):
-        statements.insert(0, "SIMULATED DATA - NOT A CALIBRATION: computed from files made by "
-                             "accelcal simulate.")
+        statements.insert(0, ("accelcal_simulated", "SIMULATED DATA - NOT A CALIBRATION: computed "
+                              "from files made by accelcal simulate."))
     if r.get("completeness") == "incomplete":
-        statements.insert(0, "INCOMPLETE CAMPAIGN - not a calibration: "
-                          + "; ".join(d.get("completeness_reasons") or []))
+        statements.insert(0, ("accelcal_incomplete", "INCOMPLETE CAMPAIGN - not a calibration: "
+                              + "; ".join(d.get("completeness_reasons") or [])))
     if not d["is_current"]:
-        statements.insert(0, "This result is not the campaign's current result (superseded or "
-                             "never made current).")
+        statements.insert(0, ("accelcal_notCurrent", "This result is not the campaign's current "
+                              "result (superseded or never made current)."))
     if d.get("excluded"):
         x = d["excluded"]
-        statements.insert(0, f"EXCLUDED by {x.get('acted_by')} on {x.get('acted_at')}: {x.get('why')}")
+        statements.insert(0, ("accelcal_excluded", f"EXCLUDED by {x.get('acted_by')} on "
+                              f"{x.get('acted_at')}: {x.get('why')}"))
     if missing:
-        statements.insert(0, "DRAFT - not valid as a certificate: "
-                          + ", ".join(dict.fromkeys(missing)) + " not configured (accelcal.toml).")
-    for s in statements:
-        _text(_el(st, DCC_NS, "statement"), "declaration", s, lang)
+        statements.insert(0, ("accelcal_draft", "DRAFT - not valid as a certificate, carries no "
+                              "certificate number and is not signed: " + ", ".join(missing)
+                              + " not configured (accelcal.toml)."))
+    for ref, s in statements:
+        _text(_el(st, DCC_NS, "statement", refType=ref), "declaration", s, lang)
 
     # ---- measurement results
     mrs = _el(root, DCC_NS, "measurementResults")
@@ -435,10 +616,8 @@ def build_dcc(d: dict[str, Any], cfg, dcfg: DccConfig | None = None,
     adopted_methods = sorted({c.get("method") for c in _adopted(d) if c.get("method")})
     m = _el(methods, DCC_NS, "usedMethod", refType="accelcal_adopted")
     _text(m, "name", "adopted values from: " + (", ".join(adopted_methods) or "none"), lang)
-    s = _el(_el(mr, DCC_NS, "usedSoftware"), DCC_NS, "software")
-    _text(s, "name", "accelcal", lang)
-    _el(s, DCC_NS, "release", _software_version(d))
-    _el(s, DCC_NS, "type", "application")
+    _software(_el(mr, DCC_NS, "usedSoftware"), d, lang)
+    _equipment_and_conditions(mr, d, cfg, lang)
 
     results = _el(mr, DCC_NS, "results")
     n = 0
@@ -448,8 +627,7 @@ def build_dcc(d: dict[str, Any], cfg, dcfg: DccConfig | None = None,
         unit, f = dsi_unit(c["name"], c.get("unit"))
         check_dsi_unit(unit)
         k = _k(c)
-        U = None if _u_unknown(c) else k * float(c["std_uncertainty"]) / f
-        v_txt, U_txt = rounded_pair(float(c["value"]) / f, U)
+        u = None if _u_unknown(c) else float(c["std_uncertainty"]) / f
         res = _el(results, DCC_NS, "result", refType=f"accelcal_coefficient_{c['name']}")
         _text(res, "name", c["name"] + (f" ({c['rig_id']})" if c.get("rig_id") else ""), lang)
         about = [f"method {c.get('method') or '—'}"]
@@ -457,23 +635,14 @@ def build_dcc(d: dict[str, Any], cfg, dcfg: DccConfig | None = None,
             about.append(f"rig {c['rig_id']}")
         if c.get("dof") is not None and math.isfinite(float(c["dof"])):
             about.append(f"degrees of freedom {float(c['dof']):.0f}")
-        if U_txt is None:
+        if u is None or not math.isfinite(u) or u <= 0:
             about.append("uncertainty not assessable (the runs leave no degrees of freedom to "
                          "test the model)")
         if c.get("note"):
             about.append(str(c["note"]))
         _text(res, "description", "; ".join(about), lang)
-        q = _el(_el(res, DCC_NS, "data"), DCC_NS, "quantity", refType="accelcal_adopted")
-        real = _el(q, SI_NS, "real")
-        _el(real, SI_NS, "label", c["name"])
-        _el(real, SI_NS, "value", v_txt)
-        _el(real, SI_NS, "unit", unit)
-        if U_txt is not None:
-            eu = _el(real, SI_NS, "expandedUnc")
-            _el(eu, SI_NS, "uncertainty", U_txt)
-            _el(eu, SI_NS, "coverageFactor", _k_text(k))
-            _el(eu, SI_NS, "coverageProbability", COVERAGE_PROBABILITY)
-            _el(eu, SI_NS, "distribution", "normal" if k == 2 else "t")
+        q = _el(_el(res, DCC_NS, "data"), DCC_NS, "quantity", refType="basic_measuredValue accelcal_adopted")
+        _real(q, c["name"], float(c["value"]) / f, unit, u, k)
         n += 1
     if n == 0:
         res = _el(results, DCC_NS, "result")
@@ -496,10 +665,12 @@ def build_dcc(d: dict[str, Any], cfg, dcfg: DccConfig | None = None,
     if document is not None:
         fname, mime, data = document
         doc = _el(root, DCC_NS, "document")
-        _text(doc, "name", f"Calibration certificate {number} (human-readable)", lang)
+        _text(doc, "name", ("DRAFT calibration certificate" if missing else
+                            f"Calibration certificate {number}") + " (human-readable)", lang)
         _el(doc, DCC_NS, "fileName", fname)
         _el(doc, DCC_NS, "mimeType", mime)
         _el(doc, DCC_NS, "dataBase64", base64.b64encode(data).decode("ascii"))
+    _reftype_definitions(root, adm, lang)
     return root
 
 
@@ -508,12 +679,64 @@ def _k_text(k: float) -> str:
     return format(k, ".3g") if k >= 1 else "1"
 
 
+# ------------------------------------------------------------ PTB's rules --
+
+@dataclass
+class SchematronReport:
+    """What PTB's Schematron rules (dcclib) say of a DCC: the failed errors and warnings."""
+    errors: list[str]
+    warnings: list[str]
+
+    def summary(self) -> str:
+        first = (self.errors or self.warnings or [""])[0]
+        return (f"{len(self.errors)} errors, {len(self.warnings)} warnings"
+                + (f"; first: {' '.join(first.split())}" if first else ""))
+
+
+@lru_cache(maxsize=1)
+def _schematron():
+    from dcclib.validation.schematron import SchematronValidator
+    return SchematronValidator.for_dcc()
+
+
+def schematron_report(root) -> SchematronReport:
+    """PTB's DCC rules beyond the schema, run from PTB's own ``dcclib`` (its compiled
+    Schematron, no network).  The rules are meant for the DCC's content: the XML-DSig
+    signature (W3C's elements, which are empty by design, e.g. ``ds:DigestMethod``) is
+    checked by :func:`verify_dcc` instead and left out here."""
+    import copy
+    root = copy.deepcopy(root)
+    for sig in root.findall(f"{{{DS_NS}}}Signature"):
+        root.remove(sig)
+    res = _schematron().validate_tree(root)
+    found = list(res.failed_assertions) + list(res.successful_reports)
+    pick = lambda role: [f"{r.text} (at {r.location})" for r in found if r.role == role]
+    return SchematronReport(pick("error") + pick("fatal"), pick("warning"))
+
+
+def statuses(root) -> list[str]:
+    """The status words of a DCC written by accelcal (DRAFT, INCOMPLETE, EXCLUDED,
+    SIMULATED, NOT CURRENT), from its statements' refTypes; empty for a final one."""
+    found = {t for st in root.iter(f"{{{DCC_NS}}}statement") for t in (st.get("refType") or "").split()}
+    return [word for ref, word in STATUS_REFTYPES.items() if ref in found]
+
+
+def is_draft(root) -> bool:
+    return "DRAFT" in statuses(root)
+
+
+def draft_reason(root) -> str:
+    st = root.find(f".//{{{DCC_NS}}}statement[@refType='accelcal_draft']")
+    text = "".join(st.itertext()) if st is not None else ""
+    return " ".join(text.split()).split(": ", 1)[-1].rstrip(".")
+
+
 # ----------------------------------------------------------------- signing --
 
 def sign_dcc(root, key_pem: bytes, cert_pem: bytes, password: bytes | None = None,
              fmt: str = "xades"):
-    """Sign a DCC with an enveloped signature (SHA-256; RSA or ECDSA by the key), the
-    ``ds:Signature`` placed in ``dcc:comment`` (before ``dcc:document``): XAdES-BES
+    """Sign a final DCC with an enveloped signature (SHA-256; RSA or ECDSA by the key), the
+    ``ds:Signature`` the root's last child (DCC 3.3.0): XAdES-BES
     (``fmt="xades"``: the signing time and the signing certificate's digest are signed
     too) or plain XML-DSig (``fmt="xmldsig"``).
 
@@ -543,13 +766,10 @@ def sign_dcc(root, key_pem: bytes, cert_pem: bytes, password: bytes | None = Non
     algo = SignatureMethod.ECDSA_SHA256 if isinstance(key, ec.EllipticCurvePrivateKey) else SignatureMethod.RSA_SHA256
     for sig in root.findall(f".//{{{DS_NS}}}Signature"):
         sig.getparent().remove(sig)
-    comment = root.find(f"{{{DCC_NS}}}comment")
-    if comment is None:
-        from lxml import etree
-        comment = etree.Element(f"{{{DCC_NS}}}comment")
-        doc = root.find(f"{{{DCC_NS}}}document")
-        (doc.addprevious(comment) if doc is not None else root.append(comment))
-    _el(comment, DS_NS, "Signature", Id="placeholder")
+    if is_draft(root):
+        raise DccError("a DRAFT is never signed: state what its DRAFT statement names in "
+                       "accelcal.toml and report again")
+    _el(root, DS_NS, "Signature", Id="placeholder")     # DCC 3.3.0: the root's last child
     rp = root.find(f"{{{DCC_NS}}}administrativeData/{{{DCC_NS}}}respPersons/{{{DCC_NS}}}respPerson")
     if rp is not None and rp.find(f"{{{DCC_NS}}}cryptElectronicSignature") is None:
         _el(rp, DCC_NS, "cryptElectronicSignature", "true")
@@ -584,16 +804,22 @@ def dcc_path(html_path: Path) -> Path:
 
 
 def write_dcc(d: dict[str, Any], cfg, html_path: Path, pdf: bool = False,
-              customer: str | None = None, issued: str | None = None) -> Path:
-    """Build, sign (with ``[dcc] key_file``/``cert_file``), validate and write the DCC of a
-    certificate beside its HTML; the PDF (``pdf``: printed beside the HTML just now) or
-    else the HTML is embedded.
+              customer: str | None = None, issued: str | None = None,
+              sign: bool | None = None) -> Path:
+    """Build, sign, validate and write the DCC of a certificate beside its HTML; the PDF
+    (``pdf``: printed beside the HTML just now) or else the HTML is embedded.
+
+    ``sign``: None signs a final DCC when ``[dcc] key_file``/``cert_file`` are set and
+    leaves a DRAFT unsigned; True (``--sign``) requires the signature and refuses a DRAFT.
+    The XSD and PTB's Schematron (:func:`schematron_report`) must pass, or nothing is
+    written.
 
     Raises
     ------
     DccError
-        One line: the DCC is invalid against the shipped schema (nothing is written), a
-        unit is not D-SI, the key cannot be read, or the file cannot be written.
+        One line: the DCC is invalid against the shipped schema or PTB's rules (nothing is
+        written), a unit is not D-SI, a DRAFT is to be signed, the key cannot be read, or
+        the file cannot be written.
     """
     from ..fileio import atomic_write
     dcfg = dcc_config(cfg.path)
@@ -604,14 +830,23 @@ def write_dcc(d: dict[str, Any], cfg, html_path: Path, pdf: bool = False,
     else:
         document = (html_path.name, "text/html", html_path.read_bytes())
     root = build_dcc(d, cfg, dcfg, document=document, customer=customer, issued=issued)
-    if dcfg.key_file is not None or dcfg.cert_file is not None:
+    if sign and is_draft(root):
+        raise DccError("--sign refused: the DCC is a DRAFT (" + draft_reason(root) + ")")
+    keyed = dcfg.key_file is not None or dcfg.cert_file is not None
+    if sign and not keyed:
+        raise DccError("--sign needs [dcc] key_file and cert_file in accelcal.toml")
+    if keyed and not is_draft(root) and sign is not False:
         pw = os.environ.get(dcfg.key_password_env) if dcfg.key_password_env else None
         root = sign_dcc(root, _read(dcfg.key_file, "[dcc] key_file"),
                         _read(dcfg.cert_file, "[dcc] cert_file"),
                         None if pw is None else pw.encode("utf-8"), dcfg.signature)
     data = serialize(root)
     try:
-        validate(_parse(data))
+        parsed = _parse(data)
+        validate(parsed)
+        rep = schematron_report(parsed)
+        if (rep.errors or rep.warnings) and not is_draft(parsed):
+            raise DccError(f"PTB's rules (dcclib Schematron): {rep.summary()}")
     except DccError as e:
         raise DccError(f"DCC not written: {e}") from None
     out = dcc_path(html_path)
@@ -631,11 +866,14 @@ def serialize(root) -> bytes:
 
 @dataclass
 class Verified:
-    """What :func:`verify_dcc` found: the schema version, and the signer if signed."""
+    """What :func:`verify_dcc` found: the schema version, PTB's rules' findings, the
+    certificate's status words (empty: final) and the signer if signed."""
     schema_version: str
     signed: bool
     signer: str | None = None
     signature_format: str | None = None
+    rules: SchematronReport | None = None
+    status: list[str] | None = None
 
 
 def verify_dcc(path: str | Path, cert_pem: bytes | None = None) -> Verified:
@@ -656,9 +894,12 @@ def verify_dcc(path: str | Path, cert_pem: bytes | None = None) -> Verified:
         raise DccError(f"cannot read {path}: {e.strerror}") from None
     root = _parse(data)
     version = validate(root)
+    rules, status = schematron_report(root), statuses(root)
     sigs = root.findall(f".//{{{DS_NS}}}Signature")
     if not sigs:
-        return Verified(version, False)
+        return Verified(version, False, rules=rules, status=status)
+    if "DRAFT" in status:
+        raise DccError("a DRAFT carries a signature: a draft is never signed")
     if len(sigs) > 1:
         raise DccError(f"{len(sigs)} signatures; accelcal checks a DCC with one")
     if cert_pem is None:
@@ -681,4 +922,4 @@ def verify_dcc(path: str | Path, cert_pem: bytes | None = None) -> Verified:
         raise DccError("the signature does not cover the whole DCC")
     from cryptography import x509
     subject = x509.load_pem_x509_certificate(cert_pem).subject.rfc4514_string()
-    return Verified(version, True, subject, "XAdES-BES" if xades else "XML-DSig")
+    return Verified(version, True, subject, "XAdES-BES" if xades else "XML-DSig", rules, status)

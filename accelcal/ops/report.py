@@ -49,7 +49,8 @@ import tempfile
 from pathlib import Path
 from typing import Any
 
-from .certificate import ReportError, _read, certificate_number, load_report_data
+from .certificate import (ReportError, _read, document_number, load_report_data, missing_facts,
+                          rig_input_sources)
 from .report_display import PLACEHOLDER_CLASS, _e, _ph
 from .report_sections import (_CSS, _Doc, _annex_lineage, _annex_other, _grouped, _lineage_close, _page_css,
                               _sec_adequacy, _sec_alignment, _sec_budgets, _sec_certificate, _sec_dates,
@@ -58,12 +59,18 @@ from .report_sections import (_CSS, _Doc, _annex_lineage, _annex_other, _grouped
 
 
 def render_html(d: dict[str, Any], plots: bool = True, config=None,
-                customer: str | None = None, issued: str | None = None) -> str:
+                customer: str | None = None, issued: str | None = None,
+                draft: list[str] | None = None) -> str:
+    """The certificate page.  A DRAFT (any fact of :func:`.certificate.missing_facts`
+    missing, or ``draft`` naming more) says DRAFT in every page's header and footer and
+    carries no certificate number (:func:`.certificate.document_number`)."""
     from ..config import LabConfig
     cfg = config or LabConfig()
     r = d["result"]
     camp = d["campaign"]
-    number = certificate_number(d["result_id"], cfg.number_prefix)
+    missing = list(dict.fromkeys(missing_facts(d, cfg, customer) + list(draft or [])))
+    d = {**d, "rig_sources": rig_input_sources(d, cfg)}
+    number = document_number(d["result_id"], cfg.number_prefix, bool(missing))
     issued = issued or _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d")
     tests = set(d.get("tests") or [])
     doc = _Doc()
@@ -109,23 +116,30 @@ def render_html(d: dict[str, Any], plots: bool = True, config=None,
     # traceability, the customer, ...), not only the [lab] keys config.missing knows
     placeholders = [html.unescape(x) for x in
                     re.findall(rf"<span class='{PLACEHOLDER_CLASS}'>\[(.*?)\]</span>", body)]
-    missing = list(cfg.missing) + [x.split(":", 1)[0] for x in placeholders
-                                   if x.split(":", 1)[0] not in " ".join(cfg.missing)]
+    more = [x.split(":", 1)[0] for x in placeholders
+            if x.split(":", 1)[0] not in " ".join(missing)]
+    if more and not missing:    # a placeholder the facts above do not name: DRAFT all the same
+        return render_html(d, plots, cfg, customer, issued, more)
+    missing += more
     if missing:
         banners.append("<div class='draft'>DRAFT — not valid as a certificate: "
                        + _e(", ".join(dict.fromkeys(missing))) + " not configured "
-                       "(accelcal.toml); the marked placeholders show where.</div>")
-    page = _page_css(cfg.name or "[laboratory not configured]", number)
+                       "(accelcal.toml); the marked placeholders show where. A draft carries no "
+                       "certificate number and is never signed.</div>")
+    page = _page_css(cfg.name or "[laboratory not configured]", number, bool(missing))
     head = (f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
-            f"<title>Calibration certificate {_e(number)} — {_e(camp)}</title>"
+            f"<title>{'DRAFT c' if missing else 'C'}alibration certificate {_e(number)} — {_e(camp)}</title>"
             f"<style>{page}{_CSS}</style></head><body>")
-    title = (f"<h1>Calibration Certificate</h1><div class='certno'>No. {_e(number)}</div>"
-             f"<div class='sub'>{_e(r.get('unit_model'))} serial {_e(r.get('unit_serial'))} · "
+    title = (f"<h1>{'DRAFT — ' if missing else ''}Calibration Certificate</h1>"
+             + (f"<div class='certno'>DRAFT (no certificate number; reference {_e(number)})</div>"
+                if missing else f"<div class='certno'>No. {_e(number)}</div>")
+             + f"<div class='sub'>{_e(r.get('unit_model'))} serial {_e(r.get('unit_serial'))} · "
              f"campaign {_e(camp)} · result <span class='mono'>{_e(_grouped(d['result_id']))}</span></div>")
     sign = ("<div class='keep'>" + _lineage_close(d) + "<div class='sign'>"
             + (_e(cfg.approver) if cfg.approver else _ph("approver not configured")) + "</div>"
             "<p class='note'>Signature of the person authorising this certificate.</p>")
-    foot = (f"<footer>Certificate No. {_e(number)} · issued {_e(issued)} by accelcal "
+    foot = (f"<footer>{'DRAFT, not a certificate: ' + _e(number) if missing else 'Certificate No. ' + _e(number)}"
+            f" · issued {_e(issued)} by accelcal "
             f"{_e(r.get('code_version'))} from the warehouse; self-contained (no external "
             f"resources). End of certificate.</footer></div></body></html>")
     return head + title + "".join(banners) + body + sign + foot
@@ -184,7 +198,7 @@ def render_pdf(html_path: Path, pdf_path: Path, timeout: float = 180.0) -> Path:
 def build_report(warehouse: str | Path, campaign: str | None, out_dir: str | Path,
                  result_id: str | None = None, lock_timeout: float = 60.0,
                  config: str | Path | None = None, pdf: bool = False,
-                 customer: str | None = None, dcc: bool = False) -> Path:
+                 customer: str | None = None, dcc: bool = False, sign: bool | None = None) -> Path:
     """Write the certificate of a campaign's current result (or of ``result_id``, a unique
     prefix); returns the HTML path (the PDF, with ``pdf``, and the DCC XML, with ``dcc``
     (:func:`accelcal.ops.dcc.write_dcc`), are beside it)."""
@@ -213,9 +227,11 @@ def build_report(warehouse: str | Path, campaign: str | None, out_dir: str | Pat
         raise ReportError(f"cannot write report to {out}: {e.strerror}") from None
     if pdf:
         render_pdf(path, path.with_suffix(".pdf"))
+    if sign and not dcc:
+        raise ReportError("--sign signs the DCC: give --dcc too")
     if dcc:
         from .dcc import write_dcc
-        write_dcc(d, cfg, path, pdf=pdf, customer=customer)
+        write_dcc(d, cfg, path, pdf=pdf, customer=customer, sign=sign)
     return path
 
 

@@ -30,13 +30,18 @@ def _css_string(s: str) -> str:
     return '"' + re.sub(r"[\x00-\x1f]", " ", out) + '"'
 
 
-def _page_css(lab: str, number: str) -> str:
-    """Every printed page carries the lab, the certificate number and 'Page x of y'."""
+def _page_css(lab: str, number: str, draft: bool = False) -> str:
+    """Every printed page carries the lab, the certificate number and 'Page x of y'; a
+    DRAFT's pages say DRAFT in the header and the footer instead of a number."""
+    right = f"DRAFT — not a certificate ({number})" if draft else f"Certificate No. {number}"
+    style = "font-size:8pt;color:#444" if not draft else "font-size:10pt;font-weight:700;color:#a61b1b"
+    foot = ('@bottom-left{content:"DRAFT — not valid as a certificate";' + style + "}"
+            if draft else "")
     return ("@page{size:A4;margin:20mm 14mm 18mm 14mm;"
             f"@top-left{{content:{_css_string(lab)};font-size:8pt;color:#444}}"
-            f"@top-right{{content:{_css_string('Certificate No. ' + number)};font-size:8pt;color:#444}}"
+            f"@top-right{{content:{_css_string(right)};{style}}}"
             "@bottom-center{content:\"Page \" counter(page) \" of \" counter(pages);"
-            "font-size:8pt;color:#444}}")
+            f"font-size:8pt;color:#444}}{foot}}}")
 
 
 _CSS = """
@@ -97,7 +102,8 @@ def _sec_certificate(d, cfg, number, issued, customer) -> str:
     cust = customer or cfg.customer
     appr = (_e(cfg.approver) + (f", {_e(cfg.approver_role)}" if cfg.approver_role else "")
             if cfg.approver else _ph("approver: set [certificate] approver in accelcal.toml"))
-    pairs = [("Certificate number", f"<b>{_e(number)}</b>"),
+    pairs = [("Certificate number", f"none: DRAFT (reference {_e(number)})" if number.startswith("DRAFT-")
+              else f"<b>{_e(number)}</b>"),
              ("Date of issue", _e(issued)),
              ("Laboratory", lab), ("Address", addr),
              ("Location of the calibration", f"{loc} (rigs {_e(rigs)})")]
@@ -220,6 +226,14 @@ def _sec_traceability(d, cfg) -> str:
         t = cfg.rig_traceability.get(rig)
         rows.append(f"<tr><th>{_e(rig)}</th><td>{_e(t) if t else _ph('reference standards of this rig: set [traceability.rigs] in accelcal.toml')}</td></tr>")
     parts.append("<table class='kv'>" + "".join(rows) + "</table>")
+    srcs = [(rig, src) for rig, t in (d.get("rig_sources") or {}).items() for src in t.values()]
+    if srcs:
+        from ..rounding import round_gum_sci
+        parts.append(_table(["rig", "reference standard", "from DCC", "issued by", "value",
+                             "u", "file sha256"],
+                            [[(rig, "nw"), src.what, (src.unique_identifier, "nw"), src.issuer,
+                              *[(f"{t} {src.unit}", "num") for t in round_gum_sci(src.value, src.u)],
+                              (src.sha256[:16] + "…", "mono")] for rig, src in srcs]))
     parts.append(f"<p class='note'>Local gravity used by the calculation: g = {_e(g)} (run "
                  "metadata). The results trace to the bytes of every input run (sha256, Annex B) "
                  "and to the code version that computed them.</p>")
@@ -302,6 +316,37 @@ def _sec_radius(d, plots) -> str:
     return out
 
 
+def _input_unit(b, coefficient_unit: str) -> str:
+    """The SI unit of a budget line's input value: a rig input's own unit; the coefficient's
+    unit when the line's sensitivity is one (the input is the coefficient as fitted)."""
+    from ..effects import RIG_INPUTS
+    q = b.get("quantity") or ""
+    for r in RIG_INPUTS.values():
+        if q.startswith(r.what):
+            return r.unit.replace("m/s2", "m/s²").replace("degC", "°C")
+    m = re.search(r"±\s*[0-9.eE+-]+\s*([^\s:;,)]+)", q)     # "uniform ±0.000291 rad: ..."
+    if m:
+        return m.group(1)
+    sens = b.get("sensitivity")
+    if sens is not None and abs(abs(sens) - 1.0) < 1e-12:
+        return coefficient_unit.replace("m/s2", "m/s²").replace("s2/m", "s²/m").replace("s4/m2", "s⁴/m²")
+    return ""
+
+
+def _budget_quantity(d, c, b) -> str:
+    """A budget line's name; a rig input read from a standard's DCC names that DCC's
+    uniqueIdentifier and issuer."""
+    from ..effects import RIG_INPUTS
+    q = b.get("quantity") or ""
+    if not q.startswith(RIG_INPUTS["g_local"].what):
+        return q
+    for rig, srcs in (d.get("rig_sources") or {}).items():
+        src = srcs.get("g_local_dcc")
+        if src is not None and (f"of {rig}" in q or c.get("rig_id") == rig):
+            return f"{q}; u from {src.source()}"
+    return q
+
+
 def _sec_budgets(d) -> str:
     from ..rounding import format_sig_sci, round_gum_sci
     budget = d["budget"]
@@ -323,8 +368,10 @@ def _sec_budgets(d) -> str:
                 continue
             v_text, u_text = round_gum_sci(b.get("value"), bu)
             sens = b.get("sensitivity")
+            iu = _input_unit(b, unit)
+            v_text, u_text = (f"{v_text} {iu}", f"{u_text} {iu}") if iu else (v_text, u_text)
             body.append("<tr>" + "".join(f"<td{cls}>{_e(v)}</td>" for cls, v in (
-                ("", b.get("quantity")), (" class='num'", v_text), (" class='num'", u_text),
+                ("", _budget_quantity(d, c, b)), (" class='num'", v_text), (" class='num'", u_text),
                 (" class='num'", "—" if sens is None else format_sig_sci(sens / f, 3)),
                 (" class='num'", "—" if contrib is None else format_sig_sci(contrib / f)),
                 ("", b.get("type")), ("", b.get("distribution")))) + "</tr>")
@@ -424,7 +471,8 @@ def _sec_adequacy(d, plots) -> str:
                          (f"{_fmt(a.get('dof_lack_of_fit'))}/{_fmt(a.get('dof_pure_error'))}", "num"),
                          (_fmt(a.get("trend_p"), ".3g"), "num"), (_fmt(a.get("sweep_p"), ".3g"), "num"),
                          (_fmt(a.get("runs_p"), ".3g"), "num"),
-                         ("adequate" if ok else "NOT adequate", "ok" if ok else "bad"),
+                         (("not testable (no degrees of freedom)", "") if not ok and (not a.get("dof_lack_of_fit") or a.get("f_statistic") is None)
+                          else ("adequate", "ok") if ok else ("NOT adequate", "bad")),
                          ("✔" if ok else "used: no order tested is adequate") if a.get("chosen") else ""])
         out.append("<h3>Regressions: lack-of-fit F test and residual checks</h3>")
         out.append(_table(["rig", "fit", "order", "g max", "F", "p (lack of fit)", "dof lof/pe",
@@ -449,24 +497,24 @@ def _sec_adequacy(d, plots) -> str:
 
 
 def _sec_alignment(d) -> str:
+    from ..rounding import round_gum_sci
     lam = [a for a in d["alignment"] if a.get("kind") == "lambda_c"]
     mounts = [a for a in d["alignment"] if a.get("kind") == "mount"]
     other = [a for a in d["alignment"] if a.get("kind") not in ("lambda_c", "mount")]
     out = []
     if lam:
-        rows = [[a.get("rig_id"), (_fmt(_mul(a.get("lambda_c+"), 1e6), ".2f"), "num"),
-                 (_fmt(_mul(a.get("u_lambda_c+"), 2e6), ".2g"), "num"),
-                 (_fmt(_mul(a.get("lambda_c-"), 1e6), ".2f"), "num"),
-                 (_fmt(_mul(a.get("u_lambda_c-"), 2e6), ".2g"), "num")] for a in lam]
+        rows = [[a.get("rig_id"), *[(t, "num") for sign in "+-" for t in round_gum_sci(
+                    _mul(a.get(f"lambda_c{sign}"), 1e6), _mul(a.get(f"u_lambda_c{sign}"), 2e6))]]
+                for a in lam]
         out.append(_table(["rig", "λc+ / µrad", "U / µrad", "λc− / µrad", "U / µrad"], rows))
     if mounts:
         rows = [[a.get("rig_id"), a.get("pair"), (_fmt(a.get("phi0_deg"), ".0f"), "num"),
                  (_fmt(_mul(a.get("dphi1"), 1e3), ".3f"), "num"),
                  (_fmt(_mul(a.get("dphi2"), 1e3), ".3f"), "num"),
                  (_fmt(_mul(a.get("r"), 1e3), ".3f"), "num"),
-                 (_ug_g2(a.get("c2")), "num"), (_ug_g2(a.get("dc2_1")), "num"),
-                 (_ug_g2(a.get("dc2_2")), "num"),
-                 (_ug_g2(None if a.get("u_dc2_typeB") is None else 2 * a["u_dc2_typeB"]), "num")]
+                 (_ug_g2(a.get("c2")), "num"),
+                 *[(t, "num") for t in _ug_g2_pair(a.get("dc2_1"), a.get("u_dc2_typeB"))[:1]],
+                 *[(t, "num") for t in _ug_g2_pair(a.get("dc2_2"), a.get("u_dc2_typeB"))]]
                 for a in mounts]
         out.append(_table(["rig", "mount pair", "φ0 / °", "Δφ1 / mrad", "Δφ2 / mrad",
                            "mass-centre offset r / mm", "c2 / µg/g²", "Δc2(1) / µg/g²",
@@ -506,6 +554,16 @@ def _joint_geometry(a: dict) -> str:
 
 def _mul(x, f):
     return None if x is None else x * f
+
+
+def _ug_g2_pair(x, u) -> tuple[str, str]:
+    """(value, U = 2u) in µg/g², the value to U's last digit (GUM 7.2.6)."""
+    from ..effects import COEFFICIENTS
+    from ..rounding import round_gum_sci
+    f = COEFFICIENTS["K2"].display_factor
+    if u is None:
+        return _ug_g2(x), "—"
+    return round_gum_sci(None if x is None else x / f, 2 * u / f)
 
 
 def _ug_g2(x) -> str:
