@@ -129,3 +129,30 @@ def test_config_states_rig_inputs_and_refuses_a_bad_one_in_one_line(tmp_path):
             rig_uncertainties(p)
         msg = str(e.value)
         assert "\n" not in msg and '[rigs."DH-1"] g_local_u_m_s2 must be a positive number' in msg
+
+
+def test_paper_methods_carry_the_stated_local_gravity_line(tmp_path, examples):
+    """Every paper method's budget has the stated g line.  For the tumble (paper 003) the
+    gravity field is the only acceleration reference, so a coefficient in (m/s²)^p scales as
+    g^p: dK1/dg = -K1/g and dK0/dg = +K0/g, derived here, against the method's own
+    derivative (it runs again with g moved)."""
+    import duckdb
+
+    from accelcal.flows.pipeline import run_pipeline
+    run_pipeline([str(examples / "drop-2026-11-20")], tmp_path / "lab.duckdb", engine="local",
+                 parameters={"rig_uncertainty": {"DH-1": {"g_local": 1e-5}, "LXJ-100": {"g_local": 1e-5}}})
+    con = duckdb.connect(str(tmp_path / "lab.duckdb"), read_only=True)
+    coef = {(m, n): (v, u) for m, n, v, u in con.execute(
+        "SELECT method, name, value, std_uncertainty FROM coefficient_history").fetchall()}
+    lines = {(m, c): (g, u, s) for m, c, g, u, s in con.execute(
+        "SELECT method, coefficient, value, std_uncertainty, sensitivity FROM budget_history "
+        "WHERE starts_with(quantity, 'local gravity g_local')").fetchall()}
+    for (m, n) in coef:
+        if m in ("tumble_lm", "centrifuge_eq9"):
+            assert (m, n) in lines, (m, n)
+    g, u, s = lines[("tumble_lm", "K1")]
+    assert u == 1e-5 and s == pytest.approx(-coef[("tumble_lm", "K1")][0] / g, rel=1e-4)
+    k0 = next(n for (m, n) in coef if m == "tumble_lm" and n.startswith("K0"))
+    assert lines[("tumble_lm", k0)][2] == pytest.approx(coef[("tumble_lm", k0)][0] / g, rel=1e-3)
+    # the K1 budget: its u_c now holds the g line, |dK1/dg| u_g = K1 u_g / g (1.02 ppm here)
+    assert coef[("tumble_lm", "K1")][1] >= abs(s) * u
