@@ -111,8 +111,28 @@ def load_report_data(warehouse: str | Path, campaign: str | None, result_id: str
     """Everything the certificate shows, as plain Python objects.  ``result_id`` may be
     the short id the CLI prints (a unique prefix); ``campaign`` may then be omitted."""
     d = _read(warehouse, lambda con, path: _load(con, campaign, result_id, path), lock_timeout)
-    d["runs"] = run_conditions(Path(warehouse).expanduser().resolve().parent, d["lineage"])
+    root = Path(warehouse).expanduser().resolve().parent
+    d["runs"] = run_conditions(root, d["lineage"])
+    d["flags"] = separating_run_flags(root, d["lineage"], d["flags"])
     return d
+
+
+def separating_run_flags(root: Path, lineage: list[dict[str, Any]], flags: list[str]) -> list[str]:
+    """The flags with each aliased pair's separating run named, asked of the runs' Parquet
+    copies when the certificate is made (:func:`accelcal.testdesign.separating_run_flag`:
+    ``accelcal design``'s call on the cells that command reads); the stored flags when the
+    runs are gone."""
+    from ..estimators.joint import aliased_pair_of_flag
+    if not any(aliased_pair_of_flag(f) for f in flags):
+        return flags
+    from ..diagnosis.core import prepare_cells
+    from ..tasks.science import load_campaign_runs
+    from ..testdesign import separating_run_flag
+    try:
+        cells, _ = prepare_cells(load_campaign_runs(str(root), lineage))
+    except (OSError, ValueError):
+        return flags
+    return [separating_run_flag(cells, f) for f in flags]
 
 
 def resolve_result(con, campaign: str | None, result_id: str | None) -> tuple[str, str | None]:
