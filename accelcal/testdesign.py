@@ -40,7 +40,7 @@ from .fitting.blas import single_thread
 from .fitting.core import information_root, lstsq_svd
 from .fitting.data import RunCells, mean_variance, pooled_noise
 from .fitting.identify import ALIAS_SHARE, Why, holds
-from .fitting.model import CANDIDATE_SHARED, CampaignModel
+from .fitting.model import CANDIDATE_SHARED, CampaignModel, processing_effects
 from .fitting.procedure import fit_selected
 from .physics.axes import AXES
 from .physics.geometry import CentrifugeMount, geometry_of
@@ -717,3 +717,43 @@ def fitted_uncertainty(cells: Sequence[RunCells], baseline: Sequence[str], targe
         _, R = mf.fit.correlation([na, nb])
         corr[f"{a}|{b}"] = float(R[0, 1])
     return Prediction(out, corr)
+
+
+
+#: Readings of a campaign above which the certificate leaves the separating run to
+#: ``accelcal design``: the advice refits the runs made reading by reading, for every pair
+SEPARATION_MAX_READINGS = 1_000_000
+
+
+def separating_run_flag(cells: Sequence[RunCells], pair: tuple[str, str]) -> str | None:
+    """The certificate's line for a pair of coefficients the runs determine only together:
+    ``accelcal design --separate A,B --max-runs 1``'s first proposal (:func:`advise` with
+    the pipeline's processing model), asked when a person reads the result.
+
+    Parameters
+    ----------
+    cells : sequence of RunCells
+        The campaign's runs as ``accelcal design`` reads them
+        (:func:`accelcal.diagnosis.core.prepare_cells`).
+    pair : (str, str)
+        The aliased pair (:func:`accelcal.estimators.joint.stored_aliased_pairs`).
+
+    Returns
+    -------
+    str or None
+        ``"A, B: one more run would separate them: <run> (accelcal design --separate A,B
+        --max-runs 1)"``, or that no single run does; None for a campaign above
+        :data:`SEPARATION_MAX_READINGS` readings or advice that cannot judge the pair (the
+        stored flag then names the command).
+    """
+    if not cells or sum(c.y_rows.size for c in cells) > SEPARATION_MAX_READINGS:
+        return None
+    try:
+        adv = advise(cells, processing_effects(sorted({c.test for c in cells})), None, [pair], max_runs=1, top=1)
+    except (DesignError, ValueError, np.linalg.LinAlgError):
+        return None
+    ask = f"(accelcal design --separate {pair[0]},{pair[1]} --max-runs 1)"
+    if not adv.proposals:
+        return f"{pair[0]}, {pair[1]}: no single run these rigs can make separates them {ask}"
+    run = " + ".join(c.label for c in adv.proposals[0].runs)
+    return f"{pair[0]}, {pair[1]}: one more run would separate them: {run} {ask}"

@@ -1,15 +1,16 @@
 """Benchmark: science per campaign (``process_campaign``), this code against a reference commit.
 
-    python benchmarks/bench_science.py [--ref a893528] [--repeat 5] [--simulated 8] [--rounds 3]
-                                       [--readme README.md]
+    python benchmarks/bench_science.py [--ref ee91499 --ref 0bb4def] [--repeat 5] [--simulated 4]
+                                       [--rounds 3] [--readme README.md]
 
-The same inputs go through both versions in one run: the lab's sample drops (../shared),
+The same inputs go through every version in one run: the lab's sample drops (../shared),
 and ``--simulated`` campaigns per shipped scenario written once as drop files by the current
-simulator.  The reference commit is checked out in a temporary git worktree and run with
-PYTHONPATH pointing at it, so both versions parse the same bytes with their own parser.
+simulator.  Each reference commit is checked out in a temporary git worktree and run with
+PYTHONPATH pointing at it, so every version parses the same bytes with its own parser.
 Every campaign is timed ``--repeat`` times in a warm process, in CPU seconds of that process
-(BLAS on one thread), so other jobs on the machine do not enter the figure; the table gives
-the median per campaign and the ratio current/reference.  Writes benchmarks/results/science-timing.md,
+(BLAS on one thread), so other jobs on the machine enter the figure only through shared
+caches; the table gives the median per campaign and the ratio current/reference per
+reference.  Writes benchmarks/results/science-timing.md,
 and with ``--readme`` the same table between the README's ``<!-- bench-science:begin/end -->``
 markers.
 """
@@ -85,46 +86,46 @@ def _time(code: Path, cases: dict, repeat: int) -> dict[str, float]:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--ref", default="a893528", help="reference commit (default: before issue 9)")
+    ap.add_argument("--ref", action="append", default=None,
+                    help="reference commit, repeatable (default: ee91499, before the test-design flags)")
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--simulated", type=int, default=4, help="simulated campaigns per scenario")
-    ap.add_argument("--rounds", type=int, default=3, help="alternating rounds of reference and current")
+    ap.add_argument("--rounds", type=int, default=3, help="alternating rounds of the references and current")
     ap.add_argument("--readme", type=Path, help="also write the table into this README")
     args = ap.parse_args(argv)
+    refs = args.ref or ["ee91499"]
     head = commit()
     with tempfile.TemporaryDirectory() as td:
         tmp = Path(td)
         cases = _cases(tmp, args.simulated)
-        ref_dir = tmp / "ref"
-        _git("worktree", "add", "--detach", str(ref_dir), args.ref)
+        dirs = {r: tmp / f"ref-{r}" for r in refs}
+        for r, d in dirs.items():
+            _git("worktree", "add", "--detach", str(d), r)
         try:
-            # alternate the two versions round by round, so a change in the machine's load
-            # during the run falls on both alike; per campaign the median over the rounds
-            rounds = [(_time(ref_dir, cases, args.repeat), _time(ROOT, cases, args.repeat))
-                      for _ in range(args.rounds)]
+            # alternate the versions round by round, so a change in the machine's load
+            # during the run falls on all alike; per campaign the median over the rounds
+            rounds = [{**{r: _time(d, cases, args.repeat) for r, d in dirs.items()},
+                       head: _time(ROOT, cases, args.repeat)} for _ in range(args.rounds)]
         finally:
-            _git("worktree", "remove", "--force", str(ref_dir))
-        ref = {k: statistics.median(r[k] for r, _ in rounds) for k in cases}
-        cur = {k: statistics.median(c[k] for _, c in rounds) for k in cases}
-    rows = ["| campaign | reference (s) | current (s) | current / reference |", "|---|---:|---:|---:|"]
-    for label in cases:
-        if not label.startswith("sim "):
-            rows.append(f"| {label} | {ref[label]:.3f} | {cur[label]:.3f} | {cur[label] / ref[label]:.2f} |")
+            for d in dirs.values():
+                _git("worktree", "remove", "--force", str(d))
+    t = {v: {k: statistics.median(rd[v][k] for rd in rounds) for k in cases} for v in [*refs, head]}
     groups: dict[str, list[str]] = {}
     for label in cases:
-        if label.startswith("sim "):
-            groups.setdefault(label.split(" #")[0], []).append(label)
+        groups.setdefault(label.split(" #")[0] + (f" (median of {args.simulated})" if label.startswith("sim ")
+                                                  else ""), []).append(label)
+    groups["**median over all campaigns**"] = list(cases)
+    rows = ["| campaign | " + " | ".join(f"{r} (s)" for r in refs) + f" | {head} (s) | "
+            + " | ".join(f"{head} / {r}" for r in refs) + " |", "|---|" + "---:|" * (2 * len(refs) + 1)]
     for g, labels in groups.items():
-        r = statistics.median(ref[x] for x in labels)
-        c = statistics.median(cur[x] for x in labels)
-        rows.append(f"| {g} (median of {len(labels)}) | {r:.3f} | {c:.3f} | {c / r:.2f} |")
-    all_r = statistics.median(ref.values())
-    all_c = statistics.median(cur.values())
-    rows.append(f"| **median over all campaigns** | **{all_r:.3f}** | **{all_c:.3f}** | **{all_c / all_r:.2f}** |")
+        med = {v: statistics.median(t[v][x] for x in labels) for v in t}
+        rows.append(f"| {g} | " + " | ".join(f"{med[v]:.3f}" for v in [*refs, head]) + " | "
+                    + " | ".join(f"{med[head] / med[r]:.2f}" for r in refs) + " |")
     text = (f"Science per campaign (`process_campaign`, CPU seconds, median of {args.repeat} warm runs, one thread, "
-            f"median over {args.rounds} alternating rounds), "
-            f"current commit {head} against {args.ref}, "
-            f"same inputs, one run of `python benchmarks/bench_science.py`:\n\n" + "\n".join(rows) + "\n")
+            f"median over {args.rounds} alternating rounds), current commit {head} against "
+            f"{', '.join(refs)}, same inputs, one run of `python benchmarks/bench_science.py "
+            f"{' '.join(f'--ref {r}' for r in refs)} --repeat {args.repeat} --simulated {args.simulated} "
+            f"--rounds {args.rounds}`:\n\n" + "\n".join(rows) + "\n")
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "science-timing.md").write_text(text, encoding="utf-8")
     print(text)

@@ -122,7 +122,11 @@ def test_partial_centrifuge_designs_report_what_they_determine(drop, angles, tum
         assert kk.std_uncertainty < kip.std_uncertainty / 50 and "nearly aliased" in kip.note
         # and the run that separates them turns PA through a known input: a PA-radial mount
         # (paper 000 eq 3) or a tumble about OA, which turns IA through PA (IEEE 1293)
-        (sep,) = [f for f in res.flags if f.startswith("Kip, Kpp: one more run would separate them")]
+        from accelcal.diagnosis.core import prepare_cells
+        from accelcal.testdesign import separating_run_flag
+        (flag,) = [f for f in res.flags if f.startswith("Kip, Kpp: the runs determine them only together")]
+        sep = separating_run_flag(prepare_cells(_centrifuge_subset(_runs(drop), angles, tumble))[0], flag)
+        assert sep.startswith("Kip, Kpp: one more run would separate them")
         assert re.search(r"centrifuge \S+ IA-PA (90|270)°|tumble \S+ head OA", sep), sep
     if tumble:
         # IEEE 1293: one tumble about PA measures K0 + Koo g^2, K2 - Koo, theta0 - Ko
@@ -221,13 +225,14 @@ def test_a_tilted_table_lets_in_the_square_terms_it_shows():
 @needs_samples
 def test_on_many_readings_the_separating_run_is_left_to_accelcal_design(monkeypatch):
     """The run that separates an aliased pair is sought by a test-design advice, which
-    refits the runs made reading by reading; above joint.SEPARATION_MAX_READINGS (issue
-    28: over ten minutes on one 200 MB run) the flag says the pair was not searched and
-    where to find it, instead of holding the campaign back."""
-    from accelcal.estimators import joint
+    refits the runs made reading by reading; above testdesign.SEPARATION_MAX_READINGS the
+    certificate keeps the stored flag, which names the command that finds it."""
+    from accelcal import testdesign
+    from accelcal.diagnosis.core import prepare_cells
     from accelcal.estimators.campaign import process_campaign
-    monkeypatch.setattr(joint, "SEPARATION_MAX_READINGS", 10)
-    res = process_campaign(_centrifuge_subset(_runs("drop-2026-11-20"), {0, 180, 45, 225}, False))
-    assert not [f for f in res.flags if "one more run would separate them" in f]
-    (note,) = [f for f in res.flags if "would separate them was not sought" in f]
-    assert "Kip/Kpp" in note and "(accelcal design finds it)" in note
+    monkeypatch.setattr(testdesign, "SEPARATION_MAX_READINGS", 10)
+    runs = _centrifuge_subset(_runs("drop-2026-11-20"), {0, 180, 45, 225}, False)
+    res = process_campaign(runs)
+    (flag,) = [f for f in res.flags if f.startswith("Kip, Kpp: ")]
+    assert flag.endswith("accelcal design --separate Kip,Kpp --max-runs 1")
+    assert testdesign.separating_run_flag(prepare_cells(runs)[0], flag) == flag

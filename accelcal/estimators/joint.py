@@ -36,7 +36,7 @@ import numpy as np
 from ..constants import MOUNT_ANGLE_TOLERANCE_RAD
 from ..effects import si_unit
 from ..fitting.core import lstsq_svd, normalised_error
-from ..fitting.data import (BLOCK_META_KEY, RunCells, block_note, drop_duplicate_cells, fit_noise, make_run,
+from ..fitting.data import (RunCells, block_note, drop_duplicate_cells, fit_noise, make_run,
                             pool_missing_noise, with_noise)
 from ..fitting.identify import Combination, NearAlias, Why, dependence_text, display_name, near_aliases
 from ..fitting.model import ACTING, CampaignModel, mount_runs, processing_effects
@@ -174,46 +174,28 @@ def nearly_aliased(jf: JointFit) -> list[NearAlias]:
     return near_aliases(names, R, np.array([fit.std(n) for n in names]))
 
 
-#: Aliased pairs of one campaign for which the run that separates them is sought (each
-#: search is a test-design advice, 0.2-0.7 s)
-MAX_SEPARATIONS = 4
-#: Readings of a campaign above which that search is left to ``accelcal design``: the
-#: advice refits the runs made and takes their Jacobian reading by reading, for every pair
-#: (over ten minutes at the 4.5 M readings of one 200 MB run, issue 28)
-SEPARATION_MAX_READINGS = 1_000_000
+#: The flag of a pair the runs determine only together.  The run that would separate them
+#: is advice a person reads on demand (:func:`accelcal.testdesign.separating_run_flag`:
+#: the certificate's line is ``accelcal design``'s first proposal), not part of the science
+ALIASED_PAIR_FLAG = ("{a}, {b}: the runs determine them only together; the run that would separate them: "
+                     "accelcal design --separate {a},{b} --max-runs 1")
 
 
-def separating_runs(cells: Sequence[RunCells], effects: Sequence[str], pairs: Sequence[tuple[str, str]]
-                    ) -> dict[tuple[str, str], str]:
-    """The one run the campaign's rigs can make that best separates each aliased pair
-    (:func:`accelcal.testdesign.advise`, issue 25), for the flags of issue 30.
+def stored_aliased_pairs(extras: Mapping[str, Any] | None) -> list[tuple[str, str]]:
+    """The instrument-coefficient pairs a stored joint fit determined only together, each
+    flagged as :data:`ALIASED_PAIR_FLAG` (read where :func:`_records` writes them; [] for a
+    result without them).
 
     Parameters
     ----------
-    cells : sequence of RunCells
-        The campaign's runs, with noise models.
-    effects : sequence of str
-        The model's effects.md ids.
-    pairs : sequence of (str, str)
-        Instrument coefficients the runs determine only together (at most
-        :data:`MAX_SEPARATIONS` are searched).
+    extras : mapping or None
+        The stored result's extras.
 
     Returns
     -------
-    dict of (str, str) to str
-        Pair -> the run in drop-format words; pairs no single run separates, or that the
-        advice cannot judge, are left out.
+    list of (str, str)
     """
-    from ..testdesign import DesignError, advise
-    out = {}
-    for a, b in list(pairs)[:MAX_SEPARATIONS]:
-        try:
-            adv = advise(cells, effects, None, [(a, b)], max_runs=1, top=1)
-        except (DesignError, ValueError, np.linalg.LinAlgError):
-            continue
-        if adv.proposals:
-            out[(a, b)] = " + ".join(c.label for c in adv.proposals[0].runs)
-    return out
+    return [(a, b) for a, b in ((extras or {}).get("joint") or {}).get("aliased_pairs") or []]
 
 
 def run_consistency(runs, effects: Sequence[str], alpha: float = 0.01) -> tuple[list[dict], list[str]]:
@@ -294,16 +276,7 @@ def campaign_results(runs, rig_ids: Sequence[str] | None = None, effects: Sequen
     jf.notes += notes
     cells = jf.model.runs                          # with the noise models the fit refitted
     out = _records(jf, cells, rig_uncertainty or {})
-    pairs = out.pop("aliased_pairs")
-    readings = sum(int(c.meta[BLOCK_META_KEY][0]) if BLOCK_META_KEY in c.meta else int(c.y_rows.size)
-                   for c in cells)
-    if pairs and readings > SEPARATION_MAX_READINGS:
-        out["flags"].append(f"{', '.join(f'{a}/{b}' for a, b in pairs[:MAX_SEPARATIONS])}: the run that "
-                            f"would separate them was not sought on {readings:,} readings "
-                            "(accelcal design finds it)")
-        pairs = []
-    for (a, b), words in separating_runs(cells, eff, pairs).items():
-        out["flags"].append(f"{a}, {b}: one more run would separate them: {words} (accelcal design)")
+    out["flags"] += [ALIASED_PAIR_FLAG.format(a=a, b=b) for a, b in out.pop("aliased_pairs")]
     rows, flags = run_consistency(runs, eff)
     out["flags"] += flags
     if rows:
@@ -603,6 +576,7 @@ def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
         "noise": {r.run_id: {"a": r.noise.a, "b": r.noise.b, "rho": r.noise.rho, "dof": r.noise.dof,
                              "source": r.noise.source} for r in model.runs},
         "notes": jf.notes,
+        "aliased_pairs": [list(ab) for ab in dict.fromkeys(pairs)],
         "rig_inputs": {"stated": {rig: dict(stated[rig]) for rig in sorted({r.rig_id for r in model.runs})
                                   if rig in stated},
                        "missing": missing},

@@ -172,8 +172,31 @@ def load_report_data(warehouse: str | Path, campaign: str | None, result_id: str
     """Everything the certificate shows, as plain Python objects.  ``result_id`` may be
     the short id the CLI prints (a unique prefix); ``campaign`` may then be omitted."""
     d = _read(warehouse, lambda con, path: _load(con, campaign, result_id, path), lock_timeout)
-    d["runs"] = run_conditions(Path(warehouse).expanduser().resolve().parent, d["lineage"])
+    root = Path(warehouse).expanduser().resolve().parent
+    d["runs"] = run_conditions(root, d["lineage"])
+    d["flags"] = separating_run_flags(root, d["lineage"], d["flags"], d.get("extras"))
     return d
+
+
+def separating_run_flags(root: Path, lineage: list[dict[str, Any]], flags: list[str],
+                         extras: dict[str, Any] | None) -> list[str]:
+    """The flags with each aliased pair's separating run named, asked of the runs' Parquet
+    copies when the certificate is made (:func:`accelcal.testdesign.separating_run_flag`:
+    ``accelcal design``'s call on the cells that command reads); the stored flags when the
+    runs are gone."""
+    from ..estimators.joint import ALIASED_PAIR_FLAG, stored_aliased_pairs
+    pairs = stored_aliased_pairs(extras)
+    if not pairs:
+        return flags
+    from ..diagnosis.core import prepare_cells
+    from ..tasks.science import load_campaign_runs
+    from ..testdesign import separating_run_flag
+    try:
+        cells, _ = prepare_cells(load_campaign_runs(str(root), lineage))
+    except (OSError, ValueError):
+        return flags
+    lines = {ALIASED_PAIR_FLAG.format(a=a, b=b): separating_run_flag(cells, (a, b)) for a, b in pairs}
+    return [lines.get(f) or f for f in flags]
 
 
 def resolve_result(con, campaign: str | None, result_id: str | None) -> tuple[str, str | None]:
