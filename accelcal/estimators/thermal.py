@@ -34,6 +34,7 @@ are JSON-able (non-finite numbers become None).
 """
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
@@ -44,8 +45,10 @@ import pandas as pd
 from scipy import stats
 
 from ..constants import MICRO_G, T_REF_C
+from ..effects import CROSS_AXIS_TERM, RIG_INPUTS, SQUARE_TERM
 from ..fitting.core import lack_of_fit, linear_fit
 from ..fitting.data import ROW_SLICE, unique_small_ints
+from ..physics.axes import parse_signed_axis
 from ..physics.geometry import geometry_of
 from ..physics.instrument import indicated_acceleration, output_derivative
 from ..physics.rigs import tilt_rotation_specific_force
@@ -61,30 +64,9 @@ METHOD_TWO_POSITION = "tilt_rotation_two_position"
 
 # --------------------------------------------------------------------------- helpers
 
-def _f(x) -> float | None:
-    """float, or None for non-finite values (JSON)."""
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        return None
-    return v if math.isfinite(v) else None
-
-
 def _jsonable(obj):
-    """Recursively turn numpy scalars/arrays into plain Python; non-finite floats -> None."""
-    if isinstance(obj, Mapping):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return [_jsonable(v) for v in obj.tolist()]
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, (int, np.integer)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        return _f(obj)
-    return obj
+    """A JSON-able copy: numpy values as Python ones, non-finite floats as None."""
+    return json.loads(json.dumps(obj, default=lambda v: v.tolist()), parse_constant=lambda _: None)
 
 
 def rig_geometry(meta: Mapping) -> dict[str, Any]:
@@ -122,33 +104,19 @@ def rig_geometry(meta: Mapping) -> dict[str, Any]:
         raise ValueError("tilt_rotation: tilt_deg is 0, IA senses no input")
     return {"g": g, "gamma_rad": tab.gamma_rad, "ia_term": term, "ia_sign": int(sign),
             "input_amplitude": g * math.sin(tab.gamma_rad), "normal_input": g * math.cos(tab.gamma_rad),
-            "cross_term": CROSS_AXIS[other]}
+            "cross_term": CROSS_AXIS_TERM[other]}
 
 
-#: The instrument coefficient of a cross-axis input (effects.md): PA -> Kp, OA -> Ko.
-CROSS_AXIS = {1: "Kp", 2: "Ko"}
 #: The per-point parameters of paper 001's rotation fit: K1 K0, K1 and K1 times the cross
 #: term of the other in-plane axis (the model is bilinear; the LS is linear in these).
 POINT_PARAMS = ("K1*K0", "K1", "K1*Kx")
 
 
-def _geometry_meta(g: float, tilt_deg: float, ia_term: str, ia_sign: int) -> dict:
-    """The metadata of a tilt_rotation run with IA as the signed ``ia_term`` axis (PA the other
-    in-plane axis, OA the normal): what :func:`fit_point` gives the forward model."""
-    ia = f"{'+' if ia_sign > 0 else '-'}IA"
-    if ia_term not in ("sin", "cos"):
-        raise ValueError(f"ia_term {ia_term!r} is not 'sin' or 'cos'")
-    return {"test": "tilt_rotation", "g_local_m_s2": float(g), "tilt_deg": float(tilt_deg),
-            "sin_axis": ia if ia_term == "sin" else "+PA", "cos_axis": ia if ia_term == "cos" else "+PA",
-            "normal_axis": "+OA", "positions": ""}
-
-
-def specific_force_at(meta: Mapping, theta_deg, time_s=None) -> np.ndarray:
+def specific_force_at(meta: Mapping, theta_deg) -> np.ndarray:
     """Specific force (n, 3) on (IA, PA, OA) [m/s2] at table angles ``theta_deg`` [deg]:
     :func:`accelcal.physics.rigs.tilt_rotation_specific_force` of the nominal table."""
     th = np.asarray(theta_deg, float)
-    t = np.zeros(th.size) if time_s is None else np.asarray(time_s, float)
-    return tilt_rotation_specific_force(meta, {"rotation_deg": th, "time_s": t})
+    return tilt_rotation_specific_force(meta, {"rotation_deg": th, "time_s": np.zeros(th.size)})
 
 
 def point_design(meta: Mapping, theta_deg) -> np.ndarray:
@@ -290,35 +258,27 @@ def position_means(labelled: pd.DataFrame) -> pd.DataFrame:
 
 # --------------------------------------------------------------------------- one temperature point
 
-def fit_point(theta_deg: Sequence[float], output: Sequence[float], g: float, tilt_deg: float,
-              ia_term: str = "sin", ia_sign: int = 1,
-              sigma_override: float | None = None, *, meta: Mapping | None = None) -> dict[str, Any]:
+def fit_point(meta: Mapping, theta_deg: Sequence[float], output: Sequence[float],
+              sigma_override: float | None = None) -> dict[str, Any]:
     """K0, K1 of one temperature point by least squares over its n positions (paper 001).
 
     Parameters
     ----------
+    meta : mapping
+        Typed metadata of the tilt_rotation run (g, tilt and axes: :func:`rig_geometry`).
     theta_deg : sequence of float
         Table angles [deg].
     output : sequence of float
         The mean output at each [output_unit].
-    g : float
-        Local gravity [m/s2].
-    tilt_deg : float
-        gamma [deg].
-    ia_term, ia_sign : str, int
-        IA is the ``sin_axis`` ('sin') or the ``cos_axis`` ('cos'), with sign sigma.
     sigma_override : float, optional
         Standard deviation of one position mean [output_unit]; default: from the residuals,
         s^2 = RSS / (n - 3) (NaN uncertainties when n == 3).
-    meta : mapping, optional
-        The run's metadata; when given, geometry is read from it (g, tilt and the axes of
-        the arguments are then ignored).
 
     Returns
     -------
     dict
         a [output_unit] and b_sin, b_cos (the coefficients of 1, sin theta, cos theta),
-        cov_abc, K0 [m/s2], u_K0, K1 [output_unit/(m/s2)], u_K1, cov_K0_K1, cos_term (= the
+        K0 [m/s2], u_K0, K1 [output_unit/(m/s2)], u_K1, cov_K0_K1, cos_term (= the
         coefficient of the other in-plane term, [output_unit]), u_cos_term, misalignment_rad
         = cos_term / (IA term) [rad] (in-plane misalignment of the sense axis, or a
         cross-axis sensitivity on the other in-plane axis: the two cannot be told apart),
@@ -342,8 +302,6 @@ def fit_point(theta_deg: Sequence[float], output: Sequence[float], g: float, til
     n = E.size
     if n < 3:
         raise ValueError(f"fit_point needs at least 3 positions, got {n}")
-    if meta is None:
-        meta = _geometry_meta(g, tilt_deg, ia_term, ia_sign)
     geo = rig_geometry(meta)
     A = geo["input_amplitude"]
     X = point_design(meta, th)
@@ -385,11 +343,12 @@ def fit_point(theta_deg: Sequence[float], output: Sequence[float], g: float, til
     gm = np.zeros(3)
     gm[io] = 1.0 / b
     gm[ib] = -c / (b * b)
-    u = lambda grad: math.sqrt(max(float(grad @ cov @ grad), 0.0)) if math.isfinite(s) else float("nan")  # noqa: E731
-    return {"n": n, "a": float(a), "b_sin": float(bs), "b_cos": float(bc), "cov_abc": cov.tolist(),
+    # (a NaN covariance, when n = 3 leaves no residual dof, gives NaN uncertainties)
+    u = lambda grad: math.sqrt(max(float(grad @ cov @ grad), 0.0))  # noqa: E731
+    return {"n": n, "a": float(a), "b_sin": float(bs), "b_cos": float(bc),
             "K0": float(K0), "u_K0": u(gK0), "K1": float(K1), "u_K1": u(gK1),
-            "cov_K0_K1": float(gK0 @ cov @ gK1) if math.isfinite(s) else float("nan"),
-            "cos_term": float(c), "u_cos_term": math.sqrt(cov[io, io]) if math.isfinite(s) else float("nan"),
+            "cov_K0_K1": float(gK0 @ cov @ gK1),
+            "cos_term": float(c), "u_cos_term": math.sqrt(cov[io, io]),
             "misalignment_rad": float(c / b), "u_misalignment_rad": u(gm),
             "cross_term": float(beta[2] / beta[1]), "cross_term_name": geo["cross_term"],
             "rss": rss, "dof": dof, "s": s}
@@ -451,9 +410,7 @@ def fit_points(meta: Mapping, data: pd.DataFrame) -> tuple[list[dict], pd.DataFr
                "time_s": float(grp["time_s"].mean()), "n_positions": int(len(grp)),
                "n_readings": int(grp["count"].sum())}
         if len(grp) >= 3:
-            fit = fit_point(grp["theta_deg"], grp["output"], geo["g"], float(meta["tilt_deg"]),
-                            geo["ia_term"], geo["ia_sign"], meta=meta)
-            row.update({k: v for k, v in fit.items() if k != "cov_abc"})
+            row.update(fit_point(meta, grp["theta_deg"], grp["output"]))
             row["_theta"] = grp["theta_deg"].to_numpy(float)
             row["_E"] = grp["output"].to_numpy(float)
         # closed-form check on the quadrant positions (0, 90, 180, 270)
@@ -477,8 +434,7 @@ def fit_points(meta: Mapping, data: pd.DataFrame) -> tuple[list[dict], pd.DataFr
             s_pool = float(np.sqrt(np.mean(sd[ok] ** 2 / cnt[ok]))) if ok.any() else float("nan")
             dof_tot = int(np.sum(cnt[ok] - 1))
         for p in fitted:
-            fp = fit_point(p["_theta"], p["_E"], geo["g"], float(meta["tilt_deg"]), geo["ia_term"],
-                           geo["ia_sign"], sigma_override=s_pool, meta=meta)
+            fp = fit_point(meta, p["_theta"], p["_E"], sigma_override=s_pool)
             p["u_K0_pooled"], p["u_K1_pooled"] = fp["u_K0"], fp["u_K1"]
             p["s_pooled"], p["dof_pooled"] = s_pool, dof_tot
     for p in points:
@@ -1011,7 +967,6 @@ def budget_terms(coefficients: Sequence[CoefficientResult], model: Mapping[str, 
         fixture's thermal tilt is not a line: the method cannot tell it from the
         instrument's bias TC (paper 001 §3.2), which the K0T note says.
     """
-    from ..effects import RIG_INPUTS
     out = []
     for c in coefficients:
         line = "K0" if c.name in ("K0", "K0T") else "K1"
@@ -1078,8 +1033,6 @@ def mc_truth(c: Mapping[str, float], eff: Mapping[str, float], test: Mapping[str
     cross and square terms and the mean centripetal-free square term of the tilt plane;
     K1 -> K1; K0T -> K0T + g c cos(gamma) of a fixture thermal tilt c (aliased, paper 001
     §3.2); K1T -> K1T (signature of :data:`accelcal.estimators.registry.TruthMapping`)."""
-    from ..effects import CROSS_AXIS_TERM, SQUARE_TERM
-    from ..physics.axes import parse_signed_axis
     rig = str(test["rig_id"])
     gam = math.radians(float(test["tilt_deg"]))
     ni, ns = parse_signed_axis(test.get("normal_axis", "+OA"))
