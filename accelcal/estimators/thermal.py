@@ -401,6 +401,7 @@ def fit_points(meta: Mapping, data: pd.DataFrame) -> tuple[list[dict], pd.DataFr
     n_pos = int(meta["positions"]) if meta.get("positions") not in (None, "") else None
     pm = position_means(segment_run(data, n_pos))
     points: list[dict] = []
+    fitted: list[tuple[dict, np.ndarray, np.ndarray]] = []     # (row, theta, E) of the fitted points
     for pt, grp in pm.groupby("point", sort=True):
         grp = grp.sort_values("position")
         T = grp["temp_c"].to_numpy(float)
@@ -411,8 +412,7 @@ def fit_points(meta: Mapping, data: pd.DataFrame) -> tuple[list[dict], pd.DataFr
                "n_readings": int(grp["count"].sum())}
         if len(grp) >= 3:
             row.update(fit_point(meta, grp["theta_deg"], grp["output"]))
-            row["_theta"] = grp["theta_deg"].to_numpy(float)
-            row["_E"] = grp["output"].to_numpy(float)
+            fitted.append((row, grp["theta_deg"].to_numpy(float), grp["output"].to_numpy(float)))
         # closed-form check on the quadrant positions (0, 90, 180, 270)
         th = np.mod(grp["theta_deg"].to_numpy(float), 360.0)
         quad = []
@@ -423,23 +423,19 @@ def fit_points(meta: Mapping, data: pd.DataFrame) -> tuple[list[dict], pd.DataFr
             cf = closed_form_n4(quad, geo["g"], float(meta["tilt_deg"]), geo["ia_sign"])
             row["closed_form_K0"], row["closed_form_K1"] = cf["K0"], cf["K1"]
         points.append(row)
-    fitted = [p for p in points if "K1" in p]
     if fitted:
-        dof_tot = sum(p["dof"] for p in fitted)
+        dof_tot = sum(p["dof"] for p, _, _ in fitted)
         if dof_tot > 0:
-            s_pool = math.sqrt(sum(p["rss"] for p in fitted) / dof_tot)
+            s_pool = math.sqrt(sum(p["rss"] for p, _, _ in fitted) / dof_tot)
         else:  # n = 3: no residual dof; the within-position scatter of the readings instead
             sd, cnt = pm["output_sd"].to_numpy(float), pm["count"].to_numpy(float)
             ok = np.isfinite(sd) & (cnt > 1)
             s_pool = float(np.sqrt(np.mean(sd[ok] ** 2 / cnt[ok]))) if ok.any() else float("nan")
             dof_tot = int(np.sum(cnt[ok] - 1))
-        for p in fitted:
-            fp = fit_point(meta, p["_theta"], p["_E"], sigma_override=s_pool)
+        for p, theta, E in fitted:
+            fp = fit_point(meta, theta, E, sigma_override=s_pool)
             p["u_K0_pooled"], p["u_K1_pooled"] = fp["u_K0"], fp["u_K1"]
             p["s_pooled"], p["dof_pooled"] = s_pool, dof_tot
-    for p in points:
-        for k in ("_theta", "_E"):
-            p.pop(k, None)
     return points, pm
 
 
