@@ -649,7 +649,7 @@ def fixed_point_method(meta: Mapping, pm: pd.DataFrame, s_pos: float | None = No
         sd = pm["output_sd"].to_numpy(float) / np.sqrt(pm["count"].to_numpy(float))
         s_pos = float(np.sqrt(np.nanmean(sd**2))) if np.isfinite(sd).any() else float("nan")
     rows = []
-    # plain arrays per point (the pandas boolean indexing per group dominated this method)
+    # plain arrays per point
     point = pm["point"].to_numpy()
     out_v = pm["output"].to_numpy(float)
     temp_v = pm["temp_c"].to_numpy(float)
@@ -901,10 +901,10 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = "", *,
 _GRAVITY_POWER = {"K0": 1.0, "K0T": 1.0, "K1": -1.0, "K1T": 0.0}
 
 
-def input_sensitivities(coefficients: Sequence[CoefficientResult], model: Mapping[str, Any],
-                        g: float, gamma_rad: float) -> dict[str, dict[str, float]]:
-    """Sensitivity of paper 001's coefficients to the rig inputs the drop gives as known
-    (:data:`accelcal.effects.RIG_INPUTS`), in closed form.
+def stated_inputs(coefficients: Sequence[CoefficientResult], model: Mapping[str, Any], meta: Mapping,
+                  stated: Mapping[str, float]) -> dict[str, dict[str, tuple[float, float, float]]]:
+    """The rig inputs the lab states for this run's rig (:data:`accelcal.effects.RIG_INPUTS`),
+    with the sensitivity of paper 001's coefficients to each, in closed form.
 
     With K1 = sigma b / (g sin gamma) and K0 = a / K1 (paper 001), a coefficient that scales
     as (g sin gamma)^n has dC/dg = n C / g and dC/dgamma = n C cot(gamma); the temperature
@@ -916,25 +916,32 @@ def input_sensitivities(coefficients: Sequence[CoefficientResult], model: Mappin
         K0, K1, K0T, K1T.
     model : mapping
         ``extras['temperature_model']``.
-    g : float
-        g_local [m/s2].
-    gamma_rad : float
-        Table tilt gamma [rad].
+    meta : mapping
+        The run's metadata (``g_local_m_s2`` [m/s2], ``tilt_deg`` [deg]).
+    stated : mapping
+        Input id -> the lab's standard uncertainty (the tilt's in deg, the others in SI).
 
     Returns
     -------
     dict
-        Coefficient -> {``g_local`` [unit per m/s2], ``table_tilt`` [unit per rad],
-        ``temperature`` [unit per degC, root-sum-square over the points]}; ``temperature``
-        absent when the model has no such figure (the two-position method).
+        Coefficient -> input id -> (value [SI], standard uncertainty [SI], sensitivity [unit
+        per SI unit]) of each stated input that enters it (``temperature``: root-sum-square
+        over the points; absent when the model has no such figure, as the two-position
+        method).
     """
+    g, gamma = float(meta["g_local_m_s2"]), math.radians(float(meta["tilt_deg"]))
     dT = model.get("temperature_sensitivity") or {}
-    out = {}
+    value = {"g_local": g, "table_tilt": gamma, "temperature": 0.0}
+    to_si = {"table_tilt": math.pi / 180.0}
+    out: dict[str, dict[str, tuple]] = {}
     for c in coefficients:
         n = _GRAVITY_POWER[c.name]
-        out[c.name] = {"g_local": n * c.value / g, "table_tilt": n * c.value / math.tan(gamma_rad)}
+        sens = {"g_local": n * c.value / g, "table_tilt": n * c.value / math.tan(gamma)}
         if c.name in dT:
-            out[c.name]["temperature"] = dT[c.name]
+            sens["temperature"] = dT[c.name]
+        for iid, x in sens.items():
+            if iid in stated:
+                out.setdefault(c.name, {})[iid] = (value[iid], float(stated[iid]) * to_si.get(iid, 1.0), x)
     return out
 
 
@@ -952,7 +959,7 @@ def budget_terms(coefficients: Sequence[CoefficientResult], model: Mapping[str, 
         Its ``extras['temperature_model']`` (:func:`fit_temperature_model`).
     inputs : mapping, optional
         Coefficient -> input id -> (value [SI], standard uncertainty [SI], sensitivity):
-        the lab-stated rig inputs (:func:`input_sensitivities`), one normal type-B line each.
+        the lab-stated rig inputs (:func:`stated_inputs`), one normal type-B line each.
 
     Returns
     -------
@@ -996,29 +1003,13 @@ def campaign_records(runs: Sequence, steps: Mapping[str, Any]) -> list:
             out.append(Records(flags=[f"tilt_rotation {run.meta.get('run_id')}: {type(exc).__name__}: {exc}"]))
             continue
         model = extras["temperature_model"]
-        inputs = _stated_inputs(coeffs, model, run.meta,
-                                (steps.get("rig_uncertainty") or {}).get(str(run.meta.get("rig_id", ""))) or {})
+        inputs = stated_inputs(coeffs, model, run.meta,
+                               (steps.get("rig_uncertainty") or {}).get(str(run.meta.get("rig_id", ""))) or {})
         budget = budget_terms(coeffs, model, inputs)
         coeffs = [replace(c, std_uncertainty=math.sqrt(c.std_uncertainty ** 2 + sum(
             (u * sens) ** 2 for _, u, sens in inputs.get(c.name, {}).values()))) for c in coeffs]
         out.append(Records(coefficients=coeffs, budget=budget,
                            extras={"thermal": {str(run.meta.get("run_id")): extras}}).checked())
-    return out
-
-
-def _stated_inputs(coeffs, model, meta, stated: Mapping[str, float]) -> dict[str, dict[str, tuple]]:
-    """Coefficient -> input id -> (value, u, sensitivity) in SI units for the inputs the lab
-    states for this run's rig (:func:`input_sensitivities`); the tilt's u is stated in deg."""
-    if not stated:
-        return {}
-    g, gamma = float(meta["g_local_m_s2"]), math.radians(float(meta["tilt_deg"]))
-    value = {"g_local": g, "table_tilt": gamma, "temperature": 0.0}
-    to_si = {"table_tilt": math.pi / 180.0}
-    out: dict[str, dict[str, tuple]] = {}
-    for name, sens in input_sensitivities(coeffs, model, g, gamma).items():
-        for iid, c in sens.items():
-            if iid in stated:
-                out.setdefault(name, {})[iid] = (value[iid], float(stated[iid]) * to_si.get(iid, 1.0), c)
     return out
 
 
