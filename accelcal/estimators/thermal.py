@@ -560,18 +560,19 @@ def _temperature_sensitivity(x, u_K0, u_K1, p_K0, p_K1, levels) -> dict[str, flo
     return out
 
 
-def _fit_from_points(points: list[dict], pooled: bool = True, birge: bool = True) -> dict[str, Any]:
+def _fit_from_points(points: list[dict]) -> dict[str, Any]:
+    """:func:`fit_temperature_model` of the fitted points of :func:`fit_points`, weighted by
+    their uncertainties from the run's pooled residual variance (per-point variances on few
+    dof make poor weights)."""
     pts = [p for p in points if "K1" in p]
-    uk0 = "u_K0_pooled" if pooled else "u_K0"
-    uk1 = "u_K1_pooled" if pooled else "u_K1"
-    dof_u = pts[0].get("dof_pooled") if pooled else min(p["dof"] for p in pts)
-    return fit_temperature_model([p["temp_c"] for p in pts], [p["K0"] for p in pts], [p[uk0] for p in pts],
-                                 [p["K1"] for p in pts], [p[uk1] for p in pts], birge=birge,
-                                 dof_u=dof_u if dof_u and dof_u > 0 else None,
+    dof_u = pts[0].get("dof_pooled")
+    return fit_temperature_model([p["temp_c"] for p in pts], [p["K0"] for p in pts],
+                                 [p["u_K0_pooled"] for p in pts], [p["K1"] for p in pts],
+                                 [p["u_K1_pooled"] for p in pts], dof_u=dof_u if dof_u and dof_u > 0 else None,
                                  levels=[p.get("temp_set_c", p["temp_c"]) for p in pts])
 
 
-def sweep_repeatability(points: list[dict], pooled: bool = True) -> dict[str, Any]:
+def sweep_repeatability(points: list[dict]) -> dict[str, Any]:
     """The temperature model fitted to each sweep (repeat) alone, and the spread across sweeps.
 
     Returns per_sweep (list of fits: K0T, K1T, K0, K1 with uncertainties) and, with two or
@@ -584,7 +585,7 @@ def sweep_repeatability(points: list[dict], pooled: bool = True) -> dict[str, An
         pts = [p for p in points if p["sweep"] == s and "K1" in p]
         if len({round(p["temp_c"], 6) for p in pts}) < 2:
             continue
-        f = _fit_from_points(pts, pooled)
+        f = _fit_from_points(pts)
         per.append({"sweep": s, "n_points": len(pts), **{k: f[k] for k in (
             "K0", "u_K0", "K1", "u_K1", "K0T", "u_K0T", "K1T", "u_K1T")}})
     out: dict[str, Any] = {"per_sweep": per, "n_sweeps": len(per)}
@@ -598,7 +599,7 @@ def sweep_repeatability(points: list[dict], pooled: bool = True) -> dict[str, An
     return out
 
 
-def scale_factor_time_trend(points: list[dict], model: Mapping, pooled: bool = True) -> dict[str, Any]:
+def scale_factor_time_trend(points: list[dict], model: Mapping) -> dict[str, Any]:
     """Trend in time of the per-point K1 left after the temperature model (paper 001: a base-tilt
     change d_gamma scales K1 by (gamma + d_gamma)/gamma, so a steady base tilt drift shows as a K1
     trend in time; with repeated sweeps time and temperature are not collinear).
@@ -607,7 +608,6 @@ def scale_factor_time_trend(points: list[dict], model: Mapping, pooled: bool = T
     uncertainty (scaled by the Birge ratio when > 1) and ``significant`` (|slope| > 3 u);
     a slope s (1/h) means a base tilt rate of about gamma * s / 3600 rad/s.
     """
-    uk = "u_K1_pooled" if pooled else "u_K1"
     pts = [p for p in points if "K1" in p]
     if len(pts) < 3:
         return {}
@@ -615,7 +615,7 @@ def scale_factor_time_trend(points: list[dict], model: Mapping, pooled: bool = T
     T = np.array([p["temp_c"] for p in pts])
     K1fit = model["K1"] * (1.0 + model["K1T"] * (T - model.get("t_ref_c", T_REF_C)))
     r = np.array([p["K1"] for p in pts]) / K1fit - 1.0
-    u = np.array([p[uk] for p in pts]) / K1fit
+    u = np.array([p["u_K1_pooled"] for p in pts]) / K1fit
     if np.ptp(t_h) == 0 or not np.all(np.isfinite(u)) or np.any(u <= 0):
         return {}
     f = _wls_line(t_h - t_h.mean(), r, u, birge=True)
@@ -754,8 +754,8 @@ def temperature_correlation(series, temp_c) -> dict[str, float | None]:
 
 # --------------------------------------------------------------------------- one run
 
-def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = "", *,
-                        pooled: bool = True) -> tuple[list[CoefficientResult], dict[str, Any]]:
+def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = ""
+                        ) -> tuple[list[CoefficientResult], dict[str, Any]]:
     """All of paper 001 on one tilt_rotation run: K0, K1, K0T, K1T and the checks.
 
     .. math::
@@ -773,9 +773,6 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = "", *,
     data : DataFrame
         time_s [s], temp_set_c [degC], temp_c [degC], rotation_deg [deg], output [output_unit].
     rig_id : str
-    pooled : bool
-        Weight the temperature lines by the per-point uncertainties from the residual
-        variance pooled over the run (default) instead of each point's own.
 
     Returns
     -------
@@ -801,7 +798,7 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = "", *,
     note_k0 = ("apparent bias at 20 degC: includes g*cos(gamma) times any normal-axis cross-axis "
                "sensitivity or tilt of IA out of the table plane")
     if len({round(p["temp_c"], 6) for p in fitted}) >= 2:
-        model = _fit_from_points(fitted, pooled)
+        model = _fit_from_points(fitted)
         method = METHOD
     elif fixed.get("two_position"):
         model = fixed["two_position"]
@@ -849,7 +846,7 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = "", *,
                 "max_rel_diff_K1": max(abs(p["closed_form_K1"] / p["K1"] - 1.0) for p in cf),
                 "max_abs_diff_K0_m_s2": max(abs(p["closed_form_K0"] - p["K0"]) for p in cf),
                 "note": "closed forms on the 0/90/180/270 positions; equal to LS when n = 4"}
-    extras["repeatability"] = sweep_repeatability(fitted, pooled) if fitted else {}
+    extras["repeatability"] = sweep_repeatability(fitted) if fitted else {}
     if fixed:
         extras["fixed_point"] = fixed
         if method == METHOD and "two_position" in fixed:
