@@ -72,13 +72,6 @@ def eq2_row(plane: str, phi0_rad: float) -> dict[str, float]:
     return {k: float(output_derivative(k, {"K1": 1.0}, u)[0]) for k in UNKNOWNS}
 
 
-def c2_of_mount(K: Mapping[str, float], plane: str, phi0_rad: float) -> float:
-    """eq 2: c2 = K11 cos^2 phi0 + K22 sin^2 phi0 + K12 cos phi0 sin phi0 [s2/m] (He & Yin 2017,
-    paper 000), through :func:`eq2_row`."""
-    row = eq2_row(plane, phi0_rad)
-    return float(sum(row[k] * K.get(k, 0.0) for k in UNKNOWNS))
-
-
 def delta_c2(K: Mapping[str, float], plane: str, phi0_rad: float, dphi_rad: float) -> float:
     """eq 8, any plane: Delta c2 = [(K22 - K11) sin 2 phi0 + K12 cos 2 phi0] Delta phi0 [s2/m].
 
