@@ -11,7 +11,7 @@ import pytest
 
 from accelcal.constants import OMEGA_EARTH
 from accelcal.estimators.campaign import process_campaign
-from accelcal.estimators.crosscoupling import alignment, c2_of_mount, delta_c2, kip_from_45
+from accelcal.estimators.crosscoupling import alignment, combine_second_order, delta_c2, eq2_row
 from accelcal.estimators.radius import PairData, test_radius_iterative, test_radius_static
 from accelcal.physics import rig_output
 from accelcal.schemas.dropformat import read_run
@@ -20,6 +20,12 @@ from accelcal.schemas.dropscan import discover
 from conftest import TRUTH_20
 
 DEG = math.pi / 180
+
+
+def c2_ia_pa(K, phi0_rad):
+    """Paper 000 eq 2 in the IA-PA plane: c2 = K2 cos^2 phi0 + Kpp sin^2 phi0 + Kip cos phi0 sin phi0."""
+    c, s = math.cos(phi0_rad), math.sin(phi0_rad)
+    return K["K2"] * c * c + K["Kpp"] * s * s + K["Kip"] * c * s
 
 
 # ---------------------------------------------------------------- closed forms of the paper
@@ -33,18 +39,20 @@ def test_eq8_per_degree_at_45_and_90():
     # and eq 8 is the derivative of eq 2: compare with a finite difference of c2
     for phi in (30, 45, 60, 90):
         h = 1e-6
-        fd = (c2_of_mount(K, "IA-PA", phi * DEG + h) - c2_of_mount(K, "IA-PA", phi * DEG - h)) / (2 * h)
+        fd = (c2_ia_pa(K, phi * DEG + h) - c2_ia_pa(K, phi * DEG - h)) / (2 * h)
         assert delta_c2(K, "IA-PA", phi * DEG, 1.0) == pytest.approx(fd, rel=1e-6)
 
 
 def test_eq2_at_45_gives_eq3_and_table5():
     K = {"K2": 3.94e-7, "Kpp": 4.7e-8, "Kip": 7.1e-7}
-    c2 = c2_of_mount(K, "IA-PA", 45 * DEG)
-    assert c2 == pytest.approx((K["K2"] + K["Kpp"] + K["Kip"]) / 2)
-    assert kip_from_45(c2, K["K2"], K["Kpp"]) == pytest.approx(K["Kip"])
-    # Table 5: LXJ-100 and LXJ-200 columns
-    assert kip_from_45(5.76e-7, 3.94e-7, 0.47e-7) == pytest.approx(7.10e-7, abs=0.02e-7)
-    assert kip_from_45(5.33e-7, 4.13e-7, -0.15e-7) == pytest.approx(6.67e-7, abs=0.02e-7)
+    row = eq2_row("IA-PA", 45 * DEG)
+    assert sum(row[k] * K.get(k, 0.0) for k in row) == pytest.approx((K["K2"] + K["Kpp"] + K["Kip"]) / 2)
+    # Table 5, LXJ-100 and LXJ-200 columns: the mounts 0, 90 and 45 deg combined give eq 3,
+    # Kip = 2 c2(45) - (K2 + Kpp)
+    for K2, Kpp, c2_45, Kip in ((3.94e-7, 0.47e-7, 5.76e-7, 7.10e-7), (4.13e-7, -0.15e-7, 5.33e-7, 6.67e-7)):
+        pairs = [SimpleNamespace(plane="IA-PA", phi0_deg=phi, c2=c2, u_c2=1e-9)
+                 for phi, c2 in ((0.0, K2), (90.0, Kpp), (45.0, c2_45))]
+        assert combine_second_order(pairs).values["Kip"] == pytest.approx(Kip, abs=0.02e-7)
 
 
 def test_alignment_formulas_of_section_2_2():

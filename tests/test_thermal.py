@@ -180,7 +180,7 @@ def test_segment_run_sweeps_and_points():
 def test_n4_closed_form_equals_least_squares():
     rng = np.random.default_rng(1)
     E = rng.normal(0.0, 1.0, 4) + np.array([0.1, 3.9, 0.1, -3.7])
-    fit = th.fit_point([0, 90, 180, 270], E, G, TILT)
+    fit = th.fit_point(make_meta(4), [0, 90, 180, 270], E)
     cf = th.closed_form_n4(E, G, TILT)
     A = G * math.sin(math.radians(TILT))
     assert cf["K1"] == pytest.approx((E[1] - E[3]) / (2 * A), rel=1e-14)

@@ -239,7 +239,7 @@ def reference_scale(mounts: Mounts, tumble: Reference | None) -> tuple[Reference
             "nominal arm radius; the radius is then not independent")
     pair0 = ia_pair_data(mounts, 1.0)
     R0 = float(mounts.run_plus.meta["arm_radius_m"])
-    f, _ = pair0.fit(pair0.inputs(R0), 3, subtract_a=False)
+    f = pair0.fit(pair0.inputs(R0), 3, subtract_a=False)
     K1 = 0.5 * (f.value("b+") + f.value("b-"))
     K0 = 0.5 * (f.value("K0+") + f.value("K0-")) / K1
     return Reference(K0, K1, 0.0, 0.0, 0.0, 0.0, from_tumble=False), (flag,)

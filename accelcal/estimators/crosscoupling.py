@@ -72,13 +72,6 @@ def eq2_row(plane: str, phi0_rad: float) -> dict[str, float]:
     return {k: float(output_derivative(k, {"K1": 1.0}, u)[0]) for k in UNKNOWNS}
 
 
-def c2_of_mount(K: Mapping[str, float], plane: str, phi0_rad: float) -> float:
-    """eq 2: c2 = K11 cos^2 phi0 + K22 sin^2 phi0 + K12 cos phi0 sin phi0 [s2/m] (He & Yin 2017,
-    paper 000), through :func:`eq2_row`."""
-    row = eq2_row(plane, phi0_rad)
-    return float(sum(row[k] * K.get(k, 0.0) for k in UNKNOWNS))
-
-
 def delta_c2(K: Mapping[str, float], plane: str, phi0_rad: float, dphi_rad: float) -> float:
     """eq 8, any plane: Delta c2 = [(K22 - K11) sin 2 phi0 + K12 cos 2 phi0] Delta phi0 [s2/m].
 
@@ -97,26 +90,6 @@ def delta_c2(K: Mapping[str, float], plane: str, phi0_rad: float, dphi_rad: floa
             minus = output_derivative(k, {"K1": 1.0}, (u - v)[None, :])[0]
             d += K[k] * (plus - minus) / 2.0
     return float(d * dphi_rad)
-
-
-def kip_from_45(c2_45: float, K2: float, Kpp: float) -> float:
-    """Kip from the 45 deg mount (He & Yin 2017, paper 000 eq 3).
-
-    .. math::
-
-        K_{ip} = 2 c_2(45^\\circ) - (K_2 + K_{pp})
-
-    Parameters
-    ----------
-    c2_45, K2, Kpp : float
-        [s2/m].
-
-    Returns
-    -------
-    float
-        Kip [s2/m].
-    """
-    return 2.0 * c2_45 - (K2 + Kpp)
 
 
 @dataclass
@@ -252,13 +225,6 @@ class PairFit:
         return self.fit.std_error("c3") if "c3" in self.fit.names else None
 
 
-def pair_key(meta: Mapping) -> tuple[str, float]:
-    """(mount plane, phi mod 180 [deg]) of the run's typed geometry
-    (:attr:`accelcal.physics.geometry.CentrifugeMount.mount_key`): the two polarities of one
-    mount share the key."""
-    return geometry_of(meta).mount_key
-
-
 def fit_mount_pair(run_a: tuple[Mapping, pd.DataFrame], run_b: tuple[Mapping, pd.DataFrame],
                    K1: float, R_plus: float, R_minus: float, orders=(2, 3), *,
                    pair: PairData | None = None) -> PairFit:
@@ -296,21 +262,20 @@ def fit_mount_pair(run_a: tuple[Mapping, pd.DataFrame], run_b: tuple[Mapping, pd
     if none is adequate the highest is used and the fit is marked inadequate.
     """
     (ma, da), (mb, db) = run_a, run_b
-    plane, phi0 = pair_key(ma)
+    plane, phi0 = geometry_of(ma).mount_key
     geo = alignment(R_plus, R_minus, plane, phi0)
     if pair is None:
         pair = PairData.from_runs([(ma, da, 1), (mb, db, -1)], K1)
-    T = pair.table
     # eq 9's signed input: the specific force of the forward model along the mount's nominal
     # direction to the spindle, turning centre R and mass centre r from the test radii (the
     # second-order difference to omega_z^2 rho, an angle error, is eq 8's type-B term)
     a = pair.inputs(geo.R, geo.r)
     fits = {}
     for order in orders:
-        fits[order], _ = pair.fit(a, order, subtract_a=False)
+        fits[order] = pair.fit(a, order, subtract_a=False)
     chosen, adequate = choose_order(fits, {3: ["c3"]})
     f = fits[chosen]
-    T = T.assign(a=a, std_resid=f.std_resid, fitted=f.yhat)
+    T = pair.table.assign(a=a, std_resid=f.std_resid, fitted=f.yhat)
     return PairFit(plane, phi0, (str(ma.get("run_id")), str(mb.get("run_id"))), chosen, f, fits,
                    adequate, geo, T)
 
@@ -356,7 +321,7 @@ def combine_second_order(pairs: list[PairFit], u_dc2: Mapping[str, float] | None
     rows, y, var, labels = [], [], [], []
     for p in pairs:
         row = eq2_row(p.plane, math.radians(p.phi0_deg))
-        lab = f"{p.plane} {p.phi0_deg:g}/{p.phi0_deg + 180:g}"
+        lab = pair_label(p)
         rows.append([row[k] for k in UNKNOWNS])
         y.append(p.c2)
         var.append(p.u_c2**2 + u_dc2.get(lab, 0.0) ** 2)

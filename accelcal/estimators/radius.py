@@ -25,12 +25,6 @@ from .adequacy import DwellFit, weighted_dwell_fit
 from .dwells import dwell_table, merged_dwell_columns, noise_model, rest_mean
 
 
-def ia_polarity(meta: Mapping) -> int | None:
-    """+1 when IA points towards the spindle, -1 when away, None when IA is not radial
-    (:attr:`accelcal.physics.geometry.CentrifugeMount.ia_polarity`)."""
-    return geometry_of(meta).ia_polarity
-
-
 def centripetal_unit_input(meta: Mapping, radius_m: float = 1.0, mass_centre_offset: float = 0.0) -> np.ndarray:
     """Specific force on (IA, PA, OA) [m/s2] per unit (rad/s)^2 of table rate.
 
@@ -181,7 +175,7 @@ def test_radius_static(meta: Mapping, data: pd.DataFrame, K0: float, K1: float,
     The denominator s omega_z^2 cos(lambda_c) is the regressor of R of the forward model
     (:func:`static_radius_column`: earth rate in omega_z, exact for either rotation sense).
     """
-    s = ia_polarity(meta)
+    s = geometry_of(meta).ia_polarity
     if s is None:
         raise ValueError(f"run {meta.get('run_id')} is not an IA-radial mount")
     g = float(meta["g_local_m_s2"])
@@ -225,8 +219,7 @@ def test_radius_static(meta: Mapping, data: pd.DataFrame, K0: float, K1: float,
 
 # ---------------------------------------------------------------- iterative (eq 7)
 
-def polarity_design(a: np.ndarray, pol: np.ndarray, order: int, odd_quadratic: bool = True,
-                    names: tuple[str, str, str] = ("c2", "d", "c3")) -> tuple[np.ndarray, list[str]]:
+def polarity_design(a: np.ndarray, pol: np.ndarray, order: int) -> tuple[np.ndarray, list[str]]:
     """Regressors of eq 7 / eq 9 (He & Yin 2017, paper 000).
 
     Parameters
@@ -238,10 +231,6 @@ def polarity_design(a: np.ndarray, pol: np.ndarray, order: int, odd_quadratic: b
     order : int
         1: K0+-, b+-; 2: + c2 a^2 and d a|a| (the polarity-odd quadratic, eq 9's Koq term);
         3: + c3 a^3.
-    odd_quadratic : bool
-        Include d a|a| from order 2.
-    names : tuple of str
-        Names of the c2, d, c3 columns.
 
     Returns
     -------
@@ -252,17 +241,14 @@ def polarity_design(a: np.ndarray, pol: np.ndarray, order: int, odd_quadratic: b
     p = (pol > 0).astype(float)
     m = 1.0 - p
     cols = [p, m, a * p, a * m]
-    nm = ["K0+", "K0-", "b+", "b-"]
+    names = ["K0+", "K0-", "b+", "b-"]
     if order >= 2:
-        cols.append(a**2)
-        nm.append(names[0])
-        if odd_quadratic:
-            cols.append(a * np.abs(a))
-            nm.append(names[1])
+        cols += [a**2, a * np.abs(a)]
+        names += ["c2", "d"]
     if order >= 3:
         cols.append(a**3)
-        nm.append(names[2])
-    return np.column_stack(cols), nm
+        names.append("c3")
+    return np.column_stack(cols), names
 
 
 @dataclass
@@ -349,27 +335,24 @@ class PairData:
             return Rrow * dR + r * dr
         return float(R) * dR + r * dr
 
-    def fit(self, a: np.ndarray, order: int, subtract_a: bool, g_max_ms2: float | None = None,
-            odd_quadratic: bool = True) -> tuple[DwellFit, np.ndarray]:
-        """Weighted fit of y = E/K1 (− a when subtract_a) on the eq 7/9 regressors, dwell
-        groups with |a| <= g_max only; noise model fitted on the groups used."""
-        keep = np.ones(len(self.table), bool) if g_max_ms2 is None else (np.abs(a) <= g_max_ms2 * 1.02)
-        T = {c: self.column(c)[keep] for c in ("mean_output", "ss_within", "n", "dof_pe", "pol", "time_mid",
-                                               "sweep", "rest")}
-        a = a[keep]
+    def fit(self, a: np.ndarray, order: int, subtract_a: bool) -> DwellFit:
+        """Weighted fit of y = E/K1 (− a when subtract_a) on the eq 7/9 regressors of every
+        dwell group, with the noise model fitted on them."""
+        T = {c: self.column(c) for c in ("mean_output", "ss_within", "n", "dof_pe", "pol", "time_mid",
+                                         "sweep", "rest")}
         y = T["mean_output"] / self.K1 - (a if subtract_a else 0.0)
         ssw = T["ss_within"] / self.K1**2
         n = T["n"].astype(float)
         var = ssw / np.maximum(T["dof_pe"], 1)
         s0, k2 = noise_model(np.abs(a), var, T["dof_pe"] + 1)
         sigma2 = s0 + k2 * a**2
-        X, names = polarity_design(a, T["pol"], order, odd_quadratic)
+        X, names = polarity_design(a, T["pol"], order)
         fit = weighted_dwell_fit(X, names, y, n, ssw, sigma2, time=T["time_mid"],
                                  level=np.abs(a), sweep=T["sweep"],
                                  moving=~T["rest"], group=T["pol"],
                                  dof_pe_rows=T["dof_pe"])
         fit.extra.update(noise_s0=float(np.sqrt(s0)), noise_k=float(np.sqrt(k2)), n_groups=int(len(y)))
-        return fit, keep
+        return fit
 
 
 @dataclass
@@ -424,7 +407,7 @@ def test_radius_iterative(pair: PairData, R0_plus: float, R0_minus: float, order
         if it == 1:
             keep = np.ones(len(T), bool) if gm is None else (np.abs(a) <= gm * 1.02)
             sub = pair if keep.all() else pair.subset(keep)
-        fit, _ = sub.fit(a[keep], order, subtract_a=True)
+        fit = sub.fit(a[keep], order, subtract_a=True)
         cp, cm = fit.value("b+"), fit.value("b-")
         Rp *= 1.0 + cp
         Rm *= 1.0 + cm

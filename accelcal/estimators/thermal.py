@@ -34,6 +34,7 @@ are JSON-able (non-finite numbers become None).
 """
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
@@ -44,8 +45,10 @@ import pandas as pd
 from scipy import stats
 
 from ..constants import MICRO_G, T_REF_C
+from ..effects import CROSS_AXIS_TERM, RIG_INPUTS, SQUARE_TERM
 from ..fitting.core import lack_of_fit, linear_fit
 from ..fitting.data import ROW_SLICE, unique_small_ints
+from ..physics.axes import parse_signed_axis
 from ..physics.geometry import geometry_of
 from ..physics.instrument import indicated_acceleration, output_derivative
 from ..physics.rigs import tilt_rotation_specific_force
@@ -61,30 +64,9 @@ METHOD_TWO_POSITION = "tilt_rotation_two_position"
 
 # --------------------------------------------------------------------------- helpers
 
-def _f(x) -> float | None:
-    """float, or None for non-finite values (JSON)."""
-    try:
-        v = float(x)
-    except (TypeError, ValueError):
-        return None
-    return v if math.isfinite(v) else None
-
-
 def _jsonable(obj):
-    """Recursively turn numpy scalars/arrays into plain Python; non-finite floats -> None."""
-    if isinstance(obj, Mapping):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return [_jsonable(v) for v in obj.tolist()]
-    if isinstance(obj, (bool, np.bool_)):
-        return bool(obj)
-    if isinstance(obj, (int, np.integer)):
-        return int(obj)
-    if isinstance(obj, (float, np.floating)):
-        return _f(obj)
-    return obj
+    """A JSON-able copy: numpy values as Python ones, non-finite floats as None."""
+    return json.loads(json.dumps(obj, default=lambda v: v.tolist()), parse_constant=lambda _: None)
 
 
 def rig_geometry(meta: Mapping) -> dict[str, Any]:
@@ -122,33 +104,19 @@ def rig_geometry(meta: Mapping) -> dict[str, Any]:
         raise ValueError("tilt_rotation: tilt_deg is 0, IA senses no input")
     return {"g": g, "gamma_rad": tab.gamma_rad, "ia_term": term, "ia_sign": int(sign),
             "input_amplitude": g * math.sin(tab.gamma_rad), "normal_input": g * math.cos(tab.gamma_rad),
-            "cross_term": CROSS_AXIS[other]}
+            "cross_term": CROSS_AXIS_TERM[other]}
 
 
-#: The instrument coefficient of a cross-axis input (effects.md): PA -> Kp, OA -> Ko.
-CROSS_AXIS = {1: "Kp", 2: "Ko"}
 #: The per-point parameters of paper 001's rotation fit: K1 K0, K1 and K1 times the cross
 #: term of the other in-plane axis (the model is bilinear; the LS is linear in these).
 POINT_PARAMS = ("K1*K0", "K1", "K1*Kx")
 
 
-def _geometry_meta(g: float, tilt_deg: float, ia_term: str, ia_sign: int) -> dict:
-    """The metadata of a tilt_rotation run with IA as the signed ``ia_term`` axis (PA the other
-    in-plane axis, OA the normal): what :func:`fit_point` gives the forward model."""
-    ia = f"{'+' if ia_sign > 0 else '-'}IA"
-    if ia_term not in ("sin", "cos"):
-        raise ValueError(f"ia_term {ia_term!r} is not 'sin' or 'cos'")
-    return {"test": "tilt_rotation", "g_local_m_s2": float(g), "tilt_deg": float(tilt_deg),
-            "sin_axis": ia if ia_term == "sin" else "+PA", "cos_axis": ia if ia_term == "cos" else "+PA",
-            "normal_axis": "+OA", "positions": ""}
-
-
-def specific_force_at(meta: Mapping, theta_deg, time_s=None) -> np.ndarray:
+def specific_force_at(meta: Mapping, theta_deg) -> np.ndarray:
     """Specific force (n, 3) on (IA, PA, OA) [m/s2] at table angles ``theta_deg`` [deg]:
     :func:`accelcal.physics.rigs.tilt_rotation_specific_force` of the nominal table."""
     th = np.asarray(theta_deg, float)
-    t = np.zeros(th.size) if time_s is None else np.asarray(time_s, float)
-    return tilt_rotation_specific_force(meta, {"rotation_deg": th, "time_s": t})
+    return tilt_rotation_specific_force(meta, {"rotation_deg": th, "time_s": np.zeros(th.size)})
 
 
 def point_design(meta: Mapping, theta_deg) -> np.ndarray:
@@ -290,35 +258,27 @@ def position_means(labelled: pd.DataFrame) -> pd.DataFrame:
 
 # --------------------------------------------------------------------------- one temperature point
 
-def fit_point(theta_deg: Sequence[float], output: Sequence[float], g: float, tilt_deg: float,
-              ia_term: str = "sin", ia_sign: int = 1,
-              sigma_override: float | None = None, *, meta: Mapping | None = None) -> dict[str, Any]:
+def fit_point(meta: Mapping, theta_deg: Sequence[float], output: Sequence[float],
+              sigma_override: float | None = None) -> dict[str, Any]:
     """K0, K1 of one temperature point by least squares over its n positions (paper 001).
 
     Parameters
     ----------
+    meta : mapping
+        Typed metadata of the tilt_rotation run (g, tilt and axes: :func:`rig_geometry`).
     theta_deg : sequence of float
         Table angles [deg].
     output : sequence of float
         The mean output at each [output_unit].
-    g : float
-        Local gravity [m/s2].
-    tilt_deg : float
-        gamma [deg].
-    ia_term, ia_sign : str, int
-        IA is the ``sin_axis`` ('sin') or the ``cos_axis`` ('cos'), with sign sigma.
     sigma_override : float, optional
         Standard deviation of one position mean [output_unit]; default: from the residuals,
         s^2 = RSS / (n - 3) (NaN uncertainties when n == 3).
-    meta : mapping, optional
-        The run's metadata; when given, geometry is read from it (g, tilt and the axes of
-        the arguments are then ignored).
 
     Returns
     -------
     dict
         a [output_unit] and b_sin, b_cos (the coefficients of 1, sin theta, cos theta),
-        cov_abc, K0 [m/s2], u_K0, K1 [output_unit/(m/s2)], u_K1, cov_K0_K1, cos_term (= the
+        K0 [m/s2], u_K0, K1 [output_unit/(m/s2)], u_K1, cov_K0_K1, cos_term (= the
         coefficient of the other in-plane term, [output_unit]), u_cos_term, misalignment_rad
         = cos_term / (IA term) [rad] (in-plane misalignment of the sense axis, or a
         cross-axis sensitivity on the other in-plane axis: the two cannot be told apart),
@@ -342,8 +302,6 @@ def fit_point(theta_deg: Sequence[float], output: Sequence[float], g: float, til
     n = E.size
     if n < 3:
         raise ValueError(f"fit_point needs at least 3 positions, got {n}")
-    if meta is None:
-        meta = _geometry_meta(g, tilt_deg, ia_term, ia_sign)
     geo = rig_geometry(meta)
     A = geo["input_amplitude"]
     X = point_design(meta, th)
@@ -385,11 +343,12 @@ def fit_point(theta_deg: Sequence[float], output: Sequence[float], g: float, til
     gm = np.zeros(3)
     gm[io] = 1.0 / b
     gm[ib] = -c / (b * b)
-    u = lambda grad: math.sqrt(max(float(grad @ cov @ grad), 0.0)) if math.isfinite(s) else float("nan")  # noqa: E731
-    return {"n": n, "a": float(a), "b_sin": float(bs), "b_cos": float(bc), "cov_abc": cov.tolist(),
+    # (a NaN covariance, when n = 3 leaves no residual dof, gives NaN uncertainties)
+    u = lambda grad: math.sqrt(max(float(grad @ cov @ grad), 0.0))  # noqa: E731
+    return {"n": n, "a": float(a), "b_sin": float(bs), "b_cos": float(bc),
             "K0": float(K0), "u_K0": u(gK0), "K1": float(K1), "u_K1": u(gK1),
-            "cov_K0_K1": float(gK0 @ cov @ gK1) if math.isfinite(s) else float("nan"),
-            "cos_term": float(c), "u_cos_term": math.sqrt(cov[io, io]) if math.isfinite(s) else float("nan"),
+            "cov_K0_K1": float(gK0 @ cov @ gK1),
+            "cos_term": float(c), "u_cos_term": math.sqrt(cov[io, io]),
             "misalignment_rad": float(c / b), "u_misalignment_rad": u(gm),
             "cross_term": float(beta[2] / beta[1]), "cross_term_name": geo["cross_term"],
             "rss": rss, "dof": dof, "s": s}
@@ -442,6 +401,7 @@ def fit_points(meta: Mapping, data: pd.DataFrame) -> tuple[list[dict], pd.DataFr
     n_pos = int(meta["positions"]) if meta.get("positions") not in (None, "") else None
     pm = position_means(segment_run(data, n_pos))
     points: list[dict] = []
+    fitted: list[tuple[dict, np.ndarray, np.ndarray]] = []     # (row, theta, E) of the fitted points
     for pt, grp in pm.groupby("point", sort=True):
         grp = grp.sort_values("position")
         T = grp["temp_c"].to_numpy(float)
@@ -451,11 +411,8 @@ def fit_points(meta: Mapping, data: pd.DataFrame) -> tuple[list[dict], pd.DataFr
                "time_s": float(grp["time_s"].mean()), "n_positions": int(len(grp)),
                "n_readings": int(grp["count"].sum())}
         if len(grp) >= 3:
-            fit = fit_point(grp["theta_deg"], grp["output"], geo["g"], float(meta["tilt_deg"]),
-                            geo["ia_term"], geo["ia_sign"], meta=meta)
-            row.update({k: v for k, v in fit.items() if k != "cov_abc"})
-            row["_theta"] = grp["theta_deg"].to_numpy(float)
-            row["_E"] = grp["output"].to_numpy(float)
+            row.update(fit_point(meta, grp["theta_deg"], grp["output"]))
+            fitted.append((row, grp["theta_deg"].to_numpy(float), grp["output"].to_numpy(float)))
         # closed-form check on the quadrant positions (0, 90, 180, 270)
         th = np.mod(grp["theta_deg"].to_numpy(float), 360.0)
         quad = []
@@ -466,24 +423,19 @@ def fit_points(meta: Mapping, data: pd.DataFrame) -> tuple[list[dict], pd.DataFr
             cf = closed_form_n4(quad, geo["g"], float(meta["tilt_deg"]), geo["ia_sign"])
             row["closed_form_K0"], row["closed_form_K1"] = cf["K0"], cf["K1"]
         points.append(row)
-    fitted = [p for p in points if "K1" in p]
     if fitted:
-        dof_tot = sum(p["dof"] for p in fitted)
+        dof_tot = sum(p["dof"] for p, _, _ in fitted)
         if dof_tot > 0:
-            s_pool = math.sqrt(sum(p["rss"] for p in fitted) / dof_tot)
+            s_pool = math.sqrt(sum(p["rss"] for p, _, _ in fitted) / dof_tot)
         else:  # n = 3: no residual dof; the within-position scatter of the readings instead
             sd, cnt = pm["output_sd"].to_numpy(float), pm["count"].to_numpy(float)
             ok = np.isfinite(sd) & (cnt > 1)
             s_pool = float(np.sqrt(np.mean(sd[ok] ** 2 / cnt[ok]))) if ok.any() else float("nan")
             dof_tot = int(np.sum(cnt[ok] - 1))
-        for p in fitted:
-            fp = fit_point(p["_theta"], p["_E"], geo["g"], float(meta["tilt_deg"]), geo["ia_term"],
-                           geo["ia_sign"], sigma_override=s_pool, meta=meta)
+        for p, theta, E in fitted:
+            fp = fit_point(meta, theta, E, sigma_override=s_pool)
             p["u_K0_pooled"], p["u_K1_pooled"] = fp["u_K0"], fp["u_K1"]
             p["s_pooled"], p["dof_pooled"] = s_pool, dof_tot
-    for p in points:
-        for k in ("_theta", "_E"):
-            p.pop(k, None)
     return points, pm
 
 
@@ -608,18 +560,19 @@ def _temperature_sensitivity(x, u_K0, u_K1, p_K0, p_K1, levels) -> dict[str, flo
     return out
 
 
-def _fit_from_points(points: list[dict], pooled: bool = True, birge: bool = True) -> dict[str, Any]:
+def _fit_from_points(points: list[dict]) -> dict[str, Any]:
+    """:func:`fit_temperature_model` of the fitted points of :func:`fit_points`, weighted by
+    their uncertainties from the run's pooled residual variance (per-point variances on few
+    dof make poor weights)."""
     pts = [p for p in points if "K1" in p]
-    uk0 = "u_K0_pooled" if pooled else "u_K0"
-    uk1 = "u_K1_pooled" if pooled else "u_K1"
-    dof_u = pts[0].get("dof_pooled") if pooled else min(p["dof"] for p in pts)
-    return fit_temperature_model([p["temp_c"] for p in pts], [p["K0"] for p in pts], [p[uk0] for p in pts],
-                                 [p["K1"] for p in pts], [p[uk1] for p in pts], birge=birge,
-                                 dof_u=dof_u if dof_u and dof_u > 0 else None,
+    dof_u = pts[0].get("dof_pooled")
+    return fit_temperature_model([p["temp_c"] for p in pts], [p["K0"] for p in pts],
+                                 [p["u_K0_pooled"] for p in pts], [p["K1"] for p in pts],
+                                 [p["u_K1_pooled"] for p in pts], dof_u=dof_u if dof_u and dof_u > 0 else None,
                                  levels=[p.get("temp_set_c", p["temp_c"]) for p in pts])
 
 
-def sweep_repeatability(points: list[dict], pooled: bool = True) -> dict[str, Any]:
+def sweep_repeatability(points: list[dict]) -> dict[str, Any]:
     """The temperature model fitted to each sweep (repeat) alone, and the spread across sweeps.
 
     Returns per_sweep (list of fits: K0T, K1T, K0, K1 with uncertainties) and, with two or
@@ -632,7 +585,7 @@ def sweep_repeatability(points: list[dict], pooled: bool = True) -> dict[str, An
         pts = [p for p in points if p["sweep"] == s and "K1" in p]
         if len({round(p["temp_c"], 6) for p in pts}) < 2:
             continue
-        f = _fit_from_points(pts, pooled)
+        f = _fit_from_points(pts)
         per.append({"sweep": s, "n_points": len(pts), **{k: f[k] for k in (
             "K0", "u_K0", "K1", "u_K1", "K0T", "u_K0T", "K1T", "u_K1T")}})
     out: dict[str, Any] = {"per_sweep": per, "n_sweeps": len(per)}
@@ -646,7 +599,7 @@ def sweep_repeatability(points: list[dict], pooled: bool = True) -> dict[str, An
     return out
 
 
-def scale_factor_time_trend(points: list[dict], model: Mapping, pooled: bool = True) -> dict[str, Any]:
+def scale_factor_time_trend(points: list[dict], model: Mapping) -> dict[str, Any]:
     """Trend in time of the per-point K1 left after the temperature model (paper 001: a base-tilt
     change d_gamma scales K1 by (gamma + d_gamma)/gamma, so a steady base tilt drift shows as a K1
     trend in time; with repeated sweeps time and temperature are not collinear).
@@ -655,7 +608,6 @@ def scale_factor_time_trend(points: list[dict], model: Mapping, pooled: bool = T
     uncertainty (scaled by the Birge ratio when > 1) and ``significant`` (|slope| > 3 u);
     a slope s (1/h) means a base tilt rate of about gamma * s / 3600 rad/s.
     """
-    uk = "u_K1_pooled" if pooled else "u_K1"
     pts = [p for p in points if "K1" in p]
     if len(pts) < 3:
         return {}
@@ -663,7 +615,7 @@ def scale_factor_time_trend(points: list[dict], model: Mapping, pooled: bool = T
     T = np.array([p["temp_c"] for p in pts])
     K1fit = model["K1"] * (1.0 + model["K1T"] * (T - model.get("t_ref_c", T_REF_C)))
     r = np.array([p["K1"] for p in pts]) / K1fit - 1.0
-    u = np.array([p[uk] for p in pts]) / K1fit
+    u = np.array([p["u_K1_pooled"] for p in pts]) / K1fit
     if np.ptp(t_h) == 0 or not np.all(np.isfinite(u)) or np.any(u <= 0):
         return {}
     f = _wls_line(t_h - t_h.mean(), r, u, birge=True)
@@ -697,7 +649,7 @@ def fixed_point_method(meta: Mapping, pm: pd.DataFrame, s_pos: float | None = No
         sd = pm["output_sd"].to_numpy(float) / np.sqrt(pm["count"].to_numpy(float))
         s_pos = float(np.sqrt(np.nanmean(sd**2))) if np.isfinite(sd).any() else float("nan")
     rows = []
-    # plain arrays per point (the pandas boolean indexing per group dominated this method)
+    # plain arrays per point
     point = pm["point"].to_numpy()
     out_v = pm["output"].to_numpy(float)
     temp_v = pm["temp_c"].to_numpy(float)
@@ -802,8 +754,8 @@ def temperature_correlation(series, temp_c) -> dict[str, float | None]:
 
 # --------------------------------------------------------------------------- one run
 
-def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = "", *,
-                        pooled: bool = True) -> tuple[list[CoefficientResult], dict[str, Any]]:
+def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = ""
+                        ) -> tuple[list[CoefficientResult], dict[str, Any]]:
     """All of paper 001 on one tilt_rotation run: K0, K1, K0T, K1T and the checks.
 
     .. math::
@@ -821,9 +773,6 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = "", *,
     data : DataFrame
         time_s [s], temp_set_c [degC], temp_c [degC], rotation_deg [deg], output [output_unit].
     rig_id : str
-    pooled : bool
-        Weight the temperature lines by the per-point uncertainties from the residual
-        variance pooled over the run (default) instead of each point's own.
 
     Returns
     -------
@@ -849,7 +798,7 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = "", *,
     note_k0 = ("apparent bias at 20 degC: includes g*cos(gamma) times any normal-axis cross-axis "
                "sensitivity or tilt of IA out of the table plane")
     if len({round(p["temp_c"], 6) for p in fitted}) >= 2:
-        model = _fit_from_points(fitted, pooled)
+        model = _fit_from_points(fitted)
         method = METHOD
     elif fixed.get("two_position"):
         model = fixed["two_position"]
@@ -897,7 +846,7 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = "", *,
                 "max_rel_diff_K1": max(abs(p["closed_form_K1"] / p["K1"] - 1.0) for p in cf),
                 "max_abs_diff_K0_m_s2": max(abs(p["closed_form_K0"] - p["K0"]) for p in cf),
                 "note": "closed forms on the 0/90/180/270 positions; equal to LS when n = 4"}
-    extras["repeatability"] = sweep_repeatability(fitted, pooled) if fitted else {}
+    extras["repeatability"] = sweep_repeatability(fitted) if fitted else {}
     if fixed:
         extras["fixed_point"] = fixed
         if method == METHOD and "two_position" in fixed:
@@ -949,10 +898,10 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = "", *,
 _GRAVITY_POWER = {"K0": 1.0, "K0T": 1.0, "K1": -1.0, "K1T": 0.0}
 
 
-def input_sensitivities(coefficients: Sequence[CoefficientResult], model: Mapping[str, Any],
-                        g: float, gamma_rad: float) -> dict[str, dict[str, float]]:
-    """Sensitivity of paper 001's coefficients to the rig inputs the drop gives as known
-    (:data:`accelcal.effects.RIG_INPUTS`), in closed form.
+def stated_inputs(coefficients: Sequence[CoefficientResult], model: Mapping[str, Any], meta: Mapping,
+                  stated: Mapping[str, float]) -> dict[str, dict[str, tuple[float, float, float]]]:
+    """The rig inputs the lab states for this run's rig (:data:`accelcal.effects.RIG_INPUTS`),
+    with the sensitivity of paper 001's coefficients to each, in closed form.
 
     With K1 = sigma b / (g sin gamma) and K0 = a / K1 (paper 001), a coefficient that scales
     as (g sin gamma)^n has dC/dg = n C / g and dC/dgamma = n C cot(gamma); the temperature
@@ -964,25 +913,32 @@ def input_sensitivities(coefficients: Sequence[CoefficientResult], model: Mappin
         K0, K1, K0T, K1T.
     model : mapping
         ``extras['temperature_model']``.
-    g : float
-        g_local [m/s2].
-    gamma_rad : float
-        Table tilt gamma [rad].
+    meta : mapping
+        The run's metadata (``g_local_m_s2`` [m/s2], ``tilt_deg`` [deg]).
+    stated : mapping
+        Input id -> the lab's standard uncertainty (the tilt's in deg, the others in SI).
 
     Returns
     -------
     dict
-        Coefficient -> {``g_local`` [unit per m/s2], ``table_tilt`` [unit per rad],
-        ``temperature`` [unit per degC, root-sum-square over the points]}; ``temperature``
-        absent when the model has no such figure (the two-position method).
+        Coefficient -> input id -> (value [SI], standard uncertainty [SI], sensitivity [unit
+        per SI unit]) of each stated input that enters it (``temperature``: root-sum-square
+        over the points; absent when the model has no such figure, as the two-position
+        method).
     """
+    g, gamma = float(meta["g_local_m_s2"]), math.radians(float(meta["tilt_deg"]))
     dT = model.get("temperature_sensitivity") or {}
-    out = {}
+    value = {"g_local": g, "table_tilt": gamma, "temperature": 0.0}
+    to_si = {"table_tilt": math.pi / 180.0}
+    out: dict[str, dict[str, tuple]] = {}
     for c in coefficients:
         n = _GRAVITY_POWER[c.name]
-        out[c.name] = {"g_local": n * c.value / g, "table_tilt": n * c.value / math.tan(gamma_rad)}
+        sens = {"g_local": n * c.value / g, "table_tilt": n * c.value / math.tan(gamma)}
         if c.name in dT:
-            out[c.name]["temperature"] = dT[c.name]
+            sens["temperature"] = dT[c.name]
+        for iid, x in sens.items():
+            if iid in stated:
+                out.setdefault(c.name, {})[iid] = (value[iid], float(stated[iid]) * to_si.get(iid, 1.0), x)
     return out
 
 
@@ -1000,7 +956,7 @@ def budget_terms(coefficients: Sequence[CoefficientResult], model: Mapping[str, 
         Its ``extras['temperature_model']`` (:func:`fit_temperature_model`).
     inputs : mapping, optional
         Coefficient -> input id -> (value [SI], standard uncertainty [SI], sensitivity):
-        the lab-stated rig inputs (:func:`input_sensitivities`), one normal type-B line each.
+        the lab-stated rig inputs (:func:`stated_inputs`), one normal type-B line each.
 
     Returns
     -------
@@ -1011,7 +967,6 @@ def budget_terms(coefficients: Sequence[CoefficientResult], model: Mapping[str, 
         fixture's thermal tilt is not a line: the method cannot tell it from the
         instrument's bias TC (paper 001 §3.2), which the K0T note says.
     """
-    from ..effects import RIG_INPUTS
     out = []
     for c in coefficients:
         line = "K0" if c.name in ("K0", "K0T") else "K1"
@@ -1045,29 +1000,13 @@ def campaign_records(runs: Sequence, steps: Mapping[str, Any]) -> list:
             out.append(Records(flags=[f"tilt_rotation {run.meta.get('run_id')}: {type(exc).__name__}: {exc}"]))
             continue
         model = extras["temperature_model"]
-        inputs = _stated_inputs(coeffs, model, run.meta,
-                                (steps.get("rig_uncertainty") or {}).get(str(run.meta.get("rig_id", ""))) or {})
+        inputs = stated_inputs(coeffs, model, run.meta,
+                               (steps.get("rig_uncertainty") or {}).get(str(run.meta.get("rig_id", ""))) or {})
         budget = budget_terms(coeffs, model, inputs)
         coeffs = [replace(c, std_uncertainty=math.sqrt(c.std_uncertainty ** 2 + sum(
             (u * sens) ** 2 for _, u, sens in inputs.get(c.name, {}).values()))) for c in coeffs]
         out.append(Records(coefficients=coeffs, budget=budget,
                            extras={"thermal": {str(run.meta.get("run_id")): extras}}).checked())
-    return out
-
-
-def _stated_inputs(coeffs, model, meta, stated: Mapping[str, float]) -> dict[str, dict[str, tuple]]:
-    """Coefficient -> input id -> (value, u, sensitivity) in SI units for the inputs the lab
-    states for this run's rig (:func:`input_sensitivities`); the tilt's u is stated in deg."""
-    if not stated:
-        return {}
-    g, gamma = float(meta["g_local_m_s2"]), math.radians(float(meta["tilt_deg"]))
-    value = {"g_local": g, "table_tilt": gamma, "temperature": 0.0}
-    to_si = {"table_tilt": math.pi / 180.0}
-    out: dict[str, dict[str, tuple]] = {}
-    for name, sens in input_sensitivities(coeffs, model, g, gamma).items():
-        for iid, c in sens.items():
-            if iid in stated:
-                out.setdefault(name, {})[iid] = (value[iid], float(stated[iid]) * to_si.get(iid, 1.0), c)
     return out
 
 
@@ -1078,8 +1017,6 @@ def mc_truth(c: Mapping[str, float], eff: Mapping[str, float], test: Mapping[str
     cross and square terms and the mean centripetal-free square term of the tilt plane;
     K1 -> K1; K0T -> K0T + g c cos(gamma) of a fixture thermal tilt c (aliased, paper 001
     §3.2); K1T -> K1T (signature of :data:`accelcal.estimators.registry.TruthMapping`)."""
-    from ..effects import CROSS_AXIS_TERM, SQUARE_TERM
-    from ..physics.axes import parse_signed_axis
     rig = str(test["rig_id"])
     gam = math.radians(float(test["tilt_deg"]))
     ni, ns = parse_signed_axis(test.get("normal_axis", "+OA"))
