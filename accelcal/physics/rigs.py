@@ -24,15 +24,16 @@ from functools import lru_cache
 import numpy as np
 
 from ..constants import M2_PERIOD_S, OMEGA_EARTH, T_REF_C
+from ..effects import EFFECTS
 from .geometry import geometry_of
 from .instrument import first_order_lag, output
 
 #: The drop format's nominal input: everything nominal, earth rate included.
 NOMINAL: dict[str, float] = {"earth_rate": 1.0}
 
-#: Effects that are instrument coefficients (effects.md): effect id -> coefficient name.
-INSTRUMENT_EFFECTS = {"odd_quadratic": "Koq", "cubic": "K3", "cross_coupling": "Kip",
-                      "bias_temperature": "K0T", "scale_temperature": "K1T"}
+#: Effects that are instrument coefficients (the catalogue's ``Effect.coefficient``):
+#: effect id -> coefficient name.
+INSTRUMENT_EFFECTS = {e.id: e.coefficient for e in EFFECTS.values() if e.coefficient}
 
 
 def _col(data, name, n=None, default=0.0) -> np.ndarray:
