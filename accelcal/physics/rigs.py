@@ -24,15 +24,16 @@ from functools import lru_cache
 import numpy as np
 
 from ..constants import M2_PERIOD_S, OMEGA_EARTH, T_REF_C
+from ..effects import EFFECTS
 from .geometry import geometry_of
 from .instrument import first_order_lag, output
 
 #: The drop format's nominal input: everything nominal, earth rate included.
 NOMINAL: dict[str, float] = {"earth_rate": 1.0}
 
-#: Effects that are instrument coefficients (effects.md): effect id -> coefficient name.
-INSTRUMENT_EFFECTS = {"odd_quadratic": "Koq", "cubic": "K3", "cross_coupling": "Kip",
-                      "bias_temperature": "K0T", "scale_temperature": "K1T"}
+#: Effects that are instrument coefficients (the catalogue's ``Effect.coefficient``):
+#: effect id -> coefficient name.
+INSTRUMENT_EFFECTS = {e.id: e.coefficient for e in EFFECTS.values() if e.coefficient}
 
 
 def _col(data, name, n=None, default=0.0) -> np.ndarray:
@@ -420,6 +421,29 @@ def specific_force(test: str, meta: Mapping, data, effects: Mapping[str, float] 
     raise ValueError(f"unknown test kind {test!r}")
 
 
+def instrument_coefficients(coeffs: Mapping[str, float], effects: Mapping[str, float]) -> dict[str, float]:
+    """The instrument coefficients with the instrument-term effects added to theirs.
+
+    Parameters
+    ----------
+    coeffs : mapping
+        Instrument coefficients [SI, effects.md units].
+    effects : mapping
+        effects.md id -> parameter; odd_quadratic, cubic, cross_coupling, bias_temperature
+        and scale_temperature add to Koq, K3, Kip, K0T, K1T (:data:`INSTRUMENT_EFFECTS`).
+
+    Returns
+    -------
+    dict
+        The coefficients the instrument model (effects.md) sees.
+    """
+    c = dict(coeffs)
+    for eid, name in INSTRUMENT_EFFECTS.items():
+        if eid in effects:
+            c[name] = float(c.get(name, 0.0)) + float(effects[eid])
+    return c
+
+
 def rig_output(test: str, meta: Mapping, data, coeffs: Mapping[str, float],
                effects: Mapping[str, float] | None = None, **kw) -> np.ndarray:
     """Noise-free instrument output of a run: the one forward model.
@@ -454,10 +478,7 @@ def rig_output(test: str, meta: Mapping, data, coeffs: Mapping[str, float],
         E [output_unit].
     """
     effects = dict(effects or {})
-    c = dict(coeffs)
-    for eid, name in INSTRUMENT_EFFECTS.items():
-        if eid in effects:
-            c[name] = float(c.get(name, 0.0)) + float(effects[eid])
+    c = instrument_coefficients(coeffs, effects)
     F = specific_force(test, meta, data, effects, **kw)
     n = F.shape[0]
     # the temperature only enters through K0T and K1T (instrument.output): not read without them

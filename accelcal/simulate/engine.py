@@ -24,7 +24,7 @@ Noise model (per run, from the run's own random stream):
 - output counts: the output is rounded to a multiple of output_quantum (output_unit), last.
 
 The optional noise keys draw random numbers only when they are above 0, so a scenario
-without them gives the same bytes as before they existed.
+without them gives the same bytes as one that sets them to 0.
 
 Disturbances (``[disturbance]``): effects outside the catalogue (effects.md), for testing that
 the diagnosis says a gap is unexplained: a sweep hysteresis (a centrifuge's rising steps read
@@ -47,7 +47,8 @@ from scipy.signal import lfilter
 from ..constants import OMEGA_EARTH, T_REF_C
 from ..effects import EFFECTS
 from ..physics import rig_output, scale_factor
-from ..physics.rigs import INSTRUMENT_EFFECTS, centripetal_level, sine_drive, sine_drive_angle, specific_force
+from ..physics.rigs import (centripetal_level, instrument_coefficients, sine_drive, sine_drive_angle,
+                            specific_force)
 from .scenario import DISTURBANCE_DEFAULTS, Scenario, load_scenario
 
 COLUMNS = {
@@ -106,26 +107,28 @@ def _optional_meta(meta: dict, *sources) -> dict:
 
 def _started_at(t: dict, k: int) -> str:
     start = t.get("started_at", "2026-01-01T08:00:00+00:00")
-    if isinstance(start, datetime):
-        dt = start
-    else:
-        dt = datetime.fromisoformat(str(start))
+    dt = start if isinstance(start, datetime) else datetime.fromisoformat(str(start))
     dt = dt + timedelta(seconds=float(t.get("run_interval_s", 3600.0)) * k)
     return dt.isoformat()
 
 
-def _finish(kind, meta, phys, coeffs, effects, noise, rng, sc_truth, level=None, down=None):
-    """Noise-free output from the physics, then bias walk, white noise and (with ``level``,
-    the centripetal level omega_z^2 R of each reading) noise proportional to it (output_unit);
-    ``down``: the readings of a centrifuge's falling steps (the sweep hysteresis)."""
+def _output(kind, meta, cols, angle, coeffs, effects, noise, rng, true_rate=None, radius=None, down=None):
+    """Write the logged angle and the output into ``cols``; returns the noise-free output.
+
+    The physics sees the columns as they will be written, the true angle, and ``true_rate``
+    (centrifuges) in place of the logged rate.  The output is the noise-free
+    :func:`~accelcal.physics.rigs.rig_output`, then bias walk, white noise and (centrifuges:
+    the centripetal level omega_z^2 R of each reading from ``true_rate`` and ``radius`` [m])
+    noise proportional to it, the disturbances, spikes and counts [output_unit]; ``down``: the
+    readings of a centrifuge's falling steps (the sweep hysteresis).
+    """
+    phys = _frame_phys(cols if true_rate is None else {**cols, "table_rate_rad_s": true_rate})
+    cols[angle] = _logged_angle(cols[angle], noise, rng)
+    level = None if true_rate is None else centripetal_level(meta, true_rate, radius)
     E0 = rig_output(kind, meta, phys, coeffs, effects)
     n = len(E0)
-    c = dict(coeffs)
-    for eid, name in INSTRUMENT_EFFECTS.items():
-        if eid in effects:
-            c[name] = float(c.get(name, 0.0)) + float(effects[eid])
     temp = np.asarray(phys["temp_c"], float) if "temp_c" in phys else None
-    K1 = scale_factor(c, temp)
+    K1 = scale_factor(instrument_coefficients(coeffs, effects), temp)
     t = np.asarray(phys["time_s"], float)
     E = E0.copy()
     walk = noise["bias_walk_m_s2_rt_s"]
@@ -159,7 +162,8 @@ def _finish(kind, meta, phys, coeffs, effects, noise, rng, sc_truth, level=None,
     q = noise.get("output_quantum", 0.0)
     if q > 0:
         E = np.round(E / q) * q
-    return E, E0
+    cols["output"] = E
+    return E0
 
 
 def _logged_angle(angle: np.ndarray, noise: dict, rng: np.random.Generator) -> np.ndarray:
@@ -191,7 +195,7 @@ def _rng(seed: int | None, index: int) -> np.random.Generator:
 def _tumble_run(sc, t, head, meta, effects, noise, rng):
     n_pos = int(t.get("positions", 24))
     n_read = int(t.get("readings", 10))
-    dt = float(t.get("sample_period_s", 1.0))
+    dt = meta["sample_period_s"]
     period = float(t.get("dwell_period_s", 40.0))
     pos = np.repeat(np.arange(n_pos), n_read)
     j = np.tile(np.arange(n_read), n_pos)
@@ -200,11 +204,7 @@ def _tumble_run(sc, t, head, meta, effects, noise, rng):
     temp = _case_temperature(t, time) + noise["temp_noise_c"] * rng.standard_normal(time.size)
     meta.update({"head_axis": head["head_axis"], "cos_axis": head["cos_axis"], "sin_axis": head["sin_axis"]})
     cols = {"time_s": time, "position": pos, "angle_deg": angle, "temp_c": temp}
-    phys = _frame_phys(cols)
-    logged = _logged_angle(angle, noise, rng)
-    E, E0 = _finish("tumble", meta, phys, sc.coefficients, effects, noise, rng, None)
-    cols["output"] = E
-    cols["angle_deg"] = logged
+    E0 = _output("tumble", meta, cols, "angle_deg", sc.coefficients, effects, noise, rng)
     return cols, {"noise_free_output": E0}
 
 
@@ -259,7 +259,7 @@ def _centrifuge_run(sc, t, mount, meta, effects, noise, rng):
     rates = level_rates(seq, g, float(t.get("level_radius_m", R)), sc.site["latitude_deg"], sense,
                         bool(t.get("level_earth_rate", True)))
     n_read = int(t.get("readings", 8))
-    dt = float(t.get("sample_period_s", 2.0))
+    dt = meta["sample_period_s"]
     p_rest = float(t.get("rest_dwell_period_s", 36.0))
     p_rate = float(t.get("rate_dwell_period_s", 76.0))
     dwell_rate = [0.0] * len(az) + list(rates)
@@ -286,21 +286,17 @@ def _centrifuge_run(sc, t, mount, meta, effects, noise, rng):
                  "reading_window_s": float(t.get("reading_window_s", dt))})
     cols = {"time_s": time, "step": step, "table_rate_rad_s": logged, "table_angle_deg": angle,
             "temp_c": temp}
-    phys = _frame_phys({**cols, "table_rate_rad_s": true_rate})
-    cols["table_angle_deg"] = _logged_angle(angle, noise, rng)
-    E, E0 = _finish("centrifuge", meta, phys, sc.coefficients, effects, noise, rng, None,
-                    level=centripetal_level(meta, true_rate, R),
-                    down=step >= len(az) + len(levels))
-    cols["output"] = E
+    E0 = _output("centrifuge", meta, cols, "table_angle_deg", sc.coefficients, effects, noise, rng,
+                 true_rate, R, down=step >= len(az) + len(levels))
     return cols, {"noise_free_output": E0, "true_rate_rad_s": true_rate, "g_levels": seq}
 
 
-def _tilt_run(sc, t, meta, effects, noise, rng):
+def _tilt_run(sc, t, _item, meta, effects, noise, rng):
     n_pos = int(t.get("positions", 12))
     sets = [float(x) for x in t.get("temp_set_c", [20, 25, 30, 35, 40])]
     sweeps = int(t.get("sweeps", 1))
     n_read = int(t.get("readings", 20))
-    dt = float(t.get("sample_period_s", 1.0))
+    dt = meta["sample_period_s"]
     period = float(t.get("dwell_period_s", 50.0))
     soak = float(t.get("soak_s", 3600.0))
     off = float(t.get("temp_offset_c", 0.0))
@@ -327,11 +323,7 @@ def _tilt_run(sc, t, meta, effects, noise, rng):
                  "positions": n_pos})
     cols = {"time_s": time, "temp_set_c": np.concatenate(tset), "temp_c": temp,
             "rotation_deg": np.concatenate(rot)}
-    phys = _frame_phys(cols)
-    logged = _logged_angle(cols["rotation_deg"], noise, rng)
-    E, E0 = _finish("tilt_rotation", meta, phys, sc.coefficients, effects, noise, rng, None)
-    cols["output"] = E
-    cols["rotation_deg"] = logged
+    E0 = _output("tilt_rotation", meta, cols, "rotation_deg", sc.coefficients, effects, noise, rng)
     return cols, {"noise_free_output": E0}
 
 
@@ -352,15 +344,18 @@ def _sine_run(sc, t, att, meta, effects, noise, rng):
                  "mount_plane": str(att["plane"]), "mount_angle_deg": float(att.get("angle_deg", 0.0)),
                  "vertical_axis": str(att["vertical"]), "rate_amplitude_rad_s": Om, "rate_frequency_hz": f})
     cols = {"time_s": time, "table_rate_rad_s": logged, "table_angle_deg": angle}
-    phys = _frame_phys({**cols, "table_rate_rad_s": true_rate})
-    cols["table_angle_deg"] = _logged_angle(angle, noise, rng)
-    E, E0 = _finish("sine_centrifuge", meta, phys, sc.coefficients, effects, noise, rng, None,
-                    level=centripetal_level(meta, true_rate, float(t["arm_radius_m"])))
-    cols["output"] = E
+    E0 = _output("sine_centrifuge", meta, cols, "table_angle_deg", sc.coefficients, effects, noise, rng,
+                 true_rate, float(t["arm_radius_m"]))
     return cols, {"noise_free_output": E0, "true_rate_rad_s": true_rate}
 
 
 # ---------------------------------------------------------------- campaign
+_RUN = {"tumble": _tumble_run, "centrifuge": _centrifuge_run, "tilt_rotation": _tilt_run,
+        "sine_centrifuge": _sine_run}
+#: default sample period of a tumble, centrifuge or tilt run [s]
+SAMPLE_PERIOD_S = {"tumble": 1.0, "centrifuge": 2.0, "tilt_rotation": 1.0}
+
+
 def _plan(sc: Scenario):
     """Yield (test, item, k) for every run: item is the head/mount/attitude, k its index in the test."""
     for t in sc.tests:
@@ -392,27 +387,14 @@ def simulate_campaign(scenario, seed: int | None = None) -> list[SimRun]:
         num = counters.get(prefix, 1)
         counters[prefix] = num + 1
         run_id = f"{prefix}-{num:04d}"
-        item_effects = (item or {}).get("effects", {}) if isinstance(item, dict) else {}
+        item_effects = item.get("effects", {}) if isinstance(item, dict) else {}
         effects = _effects_for(kind, sc.effects, t["effects"], item_effects)
         noise = {**sc.noise, **t["noise"], **sc.disturbance, **t["disturbance"]}
         rng = _rng(seed, index)
-        if kind == "tumble":
-            period = float(t.get("sample_period_s", 1.0))
-        elif kind == "centrifuge":
-            period = float(t.get("sample_period_s", 2.0))
-        elif kind == "tilt_rotation":
-            period = float(t.get("sample_period_s", 1.0))
-        else:
-            period = 1.0 / float(t.get("sample_rate_hz", 50.0))
+        period = (1.0 / float(t.get("sample_rate_hz", 50.0)) if kind == "sine_centrifuge"
+                  else float(t.get("sample_period_s", SAMPLE_PERIOD_S[kind])))
         meta = _base_meta(sc, t, run_id, _started_at(t, k), period)
-        if kind == "tumble":
-            cols, extra = _tumble_run(sc, t, item, meta, effects, noise, rng)
-        elif kind == "centrifuge":
-            cols, extra = _centrifuge_run(sc, t, item, meta, effects, noise, rng)
-        elif kind == "tilt_rotation":
-            cols, extra = _tilt_run(sc, t, meta, effects, noise, rng)
-        else:
-            cols, extra = _sine_run(sc, t, item, meta, effects, noise, rng)
+        cols, extra = _RUN[kind](sc, t, item, meta, effects, noise, rng)
         _optional_meta(meta, item if isinstance(item, dict) else None, t)
         dist = {k: noise.pop(k) for k in list(noise) if k in DISTURBANCE_DEFAULTS}
         truth: dict[str, Any] = {"scenario": sc.name, "coefficients": dict(sc.coefficients),

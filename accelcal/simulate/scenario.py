@@ -46,7 +46,7 @@ key says otherwise (``*_deg``, ``*_c``).  Layout::
     spike_rate = 0.0                # probability per row of a spike in the output ...
     spike_m_s2 = 0.0                # ... of size spike_m_s2 (1 + |N(0,1)|) m/s^2 of input, random sign
     output_quantum = 0.0            # output rounded to counts of this size (output_unit)
-                                    # (the optional keys draw nothing when 0: same bytes as before)
+                                    # (the optional keys draw nothing when 0)
 
     [disturbance]                   # effects outside the catalogue (diagnosis tests); defaults 0
     bias_temp_quadratic_m_s2_c2 = 0.0   # bias gains c (T - 20 degC)^2

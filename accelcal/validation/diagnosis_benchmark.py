@@ -74,6 +74,11 @@ def realistic_noise(kind: str) -> dict:
     return n
 
 
+def ia_pa_mounts(angles) -> list[dict]:
+    """Centrifuge mounts in the IA-PA plane, OA up, at ``angles`` [deg]."""
+    return [{"plane": "IA-PA", "angle_deg": a, "vertical": "+OA"} for a in angles]
+
+
 def design(kind: str, levels: int | None = None) -> dict:
     """The test plan of one campaign of a test kind; ``levels``: a centrifuge's g levels
     spread evenly over 1-25 g instead of its ten (a big design: hundreds of cells)."""
@@ -81,7 +86,7 @@ def design(kind: str, levels: int | None = None) -> dict:
         g = [1, 2, 3, 5, 7, 10, 14, 18, 21, 25] if not levels else \
             [float(x) for x in np.round(np.linspace(1, 25, levels), 2)]
         return {"kind": "centrifuge", "rig_id": "LXJ-100", "arm_radius_m": 0.71,
-                "mounts": [{"plane": "IA-PA", "angle_deg": a, "vertical": "+OA"} for a in (0, 180, 45, 225, 90, 270)],
+                "mounts": ia_pa_mounts((0, 180, 45, 225, 90, 270)),
                 "g_levels": g, "temp_c": 26.0, "temp_start_c": 23.0,
                 "temp_tau_s": 900.0}
     if kind == "tumble":
@@ -126,7 +131,7 @@ def mount_set_scenario(name: str) -> dict:
     :data:`EVERYDAY_UNIT` with the sample unit's 4.5 mm mass-centre offset, DAQ noise."""
     sc = scenario("centrifuge", {"mass_centre_offset": -0.0045})
     sc["unit"]["coefficients"] = dict(EVERYDAY_UNIT)
-    sc["test"][0]["mounts"] = [{"plane": "IA-PA", "angle_deg": a, "vertical": "+OA"} for a in MOUNT_SETS[name]]
+    sc["test"][0]["mounts"] = ia_pa_mounts(MOUNT_SETS[name])
     return sc
 
 
@@ -135,7 +140,7 @@ def ar1_scenario(kind: str, rho: float) -> dict:
     AR(1) between consecutive readings with lag-1 correlation ``rho``."""
     sc = scenario(kind, {}, noise={"white_m_s2": 2e-6, "white_ar1_rho": rho, "temp_noise_c": 0.02})
     if kind == "centrifuge":
-        sc["test"][0]["mounts"] = [{"plane": "IA-PA", "angle_deg": a, "vertical": "+OA"} for a in (0, 180)]
+        sc["test"][0]["mounts"] = ia_pa_mounts((0, 180))
     return sc
 
 
@@ -180,10 +185,20 @@ def rate_with_interval(k: int, n: int) -> str:
 
 
 # ----------------------------------------------------------------------------- scoring
+def _top(res: dict) -> dict:
+    """The ranking entry of the diagnosis's verdict ({} without a verdict)."""
+    return next((r for r in res["ranking"] if r["effect"] == res["verdict"]), {})
+
+
+def _log_row(log, label: str, row: dict) -> None:
+    log(f"{'ok  ' if row['right'] else 'MISS'} {label} {row['seconds']:5.2f} s  verdict {row['verdict']}"
+        f"{'' if row['right'] else '  (' + row['why'] + ')'}")
+
+
 def _estimate_of(res: dict, truth: str):
     """The estimate the diagnosis gives for the true effect: the verdict's, or the refitted
     alias's when the truth is one of the verdict's aliases."""
-    top = next((r for r in res["ranking"] if r["effect"] == res["verdict"]), {})
+    top = _top(res)
     if truth == res["verdict"]:
         return top.get("estimate"), top.get("shrink_heldout")
     return (top.get("alias_estimates") or {}).get(truth), top.get("shrink_heldout")
@@ -203,7 +218,7 @@ def score_case(res: dict, truth: str | None, param: float | None, also: dict | N
         out["right"] = v is None and res["explained"] is not False
         out["why"] = "" if out["right"] else (f"verdict {v}" if v else "said a gap remains")
         return out
-    top = next((r for r in res["ranking"] if r["effect"] == v), {})
+    top = _top(res)
     hit = truth in {v, *(top.get("aliases") or [])}
     est, sh = _estimate_of(res, truth) if hit else (None, None)
     out.update(top1=hit, estimate=est, shrink_heldout=sh,
@@ -249,7 +264,7 @@ def simulated_cases(quick: bool, seeds: int, n_clean: int, rng_seed: int = 20261
                     if e == "earth_rate":
                         val, cat = 1.0, ("observable" if per else "unobservable")
                     elif per is None:
-                        val, cat = 10 * _typical(e), "unobservable"
+                        val, cat = 10 * EFFECTS[e].typical, "unobservable"
                     else:
                         r = np.random.default_rng([rng_seed, case])     # a case's size: its own stream
                         k = math.exp(r.uniform(*np.log(SNR_RANGE)))
@@ -281,7 +296,7 @@ def simulated_cases(quick: bool, seeds: int, n_clean: int, rng_seed: int = 20261
         yield (f"{kind}/clean", kind, scenario(kind, {}), 7000 + i, base, None, None, None, False, "clean")
     # big designs: a centrifuge with BIG_LEVELS g levels in six mounts, each
     # observable candidate at z = BIG_SNR; and clean ones.  Named and within 25 % is right:
-    # the held-out shrink, a ratio of gaps, is only reported (it reads 0.3-0.5 here)
+    # the held-out shrink, a ratio of gaps, is only reported
     base = processing_effects(["centrifuge"])
     for e in [e for e in EFFECTS if "centrifuge" in EFFECTS[e].tests and e not in base]:
         if not fnmatch.fnmatch(f"centrifuge/{e}/big", only):
@@ -322,10 +337,6 @@ def simulated_cases(quick: bool, seeds: int, n_clean: int, rng_seed: int = 20261
                "shaped")
 
 
-def _typical(e: str) -> float:
-    return EFFECTS[e].typical
-
-
 def _lag_for(per: float, k: float, dt: float = 0.02) -> float:
     """A sampled lag whose delay gives SNR k (the lag is not linear in tau near 0: its
     delay dt a / (1 - a) is what the data see); ``per`` is tau per unit of SNR from the
@@ -357,8 +368,7 @@ def run_section1(quick: bool = False, seeds: int = 2, n_clean: int = 200, log=pr
             row["right"] = (res["verdict"] is None and truth in unobs) or seen
             row["why"] = "" if row["right"] else f"verdict {res['verdict']}, reported unobservable: {truth in unobs}"
         out.append(row)
-        log(f"{'ok  ' if row['right'] else 'MISS'} {label:48s} {row['seconds']:5.2f} s  verdict {row['verdict']}"
-            f"{'' if row['right'] else '  (' + row['why'] + ')'}")
+        _log_row(log, f"{label:48s}", row)
     return out
 
 
@@ -386,13 +396,11 @@ def run_section2(root: Path | None = None, log=print, only: str = "*") -> list[d
         row = {"case": name, "truth": t["truth"], "param": t["param"],
                **score_case(res, t["truth"], t["param"], t.get("also"))}
         if t["truth"] is not None:       # the dev scorer takes the verdict's own estimate
-            top = next((r for r in res["ranking"] if r["effect"] == res["verdict"]), {})
-            est = top.get("estimate")
+            est = _top(res).get("estimate")
             if row["right"] and (est is None or abs(est - t["param"]) > 0.25 * abs(t["param"])):
                 row["right"], row["why"] = False, f"estimate {est} vs {t['param']}"
         out.append(row)
-        log(f"{'ok  ' if row['right'] else 'MISS'} dev {name:24s} {row['seconds']:5.2f} s  verdict {row['verdict']}"
-            f"{'' if row['right'] else '  (' + row['why'] + ')'}")
+        _log_row(log, f"dev {name:24s}", row)
     return out
 
 
@@ -411,7 +419,7 @@ def run_section3(log=print) -> list[dict]:
     for label, files in cases:
         res = diagnose(read_paths(files), ["initial_misalignment"])
         w = max(res["where"], key=lambda x: x["share"] if x["dimension"] == "ia_input" else -1, default=None)
-        top = next((r for r in res["ranking"] if r["effect"] == res["verdict"]), {})
+        top = _top(res)
         sb = res["gap"]["significant_before"]
         out.append({"case": label, "status": res["status"], "explained": res["explained"],
                     "verdict": res["verdict"], "shrink_heldout": top.get("shrink_heldout"),
@@ -424,17 +432,13 @@ def run_section3(log=print) -> list[dict]:
 
 # ----------------------------------------------------------------------------- summary
 def summarise(sim: list[dict], dev: list[dict], elapsed: float, commit: str = "", real: list | None = None) -> dict:
-    obs = [c for c in sim if c["category"] == "observable"]
-    uno = [c for c in sim if c["category"] == "unobservable"]
-    two = [c for c in sim if c["category"] == "two"]
-    unk = [c for c in sim if c["category"] == "unknown"]
-    clean = [c for c in sim if c["category"] == "clean"]
-    big = [c for c in sim if c["category"] == "big"]
-    big_clean = [c for c in sim if c["category"] == "big-clean"]
+    by: dict[str, list[dict]] = {}
+    for c in sim:
+        by.setdefault(c["category"], []).append(c)
+    obs, uno, two, unk, clean, big, big_clean, shaped, mset, col = (
+        by.get(k, []) for k in ("observable", "unobservable", "two", "unknown", "clean", "big", "big-clean",
+                                "shaped", "mount-set", "coloured"))
     big_sh = [c["shrink_heldout"] for c in big if c.get("top1") and c.get("shrink_heldout") is not None]
-    shaped = [c for c in sim if c["category"] == "shaped"]
-    mset = [c for c in sim if c["category"] == "mount-set"]
-    col = [c for c in sim if c["category"] == "coloured"]
     rel = [c["rel_error"] for c in obs if c.get("top1") and c.get("rel_error") is not None]
     sh = [c["shrink_heldout"] for c in obs if c.get("top1") and c.get("shrink_heldout") is not None]
     fa = sum(c["false_alarm"] for c in clean)
