@@ -62,9 +62,8 @@ from scipy.sparse.csgraph import connected_components
 
 from ..effects import si_unit, typical_size
 from ..fitting.core import (RCOND, FitResult, Parameter, ParameterSet, gauss_newton, lstsq_svd, lstsq_svd_x,
-                            pure_error_lack_of_fit)
+                            nested_test, pure_error_lack_of_fit)
 from ..fitting.data import fitted_drive, make_run
-from ..fitting.distributions import f_sf
 from ..physics import instrument, rigs
 from ..physics.geometry import geometry_of
 from ..results import (BudgetTerm, CoefficientResult, FitCheck, ResidualFigure, ResidualPanel, ResidualSeries,
@@ -672,13 +671,11 @@ def _summary(fit: SineFit) -> dict[str, Any]:
 
 
 def _f_test(f_small: SineFit, f_big: SineFit) -> dict[str, Any]:
-    """F test of the nested fits (the terms f_big adds), on paper 002's residual variances."""
-    rss1, rss2 = f_small.sigma ** 2 * f_small.dof, f_big.sigma ** 2 * f_big.dof
-    q = f_small.dof - f_big.dof
-    if q <= 0 or rss2 <= 0:
-        return {"F": None, "df1": int(q), "df2": int(f_big.dof), "p_value": None}
-    F = ((rss1 - rss2) / q) / (rss2 / f_big.dof)
-    return {"F": float(F), "df1": int(q), "df2": int(f_big.dof), "p_value": float(f_sf(F, q, f_big.dof))}
+    """F test of the nested fits (the terms f_big adds), on paper 002's residual variances
+    (:func:`accelcal.fitting.core.nested_test`)."""
+    t = nested_test(f_small.sigma ** 2 * f_small.dof, f_big.sigma ** 2 * f_big.dof, f_small.dof - f_big.dof,
+                    f_big.dof, always_scaled=True)
+    return {"F": t.statistic, "df1": int(t.q), "df2": int(t.dof), "p_value": t.p_value}
 
 
 def compare_compensation(runs: Sequence | None, tool_errors: Mapping[str, str] | None = None, *,

@@ -37,7 +37,7 @@ from scipy.optimize import minimize_scalar
 
 from ..physics.geometry import CentrifugeMount, geometry_of
 from ..physics.rigs import centripetal_level, sine_drive
-from .distributions import f_sf
+from .core import nested_test
 
 #: a logged head/table angle that moves less than this within one position [deg] is reading
 #: noise: the dwell stays one cell (the model still reads each reading's logged angle, so that
@@ -1146,8 +1146,8 @@ def drive_rate(meta: Mapping, t: np.ndarray, logged: np.ndarray, alpha: float = 
     rss1 = float(np.sum((logged - fit) ** 2))
     rss0 = float(np.sum((logged - nominal) ** 2))
     dof = max(len(t) - q, 1)
-    F = ((rss0 - rss1) / q) / (rss1 / dof) if rss1 > 0 else float("inf")
-    p = float(f_sf(F, q, dof)) if np.isfinite(F) else 0.0
+    t = nested_test(rss0, rss1, q, dof, always_scaled=True)
+    F, p = (t.statistic, t.p_value) if rss1 > 0 else (float("inf"), 0.0)
     if p >= alpha:
         return nominal, None, (f"logged rate follows the nominal drive within its noise ({math.sqrt(rss1 / dof):.2g} "
                                f"rad/s, F = {F:.3g}, p = {p:.2g}): the nominal drive is the model's rate")
