@@ -44,6 +44,7 @@ from ..fitting.procedure import ModelFit, fit_selected
 from ..physics.axes import AXES
 from ..results import AdequacyResult, BudgetTerm, CoefficientResult, RadiusResult
 from .adequacy import runs_test, trend_test
+from .records import TumbleCoefficient
 from ..fitting.distributions import chi2_sf, t_ppf
 
 METHOD = "joint_ml"
@@ -756,7 +757,7 @@ def method_quantity(c: CoefficientResult, adopted: dict[str, CoefficientResult],
                 g2 = float(tumble.meta["g_local_m_s2"]) ** 2
                 return (a.value + k.value * g2, math.hypot(a.std_uncertainty, k.std_uncertainty * g2),
                         f"K0 + {sq} g^2")
-            if "aliased in one tumble" in c.note:
+            if isinstance(c, TumbleCoefficient) and c.less:
                 return a.value - k.value, math.hypot(a.std_uncertainty, k.std_uncertainty), f"K2 - {sq}"
     return a.value, a.std_uncertainty, c.name
 
