@@ -39,7 +39,7 @@ from .effects import EFFECTS, coefficient_spec, plausible_size, typical_size
 from .fitting.blas import single_thread
 from .fitting.core import information_root, lstsq_svd
 from .fitting.data import RunCells, mean_variance, pooled_noise
-from .fitting.identify import ALIAS_SHARE, Why, holds
+from .fitting.identify import Why, holds, mixed_with
 from .fitting.model import CANDIDATE_SHARED, CampaignModel
 from .fitting.procedure import fit_selected
 from .physics.axes import AXES
@@ -439,17 +439,8 @@ class _Information:
         free = [c for c in cols if self.model.candidates[c].name not in held]
         Af = A[:, [pos[c] for c in free]]
         sol = lstsq_svd(Af, np.zeros(A.shape[0]))
-        # a free parameter that makes up a column held as aliased is that combination, not
-        # itself (one 45 deg mount: Kpp held, the Kip fitted is Kip + Kpp): not determined
-        ali = [c for c in cols if getattr(held.get(self.model.candidates[c].name), "why", None) is Why.ALIASED]
-        mixed: set[int] = set()
-        if ali:
-            Ah = A[:, [pos[c] for c in ali]]
-            X = sol.cov @ (Af.T @ Ah)
-            nf = np.linalg.norm(Af, axis=0)
-            nh = np.linalg.norm(Ah, axis=0)
-            share = np.abs(X) * nf[:, None] / np.where(nh > 0, nh, 1.0)[None, :]
-            mixed = {free[k] for k in np.flatnonzero((share > ALIAS_SHARE).any(axis=1))}
+        ali = [pos[c] for c in cols if getattr(held.get(self.model.candidates[c].name), "why", None) is Why.ALIASED]
+        mixed = {free[k] for k in np.flatnonzero(mixed_with(Af, A[:, ali], sol.cov))} if ali else set()
         return free, mixed, sol
 
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from accelcal.effects import plausible_size
-from accelcal.fitting.identify import (PRIORITY, Column, Combination, Hold, Why, absorbed, combinations,
+from accelcal.fitting.identify import (PRIORITY, Column, Combination, Hold, Why, absorbed, combinations, mixed_with,
                                        display_name, holds)
 
 
@@ -124,3 +124,12 @@ def test_taken_up_splits_a_direction_over_the_columns_that_make_it():
     got = taken_up(J, s)
     assert [k for k, _, _ in got] == [0, 1]
     np.testing.assert_allclose([(sh, x) for _, sh, x in got], [(16 / 20, 2.0), (4 / 20, -0.5)], atol=1e-12)
+
+
+def test_free_parameters_that_make_up_a_held_column_are_mixed_with_it():
+    """A held column e1 + e2/10 is made of both free columns (shares 1 and 0.1, both above
+    ALIAS_SHARE); e1 + e2/100 of the first alone (0.01 < 0.05)."""
+    Jf = np.eye(4)[:, :2]
+    for h, want in ((np.array([1.0, 0.1, 0, 0]), [True, True]), (np.array([1.0, 0.01, 0, 0]), [True, False])):
+        Jh = h[:, None] / np.linalg.norm(h)
+        assert list(mixed_with(Jf, Jh, np.eye(2))) == want
