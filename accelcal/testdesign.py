@@ -1,4 +1,4 @@
-"""Test-design advice (issue 25): which run to add to a campaign, and what it will buy.
+"""Test-design advice: which run to add to a campaign, and what it will buy.
 
 The answer follows from the campaign model (:class:`accelcal.fitting.model.CampaignModel`)
 and its Fisher information.  Every instrument coefficient the tests can touch is unknown
@@ -143,7 +143,7 @@ class Advice:
     candidates: int = 0
 
     def to_dict(self) -> dict:
-        """The JSON form (issue 25): current, proposals with runs in drop-format keys."""
+        """The JSON form: current, proposals with runs in drop-format keys."""
         return {"targets": self.targets, "units": self.units,
                 "current": {"std_uncertainty": self.current.std_uncertainty, "corr": self.current.corr},
                 "proposals": [{"runs": [{"test": c.test, "rig_id": c.rig_id, **c.spec} for c in p.runs],

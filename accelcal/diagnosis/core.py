@@ -57,7 +57,7 @@ HELDOUT_GATE = 0.5
 #: held-out z that names an effect whatever the shrink (:func:`.fits.heldout_test`: the
 #: held-out cells move the way the training cells said, at five sigma).  The shrink, a ratio
 #: of gaps floored at zero, falls with the number of cells (0.3-0.5 for an effect at z 9-13
-#: in 480 cells, issue 26); the held-out z is a standard normal when the effect buys
+#: in 480 cells); the held-out z is a standard normal when the effect buys
 #: nothing, whatever the design's size
 HELDOUT_Z = 5.0
 #: lack-of-fit level at which the bare model shows a gap worth naming an effect for (below
@@ -80,7 +80,7 @@ TEMPERATURE_HELD_P = 0.01
 
 def _temperature_held(cells: Sequence[RunCells]) -> tuple[float, float] | None:
     """(F, p) when the temperature the runs log does not move beyond its own reading noise,
-    else None (issue 26: no effect enters on a signature that is only a regressor's
+    else None (no effect enters on a signature that is only a regressor's
     measurement noise).
 
     One-way analysis of variance of ``temp_c`` over the cells of every run, pooled: the
@@ -583,7 +583,7 @@ class _Diagnosis:
         centrifuge without a gravity reference is K1): those coefficients are its
         ``aliases``, and ``alias_estimates`` says what the effect would be were the whole
         of each coefficient's estimate the effect.  The bare model keeps the coefficient:
-        the calibration exists to measure it (issue 26).
+        the calibration exists to measure it.
 
         Parameters
         ----------

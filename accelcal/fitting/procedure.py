@@ -232,7 +232,7 @@ def fit_model(model: CampaignModel, p: np.ndarray, held: Mapping[str, Hold | str
     chi_pe, dof_pe = sum(c for c, _ in pe_runs), sum(d for _, d in pe_runs)
     plain = finish_fit(model.params, gn)
     rank = plain.rank
-    # each run's weights are its own noise estimate: the p-value allows for it (issue 26)
+    # each run's weights are its own noise estimate: the p-value allows for it
     dof_runs = residual_dof_runs(model, gn.J, plain.cov_noise)
     lof = lack_of_fit(gn.chi2, model.N - rank, chi_pe if dof_pe > 0 else None, dof_pe, alpha=alpha,
                       reference=lack_of_fit_reference(model, dof_runs, pe_runs))
