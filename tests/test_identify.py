@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from accelcal.effects import plausible_size
-from accelcal.fitting.identify import (PRIORITY, Column, Combination, Hold, Why, absorbed, combinations, mixed_with,
-                                       display_name, holds)
+from accelcal.fitting.identify import (PRIORITY, Column, Combination, Hold, Why, absorbed, alias_cos, combinations,
+                                       display_name, holds, mixed_with)
 
 
 def col(name, key, kind="coef", value=0.0):
@@ -133,3 +133,10 @@ def test_free_parameters_that_make_up_a_held_column_are_mixed_with_it():
     for h, want in ((np.array([1.0, 0.1, 0, 0]), [True, True]), (np.array([1.0, 0.01, 0, 0]), [True, False])):
         Jh = h[:, None] / np.linalg.norm(h)
         assert list(mixed_with(Jf, Jh, np.eye(2))) == want
+
+
+def test_alias_cos_is_the_cosine_of_two_directions():
+    """cos 45 deg for e1 and e1 + e2; 0 for a zero direction."""
+    a, b = np.array([1.0, 0.0]), np.array([1.0, 1.0])
+    assert alias_cos(a, b) == pytest.approx(np.sqrt(0.5))
+    assert alias_cos(a, np.zeros(2)) == 0.0

@@ -44,7 +44,7 @@ from scipy import stats
 from ..effects import EFFECTS
 from ..fitting.data import (RunCells, drop_duplicate_cells, fit_noise, make_run, pool_missing_noise,
                             reject_spikes, with_noise)
-from ..fitting.identify import ALIAS_COS, BASE, TAKEN_SHARE, UNOBSERVABLE_FRACTION, taken_up
+from ..fitting.identify import ALIAS_COS, BASE, TAKEN_SHARE, UNOBSERVABLE_FRACTION, alias_cos, taken_up
 from ..fitting.model import processing_effects
 from ..physics.rigs import INSTRUMENT_EFFECTS, specific_force
 from ._blas import single_thread
@@ -476,9 +476,8 @@ class _Diagnosis:
             if c == c0 or not r["significant"] or (r["shrink_heldout"] is not None and r["shrink_heldout"] <= 0):
                 continue
             b = sc[c][3]
-            cos = abs(float(a @ b) / (np.linalg.norm(a) * np.linalg.norm(b) or 1.0))
             tie = abs(r["delta_chi2"] - lr0["delta_chi2"]) <= 1.0
-            if cos > ALIAS_COS and tie and self.precedence(c) < self.precedence(best[0]):
+            if abs(alias_cos(a, b)) > ALIAS_COS and tie and self.precedence(c) < self.precedence(best[0]):
                 best = (c, r, fits[tuple(sel + [c])])
         return best
 
@@ -630,12 +629,10 @@ class _Diagnosis:
         for e in ranking:
             c = e["effect"]
             if c in proj:
-                a = proj[c]
-                na = np.linalg.norm(a)
                 for d, b in proj.items():
                     if d == c:
                         continue
-                    cs = float(a @ b / (na * np.linalg.norm(b)))
+                    cs = alias_cos(proj[c], b)
                     if abs(cs) > ALIAS_COS:
                         e["aliases"].append(d)
                         e.setdefault("alias_cos", {})[d] = cs

@@ -461,6 +461,23 @@ def as_holds(held: Mapping[str, Hold | str] | None) -> dict[str, Hold]:
     return {k: v if isinstance(v, Hold) else Hold(Why.GIVEN, note=v) for k, v in (held or {}).items()}
 
 
+def alias_cos(a: np.ndarray, b: np.ndarray) -> float:
+    """cos of the angle between two directions, each projected off a fitted model [1]; the
+    runs do not tell them apart when its size exceeds :data:`ALIAS_COS` (0 for a zero
+    direction).
+
+    Parameters
+    ----------
+    a, b : (m,) ndarray
+        Whitened directions (signatures, Jacobian columns) [1 per their units].
+
+    Returns
+    -------
+    float
+    """
+    return float(float(a @ b) / (np.linalg.norm(a) * np.linalg.norm(b) or 1.0))
+
+
 class NearAlias(NamedTuple):
     """Two free parameters the runs determine far better together than alone: the
     combination ``a + t b`` of least variance, ``t = -r u_a / u_b``."""
