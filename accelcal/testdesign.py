@@ -1,4 +1,4 @@
-"""Test-design advice (issue 25): which run to add to a campaign, and what it will buy.
+"""Test-design advice: which run to add to a campaign, and what it will buy.
 
 The answer follows from the campaign model (:class:`accelcal.fitting.model.CampaignModel`)
 and its Fisher information.  Every instrument coefficient the tests can touch is unknown
@@ -39,7 +39,7 @@ from .effects import EFFECTS, coefficient_spec, plausible_size, typical_size
 from .fitting.blas import single_thread
 from .fitting.core import information_root, lstsq_svd
 from .fitting.data import RunCells, mean_variance, pooled_noise
-from .fitting.identify import ALIAS_SHARE, Why, holds
+from .fitting.identify import Why, holds, mixed_with
 from .fitting.model import CANDIDATE_SHARED, CampaignModel, processing_effects
 from .fitting.procedure import fit_selected
 from .physics.axes import AXES
@@ -143,7 +143,7 @@ class Advice:
     candidates: int = 0
 
     def to_dict(self) -> dict:
-        """The JSON form (issue 25): current, proposals with runs in drop-format keys."""
+        """The JSON form: current, proposals with runs in drop-format keys."""
         return {"targets": self.targets, "units": self.units,
                 "current": {"std_uncertainty": self.current.std_uncertainty, "corr": self.current.corr},
                 "proposals": [{"runs": [{"test": c.test, "rig_id": c.rig_id, **c.spec} for c in p.runs],
@@ -439,17 +439,8 @@ class _Information:
         free = [c for c in cols if self.model.candidates[c].name not in held]
         Af = A[:, [pos[c] for c in free]]
         sol = lstsq_svd(Af, np.zeros(A.shape[0]))
-        # a free parameter that makes up a column held as aliased is that combination, not
-        # itself (one 45 deg mount: Kpp held, the Kip fitted is Kip + Kpp): not determined
-        ali = [c for c in cols if getattr(held.get(self.model.candidates[c].name), "why", None) is Why.ALIASED]
-        mixed: set[int] = set()
-        if ali:
-            Ah = A[:, [pos[c] for c in ali]]
-            X = sol.cov @ (Af.T @ Ah)
-            nf = np.linalg.norm(Af, axis=0)
-            nh = np.linalg.norm(Ah, axis=0)
-            share = np.abs(X) * nf[:, None] / np.where(nh > 0, nh, 1.0)[None, :]
-            mixed = {free[k] for k in np.flatnonzero((share > ALIAS_SHARE).any(axis=1))}
+        ali = [pos[c] for c in cols if getattr(held.get(self.model.candidates[c].name), "why", None) is Why.ALIASED]
+        mixed = {free[k] for k in np.flatnonzero(mixed_with(Af, A[:, ali], sol.cov))} if ali else set()
         return free, mixed, sol
 
 

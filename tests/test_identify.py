@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from accelcal.effects import plausible_size
-from accelcal.fitting.identify import (PRIORITY, Column, Combination, Hold, Why, absorbed, combinations,
-                                       display_name, holds)
+from accelcal.fitting.identify import (PRIORITY, Column, Combination, Hold, Why, absorbed, alias_cos, combinations,
+                                       display_name, holds, mixed_with)
 
 
 def col(name, key, kind="coef", value=0.0):
@@ -124,3 +124,19 @@ def test_taken_up_splits_a_direction_over_the_columns_that_make_it():
     got = taken_up(J, s)
     assert [k for k, _, _ in got] == [0, 1]
     np.testing.assert_allclose([(sh, x) for _, sh, x in got], [(16 / 20, 2.0), (4 / 20, -0.5)], atol=1e-12)
+
+
+def test_free_parameters_that_make_up_a_held_column_are_mixed_with_it():
+    """A held column e1 + e2/10 is made of both free columns (shares 1 and 0.1, both above
+    ALIAS_SHARE); e1 + e2/100 of the first alone (0.01 < 0.05)."""
+    Jf = np.eye(4)[:, :2]
+    for h, want in ((np.array([1.0, 0.1, 0, 0]), [True, True]), (np.array([1.0, 0.01, 0, 0]), [True, False])):
+        Jh = h[:, None] / np.linalg.norm(h)
+        assert list(mixed_with(Jf, Jh, np.eye(2))) == want
+
+
+def test_alias_cos_is_the_cosine_of_two_directions():
+    """cos 45 deg for e1 and e1 + e2; 0 for a zero direction."""
+    a, b = np.array([1.0, 0.0]), np.array([1.0, 1.0])
+    assert alias_cos(a, b) == pytest.approx(np.sqrt(0.5))
+    assert alias_cos(a, np.zeros(2)) == 0.0

@@ -314,12 +314,13 @@ def test_theta0_is_never_pooled_across_heads():
     k2pa, k2oa = (next(c for c in coeffs if c.name == n) for n in ("K2[PA]", "K2[OA]"))
     assert abs(k2pa.value - (TRUTH["K2"] - square["Koo"])) < 3 * k2pa.std_uncertainty
     assert abs(k2oa.value - (TRUTH["K2"] - square["Kpp"])) < 3 * k2oa.std_uncertainty
+    assert (k2pa.less, k2oa.less) == (("Koo",), ("Kpp",))        # what each estimates, typed
     # with them, both heads measure K2 and are pooled into one row
     coeffs, budget, corrected = tumble_records(pooled, square_terms={k: (v, 1e-9) for k, v in square.items()},
                                                out_unit="mA")
     assert corrected == {"K2"}
     k2 = next(c for c in coeffs if c.name == "K2")
-    assert abs(k2.value - (TRUTH["K2"])) < 3 * k2.std_uncertainty
+    assert abs(k2.value - (TRUTH["K2"])) < 3 * k2.std_uncertainty and k2.less == ()
     assert {b.quantity.split(" ")[0] for b in budget if b.coefficient == "K2"} >= {"HPA:", "HOA:", "Koo", "Kpp"}
 
 

@@ -44,7 +44,7 @@ from scipy import stats
 from ..effects import EFFECTS
 from ..fitting.data import (RunCells, drop_duplicate_cells, fit_noise, make_run, pool_missing_noise,
                             reject_spikes, with_noise)
-from ..fitting.identify import ALIAS_COS, BASE, TAKEN_SHARE, UNOBSERVABLE_FRACTION, taken_up
+from ..fitting.identify import ALIAS_COS, BASE, TAKEN_SHARE, UNOBSERVABLE_FRACTION, alias_cos, taken_up
 from ..fitting.model import processing_effects
 from ..physics.rigs import INSTRUMENT_EFFECTS, specific_force
 from ._blas import single_thread
@@ -57,7 +57,7 @@ HELDOUT_GATE = 0.5
 #: held-out z that names an effect whatever the shrink (:func:`.fits.heldout_test`: the
 #: held-out cells move the way the training cells said, at five sigma).  The shrink, a ratio
 #: of gaps floored at zero, falls with the number of cells (0.3-0.5 for an effect at z 9-13
-#: in 480 cells, issue 26); the held-out z is a standard normal when the effect buys
+#: in 480 cells); the held-out z is a standard normal when the effect buys
 #: nothing, whatever the design's size
 HELDOUT_Z = 5.0
 #: lack-of-fit level at which the bare model shows a gap worth naming an effect for (below
@@ -80,7 +80,7 @@ TEMPERATURE_HELD_P = 0.01
 
 def _temperature_held(cells: Sequence[RunCells]) -> tuple[float, float] | None:
     """(F, p) when the temperature the runs log does not move beyond its own reading noise,
-    else None (issue 26: no effect enters on a signature that is only a regressor's
+    else None (no effect enters on a signature that is only a regressor's
     measurement noise).
 
     One-way analysis of variance of ``temp_c`` over the cells of every run, pooled: the
@@ -476,9 +476,8 @@ class _Diagnosis:
             if c == c0 or not r["significant"] or (r["shrink_heldout"] is not None and r["shrink_heldout"] <= 0):
                 continue
             b = sc[c][3]
-            cos = abs(float(a @ b) / (np.linalg.norm(a) * np.linalg.norm(b) or 1.0))
             tie = abs(r["delta_chi2"] - lr0["delta_chi2"]) <= 1.0
-            if cos > ALIAS_COS and tie and self.precedence(c) < self.precedence(best[0]):
+            if abs(alias_cos(a, b)) > ALIAS_COS and tie and self.precedence(c) < self.precedence(best[0]):
                 best = (c, r, fits[tuple(sel + [c])])
         return best
 
@@ -583,7 +582,7 @@ class _Diagnosis:
         centrifuge without a gravity reference is K1): those coefficients are its
         ``aliases``, and ``alias_estimates`` says what the effect would be were the whole
         of each coefficient's estimate the effect.  The bare model keeps the coefficient:
-        the calibration exists to measure it (issue 26).
+        the calibration exists to measure it.
 
         Parameters
         ----------
@@ -630,12 +629,10 @@ class _Diagnosis:
         for e in ranking:
             c = e["effect"]
             if c in proj:
-                a = proj[c]
-                na = np.linalg.norm(a)
                 for d, b in proj.items():
                     if d == c:
                         continue
-                    cs = float(a @ b / (na * np.linalg.norm(b)))
+                    cs = alias_cos(proj[c], b)
                     if abs(cs) > ALIAS_COS:
                         e["aliases"].append(d)
                         e.setdefault("alias_cos", {})[d] = cs

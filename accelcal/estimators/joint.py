@@ -1,5 +1,5 @@
 """The adopted calibration: one maximum-likelihood fit per campaign through the one forward
-model (issue 9, "one model, one fit").
+model.
 
 Every reading of every run of the campaign enters one weighted Gauss–Newton fit of the
 campaign model (:class:`accelcal.fitting.model.CampaignModel`): tumble and centrifuge
@@ -44,6 +44,7 @@ from ..fitting.procedure import ModelFit, fit_selected
 from ..physics.axes import AXES
 from ..results import AdequacyResult, BudgetTerm, CoefficientResult, RadiusResult
 from .adequacy import runs_test, trend_test
+from .records import TumbleCoefficient
 from ..fitting.distributions import chi2_sf, t_ppf
 
 METHOD = "joint_ml"
@@ -342,7 +343,7 @@ def type_b_terms(jf: JointFit, tolerance: float = MOUNT_ANGLE_TOLERANCE_RAD) -> 
 
 def rig_input_terms(jf: JointFit, stated: Mapping[str, Mapping[str, float]]
                     ) -> tuple[dict[str, list[tuple[str, float, float, str, float]]], list[dict[str, str]]]:
-    """Type-B terms of the rig inputs the drop gives as known (issue 27): local gravity,
+    """Type-B terms of the rig inputs the drop gives as known: local gravity,
     the thermal table's tilt, the temperature reading.
 
     Each input of each rig moves the model along :meth:`CampaignModel.input_direction` (j);
@@ -506,7 +507,7 @@ def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
         for q, c, ub, dist, x in terms_b:
             budget.append(BudgetTerm(name, q, x, ub, c, abs(c) * ub, "B", dist, METHOD))
     for a, b, t, r in near:
-        # the combination the runs do determine, as a row of its own (issue 30) where it is a
+        # the combination the runs do determine, as a row of its own where it is a
         # coefficient of the same unit (Kip+Kpp); t to two digits, so that every campaign of
         # a design names the same row (its u is that of the rounded combination)
         ia, ib = model.params.index[a], model.params.index[b]
@@ -605,7 +606,7 @@ def stored_adequacy(extras: Mapping[str, Any] | None) -> str | None:
 
 def stored_missing_rig_inputs(extras: Mapping[str, Any] | None) -> list[dict] | None:
     """The rig inputs a stored joint fit found entering its budgets without a stated
-    uncertainty (``{'input', 'rig', 'key'}`` each; issue 27); [] without a joint fit, None
+    uncertainty (``{'input', 'rig', 'key'}`` each); [] without a joint fit, None
     for a joint fit stored before the rig inputs entered the budgets.
 
     Parameters
@@ -730,7 +731,7 @@ def method_quantity(c: CoefficientResult, adopted: dict[str, CoefficientResult],
                 g2 = float(tumble.meta["g_local_m_s2"]) ** 2
                 return (a.value + k.value * g2, math.hypot(a.std_uncertainty, k.std_uncertainty * g2),
                         f"K0 + {sq} g^2")
-            if "aliased in one tumble" in c.note:
+            if isinstance(c, TumbleCoefficient) and c.less:
                 return a.value - k.value, math.hypot(a.std_uncertainty, k.std_uncertainty), f"K2 - {sq}"
     return a.value, a.std_uncertainty, c.name
 

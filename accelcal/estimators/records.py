@@ -7,6 +7,19 @@ from ..results import AdequacyResult, BudgetTerm, CoefficientResult, RadiusResul
 
 
 @dataclass
+class TumbleCoefficient(CoefficientResult):
+    """A coefficient of a single-tumble method (paper 003) with what it estimates.
+
+    Attributes
+    ----------
+    less : tuple of str
+        The square terms K_ss of the heads' other turning axes (Kpp, Koo) that a K2 no
+        centrifuge corrected is less by: it estimates K2 − K_ss.
+    """
+    less: tuple[str, ...] = ()
+
+
+@dataclass
 class Records:
     """Records for a :class:`~accelcal.results.CampaignResult`, built once."""
     coefficients: list[CoefficientResult] = field(default_factory=list)

@@ -33,8 +33,9 @@ Paper 002 is a configuration of the one fit (all SI, effects.md names and units)
   (a second pass, weights of geometric mean one).
 * Reporting: the residual-scaled covariance s²·(JᵀWJ)⁺ of paper 002's least squares;
   rank, condition number and Roy–Vetterli effective rank of the column-scaled design;
-  optional parameters (tool errors, KPPP, KOOO) aliased in the joint design or weakly
-  determined are held at zero and named.  The lack of fit is tested against the pure
+  optional parameters (tool errors, KPPP, KOOO) the joint design does not determine are
+  held at zero and named (:func:`accelcal.fitting.identify.holds` with its thresholds;
+  paper 002 states none of its own).  The lack of fit is tested against the pure
   error of the drive's phases (:func:`~accelcal.fitting.core.pure_error_lack_of_fit`).
 * :func:`aliasing_report` analyses each attitude's columns alone;
   :func:`compare_compensation` is paper 002's identify-then-compensate comparison.
@@ -62,9 +63,9 @@ from scipy.sparse.csgraph import connected_components
 
 from ..effects import si_unit, typical_size
 from ..fitting.core import (RCOND, FitResult, Parameter, ParameterSet, gauss_newton, lstsq_svd, lstsq_svd_x,
-                            pure_error_lack_of_fit)
+                            nested_test, pure_error_lack_of_fit)
 from ..fitting.data import fitted_drive, make_run
-from ..fitting.distributions import f_sf
+from ..fitting.identify import PRIORITY, Column, Hold, holds
 from ..physics import instrument, rigs
 from ..physics.geometry import geometry_of
 from ..results import (BudgetTerm, CoefficientResult, FitCheck, ResidualFigure, ResidualPanel, ResidualSeries,
@@ -357,14 +358,6 @@ def _alias_groups(null: np.ndarray, rel_null: np.ndarray, names: Sequence[str]) 
                                   for v, sv in zip(null, rel_null)]}
 
 
-def _collinearity(J: np.ndarray, j: int) -> float:
-    """Norm of unit-scaled column j left after projecting it onto the other columns
-    (1/sqrt(VIF)) [1]; ~0 means the parameter is aliased with the others."""
-    Js = J / np.where(np.linalg.norm(J, axis=0) > 0, np.linalg.norm(J, axis=0), 1.0)
-    others = np.delete(Js, j, axis=1)
-    return float(np.linalg.norm(Js[:, j] - others @ lstsq_svd_x(others, Js[:, j])))
-
-
 # --------------------------------------------------------------------------- the fit
 
 @dataclass
@@ -385,8 +378,8 @@ class SineFit:
         Per run label: RMS residual [output_unit].
     diagnostics : dict
         Rank, condition and aliasing of the joint design (:func:`design_diagnostics`).
-    dropped : dict
-        Optional parameters held as unidentifiable, with the reason.
+    dropped : dict of str to Hold
+        Optional parameters held as not determined (:class:`~accelcal.fitting.identify.Hold`).
     options : dict
         The configuration of the fit.
     runs : list
@@ -397,7 +390,7 @@ class SineFit:
     sigma: float
     residual_rms: dict[str, float]
     diagnostics: dict[str, Any]
-    dropped: dict[str, str]
+    dropped: dict[str, Hold]
     options: dict[str, Any]
     runs: list[_Run]
 
@@ -470,47 +463,29 @@ def _lag_start(params: list[Parameter], prep: list[_Run], x0: np.ndarray) -> np.
     return x
 
 
-def _select(params: list[Parameter], prep: list[_Run], x0: np.ndarray,
-            alias_rtol: float) -> tuple[dict[str, str], np.ndarray]:
+def _select(params: list[Parameter], prep: list[_Run], x0: np.ndarray) -> tuple[dict[str, Hold], np.ndarray]:
     """Hold the optional parameters (tool errors, KPPP, KOOO) the joint design does not
-    determine at the start x0: removes them from ``params`` and returns (name -> why, the
-    start of the parameters kept).
+    determine at the start x0 (:func:`accelcal.fitting.identify.holds`): removes them from
+    ``params`` and returns (name -> hold, the start of the parameters kept).
 
-    First, while the core finds the column-scaled design rank deficient at ``alias_rtol``
-    (:func:`accelcal.fitting.core.lstsq_svd`), the optional parameter whose column is most
-    nearly inside the span of the others (:func:`_collinearity` below sqrt(alias_rtol)) is
-    aliased.  Then, while an optional parameter's standard uncertainty (design times the
-    noise of one linearised step with every parameter free, so that a large tool error is
-    not taken for noise) exceeds its typical size, the worst is weakly determined.
+    The design is whitened by the residual standard deviation of one linearised step with
+    every parameter free (so that a large tool error is not taken for noise).  The
+    instrument coefficients are never held: a rank deficiency among them is reported
+    (:func:`design_diagnostics`).
     """
     J0 = _jacobian(params, prep, x0, np.ones(len(prep)))
-    dropped: dict[str, str] = {}
-
-    def drop(j: int, why: str) -> None:
-        nonlocal J0, x0
-        dropped[params[j].name] = why
-        params.pop(j)
-        x0, J0 = np.delete(x0, j), np.delete(J0, j, axis=1)
-
-    while lstsq_svd(J0, np.zeros(J0.shape[0]), alias_rtol).rank < len(params):
-        cand = [(c, j) for j, p in enumerate(params) if p.group != "coef"
-                for c in [_collinearity(J0, j)] if c < alias_rtol ** 0.5]
-        if not cand:
-            break                                     # a core coefficient is aliased: reported
-        c, j = min(cand)
-        drop(j, f"aliased in the joint design (column residual {c:.2e} after projection)")
-    if any(p.group != "coef" for p in params):
-        r0 = _residual(params, prep, x0, np.ones(len(prep)))
-        r0 = r0 - J0 @ lstsq_svd_x(J0, r0)
-        s2_0 = float(r0 @ r0 / max(r0.size - len(params), 1))
-    while any(p.group != "coef" for p in params):
-        sd0 = np.sqrt(s2_0 * np.clip(np.diag(lstsq_svd(J0, np.zeros(J0.shape[0])).cov), 0.0, None))
-        q, j = max((sd0[j] / p.scale, j) for j, p in enumerate(params) if p.group != "coef")
-        if q <= 1.0:
-            break
-        drop(j, f"weakly determined: u = {sd0[j]:.2e} exceeds its typical size "
-                f"{params[j].scale:.0e} {_unit(params[j].key)}")
-    return dropped, x0
+    r0 = _residual(params, prep, x0, np.ones(len(prep)))
+    r0 = r0 - J0 @ lstsq_svd_x(J0, r0)
+    s0 = float(np.sqrt(r0 @ r0 / max(r0.size - len(params), 1)))
+    rank = {k: i for i, k in enumerate(PRIORITY)}
+    columns = [Column(p.name, "coef" if p.group == "coef" else "effect", p.key, _unit(p.key),
+                      rank.get(p.key, len(PRIORITY))) for p in params]
+    coefs = [p.name for p in params if p.group == "coef"]
+    held = {k: h for k, h in holds(J0 / (s0 if s0 > 0 else 1.0), columns, keep=coefs, scale_rule=False).items()
+            if k not in coefs}
+    kept = [j for j, p in enumerate(params) if p.name not in held]
+    params[:] = [params[j] for j in kept]
+    return held, x0[kept]
 
 
 def identify_sine_campaign(runs: Sequence | None, *, tool_errors: Mapping[str, str] | None = None,
@@ -547,7 +522,8 @@ def identify_sine_campaign(runs: Sequence | None, *, tool_errors: Mapping[str, s
     reweight : bool
         Paper 002's reweighting: one weight per run from its residual RMS (a second pass).
     alias_rtol : float
-        Relative singular value below which a direction is aliased [1] (:func:`_select`).
+        Relative singular value below which a direction counts as aliased in the reported
+        rank and groups [1] (:func:`design_diagnostics`).
     prepared : list, optional
         Output of :func:`prepare_runs` (then ``runs`` and the rate options are ignored).
 
@@ -575,7 +551,7 @@ def identify_sine_campaign(runs: Sequence | None, *, tool_errors: Mapping[str, s
     x0 = _linear_start(params, prep, ones)
     params = [replace(p, scale=abs(x0[j])) if p.key == "K1" else p for j, p in enumerate(params)]
     x0 = _lag_start(params, prep, x0)
-    dropped, x0 = _select(params, prep, x0, alias_rtol)
+    dropped, x0 = _select(params, prep, x0)
     nonlinear = any(p.group == "tool" for p in params)
     w, x = ones, x0
     success, message = True, "linear least squares (no tool-error parameter)"
@@ -598,7 +574,7 @@ def identify_sine_campaign(runs: Sequence | None, *, tool_errors: Mapping[str, s
     return _finish(params, prep, x, w, dropped, success, message, options)
 
 
-def _finish(params: list[Parameter], prep: list[_Run], x: np.ndarray, w: np.ndarray, dropped: dict[str, str],
+def _finish(params: list[Parameter], prep: list[_Run], x: np.ndarray, w: np.ndarray, dropped: dict[str, Hold],
             success: bool, message: str, options: dict) -> SineFit:
     """Paper 002's reporting of a fit at x with run weights w: the residual-scaled covariance
     s^2 (J^T W J)^+ (the core's :func:`~accelcal.fitting.core.lstsq_svd`, s^2 the weighted
@@ -672,13 +648,11 @@ def _summary(fit: SineFit) -> dict[str, Any]:
 
 
 def _f_test(f_small: SineFit, f_big: SineFit) -> dict[str, Any]:
-    """F test of the nested fits (the terms f_big adds), on paper 002's residual variances."""
-    rss1, rss2 = f_small.sigma ** 2 * f_small.dof, f_big.sigma ** 2 * f_big.dof
-    q = f_small.dof - f_big.dof
-    if q <= 0 or rss2 <= 0:
-        return {"F": None, "df1": int(q), "df2": int(f_big.dof), "p_value": None}
-    F = ((rss1 - rss2) / q) / (rss2 / f_big.dof)
-    return {"F": float(F), "df1": int(q), "df2": int(f_big.dof), "p_value": float(f_sf(F, q, f_big.dof))}
+    """F test of the nested fits (the terms f_big adds), on paper 002's residual variances
+    (:func:`accelcal.fitting.core.nested_test`)."""
+    t = nested_test(f_small.sigma ** 2 * f_small.dof, f_big.sigma ** 2 * f_big.dof, f_small.dof - f_big.dof,
+                    f_big.dof, always_scaled=True)
+    return {"F": t.statistic, "df1": int(t.q), "df2": int(t.dof), "p_value": t.p_value}
 
 
 def compare_compensation(runs: Sequence | None, tool_errors: Mapping[str, str] | None = None, *,
@@ -718,7 +692,7 @@ def compare_compensation(runs: Sequence | None, tool_errors: Mapping[str, str] |
         "shift": {n: f2.values[n] - f1.values[n] for n in coef},
         "shift_in_sigma": {n: (f2.values[n] - f1.values[n]) / f2.std[n] if f2.std[n] > 0 else None for n in coef},
         "tool_errors": {n: v for n, v in _summary(f2).items() if n in f2.tool_errors},
-        "dropped_as_unidentifiable": f2.dropped,
+        "dropped_as_unidentifiable": {k: h.reason for k, h in f2.dropped.items()},
         "residual_rms": {"uncompensated": f1.residual_rms, "compensated": f2.residual_rms},
         "f_test_tool_errors": _f_test(f1, f2)}
 
@@ -798,7 +772,8 @@ def process_sine_campaign(runs: Sequence, rig_id: str = "", *, tool_errors: Mapp
                   **{e: {"identifiable": e in third.values and e not in third.dropped,
                          "value": third.values.get(e), "std": third.std.get(e), "unit": "s4/m2",
                          "in_model": e in keep} for e in EXTRA_TERMS},
-                  "f_test": _f_test(base, third), "dropped": third.dropped}
+                  "f_test": _f_test(base, third),
+                  "dropped": {k: h.reason for k, h in third.dropped.items()}}
     # identify-then-compensate
     f1, fit, cmp = compare_compensation(None, tool_errors, prepared=prep, extra_terms=keep,
                                         uncompensated=None if keep else base)

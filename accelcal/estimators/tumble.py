@@ -58,6 +58,7 @@ from ..results import BudgetTerm, CoefficientResult, FitCheck, display_number
 from . import registry
 from . import uncertainty as unc
 from .adequacy import pure_error_test
+from .records import TumbleCoefficient
 
 #: Method id of the tumble fit's records (paper 003).
 METHOD = "tumble_lm"
@@ -613,7 +614,8 @@ def tumble_records(pooled: Mapping[str, Pooled], *, square_terms: Mapping[str, t
         gb = unc.linear_budget(name, terms, method=method, rig_id=_rig(q), value=value)
         u = float(gb.u_c) if math.isfinite(q.u) else float("nan")
         dof = float(q.runs[0].dof) if len(q.runs) == 1 else None
-        coeffs.append(CoefficientResult(name, float(value), u, unit, method, _rig(q), dof, "; ".join(note)))
+        coeffs.append(TumbleCoefficient(name, float(value), u, unit, method, _rig(q), dof, "; ".join(note),
+                                        less=tuple(adds) if q.key == "K2" and name not in corrected else ()))
         budget += gb.terms
     return coeffs, budget, corrected
 

@@ -676,6 +676,67 @@ def lack_of_fit(chi2_lof: float, dof_lof: int, chi2_pe: float | None = None, dof
                      math.sqrt(stat) if bad and stat > 1 else 1.0)
 
 
+@dataclass(frozen=True)
+class NestedTest:
+    """The nested test of a model against a smaller one it extends (:func:`nested_test`).
+
+    Attributes
+    ----------
+    delta_chi2 : float
+        Drop of the whitened chi-square [1].
+    q : int
+        Parameters gained [1].
+    dof : int
+        Residual dof of the larger model [1].
+    statistic : float or None
+        F = delta_chi2 / q / s2 when scaled by the larger model's s2 = chi2 / dof, else
+        delta_chi2 / q; None when untestable.
+    p_value : float or None
+        F(q, dof) when scaled, chi-square(q) of delta_chi2 otherwise; None when untestable.
+    scaled : bool
+        Whether the statistic is scaled by s2.
+    """
+    delta_chi2: float
+    q: int
+    dof: int
+    statistic: float | None
+    p_value: float | None
+    scaled: bool
+
+
+def nested_test(chi2_small: float, chi2_big: float, q: int, dof: int, always_scaled: bool = False) -> NestedTest:
+    """The nested test (extra sum of squares, Draper & Smith §6.1; the likelihood ratio of
+    whitened Gaussian residuals) of a model against a smaller one it extends.
+
+    Parameters
+    ----------
+    chi2_small, chi2_big : float
+        Whitened chi-square of the smaller and of the larger model [1].
+    q : int
+        Parameters the larger model gains [1].
+    dof : int
+        Residual dof of the larger model [1].
+    always_scaled : bool
+        Scale by s2 = chi2_big / dof whatever its size (the F test); False: only when s2
+        exceeds 1 (a gap the larger model leaves), else the chi-square test with the noise
+        model taken as known.
+
+    Returns
+    -------
+    NestedTest
+        Untestable (statistic and p None) when q or dof is not positive, or chi2_big = 0
+        when always scaled.
+    """
+    dchi = float(chi2_small - chi2_big)
+    if q <= 0 or dof <= 0 or (always_scaled and chi2_big <= 0):
+        return NestedTest(dchi, q, dof, None, None, False)
+    s2 = chi2_big / dof
+    scaled = always_scaled or s2 > 1.0
+    F = dchi / q / s2 if scaled else dchi / q
+    p = (f_sf(F, q, dof) if scaled else chi2_sf(dchi, q)) if dchi > 0 else 1.0
+    return NestedTest(dchi, q, dof, F, float(p), scaled)
+
+
 def birge_ratio(values: Sequence[float], u: Sequence[float]) -> tuple[float, float, float, int]:
     """Weighted mean of independent results and the Birge ratio of their scatter.
 

@@ -37,7 +37,7 @@ from scipy.optimize import minimize_scalar
 
 from ..physics.geometry import CentrifugeMount, geometry_of
 from ..physics.rigs import centripetal_level, sine_drive
-from .distributions import f_sf
+from .core import nested_test
 
 #: a logged head/table angle that moves less than this within one position [deg] is reading
 #: noise: the dwell stays one cell (the model still reads each reading's logged angle, so that
@@ -45,10 +45,9 @@ from .distributions import f_sf
 ANGLE_TOL_DEG = 0.2
 #: a reading further than this many robust sigmas from its cell's median is a spike
 SPIKE_SIGMAS = 7.0
-#: Readings a big run's reading-by-reading model work takes at a time (issue 28): the
+#: Readings a big run's reading-by-reading model work takes at a time: the
 #: forward model's temporaries are a dozen arrays of the run's length, 0.6 GB at the 4.5 M
-#: readings of a 200 MB run.  A run of at most this many readings is taken whole (its sums
-#: the same to the last bit as before slices existed).
+#: readings of a 200 MB run.  A run of at most this many readings is taken whole.
 ROW_SLICE = 1 << 20
 #: smallest and largest lag-1 autocorrelation the noise model accepts
 RHO_BOUNDS = (-0.5, 0.95)
@@ -436,7 +435,7 @@ class RunCells:
 
     def cell_mean_slices(self, rows_of, slices: Sequence[slice] | None = None) -> np.ndarray:
         """:meth:`cell_mean` of a per-reading quantity made one slice of readings at a time
-        (issue 28: a big run's forward-model temporaries are a slice long, not a run long).
+        (a big run's forward-model temporaries are a slice long, not a run long).
 
         Parameters
         ----------
@@ -463,8 +462,7 @@ class RunCells:
         keep = self.cid >= 0
         r = np.asarray(rows, float)
         if self._kept_mask() is None:
-            # every reading kept: the same numbers without the masked copies (a big run's
-            # scatter took five arrays of its length, issue 28)
+            # every reading kept: the same numbers without the masked copies
             dev = r - self.cell_mean(r)[self.cid]
             ss = np.bincount(self.cid, weights=dev * dev, minlength=self.ncell)
         else:
@@ -495,7 +493,7 @@ class RunCells:
     def _sliced_scatter(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float, np.ndarray]:
         """(sum of squares per cell, sample variance per cell, lag-1 sum and sum of squares
         of the deviations over same-cell pairs, pairs per cell) of a big run whose readings
-        are all kept, made a slice of readings at a time (:meth:`row_slices`, issue 28: no
+        are all kept, made a slice of readings at a time (:meth:`row_slices`: no
         array of the run's length but the cell means'); the sums of :meth:`cell_scatter`,
         in another order."""
         r = np.asarray(rows, float)
@@ -579,7 +577,7 @@ class RunCells:
             pairs = float(np.sum(w) ** 2 / np.sum(w * w / pc[use])) if np.sum(w) > 0 else 0.0
         if pairs == 0 or abs(r - r0) * math.sqrt(pairs) < RHO_SIGNIFICANCE:
             return s2, 0.0, 0.0
-        # one that is there is read without the short cells' bias (issue 26), and with the
+        # one that is there is read without the short cells' bias, and with the
         # upper end of its sampling interval (Bartlett: var r ~ (1 - rho^2) / pairs)
         rho = float(np.clip(ar1_from_lag1(r, self.n, ss), *RHO_BOUNDS))
         r_hi = r + RHO_INTERVAL_Z * math.sqrt(max(1.0 - rho * rho, 0.0) / pairs)
@@ -592,7 +590,7 @@ def unique_small_ints(key: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarr
     """``np.unique(key, return_index=True, return_inverse=True)`` of non-negative integer
     keys of a small range (cells, a thermal run's point and position), found by counting
     instead of sorting the readings: the same three arrays, without the sort's copies of a
-    long run (issue 28).
+    long run.
 
     Parameters
     ----------
@@ -768,12 +766,9 @@ BLOCK_CELLS = 1 << 20
 
 
 #: A stepped run of more readings than this is taken as means of blocks of consecutive
-#: readings of one dwell (issue 28, :func:`block_bounds`): the science then holds arrays of
-#: about this length (a block more per dwell at most) whatever the run's, where every
-#: reading of a 1 GB run was 2.6 GB; one slice of the model's work (:data:`ROW_SLICE`).
-#: The joint fit of a 200 MB tilt-rotation run of 180,000 short dwells peaked 94 MB lower
-#: than with twice this (1.84 M block means: 793 MB, 1.05 M: 699 MB, the science alone).
-#: No sample drop's run comes near (the longest has a few thousand readings).
+#: readings of one dwell (:func:`block_bounds`): the science then holds arrays of
+#: about this length (a block more per dwell at most) whatever the run's: one slice of
+#: the model's work (:data:`ROW_SLICE`).
 BLOCK_READINGS = ROW_SLICE
 #: The keys of a stepped run's cells (its dwells), by test: (column, largest step within
 #: a dwell [its unit]); consecutive readings whose keys stay within these are one cell of
@@ -823,7 +818,7 @@ def dwell_starts(test: str, cols, n: int) -> np.ndarray:
 
 
 def block_bounds(rows_of, test: str, n: int, most: int, rows_at_once: int = ROW_SLICE) -> np.ndarray:
-    """Blocks of consecutive readings that a long stepped run is taken as (issue 28).
+    """Blocks of consecutive readings that a long stepped run is taken as.
 
     Each dwell (:func:`dwell_starts`: a cell of :func:`make_run`) of m readings is cut into
     q = ceil(m / most) blocks of near-equal length (floor or ceil of m / q readings): the
@@ -945,7 +940,7 @@ def _circular_means(v: np.ndarray, ok: np.ndarray, at: np.ndarray, count: np.nda
 
 def long_run_blocks(test: str, n_rows: int, cols: Mapping) -> tuple[dict, dict] | None:
     """How the science takes a run: a stepped run of more than :data:`BLOCK_READINGS`
-    readings as the means of blocks of consecutive readings of one dwell (issue 28), else
+    readings as the means of blocks of consecutive readings of one dwell, else
     whole.
 
     Parameters
@@ -985,7 +980,7 @@ def _float_columns(data, names: Sequence[str]) -> dict[str, np.ndarray]:
     column access, ~15 us a column) into one block whose rows are the columns.  A frame of
     more than BLOCK_CELLS cells is not: the block would be a second copy of a big run (the
     frame stays alive beside the cells), so its float64 columns are used as they are and
-    only the others converted (issue 28: the same values, one copy)."""
+    only the others converted (the same values, one copy)."""
     if (hasattr(data, "to_numpy") and hasattr(data, "dtypes") and data.columns.is_unique
             and data.size <= BLOCK_CELLS
             and all(isinstance(dt, np.dtype) and dt.kind in "fi" for dt in data.dtypes)):
@@ -1146,8 +1141,8 @@ def drive_rate(meta: Mapping, t: np.ndarray, logged: np.ndarray, alpha: float = 
     rss1 = float(np.sum((logged - fit) ** 2))
     rss0 = float(np.sum((logged - nominal) ** 2))
     dof = max(len(t) - q, 1)
-    F = ((rss0 - rss1) / q) / (rss1 / dof) if rss1 > 0 else float("inf")
-    p = float(f_sf(F, q, dof)) if np.isfinite(F) else 0.0
+    t = nested_test(rss0, rss1, q, dof, always_scaled=True)
+    F, p = (t.statistic, t.p_value) if rss1 > 0 else (float("inf"), 0.0)
     if p >= alpha:
         return nominal, None, (f"logged rate follows the nominal drive within its noise ({math.sqrt(rss1 / dof):.2g} "
                                f"rad/s, F = {F:.3g}, p = {p:.2g}): the nominal drive is the model's rate")
@@ -1164,7 +1159,7 @@ def _labels(run: RunCells, t: np.ndarray) -> dict:
     attrs["time_frac"] = (tm - tm.min()) / max(float(np.ptp(tm)), 1e-12) if k else tm
     if "temp_c" in run.cols:
         T = run.cols["temp_c"]
-        if np.isfinite(T).any():            # a copy only where there are gaps to fill (issue 28)
+        if np.isfinite(T).any():            # a copy only where there are gaps to fill
             attrs["temperature"] = run.cell_mean(np.nan_to_num(T, nan=float(np.nanmean(T)))
                                                  if np.isnan(T).any() else T)
     if run.test == "tilt_rotation":
@@ -1271,8 +1266,7 @@ def drop_duplicate_cells(runs: Sequence[RunCells]) -> list[str]:
         # rows of cell c in row order: a stable sort by cell, split at the cell boundaries
         # (the same rows, and bytes, as np.flatnonzero(run.cid == c) taken cell by cell);
         # cells that are consecutive blocks (every stepped run) need no sort, and the
-        # (time, output) pairs of a cell are stacked for that cell only (issue 28: the
-        # whole run's pairs and sort order were 3 arrays of its length)
+        # (time, output) pairs of a cell are stacked for that cell only
         blocks = bool(np.all(run.cid[1:] >= run.cid[:-1])) and (run.cid.size == 0 or run.cid[0] >= 0)
         order = None if blocks else np.argsort(run.cid, kind="stable")
         bounds = np.searchsorted(run.cid if blocks else run.cid[order], np.arange(run.ncell + 1))

@@ -218,6 +218,32 @@ def aliased_with(J: np.ndarray, i: int, kept: Sequence[int], share: float = ALIA
     return [kept[c] for c in np.argsort(-contrib) if contrib[c] > share * tot][:ALIASES_NAMED]
 
 
+def mixed_with(Jf: np.ndarray, Jh: np.ndarray, cov: np.ndarray, share: float = ALIAS_SHARE) -> np.ndarray:
+    """Which free parameters make up a held column: their estimates are that combination,
+    not themselves (one 45 deg mount: Kpp held, the Kip fitted is Kip + Kpp).
+
+    The alias matrix X = (J_f^T J_f)^+ J_f^T J_h (Draper & Smith §10.2) in shares of each
+    held column: |X_kh| |J_f,k| / |J_h,h|.
+
+    Parameters
+    ----------
+    Jf, Jh : (m, f), (m, h) ndarray
+        Whitened columns of the free and of the held parameters [1 / parameter unit].
+    cov : (f, f) ndarray
+        (J_f^T J_f)^+ [free units squared].
+    share : float
+        Smallest share that makes a free parameter part of a held column [1].
+
+    Returns
+    -------
+    (f,) ndarray of bool
+    """
+    X = cov @ (Jf.T @ Jh)
+    nh = np.linalg.norm(Jh, axis=0)
+    frac = np.abs(X) * np.linalg.norm(Jf, axis=0)[:, None] / np.where(nh > 0, nh, 1.0)[None, :]
+    return (frac > share).any(axis=1)
+
+
 def scale_referenced_columns(J: np.ndarray, order: Sequence[int], tol: float, *, radius: Sequence[bool],
                              scale: Sequence[bool]) -> list[int]:
     """:func:`~accelcal.fitting.core.separable_columns` in ``order``, with one rule of physics
@@ -433,6 +459,23 @@ def dependence_text(comb: Combination) -> list[str]:
 def as_holds(held: Mapping[str, Hold | str] | None) -> dict[str, Hold]:
     """A mapping of holds with the caller's words made :attr:`Why.GIVEN` holds."""
     return {k: v if isinstance(v, Hold) else Hold(Why.GIVEN, note=v) for k, v in (held or {}).items()}
+
+
+def alias_cos(a: np.ndarray, b: np.ndarray) -> float:
+    """cos of the angle between two directions, each projected off a fitted model [1]; the
+    runs do not tell them apart when its size exceeds :data:`ALIAS_COS` (0 for a zero
+    direction).
+
+    Parameters
+    ----------
+    a, b : (m,) ndarray
+        Whitened directions (signatures, Jacobian columns) [1 per their units].
+
+    Returns
+    -------
+    float
+    """
+    return float(float(a @ b) / (np.linalg.norm(a) * np.linalg.norm(b) or 1.0))
 
 
 class NearAlias(NamedTuple):

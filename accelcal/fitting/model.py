@@ -444,7 +444,7 @@ class CampaignModel:
     #: the pure error), each time at the same point
     PREDICTION_CACHE = 8
     #: and at most this many bytes of them, the newest point always kept: a big run's outputs
-    #: at eight points would be hundreds of MB (issue 28)
+    #: at eight points would be hundreds of MB
     PREDICTION_CACHE_BYTES = 64 * 2 ** 20
 
     def predict_rows(self, p: np.ndarray, j: int, extra: Mapping[str, float] | None = None) -> np.ndarray:
@@ -499,7 +499,7 @@ class CampaignModel:
             cols, kw = _reading_slice(r, r.cols, kw, slices[0])
             return rig_output(r.test, r.meta, cols, co, eff, **kw)
         # a big run's outputs made a slice at a time (the model is reading by reading: the
-        # same numbers), so its temporaries are a slice long (issue 28)
+        # same numbers), so its temporaries are a slice long
         out = np.empty(r.y_rows.shape)
         for s in slices:
             cols, skw = _reading_slice(r, r.cols, kw, s)
@@ -611,7 +611,7 @@ class CampaignModel:
         co, eff, kw = self.inputs(p, j)
         # a big run is taken a slice of readings at a time, each column a sum of the slices'
         # cell sums; a run of one slice gives the whole run's cell means, bit for bit
-        # (issue 28: never a readings x coefficients array, nor the forward model's
+        # (never a readings x coefficients array, nor the forward model's
         # temporaries of a whole big run)
         slices = self._slices(r, eff)
         tau = float(eff.get("sensor_lag", 0.0))
@@ -1135,7 +1135,7 @@ def lack_of_fit_reference(model: "CampaignModel", dof_runs: np.ndarray,
     inverse of a variance estimate is high on average (m/(m - 2)), so the sum of the
     runs' chi-squares is larger and wider than the F(dof_lof, dof_pe) of one pooled
     variance says.  On clean full-set centrifuge campaigns (eight runs of 161 pure-error
-    dof) the F reference put 8-10 % of them below p = 0.05 (issue 26).  Runs whose noise
+    dof) the F reference put 8-10 % of them below p = 0.05.  Runs whose noise
     is not their own estimate count as known.
 
     Parameters
@@ -1182,7 +1182,7 @@ def lack_of_fit_at_rho_hi(model: "CampaignModel", scatter: Sequence[np.ndarray],
 
     A rho read from short cells is uncertain (in 24 ten-reading cells at rho = 0.6 it reads
     0.4-0.7), and a cell mean's noise grows fast with it (:func:`ar1_mean_factor`); the
-    model is called inadequate only if it is inadequate at that end too (issue 26).  At
+    model is called inadequate only if it is inadequate at that end too.  At
     rho_hi the reading variance refitted to the same scatter is sigma^2 vf(rho) / vf(rho_hi)
     (vf = :func:`ar1_variance_factor`), so each cell's whitened residual squared scales by
     vf(rho_hi) mf(rho) / (vf(rho) mf(rho_hi)) (mf = :func:`ar1_mean_factor`).

@@ -29,40 +29,11 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .core import ALPHA, FitResult, finish_fit, gauss_newton, lack_of_fit
-from .distributions import chi2_sf, f_sf
+from .core import ALPHA, FitResult, NestedTest, finish_fit, gauss_newton, lack_of_fit, nested_test
 from .data import NoiseModel, fit_noise, pool_missing_noise
 from .identify import Hold, as_holds
 from .model import (CampaignModel, lack_of_fit_at_rho_hi, lack_of_fit_reference, pure_error_runs,
                     residual_cell_variance, residual_dof_runs)
-
-
-@dataclass(frozen=True)
-class NestedTest:
-    """The nested test of a model against a smaller one it extends (:meth:`ModelFit.compare`).
-
-    Attributes
-    ----------
-    delta_chi2 : float
-        Drop of the whitened chi-square [1].
-    q : int
-        Parameters gained (rank difference, at least 1) [1].
-    dof : int
-        Residual dof of the larger model [1].
-    statistic : float or None
-        F = delta_chi2 / q / s2 when scaled by the larger model's s2 = chi2 / dof, else
-        delta_chi2 / q; None without dof.
-    p_value : float or None
-        F(q, dof) when scaled, chi-square(q) of delta_chi2 otherwise; None without dof.
-    scaled : bool
-        Whether the statistic is scaled by s2.
-    """
-    delta_chi2: float
-    q: int
-    dof: int
-    statistic: float | None
-    p_value: float | None
-    scaled: bool
 
 
 @dataclass
@@ -128,8 +99,8 @@ class ModelFit:
         return None if h is None else h.reason
 
     def compare(self, smaller: "ModelFit", always_scaled: bool = False) -> NestedTest:
-        """The nested test (extra sum of squares, Draper & Smith §6.1; the likelihood ratio
-        of whitened Gaussian residuals) of this fit against a smaller model it extends.
+        """The nested test (:func:`~accelcal.fitting.core.nested_test`) of this fit against a
+        smaller model it extends.
 
         Parameters
         ----------
@@ -145,16 +116,8 @@ class ModelFit:
         NestedTest
             Untestable (statistic and p None) without dof, or with chi2 = 0 when always scaled.
         """
-        q = max(self.fit.rank - smaller.fit.rank, 1)
-        dchi = float(smaller.fit.chi2 - self.fit.chi2)
-        dof = int(self.fit.dof)
-        if dof <= 0 or (always_scaled and self.fit.chi2 <= 0):
-            return NestedTest(dchi, q, dof, None, None, False)
-        s2 = self.fit.chi2 / dof
-        scaled = always_scaled or s2 > 1.0
-        F = dchi / q / s2 if scaled else dchi / q
-        p = (f_sf(F, q, dof) if scaled else chi2_sf(dchi, q)) if dchi > 0 else 1.0
-        return NestedTest(dchi, q, dof, F, float(p), scaled)
+        return nested_test(smaller.fit.chi2, self.fit.chi2, max(self.fit.rank - smaller.fit.rank, 1),
+                           int(self.fit.dof), always_scaled)
 
     def std(self, name: str) -> float:
         """Standard uncertainty of one parameter, lack-of-fit scaled
@@ -269,7 +232,7 @@ def fit_model(model: CampaignModel, p: np.ndarray, held: Mapping[str, Hold | str
     chi_pe, dof_pe = sum(c for c, _ in pe_runs), sum(d for _, d in pe_runs)
     plain = finish_fit(model.params, gn)
     rank = plain.rank
-    # each run's weights are its own noise estimate: the p-value allows for it (issue 26)
+    # each run's weights are its own noise estimate: the p-value allows for it
     dof_runs = residual_dof_runs(model, gn.J, plain.cov_noise)
     lof = lack_of_fit(gn.chi2, model.N - rank, chi_pe if dof_pe > 0 else None, dof_pe, alpha=alpha,
                       reference=lack_of_fit_reference(model, dof_runs, pe_runs))
