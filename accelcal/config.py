@@ -203,7 +203,7 @@ def rig_limits(explicit: str | Path | None = None) -> dict[str, float]:
 def rig_uncertainties(explicit: str | Path | None = None,
                       warehouse: str | Path | None = None) -> dict[str, dict[str, float]]:
     """Rig id -> :data:`accelcal.effects.RIG_INPUTS` id -> the lab's stated standard
-    uncertainty of that input, from ``[rigs."ID"]`` of the config file (issue 27)::
+    uncertainty of that input, from ``[rigs."ID"]`` of the config file::
 
         [rigs."TT-1"]
         g_local_u_m_s2 = 1e-5      # local gravity at the rig [m/s2]
@@ -293,7 +293,7 @@ DEFAULT_RISK = 0.05
 @dataclass
 class ForecastConfig:
     """What ``accelcal due`` / ``history`` and the certificate's due-date sentence read
-    from ``accelcal.toml`` (issue 29)::
+    from ``accelcal.toml``::
 
         [tolerance."QA-2000"]            # per unit model, SI units (effects.md)
         K1 = { relative = 2.0e-4 }       # |K1 - K1 in use| <= 2e-4 |K1 in use|

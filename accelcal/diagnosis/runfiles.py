@@ -39,7 +39,7 @@ def read_paths(paths) -> list:
 
 
 def _read_long(path) -> object:
-    """A run file over SMALL_FILE as the pipeline's science takes it (issue 28): parsed into
+    """A run file over SMALL_FILE as the pipeline's science takes it: parsed into
     a Parquet file in a temporary folder as it is read, then read back a slice at a time
     as the block means of its dwells when it is long
     (:func:`accelcal.fitting.data.long_run_blocks`), whole otherwise; the folder is gone

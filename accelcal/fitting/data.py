@@ -1087,7 +1087,7 @@ def block_note(run: RunCells) -> str | None:
         return None
     readings, blocks, most = run.meta[BLOCK_META_KEY]
     return (f"{run.run_id}: its {readings:,} readings are taken as the means of {blocks:,} "
-            f"blocks of at most {most} consecutive readings of one dwell (a long run, issue 28)")
+            f"blocks of at most {most} consecutive readings of one dwell (a long run)")
 
 
 def drive_rate(meta: Mapping, t: np.ndarray, logged: np.ndarray, alpha: float = 1e-6,

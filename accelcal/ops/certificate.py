@@ -59,7 +59,7 @@ def _adopted(d) -> list[dict[str, Any]]:
 
 
 def missing_rig_inputs(d) -> list[tuple[str, str]]:
-    """The rig inputs whose uncertainty the budgets of this result leave out (issue 27), as
+    """The rig inputs whose uncertainty the budgets of this result leave out, as
     (what, how to state it): each input the joint fit found entering without a stated u
     (:func:`accelcal.estimators.joint.stored_missing_rig_inputs`); a joint fit stored before the rig
     inputs entered the budgets is one entry of its own.  Any entry keeps a certificate DRAFT."""
@@ -315,7 +315,7 @@ def run_conditions(root: Path, lineage: list[dict[str, Any]]) -> list[dict[str, 
                 meta = json.loads((pf.schema_arrow.metadata or {})[META_KEY]).get("meta", {})
                 names = set(pf.schema_arrow.names)
                 cols = [c for c in ("time_s", "temp_c", "temp_set_c") if c in names]
-                # a batch of rows at a time (issue 28: a long run's columns are never held
+                # a batch of rows at a time (a long run's columns are never held
                 # whole); a run of one batch -- every sample's -- gives np.mean's own mean
                 tmax, temps = np.nan, {c: [np.inf, -np.inf, 0.0, 0] for c in cols if c != "time_s"}
                 for b in pf.iter_batches(batch_size=1 << 20, columns=cols):

@@ -88,7 +88,7 @@ def render_html(d: dict[str, Any], plots: bool = True, config=None,
     if tests & {"centrifuge"} and d["alignment"]:
         doc.section("Alignment analysis", _sec_alignment(d))
     doc.section("Flags and deviations from the method", _sec_flags(d))
-    if d.get("due_statement"):  # issue 29 (accelcal.ops.due.certificate_due_statement)
+    if d.get("due_statement"):  # accelcal.ops.due.certificate_due_statement
         doc.section("Recalibration", f"<p>{_e(d['due_statement'])}</p>")
     doc.annex("Other methods (cross-checks)", _annex_other(d))
     doc.annex("Lineage", _annex_lineage(d))
@@ -209,7 +209,7 @@ def build_report(warehouse: str | Path, campaign: str | None, out_dir: str | Pat
         raise ReportError(str(e)) from None
     d = load_report_data(warehouse, campaign, result_id=result_id, lock_timeout=lock_timeout)
     from .due import DueError, certificate_due_statement
-    try:  # issue 29: the due-date sentence, only with [certificate] state_due_date = true
+    try:  # the due-date sentence, only with [certificate] state_due_date = true
         d["due_statement"] = certificate_due_statement(warehouse, d["result"]["unit_serial"],
                                                        d["campaign"], config)
     except (ConfigError, DueError) as e:

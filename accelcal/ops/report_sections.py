@@ -687,7 +687,7 @@ def _annex_lineage(d) -> str:
 def _lineage_close(d) -> str:
     """The end of the lineage annex: the result history, quarantine decisions and the
     result's identity.  The certificate prints it in one block with the signature, so that
-    the signature never stands alone on the last page (issue 27)."""
+    the signature never stands alone on the last page."""
     acts = [[a["seq"], (_grouped(a["result_id"]), "mono"), _to_second(a["activated_at"]),
              (a.get("flow_run_id"), "mono")]
             for a in d["activations"]]

@@ -17,7 +17,7 @@ from .rules import ANGLE_TOL_DEG, METADATA_RANGES, REST_RATE, SINE_RESID_MAX
 
 
 class RowColumn:
-    """A derived column made a slice of rows at a time, never whole (issue 28: a day-long
+    """A derived column made a slice of rows at a time, never whole (a day-long
     run's derived columns were hundreds of MB beside its own).  ``rows(lo, hi)`` gives
     rows ``lo`` to ``hi`` as an array of ``dtype``, element by element the numbers the
     whole column would hold.  It reads like the array it stands for where the rows table
@@ -83,7 +83,7 @@ def _derive(test: str, run: RunFile) -> dict[str, np.ndarray]:
     lazy = hasattr(src, "rows")     # the run is in its Parquet file: read when needed
     if lazy:
         # every column is read for the rows table a slice at a time; a whole column only
-        # while a run-level figure is made from it (issue 28)
+        # while a run-level figure is made from it
         d = src
         out: dict[str, np.ndarray] = {c: _stored(src, c) for c in (*COLUMNS[test], "line")
                                       if c in src}
@@ -199,7 +199,7 @@ def _within_dwell_steps(test: str, src, d_time, n: int) -> tuple[np.ndarray, np.
     Parquet file, found a slice of rows at a time, as their distinct values (ascending)
     and how often each occurs: the multiset the whole run's ``dt[same]`` holds
     (:func:`_derive`), in memory of the order of its distinct steps -- a DAQ's clock
-    gives a handful -- not of its rows (issue 28)."""
+    gives a handful -- not of its rows."""
     vals, counts = np.zeros(0), np.zeros(0, np.int64)
     for lo in range(0, n, _STEP_ROWS):
         hi = min(lo + _STEP_ROWS, n)
@@ -265,7 +265,7 @@ def _stored(src, c: str) -> RowColumn:
 def _distinct_per_segment(seg: np.ndarray, values: np.ndarray) -> np.ndarray:
     """Number of distinct non-NaN ``values`` in each segment (``seg``: 0, 1, ... per row,
     from :func:`_segments`): a groupby ``nunique``, found over the blocks of consecutive
-    equal (segment, value) rows, so no table of the run's length is made (issue 28)."""
+    equal (segment, value) rows, so no table of the run's length is made."""
     if seg.size == 0:
         return np.zeros(0, np.int64)
     starts = np.flatnonzero(np.r_[True, (seg[1:] != seg[:-1]) | (values[1:] != values[:-1])])
@@ -288,7 +288,7 @@ def _rest_dwell_error(d: dict[str, np.ndarray], edges: np.ndarray | None = None)
     ``edges``: the first row of each dwell, then the run's length, when already found."""
     # the dwells (runs of equal steps) as slices: the same rows, in order, as a mask each;
     # only the leading ones' rates and azimuths are read (a run in its Parquet file is read
-    # a dwell at a time, issue 28)
+    # a dwell at a time)
     rows = d.rows if hasattr(d, "rows") else (lambda c, lo, hi: d[c][lo:hi])
     if edges is None:
         edges = np.r_[dwell_starts("centrifuge", d, len(d["step"])), len(d["step"])]
@@ -346,7 +346,7 @@ class _Dwells:
 
 def _centrifuge_dwells(src, n: int) -> _Dwells:
     """What the 1 g and rest-dwell checks need of a centrifuge run in its Parquet file,
-    read a slice of steps and a dwell of rates at a time (issue 28): the same edges, first
+    read a slice of steps and a dwell of rates at a time: the same edges, first
     turning row and per-step means, bit for bit, as the whole run's columns give (each
     step's turning rates are summed as one ``np.add.reduceat`` segment, as there)."""
     parts, steps = [], []
