@@ -112,10 +112,10 @@ class CampaignResult:
 # (:attr:`accelcal.estimators.registry.Estimator.figures`); the certificate draws those
 # (:func:`accelcal.ops.plots.residual_figure`) and never reads a method's extras itself.
 
-#: How a figure is laid out (accelcal.ops.plots draws each): ``'dwells'`` a grid of panels
-#: sharing y, one legend above (the eq 9 dwell residuals); ``'points'`` panels side by side
-#: (per-point residuals); ``'bars'`` one bar per tick (a ratio to sigma); ``'series'`` a
-#: grid of plain scatter panels.
+#: What a figure shows, which decides how accelcal.ops.plots draws it: ``'dwells'`` residuals
+#: of dwell means by polarity and sweep, a panel per mount pair (the eq 9 fits); ``'points'``
+#: per-point residuals, a panel per quantity; ``'bars'`` one ratio to sigma per tick;
+#: ``'series'`` plain residual series, a panel each.
 FIGURE_STYLES = ("dwells", "points", "bars", "series")
 
 
@@ -131,15 +131,18 @@ class ResidualSeries:
         Abscissae [the panel's ``x_label`` unit]; bar positions for ``'bars'``.
     y : tuple of float
         Standardised residuals [1] (``'bars'``: a ratio to sigma [1]).
-    marker : str
-        matplotlib marker.
+    polarity : int or None
+        +1 or -1: the IA polarity of the dwells (``'dwells'``); None otherwise.
+    sweep : str or None
+        'up', 'down' or 'rest': the sweep of the dwells (``'dwells'``); None otherwise.
     colour : str or None
-        matplotlib colour (None: the style's cycle).
+        matplotlib colour; None: the drawing's own.
     """
     label: str
     x: tuple[float, ...]
     y: tuple[float, ...]
-    marker: str = "o"
+    polarity: int | None = None
+    sweep: str | None = None
     colour: str | None = None
 
 

@@ -250,3 +250,24 @@ def test_sample_tumble_K2_corrected_and_Kio(result_20):
     assert abs(k2.value - TRUTH_20["K2"]) <= 2 * k2.std_uncertainty
     kio = _coef(result_20, "Kio", "tumble_lm")
     assert abs(kio.value - TRUTH_20["Kio"]) <= 2 * kio.std_uncertainty
+
+
+def test_a_rig_without_an_ia_pair_makes_the_campaign_incomplete_by_a_typed_record(monkeypatch):
+    """Paper 000 needs the IA mount pair (phi = 0/180 deg) for the test radius and K2: a rig
+    without one is flagged, and the campaign is incomplete for that reason, which the
+    centrifuge step states as data (``CentrifugeStep.without_ia_pair``), not as text the
+    campaign searches its flags for."""
+    from accelcal.estimators import centrifuge
+    from accelcal.estimators.campaign import _assess_completeness
+    from accelcal.results import CampaignResult
+
+    monkeypatch.setattr(centrifuge, "process_rig", lambda runs, tumble: ("C9: no IA mount pair (phi = 0/180 deg)",))
+    runs = [SimpleNamespace(meta={"rig_id": "C9"}), SimpleNamespace(meta={"rig_id": "C9"})]
+    step = centrifuge.campaign_rigs(runs, {})
+    assert step.rigs == () and step.without_ia_pair == ("C9",) and len(step.flags) == 1
+    res = CampaignResult("c", "u", "m", ["centrifuge"], ["C9"], [])
+    for rec in centrifuge.campaign_records(runs, {centrifuge.METHOD: step}):
+        rec.add_to(res)
+    _assess_completeness(res)
+    assert res.completeness == "incomplete"
+    assert res.completeness_reasons == ["no coefficient could be determined from these runs", centrifuge.NO_IA_PAIR]

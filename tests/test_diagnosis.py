@@ -344,7 +344,7 @@ def test_heldout_test_is_a_standard_normal_when_the_effect_buys_nothing():
 
     def fit(X, y):
         beta, *_ = np.linalg.lstsq(X, y, rcond=None)
-        return SimpleNamespace(J=X, z=y - X @ beta, free=np.ones(X.shape[1], bool))
+        return SimpleNamespace(fit=SimpleNamespace(J=X, z=y - X @ beta), active=np.ones(X.shape[1], bool))
 
     rng = np.random.default_rng(26)
     for n in (40, 400):

@@ -125,6 +125,7 @@ def test_paper_methods_state_their_figures_from_their_own_extras():
     assert p.title == "C1 IA-PA 0/180 (order 2)"
     assert {s.label: (s.x, s.y) for s in p.series} == {"+ rest": ((0.0,), (0.1,)),
                                                         "− down": ((-19.6133 / G_STANDARD,), (-0.4,))}
+    assert {(s.polarity, s.sweep) for s in p.series} == {(1, "rest"), (-1, "down")}
     k0, k1 = figs["points"].panels
     assert k0.series[0].y[0] == (1.1e-3 + 1e-4 - (1e-3 + 1e-5 * 10)) / 5e-5
     assert k1.series[0].y[0] == (1.0 + 2e-5 - 1.0 * (1 + 2e-6 * 10)) / 1e-5

@@ -48,7 +48,8 @@ def test_report_contents(lab, tmp_path):
     for b in pngs:
         assert base64.b64decode(b)[:8] == b"\x89PNG\r\n\x1a\n"
     for text in ("SNJ-1-03", "QA-2000", "LXJ-100", "DH-1", "U (k=2)", "µg/g²", "µg",
-                 "Model adequacy", "Alignment analysis", "Lineage", "NOT adequate", "adequate"):
+                 "Model adequacy", "Alignment analysis", "Lineage", "NOT adequate", "adequate",
+                 "residuals of the eq 9 fits (▲ up-sweep, ▼ down-sweep, ● rest; blue + polarity"):
         assert text in html, text
     # every input run with its sha256, and the result id
     def grouped(token):              # long ids are printed in groups of 16, to break between

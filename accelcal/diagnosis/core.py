@@ -49,7 +49,7 @@ from ..fitting.model import processing_effects
 from ..physics.rigs import INSTRUMENT_EFFECTS, specific_force
 from ._blas import single_thread
 from .fits import (GAP_ALPHA, NON_CATALOGUE, Fit, Fitter, folds, gap_rms, gap_test, heldout_gap, heldout_parts,
-                   heldout_test, lr_test, project_out, shrink)
+                   heldout_test, lr_test, project_out, shrink, variance_factor)
 from .localise import localise, residual_si, shape, shape_tests, summary, where
 
 #: held-out shrink that names an effect (it removes half the gap on cells it was not fitted to)
@@ -332,11 +332,11 @@ class _Diagnosis:
         """(score, linear estimate, its standard uncertainty, projected signature) of a
         candidate against a fit."""
         U = f.basis() if U is None else U
-        sp = project_out(U, self.F.signature(f.model, f.p, effect))
+        sp = project_out(U, self.F.signature(f.model, f.fit.values, effect))
         n2 = float(sp @ sp)
         if n2 <= 0:
             return 0.0, 0.0, math.inf, sp
-        est = float(sp @ f.z) / n2
+        est = float(sp @ f.fit.z) / n2
         return est * est * n2, est, 1.0 / math.sqrt(n2), sp
 
     def trial(self, f: Fit, effect: str, est: float) -> Fit:
@@ -420,9 +420,9 @@ class _Diagnosis:
             ``per_unit``, how far one effect unit moves that parameter
             [parameter unit / effect unit].
         """
-        idx = np.flatnonzero(f.free)
+        idx = np.flatnonzero(f.active)
         return [{"parameter": f.model.params[idx[k]].name, "share": share, "per_unit": x}
-                for k, share, x in taken_up(f.J[:, idx], s)]
+                for k, share, x in taken_up(f.fit.J[:, idx], s)]
 
     def select(self, bare: Fit, obs: dict) -> tuple[Fit, list[str], list[dict], dict]:
         """Forward selection: score, refit the best, likelihood ratio and held-out gates."""
@@ -431,7 +431,7 @@ class _Diagnosis:
         pool = [c for c in self.cands if obs[c]["observable"]]
         while len(sel) < self.max_effects:
             rem = [c for c in pool if c not in sel]
-            if not rem or cur.dof <= 0:
+            if not rem or cur.fit.dof <= 0:
                 break
             U = cur.basis()
             sc = {c: self.score(cur, c, U) for c in rem}
@@ -528,12 +528,12 @@ class _Diagnosis:
         rest = [c for c in self.cands if c not in sel and obs[c]["observable"]]
         sc = {c: self.score(final, c, U) for c in rest}
         for k, c in enumerate(sorted(rest, key=lambda c: -sc[c][0])):
-            if k < self.refit_top and final.dof > 0:
+            if k < self.refit_top and final.fit.dof > 0:
                 ranking.append(self.entry(c, self.trial(final, c, sc[c][1]), final, obs, False, m))
             else:
                 s, est, se, _ = sc[c]
                 ranking.append({"effect": c, "estimate": est, "std_uncertainty": se * math.sqrt(
-                    final.scale2 if math.isfinite(final.scale2) else 1.0), "unit": EFFECTS[c].unit,
+                    variance_factor(final) if math.isfinite(variance_factor(final)) else 1.0), "unit": EFFECTS[c].unit,
                     "z": est / se if se and math.isfinite(se) else None, "delta_chi2": s, "p_value": None,
                     "significant": False, "selected": False, "shrink_in_sample": None, "shrink_heldout": None,
                     "observable": True, "observable_fraction": obs[c]["observable_fraction"],
@@ -560,7 +560,7 @@ class _Diagnosis:
         # verdict: a selected effect that passes significance and the held-out gate
         # a gap worth naming: the bare model's lack of fit at 5 %, or a five-sigma effect of
         # its own (a two-sigma effect in a model that fits is not a diagnosis)
-        gap = bare.lof.p_value is not None and bare.lof.p_value < GAP_SEEN
+        gap = bare.fit.lof.p_value is not None and bare.fit.lof.p_value < GAP_SEEN
         ok = [e for e in ranking if e["selected"] and e["significant"]
               and ((e["shrink_heldout"] or -math.inf) >= HELDOUT_GATE or (e.get("heldout_z") or 0.0) >= HELDOUT_Z)
               and (gap or (e.get("statistic") or 0.0) >= VERDICT_STATISTIC)]
@@ -616,7 +616,7 @@ class _Diagnosis:
             name = alt.effect_parameter(d)
             if name is not None:
                 out[d] = alt.value(name)
-                e.setdefault("alias_fit", {})[d] = {"delta_chi2_worse": alt.chi2 - final.chi2,
+                e.setdefault("alias_fit", {})[d] = {"delta_chi2_worse": alt.fit.chi2 - final.fit.chi2,
                                                     "std_uncertainty": alt.std(name)}
         if out:
             e["alias_estimates"] = out
@@ -668,7 +668,7 @@ class _Diagnosis:
         U = bare.basis()
         cols = {}
         for k, why in held:
-            col = bare.J[:, m.params.index[k]]
+            col = bare.fit.J[:, m.params.index[k]]
             v = project_out(U, col)
             nv, nc = np.linalg.norm(v), np.linalg.norm(col)
             # a column the bare model takes up (a mount angle takes Kp) is not what an
@@ -700,7 +700,7 @@ class _Diagnosis:
             explained = True
         # the omnibus test dilutes a shaped gap over every cell: the targeted shape tests
         # (rising vs falling steps, polarity) can say on their own that a gap remains
-        shaped = shape_tests(final) if final.dof > 0 else []
+        shaped = shape_tests(final) if final.fit.dof > 0 else []
         if explained is not False and any(t["significant"] for t in shaped):
             explained = False
             after = {**after, "significant": True, "status": "shaped gap",
@@ -708,8 +708,9 @@ class _Diagnosis:
         rows_b = localise(bare0, self.alpha)
         rows_a = localise(final, self.alpha) if sel else rows_b
         ho_b, ho_a = self.ho(bare), self.ho(final)
-        g = {"rms_before": float(np.sqrt(np.mean(bare.z ** 2))), "rms_after": float(np.sqrt(np.mean(final.z ** 2))),
-             "noise_rms": float(np.sqrt(final.dof / final.N)) if final.N else None,
+        g = {"rms_before": float(np.sqrt(np.mean(bare.fit.z ** 2))),
+             "rms_after": float(np.sqrt(np.mean(final.fit.z ** 2))),
+             "noise_rms": float(np.sqrt(final.fit.dof / final.fit.n_obs)) if final.fit.n_obs else None,
              "gap_rms_before": gap_rms(bare), "gap_rms_after": gap_rms(final),
              "shrink_in_sample": shrink(gap_rms(bare), gap_rms(final)),
              "heldout_gap_rms_before": ho_b, "heldout_gap_rms_after": ho_a, "shrink_heldout": shrink(ho_b, ho_a),
@@ -720,7 +721,8 @@ class _Diagnosis:
              "si": {"rms_before_m_s2": float(np.sqrt(np.mean(residual_si(bare) ** 2))),
                     "rms_after_m_s2": float(np.sqrt(np.mean(residual_si(final) ** 2))),
                     "noise_rms_m_s2": _noise_si(final)},
-             "chi2_before": bare.chi2, "dof_before": bare.dof, "chi2_after": final.chi2, "dof_after": final.dof}
+             "chi2_before": bare.fit.chi2, "dof_before": bare.fit.dof,
+             "chi2_after": final.fit.chi2, "dof_after": final.fit.dof}
         if explained is False:
             forms = shape(final)
             unexplained = {"where": where(rows_a), "shape": forms, "text": "a significant gap remains that no "
@@ -796,7 +798,7 @@ def _noise_si(f: Fit) -> float:
 
 
 def _bare_text(f: Fit) -> str:
-    free = [p.name for p, v in zip(f.model.params, f.free) if v]
+    free = [p.name for p, v in zip(f.model.params, f.active) if v]
     held = [f"{k} ({h.reason})" for k, h in f.held.items()]
     return ("the forward model with the baseline effects; free: " + ", ".join(free)
             + ("; held: " + "; ".join(held) if held else ""))

@@ -18,8 +18,7 @@ import numpy as np
 from scipy import stats
 
 from ..effects import EFFECTS
-from ..fitting.core import (LackOfFit, ParameterSet, column_space_basis, separable_columns,
-                            thin_svd)
+from ..fitting.core import ParameterSet, column_space_basis, separable_columns, thin_svd
 from ..fitting.data import RunCells
 from ..fitting.identify import Hold, Why
 from ..fitting.model import ALIAS_TOL, CANDIDATE_SHARED, PRIORITY, CampaignModel, effect_claim
@@ -42,64 +41,11 @@ GAP_ALPHA = 0.001
 
 
 class Fit(ModelFit):
-    """A fitted model of the diagnosis: a :class:`~accelcal.fitting.procedure.ModelFit`
-    read the way the diagnosis compares fits (values, whitened residual and Jacobian of
-    the active columns, chi-square, rank, lack of fit against the pure error)."""
-
-    @property
-    def p(self) -> np.ndarray:
-        """Parameter vector [parameter units]."""
-        return self.fit.values
-
-    @property
-    def z(self) -> np.ndarray:
-        """Whitened cell residuals [1]."""
-        return self.fit.z
-
-    @property
-    def J(self) -> np.ndarray:
-        """Whitened Jacobian, all columns [1 / parameter unit]."""
-        return self.fit.J
-
-    @property
-    def free(self) -> np.ndarray:
-        """Free parameters whose column acts on the data (:attr:`ModelFit.active`)."""
-        return self.active
-
-    @property
-    def chi2(self) -> float:
-        """Whitened chi-square at the solution [1]."""
-        return float(self.fit.chi2)
-
-    @property
-    def rank(self) -> int:
-        """Rank of the free columns."""
-        return self.fit.rank
-
-    @property
-    def lof(self) -> LackOfFit:
-        """Lack of fit of the cell means against the pure error."""
-        return self.fit.lof
-
-    @property
-    def converged(self) -> bool:
-        """Whether the last Gauss–Newton pass converged (``FitResult.converged``)."""
-        return self.fit.converged
-
-    @property
-    def N(self) -> int:
-        """Number of cells."""
-        return int(self.z.size)
-
-    @property
-    def dof(self) -> int:
-        """N - rank."""
-        return self.N - self.rank
-
-    @property
-    def scale2(self) -> float:
-        """max(1, chi2/dof): the variance factor of a model that leaves a gap (inf without dof)."""
-        return max(1.0, self.chi2 / self.dof) if self.dof > 0 else math.inf
+    """A fitted model of the diagnosis: a :class:`~accelcal.fitting.procedure.ModelFit`,
+    whose :class:`~accelcal.fitting.core.FitResult` ``fit`` holds the values, the whitened
+    residual and Jacobian, chi-square, rank, lack of fit and the one covariance of every
+    parameter; this class names parameters as the diagnosis asks for them (None, not an
+    error, for a parameter the model lacks or does not determine)."""
 
     def index(self, name: str) -> int | None:
         """Position of a parameter in this fit's model.
@@ -131,26 +77,11 @@ class Fit(ModelFit):
             Estimate, or the held value when held [parameter unit]; None when the model has
             no such parameter.
         """
-        i = self.index(name)
-        return None if i is None else float(self.p[i])
-
-    def cov(self) -> tuple[np.ndarray, np.ndarray]:
-        """(free column indices, covariance (J^T J)^+ of them) under the noise model.
-
-        Returns
-        -------
-        idx : ndarray of int
-            Indices of the free parameters whose column acts on the data (:attr:`free`).
-        C : (len(idx), len(idx)) ndarray
-            Their block of ``fit.cov_noise`` [parameter units squared]: not scaled for a
-            lack of fit.
-        """
-        idx = np.flatnonzero(self.free)
-        return idx, self.fit.cov_noise[np.ix_(idx, idx)]
+        return None if self.index(name) is None else self.fit.value(name)
 
     def std(self, name: str) -> float | None:
-        """Standard uncertainty under the noise model, scaled by sqrt(chi2/dof) when the
-        model leaves a gap (None when held or not determined).
+        """Standard uncertainty of one parameter: the fit result's
+        (:meth:`accelcal.fitting.core.FitResult.std`, the lack-of-fit factor included).
 
         Parameters
         ----------
@@ -160,17 +91,13 @@ class Fit(ModelFit):
         Returns
         -------
         float or None
-            sqrt(C_ii * :attr:`scale2`) from :meth:`cov` [parameter unit] (unscaled when no
-            degrees of freedom are left); None when the model has no such parameter, it is
-            held or inactive, or its variance is not positive.
+            [parameter unit]; None when the model has no such parameter, it is held or not
+            determined, or its variance is not positive.
         """
-        i = self.index(name)
-        if i is None or not self.free[i]:
+        if self.index(name) is None:
             return None
-        idx, C = self.cov()
-        k = int(np.flatnonzero(idx == i)[0])
-        v = C[k, k]
-        return float(math.sqrt(v * (self.scale2 if math.isfinite(self.scale2) else 1.0))) if v > 0 else None
+        u = self.fit.std(name)
+        return u if u > 0 else None
 
     def basis(self) -> np.ndarray:
         """Orthonormal basis of the span of the free columns (whitened).
@@ -178,10 +105,10 @@ class Fit(ModelFit):
         Returns
         -------
         (N, r) ndarray
-            :func:`accelcal.fitting.core.column_space_basis` of ``J[:, free]`` [1]; r is the
-            rank.
+            :func:`accelcal.fitting.core.column_space_basis` of the free, active columns of
+            ``fit.J`` [1]; r is the rank.
         """
-        return column_space_basis(self.J[:, self.free])
+        return column_space_basis(self.fit.J[:, self.active])
 
     def effect_parameters(self, effect: str) -> list[str]:
         """Names of the free parameters of an effect in this model (theta0 per head, ...).
@@ -197,10 +124,10 @@ class Fit(ModelFit):
         -------
         list of str
             Names of the parameters that are the effect and free and active in this fit
-            (:attr:`free`), in model order; empty when there are none.
+            (:attr:`active`), in model order; empty when there are none.
         """
         coef = INSTRUMENT_EFFECTS.get(effect)
-        return [prm.name for prm, role, v in zip(self.model.params, self.model.roles, self.free)
+        return [prm.name for prm, role, v in zip(self.model.params, self.model.roles, self.active)
                 if v and ((role.kind == "effect" and role.key == effect) or (coef and role.kind == "coef"
                                                                               and role.key == coef))]
 
@@ -371,7 +298,7 @@ class Fitter:
             for i, prm in enumerate(m.params):
                 j = start.index(prm.name)
                 if j is not None and start.model.params[j].vary:
-                    p[i] = start.p[j]
+                    p[i] = start.fit.values[j]
         for k, v in (values or {}).items():
             i = m.params.index.get(k)
             if i is not None:
@@ -445,22 +372,22 @@ class Fitter:
             Candidate -> its whitened signature at that fit, (N,) [1 per effect unit].
         """
         f = self.fit(self.baseline, noise_passes=2)
-        sigs = {c: self.signature(f.model, f.p, c) for c in candidates}
+        sigs = {c: self.signature(f.model, f.fit.values, c) for c in candidates}
         self.extra_held = self._competing(f, sigs)
         if self.extra_held:
             f = self.fit(self.baseline, start=f)
-            sigs = {c: self.signature(f.model, f.p, c) for c in candidates}
+            sigs = {c: self.signature(f.model, f.fit.values, c) for c in candidates}
         return f, sigs
 
     def _competing(self, f: Fit, sigs: Mapping[str, np.ndarray]) -> dict[str, Hold]:
         """Non-catalogue coefficients (free in the fit) whose direction a candidate effect
         takes when the candidates claim directions before them."""
         m = f.model
-        free = [i for i in np.flatnonzero(f.free)]
+        free = [i for i in np.flatnonzero(f.active)]
         nc = [c for c, i in enumerate(free) if m.roles[i].kind == "coef" and m.roles[i].key in NON_CATALOGUE]
         if not nc:
             return {}
-        J = f.J[:, free]
+        J = f.fit.J[:, free]
 
         def prio(c):
             i = free[c]
@@ -504,7 +431,24 @@ def gap_rms(f: Fit) -> float:
     float
         The gap [1, sigma of a cell mean]; 0 without cells.
     """
-    return float(math.sqrt(max(f.chi2 - f.dof, 0.0) / f.N)) if f.N else 0.0
+    return float(math.sqrt(max(f.fit.chi2 - f.fit.dof, 0.0) / f.fit.n_obs)) if f.fit.n_obs else 0.0
+
+
+def variance_factor(f: Fit) -> float:
+    """Factor by which a gap the model leaves inflates the residual variance: max(1, chi2/dof)
+    (inf without dof); a nested test against that residual (:func:`lr_test`).
+
+    Parameters
+    ----------
+    f : Fit
+        The fit.
+
+    Returns
+    -------
+    float
+        [1].
+    """
+    return max(1.0, f.fit.chi2 / f.fit.dof) if f.fit.dof > 0 else math.inf
 
 
 def shrink(before: float | None, after: float | None) -> float | None:
@@ -616,8 +560,8 @@ def _heldout_fold(f: Fit, fold: np.ndarray, k: int, tol: float):
     boolean mask over the cells of fold k), their whitened prediction residuals, and the
     rows A with A A^T the covariance of those predictions (the training fit's) [1]; None
     when no cell is predicted."""
-    J = f.J[:, f.free]
-    z = f.z
+    J = f.fit.J[:, f.active]
+    z = f.fit.z
     T, H = fold != k, fold == k
     if not T.any() or not H.any():
         return None
@@ -725,21 +669,21 @@ def lr_test(before: Fit, after: Fit, m: int, alpha: float) -> dict:
     Returns
     -------
     dict
-        ``delta_chi2`` [1]; ``scale`` (the larger model's :attr:`Fit.scale2`); ``statistic``;
+        ``delta_chi2`` [1]; ``scale`` (the larger model's :func:`variance_factor`); ``statistic``;
         ``p_value`` (F(q, dof) when scaled, else chi-square with q dof); ``threshold_p`` =
         alpha / m; ``significant`` (delta chi2 > 0 and p below the threshold).  Without
         degrees of freedom: ``scale``, ``statistic`` and ``p_value`` None, not significant,
         and a ``note``.  q is the rank gained, at least 1.
     """
-    q = max(after.rank - before.rank, 1)
-    dchi = float(before.chi2 - after.chi2)
-    if after.dof <= 0:
+    q = max(after.fit.rank - before.fit.rank, 1)
+    dchi = float(before.fit.chi2 - after.fit.chi2)
+    if after.fit.dof <= 0:
         return {"delta_chi2": dchi, "scale": None, "statistic": None, "p_value": None, "threshold_p": alpha / m,
                 "significant": False, "note": "untestable: no degrees of freedom left"}
-    s2 = after.scale2
+    s2 = variance_factor(after)
     if s2 > 1.0:
         F = dchi / q / s2
-        p = float(stats.f.sf(F, q, after.dof))
+        p = float(stats.f.sf(F, q, after.fit.dof))
     else:
         F = dchi / q
         p = float(stats.chi2.sf(dchi, q))
@@ -769,7 +713,7 @@ def gap_test(f: Fit) -> dict:
     Draper & Smith, *Applied Regression Analysis*, 3rd ed., §2.1 (lack of fit with pure
     error).
     """
-    lof = f.lof
+    lof = f.fit.lof
     if lof.status == "untestable":
         return {"status": "untestable", "significant": None, "p_value": None, "F": None,
                 "dof_lof": lof.dof_lof, "dof_pe": lof.dof_pe, "alpha": GAP_ALPHA,

@@ -121,7 +121,7 @@ def localise(f: Fit, alpha: float = 0.05) -> list[dict]:
     Holm, S., A simple sequentially rejective multiple test procedure, Scand. J. Statist.
     6, 65-70 (1979).
     """
-    z = f.z
+    z = f.fit.z
     e = 1.0 - leverages(f)
     lab = _labels(f)
     si = residual_si(f)
@@ -171,12 +171,12 @@ def residual_si(f: Fit) -> np.ndarray:
     (N,) ndarray
         Residual of each cell mean, referred to the input [m/s^2].
     """
-    out = np.zeros(f.N)
+    out = np.zeros(f.fit.n_obs)
     for j, r in enumerate(f.model.runs):
         sl = f.model.rows(j)
         name = f.model.name(r.campaign, "K1")
-        K1 = abs(f.p[f.model.params.index[name]]) if name in f.model.params.index else 1.0
-        out[sl] = f.z[sl] * f.model.sig[sl] / (K1 or 1.0)
+        K1 = abs(f.fit.values[f.model.params.index[name]]) if name in f.model.params.index else 1.0
+        out[sl] = f.fit.z[sl] * f.model.sig[sl] / (K1 or 1.0)
     return out
 
 
@@ -211,7 +211,7 @@ def shape_tests(f: Fit, alpha: float = SHAPE_ALPHA) -> list[dict]:
         ``mean_residual_m_s2`` of each side (first, second), for every test the cells allow
         (both sides present).
     """
-    z = f.z
+    z = f.fit.z
     lab = _labels(f)
     si = residual_si(f)
     g = np.nan_to_num(lab["#g_level"], nan=0.0)
@@ -293,8 +293,8 @@ def _forms(lab: dict, f: Fit) -> list[tuple[str, str, np.ndarray]]:
         for P in np.geomspace(max(3 * dt, span / 200), span, 80):
             X = np.column_stack([np.cos(2 * np.pi * t / P), np.sin(2 * np.pi * t / P)])
             Xw = X / f.model.sig[:, None]
-            c = lstsq_min_norm(Xw, f.z)
-            gain = float(f.z @ (Xw @ c))
+            c = lstsq_min_norm(Xw, f.fit.z)
+            gain = float(f.fit.z @ (Xw @ c))
             if best is None or gain > best[0]:
                 best = (gain, P, X)
         if best is not None:
@@ -323,8 +323,8 @@ def shape(f: Fit, top: int = 3) -> list[dict]:
         of the forms explaining more than 5 %, the simplest first among those within 5 %
         of each other; empty when there is no excess or dof < 3.
     """
-    excess = f.chi2 - f.dof
-    if excess <= 0 or f.dof < 3:      # a gap with one or two degrees of freedom has no shape
+    excess = f.fit.chi2 - f.fit.dof
+    if excess <= 0 or f.fit.dof < 3:      # a gap with one or two degrees of freedom has no shape
         return []
     lab = _labels(f)
     U = f.basis()
@@ -335,10 +335,10 @@ def shape(f: Fit, top: int = 3) -> list[dict]:
         if not np.any(np.linalg.norm(Xp, axis=0) > 1e-12 * max(np.linalg.norm(Xw), 1e-300)):
             continue
         k = int(np.linalg.matrix_rank(Xp)) + (1 if words.startswith("periodic") else 0)
-        if k > f.dof - 2:
+        if k > f.fit.dof - 2:
             continue
-        c = lstsq_min_norm(Xp, f.z, rcond=1e-10)
-        gain = float(f.z @ (Xp @ c)) - k
+        c = lstsq_min_norm(Xp, f.fit.z, rcond=1e-10)
+        gain = float(f.fit.z @ (Xp @ c)) - k
         out.append({"dimension": dim, "form": words, "parameters": k,
                     "explained_fraction": float(max(gain, 0.0) / excess)})
     # the simplest of the forms that explain about as much as the best

@@ -133,8 +133,9 @@ def _mark_adopted(res: CampaignResult) -> None:
 
 
 def _assess_completeness(res: CampaignResult) -> None:
-    """'incomplete' when no coefficient could be determined, or when every tumble fit of a
-    tumble-only campaign has no degrees of freedom left to test the model (interim rule)."""
+    """'incomplete' when no coefficient could be determined, when every tumble fit of a
+    tumble-only campaign has no degrees of freedom left to test the model (interim rule), or
+    for what a paper method found (``Records.incomplete``: a rig without an IA mount pair)."""
     reasons = []
     if not res.coefficients:
         reasons.append("no coefficient could be determined from these runs")
@@ -147,8 +148,7 @@ def _assess_completeness(res: CampaignResult) -> None:
         if fits and all(not f.get("lack_of_fit") for f in fits):
             reasons.append("every tumble run has as many head positions as fitted parameters: "
                            "no degrees of freedom to test the model")
-    if any("no IA mount pair" in f for f in res.flags):
-        reasons.append("no IA mount pair: test radius and K2 cannot be determined")
+    reasons += [r for r in res.completeness_reasons if r not in reasons]
     res.completeness = "incomplete" if reasons else "complete"
     res.completeness_reasons = reasons
 

@@ -27,7 +27,7 @@ import math
 from collections import defaultdict
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -44,7 +44,7 @@ from .radius import (IterativeRadius, PairData, StaticRadius, g_levels, geometri
                      test_radius_iterative, test_radius_static)
 from .records import Records
 from .registry import Estimator, register
-from .tumble import Reference, campaign_k1_correction
+from .tumble import Reference, TumbleStep, campaign_k1_correction
 
 METHOD = "centrifuge_eq9"
 #: g ranges of the radius table, in g (paper 000 Table 2), plus the full range.
@@ -656,22 +656,37 @@ def rig_records(out: RigOutcome, k1_correction: tuple[float, float] | None = Non
 
 # ------------------------------------------------------------------ the campaign's centrifuge step
 
-def campaign_rigs(runs: Sequence, steps) -> tuple[list[RigOutcome], list[str]]:
-    """Paper 000 on every centrifuge rig of a campaign (:func:`process_rig`), with the
-    campaign's tumble as the reference scale where it has one.
+#: why a campaign whose centrifuge rig has no IA mount pair is incomplete
+NO_IA_PAIR = "no IA mount pair: test radius and K2 cannot be determined"
 
-    Returns
-    -------
-    (rigs, flags)
-        The rigs processed, and one flag per rig that could not be (no IA pair, a failure):
-        a rig never costs the rest of the campaign.
+
+class CentrifugeStep(NamedTuple):
+    """The campaign's centrifuge rigs processed by paper 000 (:func:`campaign_rigs`).
+
+    Attributes
+    ----------
+    rigs : tuple of RigOutcome
+        The rigs processed.
+    flags : tuple of str
+        One per rig that could not be (no IA pair, a failure).
+    without_ia_pair : tuple of str
+        Ids of the rigs without an IA mount pair (no test radius, no K2).
     """
-    tumble = steps.get("tumble_lm")
-    rigs, flags = [], []
+    rigs: tuple[RigOutcome, ...] = ()
+    flags: tuple[str, ...] = ()
+    without_ia_pair: tuple[str, ...] = ()
+
+
+def campaign_rigs(runs: Sequence, steps) -> CentrifugeStep:
+    """Paper 000 on every centrifuge rig of a campaign (:func:`process_rig`), with the
+    campaign's tumble (its :class:`~.tumble.TumbleStep`) as the reference scale where it has
+    one; a rig never costs the rest of the campaign."""
+    tumble = next((s for s in steps.values() if isinstance(s, TumbleStep)), None)
+    rigs, flags, no_pair = [], [], []
     by_rig = defaultdict(list)
     for r in runs:
         by_rig[str(r.meta["rig_id"])].append(r)
-    for rig_runs in by_rig.values():
+    for rig, rig_runs in by_rig.items():
         try:
             out = process_rig(rig_runs, tumble.reference if tumble is not None else None)
         except Exception as exc:  # never lose the rest of the campaign
@@ -682,15 +697,18 @@ def campaign_rigs(runs: Sequence, steps) -> tuple[list[RigOutcome], list[str]]:
             rigs.append(out)
         else:
             flags += list(out)
-    return rigs, flags
+            no_pair.append(rig)
+    return CentrifugeStep(tuple(rigs), tuple(flags), tuple(no_pair))
 
 
 def campaign_records(runs: Sequence, steps) -> list[Records]:
     """The records of every rig (:func:`rig_records`, geometric radii with the tumble K1
-    correction), then the rigs' flags."""
-    rigs, flags = steps.get(METHOD, ((), ()))
+    correction), then the rigs' flags (and :data:`NO_IA_PAIR` as the campaign's
+    incompleteness where a rig has no IA pair)."""
+    step = steps.get(METHOD, CentrifugeStep())
     k1 = campaign_k1_correction(steps)
-    return [rig_records(out, k1).checked() for out in rigs] + [Records(flags=list(flags))]
+    return [rig_records(out, k1).checked() for out in step.rigs] + [
+        Records(flags=list(step.flags), incomplete=[NO_IA_PAIR] if step.without_ia_pair else [])]
 
 
 def mc_truth(c, eff, test, g, notes) -> dict[tuple[str, str], tuple[float, str]]:
@@ -704,7 +722,7 @@ def mc_truth(c, eff, test, g, notes) -> dict[tuple[str, str], tuple[float, str]]
 def residual_figures(extras: Mapping[str, Any]) -> list[ResidualFigure]:
     """The eq 9 fits' standardised dwell-mean residuals against the signed centripetal
     input, one panel per mount pair, from what :func:`campaign_records` stored
-    (``extras['pairs']``), for the certificate (issue 23).
+    (``extras['pairs']``), for the certificate.
 
     Parameters
     ----------
@@ -714,7 +732,7 @@ def residual_figures(extras: Mapping[str, Any]) -> list[ResidualFigure]:
     Returns
     -------
     list of ResidualFigure
-        One ``'dwells'`` figure (series by polarity and sweep), or none without pairs.
+        One ``'dwells'`` figure (a series per polarity and sweep), or none without pairs.
     """
     pairs = [(rig, p) for rig, ps in (extras.get("pairs") or {}).items() for p in ps
              if isinstance(p, dict) and isinstance(p.get("dwells"), dict)]
@@ -726,19 +744,17 @@ def residual_figures(extras: Mapping[str, Any]) -> list[ResidualFigure]:
         pol = dw.get("pol", [1] * len(a))
         sweep = dw.get("sweep", ["up"] * len(a))
         series = []
-        for sgn, colour in ((1, "#1f5fa8"), (-1, "#c0392b")):
-            for sw, marker in (("up", "^"), ("down", "v"), ("rest", "o")):
+        for sgn in (1, -1):
+            for sw in ("up", "down", "rest"):
                 xy = [(x, y) for x, s, w, y in zip(a, pol, sweep, r) if s == sgn and w == sw and y is not None]
                 if xy:
                     series.append(ResidualSeries(f"{'+' if sgn > 0 else '−'} {sw}", tuple(x for x, _ in xy),
-                                                 tuple(y for _, y in xy), marker, colour))
+                                                 tuple(y for _, y in xy), polarity=sgn, sweep=sw))
         panels.append(ResidualPanel(f"{rig} {p.get('pair', '')} (order {p.get('order', '?')})",
                                     "input acceleration along IA (signed) / g", tuple(series)))
     if not panels:
         return []
-    return [ResidualFigure("dwells", "Standardised dwell-mean residuals of the eq 9 fits (▲ up-sweep, "
-                           "▼ down-sweep, ● rest; blue + polarity, red − polarity; dashed: ±3).",
-                           tuple(panels))]
+    return [ResidualFigure("dwells", "Standardised dwell-mean residuals of the eq 9 fits.", tuple(panels))]
 
 
 ESTIMATOR = register(Estimator(

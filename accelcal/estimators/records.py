@@ -29,6 +29,8 @@ class Records:
     alignment: list[dict] = field(default_factory=list)
     extras: dict[str, dict] = field(default_factory=dict)
     flags: list[str] = field(default_factory=list)
+    #: why the campaign cannot be complete, as this method finds (``completeness_reasons``)
+    incomplete: list[str] = field(default_factory=list)
 
     def checked(self) -> "Records":
         """The records with the JCGM 101 check of every coefficient's budget in
@@ -57,6 +59,7 @@ class Records:
         res.budget += self.budget
         res.alignment += self.alignment
         res.flags += self.flags
+        res.completeness_reasons += [r for r in self.incomplete if r not in res.completeness_reasons]
         for key, value in self.extras.items():
             if isinstance(value, dict) and isinstance(res.extras.get(key), dict):
                 res.extras[key] = {**res.extras[key], **value}

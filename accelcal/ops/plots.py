@@ -3,8 +3,9 @@
 Each function takes what the warehouse stores, or a typed figure a method made of it, and
 returns a base64 PNG, or None when there is nothing to plot.  The residual figures are the
 methods' own (:class:`accelcal.results.ResidualFigure`, from
-:func:`accelcal.estimators.registry.residual_figures`): this module draws them by their
-style and never reads a method's extras (issue 23).
+:func:`accelcal.estimators.registry.residual_figures`): a method states the data, this module
+chooses how they look (layout, colours, markers, the key in the caption) by what the figure
+shows, and never reads a method's extras.
 """
 from __future__ import annotations
 
@@ -16,6 +17,29 @@ from typing import Any
 from ..results import ResidualFigure
 
 K_COVERAGE = 2.0
+
+#: Colour of a dwell series by its IA polarity, and marker by its sweep (``'dwells'``)
+POLARITY_COLOUR = {1: "#1f5fa8", -1: "#c0392b"}
+SWEEP_MARKER = {"up": "^", "down": "v", "rest": "o"}
+#: The key a figure's caption gives for how it is drawn, by what it shows
+CAPTION_KEY = {"dwells": "▲ up-sweep, ▼ down-sweep, ● rest; blue + polarity, red − polarity; dashed: ±3"}
+
+
+def figure_caption(fig: ResidualFigure) -> str:
+    """A residual figure's caption with the key to how :func:`residual_figure` draws it.
+
+    Parameters
+    ----------
+    fig : ResidualFigure
+
+    Returns
+    -------
+    str
+        The method's caption, its key in brackets before the full stop where the figure's
+        style has one (:data:`CAPTION_KEY`).
+    """
+    key = CAPTION_KEY.get(fig.style)
+    return f"{fig.caption.rstrip('.')} ({key})." if key else fig.caption
 
 
 def _plt():
@@ -117,7 +141,8 @@ def residual_figure(fig: ResidualFigure) -> str | None:
         for sr in p.series:
             kw = {"s": size}
             if fig.style == "dwells":
-                kw.update(marker=sr.marker, color=sr.colour, alpha=0.8)
+                kw.update(marker=SWEEP_MARKER.get(sr.sweep, "o"), color=POLARITY_COLOUR.get(sr.polarity),
+                          alpha=0.8)
             elif sr.colour is not None:
                 kw["color"] = sr.colour
             if sr.label:

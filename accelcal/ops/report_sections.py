@@ -13,7 +13,7 @@ from ..estimators.joint import stored_adequacy
 from ..estimators.registry import fit_checks, residual_figures
 from ..results import MonteCarloCheck, monte_carlo_checks
 from .certificate import COVERAGE_PROBABILITY, _adopted, _k, _u_unknown, method_text, missing_rig_inputs
-from .plots import K_COVERAGE, radius_plot, residual_figure
+from .plots import K_COVERAGE, figure_caption, radius_plot, residual_figure
 from .report_display import (_at_digit, _coefficient_scale, _e, _fmt, _img, _keep, _kv, _ph, _same_minute,
                              _table, _to_second, _when, display_value)
 
@@ -487,7 +487,7 @@ def _sec_adequacy(d, plots) -> str:
         for fig in residual_figures(d.get("extras")):
             img = residual_figure(fig)
             if img:
-                out.append(f"<div class='keep'><p class='note'>{_e(fig.caption)}</p>"
+                out.append(f"<div class='keep'><p class='note'>{_e(figure_caption(fig))}</p>"
                            f"{_img(img, 'residual plot')}</div>")
         tests = set(d.get("tests") or [])
         if "tumble" in tests:

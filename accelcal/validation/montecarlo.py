@@ -1,4 +1,4 @@
-"""Monte Carlo validity study of the estimators (issue 3): ``accelcal montecarlo SCENARIO --n 200``.
+"""Monte Carlo validity study of the estimators: ``accelcal montecarlo SCENARIO --n 200``.
 
 Part of the validation wing (:mod:`accelcal.validation`).
 
@@ -10,7 +10,7 @@ returns, keyed by (name, method, rig_id), is compared with its truth:
 
 * bias = mean estimate - truth, and bias / (sd / sqrt(n)) (a z score: |z| > 3 is a real bias);
 * the empirical sd against the stated standard uncertainty (sd / u_rms, u_rms = sqrt(mean u^2));
-* coverage of the intervals estimate +- 1.96 u (target 95 % +- 3 %, issue 3), with the
+* coverage of the intervals estimate +- 1.96 u (target 95 % +- 3 %), with the
   binomial sampling half-width 1.96 sqrt(0.95 * 0.05 / n) and a Wilson interval;
 * var / CRB for the coefficients whose Cramer-Rao bound is computed (see below).
 
@@ -41,28 +41,20 @@ bias_temperature -> K0T, scale_temperature -> K1T) that apply to the test of tha
 
 Cramer-Rao bound (:func:`cramer_rao`)
 --------------------------------------
-For the data a method uses, F = J^T Sigma^-1 J with J the Jacobian of the forward model
-(:func:`accelcal.physics.rigs.rig_output`, central differences; the instrument coefficients
-enter linearly or bilinearly, so their columns are exact) at the truth, evaluated at the
-readings of one simulated campaign (logged rates, recorded temperatures: the simulator
-makes the output from those, so they are exactly known regressors).  Sigma is diagonal,
-the simulator's noise per reading: var = (K1(T) white)^2 + (dE/d omega * omega/2 * jitter)^2
-(true omega^2 = logged omega^2 (1 + delta), delta ~ N(0, rate_jitter_rel) per reading or
-sample; the logged-rate noise does not reach the output given the logged rate; bias random
-walk and sensor lag are not modelled in Sigma -- they are zero in the shipped scenarios).
-CRB(k) = [F^+]_kk for every parameter that is estimable (e_k in the row space of the
-column-scaled J; aliased parameters get no bound).  The parameter vector per method:
-
-* ``centrifuge_eq9``: K2, K3, Koq, Kp, Ko, Kip, Kio, Kpo, Kpp, Koo (one instrument, shared
-  by all mounts) + per run a free bias and a free scale of the IA input (eq 9's K0+-, 1+c+-:
-  they absorb radius, ia_tilt, K0, Ko g); K1 and K0 known (the tumble gives K1 to 2e-8).
-  The estimator fits c2, d, c3 per mount pair and combines them, and adds type-B terms for
-  a mount-angle error the simulation does not have: var/CRB > 1 measures that price.
-* ``tilt_rotation_ls``: K0, K1, K0T (apparent: its column is identical to the fixture
-  tilt's up to a constant), K1T and the cross-axis term of the cos axis (Kp/Ko).
-* ``sine_ls``: the 12 coefficients of the effects.md model and the tool errors the
-  estimator identifies (spindle_tilt, mass_centre_offset, rate_scale_error, sensor_lag;
-  the last by a forward difference at tau = 0).
+For the data of a campaign, F = J^T Sigma^-1 J with J the Jacobian of the campaign model
+(:class:`accelcal.fitting.model.CampaignModel`, whose columns are the derivatives of
+:func:`accelcal.physics.rigs.rig_output`) at the truth, evaluated at the readings of one
+simulated campaign (logged rates, recorded temperatures: the simulator makes the output
+from those, so they are exactly known regressors), each reading its own cell.  Sigma is
+diagonal, the simulator's noise per reading: var = (K1(T) white)^2 + (dE/d omega * omega/2
+* jitter)^2 + (K1 centripetal_rel omega_z^2 R)^2 (true omega^2 = logged omega^2 (1 + delta),
+delta ~ N(0, rate_jitter_rel) per reading or sample; the logged-rate noise does not reach
+the output given the logged rate; bias random walk and sensor lag are not modelled in
+Sigma -- they are zero in the shipped scenarios).  The unknowns are the coefficients the
+campaign's tests are designed to determine, a bias per centrifuge run, the turning-centre
+radius per rig and the effects of :data:`UNKNOWN_EFFECTS` where effects.md applies them;
+the model holds what it holds in a fit (aliased or weakly determined,
+:meth:`~accelcal.fitting.model.CampaignModel.holds`) and CRB(k) = [F^-1]_kk over the rest.
 The bound is for an unbiased estimator of the *full physical model*, so it is a lower
 bound also for estimators with more nuisance parameters than it has.
 """
@@ -80,16 +72,18 @@ from typing import Any
 import numpy as np
 
 from ..constants import T_REF_C
-from ..effects import plausible_size, split_combination, typical_size
+from ..effects import split_combination
 from ..estimators import registry
 from .simruns import SimRunFile
-from ..fitting.core import thin_svd
+from ..fitting.core import lstsq_svd
+from ..fitting.data import RunCells
+from ..fitting.model import DESIGNED, CampaignModel
 from ..physics.rigs import INSTRUMENT_EFFECTS, rig_output, sine_drive
 
-#: coverage target of issue 3 (95 % +- 3 %) and the coverage factor of the intervals
+#: coverage target (95 % +- 3 %) and the coverage factor of the intervals
 TARGET, TARGET_TOL, K_COVER = 0.95, 0.03, 1.96
 
-#: the adopted values' coefficients whose var/CRB the issue asks for (the paper methods
+#: the adopted values' coefficients whose var/CRB the study reports (the paper methods
 #: declare theirs in the registry, ``Estimator.main``)
 ADOPTED_MAIN = ("K2", "K3", "Koq", "Kip", "Kio", "Kpo", "Kpp", "Koo", "K0T", "K1T")
 
@@ -191,7 +185,7 @@ COVARIANCE = ("__covariance__", "", "")
 
 
 def combination_bound(name: str, cov: Mapping[tuple[str, str], float]) -> float | None:
-    """Cramér–Rao variance of a row named as a combination (issue 30): c^T F^+ c over the
+    """Cramér–Rao variance of a row named as a combination: c^T F^+ c over the
     terms the bound has free; a term the bound holds (aliased, as the estimator holds it)
     is left out, so a coefficient that takes up a held one has its own bound.
 
@@ -215,8 +209,8 @@ def combination_bound(name: str, cov: Mapping[tuple[str, str], float]) -> float 
 
 
 def combination_truth(key: tuple[str, str, str], truth: Mapping) -> tuple[float, str] | None:
-    """Truth of a row named as a combination (:func:`accelcal.effects.split_combination`,
-    issue 30): where the table maps its coefficient to an apparent value (a tumble's K0 is
+    """Truth of a row named as a combination (:func:`accelcal.effects.split_combination`):
+    where the table maps its coefficient to an apparent value (a tumble's K0 is
     K0 + K_ss g^2), that mapping already is the combination; where it maps it to the
     instrument value, the other terms' instrument values are added with their factors.
 
@@ -311,181 +305,91 @@ def _reading_variance(kind: str, meta, data, coeffs, effects, noise) -> np.ndarr
     return var
 
 
-def _column(kind, meta, data, coeffs, effects, name) -> np.ndarray:
-    """d E / d name at the truth (central differences; forward for sensor_lag >= 0)."""
-    if name in _ALL_COEFFS:
-        # exact for the coefficients, in which the output is linear; K1 relative to its value
-        h = 1e-3 * abs(coeffs["K1"]) if name == "K1" else typical_size(name)
-        up, dn = dict(coeffs), dict(coeffs)
-        up[name] += h
-        dn[name] -= h
-        return (rig_output(kind, meta, data, up, effects) - rig_output(kind, meta, data, dn, effects)) / (2 * h)
-    h = 1e-3 * typical_size(name)      # as the campaign model's difference steps
-    up, dn = dict(effects), dict(effects)
-    v = float(effects.get(name, 0.0))
-    up[name] = v + h
-    if name == "sensor_lag" and v < h:
-        return (rig_output(kind, meta, data, coeffs, up) - rig_output(kind, meta, data, coeffs, effects)) / h
-    dn[name] = v - h
-    return (rig_output(kind, meta, data, coeffs, up) - rig_output(kind, meta, data, coeffs, dn)) / (2 * h)
+#: effects the bound takes as unknown, with the run biases, radii and designed coefficients
+#: (effects.md ids, in the order they claim a direction of the design)
+UNKNOWN_EFFECTS = ("initial_misalignment", "mass_centre_offset", "mount_angle_error", "spindle_tilt",
+                   "sensor_lag")
 
 
-def _bound(J: np.ndarray, names: Sequence[str], rtol: float = 1e-10,
-           cov: dict | None = None) -> dict[str, float | None]:
-    """diag(F^+) for the estimable parameters of the whitened Jacobian J (None if aliased);
-    ``cov``, when given, receives every element of F^+ keyed by (name, name)."""
-    scale = np.linalg.norm(J, axis=0)
-    scale[scale == 0] = 1.0
-    _, s, Vt = thin_svd(J / scale)
-    keep = s > rtol * s[0]
-    V, sk = Vt[keep].T, s[keep]
-    Vnull = Vt[~keep].T
-    cov_s = (V / sk**2) @ V.T
-    out = {}
-    for i, n in enumerate(names):
-        if Vnull.size and np.linalg.norm(Vnull[i]) > 1e-3:
-            out[n] = None
-        else:
-            out[n] = float(cov_s[i, i] / scale[i] ** 2)
-    if cov is not None:
-        cov.update({(a, b): float(cov_s[i, j] / (scale[i] * scale[j]))
-                    for i, a in enumerate(names) for j, b in enumerate(names)})
-    return out
-
-
-def _crb_parameters(kind: str, run, j: int, campaign_rigs) -> list[tuple[str, str, object]]:  # noqa: C901
-    """(parameter name, kind, key) of the whole-campaign model that act on run j.
-
-    Instrument coefficients (one instrument, shared by every run); the nuisance parameters
-    the lab does not know, free: a bias per centrifuge run (replacing K0 there), the
-    turning-centre radius per centrifuge rig, the mass-centre offset, one mount-angle error
-    per centrifuge mount (both polarities), theta0 per dividing head, and for the sine
-    centrifuge the tool errors spindle_tilt and sensor_lag."""
+def _reading_cells(j: int, meta, data, var: np.ndarray) -> RunCells:
+    """Run j as cells of one reading each, with the simulator's variance per reading
+    [output_unit^2]: the campaign model's cell means are then the readings themselves."""
     from ..physics.geometry import geometry_of
-    meta = run.meta
-    rig = str(meta["rig_id"])
-    out: list[tuple[str, str, object]] = []
-    for k in _ALL_COEFFS:
-        if k not in campaign_rigs:          # the coefficients the campaign's tests determine
+    cols = {c: np.asarray(data[c], float) for c in data.columns}
+    y = cols["output"]
+    n = y.size
+    return RunCells(index=j, meta=dict(meta), geometry=geometry_of(meta), cols=cols, rate_derivative=None,
+                    cid=np.arange(n), n=np.ones(n), y_rows=y, y=y, x_rows=np.zeros(n), x=np.zeros(n),
+                    lines=np.zeros(n, int), var_mean=np.asarray(var, float))
+
+
+def _truth_point(model: CampaignModel, coeffs: Sequence[Mapping[str, float]],
+                 effects: Sequence[Mapping[str, float]]) -> np.ndarray:
+    """The model's parameter vector at the simulator's truth: each parameter at the value
+    of the runs it acts on (coefficients and effects per run; a run bias at that run's K0,
+    a radius at the runs' nominal arm radius)."""
+    p = model.params.values()
+    for i, (prm, role) in enumerate(zip(model.params, model.roles)):
+        if role.kind == "radius":
             continue
-        if k == "K0" and kind == "centrifuge":
-            out.append((f"bias[{meta['run_id']}]", "coef", "K0"))
-        else:
-            out.append((k, "coef", k))
-    if kind == "tumble":
-        g = geometry_of(meta)
-        out.append((f"theta0[{rig} {g.label}]", "effect", "initial_misalignment"))
-    if kind in ("centrifuge", "sine_centrifuge"):
-        g = geometry_of(meta)
-        out.append((f"R[{rig}]", "radius", None))
-        out.append((f"r[{rig}]", "effect", "mass_centre_offset"))
-        if kind == "centrifuge" and g.ia_polarity is None:   # IA radial: not separable (type B)
-            plane, phi = g.mount_key
-            out.append((f"dphi[{rig} {plane} {phi:g}]", "effect", "mount_angle_error"))
-        else:
-            out += [(f"spindle_tilt[{rig}]", "effect", "spindle_tilt"), ("sensor_lag", "effect", "sensor_lag")]
-    return out
-
-
-def _crb_column(kind, meta, data, coeffs, effects, what, key, R0) -> np.ndarray:
-    """d E / d parameter at the truth, central differences of rig_output (forward for a
-    sensor lag at 0, where the parameter sits on its bound)."""
-    if what == "coef":
-        return _column(kind, meta, data, coeffs, effects, key)
-    if what == "radius":
-        h = 1e-6 * R0
-        return (rig_output(kind, meta, data, coeffs, effects, radius_m=R0 + h)
-                - rig_output(kind, meta, data, coeffs, effects, radius_m=R0 - h)) / (2 * h)
-    return _column(kind, meta, data, coeffs, effects, key)
-
-
-def _crb_selection(J: np.ndarray, names: Sequence[str]) -> list[int]:
-    """Which parameters the bound treats as free: in the estimator's priority order, those
-    whose column adds a new direction (an aliased combination is counted once), then
-    without the extension terms whose bound exceeds their plausible size (they are held,
-    as the estimator holds them).  accelcal.fitting.model documents the rule."""
-    from ..fitting.core import lstsq_svd
-    from ..fitting.model import ALIAS_TOL, BASE, PRIORITY, SCALE_TERMS, scale_referenced_columns
-
-    def kind(n):
-        b = n.split("[", 1)[0]
-        return {"bias": "bias", "theta0": "theta0", "R": "radius", "r": "mass_centre_offset",
-                "dphi": "mount_angle_error", "spindle_tilt": "effect", "sensor_lag": "effect"}.get(b, b)
-
-    order = sorted(range(len(names)), key=lambda i: (PRIORITY.index(kind(names[i])), i))
-    kept = scale_referenced_columns(J, order, ALIAS_TOL, radius=[kind(n) == "radius" for n in names],
-                                    scale=[n in SCALE_TERMS for n in names])
-    while True:
-        u = np.sqrt(np.clip(np.diag(lstsq_svd(J[:, kept], np.zeros(J.shape[0])).cov), 0, None))
-        worst, ratio = None, 1.0
-        for c, i in enumerate(kept):
-            k, b = kind(names[i]), names[i].split("[", 1)[0]
-            if k in BASE:
-                continue
-            lim = plausible_size(b)
-            if lim and u[c] / lim > ratio:
-                worst, ratio = c, u[c] / lim
-        if worst is None:
-            return kept
-        kept.pop(worst)
+        vals = {float(coeffs[j][role.key]) if role.kind in ("coef", "bias") else float(effects[j].get(role.key, 0.0))
+                for j in prm.runs}
+        if len(vals) > 1:
+            raise ValueError(f"the simulator's truth of {prm.name} differs between the runs it acts on: {sorted(vals)}")
+        p[i] = vals.pop()
+    return p
 
 
 def cramer_rao(scenario, seed: int | None = None) -> dict[tuple[str, str, str], float | None]:
-    """Whole-campaign Cramer-Rao bound: (name, method, rig_id) -> CRB variance (SI units
-    squared), or None where the coefficient is aliased.
+    """Whole-campaign Cramér–Rao bound: (name, method, rig_id) -> CRB variance (SI units
+    squared).
 
-    Computed from the simulator's truth and its noise model (module docstring), over every
-    reading of every run of the scenario's campaign (tumble and centrifuge pooled), with the
-    nuisance parameters of :func:`_crb_parameters` free.  The same bound applies to every
-    method that estimates the same quantity; it is reported for the rows whose truth is the
-    instrument value (and for K0T/K1T of a tilt-rotation campaign)."""
+    The campaign model (:class:`accelcal.fitting.model.CampaignModel`) over every reading of
+    every run of one simulated campaign (tumble and centrifuge pooled), each reading its own
+    cell weighted by the simulator's variance of it (:func:`_reading_variance`); every
+    coefficient and effect of the simulation a parameter at its true value.  The unknowns are
+    the coefficients the campaign's tests are designed to determine, a bias per centrifuge
+    run, the radii and :data:`UNKNOWN_EFFECTS`; of those, the model holds what it holds in a
+    fit (:meth:`~accelcal.fitting.model.CampaignModel.holds`), and the bound is the inverse
+    of the information J^T W J of the others (W = diag(1 / var)).  The same bound applies
+    to every method that estimates the same quantity; it is reported for the rows whose
+    truth is the instrument value (and for K0T/K1T of a tilt-rotation campaign)."""
     from ..simulate import simulate_campaign
     sc = _scenario(scenario)
     runs = simulate_campaign(sc, sc.seed if seed is None else seed)
     tests = {(t["kind"], str(t["rig_id"])): t for t in sc.tests}
-    from ..fitting.model import DESIGNED
-    designed = {k for r in runs for k in DESIGNED[str(r.meta["test"])]}
-    blocks, names = [], {}
-    per_run = []
+    cells, coeffs, effects = [], [], []
     for j, r in enumerate(runs):
         kind = str(r.meta["test"])
-        t = tests[(kind, str(r.meta["rig_id"]))]
-        coeffs = _coeffs_for(sc, t)
+        c = _coeffs_for(sc, tests[(kind, str(r.meta["rig_id"]))])
         eff = dict(r.truth["effects"])
         data = r.data.copy()
         if kind == "sine_centrifuge":           # the expectation of the true rate: the drive
             data["table_rate_rad_s"] = sine_drive(r.meta, data["time_s"].to_numpy(float))
-        plist = _crb_parameters(kind, r, j, designed)
-        R0 = float(r.meta.get("arm_radius_m", 1.0))
-        cols = {}
-        for name, what, key in plist:
-            names.setdefault(name, len(names))
-            cols[name] = _crb_column(kind, r.meta, data, coeffs, eff, what, key, R0)
-        var = _reading_variance(kind, r.meta, data, coeffs, eff, r.truth["noise"])
-        per_run.append((cols, np.sqrt(var)))
-    order = list(names)
-    for cols, sig in per_run:
-        n = len(sig)
-        M = np.zeros((n, len(order)))
-        for name, c in cols.items():
-            M[:, names[name]] = c
-        blocks.append(M / sig[:, None])
-    J = np.vstack(blocks)
-    keep = _crb_selection(J, order)
-    cov: dict = {}
-    bound = _bound(J[:, keep], [order[i] for i in keep], cov=cov)
-    label = "*"
+        cells.append(_reading_cells(j, r.meta, data, _reading_variance(kind, r.meta, data, c, eff, r.truth["noise"])))
+        coeffs.append(c)
+        effects.append(eff)
+    kinds = {r.test for r in cells}
+    designed = {k for t in kinds for k in DESIGNED[t]}
+    simulated = [e for e in dict.fromkeys(e for eff in effects for e in eff) if e not in INSTRUMENT_EFFECTS]
+    model = CampaignModel(cells, [*UNKNOWN_EFFECTS, *simulated], include=_ALL_COEFFS,
+                          acting={t: _ALL_COEFFS for t in kinds}, fixed=())
+    p = _truth_point(model, coeffs, effects)
+    cols = [i for i, role in enumerate(model.roles)
+            if role.kind in ("bias", "radius") or (role.kind == "coef" and role.key in designed)
+            or (role.kind == "effect" and role.key in UNKNOWN_EFFECTS)]
+    J = model.jacobian(p, cols)
+    held = model.holds(J, cols)
+    keep = [c for c, i in enumerate(cols) if model.params[i].name not in held]
+    C = lstsq_svd(J[:, keep], np.zeros(J.shape[0])).cov
+    names = [model.params[cols[c]].name for c in keep]
+    cov = {(a, b): float(C[i, k]) for i, a in enumerate(names) for k, b in enumerate(names)}
     out: dict = {COVARIANCE: cov}
-    for k in _ALL_COEFFS:
-        if k in bound:
-            out[(k, "joint_ml", label)] = bound[k]
-    for (kind, rig), t in tests.items():
-        for est in registry.for_test(kind):
-            if not est.crb:
-                continue
+    for (kind, rig), t in [(("", "*"), None), *tests.items()]:
+        for method in (["joint_ml"] if t is None else [e.method for e in registry.for_test(kind) if e.crb]):
             for k in _ALL_COEFFS:
-                if k in bound:
-                    out[(k, est.method, rig)] = bound[k]
+                if (k, k) in cov:
+                    out[(k, method, rig)] = cov[(k, k)]
     return out
 
 
