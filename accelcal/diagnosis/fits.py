@@ -20,8 +20,8 @@ from scipy import stats
 from ..effects import EFFECTS
 from ..fitting.core import ParameterSet, column_space_basis, separable_columns, thin_svd
 from ..fitting.data import RunCells
-from ..fitting.identify import Hold, Why
-from ..fitting.model import ALIAS_TOL, CANDIDATE_SHARED, PRIORITY, CampaignModel, effect_claim
+from ..fitting.identify import ALIAS_TOL, PRIORITY, Hold, Why
+from ..fitting.model import CANDIDATE_SHARED, CampaignModel, effect_claim
 from ..fitting.procedure import ModelFit, fit_model
 from ..physics.rigs import INSTRUMENT_EFFECTS
 

@@ -50,9 +50,7 @@ from ..physics.instrument import first_order_lag
 from ..physics.rigs import INSTRUMENT_EFFECTS, rig_output, rotation_sign, specific_force
 from ..constants import T_REF_C
 from .core import LackOfFit, Parameter, ParameterSet, lack_of_fit, lstsq_svd
-# BASE, SCALE_TERMS and scale_referenced_columns are read here by accelcal.validation.montecarlo
-from .identify import (ALIAS_TOL, BASE, PRIORITY, SCALE_TERMS, Column, Combination, Hold, absorbed,  # noqa: F401
-                       as_holds, combinations, holds, scale_referenced_columns)
+from .identify import ALIAS_TOL, PRIORITY, Column, Combination, Hold, absorbed, as_holds, combinations, holds
 from .data import NoiseModel, RunCells, ar1_mean_factor, ar1_scatter_dof, ar1_variance_factor, with_noise
 
 CENTRIFUGES = ("centrifuge", "sine_centrifuge")

@@ -77,6 +77,7 @@ from ..estimators import registry
 from .simruns import SimRunFile
 from ..fitting.core import lstsq_svd
 from ..fitting.data import RunCells
+from ..fitting.identify import holds
 from ..fitting.model import DESIGNED, CampaignModel
 from ..physics.rigs import INSTRUMENT_EFFECTS, rig_output, sine_drive
 
@@ -379,7 +380,7 @@ def cramer_rao(scenario, seed: int | None = None) -> dict[tuple[str, str, str], 
             if role.kind in ("bias", "radius") or (role.kind == "coef" and role.key in designed)
             or (role.kind == "effect" and role.key in UNKNOWN_EFFECTS)]
     J = model.jacobian(p, cols)
-    held = model.holds(J, cols)
+    held = holds(J, model.columns(cols, p))
     keep = [c for c, i in enumerate(cols) if model.params[i].name not in held]
     C = lstsq_svd(J[:, keep], np.zeros(J.shape[0])).cov
     names = [model.params[cols[c]].name for c in keep]
