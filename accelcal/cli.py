@@ -443,24 +443,32 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
 #: Commands that may start processes of their own (Prefect's server, Dask workers): they
 #: are watched by accelcal.procguard so nothing outlives the command, even after SIGKILL.
 GUARDED = ("run", "demo", "serve")
+#: Commands that Ctrl-C ends at once (accelcal.procguard.stop_on_interrupt); ``serve``
+#: finishes its pass first.
+STOP_AT_ONCE = ("run", "demo")
+INTERRUPTED = "interrupted; what was committed stays, a re-run completes the rest"
 
 
 def main(argv: list[str] | None = None) -> int:
     from . import textout
     if argv is None:
         argv = sys.argv[1:]
+    command = next((a for a in argv if not a.startswith("-")), None)
+    if command in GUARDED and not os.environ.get("ACCELCAL_NO_GUARD"):
+        # first of all: from here on Ctrl-C is one line and exit 130, never a traceback
+        from .procguard import guard_descendants, stop_on_interrupt
+        guard_descendants()
+        if command in STOP_AT_ONCE:
+            stop_on_interrupt(INTERRUPTED, EXIT_INTERRUPTED)
     parser = build_parser(argv)
     args = parser.parse_args(argv)
-    if getattr(args, "command", None) in GUARDED and not os.environ.get("ACCELCAL_NO_GUARD"):
-        from .procguard import guard_descendants
-        guard_descendants()
     try:
         return int(args.func(args) or 0)
     except CliError as e:
         textout.error(e)
         return EXIT_FAIL
     except KeyboardInterrupt:
-        textout.error("interrupted; what was committed stays, a re-run completes the rest")
+        textout.error(INTERRUPTED)
         return EXIT_INTERRUPTED
     except BrokenPipeError:                 # the reader of our output went away (| head)
         with contextlib.suppress(OSError):

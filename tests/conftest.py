@@ -29,6 +29,20 @@ TRUTH_20 = {"K2": 3.94e-7, "Kpp": 4.7e-8, "Kip": 7.1e-7, "Kio": 2.0e-7, "Koo": 3
             "K3": 2.0e-10, "R+": 0.714775, "R-": 0.705794}
 
 
+def marked_pids(variable: str, mark: str) -> list[int]:
+    """Processes whose environment carries ``variable=mark`` (a test's run and everything
+    it started, at any depth: what must not outlive it)."""
+    needle = f"\0{variable}={mark}\0".encode()
+    out = []
+    for d in os.listdir("/proc"):
+        try:
+            if d.isdigit() and needle in b"\0" + Path(f"/proc/{d}/environ").read_bytes() + b"\0":
+                out.append(int(d))
+        except OSError:
+            pass
+    return out
+
+
 @pytest.fixture(scope="session")
 def examples() -> Path:
     if not EXAMPLES.is_dir():
