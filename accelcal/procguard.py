@@ -31,6 +31,7 @@ removed by the next run): what was committed stays and a re-run completes the re
 """
 from __future__ import annotations
 
+import atexit
 import os
 import signal
 import subprocess
@@ -49,8 +50,12 @@ token, grace, parent = sys.argv[1], float(sys.argv[2]), int(sys.argv[4])
 for s in (signal.SIGINT, signal.SIGHUP, signal.SIGTERM, signal.SIGQUIT):
     signal.signal(s, signal.SIG_IGN)
 try:
-    while os.read(0, 4096):
-        pass
+    while True:
+        got = os.read(0, 4096)
+        if not got:
+            break
+        if b"now" in got:              # an interrupt: the user waits
+            grace = min(grace, 1.5)
 except OSError:
     pass
 me = os.getpid()
@@ -142,11 +147,19 @@ def stop_now(line: str, code: int) -> None:
     w, proc = _guard.get("write_fd"), _guard.get("watchdog")
     if w is not None:
         try:
+            os.write(w, b"now")                           # type: ignore[arg-type]
             os.close(w)                                   # type: ignore[arg-type]
             proc.wait(timeout=STOP_WAIT_S)                # type: ignore[union-attr]
         except (OSError, subprocess.TimeoutExpired):
             pass
     os._exit(code)
+
+
+def _finish_stopping() -> None:
+    """At exit: a stop under way ends the process with its own code (the main thread may
+    return while the interrupt is handled)."""
+    if _stopping.locked():
+        threading.Event().wait()
 
 
 def stop_on_interrupt(line: str, code: int = 130) -> bool:
@@ -171,4 +184,5 @@ def stop_on_interrupt(line: str, code: int = 130) -> bool:
         stop_now(line, code)
 
     threading.Thread(target=wait_for_signal, name="accelcal-interrupt", daemon=True).start()
+    atexit.register(_finish_stopping)
     return True

@@ -1,9 +1,8 @@
 """Ctrl-C during `accelcal run` (Prefect engine): the run stops within 10 s with exit 130 and
 one line, leaves no process behind, and a re-run leaves the warehouse a clean run leaves.
 
-Every run is the command a lab types (``python -m accelcal run``; the clean run and the
-interrupted ones with the Prefect engine, the re-runs with the local one, which stores the
-same).  The interrupt is sent as a terminal sends it: SIGINT to the whole foreground process group,
+Every run is the command a lab types (``python -m accelcal run``, Prefect engine).  The
+interrupt is sent as a terminal sends it: SIGINT to the whole foreground process group,
 so Prefect's server gets it too.  The moments are drawn at random over a clean run's
 duration, Prefect's start and stop included.
 """
@@ -39,40 +38,57 @@ def _marked(mark: str) -> list[int]:
     return marked_pids("ACCELCAL_TEST_MARK", mark)
 
 
-def _start(drop: Path, wh: Path, mark: str, *extra: str) -> subprocess.Popen:
+def _start(drop: Path, wh: Path, mark: str) -> subprocess.Popen:
     env = {**os.environ, "ACCELCAL_TEST_MARK": mark}
     env.pop("ACCELCAL_NO_GUARD", None)
     return subprocess.Popen([sys.executable, "-m", "accelcal", "run", str(drop), "-w", str(wh),
-                             "--create", "-q", "--settle", "0", "--lock-timeout", "120", *extra],
+                             "--create", "-q", "--settle", "0", "--lock-timeout", "120"],
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             start_new_session=True)     # its own group: killpg = Ctrl-C
 
 
 def test_ctrl_c_at_random_moments_exits_130_within_10_s_and_a_rerun_equals_a_clean_run(
         tmp_path, examples):
+    """Interrupted runs follow each other on one warehouse (each a re-run of the one
+    before) until a run ends before its moment; that warehouse, completed by a re-run,
+    must equal the clean run's, and the next run starts a new warehouse."""
     drop = tmp_path / "drop"
     shutil.copytree(examples / "drop-2026-11-20", drop)
     clean = tmp_path / "clean" / "lab.duckdb"
-    mark = uuid.uuid4().hex
     t0 = time.monotonic()
-    p = _start(drop, clean, mark)
+    p = _start(drop, clean, uuid.uuid4().hex)
     out, err = p.communicate(timeout=900)
     length = time.monotonic() - t0
     assert p.returncode == 0, err.decode()
     want = warehouse_contents(clean)
     rng = random.Random(20261128)
-    problems, stopped, tried = [], 0, 0
+    problems, stopped, tried, group = [], 0, 0, 0
+
+    def compare(wh: Path) -> None:
+        if not wh.exists():
+            return
+        p = _start(drop, wh, uuid.uuid4().hex)
+        p.communicate(timeout=900)
+        got = warehouse_contents(wh) if p.returncode == 0 else {}
+        if got != want:
+            problems.append(f"{wh.parent.name}: after a re-run (exit {p.returncode}) the warehouse "
+                            f"differs from a clean run's in {sorted(k for k in want if got.get(k) != want[k])}")
+
     while stopped < N_INTERRUPTS and tried < 3 * N_INTERRUPTS:
         tried += 1
-        wh = tmp_path / f"w{tried}" / "lab.duckdb"
+        wh = tmp_path / f"g{group}" / "lab.duckdb"
         mark = uuid.uuid4().hex
         p = _start(drop, wh, mark)
         try:
             p.wait(timeout=rng.uniform(START_S, length))
         except subprocess.TimeoutExpired:
             pass
-        if p.poll() is not None:           # it finished first: not an interrupt
+        if p.poll() is not None:           # it finished first: the group is complete
             p.communicate()
+            if p.returncode != 0 or warehouse_contents(wh) != want:
+                problems.append(f"g{group}: the run that completed it (exit {p.returncode}) "
+                                "left a warehouse other than the clean run's")
+            group += 1
             continue
         t_sig = time.monotonic()
         os.killpg(p.pid, signal.SIGINT)
@@ -92,11 +108,6 @@ def test_ctrl_c_at_random_moments_exits_130_within_10_s_and_a_rerun_equals_a_cle
                 or "interrupted" not in text or left:
             problems.append(f"#{tried}: exit {p.returncode} after {took:.1f} s, "
                             f"{len(left)} process(es) left, stderr {lines[-3:]}")
-        p = _start(drop, wh, mark, "--engine", "local")
-        _, err = p.communicate(timeout=900)
-        got = warehouse_contents(wh) if p.returncode == 0 else {}
-        if got != want:
-            problems.append(f"#{tried}: after a re-run (exit {p.returncode}) the warehouse differs "
-                            f"from a clean run's in {sorted(k for k in want if got.get(k) != want[k])}")
+    compare(tmp_path / f"g{group}" / "lab.duckdb")
     assert stopped == N_INTERRUPTS, f"only {stopped} runs were still running at their moment"
     assert not problems, "\n".join(problems)

@@ -184,6 +184,7 @@ def forecast_row(lst: list[dict[str, Any]], f: drift.Forecast,
         "drift_display": display_rate(last["name"], f.drift_per_year, f.u_drift_per_year,
                                       f.value_in_use),
         "due_date": due, "overdue": due is not None and due < today.isoformat(),
+        "exit_interval_95": [_date(f.due_interval[0]), _date(f.due_interval[1])],
         "p_out_at_due": f.p_out_at_due, "basis": f.basis,
         "unit": last["unit"], "n_total": f.n_total, "last_campaign": last["campaign"],
         "value_in_use": f.value_in_use, "tolerance": f.tolerance,
@@ -328,6 +329,10 @@ def text_lines(rows: list[dict[str, Any]], today: dt.date | None = None,
         due = r["due_date"]
         when = ("no due date" if due is None else
                 f"due {due}" + (f" OVERDUE (as of {today_s})" if due < today_s else ""))
+        lo, hi = r.get("exit_interval_95") or (None, None)
+        if lo is not None:
+            when += (f"; out of tolerance between {lo} and {hi}" if hi else
+                     f"; out of tolerance from {lo} on") + " (95\u00a0%)"
         out += textwrap.wrap(f"{r['unit_serial']}  {r['coefficient']}  {when}",
                              subsequent_indent="    ", **wrap)
         rate = display_rate(r["coefficient"], r["drift_per_year"], r["u_drift_per_year"],
