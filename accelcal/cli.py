@@ -173,8 +173,16 @@ def print_summary(summary: dict[str, Any], console=None) -> None:
         head = f"{c['campaign']} ({c.get('unit_serial') or '?'}): {c['n_runs']} runs, {status}"
         if c.get("current_result_id"):
             head += f", result {c['current_result_id'][:12]}"
+        elif c.get("shown_result_id"):
+            head += f", result {c['shown_result_id'][:12]} (not current)"
         say(con, head)
-        if c.get("simulated"):
+        if c.get("simulated") and not c.get("current_result_id"):
+            say(con, "computed from the simulator's files, not from a DAQ. Kept "
+                     "out of history, En, the fleet views and the calibration view, and never "
+                     "the unit's current result: the unit has a real calibration, and a "
+                     "simulated value must never stand in for a measured one",
+                "SIMULATED", "bold yellow", "  ")
+        elif c.get("simulated"):
             say(con, "computed from simulated data: kept out of history, En and the fleet "
                      "views", "simulated", "yellow", "  ")
         if c.get("simulated_left_out"):

@@ -611,6 +611,7 @@ def _prefect_api(task_runner: str):
         return
     from prefect.server.api.server import SubprocessASGIServer
     server = SubprocessASGIServer()      # the one the flow's client would start (one a process)
+    _spawn_deaf_to_ctrl_c(server)
     limit = (PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS.value()
              if "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS" in os.environ else SERVER_START_S)
     try:
@@ -633,6 +634,25 @@ def _prefect_api(task_runner: str):
                 os.environ.pop("PREFECT_API_URL", None)
             else:
                 os.environ["PREFECT_API_URL"] = before
+
+
+def _spawn_deaf_to_ctrl_c(server) -> None:
+    """Start Prefect's server with SIGINT ignored (inherited through exec): the terminal's
+    Ctrl-C reaches the whole foreground group, and a server still importing would print
+    its own "Aborted!"; the run stops it itself (accelcal.procguard)."""
+    import signal
+    import threading
+    if threading.current_thread() is not threading.main_thread():
+        return
+    spawn = server._run_uvicorn_command
+
+    def deaf():
+        before = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        try:
+            return spawn()
+        finally:
+            signal.signal(signal.SIGINT, before)
+    server._run_uvicorn_command = deaf
 
 
 def _watch_server(proc) -> "threading.Event":
