@@ -11,7 +11,8 @@ Exit codes (:data:`EXIT_CODES`): 0 processed what it could (refused and held-bac
 are results, listed); 1 could not work, or stopped part-way (one line on stderr naming the
 path and what to do; what was committed stays, a re-run completes it exactly once); 2 usage
 error; 3 an internal error (a bug: one line, the traceback saved to a file it names; in a
-run, the other files are still processed); 130 interrupted.  Nothing is printed that has
+run, the other files are still processed); 130 interrupted (``run``/``demo``: at once, one
+line, through :func:`accelcal.procguard.stop_on_interrupt`).  Nothing is printed that has
 not passed through :mod:`accelcal.textout` (no markup, emoji or control characters from a
 file reach the terminal) and no error is a traceback.
 """
