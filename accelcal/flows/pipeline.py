@@ -610,18 +610,20 @@ def _prefect_api(task_runner: str):
         yield
         return
     from prefect.server.api.server import SubprocessASGIServer
+    import threading
     server = SubprocessASGIServer()      # the one the flow's client would start (one a process)
-    _spawn_deaf_to_ctrl_c(server)
+    done = threading.Event()
+    _spawn_deaf_to_ctrl_c(server, lambda proc: _watch_server(proc, done))
     limit = (PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS.value()
              if "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS" in os.environ else SERVER_START_S)
     try:
         server.start(timeout=limit)
     except Exception as e:
+        done.set()
         server.stop()
         why = str(e).split(" stdout:")[0]
         raise PipelineError(f"Prefect's temporary API server did not start ({why}); the "
                             f"machine may be overloaded: run again, or use --engine local") from None
-    done = _watch_server(server.server_process)     # type: ignore[arg-type]
     before = os.environ.get("PREFECT_API_URL")
     if task_runner == "dask":
         os.environ["PREFECT_API_URL"] = server.api_url
@@ -636,28 +638,33 @@ def _prefect_api(task_runner: str):
                 os.environ["PREFECT_API_URL"] = before
 
 
-def _spawn_deaf_to_ctrl_c(server) -> None:
+def _spawn_deaf_to_ctrl_c(server, watch) -> None:
     """Start Prefect's server with SIGINT ignored (inherited through exec): the terminal's
     Ctrl-C reaches the whole foreground group, and a server still importing would print
-    its own "Aborted!"; the run stops it itself (accelcal.procguard)."""
+    its own "Aborted!"; the run stops it itself (accelcal.procguard).  ``watch(process)``
+    is called on each server process as soon as it is started (its loss during the start
+    too)."""
     import signal
     import threading
-    if threading.current_thread() is not threading.main_thread():
-        return
-    spawn = server._run_uvicorn_command
+    spawn = type(server)._run_uvicorn_command.__get__(server)     # Prefect's own, once
+    main = threading.current_thread() is threading.main_thread()
 
     def deaf():
-        before = signal.signal(signal.SIGINT, signal.SIG_IGN)
+        before = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
         try:
-            return spawn()
+            proc = spawn()
         finally:
-            signal.signal(signal.SIGINT, before)
+            if main:
+                signal.signal(signal.SIGINT, before)
+        watch(proc)
+        return proc
     server._run_uvicorn_command = deaf
 
 
-def _watch_server(proc) -> "threading.Event":
+def _watch_server(proc, done) -> None:
     """Stop the run at once (accelcal.procguard.stop_now) when Prefect's server process
-    ends before the returned event is set.  A server ended by SIGINT or its own clean
+    ends before the event ``done`` is set (exit code 3, a port taken, is Prefect's to
+    retry).  A server ended by SIGINT or its own clean
     shutdown was stopped by the terminal's Ctrl-C, which reaches the foreground group:
     exit 130, as the interrupt itself says (its handler usually acts first); anything
     else is a lost server: exit 1.  Only in a command under the process guard: a flow
@@ -665,15 +672,16 @@ def _watch_server(proc) -> "threading.Event":
     import threading
 
     from ..procguard import guarded, stop_now
-    done = threading.Event()
     if not guarded():
-        return done
+        return
 
     def watch() -> None:
         while not done.wait(0.2):
             rc = proc.poll()
             if rc is None:
                 continue
+            if rc == 3:
+                return
             if done.wait(1.0):        # the run ended meanwhile, or the interrupt acts
                 return
             if rc in (0, -2):
@@ -682,7 +690,6 @@ def _watch_server(proc) -> "threading.Event":
                      "committed stays, a re-run completes the rest", 1)
 
     threading.Thread(target=watch, name="accelcal-prefect-server", daemon=True).start()
-    return done
 
 
 def _lost_api(e: BaseException) -> bool:
