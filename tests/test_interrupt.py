@@ -122,3 +122,21 @@ def test_ctrl_c_at_random_moments_exits_130_within_10_s_and_a_rerun_equals_a_cle
     compare(tmp_path / f"g{group}" / "lab.duckdb")
     assert stopped == N_INTERRUPTS, f"only {stopped} runs were still running at their moment"
     assert not problems, "\n".join(problems)
+
+
+def test_a_prefect_server_that_does_not_start_in_time_is_one_operational_line(tmp_path, examples):
+    """Prefect's start failing (here: given 1 s) is exit 1 with one line saying what to do,
+    never "a bug"; nothing is left running."""
+    mark = uuid.uuid4().hex
+    env = {**os.environ, "ACCELCAL_TEST_MARK": mark, "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS": "1"}
+    env.pop("PREFECT_API_URL", None)
+    p = subprocess.run([sys.executable, "-m", "accelcal", "run", str(examples / "drop-2026-11-20"),
+                        "-w", str(tmp_path / "lab.duckdb"), "-q", "--settle", "0"],
+                       env=env, capture_output=True, text=True, timeout=600)
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert p.returncode == 1 and len(lines) == 1, p.stderr
+    assert "Prefect's temporary API server did not start" in lines[0] and "bug" not in lines[0]
+    t_end = time.monotonic() + 10
+    while _marked(mark) and time.monotonic() < t_end:
+        time.sleep(0.2)
+    assert _marked(mark) == []
