@@ -466,9 +466,9 @@ def main(argv: list[str] | None = None) -> int:
     if command in GUARDED and not os.environ.get("ACCELCAL_NO_GUARD"):
         # first of all: from here on Ctrl-C is one line and exit 130, never a traceback
         from .procguard import guard_descendants, stop_on_interrupt
-        guard_descendants()
         if command in STOP_AT_ONCE:
             stop_on_interrupt(INTERRUPTED, EXIT_INTERRUPTED)
+        guard_descendants()
     parser = build_parser(argv)
     args = parser.parse_args(argv)
     try:

@@ -163,11 +163,12 @@ def _finish_stopping() -> None:
 
 
 def stop_on_interrupt(line: str, code: int = 130) -> bool:
-    """Make SIGINT call :func:`stop_now` (from the main thread; needs the watchdog of
-    :func:`guard_descendants`).  The signal is taken from a wakeup pipe by a thread of its
-    own, so it acts even while the main thread waits inside a C call.  Returns whether it
-    is installed."""
-    if "token" not in _guard or threading.current_thread() is not threading.main_thread():
+    """Make SIGINT call :func:`stop_now` (from the main thread; install it before
+    :func:`guard_descendants`, so no moment is left between them, and start the guard
+    before any process: only the guard's descendants are stopped).  The signal is taken
+    from a wakeup pipe by a thread of its own, so it acts even while the main thread
+    waits inside a C call.  Returns whether it is installed."""
+    if threading.current_thread() is not threading.main_thread() or not os.path.isdir("/proc/self"):
         return False
     r, w = os.pipe()
     os.set_blocking(w, False)
