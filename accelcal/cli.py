@@ -459,16 +459,27 @@ INTERRUPTED = "interrupted; what was committed stays, a re-run completes the res
 
 
 def main(argv: list[str] | None = None) -> int:
-    from . import textout
-    if argv is None:
-        argv = sys.argv[1:]
+    """The ``accelcal`` command (``argv`` None: ``sys.argv``, the program itself).  As the
+    program, ``run`` and ``demo`` stop at once on Ctrl-C and end without the interpreter's
+    shutdown (:func:`accelcal.procguard.exit_now`)."""
+    program = argv is None
+    argv = sys.argv[1:] if argv is None else argv
     command = next((a for a in argv if not a.startswith("-")), None)
+    at_once = program and command in STOP_AT_ONCE and not os.environ.get("ACCELCAL_NO_GUARD")
     if command in GUARDED and not os.environ.get("ACCELCAL_NO_GUARD"):
         # first of all: from here on Ctrl-C is one line and exit 130, never a traceback
         from .procguard import guard_descendants, stop_on_interrupt
-        if command in STOP_AT_ONCE:
-            stop_on_interrupt(INTERRUPTED, EXIT_INTERRUPTED)
+        at_once = at_once and stop_on_interrupt(INTERRUPTED, EXIT_INTERRUPTED)
         guard_descendants()
+    rc = _main(argv)
+    if at_once:
+        from .procguard import exit_now
+        exit_now(rc)
+    return rc
+
+
+def _main(argv: list[str]) -> int:
+    from . import textout
     parser = build_parser(argv)
     args = parser.parse_args(argv)
     try:

@@ -144,6 +144,27 @@ def stop_now(line: str, code: int) -> None:
         os.write(2, ("\n\x1b[?25h" if tty else "").encode() + f"accelcal: error: {line}\n".encode())
     except OSError:
         pass
+    _stop_descendants_and_exit(code)
+
+
+def exit_now(code: int) -> None:
+    """End the command with ``code`` once its work is done: output flushed, descendants
+    stopped, no interpreter shutdown -- during which Python puts SIGINT back to its
+    default, so a Ctrl-C would kill the process by the signal, and Prefect's exit hook
+    waits seconds for its server."""
+    import logging
+    if not _stopping.acquire(blocking=False):
+        threading.Event().wait()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    logging.shutdown()
+    _stop_descendants_and_exit(code)
+
+
+def _stop_descendants_and_exit(code: int) -> None:
     w, proc = _guard.get("write_fd"), _guard.get("watchdog")
     if w is not None:
         try:
