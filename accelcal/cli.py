@@ -11,7 +11,8 @@ Exit codes (:data:`EXIT_CODES`): 0 processed what it could (refused and held-bac
 are results, listed); 1 could not work, or stopped part-way (one line on stderr naming the
 path and what to do; what was committed stays, a re-run completes it exactly once); 2 usage
 error; 3 an internal error (a bug: one line, the traceback saved to a file it names; in a
-run, the other files are still processed); 130 interrupted.  Nothing is printed that has
+run, the other files are still processed); 130 interrupted (``run``/``demo``: at once, one
+line, through :func:`accelcal.procguard.stop_on_interrupt`).  Nothing is printed that has
 not passed through :mod:`accelcal.textout` (no markup, emoji or control characters from a
 file reach the terminal) and no error is a traceback.
 """
@@ -173,8 +174,16 @@ def print_summary(summary: dict[str, Any], console=None) -> None:
         head = f"{c['campaign']} ({c.get('unit_serial') or '?'}): {c['n_runs']} runs, {status}"
         if c.get("current_result_id"):
             head += f", result {c['current_result_id'][:12]}"
+        elif c.get("shown_result_id"):
+            head += f", result {c['shown_result_id'][:12]} (not current)"
         say(con, head)
-        if c.get("simulated"):
+        if c.get("simulated") and not c.get("current_result_id"):
+            say(con, "computed from the simulator's files, not from a DAQ. Kept "
+                     "out of history, En, the fleet views and the calibration view, and never "
+                     "the unit's current result: the unit has a real calibration, and a "
+                     "simulated value must never stand in for a measured one",
+                "SIMULATED", "bold yellow", "  ")
+        elif c.get("simulated"):
             say(con, "computed from simulated data: kept out of history, En and the fleet "
                      "views", "simulated", "yellow", "  ")
         if c.get("simulated_left_out"):
@@ -443,24 +452,43 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
 #: Commands that may start processes of their own (Prefect's server, Dask workers): they
 #: are watched by accelcal.procguard so nothing outlives the command, even after SIGKILL.
 GUARDED = ("run", "demo", "serve")
+#: Commands that Ctrl-C ends at once (accelcal.procguard.stop_on_interrupt); ``serve``
+#: finishes its pass first.
+STOP_AT_ONCE = ("run", "demo")
+INTERRUPTED = "interrupted; what was committed stays, a re-run completes the rest"
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The ``accelcal`` command (``argv`` None: ``sys.argv``, the program itself).  As the
+    program, ``run`` and ``demo`` stop at once on Ctrl-C and end without the interpreter's
+    shutdown (:func:`accelcal.procguard.exit_now`)."""
+    program = argv is None
+    argv = sys.argv[1:] if argv is None else argv
+    command = next((a for a in argv if not a.startswith("-")), None)
+    at_once = program and command in STOP_AT_ONCE and not os.environ.get("ACCELCAL_NO_GUARD")
+    if command in GUARDED and not os.environ.get("ACCELCAL_NO_GUARD"):
+        # first of all: from here on Ctrl-C is one line and exit 130, never a traceback
+        from .procguard import guard_descendants, stop_on_interrupt
+        at_once = at_once and stop_on_interrupt(INTERRUPTED, EXIT_INTERRUPTED)
+        guard_descendants()
+    rc = _main(argv)
+    if at_once:
+        from .procguard import exit_now
+        exit_now(rc)
+    return rc
+
+
+def _main(argv: list[str]) -> int:
     from . import textout
-    if argv is None:
-        argv = sys.argv[1:]
     parser = build_parser(argv)
     args = parser.parse_args(argv)
-    if getattr(args, "command", None) in GUARDED and not os.environ.get("ACCELCAL_NO_GUARD"):
-        from .procguard import guard_descendants
-        guard_descendants()
     try:
         return int(args.func(args) or 0)
     except CliError as e:
         textout.error(e)
         return EXIT_FAIL
     except KeyboardInterrupt:
-        textout.error("interrupted; what was committed stays, a re-run completes the rest")
+        textout.error(INTERRUPTED)
         return EXIT_INTERRUPTED
     except BrokenPipeError:                 # the reader of our output went away (| head)
         with contextlib.suppress(OSError):

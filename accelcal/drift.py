@@ -49,7 +49,7 @@ from typing import Any, Sequence
 import numpy as np
 from scipy import stats
 
-from .fitting.core import FitResult, LackOfFit, Parameter, ParameterSet, lstsq_svd
+from .fitting.core import FitResult, linear_fit
 
 #: Two step positions whose p values agree to this relative tolerance are a tie (the data
 #: cannot place the step); the later one is taken.
@@ -72,6 +72,10 @@ HORIZON_YEARS = 10.0
 OWN_RATE_FACTOR = 2.0
 #: Fewest units with a drift fit that make a fleet prior for the drift rate.
 MIN_FLEET_UNITS = 3
+
+#: P_out at the ends of the 95 % interval of the day the coefficient leaves its tolerance:
+#: the days on which eq (4) passes 2.5 % and 97.5 % (the prediction band inverted).
+EXIT_LEVEL = (0.025, 0.975)
 
 BASIS_FIT = "drift fit"
 BASIS_FLEET = "fleet prior"
@@ -100,37 +104,25 @@ def from_years(y: float) -> np.datetime64:
 
 # ------------------------------------------------------------- the line fit ----
 
-def _solve(X: np.ndarray, x: np.ndarray, var: np.ndarray):
-    """Weighted least squares through the fitting core (:func:`accelcal.fitting.core.
-    lstsq_svd`, W = 1/var): the core's solution, the whitened design and the weights.  A
-    design the data cannot determine (rank below its columns) raises ``LinAlgError``, as
-    the callers expect of a step position or segment with no calibration of its own."""
-    w = 1.0 / np.sqrt(var)
-    Jw = X * w[:, None]
-    sol = lstsq_svd(Jw, x * w)
-    if sol.rank < X.shape[1]:
+def _wls_fit(X: np.ndarray, x: np.ndarray, var: np.ndarray) -> FitResult:
+    """The weighted straight line (plus segment offsets) through the fitting core
+    (:func:`accelcal.fitting.core.linear_fit`, sigma^2 = ``var``, known: the between-
+    campaign scatter is in ``var`` as tau^2, eq 2): coefficients ``a``, ``b``, then the
+    earlier segments' offsets, covariance (X'WX)^-1 in ``cov_noise``, the chi-square test
+    of the line in ``lack_of_fit``.  A design the data cannot determine (rank below its
+    columns: a step position or segment with no calibration of its own) raises
+    ``LinAlgError``."""
+    names = ["a", "b"] + [f"offset{k}" for k in range(X.shape[1] - 2)]
+    fit = linear_fit(X, x, np.sqrt(var), names, residual_scale=False)
+    if fit.rank < X.shape[1]:
         raise np.linalg.LinAlgError("singular design: a parameter of the drift line is not determined")
-    return sol, Jw, w
+    return fit
 
 
 def _wls(X: np.ndarray, x: np.ndarray, var: np.ndarray):
-    """:func:`_solve` as (coefficients, covariance (X'WX)^-1, residuals [unit]): what the
-    step and scatter tests need, without a FitResult."""
-    sol, _, _ = _solve(X, x, var)
-    return sol.x, sol.cov, x - X @ sol.x
-
-
-def _wls_fit(X: np.ndarray, x: np.ndarray, var: np.ndarray) -> FitResult:
-    """:func:`_solve` as a :class:`~accelcal.fitting.core.FitResult`: coefficients ``a``,
-    ``b`` and the segment offsets, covariance (X'WX)^-1 (the between-campaign scatter is in
-    ``var`` as tau^2, eq 2, not a Birge factor)."""
-    sol, Jw, w = _solve(X, x, var)
-    z = (x - X @ sol.x) * w
-    chi2, dof = float(z @ z), x.size - sol.rank
-    lof = LackOfFit("untestable" if dof <= 0 else "adequate", chi2 / dof if dof > 0 else None, None, dof, 0,
-                    1.0, "the scatter between campaigns is tau^2 in the weights (eq 2)")
-    names = ParameterSet(Parameter(n, n) for n in ["a", "b"] + [f"offset{k}" for k in range(X.shape[1] - 2)])
-    return FitResult(names, sol.x, sol.cov, sol.cov, sol.estimable, chi2, dof, x.size, sol.rank, lof, z, Jw)
+    """:func:`_wls_fit` as (coefficients, covariance (X'WX)^-1, residuals [unit])."""
+    fit = _wls_fit(X, x, var)
+    return fit.values, fit.cov_noise, x - X @ fit.values
 
 
 def scatter_moments(X: np.ndarray, x: np.ndarray, u: np.ndarray) -> tuple[float, float, float]:
@@ -184,7 +176,7 @@ def fleet_prior(series: Sequence[tuple[Any, Any, Any]]) -> FleetPrior:
     each) into a :class:`FleetPrior`.  Series with fewer than three campaigns add nothing
     to tau^2; with two they add a drift rate."""
     Qs = dofs = cs = 0.0
-    slopes, u_b2 = [], []
+    slopes, u_b2, pairs = [], [], []
     for t, x, u in series:
         t, x, u = to_years(t), np.asarray(x, float), np.asarray(u, float)
         if len(t) < 2 or np.ptp(t) <= 0:
@@ -193,9 +185,19 @@ def fleet_prior(series: Sequence[tuple[Any, Any, Any]]) -> FleetPrior:
         if len(t) >= 3:
             Q, dof, c = scatter_moments(X, x, u)
             Qs, dofs, cs = Qs + Q, dofs + dof, cs + c
+        else:
+            pairs.append((t[1] - t[0], x[1] - x[0], math.hypot(u[0], u[1])))
         beta, cov, _ = _wls(X, x, u ** 2)
         slopes.append(float(beta[1]))
         u_b2.append(float(cov[1, 1]))
+    if dofs == 0 and len(pairs) >= 2:
+        # no series of three: the variables method's residuals (NCSLI RP-1 V1), the
+        # fleet's pairs of calibrations about one common rate; a pair's difference holds
+        # the scatter twice (E[Q] = (n - 1) + 2 tau^2 c); the units' spread of rates
+        # stays in it, so tau^2 is an upper estimate
+        dt_, dx_, ud = (np.array(v) for v in zip(*pairs))
+        Q, dofs, c = scatter_moments(dt_[:, None], dx_, ud)
+        Qs, cs = Q, 2.0 * c
     tau2 = max(0.0, (Qs - dofs) / cs) if dofs > 0 and cs > 0 else None
     if len(slopes) >= MIN_FLEET_UNITS:
         # spread of the units' rates, never below the typical uncertainty of one rate
@@ -464,6 +466,7 @@ class Forecast:
     series_start: int = 0            # index of the current series' first campaign
     fit: DriftFit | None = None
     predict: Any = None              # t -> (mean, sd, dof) of the coefficient
+    due_interval: tuple[float | None, float | None] = (None, None)   # 95 % of the exit [a]
 
     def interval(self, t, u_new=0.0, level=0.95):
         """Prediction interval [unit] at t [a]: of the coefficient (u_new = 0) or of a new
@@ -584,6 +587,8 @@ def forecast(t, x, u, tol_spec: dict[str, float] | None, risk: float,
                  "no due date; " + basis.split(": no due date")[0])
     elif out.predict is not None:
         out.due, out.p_out_at_due = due_from(out.predict, t_last, v, tol, risk, horizon)
+        out.due_interval = (due_from(out.predict, t_last, v, tol, EXIT_LEVEL[0], horizon)[0],
+                            due_from(out.predict, t_last, v, tol, EXIT_LEVEL[1], horizon)[0])
         if out.due is None:
             why.append(f"not due within {horizon:g} years")
     out.basis = "; ".join([basis] + why)

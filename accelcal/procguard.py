@@ -19,12 +19,24 @@ whatever else shares the group; ``PR_SET_PDEATHSIG`` must be set inside each chi
 is, in Prefect's and Dask's code) and fires when the *thread* that started the child ends,
 not the process, and it does not reach grandchildren.  The token reaches every
 descendant however it was started.  Linux only (``/proc``); elsewhere this does nothing.
+
+:func:`stop_on_interrupt` (``run`` and ``demo``) makes Ctrl-C end the command within
+seconds whatever it is doing: one line on stderr, the descendants stopped through the
+watchdog, exit 130.  Unwinding the stack instead hands the interrupt to Prefect's crash
+handling, which keeps calling its API server -- a server that the terminal's Ctrl-C has
+stopped too (it reaches the whole foreground group) -- for over a minute.  Stopping at
+once is what a SIGKILL does, which the warehouse and the Parquet store survive by design
+(one transaction per stored campaign, files put in place by rename, a stale ``.tmp``
+removed by the next run): what was committed stays and a re-run completes the rest.
 """
 from __future__ import annotations
 
+import atexit
 import os
+import signal
 import subprocess
 import sys
+import threading
 import uuid
 
 ENV = "ACCELCAL_GUARD"
@@ -34,12 +46,16 @@ GRACE_S = 5.0
 # Runs as ``python -I -S -c``: no site-packages, no PYTHONPATH, nothing of accelcal.
 _WATCHDOG = r'''
 import os, signal, sys, time
-token, grace = sys.argv[1], float(sys.argv[2])
+token, grace, parent = sys.argv[1], float(sys.argv[2]), int(sys.argv[4])
 for s in (signal.SIGINT, signal.SIGHUP, signal.SIGTERM, signal.SIGQUIT):
     signal.signal(s, signal.SIG_IGN)
 try:
-    while os.read(0, 4096):
-        pass
+    while True:
+        got = os.read(0, 4096)
+        if not got:
+            break
+        if b"now" in got:              # an interrupt: the user waits
+            grace = min(grace, 1.5)
 except OSError:
     pass
 me = os.getpid()
@@ -48,7 +64,7 @@ needle = ("\0%s=%s\0" % (sys.argv[3], token)).encode()
 def marked():
     out = []
     for d in os.listdir("/proc"):
-        if not d.isdigit() or int(d) == me:
+        if not d.isdigit() or int(d) in (me, parent):
             continue
         try:
             with open("/proc/%s/environ" % d, "rb") as f:
@@ -93,7 +109,8 @@ def guard_descendants(grace: float = GRACE_S) -> str | None:
     token = uuid.uuid4().hex
     r, w = os.pipe()                 # both non-inheritable: children never hold w
     try:
-        proc = subprocess.Popen([sys.executable, "-I", "-S", "-c", _WATCHDOG, token, str(grace), ENV],
+        proc = subprocess.Popen([sys.executable, "-I", "-S", "-c", _WATCHDOG, token, str(grace), ENV,
+                                 str(os.getpid())],
                                 stdin=r, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                                 env={}, start_new_session=True, close_fds=True)
     except OSError:
@@ -104,3 +121,90 @@ def guard_descendants(grace: float = GRACE_S) -> str | None:
     os.environ[ENV] = token          # after the watchdog started: it does not carry it
     _guard.update(token=token, write_fd=w, watchdog=proc)
     return token
+
+
+#: Longest wait for the watchdog to stop the descendants after an interrupt [s].
+STOP_WAIT_S = GRACE_S + 2.0
+_stopping = threading.Lock()
+
+
+def guarded() -> bool:
+    """Whether this process runs under its watchdog (a command of :data:`accelcal.cli.GUARDED`)."""
+    return "token" in _guard
+
+
+def stop_now(line: str, code: int) -> None:
+    """End this process now from any thread: ``line`` on stderr (``accelcal: error: ...``),
+    every descendant stopped (SIGTERM, SIGKILL after the grace period), exit ``code``.
+    A second caller (a second Ctrl-C, the server watch) waits for the first."""
+    if not _stopping.acquire(blocking=False):
+        threading.Event().wait()
+    try:
+        tty = os.isatty(2)
+        os.write(2, ("\n\x1b[?25h" if tty else "").encode() + f"accelcal: error: {line}\n".encode())
+    except OSError:
+        pass
+    _stop_descendants_and_exit(code)
+
+
+def exit_now(code: int) -> None:
+    """End the command with ``code`` once its work is done: output flushed, descendants
+    stopped, no interpreter shutdown -- during which Python puts SIGINT back to its
+    default, so a Ctrl-C would kill the process by the signal, and Prefect's exit hook
+    waits seconds for its server."""
+    import logging
+    if not _stopping.acquire(blocking=False):
+        threading.Event().wait()
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    logging.shutdown()
+    _stop_descendants_and_exit(code)
+
+
+def _stop_descendants_and_exit(code: int) -> None:
+    w, proc = _guard.get("write_fd"), _guard.get("watchdog")
+    if w is not None:
+        try:
+            os.write(w, b"now")                           # type: ignore[arg-type]
+            os.close(w)                                   # type: ignore[arg-type]
+            proc.wait(timeout=STOP_WAIT_S)                # type: ignore[union-attr]
+        except (OSError, subprocess.TimeoutExpired):
+            pass
+    os._exit(code)
+
+
+def _finish_stopping() -> None:
+    """At exit: a stop under way ends the process with its own code (the main thread may
+    return while the interrupt is handled)."""
+    if _stopping.locked():
+        threading.Event().wait()
+
+
+def stop_on_interrupt(line: str, code: int = 130) -> bool:
+    """Make SIGINT call :func:`stop_now` (from the main thread; install it before
+    :func:`guard_descendants`, so no moment is left between them, and start the guard
+    before any process: only the guard's descendants are stopped).  The signal is taken
+    from a wakeup pipe by a thread of its own, so it acts even while the main thread
+    waits inside a C call.  Returns whether it is installed."""
+    if threading.current_thread() is not threading.main_thread() or not os.path.isdir("/proc/self"):
+        return False
+    r, w = os.pipe()
+    os.set_blocking(w, False)
+    signal.signal(signal.SIGINT, lambda *_: None)     # a Python handler: the pipe is written
+    signal.set_wakeup_fd(w, warn_on_full_buffer=False)
+
+    def wait_for_signal() -> None:
+        while True:
+            got = os.read(r, 64)
+            if not got:
+                return
+            if signal.SIGINT in got:
+                break
+        stop_now(line, code)
+
+    threading.Thread(target=wait_for_signal, name="accelcal-interrupt", daemon=True).start()
+    atexit.register(_finish_stopping)
+    return True

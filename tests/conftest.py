@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 from pathlib import Path
 
 import pytest
@@ -29,6 +30,20 @@ TRUTH_20 = {"K2": 3.94e-7, "Kpp": 4.7e-8, "Kip": 7.1e-7, "Kio": 2.0e-7, "Koo": 3
             "K3": 2.0e-10, "R+": 0.714775, "R-": 0.705794}
 
 
+def marked_pids(variable: str, mark: str) -> list[int]:
+    """Processes whose environment carries ``variable=mark`` (a test's run and everything
+    it started, at any depth: what must not outlive it)."""
+    needle = f"\0{variable}={mark}\0".encode()
+    out = []
+    for d in os.listdir("/proc"):
+        try:
+            if d.isdigit() and needle in b"\0" + Path(f"/proc/{d}/environ").read_bytes() + b"\0":
+                out.append(int(d))
+        except OSError:
+            pass
+    return out
+
+
 @pytest.fixture(scope="session")
 def examples() -> Path:
     if not EXAMPLES.is_dir():
@@ -49,3 +64,27 @@ temperature_u_c = 0.05
 [rigs."DC-1"]
 g_local_u_m_s2 = 1e-5
 """
+
+
+#: The sample drops of the shared warehouse (:func:`sample_lab`).
+SAMPLE_LAB_DROPS = ("drop-2026-11-20", "drop-2026-11-21", "drop-bad")
+
+
+@pytest.fixture(scope="session")
+def sample_lab(tmp_path_factory, examples) -> Path:
+    """One warehouse of the sample drops 2026-11-20, 2026-11-21 and drop-bad (local
+    engine, no config), built once per test session; read it only (:func:`copy_lab` for a
+    test that writes)."""
+    from accelcal.flows.pipeline import run_pipeline
+    from accelcal.warehouse import ensure_views
+    d = tmp_path_factory.mktemp("sample-lab")
+    run_pipeline([str(examples / x) for x in SAMPLE_LAB_DROPS], d / "lab.duckdb", engine="local")
+    ensure_views(d / "lab.duckdb")
+    return d / "lab.duckdb"
+
+
+def copy_lab(warehouse: Path, into: Path) -> Path:
+    """A copy of a warehouse with everything beside it (Parquet, extras, Data Docs), for a
+    test that writes; returns the copy's ``lab.duckdb``."""
+    shutil.copytree(warehouse.parent, into)
+    return into / warehouse.name

@@ -8,19 +8,18 @@ import duckdb
 import pytest
 
 from accelcal import cli
-from accelcal.flows.pipeline import run_pipeline
 from accelcal.warehouse import Warehouse
+from conftest import copy_lab
 
 C20, C21 = "SNJ-1-03/2026-11-20", "SNJ-1-03/2026-11-21-LXJ200"
 OPS_VIEWS = ("unit_history", "calibration", "fleet_latest", "rig_comparison")
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory, examples):
-    d = tmp_path_factory.mktemp("camp")
-    run_pipeline([str(examples / x) for x in ("drop-2026-11-20", "drop-2026-11-21", "drop-bad")],
-                 d / "lab.duckdb", engine="local")
-    return Warehouse(d / "lab.duckdb")
+def lab(tmp_path_factory, sample_lab):
+    """The session's warehouse of 2026-11-20, 2026-11-21 and drop-bad, copied (the
+    tests exclude and include)."""
+    return Warehouse(copy_lab(sample_lab, tmp_path_factory.mktemp("camp") / "lab"))
 
 
 def _small_campaign(wh):

@@ -58,11 +58,11 @@ def test_local_dask_workers_share_the_flows_prefect_server(monkeypatch):
     back afterwards, and nothing is set for the thread runner."""
     from prefect.server.api.server import SubprocessASGIServer
 
-    from accelcal.flows.pipeline import _api_for_local_workers
+    from accelcal.flows.pipeline import _prefect_api
     monkeypatch.delenv("PREFECT_API_URL", raising=False)
-    with _api_for_local_workers("thread"):
+    with _prefect_api("thread"):
         assert "PREFECT_API_URL" not in os.environ
-    with _api_for_local_workers("dask"):
+    with _prefect_api("dask"):
         server = SubprocessASGIServer()
         assert server.running and os.environ["PREFECT_API_URL"] == server.api_url
     assert "PREFECT_API_URL" not in os.environ

@@ -174,6 +174,55 @@ def test_drift_fit_agrees_with_suncal_variables_method():
         assert (f.due - t[-1]) / interval == pytest.approx(1.0, abs=0.2)
 
 
+def _pair_fleet(rng, n_units=12, b=2e-5, u=1e-6, repro=2e-6):
+    """Units calibrated twice, a year or so apart: a common drift rate, each value with
+    its stated u and a reproducibility error (sd ``repro``) that u does not hold."""
+    out = []
+    for _ in range(n_units):
+        t = np.array([0.0, rng.uniform(0.6, 1.6)])
+        x = 1 + b * t + u * rng.standard_normal(2) + repro * rng.standard_normal(2)
+        out.append((t, x, np.full(2, u)))
+    return out
+
+
+def test_fleet_reproducibility_from_pairs_is_suncals_variables_residual():
+    """A fleet of two-calibration units: the between-calibration scatter is what suncal's
+    variables method (NCSLI RP-1 V1) leaves in its residuals.  Its fit of the pairs'
+    differences through zero has s^2 = RSS / (n - 1), and a difference holds the scatter
+    and the stated u twice: tau^2 = s^2 / 2 - u^2, exactly, with equal u."""
+    variables = pytest.importorskip("suncal.intervals.variables")
+    rng = np.random.default_rng(43)
+    fleet = _pair_fleet(rng)
+    v = variables.VariablesData([t[1] - t[0] for t, _, _ in fleet],
+                                [x[1] - x[0] for _, x, _ in fleet])
+    syx = v._fitcurve(order=1).syx
+    prior = drift.fleet_prior(fleet)
+    assert prior.tau2 == pytest.approx(syx ** 2 / 2 - 1e-6 ** 2, rel=1e-9)
+    assert prior.dof == len(fleet) - 1
+
+
+def test_two_calibrations_give_the_units_own_rate_with_a_wide_interval():
+    """Two calibrations show a drift: the unit's own rate, (x2 - x1) / (t2 - t1), with u
+    from both values and the fleet's scatter (sqrt(u1^2 + u2^2 + 2 tau^2) / dt), and a due
+    date from it; with four more calibrations on the same line the interval narrows."""
+    rng = np.random.default_rng(7)
+    prior = drift.fleet_prior(_pair_fleet(rng))
+    t = np.array([0.0, 1.0])
+    x = np.array([1.0, 1.0 + 6e-5])
+    u = np.full(2, 1e-6)
+    f = drift.forecast(t, x, u, {"relative": 2e-4}, 0.05, prior=prior)
+    assert f.basis.startswith(drift.BASIS_FIT) and "no drift rate" not in f.basis
+    assert f.drift_per_year == pytest.approx(6e-5, rel=1e-9)
+    assert f.u_drift_per_year == pytest.approx(math.sqrt(2 * 1e-12 + 2 * prior.tau2), rel=1e-6)
+    lo, hi = f.due_interval
+    assert f.due is not None and lo < f.due and (hi is None or hi > f.due)
+    t6 = np.arange(6.0) - 4.0
+    more = drift.forecast(t6, 1.0 + 6e-5 * (t6 + 4.0) - 6e-5 * 4 + 6e-5, np.full(6, 1e-6),
+                          {"relative": 2e-4}, 0.05, prior=prior)
+    assert more.u_drift_per_year < f.u_drift_per_year / 2
+    assert (more.due_interval[1] - more.due_interval[0]) < (hi or np.inf) - lo
+
+
 # ------------------------------------------------- an independent simulator ----
 
 def _independent_fleet(seed: int = 2026):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 
@@ -20,10 +21,13 @@ TOML = ('[tolerance."QA-2000"]\nK1 = { relative = 2.0e-4 }\nK0 = { absolute = 5.
 K1_U = 0.1 * 5e-6
 
 
-@pytest.fixture
-def fleet(tmp_path):
+@pytest.fixture(scope="session")
+def fleet_built(tmp_path_factory):
     """Five QA-2000 units tumbled yearly 2021-2026: QA-0 and QA-1 stable, QA-2 drifting
-    1e-4/a in K1, QA-3 calibrated once, QA-4 adjusted in 2024 (K1 reset to 0.1)."""
+    1e-4/a in K1, QA-3 calibrated once, QA-4 adjusted in 2024 (K1 reset to 0.1); QA-0
+    also has a tumble's combination theta0-Ko; QA-2's last tumble started at 02:00 in
+    UTC+08:00 (its certificate's date, 2026-03-01, is the UTC day before).  Built once."""
+    tmp_path = tmp_path_factory.mktemp("fleet")
     w = Warehouse(tmp_path / "lab.duckdb", lock_timeout=5)
     w.init()
     ensure_views(w.path)
@@ -35,14 +39,25 @@ def fleet(tmp_path):
             if j == 4:
                 k1 = 0.1 * (1 + 1e-4 * ((y - 2024) if y >= 2024 else (y - 2021)))
             k1 += K1_U * rng.standard_normal()
-            add_campaign(w, f"QA-{j}", f"QA-{j}/{y}", "DH-1", f"{y}-03-01T10:00:00+00:00",
-                         {"K1": (k1, K1_U), "K2": (4e-7, 2e-9)})
+            coefs = {"K1": (k1, K1_U), "K2": (4e-7, 2e-9)}
+            if j == 0:
+                coefs["theta0-Ko"] = (1e-5 + 2e-7 * (y - 2021), 2e-8)
+            start = ("2026-03-01T02:00:00+08:00" if (j, y) == (2, 2026) else
+                     f"{y}-03-01T10:00:00+00:00")
+            add_campaign(w, f"QA-{j}", f"QA-{j}/{y}", "DH-1", start, coefs)
     with w.connect() as con:   # as if each result had been stored a week after its tumble
         for table, col in (("result_activations", "activated_at"), ("results", "computed_at")):
             con.execute(f"UPDATE {table} SET {col} = CAST(split_part(campaign, '/', 2) "
                         "|| '-03-08 00:00:00+00' AS TIMESTAMPTZ)")
     (tmp_path / "accelcal.toml").write_text(TOML)
     return tmp_path
+
+
+@pytest.fixture
+def fleet(fleet_built, tmp_path):
+    """A copy of the fleet's warehouse and config for one test (some tests write)."""
+    shutil.copytree(fleet_built, tmp_path / "fleet")
+    return tmp_path / "fleet"
 
 
 def _due(capsys, *args):
@@ -84,6 +99,22 @@ def test_due_within_and_text_at_80_columns(fleet, capsys):
     rc, out, _ = _due(capsys, "-w", wh, "--config", cfg, "--as-of", "2026-06-01")
     assert rc == 0 and "QA-2" in out and "ppm/a" in out
     assert max(len(line) for line in out.splitlines()) <= 80, out
+    # full names, every rate with its display unit (the catalogue's: theta0 in degrees)
+    assert "QA-0  theta0-Ko  no due date" in out and "°/a (u, k = 1)" in out
+    drifts = [ln for ln in out.replace("\n    ", " ").splitlines() if "drift " in ln]
+    assert drifts and all(re.search(r"drift -?[0-9.]+ ± [0-9.]+ (ppm|µg/g²|°)/a", ln) for ln in drifts), drifts
+    # QA-3, calibrated once in 2021, is overdue; QA-2 is not yet
+    assert "QA-3  K1  due 2022-02-17 OVERDUE (as of 2026-06-01)" in out
+    assert "OVERDUE" not in out[out.index("QA-2  K1"):].split("\n")[0]
+    # the certificate's calibration date (the run's own offset), not the UTC date
+    qa2 = out[out.index("QA-2  K1"):]
+    assert "last 2026-03-01" in qa2.replace("\n    ", " ")[:300]
+    rc, out, _ = _due(capsys, "-w", wh, "--config", cfg, "--as-of", "2030-01-01", "--json")
+    row = next(r for r in json.loads(out) if (r["unit_serial"], r["coefficient"]) == ("QA-2", "K1"))
+    assert row["overdue"] and row["last_calibrated"] == "2026-03-01"
+    assert row["drift_display"].endswith(" ppm/a")
+    rc, out, _ = _due(capsys, "-w", wh, "--config", cfg, "--as-of", "2030-01-01")
+    assert f"QA-2  K1  due {row['due_date']} OVERDUE (as of 2030-01-01)" in out
     rc, _, err = _due(capsys, "-w", wh, "--within", "soon")
     assert rc == 1 and err.startswith("accelcal: error: --within")
 
@@ -138,6 +169,10 @@ def test_history_page_has_one_chart_per_coefficient(fleet, capsys, tmp_path):
     os.umask(mask)
     assert (out / "QA-2-history.html").stat().st_mode & 0o777 == 0o666 & ~mask
     assert page.count("<img") == 2 and "control chart" in page and "due <b>20" in page
+    assert "OVERDUE" not in page
+    assert main(["history", "QA-2", "--html", str(out / "later"), "-w", wh, "--as-of", "2030-01-01",
+                 "--config", str(fleet / "accelcal.toml")]) == 0
+    assert "OVERDUE" in (out / "later" / "QA-2-history.html").read_text()
     assert main(["history", "NOPE", "--html", str(out), "-w", wh]) == 1
     chromium = shutil.which("chromium") or shutil.which("chromium-browser")
     if chromium:

@@ -23,6 +23,7 @@ from accelcal.fileio import StoreError
 from accelcal.flows.pipeline import run_pipeline
 from accelcal.warehouse import Warehouse, WarehouseError
 
+from conftest import marked_pids
 from test_faults import warehouse_contents
 
 FAST = dict(engine="local", settle=0)
@@ -289,17 +290,9 @@ def test_sigkill_under_prefect_leaves_no_process_and_a_rerun_equals_a_clean_run(
     env = {**os.environ, "PREFECT_LOGGING_LEVEL": "ERROR", "TEST_FAULTS_MARK": mark}
     p = subprocess.Popen([sys.executable, "-m", "accelcal", "run", drop, "-w", wh, "-q", "--settle", "0"],
                          env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    needle = f"\0TEST_FAULTS_MARK={mark}\0".encode()
 
     def marked() -> list[int]:
-        out = []
-        for d in os.listdir("/proc"):
-            try:
-                if d.isdigit() and needle in b"\0" + Path(f"/proc/{d}/environ").read_bytes() + b"\0":
-                    out.append(int(d))
-            except OSError:
-                pass
-        return out
+        return marked_pids("TEST_FAULTS_MARK", mark)
     t_end = time.time() + 240
     server = None
     while time.time() < t_end and p.poll() is None and server is None:

@@ -4,14 +4,13 @@ from __future__ import annotations
 
 import os
 import stat
-from pathlib import Path
 
 import pytest
 
 from accelcal.fileio import atomic_write, current_umask
 from accelcal.flows.pipeline import quiet_prefect, run_pipeline
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "shared" / "examples"
+from conftest import EXAMPLES  # noqa: E402  (ACCELCAL_SHARED, else ../shared)
 SAMPLE = EXAMPLES / "drop-2026-11-20"
 
 quiet_prefect()

@@ -13,7 +13,7 @@ from accelcal.schemas.dropformat import parse_run, read_run
 from accelcal.schemas.dropspec import DETAIL_MAX, LINE_MAX, DropFormatError
 
 REPO = Path(__file__).resolve().parents[1]
-SHARED = REPO.parent / "shared" / "examples"
+from conftest import EXAMPLES as SHARED  # noqa: E402  (ACCELCAL_SHARED, else ../shared)
 from conftest import needs_shared  # noqa: E402
 OK = (REPO / "accelcal" / "demo_data" / "drop-bad" / "ok-small.csv").read_bytes()
 _LINES = OK.split(b"\n")

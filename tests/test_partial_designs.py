@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import math
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,7 +15,7 @@ import pytest
 from accelcal.effects import coefficient_spec, combination_name, split_combination
 from accelcal.fitting.core import lstsq_svd
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "shared" / "examples"
+from conftest import EXAMPLES  # noqa: E402  (ACCELCAL_SHARED, else ../shared)
 #: SNJ-1-03 as the reference simulator made it (issues 1-30; sample drops 11-20, 11-21)
 UNIT = {"K0": 4.0e-4, "K1": 0.1325631, "Kp": 2.0e-5, "Ko": -1.5e-5, "K2": 3.94e-7, "Kpp": 4.7e-8,
         "Kip": 7.1e-7, "Kio": 2.0e-7, "Koo": 3.0e-8, "Koq": 3.0e-8, "K3": 2.0e-10, "Kpo": 0.0, "theta0": 0.0}

@@ -15,7 +15,7 @@ import pytest
 from accelcal.flows.pipeline import PipelineError, quiet_prefect, run_pipeline
 from accelcal.warehouse import Warehouse, verify_lineage
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "shared" / "examples"
+from conftest import EXAMPLES  # noqa: E402  (ACCELCAL_SHARED, else ../shared)
 SAMPLE = EXAMPLES / "drop-2026-11-20"
 BAD = EXAMPLES / "drop-bad"
 CAMPAIGN = "SNJ-1-03/2026-11-20"

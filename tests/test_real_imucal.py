@@ -8,14 +8,14 @@ positions of the two runs disagree (0.2-4 mrad tilts) and the readings are autoc
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import pytest
 
 from accelcal.estimators.campaign import process_campaign
 from accelcal.schemas.dropformat import read_run
 
-REAL = Path(__file__).resolve().parents[1] / ".." / "shared" / "real" / "imucal-ferraris"
+from conftest import SHARED  # noqa: E402  (ACCELCAL_SHARED, else ../shared)
+REAL = SHARED / "real" / "imucal-ferraris"
 #: imucal's calibration (bias b/K in m/s^2, scale K), README of the data
 IMUCAL = {"X": (0.53887, 0.996746), "Y": (-0.61470, 1.002438), "Z": (0.38975, 1.023395)}
 

@@ -76,6 +76,23 @@ def test_simulated_drop_into_a_real_warehouse_changes_no_current_result(real_wh,
     assert st["SIM-" + CAMP]["current_result_id"] is None
     assert st[CAMP]["status"] == "unchanged" and st[CAMP]["simulated_left_out"] == 11
     assert _state(real_wh) == before
+    # shown apart, under a SIMULATED banner that says why, and listed by `campaign`
+    import io
+
+    from rich.console import Console
+
+    from accelcal.cli import print_summary
+    from accelcal.ops.campaigns import campaign_rows
+    sim = st["SIM-" + CAMP]
+    assert sim["shown_result_id"] and sim["coefficients"]
+    con = Console(file=io.StringIO(), width=100)
+    print_summary(s, con)
+    text = con.file.getvalue()
+    block = text[text.index("SIM-" + CAMP):]
+    assert "(not current)" in block and "SIMULATED" in block
+    assert "the unit has a real calibration" in " ".join(block.split())
+    (row,) = campaign_rows(real_wh.path, "SIM-" + CAMP)
+    assert row["simulated"] and not row["in_history"] and not row["is_current"]
     sim_files = real_wh.query("SELECT count(*) AS n, bool_and(simulated) AS all_sim, "
                               "max(revision) AS top FROM run_files WHERE simulated")[0]
     assert sim_files["n"] == 22 and sim_files["all_sim"] and sim_files["top"] == 2

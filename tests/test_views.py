@@ -166,13 +166,9 @@ def test_fleet_stats_and_robust_outlier(wh):
 
 
 @pytest.fixture(scope="module")
-def examples_wh(tmp_path_factory, examples):
-    from accelcal.flows.pipeline import run_pipeline
-    d = tmp_path_factory.mktemp("ex")
-    run_pipeline([str(examples / "drop-2026-11-20"), str(examples / "drop-2026-11-21")],
-                 d / "lab.duckdb", engine="local")
-    ensure_views(d / "lab.duckdb")
-    return d / "lab.duckdb"
+def examples_wh(sample_lab):
+    """The session's warehouse of the sample drops (2026-11-20, 2026-11-21, drop-bad)."""
+    return sample_lab
 
 
 def test_example_drops_same_unit_on_two_centrifuges(examples_wh):

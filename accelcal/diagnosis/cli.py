@@ -24,10 +24,13 @@ def _diagnose(args) -> int:
         res = diagnose(runs, args.baseline)
     except ValueError as e:
         raise CliError(f"diagnose: {e}") from None
-    if args.report:
-        p = html_report(res, args.report)
-        print(f"report: {p}", file=sys.stderr)
     fixes = next_runs(runs, res)
+    terminal = "\n".join([text_report(res)] + [
+        textwrap.fill(f"to {f['to']}: add {f['run']} ({f['minutes']:.0f} min)" if f.get("run")
+                      else f"to {f['to']}: {f['note']}", 80, subsequent_indent="  ") for f in fixes])
+    if args.report:
+        p = html_report(res, args.report, terminal=terminal, next_runs=fixes)
+        print(f"report: {p}", file=sys.stderr)
     if args.json:
         pub = public(res)
         if not args.all_segments:
@@ -35,10 +38,7 @@ def _diagnose(args) -> int:
         pub["next_runs"] = fixes
         print(json.dumps(clean_json(pub), default=_jd, allow_nan=False))
     else:
-        print(text_report(res))
-        for f in fixes:
-            print(textwrap.fill(f"to {f['to']}: add {f['run']} ({f['minutes']:.0f} min)" if f.get("run")
-                                else f"to {f['to']}: {f['note']}", 80, subsequent_indent="  "))
+        print(terminal)
     return 0
 
 

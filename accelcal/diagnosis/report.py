@@ -228,7 +228,8 @@ def _shrink_figure(res: dict):
     return fig
 
 
-def html_report(res: dict, out_dir) -> Path:
+def html_report(res: dict, out_dir, terminal: str | None = None,
+                next_runs: list | None = None) -> Path:
     """A page an engineer reads (issue 28): the verdict and why, where the gap lies (residual
     plots per run in µg against each run's own axis), the ranked effects with aliases, how
     far the gap shrinks in sample and held out, what cannot be seen; the full result as
@@ -241,6 +242,11 @@ def html_report(res: dict, out_dir) -> Path:
     out_dir : str or Path
         Folder to write into (created if missing); ``diagnosis.html`` and
         ``diagnosis.json`` there are replaced atomically.
+    terminal : str, optional
+        The text the terminal prints (the report and the advice after it), shown whole in
+        its order; default :func:`text_report`.
+    next_runs : list of dict, optional
+        The advice (:func:`accelcal.diagnosis.cli.next_runs`), kept in ``diagnosis.json``.
 
     Returns
     -------
@@ -256,6 +262,8 @@ def html_report(res: dict, out_dir) -> Path:
     out.mkdir(parents=True, exist_ok=True)
     pub = public(res)
     pub.pop("where_all", None)
+    if next_runs is not None:
+        pub["next_runs"] = next_runs
     from ..fileio import atomic_write
     atomic_write(out / "diagnosis.json",
                  lambda fh: fh.write(json.dumps(clean_json(pub), indent=1, default=_jd)), "w",
@@ -325,7 +333,7 @@ def html_report(res: dict, out_dir) -> Path:
     B.append(f"<img alt='shrink' src='data:image/png;base64,{_png(_shrink_figure(res))}'/>")
     B.append("<h2>The whole result</h2><p><a href='diagnosis.json'>diagnosis.json</a> (every "
              "number above, and more, as JSON). The same text as the terminal prints:</p>"
-             f"<pre style='white-space:pre-wrap;font-size:12px'>{_esc(text_report(res))}</pre>")
+             f"<pre style='white-space:pre-wrap;font-size:12px'>{_esc(terminal or text_report(res))}</pre>")
     p = out / "diagnosis.html"
     page = ("<!doctype html><html lang='en'><head><meta charset='utf-8'><title>accelcal "
             f"diagnosis</title><style>{_CSS}</style></head><body>" + "\n".join(B) + "</body></html>")

@@ -591,30 +591,112 @@ def _task_runner(name: str):
         raise PipelineError(str(e)) from None
 
 
+#: Seconds Prefect's temporary API server may take to answer (its default, 20 s, is
+#: exceeded on a loaded machine; $PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS wins).
+SERVER_START_S = 180
+
+
 @contextlib.contextmanager
-def _api_for_local_workers(task_runner: str):
-    """With a local Dask cluster and no Prefect API configured, start the flow's temporary
-    Prefect server first and hand its address to the workers (PREFECT_API_URL, inherited
-    when the cluster spawns them).  Otherwise every worker process started a temporary
-    server of its own: seconds of CPU per worker at start (taken from the science on a
-    machine with a worker per core), task runs reported to a server the flow never sees,
-    and a server left running whenever the nanny killed its worker at close."""
-    from prefect.settings import PREFECT_API_URL, PREFECT_SERVER_EPHEMERAL_ENABLED
-    if task_runner != "dask" or PREFECT_API_URL.value() or not PREFECT_SERVER_EPHEMERAL_ENABLED.value():
+def _prefect_api(task_runner: str):
+    """Prefect's temporary API server for the flow, started here rather than by the flow's
+    client: its start gets time on a loaded machine and its failure is one line; its loss
+    during the run stops the run at once (:func:`_watch_server`) instead of Prefect's
+    minute of retries.  With a local Dask cluster its address goes to the workers
+    (PREFECT_API_URL, inherited when the cluster spawns them), else each worker started a
+    server of its own.  Nothing is started when an API is configured."""
+    from prefect.settings import (PREFECT_API_URL, PREFECT_SERVER_EPHEMERAL_ENABLED,
+                                  PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS)
+    if PREFECT_API_URL.value() or not PREFECT_SERVER_EPHEMERAL_ENABLED.value():
         yield
         return
     from prefect.server.api.server import SubprocessASGIServer
+    import threading
     server = SubprocessASGIServer()      # the one the flow's client would start (one a process)
-    server.start()
+    done = threading.Event()
+    _spawn_deaf_to_ctrl_c(server, lambda proc: _watch_server(proc, done))
+    limit = (PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS.value()
+             if "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS" in os.environ else SERVER_START_S)
+    try:
+        server.start(timeout=limit)
+    except Exception as e:
+        done.set()
+        server.stop()
+        why = str(e).split(" stdout:")[0]
+        raise PipelineError(f"Prefect's temporary API server did not start ({why}); the "
+                            f"machine may be overloaded: run again, or use --engine local") from None
     before = os.environ.get("PREFECT_API_URL")
-    os.environ["PREFECT_API_URL"] = server.api_url
+    if task_runner == "dask":
+        os.environ["PREFECT_API_URL"] = server.api_url
     try:
         yield
     finally:
-        if before is None:
-            os.environ.pop("PREFECT_API_URL", None)
-        else:
-            os.environ["PREFECT_API_URL"] = before
+        done.set()
+        if task_runner == "dask":
+            if before is None:
+                os.environ.pop("PREFECT_API_URL", None)
+            else:
+                os.environ["PREFECT_API_URL"] = before
+
+
+def _spawn_deaf_to_ctrl_c(server, watch) -> None:
+    """Start Prefect's server with SIGINT ignored (inherited through exec): the terminal's
+    Ctrl-C reaches the whole foreground group, and a server still importing would print
+    its own "Aborted!"; the run stops it itself (accelcal.procguard).  ``watch(process)``
+    is called on each server process as soon as it is started (its loss during the start
+    too)."""
+    import signal
+    import threading
+    spawn = type(server)._run_uvicorn_command.__get__(server)     # Prefect's own, once
+    main = threading.current_thread() is threading.main_thread()
+
+    def deaf():
+        before = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+        try:
+            proc = spawn()
+        finally:
+            if main:
+                signal.signal(signal.SIGINT, before)
+        watch(proc)
+        return proc
+    server._run_uvicorn_command = deaf
+
+
+def _watch_server(proc, done) -> None:
+    """Stop the run at once (accelcal.procguard.stop_now) when Prefect's server process
+    ends before the event ``done`` is set (exit code 3, a port taken, is Prefect's to
+    retry).  A server ended by SIGINT or its own clean
+    shutdown was stopped by the terminal's Ctrl-C, which reaches the foreground group:
+    exit 130, as the interrupt itself says (its handler usually acts first); anything
+    else is a lost server: exit 1.  Only in a command under the process guard: a flow
+    called in another program leaves the loss to Prefect's client."""
+    import threading
+
+    from ..procguard import guarded, stop_now
+    if not guarded():
+        return
+
+    def watch() -> None:
+        while not done.wait(0.2):
+            rc = proc.poll()
+            if rc is None:
+                continue
+            if rc == 3:
+                return
+            if done.wait(1.0):        # the run ended meanwhile, or the interrupt acts
+                return
+            if rc in (0, -2):
+                stop_now("interrupted; what was committed stays, a re-run completes the rest", 130)
+            stop_now(f"Prefect's API server stopped during the run (exit code {rc}); what was "
+                     "committed stays, a re-run completes the rest", 1)
+
+    threading.Thread(target=watch, name="accelcal-prefect-server", daemon=True).start()
+
+
+def _lost_api(e: BaseException) -> bool:
+    """Whether ``e`` says the Prefect API could not be reached (not a fault of the run)."""
+    import httpx
+    from prefect.exceptions import PrefectHTTPStatusError
+    return isinstance(e, (httpx.TransportError, PrefectHTTPStatusError))
 
 
 def run_pipeline(drops: list[str], warehouse: str | Path, *, engine: str = "prefect",
@@ -658,13 +740,19 @@ def run_pipeline(drops: list[str], warehouse: str | Path, *, engine: str = "pref
         # Fail fast (before the Prefect server starts) when the warehouse is busy.
         wh = Warehouse(warehouse, lock_timeout=lock_timeout)
         runner = _task_runner(task_runner)
-        with wh.lock(), _api_for_local_workers(task_runner):
+        with wh.lock(), _prefect_api(task_runner):
             fl = pipeline_flow()
             if runner is not None:
                 fl = fl.with_options(task_runner=runner)
-            summary = fl(drops=drops, warehouse=warehouse, lock_timeout=lock_timeout,
-                         parameters=parameters or {}, settle=settle, snapshot=snapshot,
-                         allow_simulated=allow_simulated)
+            try:
+                summary = fl(drops=drops, warehouse=warehouse, lock_timeout=lock_timeout,
+                             parameters=parameters or {}, settle=settle, snapshot=snapshot,
+                             allow_simulated=allow_simulated)
+            except Exception as e:
+                if not _lost_api(e):
+                    raise
+                raise PipelineError(f"lost Prefect's API server ({type(e).__name__}: {e}); what "
+                                    "was committed stays, a re-run completes the rest") from None
     else:
         raise PipelineError(f"unknown engine {engine!r} (choose from {', '.join(ENGINES)})")
     summary["engine"] = engine

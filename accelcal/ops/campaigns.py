@@ -16,13 +16,18 @@ from typing import Any
 
 from ..warehouse.db import Warehouse
 
+# Per campaign its current result, or -- for a simulated campaign of a unit with a real
+# calibration, whose result is never current -- its latest result.
 _LIST_SQL = """
 SELECT r.campaign, r.unit_serial, r.result_id, r.completeness, r.completeness_reasons,
        r.simulated, x.why AS excluded_why, x.acted_at AS excluded_at, x.acted_by AS excluded_by,
-       d.first_run_at
-FROM results_current r
+       d.first_run_at, r.is_current
+FROM result_history r
 LEFT JOIN excluded_campaigns x USING (campaign)
 LEFT JOIN result_dates d USING (result_id)
+WHERE r.valid_to IS NULL AND (r.is_current OR r.simulated)
+QUALIFY row_number() OVER (PARTITION BY r.campaign
+                           ORDER BY r.is_current DESC, r.computed_at DESC) = 1
 ORDER BY r.campaign
 """
 

@@ -71,17 +71,31 @@ def _cmd_design(args) -> int:
     if args.json:
         print(json.dumps(adv.to_dict()))
     else:
-        print(text_advice(adv))
+        units = {str(r.meta.get("output_unit")) for r in runs if r.meta.get("output_unit")}
+        print(text_advice(adv, units.pop() if len(units) == 1 else "out"))
     return 0
 
 
-def _u(name: str, u: float | None, unit: str) -> str:
-    """A standard uncertainty for people: 2 significant digits in the display unit."""
-    from ..effects import to_display
+#: A standard uncertainty this many times the catalogue's typical size of the parameter
+#: (accelcal/effects.py) says the runs do not determine it [1].
+UNDETERMINED_TYPICAL = 1e3
+
+
+def _u(name: str, u: float | None, unit: str, output_unit: str = "out") -> str:
+    """A standard uncertainty for people: 2 significant digits in the display unit, the
+    runs' output unit for "out" (K1 in mA/g); "not determined" for none, or one far above
+    the parameter's typical size."""
+    import math
+
+    from ..effects import EFFECTS, coefficient_spec, to_display
     from ..rounding import format_sig, format_sig_sci
-    if u is None:
-        return "not determined"
     base = name.split("[", 1)[0]
+    spec = coefficient_spec(base) or EFFECTS.get(base)
+    if u is None or not math.isfinite(u) or (spec is not None and spec.typical
+                                             and u > UNDETERMINED_TYPICAL * spec.typical):
+        return "not determined"
+    if unit.startswith("out/"):
+        unit = output_unit + unit[3:]
     v, _, dunit, _ = to_display(base, u, None, unit)
     text = format_sig(v, 2) if 1e-3 <= abs(v) < 1e5 else format_sig_sci(v, 2)
     return f"{text} {dunit}".strip()
@@ -95,11 +109,12 @@ def _seen(name: str, u: float | None, plausible: float | None) -> str:
     return f" (plausible size {plausible / u:.0f} u)"
 
 
-def text_advice(adv) -> str:
-    """The advice as a short table an engineer reads in ten seconds (80 columns)."""
+def text_advice(adv, output_unit: str = "out") -> str:
+    """The advice as a short table an engineer reads in ten seconds (80 columns); every
+    u in its display unit, "out" read as the runs' ``output_unit``."""
     lines = []
     names = list(adv.current.std_uncertainty)
-    cur = "; ".join(f"u({n}) {_u(n, adv.current.std_uncertainty[n], adv.units.get(n, ''))}"
+    cur = "; ".join(f"u({n}) {_u(n, adv.current.std_uncertainty[n], adv.units.get(n, ''), output_unit)}"
                     f"{_seen(n, adv.current.std_uncertainty[n], adv.plausible.get(n))}" for n in names)
     lines.append(f"Now: {cur}")
     for k, r in adv.current.corr.items():
@@ -109,7 +124,7 @@ def text_advice(adv) -> str:
         lines.append("  none improves the targets")
     for i, p in enumerate(adv.proposals, 1):
         lines.append(f"{i:>2}. {p.minutes:.0f} min: " + " + ".join(c.label for c in p.runs))
-        got = "; ".join(f"u({n}) {_u(n, p.predicted.std_uncertainty.get(n), adv.units.get(n, ''))}"
+        got = "; ".join(f"u({n}) {_u(n, p.predicted.std_uncertainty.get(n), adv.units.get(n, ''), output_unit)}"
                         f"{_seen(n, p.predicted.std_uncertainty.get(n), adv.plausible.get(n))}" for n in names)
         corr = "; ".join(f"corr {('not determined' if r is None else f'{r:.2f}')}"
                          for k, r in p.predicted.corr.items())

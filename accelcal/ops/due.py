@@ -30,7 +30,10 @@ SECONDS_PER_YEAR = 86400.0 * drift.YEAR_DAYS
 _HISTORY_SQL = """
 SELECT h.unit_serial, h.unit_model, h.name, h.unit, h.campaign, h.calibrated_at, h.value,
        h.std_uncertainty, h.expanded_uncertainty, h.method, h.rig_id, h.result_id,
-       r.code_version, h.calibration_no
+       r.code_version, h.calibration_no,
+       (SELECT arg_min(f.started_at, TRY_CAST(f.started_at AS TIMESTAMPTZ))
+        FROM lineage l JOIN run_files f USING (sha256)
+        WHERE l.result_id = h.result_id) AS first_started_at
 FROM unit_history_as_of(CAST(? AS TIMESTAMPTZ)) h JOIN results r USING (result_id)
 WHERE (CAST(? AS TIMESTAMPTZ) IS NULL OR h.calibrated_at <= CAST(? AS TIMESTAMPTZ))
   AND h.value IS NOT NULL AND h.std_uncertainty > 0
@@ -156,15 +159,33 @@ def compute(rows: list[dict[str, Any]], adjusted: set[str], cfg: ForecastConfig
     return out
 
 
-def forecast_row(lst: list[dict[str, Any]], f: drift.Forecast) -> dict[str, Any]:
-    """The issue's JSON row (plus what the row was computed from)."""
+def calibration_date(row: dict[str, Any]) -> str:
+    """The date the certificate gives the calibration: the day its first run started, in
+    the run's own UTC offset (``started_at`` as the DAQ wrote it), not the UTC day."""
+    text = row.get("first_started_at")
+    if text:
+        with contextlib.suppress(ValueError):
+            return dt.datetime.fromisoformat(str(text)).date().isoformat()
+    return row["calibrated_at"].astimezone(dt.timezone.utc).date().isoformat()
+
+
+def forecast_row(lst: list[dict[str, Any]], f: drift.Forecast,
+                 today: dt.date | None = None) -> dict[str, Any]:
+    """The issue's JSON row (plus what the row was computed from); ``overdue``: the due
+    date lies before ``today`` (default: today, UTC)."""
     last = lst[-1]
+    due = _date(f.due)
+    today = today or dt.datetime.now(dt.timezone.utc).date()
     return {
         "unit_serial": last["unit_serial"], "unit_model": last["unit_model"],
         "coefficient": last["name"], "n_campaigns": f.n_campaigns,
-        "last_calibrated": last["calibrated_at"].astimezone(dt.timezone.utc).date().isoformat(),
+        "last_calibrated": calibration_date(last),
         "drift_per_year": f.drift_per_year, "u_drift_per_year": f.u_drift_per_year,
-        "due_date": _date(f.due), "p_out_at_due": f.p_out_at_due, "basis": f.basis,
+        "drift_display": display_rate(last["name"], f.drift_per_year, f.u_drift_per_year,
+                                      f.value_in_use),
+        "due_date": due, "overdue": due is not None and due < today.isoformat(),
+        "exit_interval_95": [_date(f.due_interval[0]), _date(f.due_interval[1])],
+        "p_out_at_due": f.p_out_at_due, "basis": f.basis,
         "unit": last["unit"], "n_total": f.n_total, "last_campaign": last["campaign"],
         "value_in_use": f.value_in_use, "tolerance": f.tolerance,
         "steps": [{"campaign": lst[s.at]["campaign"], "en": s.en} for s in f.steps],
@@ -176,9 +197,9 @@ def due_rows(warehouse: str | Path, cfg: ForecastConfig, as_of: dt.datetime | No
     """Rows of ``accelcal due``: every unit and coefficient, soonest due first; with
     ``within_days`` only those due by then (overdue included)."""
     rows, adjusted = load_history(warehouse, as_of, lock_timeout)
-    out = [forecast_row(lst, f) for lst, f in compute(rows, adjusted, cfg)]
+    ref = (as_of or dt.datetime.now(dt.timezone.utc)).date()
+    out = [forecast_row(lst, f, ref) for lst, f in compute(rows, adjusted, cfg)]
     if within_days is not None:
-        ref = (as_of or dt.datetime.now(dt.timezone.utc)).date()
         limit = (ref + dt.timedelta(days=within_days)).isoformat()
         out = [r for r in out if r["due_date"] is not None and r["due_date"] <= limit]
     out.sort(key=lambda r: (r["due_date"] is None, r["due_date"] or "", r["unit_serial"],
@@ -263,45 +284,64 @@ def set_adjustment(warehouse: str | Path, campaign: str, why: str, by: str | Non
 
 # ------------------------------------------------------------------- display ----
 
+def display_scale(name: str, value_in_use: float | None) -> tuple[float, str | None]:
+    """(SI per display unit, display unit) of a coefficient's changes, from the catalogue
+    (:func:`accelcal.effects.coefficient_spec`; a combination takes its first term's): K1
+    in ppm of the value in use, the others in their display unit (µg, µrad, °, ...);
+    (1, None) for a name the catalogue does not know (its SI unit stays)."""
+    from ..effects import PRETTY_UNITS, coefficient_spec
+    spec = coefficient_spec(name)
+    if spec is not None and spec.name == "K1" and value_in_use:
+        return abs(value_in_use) * 1e-6, "ppm"
+    if spec is not None:
+        return spec.display_factor, PRETTY_UNITS.get(spec.display_unit, spec.display_unit)
+    return 1.0, None
+
+
 def display_rate(name: str, rate: float | None, u_rate: float | None,
-                 value_in_use: float) -> str:
-    """Drift rate ± u per year in display units, GUM-rounded (u to two digits); K1 in
-    ppm of the value in use."""
-    from ..effects import COEFFICIENTS, PRETTY_UNITS
+                 value_in_use: float, si_unit: str | None = None) -> str:
+    """Drift rate ± u per year in display units, GUM-rounded (u to two digits):
+    ``20 ± 1.3 ppm/a``, ``0.52 ± 0.10 µg/a``."""
     from ..rounding import round_gum
     if rate is None:
         return "—"
-    spec = COEFFICIENTS.get(name.split("[", 1)[0])
-    if spec is not None and spec.name == "K1" and value_in_use:
-        f, unit = abs(value_in_use) * 1e-6, "ppm"
-    elif spec is not None:
-        f, unit = spec.display_factor, PRETTY_UNITS.get(spec.display_unit, spec.display_unit)
-    else:
-        f, unit = 1.0, ""
+    f, unit = display_scale(name, value_in_use)
+    unit = unit or si_unit or "(SI unit)"
     r = round_gum(rate / f, None if u_rate is None else u_rate / f)
-    return f"{r.value} ± {r.uncertainty} {unit}/a".replace("  ", " ")
+    if u_rate is None:
+        return f"{r.value} {unit}/a"
+    return f"{r.value} ± {r.uncertainty} {unit}/a"
 
 
-def text_lines(rows: list[dict[str, Any]], today: dt.date | None = None) -> list[str]:
-    """``accelcal due`` for people, 80 columns: one line per unit and coefficient, the
-    basis below it (wrapped); a due date before ``today`` is marked overdue."""
+def text_lines(rows: list[dict[str, Any]], today: dt.date | None = None,
+               width: int = 80) -> list[str]:
+    """``accelcal due`` for people, ``width`` columns: per unit and coefficient a line
+    with the full names and the due date (OVERDUE when before ``today``), then the drift
+    rate in display units, the last calibration's date and the basis, wrapped (never
+    cut)."""
     import textwrap
 
     from ..rounding import format_sig
-    today = (today or dt.datetime.now(dt.timezone.utc).date()).isoformat()
-    out = [f"{'unit':<16} {'coef':<8} {'n':>2} {'last cal.':<10} {'due':<10}  drift (u, k=1)"]
+    today_s = (today or dt.datetime.now(dt.timezone.utc).date()).isoformat()
+    wrap = dict(width=width, break_on_hyphens=False)
+    out: list[str] = []
     for r in rows:
-        due = r["due_date"] or "—"
-        out.append(f"{r['unit_serial'][:16]:<16} {r['coefficient'][:8]:<8} "
-                   f"{r['n_campaigns']:>2} {r['last_calibrated']:<10} {due:<10}  "
-                   + display_rate(r["coefficient"], r["drift_per_year"],
-                                  r["u_drift_per_year"], r["value_in_use"]))
-        extra = "" if r["p_out_at_due"] is None else \
-            f" P(out) {format_sig(r['p_out_at_due'])} at due."
-        if r["due_date"] is not None and r["due_date"] < today:
-            extra += " OVERDUE."
-        out += textwrap.wrap(r["basis"] + "." + extra, 80, initial_indent="    ",
-                             subsequent_indent="    ")
+        due = r["due_date"]
+        when = ("no due date" if due is None else
+                f"due {due}" + (f" OVERDUE (as of {today_s})" if due < today_s else ""))
+        lo, hi = r.get("exit_interval_95") or (None, None)
+        if lo is not None:
+            when += (f"; out of tolerance between {lo} and {hi}" if hi else
+                     f"; out of tolerance from {lo} on") + " (95\u00a0%)"
+        out += textwrap.wrap(f"{r['unit_serial']}  {r['coefficient']}  {when}",
+                             subsequent_indent="    ", **wrap)
+        rate = display_rate(r["coefficient"], r["drift_per_year"], r["u_drift_per_year"],
+                            r["value_in_use"], r.get("unit"))
+        p = "" if r["p_out_at_due"] is None else \
+            f"; P(out of tolerance) {format_sig(r['p_out_at_due'])} at due"
+        out += textwrap.wrap(f"drift {rate} (u, k = 1); {r['n_campaigns']} calibration(s), "
+                             f"last {r['last_calibrated']}{p}; {r['basis']}.",
+                             initial_indent="    ", subsequent_indent="    ", **wrap)
     return out
 
 
@@ -339,32 +379,30 @@ def certificate_due_statement(warehouse: str | Path, unit_serial: str, campaign:
 
 # ---------------------------------------------------------------- history ----
 
-def _chart(lst, f: drift.Forecast, en: np.ndarray) -> str:
-    """One control chart (base64 PNG): value ± U per campaign, the drift line with its
-    95 % prediction band (a new campaign's value), the tolerance band around the value in
-    use, the due date, En between consecutive campaigns."""
-    from ..effects import COEFFICIENTS, PRETTY_UNITS
+def _chart(lst, f: drift.Forecast, en: np.ndarray, today: float) -> str:
+    """One control chart (base64 PNG) in the certificate's display units
+    (:func:`display_scale`; K1 in ppm from the value in use): value ± U per campaign, the
+    drift line with its 95 % prediction band (a new campaign's value), the value in use
+    and the tolerance band around it, the due date (marked overdue when before ``today``
+    [a]; explained when it is the day of the last calibration), En between consecutive
+    campaigns.  Every line is in a legend; the axes carry no offset or power of ten."""
     from .plots import _plt, _png
     plt = _plt()
     name = lst[-1]["name"]
-    spec = COEFFICIENTS.get(name.split("[", 1)[0])
-    if spec is not None and spec.name == "K1":
-        v0 = f.value_in_use
-        scale, off, unit = abs(v0) * 1e-6, v0, "ppm from the value in use"
-    elif spec is not None:
-        scale, off = spec.display_factor, 0.0
-        unit = PRETTY_UNITS.get(spec.display_unit, spec.display_unit)
-    else:
-        scale, off, unit = 1.0, 0.0, lst[-1]["unit"] or ""
+    scale, unit = display_scale(name, f.value_in_use)
+    unit = unit or lst[-1]["unit"] or "SI unit"
+    ppm = unit == "ppm"
+    off = f.value_in_use if ppm else 0.0
+    ylabel = f"{name} - value in use [ppm]" if ppm else f"{name} [{unit}]"
     tt = np.array([_years(r["calibrated_at"]) for r in lst])
     x = (np.array([r["value"] for r in lst]) - off) / scale
     U = np.array([r["expanded_uncertainty"] for r in lst]) / scale
     def yr(y):       # years since 1970 [a] -> dates on the axis
         return np.array([dt.datetime.fromtimestamp(float(v) * SECONDS_PER_YEAR, dt.timezone.utc)
                          .replace(tzinfo=None) for v in np.atleast_1d(y)], dtype="datetime64[s]")
-    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(8.4, 5.2), sharex=True,
+    fig, (ax, ax2) = plt.subplots(2, 1, figsize=(8.4, 5.8), sharex=True,
                                   gridspec_kw={"height_ratios": [3, 1]})
-    end = max(tt[-1] + 1.0, (f.due + 0.5) if f.due is not None else tt[-1] + 2.0)
+    end = max(tt[-1] + 1.0, (f.due + 0.5) if f.due is not None else tt[-1] + 2.0, today + 0.25)
     end = min(end, tt[-1] + 5.0)
     if f.predict is not None:
         start = tt[f.series_start] if f.fit is None else min(tt[f.series_start], tt[-1])
@@ -378,33 +416,54 @@ def _chart(lst, f: drift.Forecast, en: np.ndarray) -> str:
         for sgn in (-1, 1):
             ax.axhline((f.value_in_use + sgn * f.tolerance - off) / scale, color="#b03030",
                        lw=0.9, ls="--", label="tolerance around the value in use" if sgn > 0 else None)
-    ax.axhline((f.value_in_use - off) / scale, color="#b03030", lw=0.5)
+    ax.axhline((f.value_in_use - off) / scale, color="#b03030", lw=0.6,
+               label="value in use (last calibration)")
     old = np.arange(len(lst)) < f.series_start
     ax.errorbar(yr(tt[~old]), x[~old], U[~old], fmt="o", color="#222", ms=4, capsize=3,
                 label="calibration ± U (k = 2)")
     if old.any():
         ax.errorbar(yr(tt[old]), x[old], U[old], fmt="o", color="#999", ms=4, capsize=3,
                     mfc="white", label="earlier series")
-    for s in f.steps:
-        ax.axvline(yr(tt[s.at])[0], color="#d08000", lw=1, ls=":", label="flagged step")
-    if f.series_start and not any(s.at == f.series_start for s in f.steps):
+    for k, st in enumerate(f.steps):
+        ax.axvline(yr(tt[st.at])[0], color="#d08000", lw=1, ls=":",
+                   label="flagged step" if k == 0 else None)
+    if f.series_start and not any(st.at == f.series_start for st in f.steps):
         ax.axvline(yr(tt[f.series_start])[0], color="#666", lw=1, ls="-.", label="adjustment")
+    notes = []
     if f.due is not None:
-        ax.axvline(yr(f.due)[0], color="#b03030", lw=1.4)
-        ax.annotate(f"due {_date(f.due)}", (yr(f.due)[0], ax.get_ylim()[1]), fontsize=8,
-                    color="#b03030", ha="right", va="top", rotation=90,
-                    bbox={"fc": "white", "ec": "none", "pad": 1})
-    ax.set_xlim(yr(tt[0] - 0.25)[0], yr(end)[0])
-    ax.set_ylabel(f"{name} [{unit}]", fontsize=8)
+        overdue = f.due < today
+        ax.axvline(yr(f.due)[0], color="#b03030", lw=1.4,
+                   label=f"due {_date(f.due)}" + (" (OVERDUE)" if overdue else ""))
+        if f.due - f.t_last < 1.5 / drift.YEAR_DAYS:
+            notes.append("due at calibration: the value in use is already too uncertain for "
+                         "its tolerance at the lab's risk")
+        if overdue:
+            notes.append(f"OVERDUE: the due date is before {_date(today)}")
+    elif f.tolerance is not None and f.predict is not None:
+        notes.append(f"not due within {drift.HORIZON_YEARS:g} years")
+    ax.axvline(yr(today)[0], color="#555", lw=0.8, ls=(0, (1, 3)), label=f"as of {_date(today)}")
+    for k, text in enumerate(notes):
+        ax.text(0.01, 0.02 + 0.07 * k, text, transform=ax.transAxes, fontsize=8,
+                color="#b03030", ha="left", va="bottom",
+                bbox={"fc": "white", "ec": "#b03030", "pad": 2})
+    ax.set_xlim(yr(min(tt[0], today) - 0.25)[0], yr(end)[0])
+    ax.set_ylabel(ylabel, fontsize=8)
+    ax.ticklabel_format(axis="y", style="plain", useOffset=False)
     ax.tick_params(labelsize=7)
-    ax.legend(fontsize=7, loc="best")
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
     if len(en):
         mid = yr((tt[1:] + tt[:-1]) / 2)
         ax2.bar(mid, en, width=np.timedelta64(int(0.02 * (end - tt[0] + 0.25) * 365.25), "D"),
-                color=["#b03030" if abs(e) > 1 else "#1f5fa0" for e in en])
-        for lim in (-1, 1):
-            ax2.axhline(lim, color="#888", lw=0.6, ls="--")
+                color=["#b03030" if abs(e) > 1 else "#1f5fa0" for e in en],
+                label="En of consecutive calibrations")
+        ax2.axhline(1, color="#888", lw=0.6, ls="--", label="|En| = 1")
+        ax2.axhline(-1, color="#888", lw=0.6, ls="--")
         ax2.axhline(0, color="#444", lw=0.6)
+        ax2.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0)
+    else:
+        ax2.text(0.5, 0.5, "one calibration: no En between consecutive calibrations yet",
+                 transform=ax2.transAxes, fontsize=8, ha="center", va="center", color="#555")
+        ax2.set_yticks([])
     ax2.set_ylabel("En consecutive", fontsize=8)
     ax2.set_xlabel("date", fontsize=8)
     ax2.tick_params(labelsize=7)
@@ -431,22 +490,25 @@ def history_html(warehouse: str | Path, unit_serial: str, out_dir: str | Path,
              f"being out of tolerance reaches {cfg.risk * 100:g} %; as of "
              f"{e(as_of.date().isoformat() if as_of else 'now')}; tolerances from "
              f"{e(str(cfg.path) if cfg.path else 'no config file')}.</p>"]
+    ref = (as_of or dt.datetime.now(dt.timezone.utc))
     for lst, f in fc:
-        r = forecast_row(lst, f)
+        r = forecast_row(lst, f, ref.date())
         en = drift.en_consecutive([q["value"] for q in lst],
                                   [q["expanded_uncertainty"] for q in lst])
         steps = ", ".join(f"{s['campaign']} (En {format_sig(s['en'])})" for s in r["steps"])
         parts.append(
-            f"<h2>{e(r['coefficient'])}</h2><p>due <b>{e(r['due_date'] or '—')}</b>; drift "
-            f"{e(display_rate(r['coefficient'], r['drift_per_year'], r['u_drift_per_year'], r['value_in_use']))}"
+            f"<h2>{e(r['coefficient'])}</h2><p>due <b>{e(r['due_date'] or '—')}</b>"
+            + (" <b class='overdue'>OVERDUE</b>" if r["overdue"] else "")
+            + f"; last calibrated {e(r['last_calibrated'])}; drift {e(r['drift_display'])}"
             + (" (u, k = 1)" if r["drift_per_year"] is not None else "")
             + f"; {r['n_campaigns']} of {r['n_total']} calibrations in the current "
             f"series; {e(r['basis'])}." + (f" Steps flagged: {e(steps)}." if steps else "")
             + f"</p><img alt='{e(r['coefficient'])} control chart' "
-            f"src='data:image/png;base64,{_chart(lst, f, en)}'>")
+            f"src='data:image/png;base64,{_chart(lst, f, en, _years(ref))}'>")
     page = ("<!doctype html><html><head><meta charset='utf-8'><title>"
             f"{e(unit_serial)} history</title><style>body{{font-family:sans-serif;"
-            "max-width:960px;margin:2em auto;font-size:14px}}img{{width:100%}}</style></head>"
+            "max-width:960px;margin:2em auto;font-size:14px}}img{{width:100%}}"
+            ".overdue{{color:#b03030}}</style></head>"
             "<body>" + "\n".join(parts) + "</body></html>")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -26,18 +26,24 @@ def fill_campaigns(wh: Warehouse, entries: list[dict[str, Any]]) -> None:
         excluded = dict(con.execute(
             "SELECT campaign, why FROM excluded_campaigns WHERE list_contains(?, campaign)",
             [camps]).fetchall())
-        serials = dict(con.execute(
-            "SELECT result_id, unit_serial FROM results WHERE list_contains(?, result_id)",
-            [[e["result_id"] for e in entries]]).fetchall())
+        stored = {rid: rest for rid, *rest in con.execute(
+            "SELECT result_id, result_id, unit_serial, completeness, completeness_reasons, "
+            "simulated FROM results WHERE list_contains(?, result_id)",
+            [[e["result_id"] for e in entries]]).fetchall()}
         detail: list[dict[str, Any]] = []
         for k, e in enumerate(entries):
             e["excluded"] = excluded.get(e["campaign"])
-            if e["campaign"] not in current:
-                e.update(unit_serial=serials.get(e["result_id"]), current_result_id=None,
-                         coefficients=[], radii=[], flags=[])
+            # a simulated result that is never current (the unit has a real calibration)
+            # is shown as what it is, apart
+            mine = stored.get(e["result_id"])
+            row = current.get(e["campaign"]) or (mine if mine and mine[4] else None)
+            if row is None:
+                e.update(unit_serial=mine[1] if mine else None,
+                         current_result_id=None, coefficients=[], radii=[], flags=[])
                 continue
-            rid, serial, completeness, reasons, simulated = current[e["campaign"]]
-            e["current_result_id"], e["unit_serial"] = rid, serial
+            rid, serial, completeness, reasons, simulated = row
+            e["current_result_id"] = rid if e["campaign"] in current else None
+            e["shown_result_id"], e["unit_serial"] = rid, serial
             e["completeness"], e["simulated"] = completeness, bool(simulated)
             e["completeness_reasons"] = json.loads(reasons or "[]")
             if k < SUMMARY_DETAIL_MAX:
@@ -45,19 +51,19 @@ def fill_campaigns(wh: Warehouse, entries: list[dict[str, Any]]) -> None:
                 detail.append(e)
         if not detail:
             return
-        # three queries for the detailed entries, not three each: rows keep the order a
-        # query per result gave (the tables' insertion order; no ORDER BY in either)
+        # three queries for the detailed entries, not three each: a result's rows in the
+        # order they were stored (seq), as the current views give them
         by_rid: dict[str, list[dict[str, Any]]] = {}
         for e in detail:
-            by_rid.setdefault(e["current_result_id"], []).append(e)
+            by_rid.setdefault(e["shown_result_id"], []).append(e)
         rids = list(by_rid)
         for key, sql in (
                 ("coefficients", "SELECT result_id, name, value, std_uncertainty, unit, method, "
-                                 "rig_id, adopted FROM coefficients"),
+                                 "rig_id, adopted FROM coefficient_history"),
                 ("radii", "SELECT result_id, rig_id, polarity, method, model_order, g_max, "
-                          "radius_m, std_uncertainty_m FROM radii"),
-                ("flags", "SELECT result_id, flag FROM flags")):
-            q = con.execute(sql + " WHERE list_contains(?, result_id)", [rids])
+                          "radius_m, std_uncertainty_m FROM radius_history"),
+                ("flags", "SELECT result_id, flag FROM flag_history")):
+            q = con.execute(sql + " WHERE list_contains(?, result_id) ORDER BY seq", [rids])
             cols = [d[0] for d in q.description][1:]
             for rid, *row in q.fetchall():
                 item = row[0] if key == "flags" else dict(zip(cols, row))
