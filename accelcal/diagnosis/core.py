@@ -602,7 +602,7 @@ class _Diagnosis:
                 e.setdefault("alias_estimates", {})[k] = bare.value(k) / a["per_unit"]
             e.setdefault("coefficient_aliases", []).append(
                 {"coefficient": k, "value": bare.value(k), "std_uncertainty": bare.std(k),
-                 "note": f"instrument coefficient the bare model determines; these runs cannot tell "
+                 "unit": m.params[k].unit, "note": f"instrument coefficient the bare model determines; these runs cannot tell "
                          f"{e['effect']} from it, and the calibration keeps {k}"})
 
     def alias_estimates(self, e: dict, final: Fit, sel: list[str], obs: dict) -> None:

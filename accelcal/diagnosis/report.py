@@ -91,7 +91,7 @@ def text_report(res: dict, width: int = 80) -> str:
                 v, u = round_gum_sci(ca["value"], ca["std_uncertainty"])
                 alt = (e.get("alias_estimates") or {}).get(k)
                 say(f"note: these runs cannot tell {e['effect']} from the unit's {k}; the calibration keeps "
-                    f"{k} = {v} ± {u}" + (f" (were it all {e['effect']}: {format_sig_sci(alt)} {e['unit']})"
+                    f"{k} = {v} ± {u} {ca.get('unit', '')}".rstrip() + (f" (were it all {e['effect']}: {format_sig_sci(alt)} {e['unit']})"
                                          if alt is not None else ""))
                 continue
             say(f"note: {e['effect']} is indistinguishable here from the coefficient {ca['coefficient']} "
