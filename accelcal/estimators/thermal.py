@@ -46,7 +46,7 @@ from scipy import stats
 
 from ..constants import MICRO_G, T_REF_C
 from ..effects import CROSS_AXIS_TERM, RIG_INPUTS, SQUARE_TERM
-from ..fitting.core import lack_of_fit, linear_fit
+from ..fitting.core import lack_of_fit, linear_fit, lstsq_svd
 from ..fitting.data import ROW_SLICE, unique_small_ints
 from ..physics.axes import parse_signed_axis
 from ..physics.geometry import geometry_of
@@ -540,7 +540,7 @@ def _temperature_sensitivity(x, u_K0, u_K1, p_K0, p_K1, levels) -> dict[str, flo
     unit per degC]: the sensitivity to a temperature reading whose error is the same at
     every return to one set point and independent from one set point to the next.
 
-    The weighted line p = A y, A = (X^T W X)^-1 X^T W, X = [1, T - T_ref], takes a reading
+    The weighted line p = A y, A = (X^T W X)^+ X^T W, X = [1, T - T_ref], takes a reading
     error dT_k as a shift of the point's abscissa: dp = -A[:, k] p1 dT_k, summed over the
     points of a level.  K0, K0T are (p0, p1) of K0(T); K1 = p0 and K1T = p1 / p0 of K1(T),
     so dK1T = (dp1 - K1T dp0) / p0.
@@ -550,7 +550,7 @@ def _temperature_sensitivity(x, u_K0, u_K1, p_K0, p_K1, levels) -> dict[str, flo
     out = {}
     for (n0, n1), u, p in ((("K0", "K0T"), u_K0, p_K0), (("K1", "K1T"), u_K1, p_K1)):
         w = 1.0 / np.asarray(u, float) ** 2
-        A = np.linalg.solve(X.T @ (w[:, None] * X), (w[:, None] * X).T)      # (2, N)
+        A = lstsq_svd(np.sqrt(w)[:, None] * X, np.zeros(x.size)).cov @ (w[:, None] * X).T   # (2, N)
         d = np.array([np.bincount(level, weights=-a * p[1]) for a in A])     # dp / dT_level
         if n1 == "K1T":
             out[n0] = float(np.sqrt(np.sum(d[0] ** 2)))
