@@ -405,7 +405,7 @@ class Fitter:
             if not np.any(s):
                 continue
             # the candidate claims at its own place in the joint fit's order: before Kpp as
-            # cross_coupling (Kip), after Kp and Ko as a mount angle or a tilt (issue 26)
+            # cross_coupling (Kip), after Kp and Ko as a mount angle or a tilt
             pe = PRIORITY.index(effect_claim(e))
             order = base + [c for c in ncs if prio(c)[0] <= pe] + [n] + [c for c in ncs if prio(c)[0] > pe]
             kept = set(separable_columns(np.column_stack([J, s]), order, ALIAS_TOL))
@@ -591,7 +591,7 @@ def _heldout_fold(f: Fit, fold: np.ndarray, k: int, tol: float):
 
 def heldout_test(without: Fit, with_: Fit, fold: np.ndarray, tol: float = 1e-6,
                  parts: tuple | None = None) -> dict:
-    """Held-out test of what a change of model buys (issue 26: a naming rule that does not
+    """Held-out test of what a change of model buys (a naming rule that does not
     depend on the design's size).
 
     Each fold's cells are predicted by both models fitted to the other fold (linearised at

@@ -186,8 +186,8 @@ SHAPE_ALPHA = 0.001
 
 
 def shape_tests(f: Fit, alpha: float = SHAPE_ALPHA) -> list[dict]:
-    """Targeted tests of shaped gaps the omnibus lack-of-fit test dilutes over every cell
-    (issue 26): a centrifuge's rising against its falling steps (a sweep hysteresis), flat
+    """Targeted tests of shaped gaps the omnibus lack-of-fit test dilutes over every cell:
+    a centrifuge's rising against its falling steps (a sweep hysteresis), flat
     and in proportion to the signed IA input, and its + against its - polarity in proportion
     to the g level (flat, a run's own bias takes it).
 

@@ -230,7 +230,7 @@ def _shrink_figure(res: dict):
 
 def html_report(res: dict, out_dir, terminal: str | None = None,
                 next_runs: list | None = None) -> Path:
-    """A page an engineer reads (issue 28): the verdict and why, where the gap lies (residual
+    """A page an engineer reads: the verdict and why, where the gap lies (residual
     plots per run in µg against each run's own axis), the ranked effects with aliases, how
     far the gap shrinks in sample and held out, what cannot be seen; the full result as
     ``diagnosis.json`` beside it.  Self-contained (PNGs embedded), no scripts.

@@ -80,7 +80,7 @@ def _process_campaign(runs, stated: Mapping[str, Mapping[str, float]]) -> Campai
             for rec in records:
                 rec.add_to(res)
     if sum(len(r.data) for r in runs) >= memory.BIG_ROWS:
-        memory.give_back()     # what the paper methods freed, before the joint fit (issue 28)
+        memory.give_back()     # what the paper methods freed, before the joint fit
     _joint(runs, res, stated)
     _mark_adopted(res)
     _assess_completeness(res)

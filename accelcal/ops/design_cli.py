@@ -1,4 +1,4 @@
-"""CLI of issue 25: ``accelcal design RUNS...``: which run to add, and what it will buy
+"""CLI of ``accelcal design RUNS...``: which run to add, and what it will buy
 (:mod:`accelcal.testdesign`).  Registration is cheap; the science is imported when the
 command runs."""
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """When must each unit come back: ``accelcal due``, ``accelcal history UNIT --html``,
-``accelcal campaign adjust`` (issue 29).
+``accelcal campaign adjust``.
 
 Reads a unit's calibrations from the warehouse (``unit_history_as_of``: the adopted values
 of complete, real, non-excluded campaigns), the adjustments (``campaign_adjustments``) and

@@ -1,4 +1,4 @@
-"""CLI of issue 29: ``accelcal due`` and ``accelcal history UNIT --html DIR``
+"""CLI of ``accelcal due`` and ``accelcal history UNIT --html DIR``
 (``accelcal campaign adjust`` lives with the other campaign actions in ops/cli.py).
 Registration is cheap; the science is imported when a command runs."""
 from __future__ import annotations
