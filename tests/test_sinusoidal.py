@@ -14,6 +14,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from accelcal.estimators.records import jsonable
 from accelcal.estimators import sinusoidal as S
 from accelcal.physics import rigs
 
@@ -166,7 +167,7 @@ def test_synthetic_tool_errors_recovered_and_compensated():
     z1 = max(abs(f1.values[k] - truth[k]) / f1.std[k] for k in TRUTH)
     assert z1 > 5
     assert cmp["f_test_tool_errors"]["p_value"] < 1e-6
-    json.dumps(S._jsonable(cmp), allow_nan=False)
+    json.dumps(jsonable(cmp), allow_nan=False)
 
 
 def test_synthetic_sensor_lag_identified():

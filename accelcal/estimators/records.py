@@ -1,9 +1,16 @@
 """The records one paper method adds to a :class:`~accelcal.results.CampaignResult`."""
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 
 from ..results import AdequacyResult, BudgetTerm, CoefficientResult, RadiusResult
+
+
+def jsonable(obj):
+    """A JSON-able copy of a method's extras: numpy values as Python ones, non-finite
+    floats as None (what the warehouse stores)."""
+    return json.loads(json.dumps(obj, default=lambda v: v.tolist()), parse_constant=lambda _: None)
 
 
 @dataclass

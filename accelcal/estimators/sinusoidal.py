@@ -53,7 +53,6 @@ with its analytic derivative), ``'fitted'`` (the logged rate fitted by a constan
 """
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
@@ -71,6 +70,7 @@ from ..physics.geometry import geometry_of
 from ..results import (BudgetTerm, CoefficientResult, FitCheck, ResidualFigure, ResidualPanel, ResidualSeries,
                        display_number)
 from . import uncertainty as unc
+from .records import jsonable
 from .registry import Estimator, register
 
 #: Method id of paper 002's records.
@@ -806,12 +806,8 @@ def process_sine_campaign(runs: Sequence, rig_id: str = "", *, tool_errors: Mapp
     lof = fit.result.lof
     extras["lack_of_fit"] = {"status": lof.status, "F": lof.statistic, "df1": lof.dof_lof, "df2": lof.dof_pe,
                              "p_value": lof.p_value}
-    return results, _jsonable(extras)
+    return results, jsonable(extras)
 
-
-def _jsonable(o):
-    """A JSON-able copy: numpy values as Python ones, non-finite floats as None."""
-    return json.loads(json.dumps(o, default=lambda v: v.tolist()), parse_constant=lambda _: None)
 
 
 def budget_terms(coefficients: Sequence[CoefficientResult]) -> list[BudgetTerm]:

@@ -34,7 +34,6 @@ are JSON-able (non-finite numbers become None).
 """
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import replace
@@ -56,6 +55,7 @@ from ..rounding import round_gum
 from ..results import (BudgetTerm, CoefficientResult, FitCheck, ResidualFigure, ResidualPanel, ResidualSeries,
                        display_number)
 from . import uncertainty as unc
+from .records import jsonable
 from .registry import Estimator, register
 
 METHOD = "tilt_rotation_ls"
@@ -63,10 +63,6 @@ METHOD_TWO_POSITION = "tilt_rotation_two_position"
 
 
 # --------------------------------------------------------------------------- helpers
-
-def _jsonable(obj):
-    """A JSON-able copy: numpy values as Python ones, non-finite floats as None."""
-    return json.loads(json.dumps(obj, default=lambda v: v.tolist()), parse_constant=lambda _: None)
 
 
 def rig_geometry(meta: Mapping) -> dict[str, Any]:
@@ -890,7 +886,7 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = ""
         extras["compensation"] = {"series": "run readings minus nominal IA input (m/s2)",
                                   "before": before, "after": after}
     extras["flags"] = flags
-    return coeffs, _jsonable(extras)
+    return coeffs, jsonable(extras)
 
 
 #: How each coefficient of paper 001 scales with g sin(gamma): K1 = b / (g sin gamma) and
