@@ -748,3 +748,61 @@ def separating_run_flag(cells: Sequence[RunCells], pair: tuple[str, str]) -> str
         return f"{pair[0]}, {pair[1]}: no single run these rigs can make separates them {ask}"
     run = " + ".join(c.label for c in adv.proposals[0].runs)
     return f"{pair[0]}, {pair[1]}: one more run would separate them: {run} {ask}"
+
+
+def next_runs(runs, res) -> list[dict]:
+    """For each effect the runs cannot see and each alias the diagnosis names, the best
+    single run the rigs can make to fix it, or the best two where no single run does
+    (:func:`advise`).
+
+    Parameters
+    ----------
+    runs : list of RunFile
+        The runs diagnosed.
+    res : dict
+        :func:`accelcal.diagnosis.core.diagnose`'s result (``unobservable``, ``ranking``
+        with ``aliases``, ``baseline``).
+
+    Returns
+    -------
+    list of dict
+        ``to`` (what it fixes), ``run`` (drop-format words) and ``runs`` (keys), ``minutes``
+        [min], ``predicted`` (standard uncertainties [SI]); or ``note`` when no single run
+        does.
+    """
+    from .diagnosis.core import prepare_cells
+    asks = [(f"see {u['effect']}", [u["effect"]], []) for u in res.get("unobservable") or []]
+    for r in res.get("ranking") or []:
+        for a in r.get("aliases") or []:
+            other = a if isinstance(a, str) else a.get("effect")
+            if other:
+                asks.append((f"separate {r['effect']} from {other}", [], [(r["effect"], other)]))
+    if not asks:
+        return []
+    cells, _ = prepare_cells(runs)
+    base = list((res.get("baseline") or {}).get("effects") or [])
+    out = []
+    for what, targets, pairs in asks:
+        try:
+            adv = advise(cells, base, targets or None, pairs, max_runs=1, top=1)
+            # seeing an effect may take two runs (Kip beside an unknown Kpp: 45 + 135 deg);
+            # telling an effect from a coefficient by two runs of other planes leans on
+            # second-order terms, and the plain answer is the gravity reference below
+            if not adv.proposals and targets:
+                adv = advise(cells, base, targets, pairs, max_runs=2, top=1)
+        except (DesignError, ValueError, np.linalg.LinAlgError) as exc:
+            out.append({"to": what, "note": f"no advice: {exc}"})
+            continue
+        if not adv.proposals:
+            other = pairs[0][1] if pairs else None
+            gravity = (other is not None and coefficient_spec(other) is not None
+                       and not any(r.meta.get("test") == "tumble" for r in runs))
+            out.append({"to": what, "note": ("no run or pair of runs these rigs can make does it" if targets
+                                             else "no single run these rigs can make does it") + (
+                f"; a tumble in the gravity field measures the unit's {other} on its own" if gravity else "")})
+            continue
+        p = adv.proposals[0]
+        out.append({"to": what, "run": " + ".join(c.label for c in p.runs),
+                    "runs": [{"test": c.test, "rig_id": c.rig_id, **c.spec} for c in p.runs],
+                    "minutes": round(p.minutes, 1), "predicted": p.predicted.std_uncertainty})
+    return out

@@ -137,7 +137,7 @@ def test_cli_prints_a_short_table_and_json(ia_pair, tmp_path, capsys):
 def test_diagnose_says_which_run_would_fix_what_it_cannot_see(ia_pair):
     """An effect the runs cannot see gets the best single run to see it, or says that no
     run of these rigs does (the rate scale error is one with the radius on a centrifuge)."""
-    from accelcal.diagnosis.cli import next_runs
+    from accelcal.testdesign import next_runs
     res = {"unobservable": [{"effect": "cross_coupling"}, {"effect": "rate_scale_error"}], "ranking": [],
            "baseline": {"effects": [e for e in BASE]}}
     out = {f["to"]: f for f in next_runs_from_cells(ia_pair, res, next_runs)}
