@@ -66,7 +66,7 @@ def test_one_45_deg_run_leaves_kip_and_kpp_aliased_45_and_135_separate_them(ia_p
     u = best.predicted.std_uncertainty
     assert u["Kip"] is not None and u["Kpp"] is not None
     assert abs(best.predicted.corr["Kip|Kpp"]) < td.SEPARATED
-    assert best.minutes == pytest.approx(sum(c.minutes for c in cands))
+    assert best.minutes == pytest.approx(sum(c.minutes + td.SETUP_MIN_DEFAULT for c in cands))
 
 
 def test_no_tumble_determines_k2_itself():

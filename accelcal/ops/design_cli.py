@@ -26,7 +26,8 @@ def register(sub) -> None:
     d.add_argument("--candidates", default=None, metavar="FILE.toml",
                    help="the lab's own candidate runs ([[run]] tables in drop-format keys)")
     d.add_argument("--config", default=None, metavar="TOML",
-                   help="accelcal.toml with [rigs.\"ID\"] max_g (default ./accelcal.toml)")
+                   help="accelcal.toml with [rigs.\"ID\"] max_g, setup_min and the stated rig-input "
+                        "uncertainties the budget adds (default ./accelcal.toml)")
     d.add_argument("--top", type=int, default=5, metavar="N", help="proposals shown (default 5)")
     d.add_argument("--json", action="store_true", help="one JSON object on stdout")
     d.set_defaults(func=_cmd_design)
@@ -40,7 +41,7 @@ def _fail(msg: str):
 def _cmd_design(args) -> int:
     import json
 
-    from ..config import ConfigError, rig_limits
+    from ..config import ConfigError, rig_limits, rig_setup_minutes, rig_uncertainties
     from ..diagnosis.core import prepare_cells, resolve_baseline
     from ..diagnosis.runfiles import read_paths
     from ..testdesign import DesignError, advise, load_candidates
@@ -65,7 +66,8 @@ def _cmd_design(args) -> int:
     try:
         cands = (load_candidates(args.candidates, cells, rig_limits(args.config))
                  if args.candidates else None)
-        adv = advise(cells, baseline, targets or None, pairs, args.max_runs, cands, args.top)
+        adv = advise(cells, baseline, targets or None, pairs, args.max_runs, cands, args.top,
+                     stated=rig_uncertainties(args.config), setup_min=rig_setup_minutes(args.config))
     except (DesignError, ConfigError) as exc:
         _fail(str(exc))
     if args.json:
@@ -131,8 +133,34 @@ def text_advice(adv, output_unit: str = "out") -> str:
         lines.append("    -> " + got + (f"; {corr}" if corr else ""))
     for n in adv.notes:
         lines.append(f"note: {n}")
+    lines += _assumptions(adv, output_unit)
     import textwrap
     out = []
     for ln in lines:
         out += textwrap.wrap(ln, 80, subsequent_indent="       ") or [""]
     return "\n".join(out)
+
+
+def _assumptions(adv, output_unit: str) -> list[str]:
+    """What every prediction rests on: the noise model fitted to the runs, the set-up time
+    counted per run, the type-B terms of the pipeline's budget."""
+    from ..rounding import format_sig, format_sig_sci
+    out = []
+    for nm in adv.noise:
+        unit = nm["output_unit"] if nm["output_unit"] != "out" else output_unit
+        line = (f"noise: {nm['rig_id']} {nm['test']} ({nm['runs']} runs, fitted to their residuals): "
+                f"{format_sig_sci(nm['sigma'], 2)} {unit}"
+                + (f" ({format_sig(nm['sigma_ug'], 2)} µg)" if "sigma_ug" in nm else "") + " per reading")
+        if nm["rate_sigma_per_m_s2"] > 0:
+            line += (f" plus rate jitter {format_sig_sci(nm['rate_sigma_per_m_s2'], 2)} {unit} per m/s² "
+                     "of level, seen through IA's share of the radius")
+        if nm["rho"]:
+            line += f"; lag-1 correlation {nm['rho']:.2f}"
+        out.append(line)
+    for rig, m in sorted(adv.setup_min.items()):
+        from ..testdesign import SETUP_MIN_DEFAULT
+        src = "stated" if m != SETUP_MIN_DEFAULT else f'default; state [rigs."{rig}"] setup_min'
+        out.append(f"set-up: {m:g} min per run on {rig} ({src})")
+    out.append("u: type A of the joint fit plus the type-B terms its budget adds (mount angles, "
+               "IA tilt, stated rig inputs)")
+    return out
