@@ -829,7 +829,7 @@ def fitted_uncertainty(cells: Sequence[RunCells], baseline: Sequence[str], targe
 SEPARATION_MAX_READINGS = 1_000_000
 
 
-def separating_run_flag(cells: Sequence[RunCells], pair: tuple[str, str]) -> str | None:
+def separating_run_flag(cells: Sequence[RunCells], pair: tuple[str, str], **lab) -> str | None:
     """The certificate's line for a pair of coefficients the runs determine only together:
     ``accelcal design --separate A,B --max-runs 1``'s first proposal (:func:`advise` with
     the pipeline's processing model), asked when a person reads the result.
@@ -841,6 +841,9 @@ def separating_run_flag(cells: Sequence[RunCells], pair: tuple[str, str]) -> str
         (:func:`accelcal.diagnosis.core.prepare_cells`).
     pair : (str, str)
         The aliased pair (:func:`accelcal.estimators.joint.stored_aliased_pairs`).
+    **lab
+        The lab's statements (:func:`accelcal.config.advice_inputs`), as ``accelcal
+        design`` passes them.
 
     Returns
     -------
@@ -853,7 +856,8 @@ def separating_run_flag(cells: Sequence[RunCells], pair: tuple[str, str]) -> str
     if not cells or sum(c.y_rows.size for c in cells) > SEPARATION_MAX_READINGS:
         return None
     try:
-        adv = advise(cells, processing_effects(sorted({c.test for c in cells})), None, [pair], max_runs=1, top=1)
+        adv = advise(cells, processing_effects(sorted({c.test for c in cells})), None, [pair], max_runs=1, top=1,
+                     **lab)
     except (DesignError, ValueError, np.linalg.LinAlgError):
         return None
     ask = f"(accelcal design --separate {pair[0]},{pair[1]} --max-runs 1)"
@@ -863,7 +867,7 @@ def separating_run_flag(cells: Sequence[RunCells], pair: tuple[str, str]) -> str
     return f"{pair[0]}, {pair[1]}: one more run would separate them: {run} {ask}"
 
 
-def next_runs(runs, res) -> list[dict]:
+def next_runs(runs, res, **lab) -> list[dict]:
     """For each effect the runs cannot see and each alias the diagnosis names, the best
     single run the rigs can make to fix it, or the best two where no single run does
     (:func:`advise`).
@@ -875,6 +879,9 @@ def next_runs(runs, res) -> list[dict]:
     res : dict
         :func:`accelcal.diagnosis.core.diagnose`'s result (``unobservable``, ``ranking``
         with ``aliases``, ``baseline``).
+    **lab
+        The lab's statements (:func:`accelcal.config.advice_inputs`), as ``accelcal
+        design`` passes them.
 
     Returns
     -------
@@ -897,12 +904,12 @@ def next_runs(runs, res) -> list[dict]:
     out = []
     for what, targets, pairs in asks:
         try:
-            adv = advise(cells, base, targets or None, pairs, max_runs=1, top=1)
+            adv = advise(cells, base, targets or None, pairs, max_runs=1, top=1, **lab)
             # seeing an effect may take two runs (Kip beside an unknown Kpp: 45 + 135 deg);
             # telling an effect from a coefficient by two runs of other planes leans on
             # second-order terms, and the plain answer is the gravity reference below
             if not adv.proposals and targets:
-                adv = advise(cells, base, targets, pairs, max_runs=2, top=1)
+                adv = advise(cells, base, targets, pairs, max_runs=2, top=1, **lab)
         except (DesignError, ValueError, np.linalg.LinAlgError) as exc:
             out.append({"to": what, "note": f"no advice: {exc}"})
             continue

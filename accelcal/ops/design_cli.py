@@ -41,7 +41,7 @@ def _fail(msg: str):
 def _cmd_design(args) -> int:
     import json
 
-    from ..config import ConfigError, rig_limits, rig_setup_minutes, rig_uncertainties
+    from ..config import ConfigError, advice_inputs, rig_limits
     from ..diagnosis.core import prepare_cells, resolve_baseline
     from ..diagnosis.runfiles import read_paths
     from ..testdesign import DesignError, advise, load_candidates
@@ -67,7 +67,7 @@ def _cmd_design(args) -> int:
         cands = (load_candidates(args.candidates, cells, rig_limits(args.config))
                  if args.candidates else None)
         adv = advise(cells, baseline, targets or None, pairs, args.max_runs, cands, args.top,
-                     stated=rig_uncertainties(args.config), setup_min=rig_setup_minutes(args.config))
+                     **advice_inputs(args.config))
     except (DesignError, ConfigError) as exc:
         _fail(str(exc))
     if args.json:

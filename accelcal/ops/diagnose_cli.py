@@ -14,6 +14,7 @@ from ..diagnosis.runfiles import read_paths
 def _diagnose(args) -> int:
     from ..cli import CliError            # the CLI's one error form: "accelcal: error: ..." and exit 1
     from ..diagnosis.core import diagnose, public
+    from ..config import ConfigError, advice_inputs
     from ..testdesign import next_runs
     from .diagnosis_report import _jd, clean_json, html_report, text_report
     runs = read_paths(args.paths)
@@ -23,7 +24,11 @@ def _diagnose(args) -> int:
         res = diagnose(runs, args.baseline)
     except ValueError as e:
         raise CliError(f"diagnose: {e}") from None
-    fixes = next_runs(runs, res)
+    try:
+        lab = advice_inputs(args.config)
+    except ConfigError as e:
+        raise CliError(str(e)) from None
+    fixes = next_runs(runs, res, **lab)
     terminal = "\n".join([text_report(res)] + [
         textwrap.fill(f"to {f['to']}: add {f['run']} ({f['minutes']:.0f} min)" if f.get("run")
                       else f"to {f['to']}: {f['note']}", 80, subsequent_indent="  ") for f in fixes])
@@ -62,6 +67,10 @@ def register_cli(subparsers) -> None:
     p.add_argument("--json", action="store_true", help="one JSON object on stdout")
     p.add_argument("--all-segments", action="store_true", help="with --json: every localisation segment")
     p.add_argument("--report", metavar="DIR", help="write DIR/diagnosis.html (self-contained)")
+    p.add_argument("--config", default=None, metavar="TOML",
+                   help="accelcal.toml whose [rigs.\"ID\"] setup_min and stated rig-input "
+                        "uncertainties the next-run advice reads, as accelcal design does "
+                        "(default ./accelcal.toml)")
     p.set_defaults(func=_diagnose)
 
 
