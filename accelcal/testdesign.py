@@ -117,9 +117,11 @@ class Candidate:
 
 @dataclass
 class Prediction:
-    """Standard uncertainties [SI] (None: not determined) and correlations of the targets."""
+    """Standard uncertainties [SI] (None: not determined) and correlations of the targets;
+    for a fit of runs made (:func:`fitted_uncertainty`) also their values [SI]."""
     std_uncertainty: dict[str, float | None]
     corr: dict[str, float | None] = field(default_factory=dict)
+    value: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -138,7 +140,9 @@ class Proposal:
 
 @dataclass
 class Advice:
-    """The advice: targets, the current prediction, the proposals (best first), notes."""
+    """The advice: targets, the current prediction, the proposals (best first), notes; the
+    noise model and set-up times it assumed; the targets' current values [SI] (a relative
+    u, K1's in ppm, reads against them)."""
     targets: list[str]
     separate: list[tuple[str, str]]
     current: Prediction
@@ -149,6 +153,7 @@ class Advice:
     candidates: int = 0
     noise: list[dict] = field(default_factory=list)
     setup_min: dict[str, float] = field(default_factory=dict)
+    values: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         """The JSON form: current, proposals with runs in drop-format keys."""
@@ -160,7 +165,7 @@ class Advice:
                                "minutes": round(p.minutes, 1), "gain": round(p.gain, 4)}
                               for p in self.proposals],
                 "candidates": self.candidates, "notes": self.notes, "noise": self.noise,
-                "setup_min": self.setup_min}
+                "setup_min": self.setup_min, "values": self.values}
 
 
 # ----------------------------------------------------------------------------- candidates
@@ -728,7 +733,8 @@ def _advise(cells, baseline, targets, separate, max_runs, candidates, top, state
     return Advice(targets=list(tmap), separate=list(separate), current=cur, proposals=out, units=units,
                   plausible=plaus, notes=notes, candidates=len(cands),
                   noise=noise_statement(cells, _scale_factor(made, p_made)),
-                  setup_min=setup)
+                  setup_min=setup, values={(model.params.names[i] if len(ix) > 1 else t): float(p[i])
+                                           for t, ix in tmap.items() for i in ix})
 
 
 def _scale_factor(model: CampaignModel, p: np.ndarray) -> float | None:
@@ -802,6 +808,7 @@ def fitted_uncertainty(cells: Sequence[RunCells], baseline: Sequence[str], targe
     tmap = resolve_targets(model, targets)
     mf = fit_selected(model)
     out: dict[str, float | None] = {}
+    values: dict[str, float] = {}
     mixed = {n for h in mf.held.values() if h.why is Why.ALIASED for n in h.aliased_with}
     type_b = {n: [c * u for _, c, u in v] for n, v in type_b_terms(mf).items()}
     for n, v in rig_input_terms(mf, stated or {})[0].items():
@@ -812,6 +819,7 @@ def fitted_uncertainty(cells: Sequence[RunCells], baseline: Sequence[str], targe
             u = (math.sqrt(mf.fit.std(name) ** 2 + sum(x * x for x in type_b.get(name, [])))
                  if name not in mixed else float("nan"))
             out[name if len(idx) > 1 else t] = _determined(u, model.params[i].key)
+            values[name if len(idx) > 1 else t] = float(mf.fit.values[i])
     corr: dict[str, float | None] = {}
     for a, b in separate:
         na, nb = model.params.names[tmap[a][0]], model.params.names[tmap[b][0]]
@@ -820,7 +828,7 @@ def fitted_uncertainty(cells: Sequence[RunCells], baseline: Sequence[str], targe
             continue
         _, R = mf.fit.correlation([na, nb])
         corr[f"{a}|{b}"] = float(R[0, 1])
-    return Prediction(out, corr)
+    return Prediction(out, corr, values)
 
 
 

@@ -83,10 +83,11 @@ def _cmd_design(args) -> int:
 UNDETERMINED_TYPICAL = 1e3
 
 
-def _u(name: str, u: float | None, unit: str, output_unit: str = "out") -> str:
+def _u(name: str, u: float | None, unit: str, output_unit: str = "out", value: float | None = None) -> str:
     """A standard uncertainty for people: 2 significant digits in the display unit, the
-    runs' output unit for "out" (K1 in mA/g); "not determined" for none, or one far above
-    the parameter's typical size."""
+    runs' output unit for "out"; K1's relative, in ppm of its current ``value`` as the
+    certificate gives it; "not determined" for none, or one far above the parameter's
+    typical size."""
     import math
 
     from ..effects import EFFECTS, coefficient_spec, to_display
@@ -96,6 +97,8 @@ def _u(name: str, u: float | None, unit: str, output_unit: str = "out") -> str:
     if u is None or not math.isfinite(u) or (spec is not None and spec.typical
                                              and u > UNDETERMINED_TYPICAL * spec.typical):
         return "not determined"
+    if base == "K1" and value:
+        return f"{format_sig(u / abs(value) * 1e6, 2)} ppm"
     if unit.startswith("out/"):
         unit = output_unit + unit[3:]
     v, _, dunit, _ = to_display(base, u, None, unit)
@@ -116,7 +119,7 @@ def text_advice(adv, output_unit: str = "out") -> str:
     u in its display unit, "out" read as the runs' ``output_unit``."""
     lines = []
     names = list(adv.current.std_uncertainty)
-    cur = "; ".join(f"u({n}) {_u(n, adv.current.std_uncertainty[n], adv.units.get(n, ''), output_unit)}"
+    cur = "; ".join(f"u({n}) {_u(n, adv.current.std_uncertainty[n], adv.units.get(n, ''), output_unit, adv.values.get(n))}"
                     f"{_seen(n, adv.current.std_uncertainty[n], adv.plausible.get(n))}" for n in names)
     lines.append(f"Now: {cur}")
     for k, r in adv.current.corr.items():
@@ -126,7 +129,7 @@ def text_advice(adv, output_unit: str = "out") -> str:
         lines.append("  none improves the targets")
     for i, p in enumerate(adv.proposals, 1):
         lines.append(f"{i:>2}. {p.minutes:.0f} min: " + " + ".join(c.label for c in p.runs))
-        got = "; ".join(f"u({n}) {_u(n, p.predicted.std_uncertainty.get(n), adv.units.get(n, ''), output_unit)}"
+        got = "; ".join(f"u({n}) {_u(n, p.predicted.std_uncertainty.get(n), adv.units.get(n, ''), output_unit, adv.values.get(n))}"
                         f"{_seen(n, p.predicted.std_uncertainty.get(n), adv.plausible.get(n))}" for n in names)
         corr = "; ".join(f"corr {('not determined' if r is None else f'{r:.2f}')}"
                          for k, r in p.predicted.corr.items())
@@ -148,7 +151,8 @@ def _assumptions(adv, output_unit: str) -> list[str]:
     out = []
     for nm in adv.noise:
         unit = nm["output_unit"] if nm["output_unit"] != "out" else output_unit
-        line = (f"noise: {nm['rig_id']} {nm['test']} ({nm['runs']} runs, fitted to their residuals): "
+        runs = f"{nm['runs']} run" + ("s" if nm["runs"] != 1 else "")
+        line = (f"noise: {nm['rig_id']} {nm['test']} ({runs}, fitted to the residuals): "
                 f"{format_sig_sci(nm['sigma'], 2)} {unit}"
                 + (f" ({format_sig(nm['sigma_ug'], 2)} µg)" if "sigma_ug" in nm else "") + " per reading")
         if nm["rate_sigma_per_m_s2"] > 0:
