@@ -61,10 +61,10 @@ import numpy as np
 from scipy.sparse.csgraph import connected_components
 
 from ..effects import si_unit, typical_size
-from ..fitting.core import (RCOND, FitResult, Parameter, ParameterSet, gauss_newton, lstsq_svd, lstsq_svd_x,
+from ..fitting.core import (ALPHA, RCOND, FitResult, Parameter, ParameterSet, gauss_newton, lstsq_svd, lstsq_svd_x,
                             nested_test, pure_error_lack_of_fit)
 from ..fitting.data import fitted_drive, make_run
-from ..fitting.identify import PRIORITY, Column, Hold, holds
+from ..fitting.identify import ALIAS_SHARE, ALIAS_TOL, PRIORITY, Column, Hold, holds
 from ..physics import instrument, rigs
 from ..physics.geometry import geometry_of
 from ..results import (BudgetTerm, CoefficientResult, FitCheck, ResidualFigure, ResidualPanel, ResidualSeries,
@@ -87,8 +87,6 @@ DEFAULT_TOOL_ERRORS: dict[str, str] = {"spindle_tilt": "shared", "mass_centre_of
                                         "rate_scale_error": "shared", "sensor_lag": "shared"}
 #: Parameters bounded below by 0 (effects.md: a lag time constant is not negative).
 NON_NEGATIVE = ("sensor_lag",)
-#: Relative singular value below which a direction of the column-scaled design is aliased.
-ALIAS_RTOL = 1e-4
 #: The three attitudes of paper 002.
 ATTITUDES = ("a", "b", "c")
 
@@ -182,23 +180,27 @@ def prepare_runs(runs: Sequence, rate_source: str = "drive", rate_derivative: st
 # --------------------------------------------------------------------------- the model
 
 def _build_params(prep: list[_Run], per_run_bias: bool, extra_terms: Sequence[str],
-                  tool_errors: Mapping[str, str], K1_scale: float) -> list[Parameter]:
+                  tool_errors: Mapping[str, str], K1_scale: float) -> ParameterSet:
     """The parameters of the fit in the core's terms: ``group`` is the kind ('coef' an
     effects.md coefficient, 'extra' paper 002's KPPP/KOOO, 'tool' an effects.md rig effect),
     ``runs`` the one run a per-run parameter belongs to (None: shared by every run), the
-    scale the catalogue's typical size (K1: ``K1_scale``)."""
+    unit the catalogue's in the runs' output unit, the scale the catalogue's typical size
+    (K1: ``K1_scale``)."""
+    out_unit = str(prep[0].meta.get("output_unit", ""))
+
     def scoped(key: str, kind: str, scope: str) -> list[Parameter]:
-        scale = K1_scale if key == "K1" else typical_size(key)
+        scale, unit = K1_scale if key == "K1" else typical_size(key), _unit(key, out_unit)
         if scope not in ("shared", "per_run"):
             raise ValueError(f"tool-error scope {scope!r} (use 'shared' or 'per_run')")
-        return [Parameter(key, key, _unit(key), scale, None, kind)] if scope == "shared" else \
-            [Parameter(f"{key}[{r.label}]", key, _unit(key), scale, (i,), kind) for i, r in enumerate(prep)]
-    return [q for c in COEFFS for q in scoped(c, "coef", "per_run" if c == "K0" and per_run_bias else "shared")] \
-        + [q for e in extra_terms for q in scoped(e, "extra", "shared")] \
-        + [q for e, scope in tool_errors.items() for q in scoped(e, "tool", scope)]
+        return [Parameter(key, key, unit, scale, None, kind)] if scope == "shared" else \
+            [Parameter(f"{key}[{r.label}]", key, unit, scale, (i,), kind) for i, r in enumerate(prep)]
+    return ParameterSet([q for c in COEFFS for q in scoped(c, "coef", "per_run" if c == "K0" and per_run_bias
+                                                             else "shared")]
+                        + [q for e in extra_terms for q in scoped(e, "extra", "shared")]
+                        + [q for e, scope in tool_errors.items() for q in scoped(e, "tool", scope)])
 
 
-def _run_values(params: list[Parameter], x: np.ndarray, i: int) -> tuple[dict, dict, dict]:
+def _run_values(params: ParameterSet, x: np.ndarray, i: int) -> tuple[dict, dict, dict]:
     """(coefficients, extra terms, effects) of run i for the parameter vector x."""
     coeffs, extra, eff = {}, {}, dict(rigs.NOMINAL)
     for p, v in zip(params, x):
@@ -245,7 +247,7 @@ def model_output(run: _Run, coeffs: Mapping, extra: Mapping, eff: Mapping) -> np
     return E
 
 
-def _jacobian_run(params: list[Parameter], x: np.ndarray, run: _Run, i: int,
+def _jacobian_run(params: ParameterSet, x: np.ndarray, run: _Run, i: int,
                   cols: Sequence[int] | None = None) -> np.ndarray:
     """d E_run / d x (n, p) of the forward model.
 
@@ -290,7 +292,7 @@ def _jacobian_run(params: list[Parameter], x: np.ndarray, run: _Run, i: int,
     return J
 
 
-def _residual(params: list[Parameter], prep: list[_Run], x: np.ndarray, w: np.ndarray) -> np.ndarray:
+def _residual(params: ParameterSet, prep: list[_Run], x: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Weighted residual y - E of every run [output_unit times the run weight]."""
     return np.concatenate([w[i] * (r.y - model_output(r, *_run_values(params, x, i))) for i, r in enumerate(prep)])
 
@@ -300,14 +302,14 @@ def _split(v: np.ndarray, prep: list[_Run]) -> list[np.ndarray]:
     return np.split(v, np.cumsum([r.y.size for r in prep])[:-1])
 
 
-def _jacobian(params: list[Parameter], prep: list[_Run], x: np.ndarray, w: np.ndarray) -> np.ndarray:
+def _jacobian(params: ParameterSet, prep: list[_Run], x: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Weighted design of every run [output_unit per parameter unit times the run weight]."""
     return np.vstack([w[i] * _jacobian_run(params, x, r, i) for i, r in enumerate(prep)])
 
 
 # --------------------------------------------------------------------------- diagnostics
 
-def design_diagnostics(J: np.ndarray, names: Sequence[str], rtol: float = ALIAS_RTOL) -> dict:
+def design_diagnostics(J: np.ndarray, names: Sequence[str]) -> dict:
     """Rank / conditioning of a design (Jacobian) after scaling every column to unit norm.
 
     Parameters
@@ -315,20 +317,19 @@ def design_diagnostics(J: np.ndarray, names: Sequence[str], rtol: float = ALIAS_
     J : (n, p) ndarray
         Design [output_unit per parameter unit].
     names : sequence of str
-    rtol : float
-        Relative singular value below which a direction is aliased [1].
 
     Returns
     -------
     dict
-        n_params, rank (relative singular value > ``rtol``, by
+        n_params, rank (relative singular value above the one alias threshold
+        :data:`accelcal.fitting.identify.ALIAS_TOL`, by
         :func:`accelcal.fitting.core.lstsq_svd`; an identically zero column counts as one zero
         singular value with its unit vector as a null direction), condition_number (inf when a
         relative singular value is below the core's rank rule :data:`~accelcal.fitting.core.RCOND`),
         effective_rank_roy_vetterli exp(H(sigma / sum sigma)), relative_singular_values, and
         the aliased groups (:func:`_alias_groups`).
     """
-    sol = lstsq_svd(J, np.zeros(J.shape[0]), rtol)
+    sol = lstsq_svd(J, np.zeros(J.shape[0]), ALIAS_TOL)
     S, zero = sol.singular_values, np.flatnonzero(sol.column_norm <= 0)      # a zero column: a zero value
     rel = np.r_[S / S[0] if S.size and S[0] > 0 else S, np.zeros(zero.size)]
     null = np.vstack([sol.null_space.T.reshape(-1, J.shape[1]), np.eye(J.shape[1])[zero]])
@@ -337,24 +338,25 @@ def design_diagnostics(J: np.ndarray, names: Sequence[str], rtol: float = ALIAS_
             "condition_number": float(rel[0] / rel[-1]) if rel[-1] > RCOND else float("inf"),
             "effective_rank_roy_vetterli": float(np.exp(-np.sum(p * np.log(p)))),
             "relative_singular_values": [float(v) for v in rel],
-            **_alias_groups(null, rel[rel <= rtol], names)}
+            **_alias_groups(null, rel[rel <= ALIAS_TOL], names)}
 
 
 def _alias_groups(null: np.ndarray, rel_null: np.ndarray, names: Sequence[str]) -> dict:
     """Groups of parameters coupled through the (near-)null space of the column-scaled design.
 
     P = V_null V_nullᵀ is the projector onto the directions the data cannot see; it does not
-    depend on the choice of null basis.  Two parameters are aliased when |P_jk| is not
-    negligible; groups are the connected components.  Each null direction is also returned as
-    a combination {name: weight} (weights of unit-norm scaled columns)."""
+    depend on the choice of null basis.  Two parameters are aliased when |P_jk| exceeds
+    :data:`~accelcal.fitting.identify.ALIAS_TOL`; groups are the connected components.  Each
+    null direction is also returned as a combination {name: weight} (weights of unit-norm
+    scaled columns, those above :data:`~accelcal.fitting.identify.ALIAS_SHARE`)."""
     P = null.T @ null
-    involved = np.flatnonzero(np.diag(P) > 1e-3)
-    label = connected_components(np.abs(P[np.ix_(involved, involved)]) > 1e-3, directed=False)[1]
+    involved = np.flatnonzero(np.diag(P) > ALIAS_TOL)
+    label = connected_components(np.abs(P[np.ix_(involved, involved)]) > ALIAS_TOL, directed=False)[1]
     return {"aliased_groups": [[names[involved[k]] for k in np.flatnonzero(label == g)]
                                for g in dict.fromkeys(label)],
             "null_combinations": [{"relative_singular_value": float(sv),
                                    "weights": {names[k]: round(float(v[k]), 4)
-                                               for k in np.argsort(-np.abs(v)) if abs(v[k]) > 0.05}}
+                                               for k in np.argsort(-np.abs(v)) if abs(v[k]) > ALIAS_SHARE}}
                                   for v, sv in zip(null, rel_null)]}
 
 
@@ -370,8 +372,6 @@ class SineFit:
     result : FitResult
         The fitting core's result: values, residual-scaled covariance s^2 (J^T W J)^+, the
         weighted design and residual, and the pure-error lack-of-fit test.
-    units : dict
-        Parameter name -> SI unit.
     sigma : float
         Weighted pooled residual standard deviation [output_unit].
     residual_rms : dict
@@ -386,7 +386,6 @@ class SineFit:
         The prepared runs (:func:`prepare_runs`), in the order of the design's rows.
     """
     result: FitResult
-    units: dict[str, str]
     sigma: float
     residual_rms: dict[str, float]
     diagnostics: dict[str, Any]
@@ -403,6 +402,11 @@ class SineFit:
     def names(self) -> list[str]:
         """Parameter names, in the fit's order."""
         return self.result.names
+
+    @property
+    def units(self) -> dict[str, str]:
+        """SI unit by parameter name."""
+        return {p.name: p.unit for p in self.result.params}
 
     @property
     def values(self) -> dict[str, float]:
@@ -425,7 +429,7 @@ class SineFit:
         return int(self.result.dof)
 
 
-def _linear_start(params: list[Parameter], prep: list[_Run], w: np.ndarray, tau: float = 0.0,
+def _linear_start(params: ParameterSet, prep: list[_Run], w: np.ndarray, tau: float = 0.0,
                   rss: list | None = None) -> np.ndarray:
     """Weighted LS optimum of the model with every tool error at zero (``sensor_lag`` at
     ``tau``): E is linear in (K1, K1*Kj) (one-to-one with (K1, Kj) for K1 != 0), solved by
@@ -446,7 +450,7 @@ def _linear_start(params: list[Parameter], prep: list[_Run], w: np.ndarray, tau:
     return x
 
 
-def _lag_start(params: list[Parameter], prep: list[_Run], x0: np.ndarray) -> np.ndarray:
+def _lag_start(params: ParameterSet, prep: list[_Run], x0: np.ndarray) -> np.ndarray:
     """Start of ``sensor_lag``: a sampled first-order lag shows nothing of a tau far below
     the sample period (its derivative vanishes at 0, physics.instrument.first_order_lag), so
     the start is the best of a few multiples of the period (0 included) by the residual of
@@ -463,10 +467,11 @@ def _lag_start(params: list[Parameter], prep: list[_Run], x0: np.ndarray) -> np.
     return x
 
 
-def _select(params: list[Parameter], prep: list[_Run], x0: np.ndarray) -> tuple[dict[str, Hold], np.ndarray]:
+def _select(params: ParameterSet, prep: list[_Run], x0: np.ndarray
+            ) -> tuple[dict[str, Hold], ParameterSet, np.ndarray]:
     """Hold the optional parameters (tool errors, KPPP, KOOO) the joint design does not
-    determine at the start x0 (:func:`accelcal.fitting.identify.holds`): removes them from
-    ``params`` and returns (name -> hold, the start of the parameters kept).
+    determine at the start x0 (:func:`accelcal.fitting.identify.holds`): (name -> hold, the
+    parameters kept, their start).
 
     The design is whitened by the residual standard deviation of one linearised step with
     every parameter free (so that a large tool error is not taken for noise).  The
@@ -478,21 +483,20 @@ def _select(params: list[Parameter], prep: list[_Run], x0: np.ndarray) -> tuple[
     r0 = r0 - J0 @ lstsq_svd_x(J0, r0)
     s0 = float(np.sqrt(r0 @ r0 / max(r0.size - len(params), 1)))
     rank = {k: i for i, k in enumerate(PRIORITY)}
-    columns = [Column(p.name, "coef" if p.group == "coef" else "effect", p.key, _unit(p.key),
+    columns = [Column(p.name, "coef" if p.group == "coef" else "effect", p.key, p.unit,
                       rank.get(p.key, len(PRIORITY))) for p in params]
     coefs = [p.name for p in params if p.group == "coef"]
     held = {k: h for k, h in holds(J0 / (s0 if s0 > 0 else 1.0), columns, keep=coefs, scale_rule=False).items()
             if k not in coefs}
     kept = [j for j, p in enumerate(params) if p.name not in held]
-    params[:] = [params[j] for j in kept]
-    return held, x0[kept]
+    return held, params.subset(params.names[j] for j in kept), x0[kept]
 
 
 def identify_sine_campaign(runs: Sequence | None, *, tool_errors: Mapping[str, str] | None = None,
                            per_run_bias: bool = False, extra_terms: Sequence[str] = (),
                            rate_source: str = "drive", rate_derivative: str | None = None,
                            n_harmonics: int = 3, reweight: bool = True,
-                           alias_rtol: float = ALIAS_RTOL, prepared: list[_Run] | None = None) -> SineFit:
+                           prepared: list[_Run] | None = None) -> SineFit:
     """Joint least squares over the attitudes of a sinusoidal-rate campaign (paper 002).
 
     .. math::
@@ -521,9 +525,6 @@ def identify_sine_campaign(runs: Sequence | None, *, tool_errors: Mapping[str, s
         How the rate and its derivative are formed (:func:`prepare_runs`).
     reweight : bool
         Paper 002's reweighting: one weight per run from its residual RMS (a second pass).
-    alias_rtol : float
-        Relative singular value below which a direction counts as aliased in the reported
-        rank and groups [1] (:func:`design_diagnostics`).
     prepared : list, optional
         Output of :func:`prepare_runs` (then ``runs`` and the rate options are ignored).
 
@@ -549,9 +550,8 @@ def identify_sine_campaign(runs: Sequence | None, *, tool_errors: Mapping[str, s
     params = _build_params(prep, per_run_bias, extra_terms, tool_errors, 1.0)
     ones = np.ones(len(prep))
     x0 = _linear_start(params, prep, ones)
-    params = [replace(p, scale=abs(x0[j])) if p.key == "K1" else p for j, p in enumerate(params)]
-    x0 = _lag_start(params, prep, x0)
-    dropped, x0 = _select(params, prep, x0)
+    params = ParameterSet(replace(p, scale=abs(x0[j])) if p.key == "K1" else p for j, p in enumerate(params))
+    dropped, params, x0 = _select(params, prep, _lag_start(params, prep, x0))
     nonlinear = any(p.group == "tool" for p in params)
     w, x = ones, x0
     success, message = True, "linear least squares (no tool-error parameter)"
@@ -570,15 +570,16 @@ def identify_sine_campaign(runs: Sequence | None, *, tool_errors: Mapping[str, s
     derivative = rate_derivative or ("fitted" if rate_source == "fitted" else "drive")
     options = {"tool_errors": tool_errors, "per_run_bias": per_run_bias, "extra_terms": list(extra_terms),
                "rate_source": rate_source, "rate_derivative": derivative, "n_harmonics": n_harmonics,
-               "reweight": reweight, "alias_rtol": alias_rtol}
+               "reweight": reweight}
     return _finish(params, prep, x, w, dropped, success, message, options)
 
 
-def _finish(params: list[Parameter], prep: list[_Run], x: np.ndarray, w: np.ndarray, dropped: dict[str, Hold],
+def _finish(params: ParameterSet, prep: list[_Run], x: np.ndarray, w: np.ndarray, dropped: dict[str, Hold],
             success: bool, message: str, options: dict) -> SineFit:
-    """Paper 002's reporting of a fit at x with run weights w: the residual-scaled covariance
-    s^2 (J^T W J)^+ (the core's :func:`~accelcal.fitting.core.lstsq_svd`, s^2 the weighted
-    residual variance on n - p dof) and the pure-error lack-of-fit test of the drive's phases."""
+    """Paper 002's reporting of a fit at x with run weights w as the core's
+    :class:`~accelcal.fitting.core.FitResult`: the residual-scaled covariance s^2 (J^T W J)^+
+    (:func:`~accelcal.fitting.core.lstsq_svd`, s^2 the weighted residual variance on n - p
+    dof) and the pure-error lack-of-fit test of the drive's phases."""
     Jw = _jacobian(params, prep, x, w)
     raw = _split(_residual(params, prep, x, np.ones(len(prep))), prep)
     rw = np.concatenate([wi * e for wi, e in zip(w, raw)])
@@ -591,23 +592,22 @@ def _finish(params: list[Parameter], prep: list[_Run], x: np.ndarray, w: np.ndar
     result = FitResult(ParameterSet(replace(p, value=float(v)) for p, v in zip(params, x)), x, sol.cov,
                        sol.cov * s2, sol.estimable, float(rw @ rw), dof, rw.size, sol.rank, lof, rw, Jw,
                        bool(success), str(message))
-    out_unit = str(prep[0].meta.get("output_unit", ""))
     return SineFit(
-        result=result, units={p.name: _unit(p.key, out_unit) for p in params},
-        sigma=float(np.sqrt(s2) / np.exp(np.mean(np.log(w)))),
+        result=result, sigma=float(np.sqrt(s2) / np.exp(np.mean(np.log(w)))),
         residual_rms={r.label: float(np.sqrt(np.mean(e ** 2))) for r, e in zip(prep, raw)},
-        diagnostics=design_diagnostics(Jw, [p.name for p in params], options["alias_rtol"]), dropped=dropped,
+        diagnostics=design_diagnostics(Jw, [p.name for p in params]), dropped=dropped,
         options=options, runs=prep)
 
 
 # --------------------------------------------------------------------------- aliasing, comparisons
 
-def aliasing_report(fit: SineFit, rtol: float = ALIAS_RTOL) -> list[dict[str, Any]]:
+def aliasing_report(fit: SineFit) -> list[dict[str, Any]]:
     """Per attitude: which parameter combinations that attitude alone cannot separate.
 
     Computed from the design, not asserted: the rows of the fit's Jacobian that belong to
     one run, restricted to the parameters that act on that run, columns scaled to unit
-    norm, SVD; directions with relative singular value ≤ rtol are the aliased (unseen)
+    norm, SVD; directions with relative singular value at most
+    :data:`~accelcal.fitting.identify.ALIAS_TOL` are the aliased (unseen)
     combinations and the groups are the connected components of the projector onto them
     (:func:`design_diagnostics`).  E.g. in attitude (a) (IA to the spindle) a_I ≥ 0, so
     a_I² ≡ a_I·|a_I| and K2 and Koq fall in one group; in (b) the tangential a_I changes
@@ -617,7 +617,7 @@ def aliasing_report(fit: SineFit, rtol: float = ALIAS_RTOL) -> list[dict[str, An
     for r, Jr in zip(fit.runs, np.split(fit.result.J, np.cumsum([q.y.size for q in fit.runs])[:-1])):
         act = [j for j in range(Jr.shape[1]) if np.any(Jr[:, j] != 0.0)]
         names = [fit.names[j] for j in act]
-        d = design_diagnostics(Jr[:, act], names, rtol)
+        d = design_diagnostics(Jr[:, act], names)
         grouped = {n for g in d["aliased_groups"] for n in g}
         mount = f"{r.meta['mount_plane']}@{float(r.meta['mount_angle_deg']):g} {r.meta['vertical_axis']}"
         d.update({"run": r.label, "attitude": r.attitude, "mount": mount,
@@ -783,7 +783,7 @@ def process_sine_campaign(runs: Sequence, rig_id: str = "", *, tool_errors: Mapp
     bias_test = _f_test(f1, per_run)          # on the nominal-input model (cheap; tool errors ~ K1/K0)
     bias_test["K0_per_run"] = {n: {"value": per_run.values[n], "std": per_run.std[n]}
                                for n in per_run.names if n.startswith("K0[")}
-    if bias_test["p_value"] is not None and bias_test["p_value"] < 0.01:
+    if bias_test["p_value"] is not None and bias_test["p_value"] < ALPHA:
         flags.append("K0 differs between attitudes (p < 0.01): shared-bias fit questionable")
     if fit.diagnostics["rank"] < fit.diagnostics["n_params"]:
         flags.append(f"joint design rank {fit.diagnostics['rank']} < {fit.diagnostics['n_params']} parameters")
