@@ -63,10 +63,9 @@ from scipy.sparse.csgraph import connected_components
 from ..effects import si_unit, typical_size
 from ..fitting.core import (ALPHA, RCOND, FitResult, Parameter, ParameterSet, gauss_newton, lstsq_svd, lstsq_svd_x,
                             nested_test, pure_error_lack_of_fit)
-from ..fitting.data import fitted_drive, make_run
+from ..fitting.data import RunCells, fitted_drive, make_run
 from ..fitting.identify import ALIAS_SHARE, ALIAS_TOL, PRIORITY, Column, Hold, holds
 from ..physics import instrument, rigs
-from ..physics.geometry import geometry_of
 from ..results import (BudgetTerm, CoefficientResult, FitCheck, ResidualFigure, ResidualPanel, ResidualSeries,
                        display_number)
 from . import uncertainty as unc
@@ -98,23 +97,10 @@ def _unit(name: str, output_unit: str = "") -> str:
 
 # --------------------------------------------------------------------------- inputs
 
-@dataclass
-class _Run:
-    meta: dict
-    data: dict                  # column -> array, as the forward model reads them (rate per rate_source)
-    y: np.ndarray               # output [output_unit]
-    t: np.ndarray               # time [s]
-    wdot: np.ndarray | None     # unsigned d(omega)/dt of the chosen source [rad/s2]; None = physics default
-    cell: np.ndarray            # drive phase of each reading (the run's cells, fitting.data.make_run)
-    label: str
-    attitude: str
-
-
-def _attitude(meta: Mapping) -> str:
-    """'a' / 'b' / 'c' of paper 002 from the axis pointing to the spindle (the typed mount's
+def _attitude(g) -> str:
+    """'a' / 'b' / 'c' of paper 002 from the axis pointing to the spindle (a run's typed mount,
     :attr:`~accelcal.physics.geometry.CentrifugeMount.radial_axis`: IA, OA, PA), else the
     mount description."""
-    g = geometry_of(meta)
     return {0: "a", 2: "b", 1: "c"}[g.radial_axis[0]] if g.radial_axis is not None else f"{g.plane}@{g.phi_deg:g}"
 
 
@@ -131,7 +117,7 @@ def _five_point(t: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 
 def prepare_runs(runs: Sequence, rate_source: str = "drive", rate_derivative: str | None = None,
-                 n_harmonics: int = 3) -> list[_Run]:
+                 n_harmonics: int = 3) -> list[RunCells]:
     """Turn runs into fit inputs (paper 002).
 
     Parameters
@@ -150,8 +136,11 @@ def prepare_runs(runs: Sequence, rate_source: str = "drive", rate_derivative: st
 
     Returns
     -------
-    list
-        One prepared run each (plain arrays, attitude a/b/c, drive-phase cells).
+    list of RunCells
+        One run each (:func:`accelcal.fitting.data.make_run`: drive-phase cells) whose ``cols``
+        hold the rate of ``rate_source`` and whose ``rate_derivative`` is the unsigned
+        d(omega)/dt of the chosen derivative [rad/s2] (None: the drive's own); ``run_id``
+        defaults to ``run<i>``.
     """
     out = []
     for i, r in enumerate(runs):
@@ -160,6 +149,7 @@ def prepare_runs(runs: Sequence, rate_source: str = "drive", rate_derivative: st
         if str(meta.get("test", TEST)) != TEST:
             raise ValueError(f"run {meta.get('run_id', i)} is a {meta.get('test')!r} run, not {TEST}")
         meta["test"] = TEST
+        meta.setdefault("run_id", f"run{i}")
         cols = {k: np.asarray(data[k], float) for k in ("time_s", "table_rate_rad_s", "table_angle_deg", "output")}
         t, w = cols["time_s"], cols["table_rate_rad_s"]
         fit_w, fit_d = fitted_drive(t, w, float(meta["rate_frequency_hz"]), n_harmonics)
@@ -172,14 +162,13 @@ def prepare_runs(runs: Sequence, rate_source: str = "drive", rate_derivative: st
         if deriv not in wdots:
             raise ValueError(f"rate_derivative {rate_derivative!r}")
         cols["table_angle_deg"] = np.nan_to_num(cols["table_angle_deg"])
-        out.append(_Run(meta, cols, cols["output"], t, wdots[deriv], make_run(meta, cols, i).cid,
-                        str(meta.get("run_id", f"run{i}")), _attitude(meta)))
+        out.append(replace(make_run(meta, cols, i), cols=cols, rate_derivative=wdots[deriv]))
     return out
 
 
 # --------------------------------------------------------------------------- the model
 
-def _build_params(prep: list[_Run], per_run_bias: bool, extra_terms: Sequence[str],
+def _build_params(prep: list[RunCells], per_run_bias: bool, extra_terms: Sequence[str],
                   tool_errors: Mapping[str, str], K1_scale: float) -> ParameterSet:
     """The parameters of the fit in the core's terms: ``group`` is the kind ('coef' an
     effects.md coefficient, 'extra' paper 002's KPPP/KOOO, 'tool' an effects.md rig effect),
@@ -193,7 +182,7 @@ def _build_params(prep: list[_Run], per_run_bias: bool, extra_terms: Sequence[st
         if scope not in ("shared", "per_run"):
             raise ValueError(f"tool-error scope {scope!r} (use 'shared' or 'per_run')")
         return [Parameter(key, key, unit, scale, None, kind)] if scope == "shared" else \
-            [Parameter(f"{key}[{r.label}]", key, unit, scale, (i,), kind) for i, r in enumerate(prep)]
+            [Parameter(f"{key}[{r.meta['run_id']}]", key, unit, scale, (i,), kind) for i, r in enumerate(prep)]
     return ParameterSet([q for c in COEFFS for q in scoped(c, "coef", "per_run" if c == "K0" and per_run_bias
                                                              else "shared")]
                         + [q for e in extra_terms for q in scoped(e, "extra", "shared")]
@@ -209,10 +198,10 @@ def _run_values(params: ParameterSet, x: np.ndarray, i: int) -> tuple[dict, dict
     return coeffs, extra, eff
 
 
-def _kw(run: _Run, eff: Mapping) -> dict:
+def _kw(run: RunCells, eff: Mapping) -> dict:
     """The forward model's rate derivative of a run whose source is not the drive's own [rad/s2]."""
-    return {} if run.wdot is None else \
-        {"rate_derivative": rigs.rotation_sign(run.meta) * (1.0 + float(eff.get("rate_scale_error", 0.0))) * run.wdot}
+    return {} if run.rate_derivative is None else {"rate_derivative": rigs.rotation_sign(run.meta) * (
+        1.0 + float(eff.get("rate_scale_error", 0.0))) * run.rate_derivative}
 
 
 def _extra_accel(extra: Mapping, F: np.ndarray) -> np.ndarray:
@@ -220,7 +209,7 @@ def _extra_accel(extra: Mapping, F: np.ndarray) -> np.ndarray:
     return extra.get("Kppp", 0.0) * F[:, 1] ** 3 + extra.get("Kooo", 0.0) * F[:, 2] ** 3
 
 
-def model_output(run: _Run, coeffs: Mapping, extra: Mapping, eff: Mapping) -> np.ndarray:
+def model_output(run: RunCells, coeffs: Mapping, extra: Mapping, eff: Mapping) -> np.ndarray:
     """Output of one run: the forward model.
 
     Parameters
@@ -240,14 +229,14 @@ def model_output(run: _Run, coeffs: Mapping, extra: Mapping, eff: Mapping) -> np
         Kooo a_O^3), passed through the same sensor lag.
     """
     kw = _kw(run, eff)
-    E = rigs.rig_output(TEST, run.meta, run.data, coeffs, eff, **kw)
+    E = rigs.rig_output(TEST, run.meta, run.cols, coeffs, eff, **kw)
     if any(extra.values()):
-        x = float(coeffs.get("K1", 1.0)) * _extra_accel(extra, rigs.specific_force(TEST, run.meta, run.data, eff, **kw))
-        E = E + instrument.first_order_lag(x, run.t, float(eff.get("sensor_lag", 0.0)))
+        x = float(coeffs.get("K1", 1.0)) * _extra_accel(extra, rigs.specific_force(TEST, run.meta, run.cols, eff, **kw))
+        E = E + instrument.first_order_lag(x, run.cols["time_s"], float(eff.get("sensor_lag", 0.0)))
     return E
 
 
-def _jacobian_run(params: ParameterSet, x: np.ndarray, run: _Run, i: int,
+def _jacobian_run(params: ParameterSet, x: np.ndarray, run: RunCells, i: int,
                   cols: Sequence[int] | None = None) -> np.ndarray:
     """d E_run / d x (n, p) of the forward model.
 
@@ -268,8 +257,8 @@ def _jacobian_run(params: ParameterSet, x: np.ndarray, run: _Run, i: int,
         tool errors (one-sided at the tau >= 0 bound of the sensor lag).
     """
     coeffs, extra, eff = _run_values(params, x, i)
-    F = rigs.specific_force(TEST, run.meta, run.data, eff, **_kw(run, eff))
-    J = np.zeros((run.y.size, len(params)))
+    F = rigs.specific_force(TEST, run.meta, run.cols, eff, **_kw(run, eff))
+    J = np.zeros((run.y_rows.size, len(params)))
     lin = []
     for j in (range(len(params)) if cols is None else cols):
         p = params[j]
@@ -288,21 +277,21 @@ def _jacobian_run(params: ParameterSet, x: np.ndarray, run: _Run, i: int,
         lin.append(j)
     tau = float(eff.get("sensor_lag", 0.0))
     for j in lin if tau > 0 else ():      # the lag is linear: lagged columns of the lagged model
-        J[:, j] = instrument.first_order_lag(J[:, j], run.t, tau)
+        J[:, j] = instrument.first_order_lag(J[:, j], run.cols["time_s"], tau)
     return J
 
 
-def _residual(params: ParameterSet, prep: list[_Run], x: np.ndarray, w: np.ndarray) -> np.ndarray:
+def _residual(params: ParameterSet, prep: list[RunCells], x: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Weighted residual y - E of every run [output_unit times the run weight]."""
-    return np.concatenate([w[i] * (r.y - model_output(r, *_run_values(params, x, i))) for i, r in enumerate(prep)])
+    return np.concatenate([w[i] * (r.y_rows - model_output(r, *_run_values(params, x, i))) for i, r in enumerate(prep)])
 
 
-def _split(v: np.ndarray, prep: list[_Run]) -> list[np.ndarray]:
+def _split(v: np.ndarray, prep: list[RunCells]) -> list[np.ndarray]:
     """A stacked per-reading vector cut into its runs."""
-    return np.split(v, np.cumsum([r.y.size for r in prep])[:-1])
+    return np.split(v, np.cumsum([r.y_rows.size for r in prep])[:-1])
 
 
-def _jacobian(params: ParameterSet, prep: list[_Run], x: np.ndarray, w: np.ndarray) -> np.ndarray:
+def _jacobian(params: ParameterSet, prep: list[RunCells], x: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Weighted design of every run [output_unit per parameter unit times the run weight]."""
     return np.vstack([w[i] * _jacobian_run(params, x, r, i) for i, r in enumerate(prep)])
 
@@ -391,12 +380,12 @@ class SineFit:
     diagnostics: dict[str, Any]
     dropped: dict[str, Hold]
     options: dict[str, Any]
-    runs: list[_Run]
+    runs: list[RunCells]
 
     @property
     def attitudes(self) -> dict[str, str]:
         """Attitude 'a' | 'b' | 'c' by run label."""
-        return {r.label: r.attitude for r in self.runs}
+        return {str(r.meta["run_id"]): _attitude(r.geometry) for r in self.runs}
 
     @property
     def names(self) -> list[str]:
@@ -429,7 +418,7 @@ class SineFit:
         return int(self.result.dof)
 
 
-def _linear_start(params: ParameterSet, prep: list[_Run], w: np.ndarray, tau: float = 0.0,
+def _linear_start(params: ParameterSet, prep: list[RunCells], w: np.ndarray, tau: float = 0.0,
                   rss: list | None = None) -> np.ndarray:
     """Weighted LS optimum of the model with every tool error at zero (``sensor_lag`` at
     ``tau``): E is linear in (K1, K1*Kj) (one-to-one with (K1, Kj) for K1 != 0), solved by
@@ -438,7 +427,7 @@ def _linear_start(params: ParameterSet, prep: list[_Run], w: np.ndarray, tau: fl
     x1 = np.array([1.0 if p.key == "K1" else (tau if p.key == "sensor_lag" else 0.0) for p in params])
     lin = [j for j, p in enumerate(params) if p.group != "tool"]
     J1 = np.vstack([w[i] * _jacobian_run(params, x1, r, i, lin) for i, r in enumerate(prep)])[:, lin]
-    y = np.concatenate([w[i] * r.y for i, r in enumerate(prep)])
+    y = np.concatenate([w[i] * r.y_rows for i, r in enumerate(prep)])
     b = lstsq_svd_x(J1, y)
     if rss is not None:
         rss.append(float(np.sum((y - J1 @ b) ** 2)))
@@ -450,7 +439,7 @@ def _linear_start(params: ParameterSet, prep: list[_Run], w: np.ndarray, tau: fl
     return x
 
 
-def _lag_start(params: ParameterSet, prep: list[_Run], x0: np.ndarray) -> np.ndarray:
+def _lag_start(params: ParameterSet, prep: list[RunCells], x0: np.ndarray) -> np.ndarray:
     """Start of ``sensor_lag``: a sampled first-order lag shows nothing of a tau far below
     the sample period (its derivative vanishes at 0, physics.instrument.first_order_lag), so
     the start is the best of a few multiples of the period (0 included) by the residual of
@@ -458,7 +447,7 @@ def _lag_start(params: ParameterSet, prep: list[_Run], x0: np.ndarray) -> np.nda
     j = next((k for k, p in enumerate(params) if p.key == "sensor_lag"), None)
     if j is None:
         return x0
-    dt = float(np.median(np.concatenate([np.diff(r.t) for r in prep])))
+    dt = float(np.median(np.concatenate([np.diff(r.cols["time_s"]) for r in prep])))
     taus = [0.0] + [k * dt for k in (0.2, 0.5, 1.0, 2.0, 5.0)]
     rss: list[float] = []
     starts = [_linear_start(params, prep, np.ones(len(prep)), tau, rss) for tau in taus]
@@ -467,7 +456,7 @@ def _lag_start(params: ParameterSet, prep: list[_Run], x0: np.ndarray) -> np.nda
     return x
 
 
-def _select(params: ParameterSet, prep: list[_Run], x0: np.ndarray
+def _select(params: ParameterSet, prep: list[RunCells], x0: np.ndarray
             ) -> tuple[dict[str, Hold], ParameterSet, np.ndarray]:
     """Hold the optional parameters (tool errors, KPPP, KOOO) the joint design does not
     determine at the start x0 (:func:`accelcal.fitting.identify.holds`): (name -> hold, the
@@ -496,7 +485,7 @@ def identify_sine_campaign(runs: Sequence | None, *, tool_errors: Mapping[str, s
                            per_run_bias: bool = False, extra_terms: Sequence[str] = (),
                            rate_source: str = "drive", rate_derivative: str | None = None,
                            n_harmonics: int = 3, reweight: bool = True,
-                           prepared: list[_Run] | None = None) -> SineFit:
+                           prepared: list[RunCells] | None = None) -> SineFit:
     """Joint least squares over the attitudes of a sinusoidal-rate campaign (paper 002).
 
     .. math::
@@ -574,7 +563,7 @@ def identify_sine_campaign(runs: Sequence | None, *, tool_errors: Mapping[str, s
     return _finish(params, prep, x, w, dropped, success, message, options)
 
 
-def _finish(params: ParameterSet, prep: list[_Run], x: np.ndarray, w: np.ndarray, dropped: dict[str, Hold],
+def _finish(params: ParameterSet, prep: list[RunCells], x: np.ndarray, w: np.ndarray, dropped: dict[str, Hold],
             success: bool, message: str, options: dict) -> SineFit:
     """Paper 002's reporting of a fit at x with run weights w as the core's
     :class:`~accelcal.fitting.core.FitResult`: the residual-scaled covariance s^2 (J^T W J)^+
@@ -586,7 +575,7 @@ def _finish(params: ParameterSet, prep: list[_Run], x: np.ndarray, w: np.ndarray
     dof = rw.size - len(params)
     s2 = float(rw @ rw / dof)
     sol = lstsq_svd(Jw, np.zeros(rw.size))
-    cells = np.concatenate([i + len(prep) * r.cell for i, r in enumerate(prep)])      # unique across runs
+    cells = np.concatenate([i + len(prep) * r.cid for i, r in enumerate(prep)])      # unique across runs
     lof = replace(pure_error_lack_of_fit(rw, cells, len(params)), factor=float(np.sqrt(s2)),
                   note="covariance scaled by the residual variance (paper 002's least squares)")
     result = FitResult(ParameterSet(replace(p, value=float(v)) for p, v in zip(params, x)), x, sol.cov,
@@ -594,7 +583,7 @@ def _finish(params: ParameterSet, prep: list[_Run], x: np.ndarray, w: np.ndarray
                        bool(success), str(message))
     return SineFit(
         result=result, sigma=float(np.sqrt(s2) / np.exp(np.mean(np.log(w)))),
-        residual_rms={r.label: float(np.sqrt(np.mean(e ** 2))) for r, e in zip(prep, raw)},
+        residual_rms={str(r.meta["run_id"]): float(np.sqrt(np.mean(e ** 2))) for r, e in zip(prep, raw)},
         diagnostics=design_diagnostics(Jw, [p.name for p in params]), dropped=dropped,
         options=options, runs=prep)
 
@@ -614,13 +603,13 @@ def aliasing_report(fit: SineFit) -> list[dict[str, Any]]:
     sign and Koq separates from K2.
     """
     out = []
-    for r, Jr in zip(fit.runs, np.split(fit.result.J, np.cumsum([q.y.size for q in fit.runs])[:-1])):
+    for r, Jr in zip(fit.runs, np.split(fit.result.J, np.cumsum([q.y_rows.size for q in fit.runs])[:-1])):
         act = [j for j in range(Jr.shape[1]) if np.any(Jr[:, j] != 0.0)]
         names = [fit.names[j] for j in act]
         d = design_diagnostics(Jr[:, act], names)
         grouped = {n for g in d["aliased_groups"] for n in g}
         mount = f"{r.meta['mount_plane']}@{float(r.meta['mount_angle_deg']):g} {r.meta['vertical_axis']}"
-        d.update({"run": r.label, "attitude": r.attitude, "mount": mount,
+        d.update({"run": str(r.meta["run_id"]), "attitude": _attitude(r.geometry), "mount": mount,
                   "parameters": names, "separable": [n for n in names if n not in grouped],
                   "not_excited": [fit.names[j] for j in range(Jr.shape[1]) if j not in act]})
         out.append(d)
@@ -656,7 +645,7 @@ def _f_test(f_small: SineFit, f_big: SineFit) -> dict[str, Any]:
 
 
 def compare_compensation(runs: Sequence | None, tool_errors: Mapping[str, str] | None = None, *,
-                         prepared: list[_Run] | None = None, uncompensated: SineFit | None = None,
+                         prepared: list[RunCells] | None = None, uncompensated: SineFit | None = None,
                          **kw) -> tuple[SineFit, SineFit, dict[str, Any]]:
     """Paper 002's identify-then-compensate comparison (Sun, Ren & Wang).
 
@@ -759,8 +748,7 @@ def process_sine_campaign(runs: Sequence, rig_id: str = "", *, tool_errors: Mapp
         :func:`budget_terms` gives their GUM budgets.
     """
     prep = prepare_runs(runs, rate_source, rate_derivative)
-    out_unit = str(prep[0].meta.get("output_unit", ""))
-    atts = sorted({r.attitude for r in prep})
+    atts = sorted({_attitude(r.geometry) for r in prep})
     missing = sorted(set(ATTITUDES) - set(atts))
     flags = [f"attitudes present {atts}: paper 002 needs a, b and c for every term"] if missing else []
     # third-order terms the data support
@@ -793,7 +781,7 @@ def process_sine_campaign(runs: Sequence, rig_id: str = "", *, tool_errors: Mapp
         # (K2 with Koq where a_I >= 0, Kp with Ko): no value of it is reported
         flags.append(_no_values_flag(missing))
     results = [CoefficientResult(
-        name=n, value=fit.values[n], std_uncertainty=fit.std[n], unit=_unit(n, out_unit), method=METHOD,
+        name=n, value=fit.values[n], std_uncertainty=fit.std[n], unit=fit.units[n], method=METHOD,
         rig_id=rig_id, dof=float(fit.dof),
         note="paper 002 joint 3-attitude LS, tool errors identified and compensated; "
              "residual-scaled covariance") for n in ([] if missing else fit.names) if n not in fit.tool_errors]
