@@ -153,11 +153,9 @@ def coefficient_spec(name: str) -> Coefficient | None:
 def _catalogue_rank(name: str) -> tuple[int, str]:
     """Sort key of a parameter name in catalogue order: the instrument coefficients, the
     paper terms, the effects, then any other name alphabetically."""
+    order = [*COEFFICIENTS, *PAPER_TERMS, *EFFECTS]
     base = name.split("[", 1)[0]
-    for k, table in enumerate((COEFFICIENTS, PAPER_TERMS, EFFECTS)):
-        if base in table:
-            return k * 1000 + list(table).index(base), name
-    return 3000, name
+    return (order.index(base) if base in order else len(order)), name
 
 
 def combination_name(name: str, terms: Mapping[str, float]) -> str:
@@ -206,8 +204,8 @@ def split_combination(name: str) -> tuple[str, tuple[str, ...]]:
 
 def combination_formula(name: str, factors: Mapping[str, float], digits: int = 3) -> str:
     """What a combination row measures, as a formula for people:
-    ``"K1 + 9.55·K3 + 1.1·Koq"`` (factors to ``digits`` significant digits, in catalogue
-    order); ``name`` alone when ``factors`` is empty.
+    ``"K1 + 9.55·K3 + 1.1·Koq"`` (factors to ``digits`` significant digits, in the order
+    given); ``name`` alone when ``factors`` is empty.
 
     Parameters
     ----------
@@ -216,11 +214,8 @@ def combination_formula(name: str, factors: Mapping[str, float], digits: int = 3
     factors : mapping of str to float
         Term -> factor [unit of the quantity / unit of the term].
     """
-    out = split_combination(name)[0]
-    for k in sorted(factors, key=_catalogue_rank):
-        f = float(factors[k])
-        out += f" {'-' if f < 0 else '+'} {abs(f):.{digits}g}\u00b7{k}"
-    return out
+    return split_combination(name)[0] + "".join(
+        f" {'-' if f < 0 else '+'} {abs(f):.{digits}g}·{k}" for k, f in factors.items())
 
 
 def si_unit(name: str, output_unit: str = "out") -> str:

@@ -120,7 +120,7 @@ def test_ten_units_recalibrated_by_tumble_alone_get_due_dates_where_they_drift(t
         else:
             assert r["due_date"] is None or r["due_date"] > "2028-03-01", r
     text = "\n".join(due.text_lines(list(rows.values()), as_of.date(), width=200))
-    assert "TU-0  K1 (as K1 + 1.1·Koq + 9.55·K3, the combination the design determines)  due" in text
+    assert "TU-0  K1 (as K1 + 9.55·K3 + 1.1·Koq, the combination the design determines)  due" in text
 
 
 def test_one_units_history_over_five_tumbles_is_one_series_per_coefficient(tmp_path):

@@ -155,18 +155,12 @@ def what_it_measures(comb: Combination | None, label: str) -> tuple[str, str]:
     """
     notes = []
     if comb is not None and comb.terms:
-        exact = label + "".join(f" {'-' if f < 0 else '+'} {abs(f):.6g}·{k}" for k, f in comb.terms)
+        exact = combination_formula(label, comb.factors, 6)
         notes.append(f"aliased in this design: the runs determine {exact}, not {label} alone "
                      f"({', '.join(k for k, _ in comb.terms)} held at 0)")
     if comb is not None and comb.depends:
         notes.append("not determined alone by these runs: " + "; ".join(dependence_text(comb)))
     return display_name(label, comb), "; ".join(notes)
-
-
-def _factors(comb: Combination | None) -> dict[str, float]:
-    """The factors of the instrument coefficients a parameter takes up (its row's
-    ``factors``); empty when it takes up none."""
-    return {k: float(f) for k, f in comb.terms} if comb is not None else {}
 
 
 def nearly_aliased(jf: JointFit) -> list[NearAlias]:
@@ -510,7 +504,7 @@ def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
         coefficients.append(CoefficientResult(name, float(fit.values[i]), float(u), si_unit(name, out_unit),
                                               METHOD, rig_of.get(prm.name, rig_label), float(dof), note,
                                               adopted=True, coverage_factor=k,
-                                              factors=_factors(measures.get(prm.name))))
+                                              factors=getattr(measures.get(prm.name), "factors", {})))
         budget += _type_a_lines(name, float(fit.values[i]), u_noise, lof.factor)
         for q, c, ub, dist, x in terms_b:
             budget.append(BudgetTerm(name, q, x, ub, c, abs(c) * ub, "B", dist, METHOD))
@@ -555,7 +549,7 @@ def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
         coefficients.append(CoefficientResult(
             label, float(fit.values[i]), u, "rad", METHOD, runs_h[0].rig_id if runs_h else rig_label, float(dof),
             "; ".join(x for x in ("initial misalignment of this dividing head (never pooled across heads)", alias)
-                      if x), adopted=True, coverage_factor=k, factors=_factors(measures.get(prm.name))))
+                      if x), adopted=True, coverage_factor=k, factors=getattr(measures.get(prm.name), "factors", {})))
         budget.append(BudgetTerm(label, "readings: joint fit through the forward model", float(fit.values[i]),
                                  fit.std_noise(prm.name), 1.0, fit.std_noise(prm.name), "A", "normal", METHOD))
     # geometry: radii, mass-centre offset, mount angles, tool errors

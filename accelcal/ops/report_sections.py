@@ -256,7 +256,7 @@ def _mc_verdict(d, c) -> tuple[str, str]:
 
 def name_with_factors(c) -> str:
     """A coefficient row's name as the certificate prints it: for a combination the design
-    determines, with what it measures (``K1(Koq,K3) = K1 + 1.1·Koq + 9.55·K3``, factors
+    determines, with what it measures (``K1(Koq,K3) = K1 + 9.55·K3 + 1.1·Koq``, factors
     to three significant digits, from the row's ``factors``)."""
     from ..effects import combination_formula
     f = c.get("factors")

@@ -224,7 +224,7 @@ def combination_truth(key: tuple[str, str, str], factors: Mapping[str, float],
     ----------
     key : (name, method, rig_id)
     factors : mapping of str to float
-        The row's factors (their mean over the draws).
+        The row's factors (of its first draw: they move by parts in 1e6 between draws).
     truth : mapping
         :func:`truth_table`.
 
@@ -487,12 +487,12 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
     ok = [r for r in results if not isinstance(r, str)]
     vals: dict[tuple[str, str, str], list[tuple[float, float]]] = defaultdict(list)
     notes: dict[tuple[str, str, str], str] = {}
-    factors: dict[tuple[str, str, str], list[dict]] = defaultdict(list)
+    factors: dict[tuple[str, str, str], dict] = {}
     for rows in ok:
         for name, method, rig, v, u, note, fac in rows:
             vals[(name, method, rig)].append((v, u))
             notes.setdefault((name, method, rig), note)
-            factors[(name, method, rig)].append(fac)
+            factors.setdefault((name, method, rig), fac)
     truth = truth_table(sc, notes)
     nf: dict[tuple[str, str, str], float] = {}
     if noise_free:
@@ -508,9 +508,7 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
         m = len(x)
         sd = float(np.std(x, ddof=1)) if m > 1 else float("nan")
         u_rms = float(np.sqrt(np.mean(u**2)))
-        fac = {k: float(np.mean([f.get(k, 0.0) for f in factors[key]]))
-               for k in {k for f in factors[key] for k in f}}
-        tv, tnote = truth.get(key) or truth.get((name, method, "*")) or combination_truth(key, fac, truth) or (
+        tv, tnote = truth.get(key) or truth.get((name, method, "*")) or combination_truth(key, factors[key], truth) or (
             None, "no truth defined for this coefficient/method")
         cs = CoefficientStats(name, method, rig, m, tv, tnote, float(np.mean(x)), sd, u_rms,
                               float(np.mean(u)), noise_free=nf.get(key),
@@ -531,7 +529,7 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
             cs.bias_over_sd = cs.bias / sd if sd > 0 else None
         b = next((bounds[k] for k in (key, (name, method, "*")) if bounds.get(k) is not None), None)
         if b is None and bounds:
-            b = combination_bound(name, fac, bounds[COVARIANCE])
+            b = combination_bound(name, factors[key], bounds[COVARIANCE])
         if b is not None and b > 0 and tv is not None and m > 1:
             cs.crb_sd = math.sqrt(b)
             cs.var_over_crb = sd**2 / b
