@@ -148,3 +148,18 @@ def test_one_units_history_over_five_tumbles_is_one_series_per_coefficient(tmp_p
     page = due.history_html(w.path, "TU-1", tmp_path / "html", cfg)
     html = page.read_text()
     assert html.count("<h2>") == 5 and "<h2>K1</h2>" in html and "K1(Koq,K3)" in html
+
+
+def test_a_result_adopting_a_coefficient_and_a_combination_of_it_keeps_the_coefficient(tmp_path):
+    """IA-PA 0/180 + 45/225: the joint fit adopts Kip (large u) and Kip(Kpp) (the nearly
+    aliased pair's combination); the Kip series takes Kip, the view still lists both."""
+    w, _ = _warehouse(tmp_path)
+    for y in (2024, 2025):
+        add_campaign(w, "TU-2", f"TU-2/{y}", "LXJ-100", f"{y}-03-01T10:00:00+00:00",
+                     {"Kip": (7.1e-7, 1e-6), "Kip(Kpp)": (7.6e-7, 4e-9, {"Kpp": 1.0})},
+                     method="joint_ml")
+    with w.connect(read_only=True) as con:
+        hist = con.execute("SELECT quantity, name, factors, calibration_no FROM unit_history "
+                           "ORDER BY calibration_no").fetchall()
+        n_cal = con.execute("SELECT count(*) FROM calibration").fetchall()[0][0]
+    assert hist == [("Kip", "Kip", None, 1), ("Kip", "Kip", None, 2)] and n_cal == 4
