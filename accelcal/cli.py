@@ -206,7 +206,7 @@ def print_summary(summary: dict[str, Any], console=None) -> None:
             rows = [("*" if co.get("adopted") else "", _cell(co["name"]), *display_coefficient(co),
                      _cell(co.get("method")), _cell(co.get("rig_id"))) for co in c["coefficients"]]
             # the numbers and their unit are never cut: a long name (a combination the runs
-            # determine, K0+0.00296*K2+...) folds onto a second line instead
+            # determine, K0(Ko,K2,Kio,Kpp,Koo)) folds onto a second line instead
             for k, (col, j) in enumerate((("", "left"), ("coef", "left"), ("value", "right"),
                                           ("U (k=2)", "right"), ("unit", "left"), ("method", "left"),
                                           ("rig", "left"))):

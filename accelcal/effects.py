@@ -144,55 +144,78 @@ RIG_INPUTS: dict[str, RigInput] = {r.id: r for r in [
 
 def coefficient_spec(name: str) -> Coefficient | None:
     """The catalogue row of a coefficient name (``"K2"``, ``"K0[run]"``, ``"Kppp"``), or None.
-    A combination (:func:`combination_name`, ``"K2-Koo"``) has the row of its first term: its
+    A combination (:func:`combination_name`, ``"K2(Koo)"``) has the row of its first term: its
     unit and display unit."""
-    base = re.split(r"[+\-*]", name.split("[", 1)[0], maxsplit=1)[0]
+    base = re.split(r"[\[(]", name, maxsplit=1)[0]
     return COEFFICIENTS.get(base) or PAPER_TERMS.get(base)
+
+
+def _catalogue_rank(name: str) -> tuple[int, str]:
+    """Sort key of a parameter name in catalogue order: the instrument coefficients, the
+    paper terms, the effects, then any other name alphabetically."""
+    order = [*COEFFICIENTS, *PAPER_TERMS, *EFFECTS]
+    base = name.split("[", 1)[0]
+    return (order.index(base) if base in order else len(order)), name
 
 
 def combination_name(name: str, terms: Mapping[str, float]) -> str:
     """The name of what a row measures when the runs determine a coefficient only together
-    with others (IEEE 1293 names the tumble's ``K2 - Koo``).
+    with others (IEEE 1293's tumble ``K2 - Koo``): structural, never a number from the data.
 
     Parameters
     ----------
     name : str
-        The coefficient (``"K2"``, ``"theta0[PA]"``).
+        The coefficient kept (``"K2"``, ``"theta0[PA]"``): the quantity the row stands for.
     terms : mapping of str to float
-        Other coefficient -> its factor in the combination [unit of name / unit of it].
+        Other coefficient -> its factor in the combination [unit of name / unit of it]; only
+        the names enter the row's name.
 
     Returns
     -------
     str
-        ``name`` followed by each term as ``+f*K`` or ``-f*K`` (f to 3 significant digits,
-        left out when 1): ``"K2-Koo"``, ``"K0+96.1*Koo"``, ``"Kip+Kpp"``; ``name`` when
-        ``terms`` is empty.  :func:`coefficient_spec` of it is that of ``name``.  The name
-        is the row's identity, the same for every campaign of a design; the exact factors
-        are in the row's note.
+        ``name(T1,T2,...)``, the terms in catalogue order without factors or signs
+        (``"K1(Koq,K3)"``, ``"K0(Koo)"``, ``"theta0(Ko)"``); ``name`` when ``terms`` is
+        empty.  It is the same for every draw and every campaign of a design; the factors
+        travel beside it (``CoefficientResult.factors``, the warehouse column ``factors``,
+        :func:`combination_formula`).  In SQL the quantity is ``split_part(name, '(', 1)``.
     """
-    out = name
-    for k, f in terms.items():
-        mag = abs(f)
-        out += ("-" if f < 0 else "+") + ("" if abs(mag - 1.0) < 5e-3 else f"{mag:.3g}*") + k
-    return out
+    if not terms:
+        return name
+    return f"{name}({','.join(sorted(terms, key=_catalogue_rank))})"
 
 
-def split_combination(name: str) -> tuple[str, dict[str, float]]:
-    """The inverse of :func:`combination_name`: ``"K0+96.1*Koo"`` -> ``("K0", {"Koo": 96.1})``.
+def split_combination(name: str) -> tuple[str, tuple[str, ...]]:
+    """The inverse of :func:`combination_name`: ``"K1(Koq,K3)"`` -> ``("K1", ("K3", "Koq"))``.
 
     Parameters
     ----------
     name : str
-        A row name; a bracketed scope (``"K2[PA]-Koo"``) stays with its coefficient.
+        A row name; a bracketed scope (``"K2[PA](Koo)"``) stays with its coefficient.
 
     Returns
     -------
-    (str, dict of str to float)
-        The coefficient and the other terms with their factors (empty for a plain name).
+    (str, tuple of str)
+        The quantity (the coefficient kept) and the names of the terms it takes up (empty
+        for a plain name); their factors are the row's ``factors``.
     """
-    parts = re.findall(r"([+-]?)(?:([0-9.eE+-]+)\*)?([A-Za-z_][A-Za-z0-9_]*(?:\[[^\]]*\])?)", name)
-    base = parts[0][2] if parts else name
-    return base, {k: (-1.0 if s == "-" else 1.0) * (float(f) if f else 1.0) for s, f, k in parts[1:]}
+    kept, _, rest = name.partition("(")
+    return kept, tuple(rest.rstrip(")").split(",")) if rest else ()
+
+
+def combination_formula(name: str, factors: Mapping[str, float], digits: int = 3) -> str:
+    """What a combination row measures, as a formula for people:
+    ``"K1 + 9.55·K3 + 1.1·Koq"`` (factors to ``digits`` significant digits, in the order
+    given); ``name`` alone when ``factors`` is empty.
+
+    Parameters
+    ----------
+    name : str
+        The row name or the quantity (``"K1(Koq,K3)"`` or ``"K1"``).
+    factors : mapping of str to float
+        Term -> factor [unit of the quantity / unit of the term].
+    """
+    return split_combination(name)[0] + "".join(
+        f" {'-' if f < 0 else '+'} {abs(f):.{digits}g}·{k}" for k, f in factors.items())
 
 
 def si_unit(name: str, output_unit: str = "out") -> str:

@@ -28,6 +28,10 @@ class CoefficientResult:
     #: k of U = k u for a coverage probability of about 95 %: 2, or Student's t(dof) when the
     #: uncertainty rests on few degrees of freedom (a lack-of-fit-scaled u, JCGM 100 G.3)
     coverage_factor: float = 2.0
+    #: for a combination the design determines (name ``"K1(Koq,K3)"``,
+    #: :func:`accelcal.effects.combination_name`): each term it takes up -> its factor
+    #: [unit of the quantity / unit of the term]; empty for a coefficient determined alone
+    factors: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass

@@ -56,10 +56,10 @@ SINE_DESIGNS = {"sine a": (1,), "sine b": (2,), "sine c": (3,), "sine a+b": (1, 
 FLAG_WORDS = ("aliased", "not determined", "undetermined", "combination")
 
 
-def truth_of(name: str, truth: dict) -> float | None:
-    """Truth of a coefficient or of a determined combination
-    (:func:`accelcal.effects.split_combination`: ``K2-Koo``, ``K0+96.1*Koo``)."""
-    base, terms = split_combination(name)
+def truth_of(c, truth: dict) -> float | None:
+    """Truth of a coefficient row or of a determined combination (``K2(Koo)``, ``K0(Koo)``:
+    the quantity plus the row's factors times the terms)."""
+    base, terms = split_combination(c.name)[0], c.factors
     if base not in truth or any(k not in truth for k in terms):
         return None
     return truth[base] + sum(f * truth[k] for k, f in terms.items())
@@ -83,7 +83,7 @@ def judge(res, truth: dict):
     """(worst unflagged row, [(row text, z, flagged)], inadequate) of one campaign result."""
     rows, worst, worst_all = [], None, None
     for c in res.coefficients:
-        t = truth_of(c.name, truth)
+        t = truth_of(c, truth)
         if t is None or not (c.std_uncertainty > 0) or not math.isfinite(c.value):
             continue
         z = (c.value - t) / c.std_uncertainty

@@ -58,10 +58,10 @@ def main() -> None:
         dt = time.perf_counter() - t0
         rows = sorted(res.coefficients, key=lambda c: (not c.adopted, c.method))
         for c in rows:
-            base, terms = split_combination(c.name)
+            base, terms = split_combination(c.name)[0], c.factors
             if base not in truth or any(k not in truth for k in terms):
                 continue
-            # a row named as a combination (issue 30: a tumble's K2-Koo) against that combination
+            # a row named as a combination (a tumble's K2(Koo)) against that combination, its factors
             t = truth[base] + sum(f * truth[k] for k, f in terms.items())
             f = coefficient_spec(c.name).display_factor
             du = coefficient_spec(c.name).display_unit

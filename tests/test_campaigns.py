@@ -97,7 +97,7 @@ def test_old_warehouse_gets_one_line_not_a_traceback(tmp_path, capsys):
                  ["campaign", "list", "--warehouse", str(old)]):
         assert cli.main(argv) == 1, argv
         err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and "schema version 1, this accelcal uses 3" in err[0], (argv, err)
+        assert len(err) == 1 and "schema version 1, this accelcal uses 4" in err[0], (argv, err)
 
 
 def test_sql_reads_with_the_client_that_wrote_it(lab, capsys):

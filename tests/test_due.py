@@ -25,7 +25,7 @@ K1_U = 0.1 * 5e-6
 def fleet_built(tmp_path_factory):
     """Five QA-2000 units tumbled yearly 2021-2026: QA-0 and QA-1 stable, QA-2 drifting
     1e-4/a in K1, QA-3 calibrated once, QA-4 adjusted in 2024 (K1 reset to 0.1); QA-0
-    also has a tumble's combination theta0-Ko; QA-2's last tumble started at 02:00 in
+    also has a tumble's combination theta0(Ko); QA-2's last tumble started at 02:00 in
     UTC+08:00 (its certificate's date, 2026-03-01, is the UTC day before).  Built once."""
     tmp_path = tmp_path_factory.mktemp("fleet")
     w = Warehouse(tmp_path / "lab.duckdb", lock_timeout=5)
@@ -41,7 +41,7 @@ def fleet_built(tmp_path_factory):
             k1 += K1_U * rng.standard_normal()
             coefs = {"K1": (k1, K1_U), "K2": (4e-7, 2e-9)}
             if j == 0:
-                coefs["theta0-Ko"] = (1e-5 + 2e-7 * (y - 2021), 2e-8)
+                coefs["theta0(Ko)"] = (1e-5 + 2e-7 * (y - 2021), 2e-8, {"Ko": -1.0})
             start = ("2026-03-01T02:00:00+08:00" if (j, y) == (2, 2026) else
                      f"{y}-03-01T10:00:00+00:00")
             add_campaign(w, f"QA-{j}", f"QA-{j}/{y}", "DH-1", start, coefs)
@@ -100,7 +100,8 @@ def test_due_within_and_text_at_80_columns(fleet, capsys):
     assert rc == 0 and "QA-2" in out and "ppm/a" in out
     assert max(len(line) for line in out.splitlines()) <= 80, out
     # full names, every rate with its display unit (the catalogue's: theta0 in degrees)
-    assert "QA-0  theta0-Ko  no due date" in out and "°/a (u, k = 1)" in out
+    assert ("QA-0  theta0 (as theta0 - 1·Ko, the combination the design determines)  no due "
+            "date") in out.replace("\n    ", " ") and "°/a (u, k = 1)" in out
     drifts = [ln for ln in out.replace("\n    ", " ").splitlines() if "drift " in ln]
     assert drifts and all(re.search(r"drift -?[0-9.]+ ± [0-9.]+ (ppm|µg/g²|°)/a", ln) for ln in drifts), drifts
     # QA-3, calibrated once in 2021, is overdue; QA-2 is not yet

@@ -41,8 +41,8 @@ def test_a_known_combination_is_aliased_with_its_parts_and_they_measure_it():
     np.testing.assert_allclose(A[:, 0], [2.0, -3.0], rtol=1e-12)
     comb = combinations(cols[:2], cols[2:], A, [True])
     assert comb["K1"] == Combination("K1", (("K2", pytest.approx(2.0)),))
-    assert display_name("K1", comb["K1"]) == "K1+2*K2"
-    assert display_name("K0", comb["K0"]) == "K0-3*K2"
+    assert display_name("K1", comb["K1"]) == "K1(K2)"
+    assert display_name("K0", comb["K0"]) == "K0(K2)"
     assert display_name("K0", None) == "K0"
 
 

@@ -23,8 +23,9 @@ SINE = {**UNIT, "K3": 1.5e-9, "Koq": 2.0e-8}
 needs_samples = pytest.mark.skipif(not EXAMPLES.is_dir(), reason="../shared/examples not present")
 
 
-def truth_of(name: str, truth: dict) -> float | None:
-    base, terms = split_combination(name)
+def truth_of(c, truth: dict) -> float | None:
+    """Truth of what a row measures: its quantity plus its factors times the terms."""
+    base, terms = split_combination(c.name)[0], c.factors
     if base not in truth or any(k not in truth for k in terms):
         return None
     return truth[base] + sum(f * truth[k] for k, f in terms.items())
@@ -47,7 +48,7 @@ def _check(res, truth):
     assert not any("model inadequate" in f for f in res.flags), res.flags
     checked = 0
     for c in res.coefficients:
-        t = truth_of(c.name, truth)
+        t = truth_of(c, truth)
         if t is None or not c.std_uncertainty > 0:
             continue
         z = (c.value - t) / c.std_uncertainty
@@ -64,12 +65,13 @@ def test_combination_names_round_trip_and_display_as_their_coefficient():
         text = combination_name(name, terms)
         base, back = split_combination(text)
         assert base == name
-        assert back.keys() == terms.keys()
-        for k in terms:
-            assert back[k] == pytest.approx(terms[k], rel=5e-3)
+        assert set(back) == set(terms)
         assert coefficient_spec(text) is coefficient_spec(name)
-    assert combination_name("K2", {"Koo": -1.0}) == "K2-Koo"
-    assert combination_name("K0", {"Koo": 96.064}) == "K0+96.1*Koo"
+        # structural: no number from the data in the name
+        assert combination_name(name, {k: 1.01 * f for k, f in terms.items()}) == text
+    assert combination_name("K2", {"Koo": -1.0}) == "K2(Koo)"
+    assert combination_name("K0", {"Koo": 96.064}) == "K0(Koo)"
+    assert combination_name("K3", {"Kio": -1.2e-05, "Ko": 0.002582}) == "K3(Ko,Kio)"
 
 
 # ------------------------------------------------------------------- linear algebra
@@ -94,8 +96,9 @@ def test_eq3_without_the_90_degree_pair_gives_kip_plus_kpp():
              for phi, c2 in ((0.0, K2), (45.0, (K2 + Kpp + Kip) / 2))]
     comb = combine_second_order(pairs)
     assert "Kip" not in comb.values and "Kpp" not in comb.values
-    assert comb.values["Kip+Kpp"] == pytest.approx(Kip + Kpp, rel=1e-9)
-    assert comb.std["Kip+Kpp"] == pytest.approx(math.hypot(2e-9, 1e-9), rel=1e-6)
+    assert comb.values["Kip(Kpp)"] == pytest.approx(Kip + Kpp, rel=1e-9)
+    assert comb.factors["Kip(Kpp)"] == {"Kpp": pytest.approx(1.0)}
+    assert comb.std["Kip(Kpp)"] == pytest.approx(math.hypot(2e-9, 1e-9), rel=1e-6)
     assert comb.values["K2"] == pytest.approx(K2, rel=1e-12)
 
 
@@ -113,10 +116,10 @@ def test_partial_centrifuge_designs_report_what_they_determine(drop, angles, tum
     names = {(c.method, c.name) for c in res.coefficients}
     if 90 not in angles and 45 in angles:
         # eq 9/eq 2 cannot split Kip and Kpp without a PA-radial mount (paper 000 eq 3)
-        assert ("centrifuge_eq9", "Kip+Kpp") in names
+        assert ("centrifuge_eq9", "Kip(Kpp)") in names
         assert ("centrifuge_eq9", "Kip") not in names
         # the joint fit: Kip and Kpp with honest (large) u, and the sum they determine
-        (kk,) = [c for c in res.coefficients if c.method == "joint_ml" and c.name.startswith("Kip+")]
+        (kk,) = [c for c in res.coefficients if c.method == "joint_ml" and c.name == "Kip(Kpp)"]
         kip = next(c for c in res.coefficients if c.method == "joint_ml" and c.name == "Kip")
         assert kk.std_uncertainty < kip.std_uncertainty / 50 and "nearly aliased" in kip.note
         # and the run that separates them turns PA through a known input: a PA-radial mount
@@ -134,10 +137,10 @@ def test_partial_centrifuge_designs_report_what_they_determine(drop, angles, tum
         # IEEE 1293: one tumble about PA measures K0 + Koo g^2, K2 - Koo, theta0 - Ko
         g = float(next(r for r in _runs(drop) if r.meta["test"] == "tumble").meta["g_local_m_s2"])
         k0 = next(c for c in res.coefficients if c.method == "tumble_lm" and c.name.startswith("K0"))
-        base, terms = split_combination(k0.name)
-        assert base == "K0" and set(terms) == {"Koo"}
+        base, terms = split_combination(k0.name)[0], k0.factors
+        assert base == "K0" and set(terms) == {"Koo"} and k0.name == "K0(Koo)"
         assert terms["Koo"] == pytest.approx(g * g, rel=1e-3)
-        assert ("tumble_lm", "theta0-Ko") in names and ("joint_ml", "theta0-Ko") in names
+        assert ("tumble_lm", "theta0(Ko)") in names and ("joint_ml", "theta0(Ko)") in names
     else:
         # no gravity reference: K1 is K1 at the nominal radius, said so
         assert any("R[" in c.note and c.name.startswith("K1") for c in res.coefficients
@@ -155,8 +158,8 @@ def test_a_tumble_alone_names_its_k1_with_the_odd_terms_it_takes_up(drop):
     assert _check(res, UNIT) >= 4
     g = float(runs[0].meta["g_local_m_s2"])
     k1 = next(c for c in res.coefficients if c.method == "joint_ml" and c.name.startswith("K1"))
-    base, terms = split_combination(k1.name)
-    assert base == "K1"
+    base, terms = split_combination(k1.name)[0], k1.factors
+    assert base == "K1" and k1.name == "K1(Koq,K3)"
     assert terms["Koq"] == pytest.approx(UNIT["K1"] * g * 8 / (3 * math.pi), rel=5e-3)
     assert terms["K3"] == pytest.approx(UNIT["K1"] * 0.75 * g * g, rel=5e-3)
 
@@ -172,7 +175,8 @@ def test_sine_with_fewer_attitudes_reports_combinations_not_paper_002_values(kee
     assert _check(res, SINE) >= 5
     if keep == (1,):
         # methods.md: in attitude (a) a_I >= 0, so K2 and Koq alias
-        assert any(c.name == "K2+Koq" for c in res.coefficients)
+        assert any(c.name == "K2(Koq)" and c.factors["Koq"] == pytest.approx(1.0, rel=5e-3)
+                   for c in res.coefficients)
 
 
 # ------------------------------------------------------------------- designs the samples cannot make
@@ -216,11 +220,12 @@ def test_a_tilted_table_lets_in_the_square_terms_it_shows():
     assert _adequate(res)
     rows = {c.name: c for c in res.coefficients if c.method == "joint_ml"}
     # a tilted table turns gravity through IA and PA: cos 2psi sees K2 - Kpp, sin 2psi Kip
-    assert abs(rows["K2-Kpp"].value - (3.94e-7 - 4.7e-8)) < 4 * rows["K2-Kpp"].std_uncertainty
+    assert rows["K2(Kpp)"].factors["Kpp"] == pytest.approx(-1.0, rel=5e-3)
+    assert abs(rows["K2(Kpp)"].value - (3.94e-7 - 4.7e-8)) < 4 * rows["K2(Kpp)"].std_uncertainty
     assert abs(rows["Kip"].value - 7.1e-7) < 4 * rows["Kip"].std_uncertainty
     # K1 (1 + Kio g cos tilt)
-    k1 = next(c for n, c in rows.items() if n.startswith("K1+"))
-    assert split_combination(k1.name)[1]["Kio"] == pytest.approx(50.0 * 9.7936 * math.cos(math.radians(30)),
+    k1 = next(c for n, c in rows.items() if n.startswith("K1("))
+    assert k1.factors["Kio"] == pytest.approx(50.0 * 9.7936 * math.cos(math.radians(30)),
                                                                     rel=5e-3)
 
 

@@ -19,7 +19,7 @@ from accelcal.simulate import load_scenario, simulate_campaign
 CASES = {
     # a tumble's rows are named as the combinations it measures (issue 30; IEEE 1293)
     "drop-2026-11-20": ("snj103-lxj100", [
-        ("K0+96.1*Koo", "tumble_lm"), ("K1", "tumble_lm"), ("K2", "tumble_lm"), ("theta0-Ko", "tumble_lm"),
+        ("K0(Koo)", "tumble_lm"), ("K1", "tumble_lm"), ("K2", "tumble_lm"), ("theta0(Ko)", "tumble_lm"),
         ("K2", "centrifuge_eq9"), ("Kpp", "centrifuge_eq9"), ("Koo", "centrifuge_eq9"),
         ("Kip", "centrifuge_eq9"), ("Kio", "centrifuge_eq9"), ("Koq", "centrifuge_eq9"),
         ("K3", "centrifuge_eq9")]),
@@ -29,7 +29,7 @@ CASES = {
     "drop-2026-11-19-sine": ("qa5512-sine", [
         (k, "sine_ls") for k in ("K0", "K1", "Kp", "Ko", "K2", "K3", "Koq", "Kip", "Kio", "Kpp", "Koo")]),
     "drop-2026-11-21": ("snj103-lxj200", [
-        ("K0+96.1*Koo", "tumble_lm"), ("K1", "tumble_lm"), ("K2-Koo", "tumble_lm"), ("theta0-Ko", "tumble_lm"),
+        ("K0(Koo)", "tumble_lm"), ("K1", "tumble_lm"), ("K2(Koo)", "tumble_lm"), ("theta0(Ko)", "tumble_lm"),
         ("K2", "centrifuge_eq9"), ("Kpp", "centrifuge_eq9"), ("Kip", "centrifuge_eq9"),
         ("Koq", "centrifuge_eq9"), ("K3", "centrifuge_eq9")]),
 }

@@ -18,5 +18,5 @@ def test_design_u_in_display_units_with_the_runs_output_unit():
 def test_due_rates_carry_the_catalogues_display_unit():
     assert display_rate("K1", 2e-6, 1e-7, 0.1) == "20.0 ± 1.0 ppm/a"       # ppm of K1 in use
     assert display_rate("K0", 1e-6 * G, 1e-7 * G, 0.0) == "1.00 ± 0.10 µg/a"
-    assert display_rate("Kp+9.8*Kpo", 2e-6, 2e-7, 0.0) == "2.00 ± 0.20 µrad/a"
-    assert display_rate("theta0-Ko", 1e-5, None, 0.0).endswith(" °/a")
+    assert display_rate("Kp(Kpo)", 2e-6, 2e-7, 0.0) == "2.00 ± 0.20 µrad/a"
+    assert display_rate("theta0(Ko)", 1e-5, None, 0.0).endswith(" °/a")

@@ -27,8 +27,9 @@ def _sha(*parts) -> str:
 def add_campaign(wh: Warehouse, serial: str, campaign: str, rig: str, started: str,
                  coefs: dict[str, tuple[float, float]], model: str = "QA-2000",
                  method: str = "centrifuge_eq9", salt: str = "") -> str:
-    """One run file + one result with the given {name: (value, u)}, each the adopted value of
-    its coefficient (history reads adopted values); returns result_id."""
+    """One run file + one result with the given {name: (value, u)} or {name: (value, u,
+    factors)} (a combination), each the adopted value of its coefficient (history reads
+    adopted values); returns result_id."""
     sha = _sha(serial, campaign, rig, salt)
     wh.record_runs([RunRecord(sha256=sha, source_path=f"/drops/{campaign}/{rig}{salt}.csv",
                               drop_name="d", drop_path="/drops", size_bytes=1, status="accepted",
@@ -38,8 +39,9 @@ def add_campaign(wh: Warehouse, serial: str, campaign: str, rig: str, started: s
                               validator_version="v1")])
     res = CampaignResult(campaign=campaign, unit_serial=serial, unit_model=model,
                          tests=["centrifuge"], rig_ids=[rig], input_sha256=[sha],
-                         coefficients=[CoefficientResult(n, v, u, "s2/m", method, rig, adopted=True)
-                                       for n, (v, u) in coefs.items()])
+                         coefficients=[CoefficientResult(n, v, u, "s2/m", method, rig, adopted=True,
+                                                         factors=dict(*f))
+                                       for n, (v, u, *f) in coefs.items()])
     inputs = wh.campaign_inputs(campaign)
     rid = _sha("result", campaign, salt, *sorted(i["sha256"] for i in inputs))
     wh.store_result(res, result_id=rid, inputs=inputs, code_version=CV, parameters={},

@@ -626,7 +626,8 @@ def rig_records(out: RigOutcome, k1_correction: tuple[float, float] | None = Non
     for cb in out.budgets.coefficients:
         rec.budget += cb.budget.terms
         rec.coefficients.append(CoefficientResult(cb.name, cb.value, float(cb.budget.u_c), cb.unit, METHOD, rig,
-                                                  note=cb.note))
+                                                  note=cb.note,
+                                                  factors=out.combination.combination.factors.get(cb.name, {})))
         if cb.mc is not None:
             rec.extras.setdefault("mc_check", {})[f"{METHOD}:{rig}:{cb.name}"] = cb.mc
     if out.budgets.eq10 is not None:

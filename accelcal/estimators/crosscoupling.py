@@ -288,6 +288,8 @@ class Combination:
     std: dict[str, float]
     design: list[dict]                 # one row per pair: plane, phi0, c2, u_c2 (A), u_dc2 (B), weights
     sensitivities: dict[str, dict[str, float]]   # coefficient -> {pair label: d coef / d c2}
+    #: a combination's name -> the factors of the terms it takes up (its row's ``factors``)
+    factors: dict[str, dict[str, float]] = field(default_factory=dict)
 
 
 def combine_second_order(pairs: list[PairFit], u_dc2: Mapping[str, float] | None = None) -> Combination:
@@ -340,7 +342,7 @@ def combine_second_order(pairs: list[PairFit], u_dc2: Mapping[str, float] | None
     S = (sol.cov @ Aw.T) * np.sqrt(w)[None, :]  # d K / d c2: the solution is linear in the c2's
     # what the pairs determine of the unknowns they cannot separate: one combination per
     # pair of them that one null direction ties (45/225 without 90/270: Kip + Kpp)
-    C, cnames = _determined_combinations(names, sol)
+    C, cnames, cfactors = _determined_combinations(names, sol)
     if C.size:
         S = np.vstack([S, C @ S])
         names = names + cnames
@@ -355,10 +357,10 @@ def combine_second_order(pairs: list[PairFit], u_dc2: Mapping[str, float] | None
     design = [{"pair": labels[i], "c2": y[i], "u_c2_A": float(pairs[i].u_c2),
                "u_dc2_B": float(u_dc2.get(labels[i], 0.0)),
                **{names[j]: float(A[i, j]) for j in range(A.shape[1])}} for i in range(len(labels))]
-    return Combination(values, covd, std, design, sens)
+    return Combination(values, covd, std, design, sens, cfactors)
 
 
-def _determined_combinations(names: list[str], sol) -> tuple[np.ndarray, list[str]]:
+def _determined_combinations(names: list[str], sol) -> tuple[np.ndarray, list[str], dict[str, dict[str, float]]]:
     """Combinations of the unknowns the pairs leave undetermined alone that the pairs do
     determine: with one null direction n, ``K_k - (n_k / n_m) K_m`` for the first of them
     (cross terms first: ``Kip+Kpp``) and each other one.
@@ -372,26 +374,26 @@ def _determined_combinations(names: list[str], sol) -> tuple[np.ndarray, list[st
 
     Returns
     -------
-    (ndarray, list of str)
-        Rows of weights on the unknowns [1] and their names
-        (:func:`accelcal.effects.combination_name`); empty when every unknown is
-        determined or the null space has more than one direction.
+    (ndarray, list of str, dict)
+        Rows of weights on the unknowns [1], their names
+        (:func:`accelcal.effects.combination_name`) and name -> factors of the terms; empty
+        when every unknown is determined or the null space has more than one direction.
     """
     free = [j for j in range(len(names)) if not sol.estimable[j]]
     null = sol.null_space / np.where(sol.column_norm > 0, sol.column_norm, 1.0)[:, None]
     if not free or null.shape[1] != 1:
-        return np.zeros((0, len(names))), []
+        return np.zeros((0, len(names))), [], {}
     n = null[:, 0]
     free.sort(key=lambda j: (names[j] not in CROSS.values(), j))
-    k, rows, out = free[0], [], []
+    k, rows, out = free[0], [], {}
     for m in free[1:]:
         if abs(n[m]) < 1e-9 * np.abs(n).max():
             continue
         c = np.zeros(len(names))
         c[k], c[m] = 1.0, -n[k] / n[m]
         rows.append(c)
-        out.append(combination_name(names[k], {names[m]: c[m]}))
-    return (np.array(rows) if rows else np.zeros((0, len(names)))), out
+        out[combination_name(names[k], {names[m]: c[m]})] = {names[m]: float(c[m])}
+    return (np.array(rows) if rows else np.zeros((0, len(names)))), list(out), out
 
 
 def pair_label(p: PairFit) -> str:

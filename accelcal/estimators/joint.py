@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from ..constants import MOUNT_ANGLE_TOLERANCE_RAD
-from ..effects import si_unit
+from ..effects import combination_formula, combination_name, si_unit
 from ..fitting.core import lstsq_svd, normalised_error
 from ..fitting.data import (RunCells, block_note, drop_duplicate_cells, fit_noise, make_run,
                             pool_missing_noise, with_noise)
@@ -150,12 +150,12 @@ def what_it_measures(comb: Combination | None, label: str) -> tuple[str, str]:
     Returns
     -------
     (str, str)
-        Row name (:func:`accelcal.fitting.identify.display_name`, e.g. ``'K2-Koo'``); note:
+        Row name (:func:`accelcal.fitting.identify.display_name`, e.g. ``'K2(Koo)'``); note:
         what is aliased and which other held parameters it depends on, or ``''``.
     """
     notes = []
     if comb is not None and comb.terms:
-        exact = label + "".join(f" {'-' if f < 0 else '+'} {abs(f):.6g}·{k}" for k, f in comb.terms)
+        exact = combination_formula(label, comb.factors, 6)
         notes.append(f"aliased in this design: the runs determine {exact}, not {label} alone "
                      f"({', '.join(k for k, _ in comb.terms)} held at 0)")
     if comb is not None and comb.depends:
@@ -525,8 +525,9 @@ def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
     near_note: dict[str, str] = {}
     for a, b, t, r in near:
         ka, kb = (model.roles[model.params.index[n]].key for n in (a, b))
-        comb = display_name(ka, Combination(ka, ((kb, float(f"{t:.2g}")),)))
-        row = " (its own row)" if si_unit(ka) == si_unit(kb) and fit.converged else ""
+        comb = combination_formula(ka, {kb: float(f"{t:.2g}")}, 2)
+        row = (f" (its own row, {combination_name(ka, {kb: t})})"
+               if si_unit(ka) == si_unit(kb) and fit.converged else "")
         for n, other in ((a, kb), (b, ka)):
             near_note[n] = "; ".join(x for x in (near_note.get(n, ""), (
                 f"nearly aliased with {other} (correlation {r:+.4f}): the runs determine {comb}{row} "
@@ -552,7 +553,8 @@ def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
                                      NOTES.get(role.key, ""), alias) if x)
         coefficients.append(CoefficientResult(name, float(fit.values[i]), float(u), si_unit(name, out_unit),
                                               METHOD, rig_of.get(prm.name, rig_label), float(dof), note,
-                                              adopted=True, coverage_factor=k))
+                                              adopted=True, coverage_factor=k,
+                                              factors=getattr(measures.get(prm.name), "factors", {})))
         budget += _type_a_lines(name, float(fit.values[i]), u_noise, lof.factor)
         for q, c, ub, dist, x in terms_b:
             budget.append(BudgetTerm(name, q, x, ub, c, abs(c) * ub, "B", dist, METHOD))
@@ -576,7 +578,8 @@ def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
         coefficients.append(CoefficientResult(
             name, value, u, si_unit(ka, out_unit), METHOD, rig_of.get(a, rig_label), float(dof),
             f"joint ML fit; {ka} and {kb} are nearly aliased in this design (correlation {r:+.4f}): "
-            f"the runs determine this combination, not each alone", adopted=True, coverage_factor=k))
+            f"the runs determine this combination, not each alone", adopted=True, coverage_factor=k,
+            factors={kb: t}))
         budget += _type_a_lines(name, value, u_noise, lof.factor)
     mc_check = _mc_checks(coefficients, budget)
     # theta0 per head
@@ -596,7 +599,7 @@ def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
         coefficients.append(CoefficientResult(
             label, float(fit.values[i]), u, "rad", METHOD, runs_h[0].rig_id if runs_h else rig_label, float(dof),
             "; ".join(x for x in ("initial misalignment of this dividing head (never pooled across heads)", alias)
-                      if x), adopted=True, coverage_factor=k))
+                      if x), adopted=True, coverage_factor=k, factors=getattr(measures.get(prm.name), "factors", {})))
         budget.append(BudgetTerm(label, "readings: joint fit through the forward model", float(fit.values[i]),
                                  fit.std_noise(prm.name), 1.0, fit.std_noise(prm.name), "A", "normal", METHOD))
     # geometry: radii, mass-centre offset, mount angles, tool errors

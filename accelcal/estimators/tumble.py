@@ -47,7 +47,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ..effects import CROSS_AXIS_TERM, CROSS_TERM, SQUARE_TERM, combination_name, si_unit
+from ..effects import (CROSS_AXIS_TERM, CROSS_TERM, SQUARE_TERM, combination_formula, combination_name,
+                       si_unit)
 from ..fitting.core import FitResult, Parameter, ParameterSet, birge_ratio, finish_fit, gauss_newton, lstsq_svd
 from ..fitting.data import Groups, RunCells
 from ..fitting.distributions import chi2_sf
@@ -881,17 +882,18 @@ def name_combinations(runs: Sequence, coeffs: list[CoefficientResult], budget: l
         if c.name in corrected:
             continue
         combos = [answer[g].get(key, {}) for g in ([grp] if grp else groups)]
-        if len({combination_name(key, t) for t in combos}) > 1:
+        if len({combination_formula(key, t) for t in combos}) > 1:
             flags.append(f"{c.name} ({METHOD}): the heads measure different combinations: " + "; ".join(
-                combination_name(key, t) for t in combos) + "; the pooled value is none of them")
+                combination_formula(key, t) for t in combos) + "; the pooled value is none of them")
             continue
         if not combos[0]:
             continue
-        old, c.name = c.name, combination_name(c.name, combos[0])
+        old, c.name, c.factors = c.name, combination_name(c.name, combos[0]), dict(combos[0])
         for b in budget:
             if b.coefficient == old:
                 b.coefficient = c.name
-        flags.append(f"{c.name} ({METHOD}): aliased in one tumble: the runs determine {c.name}, not {old} alone")
+        flags.append(f"{c.name} ({METHOD}): aliased in one tumble: the runs determine "
+                     f"{combination_formula(old, c.factors)}, not {old} alone")
     return flags
 
 

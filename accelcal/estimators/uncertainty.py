@@ -18,12 +18,12 @@ Distributions (by their standard uncertainty u, JCGM 101 §6.4):
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..effects import split_combination
 from ..results import BudgetTerm
 from ..fitting.distributions import norm_ppf, t_ppf
 
@@ -504,8 +504,8 @@ def _with_g(runs: Sequence, key: str, dg: float) -> list:
 
 
 def _key(c) -> tuple[str, str, str, float]:
-    """(method, rig, the coefficient's first term, value) of a coefficient record."""
-    return c.method, c.rig_id, re.split(r"[+\-*]", c.name, maxsplit=1)[0], c.value
+    """(method, rig, the quantity it stands for, value) of a coefficient record."""
+    return c.method, c.rig_id, split_combination(c.name)[0], c.value
 
 
 def add_stated_g_local(est, runs: Sequence, steps, records: list, stated) -> None:

@@ -253,9 +253,9 @@ class Combination:
 
 
 def display_name(label: str, comb: Combination | None) -> str:
-    """The row name of what a parameter measures: ``label`` with the combination's terms
-    (:func:`accelcal.effects.combination_name`, ``'K2-Koo'``); ``label`` itself when it
-    takes up nothing."""
+    """The row name of what a parameter measures: ``label`` with the names of the terms the
+    combination takes up (:func:`accelcal.effects.combination_name`, ``'K2(Koo)'``; their
+    factors are :attr:`Combination.factors`); ``label`` itself when it takes up nothing."""
     return combination_name(label, comb.factors if comb is not None else {})
 
 

@@ -128,12 +128,14 @@ def register_cli(sub) -> None:
         q.set_defaults(func=_cmd_campaign)
 
     m = sub.add_parser(
-        "migrate", help="upgrade a warehouse written by an older accelcal (schema 2 -> 3)",
+        "migrate", help="upgrade a warehouse written by an older accelcal (schema 2 or 3 -> 4)",
         description="Bring a warehouse to this accelcal's schema in place, keeping every row "
                     "and the activation history. The file is first copied (its write-ahead log "
                     "folded in) to <stem>.schema-<old>.duckdb beside it. Schema 2 -> 3 writes each result's "
                     "extras as the file <stem>-extras/<sha[:2]>/<sha>.json its "
-                    "results.extras_sha256 names. Safe to run again after an interruption.")
+                    "results.extras_sha256 names. Schema 3 -> 4 names each combination row "
+                    "structurally (K1(Koq,K3)) with its factors in coefficient_history.factors. "
+                    "Safe to run again after an interruption.")
     m.add_argument("--warehouse", "-w", default=default_warehouse())
     m.add_argument("--lock-timeout", type=float, default=60.0, metavar="S")
     m.set_defaults(func=_cmd_migrate)
@@ -229,7 +231,8 @@ def _cmd_migrate(args) -> int:
         say(con, f"{out['warehouse']}: schema {out['to']} already; nothing to do")
         return 0
     say(con, f"{out['warehouse']}: schema {out['from']} -> {out['to']}; {out['results']} "
-             f"results, {out['extras_files']} extras files; the schema-{out['from']} file is "
+             f"results, {out['extras_files']} extras files, {out['combinations']} combination "
+             f"rows named structurally; the schema-{out['from']} file is "
              f"kept as {out['backup']}")
     return 0
 

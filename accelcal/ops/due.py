@@ -28,16 +28,16 @@ from ..config import ForecastConfig
 SECONDS_PER_YEAR = 86400.0 * drift.YEAR_DAYS
 
 _HISTORY_SQL = """
-SELECT h.unit_serial, h.unit_model, h.name, h.unit, h.campaign, h.calibrated_at, h.value,
-       h.std_uncertainty, h.expanded_uncertainty, h.method, h.rig_id, h.result_id,
-       r.code_version, h.calibration_no,
+SELECT h.unit_serial, h.unit_model, h.name, h.quantity, h.factors, h.unit, h.campaign,
+       h.calibrated_at, h.value, h.std_uncertainty, h.expanded_uncertainty, h.method,
+       h.rig_id, h.result_id, r.code_version, h.calibration_no,
        (SELECT arg_min(f.started_at, TRY_CAST(f.started_at AS TIMESTAMPTZ))
         FROM lineage l JOIN run_files f USING (sha256)
         WHERE l.result_id = h.result_id) AS first_started_at
 FROM unit_history_as_of(CAST(? AS TIMESTAMPTZ)) h JOIN results r USING (result_id)
 WHERE (CAST(? AS TIMESTAMPTZ) IS NULL OR h.calibrated_at <= CAST(? AS TIMESTAMPTZ))
   AND h.value IS NOT NULL AND h.std_uncertainty > 0
-ORDER BY h.unit_serial, h.name, h.calibration_no
+ORDER BY h.unit_serial, h.quantity, h.calibration_no
 """
 
 
@@ -113,9 +113,11 @@ def load_history(warehouse: str | Path, as_of: dt.datetime | None = None,
 
 
 def _series(rows: list[dict[str, Any]]) -> dict[tuple[str, str], list[dict[str, Any]]]:
+    """The calibrations of each (unit, quantity): a coefficient's series whether a
+    campaign determined it alone or in the combination its design determines."""
     out: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for r in rows:
-        out.setdefault((r["unit_serial"], r["name"]), []).append(r)
+        out.setdefault((r["unit_serial"], r["quantity"]), []).append(r)
     for lst in out.values():
         lst.sort(key=lambda r: (r["calibrated_at"], r["calibration_no"]))
     return out
@@ -132,7 +134,8 @@ def _arrays(lst, adjusted):
 def compute(rows: list[dict[str, Any]], adjusted: set[str], cfg: ForecastConfig
             ) -> list[tuple[list[dict[str, Any]], drift.Forecast]]:
     """Every series' :class:`accelcal.drift.Forecast`, with the fleet prior of its unit
-    model and coefficient (from the other units' current series)."""
+    model and coefficient (from the other units' current series); series, tolerances and
+    the fleet are keyed on the quantity (``K1`` for a row ``K1(Koq,K3)``)."""
     series = _series(rows)
     first = {k: drift.forecast(*_arrays(v, adjusted)[:3], None, cfg.risk,
                                adjusted=_arrays(v, adjusted)[3]) for k, v in series.items()}
@@ -172,16 +175,22 @@ def calibration_date(row: dict[str, Any]) -> str:
 def forecast_row(lst: list[dict[str, Any]], f: drift.Forecast,
                  today: dt.date | None = None) -> dict[str, Any]:
     """The issue's JSON row (plus what the row was computed from); ``overdue``: the due
-    date lies before ``today`` (default: today, UTC)."""
+    date lies before ``today`` (default: today, UTC).  ``coefficient`` is the quantity;
+    ``name`` and ``factors`` the row in use (a combination the design determines:
+    ``K1(Koq,K3)`` with ``{"Koq": 1.1, "K3": 9.55}``), ``measured`` it as a formula."""
+    from ..effects import combination_formula
     last = lst[-1]
+    factors = json.loads(last["factors"]) if last.get("factors") else {}
     due = _date(f.due)
     today = today or dt.datetime.now(dt.timezone.utc).date()
     return {
         "unit_serial": last["unit_serial"], "unit_model": last["unit_model"],
-        "coefficient": last["name"], "n_campaigns": f.n_campaigns,
+        "coefficient": last["quantity"], "n_campaigns": f.n_campaigns,
+        "name": last["name"], "factors": factors,
+        "measured": combination_formula(last["quantity"], factors),
         "last_calibrated": calibration_date(last),
         "drift_per_year": f.drift_per_year, "u_drift_per_year": f.u_drift_per_year,
-        "drift_display": display_rate(last["name"], f.drift_per_year, f.u_drift_per_year,
+        "drift_display": display_rate(last["quantity"], f.drift_per_year, f.u_drift_per_year,
                                       f.value_in_use),
         "due_date": due, "overdue": due is not None and due < today.isoformat(),
         "exit_interval_95": [_date(f.due_interval[0]), _date(f.due_interval[1])],
@@ -333,7 +342,9 @@ def text_lines(rows: list[dict[str, Any]], today: dt.date | None = None,
         if lo is not None:
             when += (f"; out of tolerance between {lo} and {hi}" if hi else
                      f"; out of tolerance from {lo} on") + " (95\u00a0%)"
-        out += textwrap.wrap(f"{r['unit_serial']}  {r['coefficient']}  {when}",
+        what = r["coefficient"] + (f" (as {r['measured']}, the combination the design "
+                                   "determines)" if r.get("factors") else "")
+        out += textwrap.wrap(f"{r['unit_serial']}  {what}  {when}",
                              subsequent_indent="    ", **wrap)
         rate = display_rate(r["coefficient"], r["drift_per_year"], r["u_drift_per_year"],
                             r["value_in_use"], r.get("unit"))
@@ -362,11 +373,12 @@ def certificate_due_statement(warehouse: str | Path, unit_serial: str, campaign:
     stop = {}
     for r in mine:
         if r["campaign"] == campaign:
-            stop[r["name"]] = r["calibration_no"]
-    mine = [r for r in mine if r["name"] in stop and r["calibration_no"] <= stop[r["name"]]]
+            stop[r["quantity"]] = r["calibration_no"]
+    mine = [r for r in mine
+            if r["quantity"] in stop and r["calibration_no"] <= stop[r["quantity"]]]
     # the fleet prior needs the other units: keep their rows as they are
     fc = compute([r for r in rows if r["unit_serial"] != unit_serial] + mine, adjusted, cfg)
-    dated = [(f.due, lst[-1]["name"], f.basis) for lst, f in fc
+    dated = [(f.due, _measured(lst[-1]), f.basis) for lst, f in fc
              if lst[-1]["unit_serial"] == unit_serial and f.due is not None]
     if not dated:
         bases = sorted({f.basis.split(";")[0] for lst, f in fc
@@ -375,6 +387,14 @@ def certificate_due_statement(warehouse: str | Path, unit_serial: str, campaign:
                                         cfg.risk, True)
     due, name, basis = min(dated)
     return drift.due_date_statement(_date(due), f"{name}, {basis}", cfg.risk, True)
+
+
+def _measured(row: dict[str, Any]) -> str:
+    """A history row's quantity, with the combination it was measured as, if one."""
+    from ..effects import combination_formula
+    if not row.get("factors"):
+        return row["quantity"]
+    return f"{row['quantity']} (as {combination_formula(row['quantity'], json.loads(row['factors']))})"
 
 
 # ---------------------------------------------------------------- history ----
@@ -388,7 +408,7 @@ def _chart(lst, f: drift.Forecast, en: np.ndarray, today: float) -> str:
     campaigns.  Every line is in a legend; the axes carry no offset or power of ten."""
     from .plots import _plt, _png
     plt = _plt()
-    name = lst[-1]["name"]
+    name = lst[-1]["quantity"]
     scale, unit = display_scale(name, f.value_in_use)
     unit = unit or lst[-1]["unit"] or "SI unit"
     ppm = unit == "ppm"
@@ -497,7 +517,10 @@ def history_html(warehouse: str | Path, unit_serial: str, out_dir: str | Path,
                                   [q["expanded_uncertainty"] for q in lst])
         steps = ", ".join(f"{s['campaign']} (En {format_sig(s['en'])})" for s in r["steps"])
         parts.append(
-            f"<h2>{e(r['coefficient'])}</h2><p>due <b>{e(r['due_date'] or '—')}</b>"
+            f"<h2>{e(r['coefficient'])}</h2>"
+            + (f"<p>Measured as {e(r['measured'])} ({e(r['name'])}): the combination its "
+               "design determines.</p>" if r["factors"] else "")
+            + f"<p>due <b>{e(r['due_date'] or '—')}</b>"
             + (" <b class='overdue'>OVERDUE</b>" if r["overdue"] else "")
             + f"; last calibrated {e(r['last_calibrated'])}; drift {e(r['drift_display'])}"
             + (" (u, k = 1)" if r["drift_per_year"] is not None else "")

@@ -254,6 +254,16 @@ def _mc_verdict(d, c) -> tuple[str, str]:
     return ("PASS", "ok") if m.validated else ("FAIL", "bad")
 
 
+def name_with_factors(c) -> str:
+    """A coefficient row's name as the certificate prints it: for a combination the design
+    determines, with what it measures (``K1(Koq,K3) = K1 + 9.55·K3 + 1.1·Koq``, factors
+    to three significant digits, from the row's ``factors``)."""
+    from ..effects import combination_formula
+    f = c.get("factors")
+    factors = json.loads(f) if isinstance(f, str) else dict(f or {})
+    return f"{c['name']} = {combination_formula(c['name'], factors)}" if factors else c["name"]
+
+
 def _coef_rows(d, coefs) -> list[list[Any]]:
     rows = []
     for c in coefs:
@@ -262,7 +272,7 @@ def _coef_rows(d, coefs) -> list[list[Any]]:
                                    c.get("unit"), k)
         if _u_unknown(c):
             U = "not assessable"
-        rows.append([c["name"], (v, "num"), (U, "num"), (f"{k:.3g}", "num"),
+        rows.append([name_with_factors(c), (v, "num"), (U, "num"), (f"{k:.3g}", "num"),
                      (COVERAGE_PROBABILITY, "nw"), (unit, "nw"), c.get("method") or "",
                      (c.get("rig_id") or "", "nw"), (_fmt(c.get("dof"), ".0f"), "num"),
                      _mc_verdict(d, c), c.get("note") or ""])

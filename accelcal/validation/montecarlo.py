@@ -123,8 +123,9 @@ def _campaign(sc, seed: int):
     return process_campaign([SimRunFile.from_simrun(r) for r in runs])
 
 
-def _one(args) -> list[tuple[str, str, str, float, float, str]] | str:
-    """Worker: one campaign -> [(name, method, rig, value, u, note)], or an error string."""
+def _one(args) -> list[tuple[str, str, str, float, float, str, dict]] | str:
+    """Worker: one campaign -> [(name, method, rig, value, u, note, factors)], or an error
+    string."""
     import warnings
     sc, seed = args
     try:
@@ -133,8 +134,8 @@ def _one(args) -> list[tuple[str, str, str, float, float, str]] | str:
             res = _campaign(sc, seed)
     except Exception as exc:  # a crash is a finding, not the end of the study
         return f"seed {seed}: {type(exc).__name__}: {exc}"
-    return [(c.name, c.method, c.rig_id, float(c.value), float(c.std_uncertainty), c.note)
-            for c in res.coefficients]
+    return [(c.name, c.method, c.rig_id, float(c.value), float(c.std_uncertainty), c.note,
+             dict(c.factors)) for c in res.coefficients]
 
 
 # ---------------------------------------------------------------- truth
@@ -185,7 +186,8 @@ def truth_table(scenario, notes: Mapping[tuple[str, str, str], str] | None = Non
 COVARIANCE = ("__covariance__", "", "")
 
 
-def combination_bound(name: str, cov: Mapping[tuple[str, str], float]) -> float | None:
+def combination_bound(name: str, factors: Mapping[str, float],
+                      cov: Mapping[tuple[str, str], float]) -> float | None:
     """Cramér–Rao variance of a row named as a combination: c^T F^+ c over the
     terms the bound has free; a term the bound holds (aliased, as the estimator holds it)
     is left out, so a coefficient that takes up a held one has its own bound.
@@ -193,7 +195,9 @@ def combination_bound(name: str, cov: Mapping[tuple[str, str], float]) -> float 
     Parameters
     ----------
     name : str
-        :func:`accelcal.effects.split_combination` form (``'Kip+Kpp'``, ``'K0+96.1*Koo'``).
+        Row name (:func:`accelcal.effects.combination_name`, ``'Kip(Kpp)'``, ``'K0(Koo)'``).
+    factors : mapping of str to float
+        The row's factors (``CoefficientResult.factors``).
     cov : mapping
         :func:`cramer_rao`'s ``COVARIANCE`` entry [SI^2].
 
@@ -202,15 +206,16 @@ def combination_bound(name: str, cov: Mapping[tuple[str, str], float]) -> float 
     float or None
         [SI^2]; None when the coefficient itself is not free in the bound.
     """
-    base, terms = split_combination(name)
-    c = {base: 1.0, **{k: f for k, f in terms.items() if (k, k) in cov}}
+    base = split_combination(name)[0]
+    c = {base: 1.0, **{k: f for k, f in factors.items() if (k, k) in cov}}
     if (base, base) not in cov:
         return None
     return float(sum(fa * fb * cov[(a, b)] for a, fa in c.items() for b, fb in c.items()))
 
 
-def combination_truth(key: tuple[str, str, str], truth: Mapping) -> tuple[float, str] | None:
-    """Truth of a row named as a combination (:func:`accelcal.effects.split_combination`):
+def combination_truth(key: tuple[str, str, str], factors: Mapping[str, float],
+                      truth: Mapping) -> tuple[float, str] | None:
+    """Truth of a row that is a combination (:func:`accelcal.effects.combination_name`):
     where the table maps its coefficient to an apparent value (a tumble's K0 is
     K0 + K_ss g^2), that mapping already is the combination; where it maps it to the
     instrument value, the other terms' instrument values are added with their factors.
@@ -218,6 +223,8 @@ def combination_truth(key: tuple[str, str, str], truth: Mapping) -> tuple[float,
     Parameters
     ----------
     key : (name, method, rig_id)
+    factors : mapping of str to float
+        The row's factors (of its first draw: they move by parts in 1e6 between draws).
     truth : mapping
         :func:`truth_table`.
 
@@ -227,8 +234,8 @@ def combination_truth(key: tuple[str, str, str], truth: Mapping) -> tuple[float,
         Truth [SI] and how it was mapped; None for a plain name or an unknown term.
     """
     name, method, rig = key
-    base, terms = split_combination(name)
-    if not terms:
+    base = split_combination(name)[0]
+    if not factors:
         return None
     got = truth.get((base, method, rig)) or truth.get((base, method, "*"))
     if got is None:
@@ -236,7 +243,7 @@ def combination_truth(key: tuple[str, str, str], truth: Mapping) -> tuple[float,
     if got[1] != "instrument value":
         return got[0], f"{got[1]} (the combination {name})"
     total = got[0]
-    for k, f in terms.items():
+    for k, f in factors.items():
         t = truth.get((k, "joint_ml", "*"))
         if t is None:
             return None
@@ -480,16 +487,18 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
     ok = [r for r in results if not isinstance(r, str)]
     vals: dict[tuple[str, str, str], list[tuple[float, float]]] = defaultdict(list)
     notes: dict[tuple[str, str, str], str] = {}
+    factors: dict[tuple[str, str, str], dict] = {}
     for rows in ok:
-        for name, method, rig, v, u, note in rows:
+        for name, method, rig, v, u, note, fac in rows:
             vals[(name, method, rig)].append((v, u))
             notes.setdefault((name, method, rig), note)
+            factors.setdefault((name, method, rig), fac)
     truth = truth_table(sc, notes)
     nf: dict[tuple[str, str, str], float] = {}
     if noise_free:
         rows = _one((_noise_free(sc), sc.seed if sc.seed is not None else seed))
         if not isinstance(rows, str):
-            nf = {(a, b, c): v for a, b, c, v, _, _ in rows}
+            nf = {(a, b, c): v for a, b, c, v, *_ in rows}
     bounds = cramer_rao(sc, seed) if crb else {}
     stats = []
     for key, vu in vals.items():
@@ -499,7 +508,7 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
         m = len(x)
         sd = float(np.std(x, ddof=1)) if m > 1 else float("nan")
         u_rms = float(np.sqrt(np.mean(u**2)))
-        tv, tnote = truth.get(key) or truth.get((name, method, "*")) or combination_truth(key, truth) or (
+        tv, tnote = truth.get(key) or truth.get((name, method, "*")) or combination_truth(key, factors[key], truth) or (
             None, "no truth defined for this coefficient/method")
         cs = CoefficientStats(name, method, rig, m, tv, tnote, float(np.mean(x)), sd, u_rms,
                               float(np.mean(u)), noise_free=nf.get(key),
@@ -520,7 +529,7 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
             cs.bias_over_sd = cs.bias / sd if sd > 0 else None
         b = next((bounds[k] for k in (key, (name, method, "*")) if bounds.get(k) is not None), None)
         if b is None and bounds:
-            b = combination_bound(name, bounds[COVARIANCE])
+            b = combination_bound(name, factors[key], bounds[COVARIANCE])
         if b is not None and b > 0 and tv is not None and m > 1:
             cs.crb_sd = math.sqrt(b)
             cs.var_over_crb = sd**2 / b

@@ -51,7 +51,7 @@ from .views import apply_views
 
 #: 3: results.extras (the JSON the certificate's plots and checks read, ~48 KB a result)
 #: moved out of the table into content-addressed files; results.extras_sha256 names one.
-SCHEMA_VERSION = "3"
+SCHEMA_VERSION = "4"
 
 #: What other modules take from here (the lock, the extras store and the errors are
 #: imported from lock.py, extras.py and errors.py).
@@ -192,7 +192,7 @@ def check_schema_version(con, path) -> None:
             f"{SCHEMA_VERSION}: " + (
                 ("upgrade it with `accelcal migrate -w WAREHOUSE` (it keeps a copy of the "
                  "old file), or process its drops again into a new warehouse"
-                 if have == "2" else
+                 if have in ("2", "3") else
                  "process its drops again into a new warehouse (the raw drops are never "
                  "changed; results are recomputed exactly)") if older else
                 "it was written by a newer accelcal; upgrade accelcal to read it"))

@@ -1,6 +1,12 @@
 """Upgrade a warehouse written by an older schema to this accelcal's (``accelcal migrate``).
 
-Schema 2 -> 3 is the one step there is: schema 2 held each result's extras (the per-pair
+Schema 3 -> 4 adds ``coefficient_history.factors`` and gives every combination row the
+structural name (:func:`accelcal.effects.combination_name`): schema 3 named it with its
+factors to three digits (``K1+9.55*K3+1.1*Koq``), which moved with the data; the row
+becomes ``K1(Koq,K3)`` with ``{"K3": 9.55, "Koq": 1.1}`` (the factors as the old name
+gave them), and its budget lines follow.  Every other row and column is kept.
+
+Schema 2 -> 3: schema 2 held each result's extras (the per-pair
 fits, residual series and Monte Carlo check the certificate reads, ~48 KB of canonical
 JSON a result) in the column ``results.extras``; schema 3 keeps them as immutable files
 ``<extras_dir>/<sha[:2]>/<sha>.json`` named by ``results.extras_sha256`` (extras.py).
@@ -25,11 +31,13 @@ from pathlib import Path
 
 import duckdb
 
+from ..effects import combination_name
 from ..fileio import os_error_text, path_text
 from .columnar import _arrow, _registered, _transaction
 from .db import SCHEMA_VERSION, Warehouse, schema_version
 from .errors import WarehouseError
 from .extras import EXTRAS_DIR_KEY, write_extras
+from .lineage import canonical_json
 
 #: Results whose extras are read and written as files at a time (~48 KB each).
 ROWS_PER_BATCH = 200
@@ -83,14 +91,14 @@ def migrate(path: str | Path, *, lock_timeout: float = 60.0) -> dict:
             raise MigrationError(f"{path_text(path)} cannot be read as a warehouse: "
                                  f"{str(e).splitlines()[0]}") from None
         out = {"warehouse": str(path), "from": have, "to": SCHEMA_VERSION, "results": 0,
-               "extras_files": 0, "backup": None}
+               "extras_files": 0, "combinations": 0, "backup": None}
         if have == SCHEMA_VERSION:
             return out
-        if have != "2":
+        if have not in ("2", "3"):
             raise MigrationError(
                 f"warehouse {path_text(path)} has schema version {have}; accelcal migrate "
-                f"upgrades schema 2 to {SCHEMA_VERSION} only: process its drops again into "
-                "a new warehouse")
+                f"upgrades schema 2 or 3 to {SCHEMA_VERSION} only: process its drops again "
+                "into a new warehouse")
         backup = path.with_name(f"{path.stem}.schema-{have}{path.suffix}")
         if not backup.exists():         # else the interrupted migration's copy is the original
             con = duckdb.connect(str(path))
@@ -109,7 +117,9 @@ def migrate(path: str | Path, *, lock_timeout: float = 60.0) -> dict:
         extras_root = path.parent / f"{path.stem}-extras"
         con = duckdb.connect(str(path))
         try:
-            out.update(_migrate_2_to_3(con, extras_root))
+            if have == "2":
+                out.update(_migrate_2_to_3(con, extras_root))
+            out["combinations"] = _migrate_3_to_4(con)
         finally:
             con.close()
         if wh.snapshot_path.exists():     # readers' copy: the old one is schema 2
@@ -150,9 +160,48 @@ def _migrate_2_to_3(con, extras_root: Path) -> dict:
             con.execute(f'DROP VIEW IF EXISTS "{v}"')
         con.execute("DROP TABLE results")
         con.execute("ALTER TABLE results_schema3 RENAME TO results")
-        con.execute("UPDATE schema_info SET value = ? WHERE key = 'schema_version'",
-                    [SCHEMA_VERSION])
+        con.execute("UPDATE schema_info SET value = '3' WHERE key = 'schema_version'")
         con.execute("INSERT INTO schema_info VALUES (?, ?) ON CONFLICT DO NOTHING",
                     [EXTRAS_DIR_KEY, extras_root.name])
     con.execute("CHECKPOINT")
     return {"results": len(ids), "extras_files": len({s for s in shas.values() if s})}
+
+
+#: A schema-3 combination name: the coefficient, then each term as +f*K or -f*K (f left
+#: out when 1), a bracketed scope kept with its coefficient.
+_NAME_3 = r"[A-Za-z_][A-Za-z0-9_]*(?:\[[^\]]*\])?"
+_TERM_3 = re.compile(rf"([+-])(?:([0-9.]+(?:e[+-]?[0-9]+)?)\*)?({_NAME_3})")
+
+
+def structural_name(name: str) -> tuple[str, dict[str, float]] | None:
+    """A schema-3 row name as schema 4 names it: ``"K1+9.55*K3+1.1*Koq"`` ->
+    ``("K1(Koq,K3)", {"K3": 9.55, "Koq": 1.1})``; None for a plain name."""
+    m = re.fullmatch(rf"({_NAME_3})((?:[+-](?:[0-9.]+(?:e[+-]?[0-9]+)?\*)?{_NAME_3})+)", name)
+    if m is None:
+        return None
+    factors = {k: (-1.0 if s == "-" else 1.0) * (float(f) if f else 1.0)
+               for s, f, k in _TERM_3.findall(m.group(2))}
+    return combination_name(m.group(1), factors), factors
+
+
+def _migrate_3_to_4(con) -> int:
+    """Add ``coefficient_history.factors`` and rename the combination rows (and their
+    budget lines) structurally, in one transaction; returns how many rows were renamed."""
+    rows = con.execute("SELECT DISTINCT result_id, name FROM coefficient_history").fetchall()
+    renamed = [(rid, old, *new) for rid, old in rows if (new := structural_name(old)) is not None]
+    with _transaction(con):
+        views = [r[0] for r in con.execute(
+            "SELECT view_name FROM duckdb_views() WHERE NOT internal").fetchall()]
+        for v in views:                 # _apply_schema makes them again on the next open
+            con.execute(f'DROP VIEW IF EXISTS "{v}"')
+        con.execute("ALTER TABLE coefficient_history ADD COLUMN factors VARCHAR")
+        for rid, old, new, factors in renamed:
+            con.execute("UPDATE coefficient_history SET name = ?, factors = ? "
+                        "WHERE result_id = ? AND name = ?",
+                        [new, canonical_json(factors), rid, old])
+            con.execute("UPDATE budget_history SET coefficient = ? "
+                        "WHERE result_id = ? AND coefficient = ?", [new, rid, old])
+        con.execute("UPDATE schema_info SET value = ? WHERE key = 'schema_version'",
+                    [SCHEMA_VERSION])
+    con.execute("CHECKPOINT")
+    return len(renamed)

@@ -128,7 +128,8 @@ def _insert_results(con, fresh, code_version, params_json, flow_run_id, checkpoi
             "name": c.name, "value": _f(c.value), "std_uncertainty": _f(c.std_uncertainty),
             "unit": c.unit, "method": c.method, "rig_id": c.rig_id, "dof": _f(c.dof),
             "note": c.note, "adopted": bool(getattr(c, "adopted", False)),
-            "coverage_factor": _f(getattr(c, "coverage_factor", 2.0)) or 2.0}),
+            "coverage_factor": _f(getattr(c, "coverage_factor", 2.0)) or 2.0,
+            "factors": canonical_json(c.factors) if getattr(c, "factors", None) else None}),
         ("radius_history", "radii", lambda rid, k, camp, r: {
             "result_id": rid, "seq": k, "campaign": camp, "rig_id": r.rig_id,
             "polarity": r.polarity, "method": r.method, "model_order": r.model_order,

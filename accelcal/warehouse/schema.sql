@@ -18,7 +18,9 @@
 --     rewritten whole at every checkpoint) became results.extras_sha256, naming an
 --     immutable file in the folder schema_info.extras_dir.  An older warehouse is refused
 --     with a one-line message (accelcal.warehouse.db): reprocess its drops into a new
---     warehouse.
+--     warehouse.  Schema version 4: coefficient_history.factors; a row's name is the
+--     quantity, never a number from the data (accelcal.effects.combination_name): a
+--     combination the design determines is named 'K1(Koq,K3)', its factors in `factors`.
 
 CREATE TABLE IF NOT EXISTS schema_info (
     key   VARCHAR PRIMARY KEY,
@@ -142,6 +144,9 @@ CREATE TABLE IF NOT EXISTS coefficient_history (
     adopted          BOOLEAN NOT NULL DEFAULT false,  -- the value the lab adopts (one per
                                                       -- result and coefficient name)
     coverage_factor  DOUBLE NOT NULL DEFAULT 2.0,     -- k of U = k u (Student t on few dof)
+    factors          VARCHAR,   -- JSON {term: factor}: a combination the design determines
+                                -- (name 'K1(Koq,K3)' = K1 + f_K3 K3 + f_Koq Koq); NULL for a
+                                -- coefficient determined alone
     PRIMARY KEY (result_id, seq)
 );
 
@@ -298,7 +303,8 @@ SELECT * FROM excluded_campaigns_as_of(NULL);
 CREATE OR REPLACE VIEW coefficients AS
 SELECT h.unit_serial, h.campaign, h.name, h.value, h.std_uncertainty,
        h.coverage_factor * h.std_uncertainty AS expanded_uncertainty, h.unit, h.method,
-       h.result_id, h.rig_id, h.dof, h.note, h.adopted, h.coverage_factor, c.completeness, c.simulated
+       h.result_id, h.rig_id, h.dof, h.note, h.adopted, h.coverage_factor, c.completeness, c.simulated,
+       split_part(h.name, '(', 1) AS quantity, h.factors
 FROM coefficient_history h JOIN results_current c USING (result_id)
 ORDER BY h.campaign, h.seq;
 
@@ -335,7 +341,7 @@ WHERE v.valid_from <= ts AND (v.valid_to IS NULL OR v.valid_to > ts)
 CREATE OR REPLACE MACRO coefficients_as_of(ts) AS TABLE
 SELECT h.unit_serial, h.campaign, h.name, h.value, h.std_uncertainty,
        h.coverage_factor * h.std_uncertainty AS expanded_uncertainty, h.unit, h.method,
-       h.result_id, h.adopted
+       h.result_id, h.adopted, split_part(h.name, '(', 1) AS quantity, h.factors
 FROM coefficient_history h
 WHERE h.result_id IN (SELECT result_id FROM results_as_of(ts));
 

@@ -16,8 +16,14 @@
 --     CoefficientResult.adopted) of the current results that are complete, real
 --     (not simulated) and not excluded (campaign_actions).  The other methods'
 --     values stay in coefficient_versions / coefficients as cross-checks.
---   * A "coefficient series" is (unit_serial, name): the calibrations of one
+--   * A "coefficient series" is (unit_serial, quantity): the calibrations of one
 --     coefficient of one unit, whatever method was adopted (method is a column).
+--     quantity is the coefficient a row stands for: its name, or for a combination the
+--     design determines (name 'K1(Koq,K3)', accelcal.effects.combination_name) the
+--     coefficient kept, 'K1' -- split_part(name, '(', 1); its factors are the JSON
+--     column factors ({"K3": 9.55, "Koq": 1.1}: K1 + 9.55 K3 + 1.1 Koq).  A unit
+--     recalibrated by tumble alone continues its K1 series.  Where one result adopts the
+--     coefficient alone and a combination of it, the series takes the coefficient alone.
 --     rig_id is kept alongside (a series may move from one centrifuge to
 --     another; rig_comparison is the view for that).
 --   * Every *_as_of(ts) macro shows what the warehouse said at time ts:
@@ -38,7 +44,8 @@ GROUP BY l.result_id;
 -- Every coefficient of every result ever stored, current or superseded, with what
 -- decides whether it is a calibration: adopted, completeness, simulated, excluded.
 CREATE OR REPLACE VIEW coefficient_versions AS
-SELECT h.unit_serial, r.unit_model, h.campaign, h.name, h.method, h.rig_id,
+SELECT h.unit_serial, r.unit_model, h.campaign, h.name, split_part(h.name, '(', 1) AS quantity,
+       h.factors, h.method, h.rig_id,
        h.value, h.std_uncertainty, h.coverage_factor * h.std_uncertainty AS expanded_uncertainty,
        h.unit, h.dof, h.coverage_factor,
        coalesce(d.first_run_at, r.computed_at) AS calibrated_at, d.last_run_at,
@@ -54,7 +61,8 @@ LEFT JOIN result_dates d USING (result_id);
 -- current at ts that are complete, real and not excluded at ts.
 CREATE OR REPLACE MACRO calibration_as_of(ts) AS TABLE
 SELECT unit_serial, unit_model, name, method, rig_id, campaign, calibrated_at,
-       value, std_uncertainty, expanded_uncertainty, unit, dof, result_id, computed_at, seq
+       value, std_uncertainty, expanded_uncertainty, unit, dof, result_id, computed_at, seq,
+       quantity, factors
 FROM coefficient_versions
 WHERE adopted AND completeness = 'complete' AND NOT simulated
   AND CASE WHEN ts IS NULL THEN is_current
@@ -69,9 +77,12 @@ SELECT * EXCLUDE (seq) FROM calibration_as_of(NULL);
 CREATE OR REPLACE MACRO unit_history_as_of(ts) AS TABLE
 SELECT unit_serial, unit_model, name, method, rig_id, campaign, calibrated_at,
        value, std_uncertainty, expanded_uncertainty, unit, dof, result_id, computed_at,
-       row_number() OVER (PARTITION BY unit_serial, name
-                          ORDER BY calibrated_at, campaign, rig_id, seq) AS calibration_no
-FROM calibration_as_of(ts);
+       row_number() OVER (PARTITION BY unit_serial, quantity
+                          ORDER BY calibrated_at, campaign, rig_id, seq) AS calibration_no,
+       quantity, factors
+FROM (SELECT * FROM calibration_as_of(ts)
+      QUALIFY row_number() OVER (PARTITION BY result_id, quantity
+                                 ORDER BY factors IS NOT NULL, seq) = 1);
 
 CREATE OR REPLACE VIEW unit_history AS
 SELECT * FROM unit_history_as_of(NULL);
@@ -93,7 +104,7 @@ SELECT unit_serial, unit_model, name, method, unit, prev_method,
        abs((value - prev_value)
          / nullif(sqrt(expanded_uncertainty ^ 2 + prev_expanded_uncertainty ^ 2), 0)) > 1
          AS exceeds_uncertainty,
-       prev_result_id, result_id, calibration_no
+       prev_result_id, result_id, calibration_no, quantity, factors, prev_name
 FROM (
     SELECT *,
            lag(campaign)             OVER w AS prev_campaign,
@@ -102,9 +113,10 @@ FROM (
            lag(calibrated_at)        OVER w AS prev_calibrated_at,
            lag(value)                OVER w AS prev_value,
            lag(expanded_uncertainty) OVER w AS prev_expanded_uncertainty,
-           lag(result_id)            OVER w AS prev_result_id
+           lag(result_id)            OVER w AS prev_result_id,
+           lag(name)                 OVER w AS prev_name
     FROM unit_history_as_of(ts)
-    WINDOW w AS (PARTITION BY unit_serial, name ORDER BY calibration_no)
+    WINDOW w AS (PARTITION BY unit_serial, quantity ORDER BY calibration_no)
 )
 WHERE prev_value IS NOT NULL;
 
@@ -114,7 +126,7 @@ SELECT * FROM coefficient_changes_as_of(NULL);
 -- The latest calibration of every (unit, coefficient, rig): the fleet's state.
 CREATE OR REPLACE MACRO fleet_latest_as_of(ts) AS TABLE
 SELECT * EXCLUDE (rk) FROM (
-    SELECT *, row_number() OVER (PARTITION BY unit_serial, name, rig_id
+    SELECT *, row_number() OVER (PARTITION BY unit_serial, quantity, rig_id
                                  ORDER BY calibration_no DESC) AS rk
     FROM unit_history_as_of(ts)
 ) WHERE rk = 1;
