@@ -266,13 +266,44 @@ def rig_uncertainties(explicit: str | Path | None = None,
     return out
 
 
+def priors(explicit: str | Path | None = None,
+           warehouse: str | Path | None = None) -> dict[str, dict[str, dict[str, float]]]:
+    """Unit model -> coefficient -> ``{"value", "u"}`` [SI], from ``[prior."MODEL"]`` of the
+    config file::
+
+        [prior."QA-2000"]
+        K3 = { value = 1.5e-9, u = 5e-10 }     # s4/m3 (SI, as effects.md)
+        Koq = { value = 2e-8, u = 1e-8 }       # s2/m
+
+    What the lab knows of terms a design cannot see (the schema checks the keys and types;
+    a u that is not positive is one :class:`ConfigError` line).  Same look-up as
+    :func:`lab_config`; none without a file."""
+    path = find_config(explicit, warehouse)
+    if path is None:
+        return {}
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    for model, table in (_read(path).get("prior") or {}).items():
+        for name, v in (table or {}).items():
+            if not float(v["u"]) > 0:
+                raise ConfigError(f'{path}: [prior."{model}"] {name}: u must be a positive number')
+            out.setdefault(str(model), {})[str(name)] = {"value": float(v["value"]), "u": float(v["u"])}
+    return out
+
+
 def run_parameters(explicit: str | Path | None = None,
                    warehouse: str | Path | None = None) -> dict[str, Any] | None:
     """The pipeline parameters the lab's config file sets for a run (``run``, ``demo``,
-    ``serve``): ``{"rig_uncertainty": ...}`` (:func:`rig_uncertainties`) when it states any,
-    else None, so that a run without them keeps the result ids it always had."""
+    ``serve``): ``{"rig_uncertainty": ...}`` (:func:`rig_uncertainties`) and ``{"priors":
+    ...}`` (:func:`priors`) when it states any, else None, so that a run without them keeps
+    the result ids it always had."""
+    out: dict[str, Any] = {}
     stated = rig_uncertainties(explicit, warehouse)
-    return {"rig_uncertainty": stated} if stated else None
+    if stated:
+        out["rig_uncertainty"] = stated
+    known = priors(explicit, warehouse)
+    if known:
+        out["priors"] = known
+    return out or None
 
 
 def _str(d: dict[str, Any], key: str, where: str, path: Path) -> str | None:

@@ -21,12 +21,13 @@ from ..results import CampaignResult, CoefficientResult
 from . import registry
 from . import uncertainty as unc
 from .centrifuge import RADIUS_ORDERS, RADIUS_RANGES
+from .priors import apply_priors
 
 
 # ------------------------------------------------------------------ entry point
 
-def process_campaign(runs, rig_uncertainty: Mapping[str, Mapping[str, float]] | None = None
-                     ) -> CampaignResult:
+def process_campaign(runs, rig_uncertainty: Mapping[str, Mapping[str, float]] | None = None,
+                     priors: Mapping[str, Mapping[str, Mapping[str, float]]] | None = None) -> CampaignResult:
     """Run every estimator that applies to the runs of one campaign (docs/design.md).
 
     Parameters
@@ -38,6 +39,11 @@ def process_campaign(runs, rig_uncertainty: Mapping[str, Mapping[str, float]] | 
         uncertainty of that input [its unit] (accelcal.toml ``[rigs."ID"]``,
         :func:`accelcal.config.rig_uncertainties`): type-B terms of the budgets.  Inputs
         that enter and are not stated are left out, and a flag says which.
+    priors : mapping, optional
+        Unit model -> coefficient -> ``{"value", "u"}`` [SI] (accelcal.toml
+        ``[prior."MODEL"]``, :func:`accelcal.config.priors`): what the lab knows of terms
+        a design cannot see; an adopted combination whose every term has one becomes the
+        quantity it names (:func:`accelcal.estimators.priors.apply_priors`).
 
     Returns
     -------
@@ -46,10 +52,11 @@ def process_campaign(runs, rig_uncertainty: Mapping[str, Mapping[str, float]] | 
     """
     from ..fitting.blas import single_thread
     with single_thread():            # small dense algebra: one BLAS thread is the fast one
-        return _process_campaign(runs, rig_uncertainty or {})
+        return _process_campaign(runs, rig_uncertainty or {}, priors or {})
 
 
-def _process_campaign(runs, stated: Mapping[str, Mapping[str, float]]) -> CampaignResult:
+def _process_campaign(runs, stated: Mapping[str, Mapping[str, float]],
+                      priors: Mapping[str, Mapping[str, Mapping[str, float]]]) -> CampaignResult:
     first = runs[0]
     res = CampaignResult(
         campaign=str(first.meta["campaign"]), unit_serial=str(first.meta["unit_serial"]),
@@ -83,6 +90,10 @@ def _process_campaign(runs, stated: Mapping[str, Mapping[str, float]]) -> Campai
         memory.give_back()     # what the paper methods freed, before the joint fit
     _joint(runs, res, stated)
     _mark_adopted(res)
+    model_priors = priors.get(res.unit_model)
+    if model_priors:
+        res.parameters["priors"] = {k: dict(v) for k, v in sorted(model_priors.items())}
+        apply_priors(res, model_priors, f'accelcal.toml [prior."{res.unit_model}"]')
     _assess_completeness(res)
     return res
 

@@ -1,0 +1,75 @@
+"""Priors for what a design cannot see: an adopted combination made the quantity it names.
+
+A design that determines a coefficient only together with others (one tumble: K1 with
+the odd terms its input takes up, K1 + f_Koq Koq + f_K3 K3) is adopted as that
+combination, named by its structure (``K1(Koq,K3)``, :func:`accelcal.effects.combination_name`)
+with its factors beside it.  Where the lab knows the terms it takes up (``[prior."MODEL"]``
+of accelcal.toml: a value and a standard uncertainty for each), the quantity itself follows
+from the measurement model
+
+    Q = C - sum_k f_k T_k,
+
+C the combination the runs determine, T_k the terms at their prior values: sensitivity
+-f_k to each, each prior a type-B input with a normal distribution (JCGM 100 §4.3, §5.1).
+The combined standard uncertainty is u_c^2 = u(C)^2 + sum_k (f_k u(T_k))^2; its effective
+degrees of freedom follow Welch-Satterthwaite (JCGM 100 G.4.1), a prior's being infinite.
+A combination with a term that has no prior stays as it is.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+from ..effects import combination_formula, split_combination
+from ..results import BudgetTerm, CampaignResult
+
+
+def apply_priors(res: CampaignResult, priors: Mapping[str, Mapping[str, float]], source: str) -> list[str]:
+    """Make each adopted combination whose every term has a prior the quantity it names.
+
+    Parameters
+    ----------
+    res : CampaignResult
+        The campaign's result; its adopted rows and their budget lines are changed in place.
+    priors : mapping
+        Coefficient name -> ``{"value": [SI], "u": [SI]}``.
+    source : str
+        Where the priors come from, for the budget lines and the note
+        (``'accelcal.toml [prior."QA-2000"]'``).
+
+    Returns
+    -------
+    list of str
+        The names of the rows made quantities (their old, structural names).
+    """
+    from .joint import coverage_factor
+    done = []
+    for c in res.coefficients:
+        if not (c.adopted and c.factors) or not all(t in priors for t in c.factors):
+            continue
+        old, quantity = c.name, split_combination(c.name)[0]
+        formula = combination_formula(old, c.factors)
+        lines = []
+        value, var = c.value, c.std_uncertainty ** 2
+        for term, f in c.factors.items():
+            v, u = float(priors[term]["value"]), float(priors[term]["u"])
+            value -= f * v
+            var += (f * u) ** 2
+            lines.append(BudgetTerm(quantity, f"{term} held at its prior (type B, normal; {source})",
+                                    v, u, -f, abs(f) * u, "B", "normal", c.method, c.rig_id))
+        u_c = math.sqrt(var)
+        if c.dof is not None and math.isfinite(c.dof) and c.dof > 0 and c.std_uncertainty > 0:
+            c.dof = u_c ** 4 / (c.std_uncertainty ** 4 / c.dof)
+            if c.coverage_factor != 2.0:
+                c.coverage_factor = coverage_factor(c.dof)
+        assumed = ", ".join(f"{t} = {float(priors[t]['value']):.3g} ± {float(priors[t]['u']):.2g}"
+                            for t in c.factors)
+        c.note = (f"the runs determine {formula}; {quantity} with {assumed} assumed ({source})"
+                  + (f"; {c.note}" if c.note else ""))
+        c.name, c.value, c.std_uncertainty, c.factors = quantity, value, u_c, {}
+        for b in res.budget:
+            if b.coefficient == old and b.method == c.method:
+                b.coefficient = quantity
+        res.budget += lines
+        done.append(old)
+    return done
