@@ -711,7 +711,7 @@ def campaign_records(runs: Sequence, steps) -> list[Records]:
         Records(flags=list(step.flags), incomplete=[NO_IA_PAIR] if step.without_ia_pair else [])]
 
 
-def mc_truth(c, eff, test, g, notes) -> dict[tuple[str, str], tuple[float, str]]:
+def mc_truth(c, eff, test, g, records) -> dict[tuple[str, str], tuple[float, str]]:
     """What each paper-000 coefficient estimates in a simulated test: the instrument values
     of K2, Kpp, Koo, Kip, Kio, Kpo, Koq, K3 (signature of
     :data:`accelcal.estimators.registry.TruthMapping`)."""

@@ -720,7 +720,7 @@ def method_quantity(c: CoefficientResult, adopted: dict[str, CoefficientResult],
     head's other turning axis (paper 003 model with effects.md terms); everything else the
     methods report is the instrument coefficient itself."""
     a = adopted[c.name]
-    if c.method == "tumble_lm" and c.name in ("K0", "K2"):
+    if isinstance(c, TumbleCoefficient) and c.name in ("K0", "K2"):
         from ..physics.geometry import geometry_of
         tumble = next((r for r in runs if str(r.meta["test"]) == "tumble"), None)
         other = geometry_of(tumble.meta).other_axis if tumble is not None else None

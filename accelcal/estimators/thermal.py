@@ -1007,7 +1007,7 @@ def campaign_records(runs: Sequence, steps: Mapping[str, Any]) -> list:
 
 
 def mc_truth(c: Mapping[str, float], eff: Mapping[str, float], test: Mapping[str, Any], g: float,
-             notes: Mapping[str, str]) -> dict[tuple[str, str], tuple[float, str]]:
+             records: Mapping[str, CoefficientResult]) -> dict[tuple[str, str], tuple[float, str]]:
     """What each paper-001 coefficient estimates in a simulated test (tilt gamma, normal axis
     n with sign ns, cos axis c): K0 -> the apparent bias at 20 degC with the normal axis'
     cross and square terms and the mean centripetal-free square term of the tilt plane;

@@ -896,7 +896,7 @@ def name_combinations(runs: Sequence, coeffs: list[CoefficientResult], budget: l
 
 
 def mc_truth(c: Mapping[str, float], eff: Mapping[str, float], test: Mapping[str, Any], g: float,
-             notes: Mapping[str, str]) -> dict[tuple[str, str], tuple[float, str]]:
+             records: Mapping[str, CoefficientResult]) -> dict[tuple[str, str], tuple[float, str]]:
     """What each tumble coefficient estimates in a simulated test (cos_axis = +-IA, sin
     axis s with sign ss, cos sign cs, temperature T): K0 -> K0(T) + K_ss g^2; K1 -> K1(T);
     K2 -> K2 when the centrifuge's K_ss was added, else K2 - K_ss; theta0 ->
@@ -912,8 +912,9 @@ def mc_truth(c: Mapping[str, float], eff: Mapping[str, float], test: Mapping[str
         The scenario's test (``heads``, ``temp_c``, ``rig_id``).
     g : float
         Local gravity [m/s2].
-    notes : mapping
-        Coefficient name -> note of the processed campaign (whether K2 was corrected).
+    records : mapping
+        Coefficient name -> record of the processed campaign: a K2
+        :class:`~.records.TumbleCoefficient` less by no square term is corrected.
 
     Returns
     -------
@@ -930,7 +931,8 @@ def mc_truth(c: Mapping[str, float], eff: Mapping[str, float], test: Mapping[str
     dT = float(test.get("temp_c", 23.0)) - T_REF_C
     Kss, Ks = c[SQUARE_TERM[si]], c[CROSS_AXIS_TERM[si]]
     sq, cr = SQUARE_TERM[si], CROSS_AXIS_TERM[si]
-    corrected = "from the centrifuge added" in notes.get("K2", "")
+    k2 = records.get("K2")
+    corrected = isinstance(k2, TumbleCoefficient) and not k2.less
     cross = CROSS_TERM[frozenset((0, si))]
     return {("K0", rig): (c["K0"] + c["K0T"] * dT + Kss * g * g, f"K0(T) + {sq} g^2 (apparent bias of a tumble)"),
             ("K1", rig): (c["K1"] * (1 + c["K1T"] * dT), "K1(T)"),
