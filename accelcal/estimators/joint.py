@@ -627,23 +627,15 @@ def stored_missing_rig_inputs(extras: Mapping[str, Any] | None) -> list[dict] | 
 
 
 def _mc_checks(coefficients: Sequence[CoefficientResult], budget: Sequence[BudgetTerm]) -> dict[str, dict]:
-    """JCGM 101 check of each adopted coefficient's budget: its inputs (the readings' type-A
-    term, normal; the type-B terms, uniform or normal as the budget says) propagated as distributions and the 95 %
-    interval compared with the GUM one (JCGM 101 §8, two significant digits).  The budget is
-    linear, so the propagation is an exact convolution: no sampling noise can fail it."""
-    from .uncertainty import validate_gum_linear
+    """JCGM 101 check of each adopted coefficient's budget (:func:`.uncertainty.budget_check`:
+    the linear budget's distributions propagated by exact convolution, no sampling noise)."""
+    from .uncertainty import budget_check
     out = {}
     for c in coefficients:
-        terms = [b for b in budget if b.coefficient == c.name and b.method == METHOD and b.std_uncertainty > 0]
-        if not terms or not math.isfinite(c.std_uncertainty):
-            continue
-        chk = validate_gum_linear([b.sensitivity for b in terms], [b.std_uncertainty for b in terms],
-                                  [b.distribution for b in terms])
-        out[f"{METHOD}:{c.rig_id}:{c.name}"] = {
-            "method": METHOD, "rig_id": c.rig_id, "coefficient": c.name, "gum_u": chk["gum_u"],
-            "mc_u": chk["gum_u"], "mc_low": c.value + chk["low"], "mc_high": c.value + chk["high"],
-            "validated": chk["validated"], "delta": chk["delta"],
-            "procedure": "propagation of distributions by numerical convolution (linear budget, JCGM 101 5.4)"}
+        terms = [b for b in budget if b.coefficient == c.name and b.method == METHOD]
+        chk = budget_check(METHOD, c.rig_id, c.name, c.value, terms) if math.isfinite(c.std_uncertainty) else None
+        if chk is not None:
+            out[f"{METHOD}:{c.rig_id}:{c.name}"] = chk
     return out
 
 

@@ -157,9 +157,8 @@ class TumbleRun:
     g_local_m_s2 : float
     extras : tuple of str
         Extra instrument terms fitted (:func:`separable_extra_terms`).
-    lack_of_fit : dict or None
-        F, p, dof_lof = P - p, dof_pe = n - P, s_pure_error [output_unit], status: the
-        position means against the within-position scatter; None when untestable.
+    s_pure_error : float
+        Within-position (pure error) standard deviation of the readings [output_unit].
     start : dict
         Start values by name (theta0 = 0; K0, K1, K2 from the nominal input).
     two_position : dict
@@ -178,7 +177,7 @@ class TumbleRun:
     position_means: pd.DataFrame
     g_local_m_s2: float
     extras: tuple[str, ...] = ()
-    lack_of_fit: dict | None = None
+    s_pure_error: float = float("nan")
     start: dict = field(default_factory=dict)
     two_position: dict = field(default_factory=dict)
     model_choice: dict | None = None
@@ -193,6 +192,17 @@ class TumbleRun:
     def std_uncertainties(self) -> dict[str, float]:
         """Standard uncertainties by name, lack-of-fit scaled [SI units]."""
         return {k: self.result.std(k) for k in self.result.names}
+
+    @property
+    def lack_of_fit(self) -> dict | None:
+        """F, p, dof_lof = P - p, dof_pe = n - P, s_pure_error [output_unit], status of the
+        test of the position means against the within-position scatter (``result.lof``);
+        None when untestable."""
+        lof = self.result.lof
+        if lof.status == "untestable":
+            return None
+        return {"F": float(lof.statistic), "p": float(lof.p_value), "dof_lof": lof.dof_lof, "dof_pe": lof.dof_pe,
+                "s_pure_error": self.s_pure_error, "status": lof.status}
 
     @property
     def dof(self) -> int:
@@ -308,10 +318,6 @@ def fit_run(meta: Mapping, data, extra_terms: Sequence[str] = ()) -> TumbleRun:
     ss_pe = float(((r - grp.mean(r)[grp.ids]) ** 2).sum())
     dof_lof, dof_pe = len(pm) - npar, n - len(pm)
     test = pure_error_test(ss_lof, dof_lof, ss_pe, dof_pe)
-    lof = None
-    if test.status != "untestable":
-        lof = {"F": float(test.statistic), "p": float(test.p_value), "dof_lof": dof_lof,
-               "dof_pe": dof_pe, "s_pure_error": float(np.sqrt(ss_pe / dof_pe)), "status": test.status}
     # residuals whitened by s (equal-variance readings): the noise-model covariance is
     # s^2 (J^T J)^+, scaled by sqrt(F) when the lack-of-fit test fails
     w = 1.0 / np.sqrt(s2) if np.isfinite(s2) and s2 > 0 else 1.0
@@ -322,7 +328,7 @@ def fit_run(meta: Mapping, data, extra_terms: Sequence[str] = ()) -> TumbleRun:
         raise ValueError(f"tumble fit is singular: the head angles do not separate {names}")
     return TumbleRun(str(meta.get("run_id")), str(meta.get("rig_id", "")), geometry_of(meta), result,
                      float(np.sqrt(s2)), float(np.sqrt(rss / n)), n, pm, float(meta["g_local_m_s2"]), extras,
-                     lof, dict(zip(names, map(float, p0))))
+                     float(np.sqrt(ss_pe / dof_pe)) if dof_pe > 0 else float("nan"), dict(zip(names, map(float, p0))))
 
 
 def _mean_at(pm: pd.DataFrame, angle: float, tol: float) -> float | None:
@@ -383,7 +389,7 @@ def two_position(meta: Mapping, data, angle_tol_deg: float = 1e-3, means: pd.Dat
 
 
 
-def fit_tumble_run(meta: Mapping, data, alpha: float = 0.01) -> TumbleRun:
+def fit_tumble_run(meta: Mapping, data) -> TumbleRun:
     """Paper 003 on one run, with its model adequacy.
 
     Fits K0, K1, K2, theta0 (:func:`fit_run`); when that fails its lack-of-fit test the IA
@@ -400,20 +406,20 @@ def fit_tumble_run(meta: Mapping, data, alpha: float = 0.01) -> TumbleRun:
     run_id = str(meta.get("run_id"))
     fit = fit_run(meta, data)
     choice, flags = None, []
-    lof = fit.lack_of_fit
-    if lof and lof["p"] < alpha:
+    lof = fit.result.lof
+    if lof.status == "inadequate":
         cross = tuple(k for k in separable_extra_terms(meta) if k in ("Kio", "Kip"))
         try:
-            fit2 = fit_run(meta, data, cross)
+            lof2 = (fit2 := fit_run(meta, data, cross)).result.lof
         except Exception:
-            fit2 = None
-        if fit2 is not None and fit2.lack_of_fit and fit2.lack_of_fit["p"] > lof["p"]:
-            choice = {"run_id": run_id, "basic_lof_p": lof["p"], "extended_terms": list(cross),
-                      "extended_lof_p": fit2.lack_of_fit["p"]}
-            fit = fit2
-        if fit.lack_of_fit and fit.lack_of_fit["p"] < alpha:
-            flags.append(f"tumble {run_id}: model inadequate (lack-of-fit p = {fit.lack_of_fit['p']:.2g}); "
-                         f"used and flagged, u scaled by sqrt(F) = {math.sqrt(fit.lack_of_fit['F']):.3g}")
+            lof2 = None
+        if lof2 is not None and lof2.status != "untestable" and lof2.p_value > lof.p_value:
+            choice = {"run_id": run_id, "basic_lof_p": float(lof.p_value), "extended_terms": list(cross),
+                      "extended_lof_p": float(lof2.p_value)}
+            fit, lof = fit2, lof2
+        if lof.status == "inadequate":
+            flags.append(f"tumble {run_id}: model inadequate (lack-of-fit p = {lof.p_value:.2g}); "
+                         f"used and flagged, u scaled by sqrt(F) = {math.sqrt(lof.statistic):.3g}")
     if fit.result.lof.status == "untestable":
         flags.append(f"tumble {run_id}: untestable: {len(fit.position_means)} head positions for "
                      f"{len(fit.result.names)} parameters leave no degrees of freedom to test the model; "
@@ -637,8 +643,8 @@ def _fit_terms(q: Pooled) -> tuple[list[tuple], list[str]]:
         if factor > 1.0:
             rows.append((f"model inadequacy of {r.run_id}: lack-of-fit scaling sqrt(F) = {factor:.3g}", 0.0,
                          u_noise * math.sqrt(factor ** 2 - 1.0), 1.0, "A", "normal"))
-        if r.lack_of_fit and r.lack_of_fit["p"] < 0.01:
-            notes.append(f"lack of fit: F = {r.lack_of_fit['F']:.3g}, p = {r.lack_of_fit['p']:.2g}")
+        if r.result.lof.status == "inadequate":
+            notes.append(f"lack of fit: F = {r.result.lof.statistic:.3g}, p = {r.result.lof.p_value:.2g}")
         if r.result.lof.status == "untestable":
             notes.append("untestable: as many head positions as parameters, u from reading noise only")
         return rows, notes

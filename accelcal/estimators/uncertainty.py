@@ -1,10 +1,9 @@
-"""Measurement uncertainty: GUM law of propagation (JCGM 100:2008) and the Monte Carlo
-method (JCGM 101:2008), plus paper 000's u(Kip) (§3.2, eq 10).
+"""Measurement uncertainty: GUM law of propagation (JCGM 100:2008), the JCGM 101:2008
+check of a linear budget by propagation of distributions, and paper 000's u(Kip) (§3.2,
+eq 10).
 
 Conventions.  A measurement function ``func(*x)`` takes the input quantities
-positionally, in the order of ``names``/``values``, and must broadcast over numpy
-arrays (the Monte Carlo calls it once with arrays of n draws each; a function that
-does not broadcast is called draw by draw).  Units are whatever the inputs carry;
+positionally, in the order of ``names``/``values``.  Units are whatever the inputs carry;
 the output unit is that of ``func``.
 
 Distributions (by their standard uncertainty u, JCGM 101 §6.4):
@@ -235,91 +234,6 @@ def linear_budget(coefficient: str, terms: Sequence[tuple], *, method: str = "",
     return gb
 
 
-@dataclass
-class MonteCarloResult:
-    """JCGM 101 §7 summary of the output distribution (output unit).
-
-    mean, std: estimate y and standard uncertainty u(y) (JCGM 101 7.6);
-    low, high: probabilistically symmetric 100p % coverage interval (JCGM 101 7.7);
-    shortest_low, shortest_high: the shortest 100p % coverage interval (7.7.2); n, p, seed."""
-    mean: float
-    std: float
-    low: float
-    high: float
-    shortest_low: float
-    shortest_high: float
-    n: int
-    p: float
-    seed: int | None
-
-
-def _draw(rng: np.random.Generator, x, u, dist, n, dofs=None, correlation=None) -> list[np.ndarray]:
-    m = len(x)
-    if correlation is not None:
-        if any(d != "normal" for d in dist):
-            raise ValueError("correlated inputs are supported for normal distributions only")
-        cov = np.asarray(correlation, float) * np.outer(u, u)
-        return list(rng.multivariate_normal(np.asarray(x, float), cov, size=n, method="svd").T)
-    out = []
-    for i in range(m):
-        d = dist[i]
-        if d == "normal":
-            out.append(rng.normal(x[i], u[i], n))
-        elif d in HALF_WIDTH_PER_U:
-            a = HALF_WIDTH_PER_U[d] * u[i]
-            if d == "uniform":
-                out.append(rng.uniform(x[i] - a, x[i] + a, n))
-            elif d == "triangular":
-                out.append(rng.triangular(x[i] - a, x[i], x[i] + a, n))
-            else:  # arcsine: x + a sin(2 pi U), JCGM 101 6.4.6.4
-                out.append(x[i] + a * np.sin(2 * np.pi * rng.uniform(0, 1, n)))
-        elif d == "t":
-            if dofs is None or not np.isfinite(dofs[i]):
-                raise ValueError("distribution 't' needs a finite dof for its input")
-            out.append(x[i] + u[i] * rng.standard_t(dofs[i], n))
-        else:
-            raise ValueError(f"unknown distribution {d!r}; known: {DISTRIBUTIONS}")
-    return out
-
-
-def coverage_interval(samples: np.ndarray, p: float = 0.95) -> tuple[float, float, float, float]:
-    """(low, high) probabilistically symmetric and (low, high) shortest 100p % coverage
-    intervals from M draws (JCGM 101 7.7.1, 7.7.2: q = pM rounded, r = (M - q)/2 rounded;
-    the shortest takes the r* minimising y_(r+q) - y_(r))."""
-    y = np.sort(np.asarray(samples, float))
-    M = y.size
-    q = int(p * M + 0.5)
-    r = int((M - q) / 2 + 0.5)               # 1-based index of the lower end
-    low, high = y[r - 1], y[min(r + q, M) - 1]
-    widths = y[q:] - y[:M - q]
-    j = int(np.argmin(widths))
-    return float(low), float(high), float(y[j]), float(y[j + q])
-
-
-def monte_carlo(func: Callable, values: Sequence[float], std_uncertainties: Sequence[float],
-                distributions: Sequence[str] | None = None, n: int = 200_000, seed: int | None = None,
-                p: float = 0.95, dofs: Sequence[float] | None = None,
-                correlation: np.ndarray | None = None) -> MonteCarloResult:
-    """Propagation of distributions by Monte Carlo (JCGM 101 §5-7): draw n values of each
-    input from its distribution (module docstring; a bounded distribution has the
-    half-width that gives the stated u), evaluate y = func(*x), and summarise.
-    Returns :class:`MonteCarloResult` (mean, std, 95 % probabilistically symmetric interval)."""
-    x = np.asarray(values, float)
-    u = np.asarray(std_uncertainties, float)
-    dist = list(distributions) if distributions is not None else ["normal"] * x.size
-    rng = np.random.default_rng(seed)
-    draws = _draw(rng, x, u, dist, int(n), dofs, correlation)
-    try:
-        y = np.asarray(func(*draws), float)
-        if y.shape != (n,):
-            y = np.broadcast_to(y, (n,)).astype(float)
-    except (TypeError, ValueError):
-        y = np.array([float(func(*row)) for row in zip(*draws)])
-    low, high, slow, shigh = coverage_interval(y, p)
-    return MonteCarloResult(mean=float(y.mean()), std=float(y.std(ddof=1)), low=low, high=high,
-                            shortest_low=slow, shortest_high=shigh, n=int(n), p=float(p), seed=seed)
-
-
 def numerical_tolerance(u: float, ndig: int = 2) -> float:
     """JCGM 101 7.9.2: write u with ndig significant digits as c x 10^l (c an ndig-digit
     integer); delta = 10^l / 2.  E.g. u = 0.0123, ndig = 2 -> c = 12, l = -3, delta = 0.0005."""
@@ -331,35 +245,6 @@ def numerical_tolerance(u: float, ndig: int = 2) -> float:
     if c >= 10**ndig:          # rounding carried into a new digit, e.g. 0.0999 -> 0.10
         l += 1
     return 0.5 * 10.0**l
-
-
-def validate_gum_with_mc(func: Callable, names: Sequence[str], values: Sequence[float],
-                         std_uncertainties: Sequence[float], distributions: Sequence[str] | None = None,
-                         *, n: int = 200_000, seed: int | None = None, p: float = 0.95, ndig: int = 2,
-                         dofs: Sequence[float] | None = None, correlation: np.ndarray | None = None,
-                         sensitivities: Sequence[float] | None = None) -> dict:
-    """Validate the GUM uncertainty framework against the Monte Carlo method (JCGM 101 §8).
-
-    GUM interval: y +- U_p with U_p = k_p u_c, k_p the (1+p)/2 quantile of the normal
-    distribution, or of t(nu_eff) when dofs are given (JCGM 100 G.6).  MC interval:
-    probabilistically symmetric 100p %.  delta = :func:`numerical_tolerance` of u_c
-    (ndig significant digits).  d_low = |y - U_p - y_low|, d_high = |y + U_p - y_high|;
-    the GUM is validated when both are <= delta (JCGM 101 8.2).  The MC endpoints carry
-    their own sampling noise (about 0.006 u_c at n = 2e5 for a normal output): with ndig = 2
-    use n >= 1e6 (or the adaptive procedure of JCGM 101 7.9), or ndig = 1.
-
-    Returns dict: gum (GumBudget), mc (MonteCarloResult), gum_low, gum_high, delta,
-    d_low, d_high, validated (bool).
-    """
-    gb = gum_budget(func, names, values, std_uncertainties, distributions, sensitivities=sensitivities,
-                    correlation=correlation, dofs=dofs, use_t=True, p=p)
-    mc = monte_carlo(func, values, std_uncertainties, distributions, n=n, seed=seed, p=p,
-                     dofs=dofs, correlation=correlation)
-    delta = numerical_tolerance(gb.u_c, ndig)
-    lo, hi = gb.value - gb.U, gb.value + gb.U
-    d_low, d_high = abs(lo - mc.low), abs(hi - mc.high)
-    return {"gum": gb, "mc": mc, "gum_low": lo, "gum_high": hi, "delta": delta,
-            "d_low": d_low, "d_high": d_high, "validated": bool(d_low <= delta and d_high <= delta)}
 
 
 def linear_output_interval(sensitivities: Sequence[float], std_uncertainties: Sequence[float],
@@ -452,7 +337,7 @@ def budget_check(method: str, rig_id: str, coefficient: str, value: float, terms
 
 
 def kip_uncertainty(u_c2: float, u_dc2: float, u_K2: float, u_Kpp: float, u_dKpp: float, *,
-                    rtol: float = 1e-9, mc_n: int = 0, seed: int | None = None) -> dict:
+                    rtol: float = 1e-9) -> dict:
     """u(Kip), paper 000 §3.2, all in s^2/m ((m/s^2)/(m/s^2)^2); inputs are standard
     uncertainties (Type B uniform ones already divided by sqrt(3), see :func:`uniform_u`).
 
@@ -462,9 +347,7 @@ def kip_uncertainty(u_c2: float, u_dc2: float, u_K2: float, u_Kpp: float, u_dKpp
                                 u = sqrt(4 (u^2(c2) + u^2(dc2)) + u^2(K2) + u^2(Kpp) + u^2(dKpp)).
 
     Returns dict: printed, gum, differ (True when they differ by more than rtol relative),
-    ratio = gum / printed, budget (list of BudgetTerm, from :func:`gum_budget`), note;
-    with mc_n > 0 also mc_std: the Monte Carlo standard deviation of Kip (JCGM 101) with
-    c2, K2, Kpp normal and dc2, dKpp uniform.
+    ratio = gum / printed, budget (list of BudgetTerm, from :func:`gum_budget`), note.
     """
     us = np.array([u_c2, u_dc2, u_K2, u_Kpp, u_dKpp], float)
     printed = math.sqrt(2 * (us[0]**2 + us[1]**2) + us[2]**2 + us[3]**2 + us[4]**2)
@@ -481,8 +364,6 @@ def kip_uncertainty(u_c2: float, u_dc2: float, u_K2: float, u_Kpp: float, u_dKpp
            "ratio": gum / printed if printed > 0 else math.nan, "budget": gb.terms,
            "note": ("paper 000 eq 10 weights u(c2), u(dc2) by 2; the GUM sensitivity of Kip to c2 "
                     "is 2, so the factor is 4" if differ else "")}
-    if mc_n > 0:
-        out["mc_std"] = monte_carlo(kip, np.zeros(5), us, dists, n=mc_n, seed=seed).std
     return out
 
 
