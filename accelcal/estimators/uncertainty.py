@@ -2,9 +2,8 @@
 check of a linear budget by propagation of distributions, and paper 000's u(Kip) (§3.2,
 eq 10).
 
-Conventions.  A measurement function ``func(*x)`` takes the input quantities
-positionally, in the order of ``names``/``values``.  Units are whatever the inputs carry;
-the output unit is that of ``func``.
+A budget is linear in its inputs (every coefficient of the paper methods is, to first
+order, JCGM 100 eq 10): one line per input with its sensitivity, in the input's own unit.
 
 Distributions (by their standard uncertainty u, JCGM 101 §6.4):
   'normal'      N(x, u^2)
@@ -18,13 +17,13 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..results import BudgetTerm
-from ..fitting.distributions import norm_ppf, t_ppf
+from ..fitting.distributions import norm_ppf
 
 #: half-width / standard uncertainty of the bounded distributions.
 HALF_WIDTH_PER_U = {"uniform": math.sqrt(3.0), "triangular": math.sqrt(6.0), "arcsine": math.sqrt(2.0)}
@@ -49,42 +48,17 @@ def uniform_u(half_width: float) -> float:
 
 @dataclass
 class GumBudget:
-    """Result of :func:`gum_budget`.  Unpacks as ``value, u_c, terms = gum_budget(...)``.
+    """Result of :func:`linear_budget`.  Unpacks as ``value, u_c, terms = linear_budget(...)``.
 
-    value: y = f(x) (output unit); u_c: combined standard uncertainty (JCGM 100 eq 10/13);
-    terms: one :class:`BudgetTerm` per input (contribution = |c_i| u_i);
-    nu_eff: Welch-Satterthwaite effective dof (JCGM 100 G.4, eq G.2b), inf when no dofs
-    are given; k: coverage factor used; U = k u_c; p: coverage probability of k when
-    taken from the t-distribution (None for a fixed k).
+    value: y (output unit); u_c: combined standard uncertainty (JCGM 100 eq 10);
+    terms: one :class:`BudgetTerm` per input (contribution = |c_i| u_i).
     """
     value: float
     u_c: float
     terms: list[BudgetTerm]
-    nu_eff: float = math.inf
-    k: float = 2.0
-    U: float = math.nan
-    p: float | None = None
-    sensitivities: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def __iter__(self):
         return iter((self.value, self.u_c, self.terms))
-
-
-def sensitivity_coefficients(func: Callable, values: Sequence[float], std_uncertainties: Sequence[float],
-                             rel_step: float = 1e-3) -> np.ndarray:
-    """c_i = df/dx_i at x (JCGM 100 5.1.3) by central differences with step h_i =
-    rel_step * u_i (so the derivative is taken over the range the uncertainty spans;
-    exact for functions quadratic in x_i); h_i = rel_step * max(|x_i|, 1) when u_i = 0."""
-    x = np.asarray(values, float)
-    u = np.asarray(std_uncertainties, float)
-    c = np.empty_like(x)
-    for i in range(x.size):
-        h = rel_step * (u[i] if u[i] > 0 else max(abs(x[i]), 1.0))
-        xp, xm = x.copy(), x.copy()
-        xp[i] += h
-        xm[i] -= h
-        c[i] = (float(func(*xp)) - float(func(*xm))) / (2 * h)
-    return c
 
 
 def welch_satterthwaite(contributions: Sequence[float], dofs: Sequence[float]) -> float:
@@ -114,91 +88,6 @@ def welch_satterthwaite(contributions: Sequence[float], dofs: Sequence[float]) -
     return math.inf if denom == 0 else uc4 / denom
 
 
-def gum_budget(func: Callable, names: Sequence[str], values: Sequence[float],
-               std_uncertainties: Sequence[float], distributions: Sequence[str] | None = None,
-               types: Sequence[str] | None = None, coefficient: str = "", *,
-               sensitivities: Sequence[float] | None = None, correlation: np.ndarray | None = None,
-               dofs: Sequence[float] | None = None, k: float = 2.0, use_t: bool = False,
-               p: float = 0.95) -> GumBudget:
-    """GUM uncertainty budget of y = func(*x) (JCGM 100:2008 §5).
-
-    .. math::
-
-        u_c^2(y) = \\sum_{i,j} c_i c_j u(x_i) u(x_j) r(x_i, x_j), \\quad
-        c_i = \\partial f / \\partial x_i
-
-    (JCGM 100 eq 13; eq 10 for uncorrelated inputs).
-
-    Parameters
-    ----------
-    func : callable
-        The measurement function, inputs positional in ``names`` order.
-    names : sequence of str
-    values, std_uncertainties : sequence of float
-        x_i and u(x_i) [their own units].
-    distributions : sequence of str, optional
-        Per input (default 'normal'), recorded in the budget.
-    types : sequence of str, optional
-        'A'/'B' (default 'A' for normal and t, 'B' otherwise).
-    coefficient : str
-        Name of the output (e.g. 'Kip').
-    sensitivities : sequence of float, optional
-        Analytic c_i; default central differences (:func:`sensitivity_coefficients`).
-    correlation : ndarray, optional
-        r(x_i, x_j) (default uncorrelated).
-    dofs : sequence of float, optional
-        nu_i per input (inf for an exactly known Type B) -> Welch-Satterthwaite nu_eff
-        (JCGM 100 G.4; uncorrelated inputs only).
-    k : float
-        Coverage factor when ``use_t`` is False (default 2).
-    use_t, p : bool, float
-        k = t_{(1+p)/2}(nu_eff) (JCGM 100 G.3, G.4).
-
-    Returns
-    -------
-    GumBudget
-        y [unit of func], u_c, one :class:`~accelcal.results.BudgetTerm` per input
-        (contribution |c_i| u_i), nu_eff, k, U = k u_c.  Tested against JCGM 100 Annex H.1
-        (tests/test_uncertainty.py).
-    """
-    x = np.asarray(values, float)
-    u = np.asarray(std_uncertainties, float)
-    m = x.size
-    if len(names) != m or u.size != m:
-        raise ValueError("names, values and std_uncertainties must have the same length")
-    dist = list(distributions) if distributions is not None else ["normal"] * m
-    for d in dist:
-        if d not in DISTRIBUTIONS:
-            raise ValueError(f"unknown distribution {d!r}; known: {DISTRIBUTIONS}")
-    typ = list(types) if types is not None else ["A" if d in ("normal", "t") else "B" for d in dist]
-    c = (np.asarray(sensitivities, float) if sensitivities is not None
-         else sensitivity_coefficients(func, x, u))
-    y = float(func(*x))
-    cu = c * u
-    if correlation is None:
-        uc2 = float((cu**2).sum())
-    else:
-        r = np.asarray(correlation, float)
-        if r.shape != (m, m) or not np.allclose(r, r.T) or not np.allclose(np.diag(r), 1.0):
-            raise ValueError("correlation must be a symmetric (m, m) matrix with unit diagonal")
-        uc2 = float(cu @ r @ cu)
-    uc = math.sqrt(max(uc2, 0.0))
-    terms = [BudgetTerm(coefficient=coefficient, quantity=str(nm), value=float(xi),
-                        std_uncertainty=float(ui), sensitivity=float(ci), contribution=float(abs(ci * ui)),
-                        type=str(t), distribution=str(d))
-             for nm, xi, ui, ci, t, d in zip(names, x, u, c, typ, dist)]
-    nu_eff = math.inf
-    if dofs is not None:
-        if correlation is not None and not np.allclose(correlation, np.eye(m)):
-            raise ValueError("Welch-Satterthwaite needs uncorrelated inputs")
-        nu_eff = welch_satterthwaite(np.abs(cu), dofs)
-    kk, pp = float(k), None
-    if use_t:
-        pp = p
-        kk = float(t_ppf((1 + p) / 2, nu_eff)) if math.isfinite(nu_eff) else float(norm_ppf((1 + p) / 2))
-    return GumBudget(value=y, u_c=uc, terms=terms, nu_eff=nu_eff, k=kk, U=kk * uc, p=pp, sensitivities=c)
-
-
 def linear_budget(coefficient: str, terms: Sequence[tuple], *, method: str = "", rig_id: str = "",
                   value: float | None = None) -> GumBudget:
     """GUM budget (JCGM 100 eq 10) of a coefficient that depends linearly on its inputs.
@@ -221,17 +110,17 @@ def linear_budget(coefficient: str, terms: Sequence[tuple], *, method: str = "",
     GumBudget
         u_c = sqrt(sum (c_i u_i)^2) (uncorrelated inputs); terms carry ``method`` and ``rig_id``.
     """
-    names = [str(t[0]) for t in terms]
+    for t in terms:
+        if t[5] not in DISTRIBUTIONS:
+            raise ValueError(f"unknown distribution {t[5]!r}; known: {DISTRIBUTIONS}")
     vals = np.array([float(t[1]) for t in terms])
     us = np.array([float(t[2]) for t in terms])
     cs = np.array([float(t[3]) for t in terms])
-    gb = gum_budget(lambda *x: float(np.dot(cs, x)), names, vals, us, [t[5] for t in terms],
-                    [t[4] for t in terms], coefficient, sensitivities=cs)
-    for b in gb.terms:
-        b.method, b.rig_id = method, rig_id
-    if value is not None:
-        gb.value = float(value)
-    return gb
+    cu = cs * us
+    lines = [BudgetTerm(coefficient, str(t[0]), float(x), float(u), float(c), float(abs(c * u)), str(t[4]),
+                        str(t[5]), method, rig_id) for t, x, u, c in zip(terms, vals, us, cs)]
+    y = float(np.dot(cs, vals)) if value is None else float(value)
+    return GumBudget(y, math.sqrt(max(float((cu ** 2).sum()), 0.0)), lines)
 
 
 def numerical_tolerance(u: float, ndig: int = 2) -> float:
@@ -347,17 +236,13 @@ def kip_uncertainty(u_c2: float, u_dc2: float, u_K2: float, u_Kpp: float, u_dKpp
                                 u = sqrt(4 (u^2(c2) + u^2(dc2)) + u^2(K2) + u^2(Kpp) + u^2(dKpp)).
 
     Returns dict: printed, gum, differ (True when they differ by more than rtol relative),
-    ratio = gum / printed, budget (list of BudgetTerm, from :func:`gum_budget`), note.
+    ratio = gum / printed, budget (list of BudgetTerm, from :func:`linear_budget`), note.
     """
     us = np.array([u_c2, u_dc2, u_K2, u_Kpp, u_dKpp], float)
     printed = math.sqrt(2 * (us[0]**2 + us[1]**2) + us[2]**2 + us[3]**2 + us[4]**2)
-
-    def kip(c2, dc2, K2, Kpp, dKpp):
-        return 2 * (c2 + dc2) - (K2 + Kpp + dKpp)
-
-    names = ["c2", "dc2", "K2", "Kpp", "dKpp"]
-    dists = ["normal", "uniform", "normal", "normal", "uniform"]
-    gb = gum_budget(kip, names, np.zeros(5), us, dists, ["A", "B", "A", "A", "B"], "Kip")
+    gb = linear_budget("Kip", [(name, 0.0, u, c, t, d) for name, u, c, t, d in zip(
+        ("c2", "dc2", "K2", "Kpp", "dKpp"), us, (2.0, 2.0, -1.0, -1.0, -1.0), "ABAAB",
+        ("normal", "uniform", "normal", "normal", "uniform"))])
     gum = gb.u_c
     differ = bool(abs(gum - printed) > rtol * max(gum, printed))
     out = {"printed": printed, "gum": gum, "differ": differ,
