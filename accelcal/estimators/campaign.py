@@ -20,6 +20,7 @@ from ..constants import MOUNT_ANGLE_TOLERANCE_RAD
 from ..results import CampaignResult, CoefficientResult
 from . import registry
 from . import uncertainty as unc
+from .records import Records
 from .centrifuge import RADIUS_ORDERS, RADIUS_RANGES
 
 
@@ -99,17 +100,10 @@ def _joint(runs, res: CampaignResult, stated: Mapping[str, Mapping[str, float]])
         res.flags.append(f"joint fit failed ({type(exc).__name__}: {exc}); the paper methods' values are "
                          "adopted instead")
         return None
-    others = list(res.coefficients)
-    res.coefficients += out["coefficients"]
-    res.radii += out["radii"]
-    res.adequacy += out["adequacy"]
-    res.budget += out["budget"]
-    res.alignment += out["alignment"]
-    res.flags += out["flags"]
-    rows, flags = joint.compare_with_methods(out["coefficients"], others, runs)
-    res.flags += flags
-    res.extras["joint"] = {**out["extras"], "method_comparison": rows}
-    res.extras.setdefault("mc_check", {}).update(out["mc_check"])
+    rows, flags = joint.compare_with_methods(out["coefficients"], res.coefficients, runs)
+    Records(coefficients=out["coefficients"], radii=out["radii"], adequacy=out["adequacy"], budget=out["budget"],
+            alignment=out["alignment"], flags=out["flags"] + flags,
+            extras={"joint": {**out["extras"], "method_comparison": rows}, "mc_check": out["mc_check"]}).add_to(res)
     res.parameters["joint_effects"] = out["extras"]["effects"]
     return out["fit"]
 

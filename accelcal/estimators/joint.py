@@ -469,13 +469,14 @@ def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
                      + " (accelcal.toml)")
     rig_of = _dominant_rigs(jf)
     measures = model.combinations(fit.values, {prm.name: fit.std(prm.name) for prm in model.params if prm.vary})
-    near = nearly_aliased(jf)
-    pairs: list[tuple[str, str]] = [tuple(model.roles[model.params.index[n]].key for n in (a, b))
-                                    for a, b, _, _ in near]
+    # each nearly aliased pair with its coefficients and the combination's factor t to two
+    # digits, so that every campaign of a design names the same row
+    near = [(a, b, *(model.roles[model.params.index[n]].key for n in (a, b)), float(f"{t:.2g}"), r)
+            for a, b, t, r in nearly_aliased(jf)]
+    pairs: list[tuple[str, str]] = [(ka, kb) for _, _, ka, kb, _, _ in near]
     near_note: dict[str, str] = {}
-    for a, b, t, r in near:
-        ka, kb = (model.roles[model.params.index[n]].key for n in (a, b))
-        comb = display_name(ka, Combination(ka, ((kb, float(f"{t:.2g}")),)))
+    for a, b, ka, kb, t, r in near:
+        comb = display_name(ka, Combination(ka, ((kb, t),)))
         row = " (its own row)" if si_unit(ka) == si_unit(kb) and fit.converged else ""
         for n, other in ((a, kb), (b, ka)):
             near_note[n] = "; ".join(x for x in (near_note.get(n, ""), (
@@ -506,20 +507,16 @@ def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
         budget += _type_a_lines(name, float(fit.values[i]), u_noise, lof.factor)
         for q, c, ub, dist, x in terms_b:
             budget.append(BudgetTerm(name, q, x, ub, c, abs(c) * ub, "B", dist, METHOD))
-    for a, b, t, r in near:
+    for a, b, ka, kb, t, r in near:
         # the combination the runs do determine, as a row of its own where it is a
-        # coefficient of the same unit (Kip+Kpp); t to two digits, so that every campaign of
-        # a design names the same row (its u is that of the rounded combination)
-        ia, ib = model.params.index[a], model.params.index[b]
-        ka, kb = model.roles[ia].key, model.roles[ib].key
+        # coefficient of the same unit (Kip+Kpp; its u is that of the rounded combination);
         # a fit that stopped before converging is not at its optimum along the weak
         # direction, which a combination with a rounded factor would take up
         if si_unit(ka) != si_unit(kb) or not fit.converged:
             continue
-        t = float(f"{t:.2g}")
         name = display_name(ka, Combination(ka, ((kb, t),)))
         c = np.zeros(len(model.params))
-        c[ia], c[ib] = 1.0, t
+        c[model.params.index[a]], c[model.params.index[b]] = 1.0, t
         value = float(c @ fit.values)
         u = float(np.sqrt(max(c @ fit.cov @ c, 0.0))) if not untestable else float("nan")
         u_noise = float(np.sqrt(max(c @ fit.cov_noise @ c, 0.0)))

@@ -46,7 +46,7 @@ from scipy import stats
 from ..constants import MICRO_G, T_REF_C
 from ..effects import CROSS_AXIS_TERM, RIG_INPUTS, SQUARE_TERM
 from ..fitting.core import lack_of_fit, linear_fit, lstsq_svd
-from ..fitting.data import ROW_SLICE, unique_small_ints
+from ..fitting.data import unique_small_ints
 from ..physics.axes import parse_signed_axis
 from ..physics.geometry import geometry_of
 from ..physics.instrument import indicated_acceleration, output_derivative
@@ -694,28 +694,17 @@ def fixed_point_method(meta: Mapping, pm: pd.DataFrame, s_pos: float | None = No
 
 # --------------------------------------------------------------------------- compensation
 
-def _model_values(model) -> dict[str, float]:
-    """K0, K1, K0T, K1T from a dict of floats, a fit dict, or a list of CoefficientResult."""
-    if isinstance(model, Mapping):
-        return {k: float(model.get(k, 0.0 if k != "K1" else 1.0)) for k in ("K0", "K1", "K0T", "K1T")}
-    vals = {"K0": 0.0, "K1": 1.0, "K0T": 0.0, "K1T": 0.0}
-    for c in model:
-        if getattr(c, "name", None) in vals:
-            vals[c.name] = float(c.value)
-    return vals
-
-
 def compensate(output, temp_c, model, input_m_s2=0.0, t_ref: float = T_REF_C) -> np.ndarray:
     """Remove the temperature model from an output series (paper 001, flight-data compensation).
 
     output: E (output_unit); temp_c: instrument temperature (degC), same length;
-    model: K0 (m/s^2), K1 (output_unit/(m/s^2)), K0T (m/s^2/degC), K1T (1/degC) as a dict or
-    CoefficientResult list; input_m_s2: the known IA input to take out (scalar or series).
+    model: K0 (m/s^2), K1 (output_unit/(m/s^2)), K0T (m/s^2/degC), K1T (1/degC) by name (a
+    missing one is 0, K1 1); input_m_s2: the known IA input to take out (scalar or series).
     Returns the residual acceleration (m/s^2):
 
         r = E / (K1 (1 + K1T (T - t_ref))) - (K0 + K0T (T - t_ref)) - input
     """
-    m = _model_values(model)
+    m = {k: float(model.get(k, 1.0 if k == "K1" else 0.0)) for k in ("K0", "K1", "K0T", "K1T")}
     dT = np.asarray(temp_c, float) - t_ref
     E = np.asarray(output, float)
     return E / (m["K1"] * (1.0 + m["K1T"] * dT)) - (m["K0"] + m["K0T"] * dT) - np.asarray(input_m_s2, float)
@@ -874,11 +863,8 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = ""
         del fin
         # the IA input with the fitted in-plane cross term: a_i + Kx a_x of the forward model
         Kx = float(np.mean([p["cross_term"] for p in fitted])) if fitted else 0.0
-        rot = d["rotation_deg"].to_numpy(float)
-        inp = np.empty(rot.shape)
-        for lo in range(0, rot.size, ROW_SLICE):    # a slice at a time: the same numbers
-            inp[lo:lo + ROW_SLICE] = indicated_acceleration({geo["cross_term"]: Kx},
-                                                            specific_force_at(meta, rot[lo:lo + ROW_SLICE]))
+        inp = indicated_acceleration({geo["cross_term"]: Kx},
+                                     specific_force_at(meta, d["rotation_deg"].to_numpy(float)))
         E = d["output"].to_numpy(float)
         # one series of the run's length at a time
         before = temperature_correlation(compensate(E, T, {"K0": model["K0"], "K1": model["K1"]}, inp), T)
