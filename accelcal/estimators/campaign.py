@@ -16,6 +16,7 @@ from collections import defaultdict
 from collections.abc import Mapping
 
 from .. import memory
+from ..fitting.blas import single_thread
 from ..constants import MOUNT_ANGLE_TOLERANCE_RAD
 from ..results import CampaignResult, CoefficientResult
 from . import registry
@@ -26,6 +27,7 @@ from .centrifuge import RADIUS_ORDERS, RADIUS_RANGES
 
 # ------------------------------------------------------------------ entry point
 
+@single_thread()                     # small dense algebra: one BLAS thread is the fast one
 def process_campaign(runs, rig_uncertainty: Mapping[str, Mapping[str, float]] | None = None
                      ) -> CampaignResult:
     """Run every estimator that applies to the runs of one campaign (docs/design.md).
@@ -45,12 +47,7 @@ def process_campaign(runs, rig_uncertainty: Mapping[str, Mapping[str, float]] | 
     CampaignResult
         The paper methods' values (stored as cross-checks) and the adopted joint-fit values.
     """
-    from ..fitting.blas import single_thread
-    with single_thread():            # small dense algebra: one BLAS thread is the fast one
-        return _process_campaign(runs, rig_uncertainty or {})
-
-
-def _process_campaign(runs, stated: Mapping[str, Mapping[str, float]]) -> CampaignResult:
+    stated = rig_uncertainty or {}
     first = runs[0]
     res = CampaignResult(
         campaign=str(first.meta["campaign"]), unit_serial=str(first.meta["unit_serial"]),

@@ -30,13 +30,14 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 from ..constants import G_STANDARD, MOUNT_ANGLE_TOLERANCE_RAD
+from ..effects import CROSS_TERM
 from ..physics.axes import parse_plane
 from ..physics.geometry import geometry_of
 from ..results import (AdequacyResult, CoefficientResult, RadiusResult, ResidualFigure, ResidualPanel,
                        ResidualSeries)
 from . import uncertainty as unc
 from .adequacy import choose_order
-from .crosscoupling import CROSS, Combination, PairFit, combine_second_order, delta_c2, fit_mount_pair, pair_label
+from .crosscoupling import Combination, PairFit, combine_second_order, delta_c2, fit_mount_pair, pair_label
 from .radius import (IterativeRadius, PairData, StaticRadius, g_levels, geometric_static_radius,
                      test_radius_iterative, test_radius_static)
 from .records import Records
@@ -461,7 +462,7 @@ def radius_corrections(mounts: Mounts, ref: Reference, static: StaticStep, itera
     meta = mounts.run_plus.meta
     g = float(meta["g_local_m_s2"])
     vert = geometry_of(meta)
-    cross = CROSS.get(frozenset((0, vert.vertical)))
+    cross = CROSS_TERM.get(frozenset((0, vert.vertical)))
     c = comb.combination
     # K_iv from the mount pairs; where they leave it undetermined, from the tumble; where
     # neither determines it, its leak into the radius is not evaluated (None: no term)
@@ -615,20 +616,15 @@ def rig_records(out: RigOutcome, k1_correction: tuple[float, float] | None = Non
                                           for k in ("K0+", "K0-", "b+", "b-")}}
     # radii corrected for the instrument terms (and for Koq, K3 in the tumble's K1)
     delta, u_delta = k1_correction if k1_correction is not None else (0.0, 0.0)
-
-    def k1_scaled(R, u):
-        Rn = R * (1.0 + delta)
-        return Rn, (math.hypot(u, Rn * u_delta) if k1_correction is not None else u)
-
-    for pol, (R, u) in corr.iterative.items():
-        Rn, un = k1_scaled(R, u)
-        rec.radii.append(RadiusResult(rig, pol, "iterative_corrected", it.chosen, it.top, Rn, un,
-                                      note=f"eq 7 radius / (1 + {corr.cross}·a_vertical): cross-coupling with "
-                                           "gravity removed"))
-    for pol, (R, u) in corr.static.items():
-        Rn, un = k1_scaled(R, u)
-        rec.radii.append(RadiusResult(rig, pol, "static_corrected", None, 1.0, Rn, un,
-                                      note="eq 6 radius with K2, Koq, K3 and the cross-coupling with gravity removed"))
+    for kind, order, gmax, radii, note in (
+            ("iterative_corrected", it.chosen, it.top, corr.iterative,
+             f"eq 7 radius / (1 + {corr.cross}·a_vertical): cross-coupling with gravity removed"),
+            ("static_corrected", None, 1.0, corr.static,
+             "eq 6 radius with K2, Koq, K3 and the cross-coupling with gravity removed")):
+        for pol, (R, u) in radii.items():
+            Rn = R * (1.0 + delta)
+            rec.radii.append(RadiusResult(rig, pol, kind, order, gmax, Rn,
+                                          math.hypot(u, Rn * u_delta) if k1_correction is not None else u, note=note))
     rec.flags += list(out.flags)
     return rec
 

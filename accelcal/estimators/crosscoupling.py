@@ -45,7 +45,6 @@ from ..physics.instrument import output_derivative
 from .adequacy import DwellFit, choose_order
 from .radius import PairData, centripetal_unit_input
 
-CROSS = CROSS_TERM
 UNKNOWNS = ["K2", "Kpp", "Koo", "Kip", "Kio", "Kpo"]
 
 
@@ -380,7 +379,7 @@ def _determined_combinations(names: list[str], sol) -> list[identify.Combination
         determined or the null space has more than one direction.
     """
     held = sorted((j for j in range(len(names)) if not sol.estimable[j]),
-                  key=lambda j: (names[j] not in CROSS.values(), j))
+                  key=lambda j: (names[j] not in CROSS_TERM.values(), j))
     if not held or sol.null_space.shape[1] != 1:
         return []
     n = sol.null_space[:, 0] / np.where(sol.column_norm > 0, sol.column_norm, 1.0)

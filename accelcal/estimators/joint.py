@@ -70,13 +70,9 @@ def coverage_factor(dof: float, p: float = 0.95) -> float:
     return float(t_ppf(0.5 + p / 2, dof))
 
 
-#: The adopted calibration's fit of a campaign model (:class:`accelcal.fitting.procedure.ModelFit`).
-JointFit = ModelFit
-
-
 def fit_campaign_model(runs: Sequence[RunCells], effects: Sequence[str], *, shared: Sequence[str] = (),
                        per_run_bias: bool | None = None, per_run_scale: bool = False,
-                       noise_passes: int = 1, keep: Sequence[str] = ()) -> JointFit:
+                       noise_passes: int = 1, keep: Sequence[str] = ()) -> ModelFit:
     """Fit a campaign model to runs whose cells are built (:func:`prepare`), through the one
     fit procedure (:func:`accelcal.fitting.procedure.fit_selected`): the design judged at
     the start and again after the first noise pass, a time constant bounded at 0.
@@ -95,7 +91,7 @@ def fit_campaign_model(runs: Sequence[RunCells], effects: Sequence[str], *, shar
 
     Returns
     -------
-    JointFit
+    ModelFit
     """
     # Kip is a designed coefficient of a tumble too (a head about OA turns IA through PA,
     # IEEE 1293), not only the centrifuge's cross_coupling effect; the terms that act on a
@@ -163,7 +159,7 @@ def what_it_measures(comb: Combination | None, label: str) -> tuple[str, str]:
     return display_name(label, comb), "; ".join(notes)
 
 
-def nearly_aliased(jf: JointFit) -> list[NearAlias]:
+def nearly_aliased(jf: ModelFit) -> list[NearAlias]:
     """Pairs of free instrument coefficients the runs determine far better together than
     alone (:func:`accelcal.fitting.identify.near_aliases` of their estimates)."""
     model, fit = jf.model, jf.fit
@@ -268,7 +264,7 @@ def campaign_results(runs, rig_ids: Sequence[str] | None = None, effects: Sequen
     dict
         coefficients (list of CoefficientResult, method 'joint_ml', adopted), radii,
         adequacy, budget, alignment (list of dict), flags (list of str), extras (dict),
-        fit (JointFit).
+        fit (ModelFit).
     """
     cells, notes = prepare(runs)
     tests = sorted({c.test for c in cells})
@@ -285,7 +281,7 @@ def campaign_results(runs, rig_ids: Sequence[str] | None = None, effects: Sequen
     return out
 
 
-def type_b_terms(jf: JointFit, tolerance: float = MOUNT_ANGLE_TOLERANCE_RAD) -> dict[str, list[tuple[str, float, float]]]:
+def type_b_terms(jf: ModelFit, tolerance: float = MOUNT_ANGLE_TOLERANCE_RAD) -> dict[str, list[tuple[str, float, float]]]:
     """Type-B terms of parameters the design cannot determine but that are physically there.
 
     A mount angle of a mount whose IA is radial (phi0 = 0/180 deg) changes the fit only at
@@ -341,7 +337,7 @@ def type_b_terms(jf: JointFit, tolerance: float = MOUNT_ANGLE_TOLERANCE_RAD) -> 
     return out
 
 
-def rig_input_terms(jf: JointFit, stated: Mapping[str, Mapping[str, float]]
+def rig_input_terms(jf: ModelFit, stated: Mapping[str, Mapping[str, float]]
                     ) -> tuple[dict[str, list[tuple[str, float, float, str, float]]], list[dict[str, str]]]:
     """Type-B terms of the rig inputs the drop gives as known: local gravity,
     the thermal table's tilt, the temperature reading.
@@ -356,7 +352,7 @@ def rig_input_terms(jf: JointFit, stated: Mapping[str, Mapping[str, float]]
 
     Parameters
     ----------
-    jf : JointFit
+    jf : ModelFit
         The campaign's joint fit.
     stated : mapping
         Rig id -> input id -> standard uncertainty [the input's unit: m/s2, deg, degC].
@@ -438,7 +434,7 @@ def _type_a_lines(name: str, value: float, u_noise: float, factor: float) -> lis
     return out
 
 
-def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[str, float]]) -> dict[str, Any]:
+def _records(jf: ModelFit, cells: list[RunCells], stated: Mapping[str, Mapping[str, float]]) -> dict[str, Any]:
     model, fit = jf.model, jf.fit
     lof = fit.lof
     tb = {n: [(q, c, u, "uniform", 0.0) for q, c, u in v] for n, v in type_b_terms(jf).items()}
@@ -636,7 +632,7 @@ def _mc_checks(coefficients: Sequence[CoefficientResult], budget: Sequence[Budge
     return out
 
 
-def _dominant_rigs(jf: JointFit) -> dict[str, str]:
+def _dominant_rigs(jf: ModelFit) -> dict[str, str]:
     """The rig whose runs carry most of the information on each parameter (the sum of the
     squared whitened Jacobian column over its rows): the rig a coefficient is calibrated on,
     for rig comparisons (K1 on the dividing head, the second-order terms on the centrifuge)."""
@@ -652,7 +648,7 @@ def _dominant_rigs(jf: JointFit) -> dict[str, str]:
     return out
 
 
-def _residual_checks(jf: JointFit) -> tuple[float, float]:
+def _residual_checks(jf: ModelFit) -> tuple[float, float]:
     """Trend in time and run of signs of the whitened cell residuals, per run (Bonferroni)."""
     tp, rp = [], []
     for j, r in enumerate(jf.model.runs):
@@ -665,7 +661,7 @@ def _residual_checks(jf: JointFit) -> tuple[float, float]:
     return (min(1.0, min(tp) * m) if tp else 1.0), (min(1.0, min(rp) * m) if rp else 1.0)
 
 
-def _geometry_records(jf: JointFit) -> tuple[list[RadiusResult], list[dict]]:
+def _geometry_records(jf: ModelFit) -> tuple[list[RadiusResult], list[dict]]:
     """Polarity radii of the IA mounts (delta method through the model), the turning-centre
     radius, the mass-centre offset, mount-angle errors and tool errors."""
     model, fit = jf.model, jf.fit

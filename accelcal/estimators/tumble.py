@@ -80,12 +80,8 @@ def _head(meta: Mapping) -> TumbleHead:
 
 
 def _clean(data) -> pd.DataFrame:
-    cols = {k: np.asarray(data[k]) for k in ("angle_deg", "output")}
-    for k in ("time_s", "position", "temp_c"):
-        try:
-            cols[k] = np.asarray(data[k])
-        except (KeyError, IndexError):
-            pass
+    cols = {k: np.asarray(data[k]) for k in ("angle_deg", "output", "time_s", "position", "temp_c")
+            if k in data or k in ("angle_deg", "output")}
     n = len(cols["angle_deg"])
     if any(len(v) != n for v in cols.values()):
         raise ValueError(f"tumble columns of different lengths: { {k: len(v) for k, v in cols.items()} }")
@@ -544,8 +540,7 @@ _NOTES = {"theta0": _ALIAS_NOTE, "K2": "a single tumble gives K2 - Koo (Koo alia
 
 
 def tumble_records(pooled: Mapping[str, Pooled], *, square_terms: Mapping[str, tuple[float, float]] | None = None,
-                   k1: tuple[float, float] | None = None, g: float = 9.80665, out_unit: str = "out",
-                   method: str = METHOD) -> tuple[list[CoefficientResult], list[BudgetTerm], set[str]]:
+                   k1: tuple[float, float] | None = None, out_unit: str = "out") -> tuple[list[CoefficientResult], list[BudgetTerm], set[str]]:
     """Coefficient records and GUM budgets of the campaign's tumble quantities (paper 003).
 
     Parameters
@@ -557,8 +552,6 @@ def tumble_records(pooled: Mapping[str, Pooled], *, square_terms: Mapping[str, t
         measures K2 minus the square term of its other turning axis, which is added back.
     k1 : (delta, u_delta), optional
         :func:`k1_correction`; K1 is divided by 1 + delta.
-    g : float
-        Local gravity [m/s2] (the note of an uncorrected K1).
     out_unit : str
         The runs' output unit.
 
@@ -617,10 +610,10 @@ def tumble_records(pooled: Mapping[str, Pooled], *, square_terms: Mapping[str, t
         if q.key == "theta0" and "[" in name:
             note.append("initial misalignment of this dividing head (never pooled across heads)")
         note += pool_notes
-        gb = unc.linear_budget(name, terms, method=method, rig_id=_rig(q), value=value)
+        gb = unc.linear_budget(name, terms, method=METHOD, rig_id=_rig(q), value=value)
         u = float(gb.u_c) if math.isfinite(q.u) else float("nan")
         dof = float(q.runs[0].dof) if len(q.runs) == 1 else None
-        coeffs.append(TumbleCoefficient(name, float(value), u, unit, method, _rig(q), dof, "; ".join(note),
+        coeffs.append(TumbleCoefficient(name, float(value), u, unit, METHOD, _rig(q), dof, "; ".join(note),
                                         less=tuple(adds) if q.key == "K2" and name not in corrected else ()))
         budget += gb.terms
     return coeffs, budget, corrected
@@ -818,7 +811,7 @@ def campaign_records(runs: Sequence, steps: Mapping[str, Any]) -> list:
     if tumble is None:
         return []
     coeffs, budget, corrected = tumble_records(tumble.pooled, square_terms=_square_terms(_centrifuge_rigs(steps)),
-                                               k1=campaign_k1_correction(steps), g=tumble.g,
+                                               k1=campaign_k1_correction(steps),
                                                out_unit=str(runs[0].meta.get("output_unit", "out")))
     # where the campaign measures the temperature coefficients, K0 and K1 mean their values
     # at 20 degC, and a tumble's are at its own temperature
