@@ -445,6 +445,8 @@ class Pooled:
         Birge ratio sqrt(chi2 / (N - 1)) and P(chi2 > observed) (NaN for one run).
     disagree : bool
         p < 0.01: the runs disagree beyond their uncertainties.
+    head : str
+        The head axis of a row pooled per head in a campaign of several heads, else ''.
     """
     name: str
     key: str
@@ -455,6 +457,7 @@ class Pooled:
     birge: float = float("nan")
     p_value: float = float("nan")
     disagree: bool = False
+    head: str = ""
 
     @property
     def weights(self) -> np.ndarray:
@@ -520,7 +523,8 @@ def pool_runs(runs: Sequence[TumbleRun]) -> dict[str, Pooled]:
     out = {k: pool(k, k, runs) for k in ("K0", "K1")}
     for g, rr in groups.items():
         for k in ("K2", "theta0"):
-            out[_group_name(k, g, several)] = pool(_group_name(k, g, several), k, rr)
+            out[_group_name(k, g, several)] = replace(pool(_group_name(k, g, several), k, rr),
+                                                      head=g if several else "")
     for k in sorted({e for r in runs for e in r.extras}):
         out[k] = pool(k, k, [r for r in runs if k in r.extras])
     return out
@@ -607,14 +611,15 @@ def tumble_records(pooled: Mapping[str, Pooled], *, square_terms: Mapping[str, t
         else:
             if _NOTES.get(q.key):
                 note.insert(0, _NOTES[q.key])
-        if q.key == "theta0" and "[" in name:
+        if q.key == "theta0" and q.head:
             note.append("initial misalignment of this dividing head (never pooled across heads)")
         note += pool_notes
         gb = unc.linear_budget(name, terms, method=METHOD, rig_id=_rig(q), value=value)
         u = float(gb.u_c) if math.isfinite(q.u) else float("nan")
         dof = float(q.runs[0].dof) if len(q.runs) == 1 else None
         coeffs.append(TumbleCoefficient(name, float(value), u, unit, METHOD, _rig(q), dof, "; ".join(note),
-                                        less=tuple(adds) if q.key == "K2" and name not in corrected else ()))
+                                        less=tuple(adds) if q.key == "K2" and name not in corrected else (),
+                                        key=q.key, head=q.head))
         budget += gb.terms
     return coeffs, budget, corrected
 
@@ -820,7 +825,7 @@ def campaign_records(runs: Sequence, steps: Mapping[str, Any]) -> list:
     return [Records(coefficients=coeffs, budget=budget, extras=_tumble_extras(tumble), flags=flags).checked()]
 
 
-def name_combinations(runs: Sequence, coeffs: list[CoefficientResult], budget: list[BudgetTerm],
+def name_combinations(runs: Sequence, coeffs: list[TumbleCoefficient], budget: list[BudgetTerm],
                       effects: Sequence[str] = (), corrected: set[str] = frozenset()) -> list[str]:
     """Name each tumble row after what the tumble runs determine (IEEE 1293): one
     head measures K0 + Koo g^2, K2 - Koo and theta0 - Ko (head about PA), not K0, K2, theta0.
@@ -865,7 +870,7 @@ def name_combinations(runs: Sequence, coeffs: list[CoefficientResult], budget: l
                               acting=ACTING)
         # the paper method fits K0, K1, K2, theta0 and the extra terms it chose; every other
         # term of the model is what its rows take up, where the runs cannot tell it apart
-        fitted = {"K0", "K1", "K2", "initial_misalignment"} | {c.name.split("[", 1)[0] for c in coeffs}
+        fitted = {"K0", "K1", "K2", "initial_misalignment"} | {c.key for c in coeffs}
         p = model.start()
         model = model.with_holds(model.select(p, hold={
             prm.name: "not a parameter of the tumble fit" for i, prm in enumerate(model.params)
@@ -876,10 +881,10 @@ def name_combinations(runs: Sequence, coeffs: list[CoefficientResult], budget: l
         answer[grp] = {("theta0" if k == "initial_misalignment" else k): c.factors for k, c in meas.items()}
     flags = []
     for c in coeffs:
-        key, _, grp = c.name.rstrip("]").partition("[")
+        key = c.key
         if c.name in corrected:
             continue
-        combos = [answer[g].get(key, {}) for g in ([grp] if grp else groups)]
+        combos = [answer[g].get(key, {}) for g in ([c.head] if c.head else groups)]
         if len({combination_name(key, t) for t in combos}) > 1:
             flags.append(f"{c.name} ({METHOD}): the heads measure different combinations: " + "; ".join(
                 combination_name(key, t) for t in combos) + "; the pooled value is none of them")
