@@ -35,7 +35,7 @@ import numpy as np
 
 from ..constants import MOUNT_ANGLE_TOLERANCE_RAD
 from ..effects import si_unit
-from ..fitting.core import lstsq_svd, normalised_error
+from ..fitting.core import birge_ratio, lstsq_svd, normalised_error
 from ..fitting.data import (RunCells, block_note, drop_duplicate_cells, fit_noise, make_run,
                             pool_missing_noise, with_noise)
 from ..fitting.identify import Combination, NearAlias, Why, dependence_text, display_name, near_aliases
@@ -209,7 +209,6 @@ def run_consistency(runs, effects: Sequence[str], alpha: float = 0.01) -> tuple[
     rows, flags
         One row per (test, coefficient) compared: values, u, Birge ratio, p, agree.
     """
-    from ..fitting.core import birge_ratio
     rows, flags = [], []
     tumble = [r for r in runs if str(r.meta["test"]) == "tumble"]
     if len(tumble) < 2:

@@ -163,11 +163,8 @@ def residual_figures(extras: Mapping[str, Any] | None) -> list:
     list of ResidualFigure
     """
     from ..results import stored_series_figures
-    out = []
-    for est in estimators():
-        if est.figures is not None:
-            out += est.figures(extras or {})
-    return out + stored_series_figures(dict(extras or {}))
+    return ([f for est in estimators() if est.figures is not None for f in est.figures(extras or {})]
+            + stored_series_figures(dict(extras or {})))
 
 
 def fit_checks(extras: Mapping[str, Any] | None) -> list:

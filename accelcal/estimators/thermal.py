@@ -41,12 +41,12 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
 from ..constants import MICRO_G, T_REF_C
 from ..effects import CROSS_AXIS_TERM, RIG_INPUTS, SQUARE_TERM
 from ..fitting.core import lack_of_fit, linear_fit, lstsq_svd
 from ..fitting.data import unique_small_ints
+from ..fitting.distributions import chi2_sf, t_ppf
 from ..physics.axes import parse_signed_axis
 from ..physics.geometry import geometry_of
 from ..physics.instrument import indicated_acceleration, output_derivative
@@ -437,9 +437,9 @@ def fit_points(meta: Mapping, data: pd.DataFrame) -> tuple[list[dict], pd.DataFr
 
 # --------------------------------------------------------------------------- temperature model
 
-def _wls_line(x, y, u, birge: bool = True) -> dict[str, Any]:
+def _wls_line(x, y, u) -> dict[str, Any]:
     """Weighted LS y = p0 + p1 x with weights 1/u^2 (:func:`accelcal.fitting.core.linear_fit` on
-    the columns of :func:`temperature_design`, x = T - T_ref).  When ``birge`` and the core's
+    the columns of :func:`temperature_design`, x = T - T_ref).  When the core's
     chi-square test fails at 5 % for nu = N - 2 (the scatter is not explained by the
     per-point uncertainties: base tilt drift, tilt tides, an unmodelled temperature
     dependence) the covariance is multiplied by chi2/nu (the Birge ratio squared)."""
@@ -449,17 +449,15 @@ def _wls_line(x, y, u, birge: bool = True) -> dict[str, Any]:
     res = linear_fit(X, y, u, ["p0", "p1"], residual_scale=False)
     chi2, nu = res.chi2, N - 2
     test = lack_of_fit(chi2, nu, alpha=0.05)
-    applied = bool(birge and test.status == "inadequate")
+    applied = test.status == "inadequate"
     cov = res.cov_noise * (test.factor ** 2 if applied else 1.0)
-    scale = chi2 / nu if nu > 0 else float("nan")
-    return {"p": res.values, "cov": cov, "chi2": chi2, "nu": nu, "residuals": y - X @ res.values,
-            "birge_applied": applied, "birge_ratio": math.sqrt(scale) if nu > 0 else float("nan")}
+    return {"p": res.values, "cov": cov, "chi2": chi2, "nu": nu, "birge_applied": applied,
+            "birge_ratio": math.sqrt(chi2 / nu) if nu > 0 else float("nan")}
 
 
 def fit_temperature_model(temp_c: Sequence[float], K0: Sequence[float], u_K0: Sequence[float],
                           K1: Sequence[float], u_K1: Sequence[float], t_ref: float = T_REF_C,
-                          birge: bool = True, level: float = 0.95,
-                          dof_u: float | None = None,
+                          level: float = 0.95, dof_u: float | None = None,
                           levels: Sequence[float] | None = None) -> dict[str, Any]:
     """Fit the effects.md temperature model across temperature points (Zhang et al. 2021,
     paper 001).
@@ -479,9 +477,6 @@ def fit_temperature_model(temp_c: Sequence[float], K0: Sequence[float], u_K0: Se
         Per-point scale factor and its standard uncertainty [output_unit/(m/s2)].
     t_ref : float
         T_ref [degC].
-    birge : bool
-        When chi2 of a line fails the core's test at 5 % (nu = N - 2), scale that line's
-        covariance by chi2/nu.
     level : float
         Coverage probability of the intervals.
     dof_u : float, optional
@@ -503,8 +498,8 @@ def fit_temperature_model(temp_c: Sequence[float], K0: Sequence[float], u_K0: Se
     if N < 2:
         raise ValueError("the temperature model needs at least two temperature points")
     x = T - t_ref
-    f0 = _wls_line(x, K0, u_K0, birge)
-    f1 = _wls_line(x, K1, u_K1, birge)
+    f0 = _wls_line(x, K0, u_K0)
+    f1 = _wls_line(x, K1, u_K1)
     nu = N - 2
     p0, p1 = f1["p"]
     c = f1["cov"]
@@ -521,7 +516,7 @@ def fit_temperature_model(temp_c: Sequence[float], K0: Sequence[float], u_K0: Se
            "chi2_K0": f0["chi2"], "chi2_K1": f1["chi2"], "nu": nu}
     for k, f in (("K0", f0), ("K0T", f0), ("K1", f1), ("K1T", f1)):
         dof = nu if (f["birge_applied"] or dof_u is None) else float(dof_u)
-        tq = float(stats.t.ppf(0.5 + level / 2.0, dof)) if dof > 0 else float("nan")
+        tq = float(t_ppf(0.5 + level / 2.0, dof)) if dof > 0 else float("nan")
         v, uu = out[k], out["u_" + k]
         out["dof_" + k] = dof
         out["t_factor_" + k] = tq
@@ -614,7 +609,7 @@ def scale_factor_time_trend(points: list[dict], model: Mapping) -> dict[str, Any
     u = np.array([p["u_K1_pooled"] for p in pts]) / K1fit
     if np.ptp(t_h) == 0 or not np.all(np.isfinite(u)) or np.any(u <= 0):
         return {}
-    f = _wls_line(t_h - t_h.mean(), r, u, birge=True)
+    f = _wls_line(t_h - t_h.mean(), r, u)
     slope, us = float(f["p"][1]), math.sqrt(f["cov"][1, 1])
     return {"slope_ppm_per_h": slope * 1e6, "u_slope_ppm_per_h": us * 1e6,
             "significant": bool(abs(slope) > 3.0 * us), "note": "relative K1 residual vs time"}
@@ -1072,7 +1067,7 @@ def fit_checks(extras: Mapping[str, Any]) -> list[FitCheck]:
         m = (t or {}).get("temperature_model") or {}
         for k in ("K0", "K1"):
             chi2, nu = m.get(f"chi2_{k}"), m.get("nu")
-            p = float(stats.chi2.sf(chi2, nu)) if chi2 is not None and nu else None
+            p = float(chi2_sf(chi2, nu)) if chi2 is not None and nu else None
             out.append(FitCheck("thermal", run, f"temperature model of {k} (χ² of the point values)",
                                 f"χ² = {f(chi2, '.3g')}, Birge {f(m.get(f'birge_ratio_{k}'), '.3g')}", f(nu), p))
         tr = (t or {}).get("scale_factor_time_trend") or {}
