@@ -16,13 +16,13 @@ Distributions (by their standard uncertainty u, JCGM 101 §6.4):
 from __future__ import annotations
 
 import math
-import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..results import BudgetTerm
+from .records import TumbleCoefficient
 from ..fitting.distributions import norm_ppf
 
 #: half-width / standard uncertainty of the bounded distributions.
@@ -270,8 +270,10 @@ def _with_g(runs: Sequence, key: str, dg: float) -> list:
 
 
 def _key(c) -> tuple[str, str, str, float]:
-    """(method, rig, the coefficient's first term, value) of a coefficient record."""
-    return c.method, c.rig_id, re.split(r"[+\-*]", c.name, maxsplit=1)[0], c.value
+    """(method, rig, what the row estimates, value) of a coefficient record: a tumble row by
+    its fitted parameter (:attr:`.records.TumbleCoefficient.key`), since the name of the
+    combination it measures carries g (``K0+96.1*Koo``); any other row by its name."""
+    return c.method, c.rig_id, c.key if isinstance(c, TumbleCoefficient) else c.name, c.value
 
 
 def add_stated_g_local(est, runs: Sequence, steps, records: list, stated) -> None:
