@@ -139,7 +139,7 @@ def _assess_completeness(res: CampaignResult, joint=None, steps: Mapping | None 
                        "(as many parameters as distinct inputs)")
     elif joint is None and res.tests == ["tumble"]:
         fits = [r for step in registry.prepared(steps or {}, "tumble") if step is not None for r in step.runs]
-        if fits and all(r.lack_of_fit is None for r in fits):
+        if fits and all(r.result.lof.status == "untestable" for r in fits):
             reasons.append("every tumble run has as many head positions as fitted parameters: "
                            "no degrees of freedom to test the model")
     reasons += [r for r in res.completeness_reasons if r not in reasons]

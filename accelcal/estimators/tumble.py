@@ -324,7 +324,8 @@ def fit_run(meta: Mapping, data, extra_terms: Sequence[str] = ()) -> TumbleRun:
         raise ValueError(f"tumble fit is singular: the head angles do not separate {names}")
     return TumbleRun(str(meta.get("run_id")), str(meta.get("rig_id", "")), geometry_of(meta), result,
                      float(np.sqrt(s2)), float(np.sqrt(rss / n)), n, pm, float(meta["g_local_m_s2"]), extras,
-                     float(np.sqrt(ss_pe / dof_pe)) if dof_pe > 0 else float("nan"), dict(zip(names, map(float, p0))))
+                     float(np.sqrt(ss_pe / dof_pe)) if dof_pe > 0 else float("nan"),
+                     dict(zip(names, map(float, p0))))
 
 
 def _mean_at(pm: pd.DataFrame, angle: float, tol: float) -> float | None:
@@ -406,13 +407,13 @@ def fit_tumble_run(meta: Mapping, data) -> TumbleRun:
     if lof.status == "inadequate":
         cross = tuple(k for k in separable_extra_terms(meta) if k in ("Kio", "Kip"))
         try:
-            lof2 = (fit2 := fit_run(meta, data, cross)).result.lof
+            fit2 = fit_run(meta, data, cross)
         except Exception:
-            lof2 = None
-        if lof2 is not None and lof2.status != "untestable" and lof2.p_value > lof.p_value:
+            fit2 = None
+        if fit2 is not None and fit2.result.lof.status != "untestable" and fit2.result.lof.p_value > lof.p_value:
             choice = {"run_id": run_id, "basic_lof_p": float(lof.p_value), "extended_terms": list(cross),
-                      "extended_lof_p": float(lof2.p_value)}
-            fit, lof = fit2, lof2
+                      "extended_lof_p": float(fit2.result.lof.p_value)}
+            fit, lof = fit2, fit2.result.lof
         if lof.status == "inadequate":
             flags.append(f"tumble {run_id}: model inadequate (lack-of-fit p = {lof.p_value:.2g}); "
                          f"used and flagged, u scaled by sqrt(F) = {math.sqrt(lof.statistic):.3g}")
@@ -544,7 +545,8 @@ _NOTES = {"theta0": _ALIAS_NOTE, "K2": "a single tumble gives K2 - Koo (Koo alia
 
 
 def tumble_records(pooled: Mapping[str, Pooled], *, square_terms: Mapping[str, tuple[float, float]] | None = None,
-                   k1: tuple[float, float] | None = None, out_unit: str = "out") -> tuple[list[CoefficientResult], list[BudgetTerm], set[str]]:
+                   k1: tuple[float, float] | None = None, out_unit: str = "out"
+                   ) -> tuple[list[CoefficientResult], list[BudgetTerm], set[str]]:
     """Coefficient records and GUM budgets of the campaign's tumble quantities (paper 003).
 
     Parameters
