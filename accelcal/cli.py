@@ -32,7 +32,7 @@ SUBCOMMANDS: dict[str, Registrar] = {}
 #: Modules that may provide ``register(subparsers)`` (or ``register_cli``) for their
 #: own subcommands (simulate, diagnose, montecarlo, report, serve, ...).  Absent
 #: modules are skipped.  They are not imported when a built-in command runs.
-PLUGIN_MODULES = ("accelcal.simulate.cli", "accelcal.diagnosis.cli", "accelcal.validation.cli",
+PLUGIN_MODULES = ("accelcal.ops.simulate_cli", "accelcal.ops.diagnose_cli", "accelcal.ops.validate_cli",
                   "accelcal.ops.cli", "accelcal.ops.sql", "accelcal.ops.due_cli", "accelcal.ops.design_cli")
 
 EXIT_OK, EXIT_FAIL, EXIT_USAGE, EXIT_BUG, EXIT_INTERRUPTED = 0, 1, 2, 3, 130

@@ -200,6 +200,31 @@ def rig_limits(explicit: str | Path | None = None) -> dict[str, float]:
     return out
 
 
+def advice_inputs(explicit: str | Path | None = None,
+                  warehouse: str | Path | None = None) -> dict[str, dict]:
+    """The lab's statements the test-design advice reads, as keyword arguments of
+    :func:`accelcal.testdesign.advise`: ``stated`` (:func:`rig_uncertainties`, the type-B
+    inputs the budget adds) and ``setup_min`` (:func:`rig_setup_minutes`).  ``accelcal
+    design``, the certificate's "one more run" and ``accelcal diagnose``'s next runs all
+    ask the advice with these, so they give one answer."""
+    return {"stated": rig_uncertainties(explicit, warehouse), "setup_min": rig_setup_minutes(explicit, warehouse)}
+
+
+def rig_setup_minutes(explicit: str | Path | None = None,
+                      warehouse: str | Path | None = None) -> dict[str, float]:
+    """Rig id -> the set-up time of one run on it [min], from ``[rigs."ID"] setup_min`` of
+    the config file (same look-up as :func:`lab_config`; none without a file)."""
+    path, rigs = _rig_tables(explicit, warehouse)
+    out = {}
+    for rig, v in rigs.items():
+        if isinstance(v, dict) and "setup_min" in v:
+            x = v["setup_min"]
+            if isinstance(x, bool) or not isinstance(x, (int, float)) or not x >= 0:
+                raise ConfigError(f'{path}: [rigs."{rig}"] setup_min must be a number of minutes >= 0')
+            out[str(rig)] = float(x)
+    return out
+
+
 def rig_uncertainties(explicit: str | Path | None = None,
                       warehouse: str | Path | None = None) -> dict[str, dict[str, float]]:
     """Rig id -> :data:`accelcal.effects.RIG_INPUTS` id -> the lab's stated standard

@@ -39,7 +39,10 @@ from .effects import EFFECTS, coefficient_spec, plausible_size, typical_size
 from .fitting.blas import single_thread
 from .fitting.core import information_root, lstsq_svd
 from .fitting.data import RunCells, mean_variance, pooled_noise
-from .fitting.identify import Why, holds, mixed_with
+from .fitting.identify import Why, aliased_with, holds, mixed_with
+from .constants import G_STANDARD, MOUNT_ANGLE_TOLERANCE_RAD
+from .estimators.joint import (absorbed_cross_axis, held_type_b_directions, rig_input_directions, rig_input_terms,
+                               type_b_terms)
 from .fitting.model import CANDIDATE_SHARED, CampaignModel, processing_effects
 from .fitting.procedure import fit_selected
 from .physics.axes import AXES
@@ -54,6 +57,9 @@ SEPARATED = 0.9
 ANGLES_DEG = tuple(range(0, 360, 45))
 #: Planes a centrifuge candidate may use (first axis first, drop-format.md).
 PLANES = ("IA-PA", "IA-OA", "PA-OA")
+#: Set-up time of one run (mounting the unit, settling) where the lab states none in
+#: ``[rigs."ID"] setup_min`` of accelcal.toml [min].
+SETUP_MIN_DEFAULT = 15.0
 
 
 #: Largest number of candidates whose pairs are all tried when a target is not yet
@@ -111,9 +117,11 @@ class Candidate:
 
 @dataclass
 class Prediction:
-    """Standard uncertainties [SI] (None: not determined) and correlations of the targets."""
+    """Standard uncertainties [SI] (None: not determined) and correlations of the targets;
+    for a fit of runs made (:func:`fitted_uncertainty`) also their values [SI]."""
     std_uncertainty: dict[str, float | None]
     corr: dict[str, float | None] = field(default_factory=dict)
+    value: dict[str, float] = field(default_factory=dict)
 
 
 @dataclass
@@ -132,7 +140,9 @@ class Proposal:
 
 @dataclass
 class Advice:
-    """The advice: targets, the current prediction, the proposals (best first), notes."""
+    """The advice: targets, the current prediction, the proposals (best first), notes; the
+    noise model and set-up times it assumed; the targets' current values [SI] (a relative
+    u, K1's in ppm, reads against them)."""
     targets: list[str]
     separate: list[tuple[str, str]]
     current: Prediction
@@ -141,6 +151,9 @@ class Advice:
     plausible: dict[str, float | None]
     notes: list[str] = field(default_factory=list)
     candidates: int = 0
+    noise: list[dict] = field(default_factory=list)
+    setup_min: dict[str, float] = field(default_factory=dict)
+    values: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         """The JSON form: current, proposals with runs in drop-format keys."""
@@ -151,7 +164,8 @@ class Advice:
                                              "corr": p.predicted.corr},
                                "minutes": round(p.minutes, 1), "gain": round(p.gain, 4)}
                               for p in self.proposals],
-                "candidates": self.candidates, "notes": self.notes}
+                "candidates": self.candidates, "notes": self.notes, "noise": self.noise,
+                "setup_min": self.setup_min, "values": self.values}
 
 
 # ----------------------------------------------------------------------------- candidates
@@ -391,7 +405,8 @@ class _Information:
     head's misalignment) at plus and minus its typical size: a run whose information hinges
     on a nuisance not yet measured is judged at the worse of the three."""
 
-    def __init__(self, model: CampaignModel, n_made: int, p: np.ndarray):
+    def __init__(self, model: CampaignModel, n_made: int, p: np.ndarray,
+                 stated: Mapping[str, Mapping[str, float]] | None = None):
         self.model = model
         self.n_made = n_made
         made_rows = slice(0, int(model.offsets[n_made]))
@@ -418,16 +433,42 @@ class _Information:
                 sl = model.rows(j)
                 Jq[sl] = model.jacobian_run(q, j) / model.sig[sl, None]
             self.Js.append(Jq)
+        # the type-B inputs the pipeline's budget adds (estimators.joint: the angles of
+        # radial mounts, IA tilt, the stated rig inputs), as (u, direction) pairs; a
+        # design's sensitivities follow from J^T d over its rows (made + proposed)
+        fixed = [(uB, [d]) for _, d, uB, _ in held_type_b_directions(model, p, {})]
+        fixed += [(u, dirs) for _, _, dirs, u, _ in rig_input_directions(model, p, stated or {})[0]]
+        self.type_b = [(u, d) for u, dirs in fixed for d in dirs]
+        self._g_made = [self.Js[0][made_rows].T @ d[made_rows] for _, d in self.type_b]
+        self._g_run: dict[tuple[int, int], list[np.ndarray]] = {}
+
+    def type_b_gradient(self, runs: Sequence[int], k: int) -> list[np.ndarray]:
+        """J^T d of each type-B direction over the rows of the runs made plus ``runs``,
+        candidate rows from ``self.Js[k]`` [1 per parameter unit per input unit]."""
+        out = [g.copy() for g in self._g_made]
+        for j in runs:
+            key = (k, j)
+            if key not in self._g_run:
+                sl = self.model.rows(j)
+                self._g_run[key] = [self.Js[k][sl].T @ d[sl] for _, d in self.type_b]
+            for g, gj in zip(out, self._g_run[key]):
+                g += gj
+        return out
 
     def cols(self, runs: Sequence[int]) -> list[int]:
         extra = {i for j in runs for i in self.model.run_params[j]}
         return sorted(set(self.cols_made) | extra)
 
-    def solve(self, runs: Sequence[int], J: np.ndarray):
-        """(columns, names held, lstsq_svd solution over the others) of the runs made plus
-        ``runs`` (model indices) with candidate rows from J: the parameters the joint fit of
-        those runs would hold (:func:`accelcal.fitting.identify.holds` on the stacked square root) are
-        held here too."""
+    def solve(self, runs: Sequence[int], k_J: int):
+        """(columns, names held, lstsq_svd solution over the others, type-B variance of
+        each) of the runs made plus ``runs`` (model indices) with candidate rows from
+        ``self.Js[k_J]``: the parameters the joint fit of those runs would hold
+        (:func:`accelcal.fitting.identify.holds` on the stacked square root) are held here
+        too, and the type-B terms its budget would add
+        (:func:`accelcal.estimators.joint.held_type_b_directions`,
+        :func:`~accelcal.estimators.joint.rig_input_directions`) are added: the bias each
+        input transfers, (J^T J)^+ J^T d u."""
+        J = self.Js[k_J]
         cols = self.cols(runs)
         pos = {c: k for k, c in enumerate(cols)}
         R = np.zeros((self.R0.shape[0], len(cols)))
@@ -440,8 +481,21 @@ class _Information:
         Af = A[:, [pos[c] for c in free]]
         sol = lstsq_svd(Af, np.zeros(A.shape[0]))
         ali = [pos[c] for c in cols if getattr(held.get(self.model.candidates[c].name), "why", None) is Why.ALIASED]
-        mixed = {free[k] for k in np.flatnonzero(mixed_with(Af, A[:, ali], sol.cov))} if ali else set()
-        return free, mixed, sol
+        mixed = {free[m] for m in np.flatnonzero(mixed_with(Af, A[:, ali], sol.cov))} if ali else set()
+        var_b = np.zeros(len(free))
+        for (u, _), g in zip(self.type_b, self.type_b_gradient(runs, k_J)):
+            var_b += (u * (sol.cov @ g[free])) ** 2
+        names = self.model.params.names
+        kept = [pos[c] for c in free]
+        named = {n: replace(h, aliased_with=tuple(names[cols[m]] for m in
+                                                  aliased_with(A, pos[self.model.params.index[n]], kept)))
+                 for n, h in held.items() if h.why is Why.ALIASED}
+        for _, i, absorbers in absorbed_cross_axis(self.model, named):
+            g = A[:, [pos[c] for c in free]].T @ A[:, pos[i]]
+            sens = sol.cov @ g
+            keep = np.array([names[c] not in absorbers for c in free])
+            var_b += keep * (MOUNT_ANGLE_TOLERANCE_RAD / math.sqrt(3.0) * sens) ** 2
+        return free, mixed, sol, var_b
 
 
 def _predict(info: _Information, runs: Sequence[int], targets: Mapping[str, list[int]],
@@ -449,7 +503,7 @@ def _predict(info: _Information, runs: Sequence[int], targets: Mapping[str, list
     """The prediction for the runs made plus ``runs``: the worst over the candidates'
     unknown geometry (:class:`_Information`), by the number of targets left undetermined,
     then the sum of the relative variances."""
-    preds = [_predict_at(info, runs, targets, pairs, J) for J in (info.Js if runs else info.Js[:1])]
+    preds = [_predict_at(info, runs, targets, pairs, k) for k in range(len(info.Js) if runs else 1)]
 
     def badness(pr: Prediction):
         us = list(pr.std_uncertainty.values())
@@ -468,15 +522,15 @@ def _determined(u: float, key: str) -> float | None:
 
 
 def _predict_at(info: _Information, runs: Sequence[int], targets: Mapping[str, list[int]],
-                pairs: Sequence[tuple[str, str]], J: np.ndarray) -> Prediction:
-    cols, mixed, sol = info.solve(runs, J)
+                pairs: Sequence[tuple[str, str]], k_J: int) -> Prediction:
+    cols, mixed, sol, var_b = info.solve(runs, k_J)
     pos = {c: k for k, c in enumerate(cols)}
     names = info.model.params.names
     std: dict[str, float | None] = {}
     for t, idx in targets.items():
         for i in idx:
             k = pos.get(i)
-            u = (math.sqrt(sol.cov[k, k]) if k is not None and i not in mixed and sol.estimable[k]
+            u = (math.sqrt(sol.cov[k, k] + var_b[k]) if k is not None and i not in mixed and sol.estimable[k]
                  and sol.cov[k, k] > 0 else float("nan"))
             std[names[i] if len(idx) > 1 else t] = _determined(u, info.model.params[i].key)
     corr: dict[str, float | None] = {}
@@ -534,8 +588,16 @@ def _touches(info: _Information, j: int, targets: Mapping[str, list[int]]) -> bo
 
 def advise(cells: Sequence[RunCells], baseline: Sequence[str], targets: Sequence[str] | None = None,
            separate: Sequence[tuple[str, str]] = (), max_runs: int = 2,
-           candidates: Sequence[Candidate] | None = None, top: int = 5) -> Advice:
+           candidates: Sequence[Candidate] | None = None, top: int = 5,
+           stated: Mapping[str, Mapping[str, float]] | None = None,
+           setup_min: Mapping[str, float] | None = None) -> Advice:
     """Which runs to add to ``cells`` for the targets, best first.
+
+    Each prediction is what the pipeline will report: the joint fit's type-A uncertainty
+    with the noise model fitted to the campaign's runs (:attr:`Advice.noise`), plus every
+    type-B term its budget adds (:func:`accelcal.estimators.joint.held_type_b_directions`,
+    :func:`~accelcal.estimators.joint.rig_input_directions`).  A run costs its duration
+    plus the rig's set-up time.
 
     Parameters
     ----------
@@ -553,6 +615,12 @@ def advise(cells: Sequence[RunCells], baseline: Sequence[str], targets: Sequence
         Default :func:`candidate_runs`.
     top : int
         Proposals returned.
+    stated : mapping, optional
+        Rig id -> rig input id -> standard uncertainty the lab states
+        (:func:`accelcal.config.rig_uncertainties`), as the pipeline's budget reads it.
+    setup_min : mapping of str to float, optional
+        Rig id -> set-up time of one run [min] (``[rigs."ID"] setup_min``); default
+        :data:`SETUP_MIN_DEFAULT`.
 
     Returns
     -------
@@ -565,10 +633,11 @@ def advise(cells: Sequence[RunCells], baseline: Sequence[str], targets: Sequence
         For an unknown target or effect id.
     """
     with single_thread():            # many small dense solves: one BLAS thread is the fast one
-        return _advise(list(cells), baseline, targets, separate, max_runs, candidates, top)
+        return _advise(list(cells), baseline, targets, separate, max_runs, candidates, top, stated or {},
+                       setup_min or {})
 
 
-def _advise(cells, baseline, targets, separate, max_runs, candidates, top) -> Advice:
+def _advise(cells, baseline, targets, separate, max_runs, candidates, top, stated, setup_min) -> Advice:
     for e in baseline:
         if e not in EFFECTS:
             raise DesignError(f"baseline effect {e!r}: not an effects.md id")
@@ -600,7 +669,9 @@ def _advise(cells, baseline, targets, separate, max_runs, candidates, top) -> Ad
         targets = [prm.key for prm, role in zip(made.params, made.roles) if role.kind == "coef"]
         targets = list(dict.fromkeys(targets))
     tmap = resolve_targets(model, targets)
-    info = _Information(model, len(cells), p)
+    info = _Information(model, len(cells), p, stated)
+    setup = {c.rig_id: float(setup_min.get(c.rig_id, SETUP_MIN_DEFAULT)) for c in cands}
+    cost = [c.minutes + setup[c.rig_id] for c in cands]
     cur = _predict(info, [], tmap, separate)
     n0 = len(cells)
     names = list(cur.std_uncertainty)
@@ -615,7 +686,7 @@ def _advise(cells, baseline, targets, separate, max_runs, candidates, top) -> Ad
     singles = []
     for k in range(len(cands)):
         pred = _predict(info, [n0 + k], tmap, separate)
-        singles.append(Proposal([cands[k]], pred, cands[k].minutes, _gain(cur, pred, prior)))
+        singles.append(Proposal([cands[k]], pred, cost[k], _gain(cur, pred, prior)))
     props = list(singles)
     if max_runs >= 2 and cands:
         best = max(singles, key=lambda s: s.score)
@@ -623,7 +694,7 @@ def _advise(cells, baseline, targets, separate, max_runs, candidates, top) -> Ad
         for k in range(len(cands)):
             if k != kb:
                 pred = _predict(info, [n0 + kb, n0 + k], tmap, separate)
-                props.append(Proposal([cands[kb], cands[k]], pred, cands[kb].minutes + cands[k].minutes,
+                props.append(Proposal([cands[kb], cands[k]], pred, cost[kb] + cost[k],
                                       _gain(cur, pred, prior)))
         still = [t for t, u in cur.std_uncertainty.items() if u is None
                  and all(s.predicted.std_uncertainty.get(t) is None for s in singles)]
@@ -633,13 +704,13 @@ def _advise(cells, baseline, targets, separate, max_runs, candidates, top) -> Ad
                 # a lab's list of hundreds: pairs among the runs that carry the most
                 # information on the targets per minute (each pair is a full prediction)
                 weight = _target_information(info, [n0 + k for k in near], tmap)
-                per_minute = {k: -w / max(cands[k].minutes, 1e-9) for k, w in zip(near, weight)}
+                per_minute = {k: -w / max(cost[k], 1e-9) for k, w in zip(near, weight)}
                 near = sorted(sorted(near, key=per_minute.__getitem__)[:PAIR_POOL])
             for a, b in itertools.combinations(near, 2):
                 if (cands[a].rig_id, cands[a].test) != (cands[b].rig_id, cands[b].test):
                     continue
                 pred = _predict(info, [n0 + a, n0 + b], tmap, separate)
-                props.append(Proposal([cands[a], cands[b]], pred, cands[a].minutes + cands[b].minutes,
+                props.append(Proposal([cands[a], cands[b]], pred, cost[a] + cost[b],
                                       _gain(cur, pred, prior)))
     props = [q for q in props if q.gain > 1e-9]
     props.sort(key=lambda q: (-q.score, q.minutes, [c.label for c in q.runs]))
@@ -660,11 +731,50 @@ def _advise(cells, baseline, targets, separate, max_runs, candidates, top) -> Ad
     if not out:
         notes.append("no candidate run improves the targets")
     return Advice(targets=list(tmap), separate=list(separate), current=cur, proposals=out, units=units,
-                  plausible=plaus, notes=notes, candidates=len(cands))
+                  plausible=plaus, notes=notes, candidates=len(cands),
+                  noise=noise_statement(cells, _scale_factor(made, p_made)),
+                  setup_min=setup, values={(model.params.names[i] if len(ix) > 1 else t): float(p[i])
+                                           for t, ix in tmap.items() for i in ix})
+
+
+def _scale_factor(model: CampaignModel, p: np.ndarray) -> float | None:
+    """The campaign's fitted K1 [output unit per m/s2], None where the model has none."""
+    k = model.params.index.get("K1")
+    return float(p[k]) if k is not None and p[k] else None
+
+
+def noise_statement(cells: Sequence[RunCells], k1: float | None = None) -> list[dict]:
+    """The noise model behind every prediction, per rig and test: the runs' noise pooled
+    (:func:`accelcal.fitting.data.pooled_noise`), fitted to the campaign's residuals.
+
+    Returns
+    -------
+    list of dict
+        ``rig_id``, ``test``, ``runs``, ``sigma`` (white noise of one reading
+        [output unit]), ``rate_sigma_per_m_s2`` (the rate-proportional part's standard
+        deviation per m/s2 of centripetal level [output unit / (m/s2)], 0 when none: rate
+        jitter, which a proposed centrifuge mount sees through IA's share of the radius),
+        ``rho`` (lag-1 autocorrelation [1]), ``output_unit``, ``source``, and with
+        ``k1`` (the scale factor [output unit per m/s2]) ``sigma_ug``: the white noise as
+        an input acceleration [µg].
+    """
+    out = []
+    for rig, test in sorted({(c.rig_id, c.test) for c in cells}):
+        peers = [c for c in cells if c.rig_id == rig and c.test == test]
+        nm = pooled_noise(peers)
+        if nm is None or not math.isfinite(nm.a):
+            continue
+        out.append({"rig_id": rig, "test": test, "runs": len(peers), "sigma": math.sqrt(max(nm.a, 0.0)),
+                    "rate_sigma_per_m_s2": math.sqrt(max(nm.b, 0.0)), "rho": float(nm.rho),
+                    "output_unit": str(peers[0].meta.get("output_unit", "out")), "source": nm.source})
+        if k1:
+            out[-1]["sigma_ug"] = out[-1]["sigma"] / abs(k1) / G_STANDARD * 1e6
+    return out
 
 
 def fitted_uncertainty(cells: Sequence[RunCells], baseline: Sequence[str], targets: Sequence[str],
-                       separate: Sequence[tuple[str, str]] = ()) -> Prediction:
+                       separate: Sequence[tuple[str, str]] = (),
+                       stated: Mapping[str, Mapping[str, float]] | None = None) -> Prediction:
     """The standard uncertainties the advice model gives when fitted to runs made: what a
     prediction of :func:`advise` is checked against once its runs exist.
 
@@ -680,12 +790,17 @@ def fitted_uncertainty(cells: Sequence[RunCells], baseline: Sequence[str], targe
     separate : sequence of (str, str)
         Pairs whose correlation is wanted.
 
+    stated : mapping, optional
+        As for :func:`advise`.
+
     Returns
     -------
     Prediction
         Target -> standard uncertainty [SI] of the fit (noise model refitted to its
-        residuals, lack-of-fit scaled; :func:`accelcal.fitting.procedure.fit_model`), None
-        when not determined (as :func:`advise` says it); the pairs' correlations.
+        residuals, lack-of-fit scaled; :func:`accelcal.fitting.procedure.fit_model`) with
+        the type-B terms the pipeline's budget adds (:func:`accelcal.estimators.joint.type_b_terms`,
+        :func:`~accelcal.estimators.joint.rig_input_terms`), None when not determined (as
+        :func:`advise` says it); the pairs' correlations.
     """
     targets = list(targets) + [x for ab in separate for x in ab if x not in targets]
     extra = [t for t in targets if t in EFFECTS and t not in baseline and t not in INSTRUMENT_EFFECTS]
@@ -693,12 +808,18 @@ def fitted_uncertainty(cells: Sequence[RunCells], baseline: Sequence[str], targe
     tmap = resolve_targets(model, targets)
     mf = fit_selected(model)
     out: dict[str, float | None] = {}
+    values: dict[str, float] = {}
     mixed = {n for h in mf.held.values() if h.why is Why.ALIASED for n in h.aliased_with}
+    type_b = {n: [c * u for _, c, u in v] for n, v in type_b_terms(mf).items()}
+    for n, v in rig_input_terms(mf, stated or {})[0].items():
+        type_b.setdefault(n, []).extend(c * u for _, c, u, _, _ in v)
     for t, idx in tmap.items():
         for i in idx:
             name = model.params.names[i]
-            u = mf.fit.std(name) if name not in mixed else float("nan")
+            u = (math.sqrt(mf.fit.std(name) ** 2 + sum(x * x for x in type_b.get(name, [])))
+                 if name not in mixed else float("nan"))
             out[name if len(idx) > 1 else t] = _determined(u, model.params[i].key)
+            values[name if len(idx) > 1 else t] = float(mf.fit.values[i])
     corr: dict[str, float | None] = {}
     for a, b in separate:
         na, nb = model.params.names[tmap[a][0]], model.params.names[tmap[b][0]]
@@ -707,7 +828,7 @@ def fitted_uncertainty(cells: Sequence[RunCells], baseline: Sequence[str], targe
             continue
         _, R = mf.fit.correlation([na, nb])
         corr[f"{a}|{b}"] = float(R[0, 1])
-    return Prediction(out, corr)
+    return Prediction(out, corr, values)
 
 
 
@@ -716,7 +837,7 @@ def fitted_uncertainty(cells: Sequence[RunCells], baseline: Sequence[str], targe
 SEPARATION_MAX_READINGS = 1_000_000
 
 
-def separating_run_flag(cells: Sequence[RunCells], pair: tuple[str, str]) -> str | None:
+def separating_run_flag(cells: Sequence[RunCells], pair: tuple[str, str], **lab) -> str | None:
     """The certificate's line for a pair of coefficients the runs determine only together:
     ``accelcal design --separate A,B --max-runs 1``'s first proposal (:func:`advise` with
     the pipeline's processing model), asked when a person reads the result.
@@ -728,6 +849,9 @@ def separating_run_flag(cells: Sequence[RunCells], pair: tuple[str, str]) -> str
         (:func:`accelcal.diagnosis.core.prepare_cells`).
     pair : (str, str)
         The aliased pair (:func:`accelcal.estimators.joint.stored_aliased_pairs`).
+    **lab
+        The lab's statements (:func:`accelcal.config.advice_inputs`), as ``accelcal
+        design`` passes them.
 
     Returns
     -------
@@ -740,7 +864,8 @@ def separating_run_flag(cells: Sequence[RunCells], pair: tuple[str, str]) -> str
     if not cells or sum(c.y_rows.size for c in cells) > SEPARATION_MAX_READINGS:
         return None
     try:
-        adv = advise(cells, processing_effects(sorted({c.test for c in cells})), None, [pair], max_runs=1, top=1)
+        adv = advise(cells, processing_effects(sorted({c.test for c in cells})), None, [pair], max_runs=1, top=1,
+                     **lab)
     except (DesignError, ValueError, np.linalg.LinAlgError):
         return None
     ask = f"(accelcal design --separate {pair[0]},{pair[1]} --max-runs 1)"
@@ -748,3 +873,64 @@ def separating_run_flag(cells: Sequence[RunCells], pair: tuple[str, str]) -> str
         return f"{pair[0]}, {pair[1]}: no single run these rigs can make separates them {ask}"
     run = " + ".join(c.label for c in adv.proposals[0].runs)
     return f"{pair[0]}, {pair[1]}: one more run would separate them: {run} {ask}"
+
+
+def next_runs(runs, res, **lab) -> list[dict]:
+    """For each effect the runs cannot see and each alias the diagnosis names, the best
+    single run the rigs can make to fix it, or the best two where no single run does
+    (:func:`advise`).
+
+    Parameters
+    ----------
+    runs : list of RunFile
+        The runs diagnosed.
+    res : dict
+        :func:`accelcal.diagnosis.core.diagnose`'s result (``unobservable``, ``ranking``
+        with ``aliases``, ``baseline``).
+    **lab
+        The lab's statements (:func:`accelcal.config.advice_inputs`), as ``accelcal
+        design`` passes them.
+
+    Returns
+    -------
+    list of dict
+        ``to`` (what it fixes), ``run`` (drop-format words) and ``runs`` (keys), ``minutes``
+        [min], ``predicted`` (standard uncertainties [SI]); or ``note`` when no single run
+        does.
+    """
+    from .diagnosis.core import prepare_cells
+    asks = [(f"see {u['effect']}", [u["effect"]], []) for u in res.get("unobservable") or []]
+    for r in res.get("ranking") or []:
+        for a in r.get("aliases") or []:
+            other = a if isinstance(a, str) else a.get("effect")
+            if other:
+                asks.append((f"separate {r['effect']} from {other}", [], [(r["effect"], other)]))
+    if not asks:
+        return []
+    cells, _ = prepare_cells(runs)
+    base = list((res.get("baseline") or {}).get("effects") or [])
+    out = []
+    for what, targets, pairs in asks:
+        try:
+            adv = advise(cells, base, targets or None, pairs, max_runs=1, top=1, **lab)
+            # seeing an effect may take two runs (Kip beside an unknown Kpp: 45 + 135 deg);
+            # telling an effect from a coefficient by two runs of other planes leans on
+            # second-order terms, and the plain answer is the gravity reference below
+            if not adv.proposals and targets:
+                adv = advise(cells, base, targets, pairs, max_runs=2, top=1, **lab)
+        except (DesignError, ValueError, np.linalg.LinAlgError) as exc:
+            out.append({"to": what, "note": f"no advice: {exc}"})
+            continue
+        if not adv.proposals:
+            other = pairs[0][1] if pairs else None
+            gravity = (other is not None and coefficient_spec(other) is not None
+                       and not any(r.meta.get("test") == "tumble" for r in runs))
+            out.append({"to": what, "note": ("no run or pair of runs these rigs can make does it" if targets
+                                             else "no single run these rigs can make does it") + (
+                f"; a tumble in the gravity field measures the unit's {other} on its own" if gravity else "")})
+            continue
+        p = adv.proposals[0]
+        out.append({"to": what, "run": " + ".join(c.label for c in p.runs),
+                    "runs": [{"test": c.test, "rig_id": c.rig_id, **c.spec} for c in p.runs],
+                    "minutes": round(p.minutes, 1), "predicted": p.predicted.std_uncertainty})
+    return out

@@ -83,8 +83,9 @@ def _add(sc, cand: td.Candidate, k: int):
     s = cand.spec
     if cand.test in ("centrifuge", "sine_centrifuge"):
         t = next(t for t in sc.tests if t["kind"] == cand.test and str(t["rig_id"]) == cand.rig_id)
-        t["mounts"] = list(t["mounts"]) + [{"plane": s["mount_plane"], "angle_deg": s["mount_angle_deg"],
-                                            "vertical": s["vertical_axis"]}]
+        key = "mounts" if cand.test == "centrifuge" else "attitudes"
+        t[key] = list(t[key]) + [{"plane": s["mount_plane"], "angle_deg": s["mount_angle_deg"],
+                                  "vertical": s["vertical_axis"]}]
     elif cand.test == "tumble":
         t = next(t for t in sc.tests if t["kind"] == "tumble" and str(t["rig_id"]) == cand.rig_id)
         t["heads"] = list(t["heads"]) + [{"head_axis": s["head_axis"], "cos_axis": s["cos_axis"],

@@ -122,10 +122,10 @@ def test_sine_columns_are_derivatives_of_rig_output():
         for j, p in enumerate(params):
             tool = p.group == "tool"
             h = 3e-3 * p.scale if tool else p.scale       # (the estimator steps 1e-2 scale)
-            col = central("sine_centrifuge", run.meta, run.data, coeffs, effects, p.name, h, effect=tool)
+            col = central("sine_centrifuge", run.meta, run.cols, coeffs, effects, p.name, h, effect=tool)
             # the estimator's tool columns are central differences with step 1e-2 of the scale:
             # O(h^2) agreement; the coefficient columns are exact
-            assert_columns_equal(J[:, j], col, rtol=1e-4 if tool else 1e-7, what=f"{run.label} {p.name}")
+            assert_columns_equal(J[:, j], col, rtol=1e-4 if tool else 1e-7, what=f"{run.meta['run_id']} {p.name}")
 
 
 # ----------------------------------------------------------------- paper 000: centrifuge

@@ -11,7 +11,7 @@ import pytest
 
 from accelcal.diagnosis import diagnose, read_paths
 from accelcal.diagnosis.core import public
-from accelcal.diagnosis.report import clean_json, text_report
+from accelcal.ops.diagnosis_report import clean_json, text_report
 
 from conftest import SHARED, TRUTH_20
 
@@ -138,7 +138,7 @@ def test_json_contract():
 
 
 def test_cli_json(tmp_path, capsys):
-    from accelcal.diagnosis.cli import main
+    from accelcal.ops.diagnose_cli import main
     if not (DEV / "cases" / "tumble-drift-d0").is_dir():
         pytest.skip(f"{DEV} not found")
     t = json.loads((DEV / "truth.json").read_text())["tumble-drift-d0"]
@@ -241,7 +241,7 @@ def test_one_45_deg_run_names_kpp_among_cross_couplings_aliases():
     """Issue 26: an IA pair and one 45 deg run with Kip withheld. At 45 deg a_I a_P = a_P^2
     = a^2/2 (drop-format.md's mount angle), so the runs cannot tell Kip from Kpp: the verdict
     cross_coupling names Kpp among its aliases, and says which run would separate them."""
-    from accelcal.diagnosis.cli import next_runs
+    from accelcal.testdesign import next_runs
     from accelcal.simulate import load_scenario, simulate_campaign
     from accelcal.validation.simruns import SimRunFile
     sc = load_scenario("demo")

@@ -97,7 +97,7 @@ def test_smoke_demo_and_cli(tmp_path):
     """The demo campaign (tumble + 10 centrifuge mounts), n = 3, through the CLI."""
     ap = argparse.ArgumentParser()
     sub = ap.add_subparsers()
-    from accelcal.validation.cli import register_cli
+    from accelcal.ops.validate_cli import register_cli
     register_cli(sub)
     out = tmp_path / "mc.json"
     args = ap.parse_args(["montecarlo", "demo", "--n", "3", "--seed", "5", "--json", "--out", str(out)])

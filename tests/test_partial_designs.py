@@ -120,14 +120,16 @@ def test_partial_centrifuge_designs_report_what_they_determine(drop, angles, tum
         kip = next(c for c in res.coefficients if c.method == "joint_ml" and c.name == "Kip")
         assert kk.std_uncertainty < kip.std_uncertainty / 50 and "nearly aliased" in kip.note
         # and the run that separates them turns PA through a known input: a PA-radial mount
-        # (paper 000 eq 3) or a tumble about OA, which turns IA through PA (IEEE 1293)
+        # (paper 000 eq 3), a mount where a_I a_P changes sign against 45/225 deg while a_P^2
+        # does not (at phi: Kip cos(phi) sin(phi) + Kpp sin(phi)^2, so 135/315 deg give
+        # Kpp/2 - Kip/2), or a tumble about OA, which turns IA through PA (IEEE 1293)
         from accelcal.diagnosis.core import prepare_cells
         from accelcal.testdesign import separating_run_flag
         from accelcal.estimators.joint import ALIASED_PAIR_FLAG
         assert ALIASED_PAIR_FLAG.format(a="Kip", b="Kpp") in res.flags
         sep = separating_run_flag(prepare_cells(_centrifuge_subset(_runs(drop), angles, tumble))[0], ("Kip", "Kpp"))
         assert sep.startswith("Kip, Kpp: one more run would separate them")
-        assert re.search(r"centrifuge \S+ IA-PA (90|270)°|tumble \S+ head OA", sep), sep
+        assert re.search(r"centrifuge \S+ IA-PA (90|135|270|315)°|tumble \S+ head OA", sep), sep
     if tumble:
         # IEEE 1293: one tumble about PA measures K0 + Koo g^2, K2 - Koo, theta0 - Ko
         g = float(next(r for r in _runs(drop) if r.meta["test"] == "tumble").meta["g_local_m_s2"])

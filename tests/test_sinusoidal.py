@@ -197,12 +197,12 @@ def test_monte_carlo_stated_uncertainty_matches_spread():
     rng = np.random.default_rng(2026)
     base = _campaign(COEFFS, {}, 0.0, rng)
     prep = S.prepare_runs(base)
-    clean = [r.y.copy() for r in prep]
+    clean = [r.y_rows.copy() for r in prep]
     sig = 3e-6
     est, unc = [], []
     for _ in range(50):
         for r, y0 in zip(prep, clean):
-            r.y = y0 + sig * rng.standard_normal(y0.size)
+            r.y_rows = y0 + sig * rng.standard_normal(y0.size)
         fit = S.identify_sine_campaign(None, prepared=prep, reweight=False)
         est.append(fit.values["K2"])
         unc.append(fit.std["K2"])

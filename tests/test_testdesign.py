@@ -66,7 +66,7 @@ def test_one_45_deg_run_leaves_kip_and_kpp_aliased_45_and_135_separate_them(ia_p
     u = best.predicted.std_uncertainty
     assert u["Kip"] is not None and u["Kpp"] is not None
     assert abs(best.predicted.corr["Kip|Kpp"]) < td.SEPARATED
-    assert best.minutes == pytest.approx(sum(c.minutes for c in cands))
+    assert best.minutes == pytest.approx(sum(c.minutes + td.SETUP_MIN_DEFAULT for c in cands))
 
 
 def test_no_tumble_determines_k2_itself():
@@ -137,7 +137,7 @@ def test_cli_prints_a_short_table_and_json(ia_pair, tmp_path, capsys):
 def test_diagnose_says_which_run_would_fix_what_it_cannot_see(ia_pair):
     """An effect the runs cannot see gets the best single run to see it, or says that no
     run of these rigs does (the rate scale error is one with the radius on a centrifuge)."""
-    from accelcal.diagnosis.cli import next_runs
+    from accelcal.testdesign import next_runs
     res = {"unobservable": [{"effect": "cross_coupling"}, {"effect": "rate_scale_error"}], "ranking": [],
            "baseline": {"effects": [e for e in BASE]}}
     out = {f["to"]: f for f in next_runs_from_cells(ia_pair, res, next_runs)}

@@ -4,12 +4,10 @@ and held out; or that a gap remains that no catalogue effect explains.
 
     diagnose(runs, baseline=None|'none'|[ids]) -> dict   (runs: RunFile-like or RunCells)
     diagnose_paths(paths, baseline) -> dict              (run files or folders)
-    register_cli(subparsers)                             # the `diagnose` subcommand
 
-``accelcal diagnose-benchmark`` (scoring the diagnosis on simulated campaigns) is not here:
-it is registered by :mod:`accelcal.validation.cli`.
+The ``diagnose`` command and its text and HTML reports are in :mod:`accelcal.ops`
+(:mod:`~accelcal.ops.diagnose_cli`, :mod:`~accelcal.ops.diagnosis_report`).
 """
-from .cli import register_cli  # noqa: F401
 from .runfiles import read_paths  # noqa: F401
 from .core import diagnose, public  # noqa: F401
 

@@ -280,14 +280,74 @@ def campaign_results(runs, rig_ids: Sequence[str] | None = None, effects: Sequen
     return out
 
 
-def type_b_terms(jf: ModelFit, tolerance: float = MOUNT_ANGLE_TOLERANCE_RAD) -> dict[str, list[tuple[str, float, float]]]:
-    """Type-B terms of parameters the design cannot determine but that are physically there.
+def held_type_b_directions(model: CampaignModel, p: np.ndarray, held: Mapping[str, Any],
+                           tolerance: float = MOUNT_ANGLE_TOLERANCE_RAD
+                           ) -> list[tuple[str, np.ndarray, float, frozenset[str]]]:
+    """The type-B inputs of parameters the design cannot determine but that are physically
+    there, as the directions they move the model: the one list the budget
+    (:func:`type_b_terms`) and the test-design advice (:mod:`accelcal.testdesign`) read.
 
     A mount angle of a mount whose IA is radial (phi0 = 0/180 deg) changes the fit only at
-    second order, exactly as K2 does (eq 8 at phi0 = 0: dc2 = Kip dphi).  Its effect on
-    every fitted parameter is the bias it would transfer, dtheta = (J^T W J)^-1 J^T W j dphi
-    (j its Jacobian column), with dphi uniform within the fixture tolerance (JCGM 100
-    4.3.7: u = a / sqrt(3)).
+    second order, exactly as K2 does (eq 8 at phi0 = 0: dc2 = Kip dphi); a tilt of IA out
+    of the table plane (effects.md ``ia_tilt``) is a constant g sin(lambda) at first order
+    (the run biases take it) and a cross-coupling term at second order (Kip lambda a_i^2
+    where the vertical axis is PA, -Kio lambda a_i^2 where it is OA); a cross-axis
+    sensitivity the design aliases with the mount angles or theta0 is absorbed at first
+    order and leaks at second order.  Each is uniform within the fixture tolerance
+    (JCGM 100 4.3.7: u = a / sqrt(3)).
+
+    Parameters
+    ----------
+    model : CampaignModel
+    p : ndarray
+        Parameter vector [parameter units].
+    held : mapping of str to Hold
+        Parameter name -> its hold (:func:`accelcal.fitting.identify.holds`).
+    tolerance : float
+        Fixture angle tolerance [rad].
+
+    Returns
+    -------
+    list of (str, ndarray, float, frozenset of str)
+        (budget quantity, whitened direction (N,) [1 per input unit], u_B [rad],
+        parameters that report it as part of their value).
+    """
+    uB = tolerance / math.sqrt(3.0)
+    out = []
+    for label, runs in model.unseparable_angles.items():
+        out.append((f"mount angle of {label} (type B, uniform ±{tolerance:.3g} rad: not separable, eq 8)",
+                    model.signature(p, "mount_angle_error", runs=runs), uB, frozenset()))
+    cen = [j for j, r in enumerate(model.runs) if r.test == "centrifuge"]
+    if cen and "ia_tilt" not in model.effects:
+        by_rig: dict[str, list[int]] = {}
+        for j in cen:
+            by_rig.setdefault(model.runs[j].rig_id, []).append(j)
+        for rig, runs in by_rig.items():
+            out.append((f"IA tilt out of the table plane on {rig} (type B, uniform ±{tolerance:.3g} rad: "
+                        "not separable)", model.signature(p, "ia_tilt", runs=runs), uB, frozenset()))
+    for name, i, absorbers in absorbed_cross_axis(model, held):
+        out.append((f"{name} (type B, uniform ±{tolerance:.3g} rad: aliased, absorbed at first order)",
+                    model.jacobian(p, [i])[:, 0], uB, absorbers))
+    return out
+
+
+def absorbed_cross_axis(model: CampaignModel, held: Mapping[str, Any]) -> list[tuple[str, int, frozenset[str]]]:
+    """The cross-axis sensitivities (Kp, Ko) the design aliases with the mount angles or
+    theta0: (name, parameter index, the parameters that report it as part of their value).
+    What those take of it is their definition (their note says so), not an error; what
+    leaks to the others is a type-B term (:func:`held_type_b_directions`)."""
+    out = []
+    for name, h in held.items():
+        i = model.params.index[name]
+        if model.roles[i].key in ("Kp", "Ko") and h.why is Why.ALIASED and h.aliased_with:
+            out.append((name, i, frozenset(h.aliased_with)))
+    return out
+
+
+def type_b_terms(jf: ModelFit, tolerance: float = MOUNT_ANGLE_TOLERANCE_RAD) -> dict[str, list[tuple[str, float, float]]]:
+    """Type-B terms of parameters the design cannot determine but that are physically there
+    (:func:`held_type_b_directions`): the bias each would transfer to every fitted
+    parameter, dtheta = (J^T W J)^-1 J^T W j dphi (j its direction).
 
     Returns
     -------
@@ -297,79 +357,41 @@ def type_b_terms(jf: ModelFit, tolerance: float = MOUNT_ANGLE_TOLERANCE_RAD) -> 
     model, fit = jf.model, jf.fit
     free = np.flatnonzero(model.params.free() & fit.estimable)
     out: dict[str, list[tuple[str, float, float]]] = {}
-    uB = tolerance / math.sqrt(3.0)
-    held = []
-    for label, runs in model.unseparable_angles.items():
-        held.append((f"mount angle of {label} (type B, uniform ±{tolerance:.3g} rad: not separable, eq 8)",
-                     model.signature(fit.values, "mount_angle_error", runs=runs)))
-    # a tilt of IA out of the table plane (effects.md ia_tilt) is a constant g sin(lambda)
-    # at first order (the run biases take it) and a cross-coupling term at second order
-    # (Kip lambda a_i^2 where the vertical axis is PA, -Kio lambda a_i^2 where it is OA)
-    cen = [j for j, r in enumerate(model.runs) if r.test == "centrifuge"]
-    if cen and "ia_tilt" not in model.effects:
-        by_rig: dict[str, list[int]] = {}
-        for j in cen:
-            by_rig.setdefault(model.runs[j].rig_id, []).append(j)
-        for rig, runs in by_rig.items():
-            held.append((f"IA tilt out of the table plane on {rig} (type B, uniform ±{tolerance:.3g} rad: "
-                         "not separable)", model.signature(fit.values, "ia_tilt", runs=runs)))
-    # cross-axis sensitivities the design aliases with the mount angles or theta0: the fit
-    # absorbs them at first order; what leaks at second order (eq 8 through Kip, Kio) is a
-    # type-B term, bounded like the fixture's angle tolerance (the instrument's IA is
-    # referenced to its mounting surface)
-    absorbers: dict[str, set[str]] = {}
-    for name, h in jf.held.items():
-        i = model.params.index[name]
-        if model.roles[i].key in ("Kp", "Ko") and h.why is Why.ALIASED and h.aliased_with:
-            q = f"{name} (type B, uniform ±{tolerance:.3g} rad: aliased, absorbed at first order)"
-            held.append((q, model.jacobian(fit.values, [i])[:, 0]))
-            # the parameters it is aliased with report it as part of their value (their
-            # note says so): what they take of it is their definition, not an error
-            absorbers[q] = set(h.aliased_with)
-    for quantity, col in held:
+    for quantity, col, uB, absorbers in held_type_b_directions(model, fit.values, jf.held, tolerance=tolerance):
         sol = lstsq_svd(fit.J[:, free], col)
         for c, i in enumerate(free):
             name = model.params[i].name
-            if name in absorbers.get(quantity, ()):
+            if name in absorbers:
                 continue
             out.setdefault(name, []).append((quantity, float(sol.x[c]), uB))
     return out
 
 
-def rig_input_terms(jf: ModelFit, stated: Mapping[str, Mapping[str, float]]
-                    ) -> tuple[dict[str, list[tuple[str, float, float, str, float]]], list[dict[str, str]]]:
-    """Type-B terms of the rig inputs the drop gives as known: local gravity,
-    the thermal table's tilt, the temperature reading.
-
-    Each input of each rig moves the model along :meth:`CampaignModel.input_direction` (j);
-    the estimates processed with the input at x + dx move by dtheta = -(J^T W J)^-1 J^T W j dx
-    (JCGM 100 §5.1.3: the sensitivity through the fit; for the thermal table
-    dK1/dg = -K1/g and dK1/dgamma = -K1 cot gamma, paper 001's K1 = b / (g sin gamma)).
-    A temperature reading's error is shared by every return to one set point and
-    independent between set points: one direction per set point, their sensitivities
-    combined root-sum-square into one line (the same variance as one line per set point).
+def rig_input_directions(model: CampaignModel, p: np.ndarray, stated: Mapping[str, Mapping[str, float]]
+                         ) -> tuple[list[tuple[str, Any, list[np.ndarray], float, list[int]]], list[dict[str, str]]]:
+    """The rig inputs the drop gives as known (local gravity, the thermal table's tilt, the
+    temperature reading) that enter the model, as the directions they move it: the one
+    list the budget (:func:`rig_input_terms`) and the test-design advice read.
 
     Parameters
     ----------
-    jf : ModelFit
-        The campaign's joint fit.
+    model : CampaignModel
+    p : ndarray
+        Parameter vector [parameter units].
     stated : mapping
         Rig id -> input id -> standard uncertainty [the input's unit: m/s2, deg, degC].
 
     Returns
     -------
-    terms : dict
-        Parameter name -> [(quantity, sensitivity [parameter unit per input unit], u,
-        'normal', the input's value)] for the stated inputs, in SI units (an angle in rad;
-        a temperature reading's value is its error, 0).
+    directions : list of (rig, RigInput, list of ndarray, float, list of int)
+        Rig, the input's spec, its whitened directions (one per set point for a per-point
+        input) [1 per input unit], its stated u [input unit], the runs it acts on.
     missing : list of dict
         ``{"rig", "input", "key"}`` of each input that enters the fit but has no stated
         uncertainty (``key``: the accelcal.toml key that states it).
     """
     from ..effects import RIG_INPUTS
-    model, fit = jf.model, jf.fit
-    free = np.flatnonzero(model.params.free() & fit.estimable)
-    terms: dict[str, list[tuple[str, float, float, str, float]]] = {}
+    out = []
     missing: list[dict[str, str]] = []
     by_rig: dict[str, list[int]] = {}
     for j, r in enumerate(model.runs):
@@ -387,24 +409,52 @@ def rig_input_terms(jf: ModelFit, stated: Mapping[str, Mapping[str, float]]
                 sets = {j: model.runs[j].cols.get("temp_set_c") for j in js}
                 sets = {j: v for j, v in sets.items() if v is not None}
                 levels = np.unique(np.concatenate([v[np.isfinite(v)] for v in sets.values()] or [[]]))
-                dirs = [model.input_direction(fit.values, spec.id, list(sets), {j: v == t for j, v in sets.items()})
+                dirs = [model.input_direction(p, spec.id, list(sets), {j: v == t for j, v in sets.items()})
                         for t in levels]
             else:
-                dirs = [model.input_direction(fit.values, spec.id, js)]
+                dirs = [model.input_direction(p, spec.id, js)]
             dirs = [d for d in dirs if np.any(d != 0.0)]
-            if not dirs:
-                continue
-            # the estimate moves opposite to the model: theta(x + dx) - theta(x) = -J^+ j dx
-            sens = -np.array([lstsq_svd(fit.J[:, free], d).x for d in dirs])    # (points, free)
-            c = np.sqrt((sens ** 2).sum(axis=0)) if spec.per_point else sens[0]
-            x = 0.0 if spec.meta_key is None else float(model.runs[js[0]].meta[spec.meta_key])
-            if spec.unit == "deg":      # budgets state inputs in SI units: the angle in rad
-                c, u, x = c * (180.0 / math.pi), u * (math.pi / 180.0), math.radians(x)
-            q = (f"{spec.what} of {rig} (type B, normal; u stated in accelcal.toml"
-                 + (f"; {len(dirs)} set points, sensitivities root-sum-square)" if spec.per_point else ")"))
-            for k, i in enumerate(free):
-                if c[k] != 0.0:
-                    terms.setdefault(model.params[i].name, []).append((q, float(c[k]), float(u), "normal", x))
+            if dirs:
+                out.append((rig, spec, dirs, float(u), js))
+    return out, missing
+
+
+def rig_input_terms(jf: ModelFit, stated: Mapping[str, Mapping[str, float]]
+                    ) -> tuple[dict[str, list[tuple[str, float, float, str, float]]], list[dict[str, str]]]:
+    """Type-B terms of the rig inputs the drop gives as known (:func:`rig_input_directions`).
+
+    Parameters
+    ----------
+    jf : ModelFit
+        The campaign's joint fit.
+    stated : mapping
+        Rig id -> input id -> standard uncertainty [the input's unit: m/s2, deg, degC].
+
+    Returns
+    -------
+    terms : dict
+        Parameter name -> [(quantity, sensitivity [parameter unit per input unit], u,
+        'normal', the input's value)] for the stated inputs, in SI units (an angle in rad;
+        a temperature reading's value is its error, 0).
+    missing : list of dict
+        As :func:`rig_input_directions`.
+    """
+    model, fit = jf.model, jf.fit
+    free = np.flatnonzero(model.params.free() & fit.estimable)
+    terms: dict[str, list[tuple[str, float, float, str, float]]] = {}
+    directions, missing = rig_input_directions(model, fit.values, stated)
+    for rig, spec, dirs, u, js in directions:
+        # the estimate moves opposite to the model: theta(x + dx) - theta(x) = -J^+ j dx
+        sens = -np.array([lstsq_svd(fit.J[:, free], d).x for d in dirs])    # (points, free)
+        c = np.sqrt((sens ** 2).sum(axis=0)) if spec.per_point else sens[0]
+        x = 0.0 if spec.meta_key is None else float(model.runs[js[0]].meta[spec.meta_key])
+        if spec.unit == "deg":      # budgets state inputs in SI units: the angle in rad
+            c, u, x = c * (180.0 / math.pi), u * (math.pi / 180.0), math.radians(x)
+        q = (f"{spec.what} of {rig} (type B, normal; u stated in accelcal.toml"
+             + (f"; {len(dirs)} set points, sensitivities root-sum-square)" if spec.per_point else ")"))
+        for k, i in enumerate(free):
+            if c[k] != 0.0:
+                terms.setdefault(model.params[i].name, []).append((q, float(c[k]), float(u), "normal", x))
     return terms, missing
 
 

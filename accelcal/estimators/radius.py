@@ -393,6 +393,13 @@ def test_radius_iterative(pair: PairData, R0_plus: float, R0_minus: float, order
     are measured, paper 000 §3.1); rescale R± <- R± (1 + c±) and repeat until |c±| < tol.
     R± = R0± prod(1 + c±_k).  u(R±) = R± sqrt(u(c±)^2 + (u(K1)/K1)^2): the radius scales
     as 1/K1 of the tumble.
+
+    The loop is the paper's fixed-point rescaling, not a Gauss–Newton step: each pass is a
+    linear weighted regression (:meth:`PairData.fit`) at the current inputs, with the
+    higher-order terms and the noise model (the weights) refitted whole and their dependence
+    on R± left out of the step.  It stops where c± = 0, the paper's answer; from order 2 the
+    quadratic and cubic terms are shared by both polarities, so that point need not be the
+    least-squares minimum over R±.
     """
     T = pair.table
     pol = pair.column("pol")

@@ -61,12 +61,11 @@ import numpy as np
 from scipy.sparse.csgraph import connected_components
 
 from ..effects import si_unit, typical_size
-from ..fitting.core import (RCOND, FitResult, Parameter, ParameterSet, gauss_newton, lstsq_svd, lstsq_svd_x,
+from ..fitting.core import (ALPHA, RCOND, FitResult, Parameter, ParameterSet, gauss_newton, lstsq_svd, lstsq_svd_x,
                             nested_test, pure_error_lack_of_fit)
-from ..fitting.data import fitted_drive, make_run
-from ..fitting.identify import PRIORITY, Column, Hold, holds
+from ..fitting.data import RunCells, fitted_drive, make_run
+from ..fitting.identify import ALIAS_SHARE, ALIAS_TOL, PRIORITY, Column, Hold, holds
 from ..physics import instrument, rigs
-from ..physics.geometry import geometry_of
 from ..results import (BudgetTerm, CoefficientResult, FitCheck, ResidualFigure, ResidualPanel, ResidualSeries,
                        display_number)
 from . import uncertainty as unc
@@ -87,8 +86,6 @@ DEFAULT_TOOL_ERRORS: dict[str, str] = {"spindle_tilt": "shared", "mass_centre_of
                                         "rate_scale_error": "shared", "sensor_lag": "shared"}
 #: Parameters bounded below by 0 (effects.md: a lag time constant is not negative).
 NON_NEGATIVE = ("sensor_lag",)
-#: Relative singular value below which a direction of the column-scaled design is aliased.
-ALIAS_RTOL = 1e-4
 #: The three attitudes of paper 002.
 ATTITUDES = ("a", "b", "c")
 
@@ -100,23 +97,10 @@ def _unit(name: str, output_unit: str = "") -> str:
 
 # --------------------------------------------------------------------------- inputs
 
-@dataclass
-class _Run:
-    meta: dict
-    data: dict                  # column -> array, as the forward model reads them (rate per rate_source)
-    y: np.ndarray               # output [output_unit]
-    t: np.ndarray               # time [s]
-    wdot: np.ndarray | None     # unsigned d(omega)/dt of the chosen source [rad/s2]; None = physics default
-    cell: np.ndarray            # drive phase of each reading (the run's cells, fitting.data.make_run)
-    label: str
-    attitude: str
-
-
-def _attitude(meta: Mapping) -> str:
-    """'a' / 'b' / 'c' of paper 002 from the axis pointing to the spindle (the typed mount's
+def _attitude(g) -> str:
+    """'a' / 'b' / 'c' of paper 002 from the axis pointing to the spindle (a run's typed mount,
     :attr:`~accelcal.physics.geometry.CentrifugeMount.radial_axis`: IA, OA, PA), else the
     mount description."""
-    g = geometry_of(meta)
     return {0: "a", 2: "b", 1: "c"}[g.radial_axis[0]] if g.radial_axis is not None else f"{g.plane}@{g.phi_deg:g}"
 
 
@@ -133,7 +117,7 @@ def _five_point(t: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 
 def prepare_runs(runs: Sequence, rate_source: str = "drive", rate_derivative: str | None = None,
-                 n_harmonics: int = 3) -> list[_Run]:
+                 n_harmonics: int = 3) -> list[RunCells]:
     """Turn runs into fit inputs (paper 002).
 
     Parameters
@@ -152,8 +136,11 @@ def prepare_runs(runs: Sequence, rate_source: str = "drive", rate_derivative: st
 
     Returns
     -------
-    list
-        One prepared run each (plain arrays, attitude a/b/c, drive-phase cells).
+    list of RunCells
+        One run each (:func:`accelcal.fitting.data.make_run`: drive-phase cells) whose ``cols``
+        hold the rate of ``rate_source`` and whose ``rate_derivative`` is the unsigned
+        d(omega)/dt of the chosen derivative [rad/s2] (None: the drive's own); ``run_id``
+        defaults to ``run<i>``.
     """
     out = []
     for i, r in enumerate(runs):
@@ -162,6 +149,7 @@ def prepare_runs(runs: Sequence, rate_source: str = "drive", rate_derivative: st
         if str(meta.get("test", TEST)) != TEST:
             raise ValueError(f"run {meta.get('run_id', i)} is a {meta.get('test')!r} run, not {TEST}")
         meta["test"] = TEST
+        meta.setdefault("run_id", f"run{i}")
         cols = {k: np.asarray(data[k], float) for k in ("time_s", "table_rate_rad_s", "table_angle_deg", "output")}
         t, w = cols["time_s"], cols["table_rate_rad_s"]
         fit_w, fit_d = fitted_drive(t, w, float(meta["rate_frequency_hz"]), n_harmonics)
@@ -174,31 +162,34 @@ def prepare_runs(runs: Sequence, rate_source: str = "drive", rate_derivative: st
         if deriv not in wdots:
             raise ValueError(f"rate_derivative {rate_derivative!r}")
         cols["table_angle_deg"] = np.nan_to_num(cols["table_angle_deg"])
-        out.append(_Run(meta, cols, cols["output"], t, wdots[deriv], make_run(meta, cols, i).cid,
-                        str(meta.get("run_id", f"run{i}")), _attitude(meta)))
+        out.append(replace(make_run(meta, cols, i), cols=cols, rate_derivative=wdots[deriv]))
     return out
 
 
 # --------------------------------------------------------------------------- the model
 
-def _build_params(prep: list[_Run], per_run_bias: bool, extra_terms: Sequence[str],
-                  tool_errors: Mapping[str, str], K1_scale: float) -> list[Parameter]:
+def _build_params(prep: list[RunCells], per_run_bias: bool, extra_terms: Sequence[str],
+                  tool_errors: Mapping[str, str], K1_scale: float) -> ParameterSet:
     """The parameters of the fit in the core's terms: ``group`` is the kind ('coef' an
     effects.md coefficient, 'extra' paper 002's KPPP/KOOO, 'tool' an effects.md rig effect),
     ``runs`` the one run a per-run parameter belongs to (None: shared by every run), the
-    scale the catalogue's typical size (K1: ``K1_scale``)."""
+    unit the catalogue's in the runs' output unit, the scale the catalogue's typical size
+    (K1: ``K1_scale``)."""
+    out_unit = str(prep[0].meta.get("output_unit", ""))
+
     def scoped(key: str, kind: str, scope: str) -> list[Parameter]:
-        scale = K1_scale if key == "K1" else typical_size(key)
+        scale, unit = K1_scale if key == "K1" else typical_size(key), _unit(key, out_unit)
         if scope not in ("shared", "per_run"):
             raise ValueError(f"tool-error scope {scope!r} (use 'shared' or 'per_run')")
-        return [Parameter(key, key, _unit(key), scale, None, kind)] if scope == "shared" else \
-            [Parameter(f"{key}[{r.label}]", key, _unit(key), scale, (i,), kind) for i, r in enumerate(prep)]
-    return [q for c in COEFFS for q in scoped(c, "coef", "per_run" if c == "K0" and per_run_bias else "shared")] \
-        + [q for e in extra_terms for q in scoped(e, "extra", "shared")] \
-        + [q for e, scope in tool_errors.items() for q in scoped(e, "tool", scope)]
+        return [Parameter(key, key, unit, scale, None, kind)] if scope == "shared" else \
+            [Parameter(f"{key}[{r.meta['run_id']}]", key, unit, scale, (i,), kind) for i, r in enumerate(prep)]
+    return ParameterSet([q for c in COEFFS for q in scoped(c, "coef", "per_run" if c == "K0" and per_run_bias
+                                                             else "shared")]
+                        + [q for e in extra_terms for q in scoped(e, "extra", "shared")]
+                        + [q for e, scope in tool_errors.items() for q in scoped(e, "tool", scope)])
 
 
-def _run_values(params: list[Parameter], x: np.ndarray, i: int) -> tuple[dict, dict, dict]:
+def _run_values(params: ParameterSet, x: np.ndarray, i: int) -> tuple[dict, dict, dict]:
     """(coefficients, extra terms, effects) of run i for the parameter vector x."""
     coeffs, extra, eff = {}, {}, dict(rigs.NOMINAL)
     for p, v in zip(params, x):
@@ -207,10 +198,10 @@ def _run_values(params: list[Parameter], x: np.ndarray, i: int) -> tuple[dict, d
     return coeffs, extra, eff
 
 
-def _kw(run: _Run, eff: Mapping) -> dict:
+def _kw(run: RunCells, eff: Mapping) -> dict:
     """The forward model's rate derivative of a run whose source is not the drive's own [rad/s2]."""
-    return {} if run.wdot is None else \
-        {"rate_derivative": rigs.rotation_sign(run.meta) * (1.0 + float(eff.get("rate_scale_error", 0.0))) * run.wdot}
+    return {} if run.rate_derivative is None else {"rate_derivative": rigs.rotation_sign(run.meta) * (
+        1.0 + float(eff.get("rate_scale_error", 0.0))) * run.rate_derivative}
 
 
 def _extra_accel(extra: Mapping, F: np.ndarray) -> np.ndarray:
@@ -218,7 +209,7 @@ def _extra_accel(extra: Mapping, F: np.ndarray) -> np.ndarray:
     return extra.get("Kppp", 0.0) * F[:, 1] ** 3 + extra.get("Kooo", 0.0) * F[:, 2] ** 3
 
 
-def model_output(run: _Run, coeffs: Mapping, extra: Mapping, eff: Mapping) -> np.ndarray:
+def model_output(run: RunCells, coeffs: Mapping, extra: Mapping, eff: Mapping) -> np.ndarray:
     """Output of one run: the forward model.
 
     Parameters
@@ -238,14 +229,14 @@ def model_output(run: _Run, coeffs: Mapping, extra: Mapping, eff: Mapping) -> np
         Kooo a_O^3), passed through the same sensor lag.
     """
     kw = _kw(run, eff)
-    E = rigs.rig_output(TEST, run.meta, run.data, coeffs, eff, **kw)
+    E = rigs.rig_output(TEST, run.meta, run.cols, coeffs, eff, **kw)
     if any(extra.values()):
-        x = float(coeffs.get("K1", 1.0)) * _extra_accel(extra, rigs.specific_force(TEST, run.meta, run.data, eff, **kw))
-        E = E + instrument.first_order_lag(x, run.t, float(eff.get("sensor_lag", 0.0)))
+        x = float(coeffs.get("K1", 1.0)) * _extra_accel(extra, rigs.specific_force(TEST, run.meta, run.cols, eff, **kw))
+        E = E + instrument.first_order_lag(x, run.cols["time_s"], float(eff.get("sensor_lag", 0.0)))
     return E
 
 
-def _jacobian_run(params: list[Parameter], x: np.ndarray, run: _Run, i: int,
+def _jacobian_run(params: ParameterSet, x: np.ndarray, run: RunCells, i: int,
                   cols: Sequence[int] | None = None) -> np.ndarray:
     """d E_run / d x (n, p) of the forward model.
 
@@ -266,8 +257,8 @@ def _jacobian_run(params: list[Parameter], x: np.ndarray, run: _Run, i: int,
         tool errors (one-sided at the tau >= 0 bound of the sensor lag).
     """
     coeffs, extra, eff = _run_values(params, x, i)
-    F = rigs.specific_force(TEST, run.meta, run.data, eff, **_kw(run, eff))
-    J = np.zeros((run.y.size, len(params)))
+    F = rigs.specific_force(TEST, run.meta, run.cols, eff, **_kw(run, eff))
+    J = np.zeros((run.y_rows.size, len(params)))
     lin = []
     for j in (range(len(params)) if cols is None else cols):
         p = params[j]
@@ -286,28 +277,28 @@ def _jacobian_run(params: list[Parameter], x: np.ndarray, run: _Run, i: int,
         lin.append(j)
     tau = float(eff.get("sensor_lag", 0.0))
     for j in lin if tau > 0 else ():      # the lag is linear: lagged columns of the lagged model
-        J[:, j] = instrument.first_order_lag(J[:, j], run.t, tau)
+        J[:, j] = instrument.first_order_lag(J[:, j], run.cols["time_s"], tau)
     return J
 
 
-def _residual(params: list[Parameter], prep: list[_Run], x: np.ndarray, w: np.ndarray) -> np.ndarray:
+def _residual(params: ParameterSet, prep: list[RunCells], x: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Weighted residual y - E of every run [output_unit times the run weight]."""
-    return np.concatenate([w[i] * (r.y - model_output(r, *_run_values(params, x, i))) for i, r in enumerate(prep)])
+    return np.concatenate([w[i] * (r.y_rows - model_output(r, *_run_values(params, x, i))) for i, r in enumerate(prep)])
 
 
-def _split(v: np.ndarray, prep: list[_Run]) -> list[np.ndarray]:
+def _split(v: np.ndarray, prep: list[RunCells]) -> list[np.ndarray]:
     """A stacked per-reading vector cut into its runs."""
-    return np.split(v, np.cumsum([r.y.size for r in prep])[:-1])
+    return np.split(v, np.cumsum([r.y_rows.size for r in prep])[:-1])
 
 
-def _jacobian(params: list[Parameter], prep: list[_Run], x: np.ndarray, w: np.ndarray) -> np.ndarray:
+def _jacobian(params: ParameterSet, prep: list[RunCells], x: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Weighted design of every run [output_unit per parameter unit times the run weight]."""
     return np.vstack([w[i] * _jacobian_run(params, x, r, i) for i, r in enumerate(prep)])
 
 
 # --------------------------------------------------------------------------- diagnostics
 
-def design_diagnostics(J: np.ndarray, names: Sequence[str], rtol: float = ALIAS_RTOL) -> dict:
+def design_diagnostics(J: np.ndarray, names: Sequence[str]) -> dict:
     """Rank / conditioning of a design (Jacobian) after scaling every column to unit norm.
 
     Parameters
@@ -315,20 +306,19 @@ def design_diagnostics(J: np.ndarray, names: Sequence[str], rtol: float = ALIAS_
     J : (n, p) ndarray
         Design [output_unit per parameter unit].
     names : sequence of str
-    rtol : float
-        Relative singular value below which a direction is aliased [1].
 
     Returns
     -------
     dict
-        n_params, rank (relative singular value > ``rtol``, by
+        n_params, rank (relative singular value above the one alias threshold
+        :data:`accelcal.fitting.identify.ALIAS_TOL`, by
         :func:`accelcal.fitting.core.lstsq_svd`; an identically zero column counts as one zero
         singular value with its unit vector as a null direction), condition_number (inf when a
         relative singular value is below the core's rank rule :data:`~accelcal.fitting.core.RCOND`),
         effective_rank_roy_vetterli exp(H(sigma / sum sigma)), relative_singular_values, and
         the aliased groups (:func:`_alias_groups`).
     """
-    sol = lstsq_svd(J, np.zeros(J.shape[0]), rtol)
+    sol = lstsq_svd(J, np.zeros(J.shape[0]), ALIAS_TOL)
     S, zero = sol.singular_values, np.flatnonzero(sol.column_norm <= 0)      # a zero column: a zero value
     rel = np.r_[S / S[0] if S.size and S[0] > 0 else S, np.zeros(zero.size)]
     null = np.vstack([sol.null_space.T.reshape(-1, J.shape[1]), np.eye(J.shape[1])[zero]])
@@ -337,24 +327,25 @@ def design_diagnostics(J: np.ndarray, names: Sequence[str], rtol: float = ALIAS_
             "condition_number": float(rel[0] / rel[-1]) if rel[-1] > RCOND else float("inf"),
             "effective_rank_roy_vetterli": float(np.exp(-np.sum(p * np.log(p)))),
             "relative_singular_values": [float(v) for v in rel],
-            **_alias_groups(null, rel[rel <= rtol], names)}
+            **_alias_groups(null, rel[rel <= ALIAS_TOL], names)}
 
 
 def _alias_groups(null: np.ndarray, rel_null: np.ndarray, names: Sequence[str]) -> dict:
     """Groups of parameters coupled through the (near-)null space of the column-scaled design.
 
     P = V_null V_nullᵀ is the projector onto the directions the data cannot see; it does not
-    depend on the choice of null basis.  Two parameters are aliased when |P_jk| is not
-    negligible; groups are the connected components.  Each null direction is also returned as
-    a combination {name: weight} (weights of unit-norm scaled columns)."""
+    depend on the choice of null basis.  Two parameters are aliased when |P_jk| exceeds
+    :data:`~accelcal.fitting.identify.ALIAS_TOL`; groups are the connected components.  Each
+    null direction is also returned as a combination {name: weight} (weights of unit-norm
+    scaled columns, those above :data:`~accelcal.fitting.identify.ALIAS_SHARE`)."""
     P = null.T @ null
-    involved = np.flatnonzero(np.diag(P) > 1e-3)
-    label = connected_components(np.abs(P[np.ix_(involved, involved)]) > 1e-3, directed=False)[1]
+    involved = np.flatnonzero(np.diag(P) > ALIAS_TOL)
+    label = connected_components(np.abs(P[np.ix_(involved, involved)]) > ALIAS_TOL, directed=False)[1]
     return {"aliased_groups": [[names[involved[k]] for k in np.flatnonzero(label == g)]
                                for g in dict.fromkeys(label)],
             "null_combinations": [{"relative_singular_value": float(sv),
                                    "weights": {names[k]: round(float(v[k]), 4)
-                                               for k in np.argsort(-np.abs(v)) if abs(v[k]) > 0.05}}
+                                               for k in np.argsort(-np.abs(v)) if abs(v[k]) > ALIAS_SHARE}}
                                   for v, sv in zip(null, rel_null)]}
 
 
@@ -370,8 +361,6 @@ class SineFit:
     result : FitResult
         The fitting core's result: values, residual-scaled covariance s^2 (J^T W J)^+, the
         weighted design and residual, and the pure-error lack-of-fit test.
-    units : dict
-        Parameter name -> SI unit.
     sigma : float
         Weighted pooled residual standard deviation [output_unit].
     residual_rms : dict
@@ -386,23 +375,27 @@ class SineFit:
         The prepared runs (:func:`prepare_runs`), in the order of the design's rows.
     """
     result: FitResult
-    units: dict[str, str]
     sigma: float
     residual_rms: dict[str, float]
     diagnostics: dict[str, Any]
     dropped: dict[str, Hold]
     options: dict[str, Any]
-    runs: list[_Run]
+    runs: list[RunCells]
 
     @property
     def attitudes(self) -> dict[str, str]:
         """Attitude 'a' | 'b' | 'c' by run label."""
-        return {r.label: r.attitude for r in self.runs}
+        return {str(r.meta["run_id"]): _attitude(r.geometry) for r in self.runs}
 
     @property
     def names(self) -> list[str]:
         """Parameter names, in the fit's order."""
         return self.result.names
+
+    @property
+    def units(self) -> dict[str, str]:
+        """SI unit by parameter name."""
+        return {p.name: p.unit for p in self.result.params}
 
     @property
     def values(self) -> dict[str, float]:
@@ -425,7 +418,7 @@ class SineFit:
         return int(self.result.dof)
 
 
-def _linear_start(params: list[Parameter], prep: list[_Run], w: np.ndarray, tau: float = 0.0,
+def _linear_start(params: ParameterSet, prep: list[RunCells], w: np.ndarray, tau: float = 0.0,
                   rss: list | None = None) -> np.ndarray:
     """Weighted LS optimum of the model with every tool error at zero (``sensor_lag`` at
     ``tau``): E is linear in (K1, K1*Kj) (one-to-one with (K1, Kj) for K1 != 0), solved by
@@ -434,7 +427,7 @@ def _linear_start(params: list[Parameter], prep: list[_Run], w: np.ndarray, tau:
     x1 = np.array([1.0 if p.key == "K1" else (tau if p.key == "sensor_lag" else 0.0) for p in params])
     lin = [j for j, p in enumerate(params) if p.group != "tool"]
     J1 = np.vstack([w[i] * _jacobian_run(params, x1, r, i, lin) for i, r in enumerate(prep)])[:, lin]
-    y = np.concatenate([w[i] * r.y for i, r in enumerate(prep)])
+    y = np.concatenate([w[i] * r.y_rows for i, r in enumerate(prep)])
     b = lstsq_svd_x(J1, y)
     if rss is not None:
         rss.append(float(np.sum((y - J1 @ b) ** 2)))
@@ -446,7 +439,7 @@ def _linear_start(params: list[Parameter], prep: list[_Run], w: np.ndarray, tau:
     return x
 
 
-def _lag_start(params: list[Parameter], prep: list[_Run], x0: np.ndarray) -> np.ndarray:
+def _lag_start(params: ParameterSet, prep: list[RunCells], x0: np.ndarray) -> np.ndarray:
     """Start of ``sensor_lag``: a sampled first-order lag shows nothing of a tau far below
     the sample period (its derivative vanishes at 0, physics.instrument.first_order_lag), so
     the start is the best of a few multiples of the period (0 included) by the residual of
@@ -454,7 +447,7 @@ def _lag_start(params: list[Parameter], prep: list[_Run], x0: np.ndarray) -> np.
     j = next((k for k, p in enumerate(params) if p.key == "sensor_lag"), None)
     if j is None:
         return x0
-    dt = float(np.median(np.concatenate([np.diff(r.t) for r in prep])))
+    dt = float(np.median(np.concatenate([np.diff(r.cols["time_s"]) for r in prep])))
     taus = [0.0] + [k * dt for k in (0.2, 0.5, 1.0, 2.0, 5.0)]
     rss: list[float] = []
     starts = [_linear_start(params, prep, np.ones(len(prep)), tau, rss) for tau in taus]
@@ -463,10 +456,11 @@ def _lag_start(params: list[Parameter], prep: list[_Run], x0: np.ndarray) -> np.
     return x
 
 
-def _select(params: list[Parameter], prep: list[_Run], x0: np.ndarray) -> tuple[dict[str, Hold], np.ndarray]:
+def _select(params: ParameterSet, prep: list[RunCells], x0: np.ndarray
+            ) -> tuple[dict[str, Hold], ParameterSet, np.ndarray]:
     """Hold the optional parameters (tool errors, KPPP, KOOO) the joint design does not
-    determine at the start x0 (:func:`accelcal.fitting.identify.holds`): removes them from
-    ``params`` and returns (name -> hold, the start of the parameters kept).
+    determine at the start x0 (:func:`accelcal.fitting.identify.holds`): (name -> hold, the
+    parameters kept, their start).
 
     The design is whitened by the residual standard deviation of one linearised step with
     every parameter free (so that a large tool error is not taken for noise).  The
@@ -478,21 +472,20 @@ def _select(params: list[Parameter], prep: list[_Run], x0: np.ndarray) -> tuple[
     r0 = r0 - J0 @ lstsq_svd_x(J0, r0)
     s0 = float(np.sqrt(r0 @ r0 / max(r0.size - len(params), 1)))
     rank = {k: i for i, k in enumerate(PRIORITY)}
-    columns = [Column(p.name, "coef" if p.group == "coef" else "effect", p.key, _unit(p.key),
+    columns = [Column(p.name, "coef" if p.group == "coef" else "effect", p.key, p.unit,
                       rank.get(p.key, len(PRIORITY))) for p in params]
     coefs = [p.name for p in params if p.group == "coef"]
     held = {k: h for k, h in holds(J0 / (s0 if s0 > 0 else 1.0), columns, keep=coefs, scale_rule=False).items()
             if k not in coefs}
     kept = [j for j, p in enumerate(params) if p.name not in held]
-    params[:] = [params[j] for j in kept]
-    return held, x0[kept]
+    return held, params.subset(params.names[j] for j in kept), x0[kept]
 
 
 def identify_sine_campaign(runs: Sequence | None, *, tool_errors: Mapping[str, str] | None = None,
                            per_run_bias: bool = False, extra_terms: Sequence[str] = (),
                            rate_source: str = "drive", rate_derivative: str | None = None,
                            n_harmonics: int = 3, reweight: bool = True,
-                           alias_rtol: float = ALIAS_RTOL, prepared: list[_Run] | None = None) -> SineFit:
+                           prepared: list[RunCells] | None = None) -> SineFit:
     """Joint least squares over the attitudes of a sinusoidal-rate campaign (paper 002).
 
     .. math::
@@ -521,9 +514,6 @@ def identify_sine_campaign(runs: Sequence | None, *, tool_errors: Mapping[str, s
         How the rate and its derivative are formed (:func:`prepare_runs`).
     reweight : bool
         Paper 002's reweighting: one weight per run from its residual RMS (a second pass).
-    alias_rtol : float
-        Relative singular value below which a direction counts as aliased in the reported
-        rank and groups [1] (:func:`design_diagnostics`).
     prepared : list, optional
         Output of :func:`prepare_runs` (then ``runs`` and the rate options are ignored).
 
@@ -549,9 +539,8 @@ def identify_sine_campaign(runs: Sequence | None, *, tool_errors: Mapping[str, s
     params = _build_params(prep, per_run_bias, extra_terms, tool_errors, 1.0)
     ones = np.ones(len(prep))
     x0 = _linear_start(params, prep, ones)
-    params = [replace(p, scale=abs(x0[j])) if p.key == "K1" else p for j, p in enumerate(params)]
-    x0 = _lag_start(params, prep, x0)
-    dropped, x0 = _select(params, prep, x0)
+    params = ParameterSet(replace(p, scale=abs(x0[j])) if p.key == "K1" else p for j, p in enumerate(params))
+    dropped, params, x0 = _select(params, prep, _lag_start(params, prep, x0))
     nonlinear = any(p.group == "tool" for p in params)
     w, x = ones, x0
     success, message = True, "linear least squares (no tool-error parameter)"
@@ -570,57 +559,57 @@ def identify_sine_campaign(runs: Sequence | None, *, tool_errors: Mapping[str, s
     derivative = rate_derivative or ("fitted" if rate_source == "fitted" else "drive")
     options = {"tool_errors": tool_errors, "per_run_bias": per_run_bias, "extra_terms": list(extra_terms),
                "rate_source": rate_source, "rate_derivative": derivative, "n_harmonics": n_harmonics,
-               "reweight": reweight, "alias_rtol": alias_rtol}
+               "reweight": reweight}
     return _finish(params, prep, x, w, dropped, success, message, options)
 
 
-def _finish(params: list[Parameter], prep: list[_Run], x: np.ndarray, w: np.ndarray, dropped: dict[str, Hold],
+def _finish(params: ParameterSet, prep: list[RunCells], x: np.ndarray, w: np.ndarray, dropped: dict[str, Hold],
             success: bool, message: str, options: dict) -> SineFit:
-    """Paper 002's reporting of a fit at x with run weights w: the residual-scaled covariance
-    s^2 (J^T W J)^+ (the core's :func:`~accelcal.fitting.core.lstsq_svd`, s^2 the weighted
-    residual variance on n - p dof) and the pure-error lack-of-fit test of the drive's phases."""
+    """Paper 002's reporting of a fit at x with run weights w as the core's
+    :class:`~accelcal.fitting.core.FitResult`: the residual-scaled covariance s^2 (J^T W J)^+
+    (:func:`~accelcal.fitting.core.lstsq_svd`, s^2 the weighted residual variance on n - p
+    dof) and the pure-error lack-of-fit test of the drive's phases."""
     Jw = _jacobian(params, prep, x, w)
     raw = _split(_residual(params, prep, x, np.ones(len(prep))), prep)
     rw = np.concatenate([wi * e for wi, e in zip(w, raw)])
     dof = rw.size - len(params)
     s2 = float(rw @ rw / dof)
     sol = lstsq_svd(Jw, np.zeros(rw.size))
-    cells = np.concatenate([i + len(prep) * r.cell for i, r in enumerate(prep)])      # unique across runs
+    cells = np.concatenate([i + len(prep) * r.cid for i, r in enumerate(prep)])      # unique across runs
     lof = replace(pure_error_lack_of_fit(rw, cells, len(params)), factor=float(np.sqrt(s2)),
                   note="covariance scaled by the residual variance (paper 002's least squares)")
     result = FitResult(ParameterSet(replace(p, value=float(v)) for p, v in zip(params, x)), x, sol.cov,
                        sol.cov * s2, sol.estimable, float(rw @ rw), dof, rw.size, sol.rank, lof, rw, Jw,
                        bool(success), str(message))
-    out_unit = str(prep[0].meta.get("output_unit", ""))
     return SineFit(
-        result=result, units={p.name: _unit(p.key, out_unit) for p in params},
-        sigma=float(np.sqrt(s2) / np.exp(np.mean(np.log(w)))),
-        residual_rms={r.label: float(np.sqrt(np.mean(e ** 2))) for r, e in zip(prep, raw)},
-        diagnostics=design_diagnostics(Jw, [p.name for p in params], options["alias_rtol"]), dropped=dropped,
+        result=result, sigma=float(np.sqrt(s2) / np.exp(np.mean(np.log(w)))),
+        residual_rms={str(r.meta["run_id"]): float(np.sqrt(np.mean(e ** 2))) for r, e in zip(prep, raw)},
+        diagnostics=design_diagnostics(Jw, [p.name for p in params]), dropped=dropped,
         options=options, runs=prep)
 
 
 # --------------------------------------------------------------------------- aliasing, comparisons
 
-def aliasing_report(fit: SineFit, rtol: float = ALIAS_RTOL) -> list[dict[str, Any]]:
+def aliasing_report(fit: SineFit) -> list[dict[str, Any]]:
     """Per attitude: which parameter combinations that attitude alone cannot separate.
 
     Computed from the design, not asserted: the rows of the fit's Jacobian that belong to
     one run, restricted to the parameters that act on that run, columns scaled to unit
-    norm, SVD; directions with relative singular value ≤ rtol are the aliased (unseen)
+    norm, SVD; directions with relative singular value at most
+    :data:`~accelcal.fitting.identify.ALIAS_TOL` are the aliased (unseen)
     combinations and the groups are the connected components of the projector onto them
     (:func:`design_diagnostics`).  E.g. in attitude (a) (IA to the spindle) a_I ≥ 0, so
     a_I² ≡ a_I·|a_I| and K2 and Koq fall in one group; in (b) the tangential a_I changes
     sign and Koq separates from K2.
     """
     out = []
-    for r, Jr in zip(fit.runs, np.split(fit.result.J, np.cumsum([q.y.size for q in fit.runs])[:-1])):
+    for r, Jr in zip(fit.runs, np.split(fit.result.J, np.cumsum([q.y_rows.size for q in fit.runs])[:-1])):
         act = [j for j in range(Jr.shape[1]) if np.any(Jr[:, j] != 0.0)]
         names = [fit.names[j] for j in act]
-        d = design_diagnostics(Jr[:, act], names, rtol)
+        d = design_diagnostics(Jr[:, act], names)
         grouped = {n for g in d["aliased_groups"] for n in g}
         mount = f"{r.meta['mount_plane']}@{float(r.meta['mount_angle_deg']):g} {r.meta['vertical_axis']}"
-        d.update({"run": r.label, "attitude": r.attitude, "mount": mount,
+        d.update({"run": str(r.meta["run_id"]), "attitude": _attitude(r.geometry), "mount": mount,
                   "parameters": names, "separable": [n for n in names if n not in grouped],
                   "not_excited": [fit.names[j] for j in range(Jr.shape[1]) if j not in act]})
         out.append(d)
@@ -656,7 +645,7 @@ def _f_test(f_small: SineFit, f_big: SineFit) -> dict[str, Any]:
 
 
 def compare_compensation(runs: Sequence | None, tool_errors: Mapping[str, str] | None = None, *,
-                         prepared: list[_Run] | None = None, uncompensated: SineFit | None = None,
+                         prepared: list[RunCells] | None = None, uncompensated: SineFit | None = None,
                          **kw) -> tuple[SineFit, SineFit, dict[str, Any]]:
     """Paper 002's identify-then-compensate comparison (Sun, Ren & Wang).
 
@@ -759,8 +748,7 @@ def process_sine_campaign(runs: Sequence, rig_id: str = "", *, tool_errors: Mapp
         :func:`budget_terms` gives their GUM budgets.
     """
     prep = prepare_runs(runs, rate_source, rate_derivative)
-    out_unit = str(prep[0].meta.get("output_unit", ""))
-    atts = sorted({r.attitude for r in prep})
+    atts = sorted({_attitude(r.geometry) for r in prep})
     missing = sorted(set(ATTITUDES) - set(atts))
     flags = [f"attitudes present {atts}: paper 002 needs a, b and c for every term"] if missing else []
     # third-order terms the data support
@@ -783,7 +771,7 @@ def process_sine_campaign(runs: Sequence, rig_id: str = "", *, tool_errors: Mapp
     bias_test = _f_test(f1, per_run)          # on the nominal-input model (cheap; tool errors ~ K1/K0)
     bias_test["K0_per_run"] = {n: {"value": per_run.values[n], "std": per_run.std[n]}
                                for n in per_run.names if n.startswith("K0[")}
-    if bias_test["p_value"] is not None and bias_test["p_value"] < 0.01:
+    if bias_test["p_value"] is not None and bias_test["p_value"] < ALPHA:
         flags.append("K0 differs between attitudes (p < 0.01): shared-bias fit questionable")
     if fit.diagnostics["rank"] < fit.diagnostics["n_params"]:
         flags.append(f"joint design rank {fit.diagnostics['rank']} < {fit.diagnostics['n_params']} parameters")
@@ -793,7 +781,7 @@ def process_sine_campaign(runs: Sequence, rig_id: str = "", *, tool_errors: Mapp
         # (K2 with Koq where a_I >= 0, Kp with Ko): no value of it is reported
         flags.append(_no_values_flag(missing))
     results = [CoefficientResult(
-        name=n, value=fit.values[n], std_uncertainty=fit.std[n], unit=_unit(n, out_unit), method=METHOD,
+        name=n, value=fit.values[n], std_uncertainty=fit.std[n], unit=fit.units[n], method=METHOD,
         rig_id=rig_id, dof=float(fit.dof),
         note="paper 002 joint 3-attitude LS, tool errors identified and compensated; "
              "residual-scaled covariance") for n in ([] if missing else fit.names) if n not in fit.tool_errors]

@@ -10,10 +10,12 @@ A design is a whitened Jacobian J (rows: cells, columns: candidate parameters
    direction (unit-scaled, relative norm outside the span of those kept before it) is held
    as aliased with the kept columns that make it up, or as not excited when it is zero
    (:func:`accelcal.fitting.core.separable_columns`, with the radius rule of
-   :func:`scale_referenced_columns`);
+   :func:`scale_referenced_columns`), those the design cannot determine at the
+   structural point judged last (:func:`structural_order`);
 2. then, one at a time, the kept parameter outside :data:`BASE` whose design uncertainty
    most exceeds its plausible size (:func:`accelcal.effects.plausible_size`) is held as
-   weakly determined.
+   weakly determined, and an effect whose direction it had claimed is judged again
+   without it.
 
 What a free parameter then measures is itself plus the held parameters it absorbs, through
 the alias matrix A = (J_f^T J_f)^+ J_f^T J_h (Draper & Smith, *Applied Regression
@@ -71,6 +73,74 @@ BASE = ("K0", "K1", "K2", "theta0", "bias")
 #: Coefficients that scale a centrifuge's output as its radius does: K1, and IA's cross
 #: terms with an axis along gravity (K1 (1 + Kio g) a_I with OA up).
 SCALE_TERMS = ("K1", "Kio", "Kip")
+
+
+def structural_point(p: np.ndarray, columns: Sequence[Column]) -> np.ndarray:
+    """The point at which the design's structure is judged: the instrument's terms of A
+    (effects.md, every coefficient but the scale factor K1) at their held values (0), the
+    scale factor and the rig's quantities (radius, offset, mount angles, per-run biases,
+    effects) where p has them.
+
+    The output is K1 A(a; K0, K2, Kp, ...) with A linear in the coefficients, so scaling K1
+    by (1 + e) and every coefficient of A by 1 / (1 + e) leaves it unchanged but for the
+    term a_I, which Kio g takes up on a mount with OA up and a per-run bias with IA
+    vertical; scaling the radius does the same with K1, K2, K3, Koq, Kpp.  At a point p
+    where Kp is 2e-5 rad the columns of Kio and R leave the span of the others by Kp a_P
+    and Kpp a_P^2 (1e-3 to 4e-3 of their norm at 25 g against :data:`ALIAS_TOL` = 1e-3);
+    judged there, they look separable and the member of the symmetry judged last (Kp) is
+    held, though no finite move along it brings Kp to 0 (it scales Kp, it does not shift
+    it).
+
+    Parameters
+    ----------
+    p : (k,) ndarray
+        Parameter vector [parameter units].
+    columns : sequence of Column
+        All k parameters (:attr:`Column.value`: the value a coefficient is held at).
+
+    Returns
+    -------
+    (k,) ndarray
+    """
+    return np.array([c.value if c.kind == "coef" and c.key != "K1" else v for v, c in zip(p, columns)])
+
+
+def structural_order(J: np.ndarray, J0: np.ndarray | None, order: Sequence[int], tol: float = ALIAS_TOL
+                     ) -> list[int]:
+    """The order in which the columns claim directions: ``order``, with every parameter the
+    design cannot determine at the structural point (:func:`structural_point`) judged after
+    those it can.
+
+    Such a parameter (Kio and the radius with IA vertical and no gravity reference) adds a
+    direction at the estimate only through the products of the instrument's terms with it;
+    judged in priority order there, it takes that direction from the coefficient that makes
+    it (Kp a_P) and leaves the coefficient held.  Judged last, it is held where the design
+    leaves it in the span of the others, as at the structural point.  A parameter whose
+    column at the structural point is below ``tol`` of its column at the estimate acts only
+    through the instrument's terms (a mount angle error with IA tangential: Kp a_I) and
+    keeps its place.
+
+    Parameters
+    ----------
+    J, J0 : (m, k) ndarray
+        Whitened design at the estimate and at the structural point (None: ``order``
+        unchanged) [1 / parameter unit].
+    order : sequence of int
+        Column positions in :data:`PRIORITY` order.
+    tol : float
+        :data:`ALIAS_TOL` [1].
+
+    Returns
+    -------
+    list of int
+    """
+    order = list(order)
+    if J0 is None:
+        return order
+    first = np.linalg.norm(J0, axis=0) > tol * np.linalg.norm(J, axis=0)
+    kept = set(separable_columns(J0, [c for c in order if first[c]], tol))
+    late = [c for c in order if first[c] and c not in kept]
+    return [c for c in order if c not in late] + late
 
 
 class Why(Enum):
@@ -295,7 +365,8 @@ def scale_referenced_columns(J: np.ndarray, order: Sequence[int], tol: float, *,
 
 
 def holds(J: np.ndarray, columns: Sequence[Column], tol: float = ALIAS_TOL, keep: Sequence[str] = (),
-          name_aliases: bool = True, scale_rule: bool = True) -> dict[str, Hold]:
+          name_aliases: bool = True, scale_rule: bool = True, structural: np.ndarray | None = None
+          ) -> dict[str, Hold]:
     """The parameters a design cannot determine (module docstring): aliased or not excited
     in priority order, then weakly determined one at a time.
 
@@ -315,13 +386,17 @@ def holds(J: np.ndarray, columns: Sequence[Column], tol: float = ALIAS_TOL, keep
     scale_rule : bool
         Apply :func:`scale_referenced_columns` (False: where the caller knows the runs fix
         the radius).
+    structural : (m, k) ndarray, optional
+        The same design at :func:`structural_point` [1 / parameter unit]: the order of
+        :func:`structural_order` (None: :data:`PRIORITY` order).
 
     Returns
     -------
     dict of str to Hold
         Name -> hold of each parameter held, in the order decided.
     """
-    order = sorted(range(len(columns)), key=lambda c: (columns[c].priority, c))
+    order = structural_order(J, structural, sorted(range(len(columns)), key=lambda c: (columns[c].priority, c)),
+                             tol)
     radius = [col.kind == "radius" for col in columns]
     scale = [col.key in SCALE_TERMS for col in columns]
 
@@ -347,10 +422,12 @@ def holds(J: np.ndarray, columns: Sequence[Column], tol: float = ALIAS_TOL, keep
     weak: set[int] = set()
     kept = separable(weak)
     held = aliased(kept)
-    # weakly determined extension terms; a direction one of them had claimed (Kp's
-    # rounding-level column in an IA pair, before the mass-centre offset) goes back to
-    # an effect of the model it had displaced (coefficients it displaced stay held: the
-    # runs did not determine them before it either)
+    # weakly determined extension terms; a direction one of them had claimed (a
+    # rounding-level column: Kp in an IA pair, Kpo with IA vertical, judged before the
+    # mass-centre offset) goes back to an effect of the model it had displaced, whatever
+    # the held effect is said to be aliased with (a rounding-level column is below the
+    # solver's cut-off there); coefficients it displaced stay held: the runs did not
+    # determine them before it either
     while True:
         sol = lstsq_svd(J[:, kept], np.zeros(J.shape[0]))
         u = np.sqrt(np.clip(np.diag(sol.cov), 0, None))
@@ -370,8 +447,7 @@ def holds(J: np.ndarray, columns: Sequence[Column], tol: float = ALIAS_TOL, keep
         weak.add(k)
         kept_set = set(kept)
         stay = weak | {c for c in range(len(columns)) if c not in kept_set and columns[c].kind != "effect"}
-        back = [c for c in separable(stay) if c not in kept_set
-                and columns[k].name in getattr(held.get(columns[c].name), "aliased_with", ())]
+        back = [c for c in separable(stay) if c not in kept_set]
         if back:
             kept = kept + back
             for c in back:

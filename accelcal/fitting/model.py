@@ -50,7 +50,8 @@ from ..physics.instrument import first_order_lag
 from ..physics.rigs import INSTRUMENT_EFFECTS, rig_output, rotation_sign, specific_force
 from ..constants import T_REF_C
 from .core import LackOfFit, Parameter, ParameterSet, lack_of_fit, lstsq_svd
-from .identify import ALIAS_TOL, PRIORITY, Column, Combination, Hold, absorbed, as_holds, combinations, holds
+from .identify import (ALIAS_TOL, PRIORITY, Column, Combination, Hold, absorbed, as_holds, combinations, holds,
+                       structural_point)
 from .data import NoiseModel, RunCells, ar1_mean_factor, ar1_scatter_dof, ar1_variance_factor, with_noise
 
 CENTRIFUGES = ("centrifuge", "sine_centrifuge")
@@ -940,7 +941,10 @@ class CampaignModel:
         """
         hold = as_holds(hold)
         cols = [i for i, prm in enumerate(self.candidates) if prm.name not in hold]
-        return {**holds(self.jacobian(p, cols), self.columns(cols), tol, keep), **hold}
+        q = structural_point(p, self.columns())
+        J = self.jacobian(p, cols)
+        return {**holds(J, self.columns(cols), tol, keep,
+                        structural=None if np.array_equal(q, p) else self.jacobian(q, cols)), **hold}
 
     def with_holds(self, held: Mapping[str, Hold]) -> "CampaignModel":
         """The same model with ``params`` the :attr:`candidates` with ``held`` held (at their

@@ -195,7 +195,12 @@ def separating_run_flags(root: Path, lineage: list[dict[str, Any]], flags: list[
         cells, _ = prepare_cells(load_campaign_runs(str(root), lineage))
     except (OSError, ValueError):
         return flags
-    lines = {ALIASED_PAIR_FLAG.format(a=a, b=b): separating_run_flag(cells, (a, b)) for a, b in pairs}
+    from ..config import ConfigError, advice_inputs
+    try:
+        lab = advice_inputs(None, root / "lab.duckdb")
+    except ConfigError:
+        lab = {}
+    lines = {ALIASED_PAIR_FLAG.format(a=a, b=b): separating_run_flag(cells, (a, b), **lab) for a, b in pairs}
     return [lines.get(f) or f for f in flags]
 
 

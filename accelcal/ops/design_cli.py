@@ -26,7 +26,8 @@ def register(sub) -> None:
     d.add_argument("--candidates", default=None, metavar="FILE.toml",
                    help="the lab's own candidate runs ([[run]] tables in drop-format keys)")
     d.add_argument("--config", default=None, metavar="TOML",
-                   help="accelcal.toml with [rigs.\"ID\"] max_g (default ./accelcal.toml)")
+                   help="accelcal.toml with [rigs.\"ID\"] max_g, setup_min and the stated rig-input "
+                        "uncertainties the budget adds (default ./accelcal.toml)")
     d.add_argument("--top", type=int, default=5, metavar="N", help="proposals shown (default 5)")
     d.add_argument("--json", action="store_true", help="one JSON object on stdout")
     d.set_defaults(func=_cmd_design)
@@ -40,7 +41,7 @@ def _fail(msg: str):
 def _cmd_design(args) -> int:
     import json
 
-    from ..config import ConfigError, rig_limits
+    from ..config import ConfigError, advice_inputs, rig_limits
     from ..diagnosis.core import prepare_cells, resolve_baseline
     from ..diagnosis.runfiles import read_paths
     from ..testdesign import DesignError, advise, load_candidates
@@ -65,7 +66,8 @@ def _cmd_design(args) -> int:
     try:
         cands = (load_candidates(args.candidates, cells, rig_limits(args.config))
                  if args.candidates else None)
-        adv = advise(cells, baseline, targets or None, pairs, args.max_runs, cands, args.top)
+        adv = advise(cells, baseline, targets or None, pairs, args.max_runs, cands, args.top,
+                     **advice_inputs(args.config))
     except (DesignError, ConfigError) as exc:
         _fail(str(exc))
     if args.json:
@@ -81,10 +83,11 @@ def _cmd_design(args) -> int:
 UNDETERMINED_TYPICAL = 1e3
 
 
-def _u(name: str, u: float | None, unit: str, output_unit: str = "out") -> str:
+def _u(name: str, u: float | None, unit: str, output_unit: str = "out", value: float | None = None) -> str:
     """A standard uncertainty for people: 2 significant digits in the display unit, the
-    runs' output unit for "out" (K1 in mA/g); "not determined" for none, or one far above
-    the parameter's typical size."""
+    runs' output unit for "out"; K1's relative, in ppm of its current ``value`` as the
+    certificate gives it; "not determined" for none, or one far above the parameter's
+    typical size."""
     import math
 
     from ..effects import EFFECTS, coefficient_spec, to_display
@@ -94,6 +97,8 @@ def _u(name: str, u: float | None, unit: str, output_unit: str = "out") -> str:
     if u is None or not math.isfinite(u) or (spec is not None and spec.typical
                                              and u > UNDETERMINED_TYPICAL * spec.typical):
         return "not determined"
+    if base == "K1" and value:
+        return f"{format_sig(u / abs(value) * 1e6, 2)} ppm"
     if unit.startswith("out/"):
         unit = output_unit + unit[3:]
     v, _, dunit, _ = to_display(base, u, None, unit)
@@ -114,7 +119,7 @@ def text_advice(adv, output_unit: str = "out") -> str:
     u in its display unit, "out" read as the runs' ``output_unit``."""
     lines = []
     names = list(adv.current.std_uncertainty)
-    cur = "; ".join(f"u({n}) {_u(n, adv.current.std_uncertainty[n], adv.units.get(n, ''), output_unit)}"
+    cur = "; ".join(f"u({n}) {_u(n, adv.current.std_uncertainty[n], adv.units.get(n, ''), output_unit, adv.values.get(n))}"
                     f"{_seen(n, adv.current.std_uncertainty[n], adv.plausible.get(n))}" for n in names)
     lines.append(f"Now: {cur}")
     for k, r in adv.current.corr.items():
@@ -124,15 +129,42 @@ def text_advice(adv, output_unit: str = "out") -> str:
         lines.append("  none improves the targets")
     for i, p in enumerate(adv.proposals, 1):
         lines.append(f"{i:>2}. {p.minutes:.0f} min: " + " + ".join(c.label for c in p.runs))
-        got = "; ".join(f"u({n}) {_u(n, p.predicted.std_uncertainty.get(n), adv.units.get(n, ''), output_unit)}"
+        got = "; ".join(f"u({n}) {_u(n, p.predicted.std_uncertainty.get(n), adv.units.get(n, ''), output_unit, adv.values.get(n))}"
                         f"{_seen(n, p.predicted.std_uncertainty.get(n), adv.plausible.get(n))}" for n in names)
         corr = "; ".join(f"corr {('not determined' if r is None else f'{r:.2f}')}"
                          for k, r in p.predicted.corr.items())
         lines.append("    -> " + got + (f"; {corr}" if corr else ""))
     for n in adv.notes:
         lines.append(f"note: {n}")
+    lines += _assumptions(adv, output_unit)
     import textwrap
     out = []
     for ln in lines:
         out += textwrap.wrap(ln, 80, subsequent_indent="       ") or [""]
     return "\n".join(out)
+
+
+def _assumptions(adv, output_unit: str) -> list[str]:
+    """What every prediction rests on: the noise model fitted to the runs, the set-up time
+    counted per run, the type-B terms of the pipeline's budget."""
+    from ..rounding import format_sig, format_sig_sci
+    out = []
+    for nm in adv.noise:
+        unit = nm["output_unit"] if nm["output_unit"] != "out" else output_unit
+        runs = f"{nm['runs']} run" + ("s" if nm["runs"] != 1 else "")
+        line = (f"noise: {nm['rig_id']} {nm['test']} ({runs}, fitted to the residuals): "
+                f"{format_sig_sci(nm['sigma'], 2)} {unit}"
+                + (f" ({format_sig(nm['sigma_ug'], 2)} µg)" if "sigma_ug" in nm else "") + " per reading")
+        if nm["rate_sigma_per_m_s2"] > 0:
+            line += (f" plus rate jitter {format_sig_sci(nm['rate_sigma_per_m_s2'], 2)} {unit} per m/s² "
+                     "of level, seen through IA's share of the radius")
+        if nm["rho"]:
+            line += f"; lag-1 correlation {nm['rho']:.2f}"
+        out.append(line)
+    for rig, m in sorted(adv.setup_min.items()):
+        from ..testdesign import SETUP_MIN_DEFAULT
+        src = "stated" if m != SETUP_MIN_DEFAULT else f'default; state [rigs."{rig}"] setup_min'
+        out.append(f"set-up: {m:g} min per run on {rig} ({src})")
+    out.append("u: type A of the joint fit plus the type-B terms its budget adds (mount angles, "
+               "IA tilt, stated rig inputs)")
+    return out

@@ -11,8 +11,9 @@ import numpy as np
 import pandas as pd
 
 from ..fileio import atomic_write
-from ..provenance import SIMULATED_KEY
-from .engine import COLUMNS, DIGITS, INT_COLUMNS, SimRun
+from ..provenance import SIM_PREFIX, SIMULATED_KEY
+from .engine import COLUMNS, DIGITS, INT_COLUMNS, SimRun, simulate_campaign
+from .scenario import load_scenario
 
 #: metadata keys in the order they are written (then any others, in the dict's order)
 META_ORDER = ["format", SIMULATED_KEY, "run_id", "test", "unit_serial", "unit_model", "campaign", "rig_id",
@@ -84,3 +85,55 @@ def write_drop(runs: Iterable[SimRun], out_dir) -> list[Path]:
         sub = getattr(r, "subdir", "") or ""
         paths.append(write_run_file(r.meta, r.data, out / sub / f"{r.meta['run_id']}.csv"))
     return paths
+
+
+def sim_ids(runs, prefix: str = SIM_PREFIX):
+    """Mark run_id and campaign as simulated (``SIM-...``), so a simulated campaign never
+    shares a real campaign's label or run ids.  The unit serial stays: it names the unit
+    whose truth was simulated (a simulated result is never current for a unit with a real
+    calibration, accelcal.warehouse).
+
+    Parameters
+    ----------
+    runs : list of SimRun
+        Simulated runs; their ``meta`` is changed in place.
+    prefix : str
+        The mark (:data:`accelcal.provenance.SIM_PREFIX`).
+
+    Returns
+    -------
+    list of SimRun
+        ``runs``, each id prefixed once.
+    """
+    for r in runs:
+        for key in ("run_id", "campaign"):
+            v = str(r.meta[key])
+            if not v.startswith(prefix):
+                r.meta[key] = prefix + v
+    return runs
+
+
+def simulate_to_drop(scenario_path, out_dir, seed: int | None = None,
+                     keep_ids: bool = False) -> list[Path]:
+    """Load a scenario, simulate it and write the drop.  Every file carries
+    ``# simulated: true``; run ids and the campaign get the ``SIM-`` prefix unless
+    ``keep_ids`` (the scenario's own ids, e.g. to compare with a sample drop).
+
+    Parameters
+    ----------
+    scenario_path : str or Path
+        Scenario TOML, or the name of a shipped scenario (:func:`load_scenario`).
+    out_dir : str or Path
+        Drop folder to write into.
+    seed : int, optional
+        Random seed (default: the scenario's).
+    keep_ids : bool
+        Keep the scenario's run ids and campaign label.
+
+    Returns
+    -------
+    list of Path
+        The written run files, in run order.
+    """
+    runs = simulate_campaign(load_scenario(scenario_path), seed=seed)
+    return write_drop(runs if keep_ids else sim_ids(runs), out_dir)

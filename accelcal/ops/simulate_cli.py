@@ -2,34 +2,8 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from ..provenance import SIM_PREFIX
-from .engine import simulate_campaign
-from .io import write_drop
-from .scenario import load_scenario
-
-
-def sim_ids(runs, prefix: str = SIM_PREFIX):
-    """Mark run_id and campaign as simulated (``SIM-...``), so a simulated campaign never
-    shares a real campaign's label or run ids.  The unit serial stays: it names the unit
-    whose truth was simulated (a simulated result is never current for a unit with a real
-    calibration, accelcal.warehouse)."""
-    for r in runs:
-        for key in ("run_id", "campaign"):
-            v = str(r.meta[key])
-            if not v.startswith(prefix):
-                r.meta[key] = prefix + v
-    return runs
-
-
-def simulate_to_drop(scenario_path, out_dir, seed: int | None = None,
-                     keep_ids: bool = False) -> list[Path]:
-    """Load a scenario, simulate it and write the drop; returns the written files.  Every
-    file carries ``# simulated: true``; run ids and the campaign get the ``SIM-`` prefix
-    unless ``keep_ids`` (the scenario's own ids, e.g. to compare with a sample drop)."""
-    runs = simulate_campaign(load_scenario(scenario_path), seed=seed)
-    return write_drop(runs if keep_ids else sim_ids(runs), out_dir)
+from ..simulate import simulate_to_drop
 
 
 def _run(args: argparse.Namespace) -> int:

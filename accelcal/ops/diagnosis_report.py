@@ -148,7 +148,7 @@ def _unit_of(effect: str) -> str:
 def _why_verdict(res: dict) -> str:
     """In words, why the verdict is the one named (the rule of
     :meth:`accelcal.diagnosis.core.Diagnosis.run`)."""
-    from .core import HELDOUT_GATE, HELDOUT_Z, VERDICT_STATISTIC
+    from ..diagnosis.core import HELDOUT_GATE, HELDOUT_Z, VERDICT_STATISTIC
     v = res.get("verdict")
     rk = {e["effect"]: e for e in res["ranking"]}
     if not v:
@@ -181,7 +181,7 @@ def _residual_figure(res: dict):
     """Residuals per run, in µg of input, against the run's own axis, before and after."""
     import matplotlib.pyplot as plt
 
-    from .localise import residual_si
+    from ..diagnosis.localise import residual_si
     fb, fa = res["_fits"]["before"], res["_fits"]["after"]
     rb, ra = residual_si(fb) / _UG, residual_si(fa) / _UG
     runs = fb.model.runs
@@ -246,7 +246,7 @@ def html_report(res: dict, out_dir, terminal: str | None = None,
         The text the terminal prints (the report and the advice after it), shown whole in
         its order; default :func:`text_report`.
     next_runs : list of dict, optional
-        The advice (:func:`accelcal.diagnosis.cli.next_runs`), kept in ``diagnosis.json``.
+        The advice (:func:`accelcal.testdesign.next_runs`), kept in ``diagnosis.json``.
 
     Returns
     -------
@@ -256,8 +256,7 @@ def html_report(res: dict, out_dir, terminal: str | None = None,
     import matplotlib
     matplotlib.use("Agg")
 
-    from ..rounding import round_gum_sci
-    from .core import public
+    from ..diagnosis.core import public
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     pub = public(res)

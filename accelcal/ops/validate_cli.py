@@ -9,7 +9,7 @@ import sys
 
 
 def _run(args: argparse.Namespace) -> int:
-    from .montecarlo import run_study
+    from ..validation.montecarlo import run_study
     res = run_study(args.scenario, n=args.n, seed=args.seed, workers=args.workers)
     text = json.dumps(res.to_dict(), indent=1, default=str) if args.json else res.to_markdown()
     if args.out:
@@ -24,8 +24,8 @@ def _benchmark(args) -> int:
     import subprocess
     from pathlib import Path
 
-    from ..diagnosis.report import _jd, clean_json
-    from .diagnosis_benchmark import run_benchmark, write_readme
+    from ..validation.diagnosis_benchmark import run_benchmark, write_readme
+    from .diagnosis_report import _jd, clean_json
     commit = ""
     try:
         commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
