@@ -81,7 +81,9 @@ def test_markdown_and_json(thermal_study):
 
 
 def test_truth_mapping_centrifuge_and_tumble():
-    t = mc.truth_table("snj103-lxj100", {("K2", "tumble_lm", "DH-1"): "Koo ... from the centrifuge added"})
+    from accelcal.estimators.records import TumbleCoefficient
+    corrected = TumbleCoefficient("K2", 3.9e-7, 1e-9, "s2/m", "tumble_lm", "DH-1", less=())
+    t = mc.truth_table("snj103-lxj100", {("K2", "tumble_lm", "DH-1"): corrected})
     g = 9.80122
     assert t[("K2", "centrifuge_eq9", "LXJ-100")][0] == 3.94e-7
     assert t[("K0", "tumble_lm", "DH-1")][0] == pytest.approx(4.0e-4 + 3.0e-8 * g * g)

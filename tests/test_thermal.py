@@ -18,7 +18,6 @@ import pytest
 from accelcal.constants import M2_PERIOD_S, MICRO_G
 from accelcal.estimators import thermal as th
 from accelcal.physics import rig_output
-from accelcal.results import CoefficientResult
 
 from conftest import EXAMPLES, needs_shared  # noqa: E402  (../shared relative to the repository root)
 
@@ -320,8 +319,7 @@ def test_compensation_removes_temperature_correlation():
     dT = T - 20.0
     E = true["K1"] * (1 + true["K1T"] * dT) * (true["K0"] + true["K0T"] * dT + acc)
     before = th.temperature_correlation(th.compensate(E, T, {"K0": true["K0"], "K1": true["K1"]}), T)
-    coeffs = [CoefficientResult(k, v, 0.0, "", "x") for k, v in true.items()]
-    res = th.compensate(E, T, coeffs, input_m_s2=3e-4)
+    res = th.compensate(E, T, true, input_m_s2=3e-4)
     after = th.temperature_correlation(res, T)
     # before: K0T plus K1T times the (bias + input) level
     exp_before = (true["K0T"] + true["K1T"] * (true["K0"] + 3e-4)) / MICRO_G

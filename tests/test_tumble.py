@@ -340,3 +340,23 @@ def test_real_imucal_heads_untestable_and_disagreeing(examples):
     # imucal 2.6.0: misalignment x/z -0.00748, x/y -0.01483 rad (README; 5 digits)
     assert abs(step.pooled["theta0[PA]"].value) == pytest.approx(0.00748, abs=6e-6)
     assert abs(step.pooled["theta0[OA]"].value) == pytest.approx(0.01483, abs=6e-6)
+
+
+def test_untestable_tumble_only_campaign_is_incomplete_without_a_joint_fit(monkeypatch):
+    """Four head positions for four parameters leave no degrees of freedom: where the joint
+    fit cannot run, the tumble runs' own lack-of-fit records (not text the campaign stored)
+    make a tumble-only campaign incomplete."""
+    from types import SimpleNamespace
+
+    from accelcal.estimators import campaign, joint
+    meta = {**tumble_meta(), "campaign": "C", "unit_serial": "U"}
+    d = simulate(meta, tumble_data(step_deg=90.0, nrep=5), {**TRUTH}, 1e-4, 1e-6, np.random.default_rng(5))
+    run = SimpleNamespace(meta=meta, data=d, sha256="0")
+
+    def fails(*args, **kwargs):
+        raise RuntimeError("no joint fit")
+    monkeypatch.setattr(joint, "campaign_results", fails)
+    res = campaign.process_campaign([run])
+    assert any(c.method == "tumble_lm" for c in res.coefficients)
+    assert res.completeness == "incomplete"
+    assert any("as many head positions as fitted parameters" in r for r in res.completeness_reasons)

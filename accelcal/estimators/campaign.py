@@ -16,16 +16,19 @@ from collections import defaultdict
 from collections.abc import Mapping
 
 from .. import memory
+from ..fitting.blas import single_thread
 from ..constants import MOUNT_ANGLE_TOLERANCE_RAD
 from ..results import CampaignResult, CoefficientResult
 from . import registry
 from . import uncertainty as unc
+from .records import Records
 from .centrifuge import RADIUS_ORDERS, RADIUS_RANGES
 from .priors import apply_priors
 
 
 # ------------------------------------------------------------------ entry point
 
+@single_thread()                     # small dense algebra: one BLAS thread is the fast one
 def process_campaign(runs, rig_uncertainty: Mapping[str, Mapping[str, float]] | None = None,
                      priors: Mapping[str, Mapping[str, Mapping[str, float]]] | None = None) -> CampaignResult:
     """Run every estimator that applies to the runs of one campaign (docs/design.md).
@@ -50,13 +53,7 @@ def process_campaign(runs, rig_uncertainty: Mapping[str, Mapping[str, float]] | 
     CampaignResult
         The paper methods' values (stored as cross-checks) and the adopted joint-fit values.
     """
-    from ..fitting.blas import single_thread
-    with single_thread():            # small dense algebra: one BLAS thread is the fast one
-        return _process_campaign(runs, rig_uncertainty or {}, priors or {})
-
-
-def _process_campaign(runs, stated: Mapping[str, Mapping[str, float]],
-                      priors: Mapping[str, Mapping[str, Mapping[str, float]]]) -> CampaignResult:
+    stated = rig_uncertainty or {}
     first = runs[0]
     res = CampaignResult(
         campaign=str(first.meta["campaign"]), unit_serial=str(first.meta["unit_serial"]),
@@ -88,19 +85,20 @@ def _process_campaign(runs, stated: Mapping[str, Mapping[str, float]],
                 rec.add_to(res)
     if sum(len(r.data) for r in runs) >= memory.BIG_ROWS:
         memory.give_back()     # what the paper methods freed, before the joint fit
-    _joint(runs, res, stated)
+    joint = _joint(runs, res, stated)
     _mark_adopted(res)
-    model_priors = priors.get(res.unit_model)
+    model_priors = (priors or {}).get(res.unit_model)
     if model_priors:
         res.parameters["priors"] = {k: dict(v) for k, v in sorted(model_priors.items())}
         apply_priors(res, model_priors, f'accelcal.toml [prior."{res.unit_model}"]')
-    _assess_completeness(res)
+    _assess_completeness(res, joint, steps)
     return res
 
 
-def _joint(runs, res: CampaignResult, stated: Mapping[str, Mapping[str, float]]) -> None:
+def _joint(runs, res: CampaignResult, stated: Mapping[str, Mapping[str, float]]):
     """The adopted values: the joint fit of every reading through the forward model
-    (:mod:`accelcal.estimators.joint`), compared with the paper methods' values."""
+    (:mod:`accelcal.estimators.joint`), compared with the paper methods' values; returns
+    the joint fit (:class:`~accelcal.fitting.procedure.ModelFit`), None when it failed."""
     from . import joint
     try:
         out = joint.campaign_results(sorted(runs, key=lambda r: str(r.meta.get("run_id"))),
@@ -108,19 +106,13 @@ def _joint(runs, res: CampaignResult, stated: Mapping[str, Mapping[str, float]])
     except Exception as exc:  # the paper methods' values stay; the failure is a flag
         res.flags.append(f"joint fit failed ({type(exc).__name__}: {exc}); the paper methods' values are "
                          "adopted instead")
-        return
-    others = list(res.coefficients)
-    res.coefficients += out["coefficients"]
-    res.radii += out["radii"]
-    res.adequacy += out["adequacy"]
-    res.budget += out["budget"]
-    res.alignment += out["alignment"]
-    res.flags += out["flags"]
-    rows, flags = joint.compare_with_methods(out["coefficients"], others, runs)
-    res.flags += flags
-    res.extras["joint"] = {**out["extras"], "method_comparison": rows}
-    res.extras.setdefault("mc_check", {}).update(out["mc_check"])
+        return None
+    rows, flags = joint.compare_with_methods(out["coefficients"], res.coefficients, runs)
+    Records(coefficients=out["coefficients"], radii=out["radii"], adequacy=out["adequacy"], budget=out["budget"],
+            alignment=out["alignment"], flags=out["flags"] + flags,
+            extras={"joint": {**out["extras"], "method_comparison": rows}, "mc_check": out["mc_check"]}).add_to(res)
     res.parameters["joint_effects"] = out["extras"]["effects"]
+    return out["fit"]
 
 
 def _mark_adopted(res: CampaignResult) -> None:
@@ -129,11 +121,11 @@ def _mark_adopted(res: CampaignResult) -> None:
     value is adopted from them: paper 000, 002, 001, 003)."""
     rank = {m: i for i, m in enumerate(registry.adoption_order())}
     best: dict[str, CoefficientResult] = {}
-    if any(c.method == "joint_ml" for c in res.coefficients):
+    if any(c.method == registry.ADOPTED for c in res.coefficients):
         # the joint fit ran: its values are the calibration (theta0 per head included);
         # a paper method's coefficient it does not report is a cross-check only
         for c in res.coefficients:
-            c.adopted = c.method == "joint_ml"
+            c.adopted = c.method == registry.ADOPTED
         return
     for c in res.coefficients:
         b = best.get(c.name)
@@ -143,20 +135,21 @@ def _mark_adopted(res: CampaignResult) -> None:
         c.adopted = c is best.get(c.name)
 
 
-def _assess_completeness(res: CampaignResult) -> None:
-    """'incomplete' when no coefficient could be determined, when every tumble fit of a
-    tumble-only campaign has no degrees of freedom left to test the model (interim rule), or
-    for what a paper method found (``Records.incomplete``: a rig without an IA mount pair)."""
+def _assess_completeness(res: CampaignResult, joint=None, steps: Mapping | None = None) -> None:
+    """'incomplete' when no coefficient could be determined, when the joint fit (``joint``, a
+    :class:`~accelcal.fitting.procedure.ModelFit`) is untestable or, without one, every
+    tumble fit of a tumble-only campaign (``steps``, the first passes) has no degrees of
+    freedom left to test the model, or for what a paper method found (``Records.incomplete``:
+    a rig without an IA mount pair)."""
     reasons = []
     if not res.coefficients:
         reasons.append("no coefficient could be determined from these runs")
-    lof = res.extras.get("joint", {}).get("lack_of_fit", {})
-    if lof.get("status") == "untestable":
+    if joint is not None and joint.fit.lof.status == "untestable":
         reasons.append("the runs leave no degrees of freedom to test the model of the joint fit "
                        "(as many parameters as distinct inputs)")
-    elif not lof and res.tests == ["tumble"]:
-        fits = res.extras.get("tumble", [])
-        if fits and all(not f.get("lack_of_fit") for f in fits):
+    elif joint is None and res.tests == ["tumble"]:
+        fits = [r for step in registry.prepared(steps or {}, "tumble") if step is not None for r in step.runs]
+        if fits and all(r.result.lof.status == "untestable" for r in fits):
             reasons.append("every tumble run has as many head positions as fitted parameters: "
                            "no degrees of freedom to test the model")
     reasons += [r for r in res.completeness_reasons if r not in reasons]

@@ -29,17 +29,15 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
-import numpy as np
-import pandas as pd
-
 from ..constants import G_STANDARD, MOUNT_ANGLE_TOLERANCE_RAD
+from ..effects import CROSS_TERM
 from ..physics.axes import parse_plane
 from ..physics.geometry import geometry_of
 from ..results import (AdequacyResult, CoefficientResult, RadiusResult, ResidualFigure, ResidualPanel,
                        ResidualSeries)
 from . import uncertainty as unc
 from .adequacy import choose_order
-from .crosscoupling import CROSS, Combination, PairFit, combine_second_order, delta_c2, fit_mount_pair, pair_label
+from .crosscoupling import Combination, PairFit, combine_second_order, delta_c2, fit_mount_pair, pair_label
 from .radius import (IterativeRadius, PairData, StaticRadius, g_levels, geometric_static_radius,
                      test_radius_iterative, test_radius_static)
 from .records import Records
@@ -464,7 +462,7 @@ def radius_corrections(mounts: Mounts, ref: Reference, static: StaticStep, itera
     meta = mounts.run_plus.meta
     g = float(meta["g_local_m_s2"])
     vert = geometry_of(meta)
-    cross = CROSS.get(frozenset((0, vert.vertical)))
+    cross = CROSS_TERM.get(frozenset((0, vert.vertical)))
     c = comb.combination
     # K_iv from the mount pairs; where they leave it undetermined, from the tumble; where
     # neither determines it, its leak into the radius is not evaluated (None: no term)
@@ -536,24 +534,6 @@ def process_rig(runs: Sequence, tumble: Reference | None) -> RigOutcome | tuple[
 
 # ------------------------------------------------------------------ records
 
-def _column_lists(table: pd.DataFrame, names: Sequence[str]) -> dict[str, list]:
-    """``table[list(names)].to_dict(orient="list")``, column by column without building the
-    sub-frame (a tenth of the time).  For numpy numbers and booleans and the ``str`` dtype
-    (missing = nan), ``Series.tolist`` gives the same Python scalars; any other dtype (the
-    NA-valued ``string`` dtype gives <NA> there but None in ``to_dict``) goes through
-    ``to_dict`` itself."""
-    out = {}
-    for name in names:
-        col = table[name]
-        dt = col.dtype
-        if ((isinstance(dt, pd.StringDtype) and dt.na_value is np.nan)
-                or (isinstance(dt, np.dtype) and dt.kind in "biuf")):
-            out[name] = col.tolist()
-        else:
-            out[name] = col.to_frame().to_dict(orient="list")[name]
-    return out
-
-
 def rig_records(out: RigOutcome, k1_correction: tuple[float, float] | None = None) -> Records:
     """The records of one rig, built once.
 
@@ -619,8 +599,8 @@ def rig_records(out: RigOutcome, k1_correction: tuple[float, float] | None = Non
         {"pair": pair_label(p), "runs": list(p.run_ids), "order": p.order, "adequate": p.adequate,
          "c2": p.c2, "u_c2": p.u_c2, "d": p.d, "u_d": p.u_d, "c3": p.c3, "u_c3": p.u_c3,
          "noise_s0": p.fit.extra.get("noise_s0"), "noise_k": p.fit.extra.get("noise_k"),
-         "dwells": _column_lists(p.dwells, ("run_id", "pol", "a", "mean_output", "n", "time_mid", "sweep",
-                                             "std_resid"))} for p in out.pairs.pairs]}
+         "dwells": p.dwells[["run_id", "pol", "a", "mean_output", "n", "time_mid", "sweep",
+                             "std_resid"]].to_dict(orient="list")} for p in out.pairs.pairs]}
     rec.extras["combination"] = {rig: out.combination.combination.design}
     # coefficients and their budgets
     for cb in out.budgets.coefficients:
@@ -637,20 +617,15 @@ def rig_records(out: RigOutcome, k1_correction: tuple[float, float] | None = Non
                                           for k in ("K0+", "K0-", "b+", "b-")}}
     # radii corrected for the instrument terms (and for Koq, K3 in the tumble's K1)
     delta, u_delta = k1_correction if k1_correction is not None else (0.0, 0.0)
-
-    def k1_scaled(R, u):
-        Rn = R * (1.0 + delta)
-        return Rn, (math.hypot(u, Rn * u_delta) if k1_correction is not None else u)
-
-    for pol, (R, u) in corr.iterative.items():
-        Rn, un = k1_scaled(R, u)
-        rec.radii.append(RadiusResult(rig, pol, "iterative_corrected", it.chosen, it.top, Rn, un,
-                                      note=f"eq 7 radius / (1 + {corr.cross}·a_vertical): cross-coupling with "
-                                           "gravity removed"))
-    for pol, (R, u) in corr.static.items():
-        Rn, un = k1_scaled(R, u)
-        rec.radii.append(RadiusResult(rig, pol, "static_corrected", None, 1.0, Rn, un,
-                                      note="eq 6 radius with K2, Koq, K3 and the cross-coupling with gravity removed"))
+    for kind, order, gmax, radii, note in (
+            ("iterative_corrected", it.chosen, it.top, corr.iterative,
+             f"eq 7 radius / (1 + {corr.cross}·a_vertical): cross-coupling with gravity removed"),
+            ("static_corrected", None, 1.0, corr.static,
+             "eq 6 radius with K2, Koq, K3 and the cross-coupling with gravity removed")):
+        for pol, (R, u) in radii.items():
+            Rn = R * (1.0 + delta)
+            rec.radii.append(RadiusResult(rig, pol, kind, order, gmax, Rn,
+                                          math.hypot(u, Rn * u_delta) if k1_correction is not None else u, note=note))
     rec.flags += list(out.flags)
     return rec
 
@@ -712,7 +687,7 @@ def campaign_records(runs: Sequence, steps) -> list[Records]:
         Records(flags=list(step.flags), incomplete=[NO_IA_PAIR] if step.without_ia_pair else [])]
 
 
-def mc_truth(c, eff, test, g, notes) -> dict[tuple[str, str], tuple[float, str]]:
+def mc_truth(c, eff, test, g, records) -> dict[tuple[str, str], tuple[float, str]]:
     """What each paper-000 coefficient estimates in a simulated test: the instrument values
     of K2, Kpp, Koo, Kip, Kio, Kpo, Koq, K3 (signature of
     :data:`accelcal.estimators.registry.TruthMapping`)."""

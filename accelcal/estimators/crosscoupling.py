@@ -36,7 +36,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from ..effects import CROSS_TERM, combination_name
+from ..effects import CROSS_TERM
+from ..fitting import identify
 from ..fitting.core import lstsq_svd
 from ..physics.axes import AXES, parse_plane
 from ..physics.geometry import geometry_of
@@ -44,7 +45,6 @@ from ..physics.instrument import output_derivative
 from .adequacy import DwellFit, choose_order
 from .radius import PairData, centripetal_unit_input
 
-CROSS = CROSS_TERM
 UNKNOWNS = ["K2", "Kpp", "Koo", "Kip", "Kio", "Kpo"]
 
 
@@ -342,11 +342,13 @@ def combine_second_order(pairs: list[PairFit], u_dc2: Mapping[str, float] | None
     S = (sol.cov @ Aw.T) * np.sqrt(w)[None, :]  # d K / d c2: the solution is linear in the c2's
     # what the pairs determine of the unknowns they cannot separate: one combination per
     # pair of them that one null direction ties (45/225 without 90/270: Kip + Kpp)
-    C, cnames, cfactors = _determined_combinations(names, sol)
-    if C.size:
+    combs = _determined_combinations(names, sol)
+    cfactors = {identify.display_name(c.kept, c): dict(c.factors) for c in combs}
+    if combs:
+        C = np.array([[1.0 if nm == c.kept else c.factors.get(nm, 0.0) for nm in names] for c in combs])
         S = np.vstack([S, C @ S])
-        names = names + cnames
-        ident = ident + list(range(len(names) - len(cnames), len(names)))
+        names = names + [identify.display_name(c.kept, c) for c in combs]
+        ident = ident + list(range(len(names) - len(combs), len(names)))
     beta = S @ np.asarray(y)
     cov = S @ np.diag(var) @ S.T
     values = {names[j]: float(beta[j]) for j in ident}
@@ -360,40 +362,32 @@ def combine_second_order(pairs: list[PairFit], u_dc2: Mapping[str, float] | None
     return Combination(values, covd, std, design, sens, cfactors)
 
 
-def _determined_combinations(names: list[str], sol) -> tuple[np.ndarray, list[str], dict[str, dict[str, float]]]:
+def _determined_combinations(names: list[str], sol) -> list[identify.Combination]:
     """Combinations of the unknowns the pairs leave undetermined alone that the pairs do
-    determine: with one null direction n, ``K_k - (n_k / n_m) K_m`` for the first of them
-    (cross terms first: ``Kip+Kpp``) and each other one.
+    determine: with the one null direction n of the solve, ``K_k - (n_k / n_m) K_m`` for the
+    first of them (cross terms first: ``Kip+Kpp``) and each other one.
 
     Parameters
     ----------
     names : list of str
         The unknowns of the solve, in column order.
     sol : LinearSolution
-        :func:`accelcal.fitting.core.lstsq_svd` of the weighted design.
+        :func:`accelcal.fitting.core.lstsq_svd` of the weighted design: which unknowns are
+        determined (its ``estimable``, the fitting core's rank decision) and its null space.
 
     Returns
     -------
-    (ndarray, list of str, dict)
-        Rows of weights on the unknowns [1], their names
-        (:func:`accelcal.effects.combination_name`) and name -> factors of the terms; empty
-        when every unknown is determined or the null space has more than one direction.
+    list of accelcal.fitting.identify.Combination
+        The kept unknown with the factor [1] of the other; empty when every unknown is
+        determined or the null space has more than one direction.
     """
-    free = [j for j in range(len(names)) if not sol.estimable[j]]
-    null = sol.null_space / np.where(sol.column_norm > 0, sol.column_norm, 1.0)[:, None]
-    if not free or null.shape[1] != 1:
-        return np.zeros((0, len(names))), [], {}
-    n = null[:, 0]
-    free.sort(key=lambda j: (names[j] not in CROSS.values(), j))
-    k, rows, out = free[0], [], {}
-    for m in free[1:]:
-        if abs(n[m]) < 1e-9 * np.abs(n).max():
-            continue
-        c = np.zeros(len(names))
-        c[k], c[m] = 1.0, -n[k] / n[m]
-        rows.append(c)
-        out[combination_name(names[k], {names[m]: c[m]})] = {names[m]: float(c[m])}
-    return (np.array(rows) if rows else np.zeros((0, len(names)))), list(out), out
+    held = sorted((j for j in range(len(names)) if not sol.estimable[j]),
+                  key=lambda j: (names[j] not in CROSS_TERM.values(), j))
+    if not held or sol.null_space.shape[1] != 1:
+        return []
+    n = sol.null_space[:, 0] / np.where(sol.column_norm > 0, sol.column_norm, 1.0)
+    k = held[0]
+    return [identify.Combination(names[k], ((names[m], -n[k] / n[m]),)) for m in held[1:]]
 
 
 def pair_label(p: PairFit) -> str:

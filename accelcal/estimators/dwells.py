@@ -19,18 +19,6 @@ from ..fitting.data import Groups
 from ..physics.rigs import omega_z
 
 
-def _nargsort(v: np.ndarray) -> np.ndarray:
-    """Indices sorting ``v`` by quicksort, nan last."""
-    bad = np.isnan(v)
-    good = np.flatnonzero(~bad)
-    return np.r_[good[np.argsort(v[good], kind="quicksort")], np.flatnonzero(bad)].astype(np.intp)
-
-
-def _nanmean(v: np.ndarray) -> float:
-    n = np.count_nonzero(~np.isnan(v))
-    return float(np.nansum(v) / n) if n else np.nan
-
-
 def _dwell_columns(meta: Mapping, data, eff: Mapping[str, float]) -> dict[str, np.ndarray]:
     """The columns of :func:`dwell_table`."""
     grp = Groups(np.asarray(data["step"]))
@@ -40,7 +28,7 @@ def _dwell_columns(meta: Mapping, data, eff: Mapping[str, float]) -> dict[str, n
     dev = out_ - np.r_[mean_out, np.nan][grp.ids]               # about each dwell's own mean
     rate_std = grp.std(data["table_rate_rad_s"])
     t_start = grp.min(np.asarray(data["time_s"], np.float64))
-    o = _nargsort(t_start)
+    o = np.argsort(t_start)                                       # time order, nan last
     cols = {"step": grp.keys[o], "n": grp.counts[o], "mean_output": mean_out[o],
             "ss_within": grp.sum(dev * dev)[o], "rate": rate[o],
             "rate_std": np.where(np.isnan(rate_std), 0.0, rate_std)[o],
@@ -150,7 +138,7 @@ def merged_dwell_columns(meta: Mapping, data) -> dict[str, np.ndarray]:
     n_rest = int(rest.sum())
     ss = float(np.nansum(c["ss_within"][rest]))
     merged = {"n": n, "mean_output": E0, "ss_within": ss, "var_output": ss / max(n - n_rest, 1),
-              "time_mid": _nanmean(c["time_mid"][rest]), "omega_z": _nanmean(c["omega_z"][rest])}
+              "time_mid": float(np.nanmean(c["time_mid"][rest])), "omega_z": float(np.nanmean(c["omega_z"][rest]))}
     first = np.flatnonzero(rest)[:1]
     out = {k: np.concatenate([np.asarray([merged[k]]) if k in merged else v[first], v[~rest]])
            for k, v in c.items()}

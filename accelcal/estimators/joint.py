@@ -35,7 +35,7 @@ import numpy as np
 
 from ..constants import MOUNT_ANGLE_TOLERANCE_RAD
 from ..effects import combination_formula, combination_name, si_unit
-from ..fitting.core import lstsq_svd, normalised_error
+from ..fitting.core import birge_ratio, lstsq_svd, normalised_error
 from ..fitting.data import (RunCells, block_note, drop_duplicate_cells, fit_noise, make_run,
                             pool_missing_noise, with_noise)
 from ..fitting.identify import Combination, NearAlias, Why, dependence_text, display_name, near_aliases
@@ -70,13 +70,9 @@ def coverage_factor(dof: float, p: float = 0.95) -> float:
     return float(t_ppf(0.5 + p / 2, dof))
 
 
-#: The adopted calibration's fit of a campaign model (:class:`accelcal.fitting.procedure.ModelFit`).
-JointFit = ModelFit
-
-
 def fit_campaign_model(runs: Sequence[RunCells], effects: Sequence[str], *, shared: Sequence[str] = (),
                        per_run_bias: bool | None = None, per_run_scale: bool = False,
-                       noise_passes: int = 1, keep: Sequence[str] = ()) -> JointFit:
+                       noise_passes: int = 1, keep: Sequence[str] = ()) -> ModelFit:
     """Fit a campaign model to runs whose cells are built (:func:`prepare`), through the one
     fit procedure (:func:`accelcal.fitting.procedure.fit_selected`): the design judged at
     the start and again after the first noise pass, a time constant bounded at 0.
@@ -95,7 +91,7 @@ def fit_campaign_model(runs: Sequence[RunCells], effects: Sequence[str], *, shar
 
     Returns
     -------
-    JointFit
+    ModelFit
     """
     # Kip is a designed coefficient of a tumble too (a head about OA turns IA through PA,
     # IEEE 1293), not only the centrifuge's cross_coupling effect; the terms that act on a
@@ -163,7 +159,7 @@ def what_it_measures(comb: Combination | None, label: str) -> tuple[str, str]:
     return display_name(label, comb), "; ".join(notes)
 
 
-def nearly_aliased(jf: JointFit) -> list[NearAlias]:
+def nearly_aliased(jf: ModelFit) -> list[NearAlias]:
     """Pairs of free instrument coefficients the runs determine far better together than
     alone (:func:`accelcal.fitting.identify.near_aliases` of their estimates)."""
     model, fit = jf.model, jf.fit
@@ -213,7 +209,6 @@ def run_consistency(runs, effects: Sequence[str], alpha: float = 0.01) -> tuple[
     rows, flags
         One row per (test, coefficient) compared: values, u, Birge ratio, p, agree.
     """
-    from ..fitting.core import birge_ratio
     rows, flags = [], []
     tumble = [r for r in runs if str(r.meta["test"]) == "tumble"]
     if len(tumble) < 2:
@@ -268,7 +263,7 @@ def campaign_results(runs, rig_ids: Sequence[str] | None = None, effects: Sequen
     dict
         coefficients (list of CoefficientResult, method 'joint_ml', adopted), radii,
         adequacy, budget, alignment (list of dict), flags (list of str), extras (dict),
-        fit (JointFit).
+        fit (ModelFit).
     """
     cells, notes = prepare(runs)
     tests = sorted({c.test for c in cells})
@@ -349,7 +344,7 @@ def absorbed_cross_axis(model: CampaignModel, held: Mapping[str, Any]) -> list[t
     return out
 
 
-def type_b_terms(jf: JointFit, tolerance: float = MOUNT_ANGLE_TOLERANCE_RAD) -> dict[str, list[tuple[str, float, float]]]:
+def type_b_terms(jf: ModelFit, tolerance: float = MOUNT_ANGLE_TOLERANCE_RAD) -> dict[str, list[tuple[str, float, float]]]:
     """Type-B terms of parameters the design cannot determine but that are physically there
     (:func:`held_type_b_directions`): the bias each would transfer to every fitted
     parameter, dtheta = (J^T W J)^-1 J^T W j dphi (j its direction).
@@ -424,13 +419,13 @@ def rig_input_directions(model: CampaignModel, p: np.ndarray, stated: Mapping[st
     return out, missing
 
 
-def rig_input_terms(jf: JointFit, stated: Mapping[str, Mapping[str, float]]
+def rig_input_terms(jf: ModelFit, stated: Mapping[str, Mapping[str, float]]
                     ) -> tuple[dict[str, list[tuple[str, float, float, str, float]]], list[dict[str, str]]]:
     """Type-B terms of the rig inputs the drop gives as known (:func:`rig_input_directions`).
 
     Parameters
     ----------
-    jf : JointFit
+    jf : ModelFit
         The campaign's joint fit.
     stated : mapping
         Rig id -> input id -> standard uncertainty [the input's unit: m/s2, deg, degC].
@@ -488,7 +483,7 @@ def _type_a_lines(name: str, value: float, u_noise: float, factor: float) -> lis
     return out
 
 
-def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[str, float]]) -> dict[str, Any]:
+def _records(jf: ModelFit, cells: list[RunCells], stated: Mapping[str, Mapping[str, float]]) -> dict[str, Any]:
     model, fit = jf.model, jf.fit
     lof = fit.lof
     tb = {n: [(q, c, u, "uniform", 0.0) for q, c, u in v] for n, v in type_b_terms(jf).items()}
@@ -519,12 +514,13 @@ def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
                      + " (accelcal.toml)")
     rig_of = _dominant_rigs(jf)
     measures = model.combinations(fit.values, {prm.name: fit.std(prm.name) for prm in model.params if prm.vary})
-    near = nearly_aliased(jf)
-    pairs: list[tuple[str, str]] = [tuple(model.roles[model.params.index[n]].key for n in (a, b))
-                                    for a, b, _, _ in near]
+    # each nearly aliased pair with its coefficients and the combination's factor t to two
+    # digits, so that every campaign of a design names the same row
+    near = [(a, b, *(model.roles[model.params.index[n]].key for n in (a, b)), float(f"{t:.2g}"), r)
+            for a, b, t, r in nearly_aliased(jf)]
+    pairs: list[tuple[str, str]] = [(ka, kb) for _, _, ka, kb, _, _ in near]
     near_note: dict[str, str] = {}
-    for a, b, t, r in near:
-        ka, kb = (model.roles[model.params.index[n]].key for n in (a, b))
+    for a, b, ka, kb, t, r in near:
         comb = combination_formula(ka, {kb: float(f"{t:.2g}")}, 2)
         row = (f" (its own row, {combination_name(ka, {kb: t})})"
                if si_unit(ka) == si_unit(kb) and fit.converged else "")
@@ -558,20 +554,16 @@ def _records(jf: JointFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
         budget += _type_a_lines(name, float(fit.values[i]), u_noise, lof.factor)
         for q, c, ub, dist, x in terms_b:
             budget.append(BudgetTerm(name, q, x, ub, c, abs(c) * ub, "B", dist, METHOD))
-    for a, b, t, r in near:
+    for a, b, ka, kb, t, r in near:
         # the combination the runs do determine, as a row of its own where it is a
-        # coefficient of the same unit (Kip+Kpp); t to two digits, so that every campaign of
-        # a design names the same row (its u is that of the rounded combination)
-        ia, ib = model.params.index[a], model.params.index[b]
-        ka, kb = model.roles[ia].key, model.roles[ib].key
+        # coefficient of the same unit (Kip+Kpp; its u is that of the rounded combination);
         # a fit that stopped before converging is not at its optimum along the weak
         # direction, which a combination with a rounded factor would take up
         if si_unit(ka) != si_unit(kb) or not fit.converged:
             continue
-        t = float(f"{t:.2g}")
         name = display_name(ka, Combination(ka, ((kb, t),)))
         c = np.zeros(len(model.params))
-        c[ia], c[ib] = 1.0, t
+        c[model.params.index[a]], c[model.params.index[b]] = 1.0, t
         value = float(c @ fit.values)
         u = float(np.sqrt(max(c @ fit.cov @ c, 0.0))) if not untestable else float("nan")
         u_noise = float(np.sqrt(max(c @ fit.cov_noise @ c, 0.0)))
@@ -680,27 +672,19 @@ def stored_missing_rig_inputs(extras: Mapping[str, Any] | None) -> list[dict] | 
 
 
 def _mc_checks(coefficients: Sequence[CoefficientResult], budget: Sequence[BudgetTerm]) -> dict[str, dict]:
-    """JCGM 101 check of each adopted coefficient's budget: its inputs (the readings' type-A
-    term, normal; the type-B terms, uniform or normal as the budget says) propagated as distributions and the 95 %
-    interval compared with the GUM one (JCGM 101 §8, two significant digits).  The budget is
-    linear, so the propagation is an exact convolution: no sampling noise can fail it."""
-    from .uncertainty import validate_gum_linear
+    """JCGM 101 check of each adopted coefficient's budget (:func:`.uncertainty.budget_check`:
+    the linear budget's distributions propagated by exact convolution, no sampling noise)."""
+    from .uncertainty import budget_check
     out = {}
     for c in coefficients:
-        terms = [b for b in budget if b.coefficient == c.name and b.method == METHOD and b.std_uncertainty > 0]
-        if not terms or not math.isfinite(c.std_uncertainty):
-            continue
-        chk = validate_gum_linear([b.sensitivity for b in terms], [b.std_uncertainty for b in terms],
-                                  [b.distribution for b in terms])
-        out[f"{METHOD}:{c.rig_id}:{c.name}"] = {
-            "method": METHOD, "rig_id": c.rig_id, "coefficient": c.name, "gum_u": chk["gum_u"],
-            "mc_u": chk["gum_u"], "mc_low": c.value + chk["low"], "mc_high": c.value + chk["high"],
-            "validated": chk["validated"], "delta": chk["delta"],
-            "procedure": "propagation of distributions by numerical convolution (linear budget, JCGM 101 5.4)"}
+        terms = [b for b in budget if b.coefficient == c.name and b.method == METHOD]
+        chk = budget_check(METHOD, c.rig_id, c.name, c.value, terms) if math.isfinite(c.std_uncertainty) else None
+        if chk is not None:
+            out[f"{METHOD}:{c.rig_id}:{c.name}"] = chk
     return out
 
 
-def _dominant_rigs(jf: JointFit) -> dict[str, str]:
+def _dominant_rigs(jf: ModelFit) -> dict[str, str]:
     """The rig whose runs carry most of the information on each parameter (the sum of the
     squared whitened Jacobian column over its rows): the rig a coefficient is calibrated on,
     for rig comparisons (K1 on the dividing head, the second-order terms on the centrifuge)."""
@@ -716,7 +700,7 @@ def _dominant_rigs(jf: JointFit) -> dict[str, str]:
     return out
 
 
-def _residual_checks(jf: JointFit) -> tuple[float, float]:
+def _residual_checks(jf: ModelFit) -> tuple[float, float]:
     """Trend in time and run of signs of the whitened cell residuals, per run (Bonferroni)."""
     tp, rp = [], []
     for j, r in enumerate(jf.model.runs):
@@ -729,7 +713,7 @@ def _residual_checks(jf: JointFit) -> tuple[float, float]:
     return (min(1.0, min(tp) * m) if tp else 1.0), (min(1.0, min(rp) * m) if rp else 1.0)
 
 
-def _geometry_records(jf: JointFit) -> tuple[list[RadiusResult], list[dict]]:
+def _geometry_records(jf: ModelFit) -> tuple[list[RadiusResult], list[dict]]:
     """Polarity radii of the IA mounts (delta method through the model), the turning-centre
     radius, the mass-centre offset, mount-angle errors and tool errors."""
     model, fit = jf.model, jf.fit
@@ -773,7 +757,7 @@ def method_quantity(c: CoefficientResult, adopted: dict[str, CoefficientResult],
     head's other turning axis (paper 003 model with effects.md terms); everything else the
     methods report is the instrument coefficient itself."""
     a = adopted[c.name]
-    if c.method == "tumble_lm" and c.name in ("K0", "K2"):
+    if isinstance(c, TumbleCoefficient) and c.name in ("K0", "K2"):
         from ..physics.geometry import geometry_of
         tumble = next((r for r in runs if str(r.meta["test"]) == "tumble"), None)
         other = geometry_of(tumble.meta).other_axis if tumble is not None else None

@@ -22,8 +22,14 @@ class TumbleCoefficient(CoefficientResult):
     less : tuple of str
         The square terms K_ss of the heads' other turning axes (Kpp, Koo) that a K2 no
         centrifuge corrected is less by: it estimates K2 − K_ss.
+    key : str
+        The fitted parameter of the row (``'K2'`` of ``'K2[PA]'``, ``'theta0'``).
+    head : str
+        The head axis of a row pooled per head (``'PA'``), '' for one pooled over the heads.
     """
     less: tuple[str, ...] = ()
+    key: str = ""
+    head: str = ""
 
 
 @dataclass

@@ -14,8 +14,9 @@ names
   (``steps[method]``: the tumble's reference for the centrifuge radius, the centrifuge's
   square terms for the tumble's K2); ``steps["rig_uncertainty"]`` holds the lab's stated
   rig inputs (rig id -> :data:`accelcal.effects.RIG_INPUTS` id -> u) for the budgets;
-* ``truth(coefficients, effects, test, g, notes)``: what each of its coefficients
-  estimates in a simulated scenario (the Monte Carlo study's truth mapping);
+* ``truth(coefficients, effects, test, g, records)``: what each of its coefficients
+  estimates in a simulated scenario (the Monte Carlo study's truth mapping), given the
+  records of its own the processed campaign holds, by name;
 * ``methods``: the method ids of its records, in the order a value is adopted from them
   when the joint fit could not run, and ``adoption`` (lower first) among estimators;
 * ``main``: the coefficients the Monte Carlo study reports as its headline;
@@ -44,9 +45,9 @@ from typing import Any
 #: Method id of the adopted values (the joint fit through the forward model).
 ADOPTED = "joint_ml"
 
-#: truth(coefficients, effects, test, g [m/s2], notes) -> {(name, rig_id): (truth, how)}
+#: truth(coefficients, effects, test, g [m/s2], records) -> {(name, rig_id): (truth, how)}
 TruthMapping = Callable[[Mapping[str, float], Mapping[str, float], Mapping[str, Any], float,
-                         Mapping[str, str]], dict[tuple[str, str], tuple[float, str]]]
+                         Mapping[str, Any]], dict[tuple[str, str], tuple[float, str]]]
 
 
 @dataclass(frozen=True)
@@ -162,11 +163,8 @@ def residual_figures(extras: Mapping[str, Any] | None) -> list:
     list of ResidualFigure
     """
     from ..results import stored_series_figures
-    out = []
-    for est in estimators():
-        if est.figures is not None:
-            out += est.figures(extras or {})
-    return out + stored_series_figures(dict(extras or {}))
+    return ([f for est in estimators() if est.figures is not None for f in est.figures(extras or {})]
+            + stored_series_figures(dict(extras or {})))
 
 
 def fit_checks(extras: Mapping[str, Any] | None) -> list:

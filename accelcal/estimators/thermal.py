@@ -41,12 +41,12 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
 from ..constants import MICRO_G, T_REF_C
 from ..effects import CROSS_AXIS_TERM, RIG_INPUTS, SQUARE_TERM
 from ..fitting.core import lack_of_fit, linear_fit, lstsq_svd
-from ..fitting.data import ROW_SLICE, unique_small_ints
+from ..fitting.data import unique_small_ints
+from ..fitting.distributions import chi2_sf, t_ppf
 from ..physics.axes import parse_signed_axis
 from ..physics.geometry import geometry_of
 from ..physics.instrument import indicated_acceleration, output_derivative
@@ -437,9 +437,9 @@ def fit_points(meta: Mapping, data: pd.DataFrame) -> tuple[list[dict], pd.DataFr
 
 # --------------------------------------------------------------------------- temperature model
 
-def _wls_line(x, y, u, birge: bool = True) -> dict[str, Any]:
+def _wls_line(x, y, u) -> dict[str, Any]:
     """Weighted LS y = p0 + p1 x with weights 1/u^2 (:func:`accelcal.fitting.core.linear_fit` on
-    the columns of :func:`temperature_design`, x = T - T_ref).  When ``birge`` and the core's
+    the columns of :func:`temperature_design`, x = T - T_ref).  When the core's
     chi-square test fails at 5 % for nu = N - 2 (the scatter is not explained by the
     per-point uncertainties: base tilt drift, tilt tides, an unmodelled temperature
     dependence) the covariance is multiplied by chi2/nu (the Birge ratio squared)."""
@@ -449,17 +449,15 @@ def _wls_line(x, y, u, birge: bool = True) -> dict[str, Any]:
     res = linear_fit(X, y, u, ["p0", "p1"], residual_scale=False)
     chi2, nu = res.chi2, N - 2
     test = lack_of_fit(chi2, nu, alpha=0.05)
-    applied = bool(birge and test.status == "inadequate")
+    applied = test.status == "inadequate"
     cov = res.cov_noise * (test.factor ** 2 if applied else 1.0)
-    scale = chi2 / nu if nu > 0 else float("nan")
-    return {"p": res.values, "cov": cov, "chi2": chi2, "nu": nu, "residuals": y - X @ res.values,
-            "birge_applied": applied, "birge_ratio": math.sqrt(scale) if nu > 0 else float("nan")}
+    return {"p": res.values, "cov": cov, "chi2": chi2, "nu": nu, "birge_applied": applied,
+            "birge_ratio": math.sqrt(chi2 / nu) if nu > 0 else float("nan")}
 
 
 def fit_temperature_model(temp_c: Sequence[float], K0: Sequence[float], u_K0: Sequence[float],
                           K1: Sequence[float], u_K1: Sequence[float], t_ref: float = T_REF_C,
-                          birge: bool = True, level: float = 0.95,
-                          dof_u: float | None = None,
+                          level: float = 0.95, dof_u: float | None = None,
                           levels: Sequence[float] | None = None) -> dict[str, Any]:
     """Fit the effects.md temperature model across temperature points (Zhang et al. 2021,
     paper 001).
@@ -479,9 +477,6 @@ def fit_temperature_model(temp_c: Sequence[float], K0: Sequence[float], u_K0: Se
         Per-point scale factor and its standard uncertainty [output_unit/(m/s2)].
     t_ref : float
         T_ref [degC].
-    birge : bool
-        When chi2 of a line fails the core's test at 5 % (nu = N - 2), scale that line's
-        covariance by chi2/nu.
     level : float
         Coverage probability of the intervals.
     dof_u : float, optional
@@ -503,8 +498,8 @@ def fit_temperature_model(temp_c: Sequence[float], K0: Sequence[float], u_K0: Se
     if N < 2:
         raise ValueError("the temperature model needs at least two temperature points")
     x = T - t_ref
-    f0 = _wls_line(x, K0, u_K0, birge)
-    f1 = _wls_line(x, K1, u_K1, birge)
+    f0 = _wls_line(x, K0, u_K0)
+    f1 = _wls_line(x, K1, u_K1)
     nu = N - 2
     p0, p1 = f1["p"]
     c = f1["cov"]
@@ -521,7 +516,7 @@ def fit_temperature_model(temp_c: Sequence[float], K0: Sequence[float], u_K0: Se
            "chi2_K0": f0["chi2"], "chi2_K1": f1["chi2"], "nu": nu}
     for k, f in (("K0", f0), ("K0T", f0), ("K1", f1), ("K1T", f1)):
         dof = nu if (f["birge_applied"] or dof_u is None) else float(dof_u)
-        tq = float(stats.t.ppf(0.5 + level / 2.0, dof)) if dof > 0 else float("nan")
+        tq = float(t_ppf(0.5 + level / 2.0, dof)) if dof > 0 else float("nan")
         v, uu = out[k], out["u_" + k]
         out["dof_" + k] = dof
         out["t_factor_" + k] = tq
@@ -614,7 +609,7 @@ def scale_factor_time_trend(points: list[dict], model: Mapping) -> dict[str, Any
     u = np.array([p["u_K1_pooled"] for p in pts]) / K1fit
     if np.ptp(t_h) == 0 or not np.all(np.isfinite(u)) or np.any(u <= 0):
         return {}
-    f = _wls_line(t_h - t_h.mean(), r, u, birge=True)
+    f = _wls_line(t_h - t_h.mean(), r, u)
     slope, us = float(f["p"][1]), math.sqrt(f["cov"][1, 1])
     return {"slope_ppm_per_h": slope * 1e6, "u_slope_ppm_per_h": us * 1e6,
             "significant": bool(abs(slope) > 3.0 * us), "note": "relative K1 residual vs time"}
@@ -694,28 +689,17 @@ def fixed_point_method(meta: Mapping, pm: pd.DataFrame, s_pos: float | None = No
 
 # --------------------------------------------------------------------------- compensation
 
-def _model_values(model) -> dict[str, float]:
-    """K0, K1, K0T, K1T from a dict of floats, a fit dict, or a list of CoefficientResult."""
-    if isinstance(model, Mapping):
-        return {k: float(model.get(k, 0.0 if k != "K1" else 1.0)) for k in ("K0", "K1", "K0T", "K1T")}
-    vals = {"K0": 0.0, "K1": 1.0, "K0T": 0.0, "K1T": 0.0}
-    for c in model:
-        if getattr(c, "name", None) in vals:
-            vals[c.name] = float(c.value)
-    return vals
-
-
 def compensate(output, temp_c, model, input_m_s2=0.0, t_ref: float = T_REF_C) -> np.ndarray:
     """Remove the temperature model from an output series (paper 001, flight-data compensation).
 
     output: E (output_unit); temp_c: instrument temperature (degC), same length;
-    model: K0 (m/s^2), K1 (output_unit/(m/s^2)), K0T (m/s^2/degC), K1T (1/degC) as a dict or
-    CoefficientResult list; input_m_s2: the known IA input to take out (scalar or series).
+    model: K0 (m/s^2), K1 (output_unit/(m/s^2)), K0T (m/s^2/degC), K1T (1/degC) by name (a
+    missing one is 0, K1 1); input_m_s2: the known IA input to take out (scalar or series).
     Returns the residual acceleration (m/s^2):
 
         r = E / (K1 (1 + K1T (T - t_ref))) - (K0 + K0T (T - t_ref)) - input
     """
-    m = _model_values(model)
+    m = {k: float(model.get(k, 1.0 if k == "K1" else 0.0)) for k in ("K0", "K1", "K0T", "K1T")}
     dT = np.asarray(temp_c, float) - t_ref
     E = np.asarray(output, float)
     return E / (m["K1"] * (1.0 + m["K1T"] * dT)) - (m["K0"] + m["K0T"] * dT) - np.asarray(input_m_s2, float)
@@ -874,11 +858,8 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = ""
         del fin
         # the IA input with the fitted in-plane cross term: a_i + Kx a_x of the forward model
         Kx = float(np.mean([p["cross_term"] for p in fitted])) if fitted else 0.0
-        rot = d["rotation_deg"].to_numpy(float)
-        inp = np.empty(rot.shape)
-        for lo in range(0, rot.size, ROW_SLICE):    # a slice at a time: the same numbers
-            inp[lo:lo + ROW_SLICE] = indicated_acceleration({geo["cross_term"]: Kx},
-                                                            specific_force_at(meta, rot[lo:lo + ROW_SLICE]))
+        inp = indicated_acceleration({geo["cross_term"]: Kx},
+                                     specific_force_at(meta, d["rotation_deg"].to_numpy(float)))
         E = d["output"].to_numpy(float)
         # one series of the run's length at a time
         before = temperature_correlation(compensate(E, T, {"K0": model["K0"], "K1": model["K1"]}, inp), T)
@@ -1007,7 +988,7 @@ def campaign_records(runs: Sequence, steps: Mapping[str, Any]) -> list:
 
 
 def mc_truth(c: Mapping[str, float], eff: Mapping[str, float], test: Mapping[str, Any], g: float,
-             notes: Mapping[str, str]) -> dict[tuple[str, str], tuple[float, str]]:
+             records: Mapping[str, CoefficientResult]) -> dict[tuple[str, str], tuple[float, str]]:
     """What each paper-001 coefficient estimates in a simulated test (tilt gamma, normal axis
     n with sign ns, cos axis c): K0 -> the apparent bias at 20 degC with the normal axis'
     cross and square terms and the mean centripetal-free square term of the tilt plane;
@@ -1086,7 +1067,7 @@ def fit_checks(extras: Mapping[str, Any]) -> list[FitCheck]:
         m = (t or {}).get("temperature_model") or {}
         for k in ("K0", "K1"):
             chi2, nu = m.get(f"chi2_{k}"), m.get("nu")
-            p = float(stats.chi2.sf(chi2, nu)) if chi2 is not None and nu else None
+            p = float(chi2_sf(chi2, nu)) if chi2 is not None and nu else None
             out.append(FitCheck("thermal", run, f"temperature model of {k} (χ² of the point values)",
                                 f"χ² = {f(chi2, '.3g')}, Birge {f(m.get(f'birge_ratio_{k}'), '.3g')}", f(nu), p))
         tr = (t or {}).get("scale_factor_time_trend") or {}

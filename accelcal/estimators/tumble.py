@@ -81,12 +81,8 @@ def _head(meta: Mapping) -> TumbleHead:
 
 
 def _clean(data) -> pd.DataFrame:
-    cols = {k: np.asarray(data[k]) for k in ("angle_deg", "output")}
-    for k in ("time_s", "position", "temp_c"):
-        try:
-            cols[k] = np.asarray(data[k])
-        except (KeyError, IndexError):
-            pass
+    cols = {k: np.asarray(data[k]) for k in ("angle_deg", "output", "time_s", "position", "temp_c")
+            if k in data or k in ("angle_deg", "output")}
     n = len(cols["angle_deg"])
     if any(len(v) != n for v in cols.values()):
         raise ValueError(f"tumble columns of different lengths: { {k: len(v) for k, v in cols.items()} }")
@@ -158,9 +154,8 @@ class TumbleRun:
     g_local_m_s2 : float
     extras : tuple of str
         Extra instrument terms fitted (:func:`separable_extra_terms`).
-    lack_of_fit : dict or None
-        F, p, dof_lof = P - p, dof_pe = n - P, s_pure_error [output_unit], status: the
-        position means against the within-position scatter; None when untestable.
+    s_pure_error : float
+        Within-position (pure error) standard deviation of the readings [output_unit].
     start : dict
         Start values by name (theta0 = 0; K0, K1, K2 from the nominal input).
     two_position : dict
@@ -179,7 +174,7 @@ class TumbleRun:
     position_means: pd.DataFrame
     g_local_m_s2: float
     extras: tuple[str, ...] = ()
-    lack_of_fit: dict | None = None
+    s_pure_error: float = float("nan")
     start: dict = field(default_factory=dict)
     two_position: dict = field(default_factory=dict)
     model_choice: dict | None = None
@@ -194,6 +189,17 @@ class TumbleRun:
     def std_uncertainties(self) -> dict[str, float]:
         """Standard uncertainties by name, lack-of-fit scaled [SI units]."""
         return {k: self.result.std(k) for k in self.result.names}
+
+    @property
+    def lack_of_fit(self) -> dict | None:
+        """F, p, dof_lof = P - p, dof_pe = n - P, s_pure_error [output_unit], status of the
+        test of the position means against the within-position scatter (``result.lof``);
+        None when untestable."""
+        lof = self.result.lof
+        if lof.status == "untestable":
+            return None
+        return {"F": float(lof.statistic), "p": float(lof.p_value), "dof_lof": lof.dof_lof, "dof_pe": lof.dof_pe,
+                "s_pure_error": self.s_pure_error, "status": lof.status}
 
     @property
     def dof(self) -> int:
@@ -309,10 +315,6 @@ def fit_run(meta: Mapping, data, extra_terms: Sequence[str] = ()) -> TumbleRun:
     ss_pe = float(((r - grp.mean(r)[grp.ids]) ** 2).sum())
     dof_lof, dof_pe = len(pm) - npar, n - len(pm)
     test = pure_error_test(ss_lof, dof_lof, ss_pe, dof_pe)
-    lof = None
-    if test.status != "untestable":
-        lof = {"F": float(test.statistic), "p": float(test.p_value), "dof_lof": dof_lof,
-               "dof_pe": dof_pe, "s_pure_error": float(np.sqrt(ss_pe / dof_pe)), "status": test.status}
     # residuals whitened by s (equal-variance readings): the noise-model covariance is
     # s^2 (J^T J)^+, scaled by sqrt(F) when the lack-of-fit test fails
     w = 1.0 / np.sqrt(s2) if np.isfinite(s2) and s2 > 0 else 1.0
@@ -323,7 +325,8 @@ def fit_run(meta: Mapping, data, extra_terms: Sequence[str] = ()) -> TumbleRun:
         raise ValueError(f"tumble fit is singular: the head angles do not separate {names}")
     return TumbleRun(str(meta.get("run_id")), str(meta.get("rig_id", "")), geometry_of(meta), result,
                      float(np.sqrt(s2)), float(np.sqrt(rss / n)), n, pm, float(meta["g_local_m_s2"]), extras,
-                     lof, dict(zip(names, map(float, p0))))
+                     float(np.sqrt(ss_pe / dof_pe)) if dof_pe > 0 else float("nan"),
+                     dict(zip(names, map(float, p0))))
 
 
 def _mean_at(pm: pd.DataFrame, angle: float, tol: float) -> float | None:
@@ -384,7 +387,7 @@ def two_position(meta: Mapping, data, angle_tol_deg: float = 1e-3, means: pd.Dat
 
 
 
-def fit_tumble_run(meta: Mapping, data, alpha: float = 0.01) -> TumbleRun:
+def fit_tumble_run(meta: Mapping, data) -> TumbleRun:
     """Paper 003 on one run, with its model adequacy.
 
     Fits K0, K1, K2, theta0 (:func:`fit_run`); when that fails its lack-of-fit test the IA
@@ -401,20 +404,20 @@ def fit_tumble_run(meta: Mapping, data, alpha: float = 0.01) -> TumbleRun:
     run_id = str(meta.get("run_id"))
     fit = fit_run(meta, data)
     choice, flags = None, []
-    lof = fit.lack_of_fit
-    if lof and lof["p"] < alpha:
+    lof = fit.result.lof
+    if lof.status == "inadequate":
         cross = tuple(k for k in separable_extra_terms(meta) if k in ("Kio", "Kip"))
         try:
             fit2 = fit_run(meta, data, cross)
         except Exception:
             fit2 = None
-        if fit2 is not None and fit2.lack_of_fit and fit2.lack_of_fit["p"] > lof["p"]:
-            choice = {"run_id": run_id, "basic_lof_p": lof["p"], "extended_terms": list(cross),
-                      "extended_lof_p": fit2.lack_of_fit["p"]}
-            fit = fit2
-        if fit.lack_of_fit and fit.lack_of_fit["p"] < alpha:
-            flags.append(f"tumble {run_id}: model inadequate (lack-of-fit p = {fit.lack_of_fit['p']:.2g}); "
-                         f"used and flagged, u scaled by sqrt(F) = {math.sqrt(fit.lack_of_fit['F']):.3g}")
+        if fit2 is not None and fit2.result.lof.status != "untestable" and fit2.result.lof.p_value > lof.p_value:
+            choice = {"run_id": run_id, "basic_lof_p": float(lof.p_value), "extended_terms": list(cross),
+                      "extended_lof_p": float(fit2.result.lof.p_value)}
+            fit, lof = fit2, fit2.result.lof
+        if lof.status == "inadequate":
+            flags.append(f"tumble {run_id}: model inadequate (lack-of-fit p = {lof.p_value:.2g}); "
+                         f"used and flagged, u scaled by sqrt(F) = {math.sqrt(lof.statistic):.3g}")
     if fit.result.lof.status == "untestable":
         flags.append(f"tumble {run_id}: untestable: {len(fit.position_means)} head positions for "
                      f"{len(fit.result.names)} parameters leave no degrees of freedom to test the model; "
@@ -444,6 +447,8 @@ class Pooled:
         Birge ratio sqrt(chi2 / (N - 1)) and P(chi2 > observed) (NaN for one run).
     disagree : bool
         p < 0.01: the runs disagree beyond their uncertainties.
+    head : str
+        The head axis of a row pooled per head in a campaign of several heads, else ''.
     """
     name: str
     key: str
@@ -454,6 +459,7 @@ class Pooled:
     birge: float = float("nan")
     p_value: float = float("nan")
     disagree: bool = False
+    head: str = ""
 
     @property
     def weights(self) -> np.ndarray:
@@ -519,7 +525,8 @@ def pool_runs(runs: Sequence[TumbleRun]) -> dict[str, Pooled]:
     out = {k: pool(k, k, runs) for k in ("K0", "K1")}
     for g, rr in groups.items():
         for k in ("K2", "theta0"):
-            out[_group_name(k, g, several)] = pool(_group_name(k, g, several), k, rr)
+            out[_group_name(k, g, several)] = replace(pool(_group_name(k, g, several), k, rr),
+                                                      head=g if several else "")
     for k in sorted({e for r in runs for e in r.extras}):
         out[k] = pool(k, k, [r for r in runs if k in r.extras])
     return out
@@ -539,8 +546,8 @@ _NOTES = {"theta0": _ALIAS_NOTE, "K2": "a single tumble gives K2 - Koo (Koo alia
 
 
 def tumble_records(pooled: Mapping[str, Pooled], *, square_terms: Mapping[str, tuple[float, float]] | None = None,
-                   k1: tuple[float, float] | None = None, g: float = 9.80665, out_unit: str = "out",
-                   method: str = METHOD) -> tuple[list[CoefficientResult], list[BudgetTerm], set[str]]:
+                   k1: tuple[float, float] | None = None, out_unit: str = "out"
+                   ) -> tuple[list[CoefficientResult], list[BudgetTerm], set[str]]:
     """Coefficient records and GUM budgets of the campaign's tumble quantities (paper 003).
 
     Parameters
@@ -552,8 +559,6 @@ def tumble_records(pooled: Mapping[str, Pooled], *, square_terms: Mapping[str, t
         measures K2 minus the square term of its other turning axis, which is added back.
     k1 : (delta, u_delta), optional
         :func:`k1_correction`; K1 is divided by 1 + delta.
-    g : float
-        Local gravity [m/s2] (the note of an uncorrected K1).
     out_unit : str
         The runs' output unit.
 
@@ -609,14 +614,15 @@ def tumble_records(pooled: Mapping[str, Pooled], *, square_terms: Mapping[str, t
         else:
             if _NOTES.get(q.key):
                 note.insert(0, _NOTES[q.key])
-        if q.key == "theta0" and "[" in name:
+        if q.key == "theta0" and q.head:
             note.append("initial misalignment of this dividing head (never pooled across heads)")
         note += pool_notes
-        gb = unc.linear_budget(name, terms, method=method, rig_id=_rig(q), value=value)
+        gb = unc.linear_budget(name, terms, method=METHOD, rig_id=_rig(q), value=value)
         u = float(gb.u_c) if math.isfinite(q.u) else float("nan")
         dof = float(q.runs[0].dof) if len(q.runs) == 1 else None
-        coeffs.append(TumbleCoefficient(name, float(value), u, unit, method, _rig(q), dof, "; ".join(note),
-                                        less=tuple(adds) if q.key == "K2" and name not in corrected else ()))
+        coeffs.append(TumbleCoefficient(name, float(value), u, unit, METHOD, _rig(q), dof, "; ".join(note),
+                                        less=tuple(adds) if q.key == "K2" and name not in corrected else (),
+                                        key=q.key, head=q.head))
         budget += gb.terms
     return coeffs, budget, corrected
 
@@ -638,8 +644,8 @@ def _fit_terms(q: Pooled) -> tuple[list[tuple], list[str]]:
         if factor > 1.0:
             rows.append((f"model inadequacy of {r.run_id}: lack-of-fit scaling sqrt(F) = {factor:.3g}", 0.0,
                          u_noise * math.sqrt(factor ** 2 - 1.0), 1.0, "A", "normal"))
-        if r.lack_of_fit and r.lack_of_fit["p"] < 0.01:
-            notes.append(f"lack of fit: F = {r.lack_of_fit['F']:.3g}, p = {r.lack_of_fit['p']:.2g}")
+        if r.result.lof.status == "inadequate":
+            notes.append(f"lack of fit: F = {r.result.lof.statistic:.3g}, p = {r.result.lof.p_value:.2g}")
         if r.result.lof.status == "untestable":
             notes.append("untestable: as many head positions as parameters, u from reading noise only")
         return rows, notes
@@ -813,7 +819,7 @@ def campaign_records(runs: Sequence, steps: Mapping[str, Any]) -> list:
     if tumble is None:
         return []
     coeffs, budget, corrected = tumble_records(tumble.pooled, square_terms=_square_terms(_centrifuge_rigs(steps)),
-                                               k1=campaign_k1_correction(steps), g=tumble.g,
+                                               k1=campaign_k1_correction(steps),
                                                out_unit=str(runs[0].meta.get("output_unit", "out")))
     # where the campaign measures the temperature coefficients, K0 and K1 mean their values
     # at 20 degC, and a tumble's are at its own temperature
@@ -822,7 +828,7 @@ def campaign_records(runs: Sequence, steps: Mapping[str, Any]) -> list:
     return [Records(coefficients=coeffs, budget=budget, extras=_tumble_extras(tumble), flags=flags).checked()]
 
 
-def name_combinations(runs: Sequence, coeffs: list[CoefficientResult], budget: list[BudgetTerm],
+def name_combinations(runs: Sequence, coeffs: list[TumbleCoefficient], budget: list[BudgetTerm],
                       effects: Sequence[str] = (), corrected: set[str] = frozenset()) -> list[str]:
     """Name each tumble row after what the tumble runs determine (IEEE 1293): one
     head measures K0 + Koo g^2, K2 - Koo and theta0 - Ko (head about PA), not K0, K2, theta0.
@@ -867,7 +873,7 @@ def name_combinations(runs: Sequence, coeffs: list[CoefficientResult], budget: l
                               acting=ACTING)
         # the paper method fits K0, K1, K2, theta0 and the extra terms it chose; every other
         # term of the model is what its rows take up, where the runs cannot tell it apart
-        fitted = {"K0", "K1", "K2", "initial_misalignment"} | {c.name.split("[", 1)[0] for c in coeffs}
+        fitted = {"K0", "K1", "K2", "initial_misalignment"} | {c.key for c in coeffs}
         p = model.start()
         model = model.with_holds(model.select(p, hold={
             prm.name: "not a parameter of the tumble fit" for i, prm in enumerate(model.params)
@@ -878,10 +884,10 @@ def name_combinations(runs: Sequence, coeffs: list[CoefficientResult], budget: l
         answer[grp] = {("theta0" if k == "initial_misalignment" else k): c.factors for k, c in meas.items()}
     flags = []
     for c in coeffs:
-        key, _, grp = c.name.rstrip("]").partition("[")
+        key = c.key
         if c.name in corrected:
             continue
-        combos = [answer[g].get(key, {}) for g in ([grp] if grp else groups)]
+        combos = [answer[g].get(key, {}) for g in ([c.head] if c.head else groups)]
         if len({combination_formula(key, t) for t in combos}) > 1:
             flags.append(f"{c.name} ({METHOD}): the heads measure different combinations: " + "; ".join(
                 combination_formula(key, t) for t in combos) + "; the pooled value is none of them")
@@ -898,7 +904,7 @@ def name_combinations(runs: Sequence, coeffs: list[CoefficientResult], budget: l
 
 
 def mc_truth(c: Mapping[str, float], eff: Mapping[str, float], test: Mapping[str, Any], g: float,
-             notes: Mapping[str, str]) -> dict[tuple[str, str], tuple[float, str]]:
+             records: Mapping[str, CoefficientResult]) -> dict[tuple[str, str], tuple[float, str]]:
     """What each tumble coefficient estimates in a simulated test (cos_axis = +-IA, sin
     axis s with sign ss, cos sign cs, temperature T): K0 -> K0(T) + K_ss g^2; K1 -> K1(T);
     K2 -> K2 when the centrifuge's K_ss was added, else K2 - K_ss; theta0 ->
@@ -914,8 +920,9 @@ def mc_truth(c: Mapping[str, float], eff: Mapping[str, float], test: Mapping[str
         The scenario's test (``heads``, ``temp_c``, ``rig_id``).
     g : float
         Local gravity [m/s2].
-    notes : mapping
-        Coefficient name -> note of the processed campaign (whether K2 was corrected).
+    records : mapping
+        Coefficient name -> record of the processed campaign: a K2
+        :class:`~.records.TumbleCoefficient` less by no square term is corrected.
 
     Returns
     -------
@@ -932,7 +939,8 @@ def mc_truth(c: Mapping[str, float], eff: Mapping[str, float], test: Mapping[str
     dT = float(test.get("temp_c", 23.0)) - T_REF_C
     Kss, Ks = c[SQUARE_TERM[si]], c[CROSS_AXIS_TERM[si]]
     sq, cr = SQUARE_TERM[si], CROSS_AXIS_TERM[si]
-    corrected = "from the centrifuge added" in notes.get("K2", "")
+    k2 = records.get("K2")
+    corrected = isinstance(k2, TumbleCoefficient) and not k2.less
     cross = CROSS_TERM[frozenset((0, si))]
     return {("K0", rig): (c["K0"] + c["K0T"] * dT + Kss * g * g, f"K0(T) + {sq} g^2 (apparent bias of a tumble)"),
             ("K1", rig): (c["K1"] * (1 + c["K1T"] * dT), "K1(T)"),

@@ -1,11 +1,9 @@
-"""Measurement uncertainty: GUM law of propagation (JCGM 100:2008) and the Monte Carlo
-method (JCGM 101:2008), plus paper 000's u(Kip) (§3.2, eq 10).
+"""Measurement uncertainty: GUM law of propagation (JCGM 100:2008), the JCGM 101:2008
+check of a linear budget by propagation of distributions, and paper 000's u(Kip) (§3.2,
+eq 10).
 
-Conventions.  A measurement function ``func(*x)`` takes the input quantities
-positionally, in the order of ``names``/``values``, and must broadcast over numpy
-arrays (the Monte Carlo calls it once with arrays of n draws each; a function that
-does not broadcast is called draw by draw).  Units are whatever the inputs carry;
-the output unit is that of ``func``.
+A budget is linear in its inputs (every coefficient of the paper methods is, to first
+order, JCGM 100 eq 10): one line per input with its sensitivity, in the input's own unit.
 
 Distributions (by their standard uncertainty u, JCGM 101 §6.4):
   'normal'      N(x, u^2)
@@ -18,14 +16,15 @@ Distributions (by their standard uncertainty u, JCGM 101 §6.4):
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..effects import split_combination
 from ..results import BudgetTerm
-from ..fitting.distributions import norm_ppf, t_ppf
+from .records import TumbleCoefficient
+from ..fitting.distributions import norm_ppf
 
 #: half-width / standard uncertainty of the bounded distributions.
 HALF_WIDTH_PER_U = {"uniform": math.sqrt(3.0), "triangular": math.sqrt(6.0), "arcsine": math.sqrt(2.0)}
@@ -50,42 +49,17 @@ def uniform_u(half_width: float) -> float:
 
 @dataclass
 class GumBudget:
-    """Result of :func:`gum_budget`.  Unpacks as ``value, u_c, terms = gum_budget(...)``.
+    """Result of :func:`linear_budget`.  Unpacks as ``value, u_c, terms = linear_budget(...)``.
 
-    value: y = f(x) (output unit); u_c: combined standard uncertainty (JCGM 100 eq 10/13);
-    terms: one :class:`BudgetTerm` per input (contribution = |c_i| u_i);
-    nu_eff: Welch-Satterthwaite effective dof (JCGM 100 G.4, eq G.2b), inf when no dofs
-    are given; k: coverage factor used; U = k u_c; p: coverage probability of k when
-    taken from the t-distribution (None for a fixed k).
+    value: y (output unit); u_c: combined standard uncertainty (JCGM 100 eq 10);
+    terms: one :class:`BudgetTerm` per input (contribution = |c_i| u_i).
     """
     value: float
     u_c: float
     terms: list[BudgetTerm]
-    nu_eff: float = math.inf
-    k: float = 2.0
-    U: float = math.nan
-    p: float | None = None
-    sensitivities: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def __iter__(self):
         return iter((self.value, self.u_c, self.terms))
-
-
-def sensitivity_coefficients(func: Callable, values: Sequence[float], std_uncertainties: Sequence[float],
-                             rel_step: float = 1e-3) -> np.ndarray:
-    """c_i = df/dx_i at x (JCGM 100 5.1.3) by central differences with step h_i =
-    rel_step * u_i (so the derivative is taken over the range the uncertainty spans;
-    exact for functions quadratic in x_i); h_i = rel_step * max(|x_i|, 1) when u_i = 0."""
-    x = np.asarray(values, float)
-    u = np.asarray(std_uncertainties, float)
-    c = np.empty_like(x)
-    for i in range(x.size):
-        h = rel_step * (u[i] if u[i] > 0 else max(abs(x[i]), 1.0))
-        xp, xm = x.copy(), x.copy()
-        xp[i] += h
-        xm[i] -= h
-        c[i] = (float(func(*xp)) - float(func(*xm))) / (2 * h)
-    return c
 
 
 def welch_satterthwaite(contributions: Sequence[float], dofs: Sequence[float]) -> float:
@@ -115,91 +89,6 @@ def welch_satterthwaite(contributions: Sequence[float], dofs: Sequence[float]) -
     return math.inf if denom == 0 else uc4 / denom
 
 
-def gum_budget(func: Callable, names: Sequence[str], values: Sequence[float],
-               std_uncertainties: Sequence[float], distributions: Sequence[str] | None = None,
-               types: Sequence[str] | None = None, coefficient: str = "", *,
-               sensitivities: Sequence[float] | None = None, correlation: np.ndarray | None = None,
-               dofs: Sequence[float] | None = None, k: float = 2.0, use_t: bool = False,
-               p: float = 0.95) -> GumBudget:
-    """GUM uncertainty budget of y = func(*x) (JCGM 100:2008 §5).
-
-    .. math::
-
-        u_c^2(y) = \\sum_{i,j} c_i c_j u(x_i) u(x_j) r(x_i, x_j), \\quad
-        c_i = \\partial f / \\partial x_i
-
-    (JCGM 100 eq 13; eq 10 for uncorrelated inputs).
-
-    Parameters
-    ----------
-    func : callable
-        The measurement function, inputs positional in ``names`` order.
-    names : sequence of str
-    values, std_uncertainties : sequence of float
-        x_i and u(x_i) [their own units].
-    distributions : sequence of str, optional
-        Per input (default 'normal'), recorded in the budget.
-    types : sequence of str, optional
-        'A'/'B' (default 'A' for normal and t, 'B' otherwise).
-    coefficient : str
-        Name of the output (e.g. 'Kip').
-    sensitivities : sequence of float, optional
-        Analytic c_i; default central differences (:func:`sensitivity_coefficients`).
-    correlation : ndarray, optional
-        r(x_i, x_j) (default uncorrelated).
-    dofs : sequence of float, optional
-        nu_i per input (inf for an exactly known Type B) -> Welch-Satterthwaite nu_eff
-        (JCGM 100 G.4; uncorrelated inputs only).
-    k : float
-        Coverage factor when ``use_t`` is False (default 2).
-    use_t, p : bool, float
-        k = t_{(1+p)/2}(nu_eff) (JCGM 100 G.3, G.4).
-
-    Returns
-    -------
-    GumBudget
-        y [unit of func], u_c, one :class:`~accelcal.results.BudgetTerm` per input
-        (contribution |c_i| u_i), nu_eff, k, U = k u_c.  Tested against JCGM 100 Annex H.1
-        (tests/test_uncertainty.py).
-    """
-    x = np.asarray(values, float)
-    u = np.asarray(std_uncertainties, float)
-    m = x.size
-    if len(names) != m or u.size != m:
-        raise ValueError("names, values and std_uncertainties must have the same length")
-    dist = list(distributions) if distributions is not None else ["normal"] * m
-    for d in dist:
-        if d not in DISTRIBUTIONS:
-            raise ValueError(f"unknown distribution {d!r}; known: {DISTRIBUTIONS}")
-    typ = list(types) if types is not None else ["A" if d in ("normal", "t") else "B" for d in dist]
-    c = (np.asarray(sensitivities, float) if sensitivities is not None
-         else sensitivity_coefficients(func, x, u))
-    y = float(func(*x))
-    cu = c * u
-    if correlation is None:
-        uc2 = float((cu**2).sum())
-    else:
-        r = np.asarray(correlation, float)
-        if r.shape != (m, m) or not np.allclose(r, r.T) or not np.allclose(np.diag(r), 1.0):
-            raise ValueError("correlation must be a symmetric (m, m) matrix with unit diagonal")
-        uc2 = float(cu @ r @ cu)
-    uc = math.sqrt(max(uc2, 0.0))
-    terms = [BudgetTerm(coefficient=coefficient, quantity=str(nm), value=float(xi),
-                        std_uncertainty=float(ui), sensitivity=float(ci), contribution=float(abs(ci * ui)),
-                        type=str(t), distribution=str(d))
-             for nm, xi, ui, ci, t, d in zip(names, x, u, c, typ, dist)]
-    nu_eff = math.inf
-    if dofs is not None:
-        if correlation is not None and not np.allclose(correlation, np.eye(m)):
-            raise ValueError("Welch-Satterthwaite needs uncorrelated inputs")
-        nu_eff = welch_satterthwaite(np.abs(cu), dofs)
-    kk, pp = float(k), None
-    if use_t:
-        pp = p
-        kk = float(t_ppf((1 + p) / 2, nu_eff)) if math.isfinite(nu_eff) else float(norm_ppf((1 + p) / 2))
-    return GumBudget(value=y, u_c=uc, terms=terms, nu_eff=nu_eff, k=kk, U=kk * uc, p=pp, sensitivities=c)
-
-
 def linear_budget(coefficient: str, terms: Sequence[tuple], *, method: str = "", rig_id: str = "",
                   value: float | None = None) -> GumBudget:
     """GUM budget (JCGM 100 eq 10) of a coefficient that depends linearly on its inputs.
@@ -222,102 +111,17 @@ def linear_budget(coefficient: str, terms: Sequence[tuple], *, method: str = "",
     GumBudget
         u_c = sqrt(sum (c_i u_i)^2) (uncorrelated inputs); terms carry ``method`` and ``rig_id``.
     """
-    names = [str(t[0]) for t in terms]
+    for t in terms:
+        if t[5] not in DISTRIBUTIONS:
+            raise ValueError(f"unknown distribution {t[5]!r}; known: {DISTRIBUTIONS}")
     vals = np.array([float(t[1]) for t in terms])
     us = np.array([float(t[2]) for t in terms])
     cs = np.array([float(t[3]) for t in terms])
-    gb = gum_budget(lambda *x: float(np.dot(cs, x)), names, vals, us, [t[5] for t in terms],
-                    [t[4] for t in terms], coefficient, sensitivities=cs)
-    for b in gb.terms:
-        b.method, b.rig_id = method, rig_id
-    if value is not None:
-        gb.value = float(value)
-    return gb
-
-
-@dataclass
-class MonteCarloResult:
-    """JCGM 101 §7 summary of the output distribution (output unit).
-
-    mean, std: estimate y and standard uncertainty u(y) (JCGM 101 7.6);
-    low, high: probabilistically symmetric 100p % coverage interval (JCGM 101 7.7);
-    shortest_low, shortest_high: the shortest 100p % coverage interval (7.7.2); n, p, seed."""
-    mean: float
-    std: float
-    low: float
-    high: float
-    shortest_low: float
-    shortest_high: float
-    n: int
-    p: float
-    seed: int | None
-
-
-def _draw(rng: np.random.Generator, x, u, dist, n, dofs=None, correlation=None) -> list[np.ndarray]:
-    m = len(x)
-    if correlation is not None:
-        if any(d != "normal" for d in dist):
-            raise ValueError("correlated inputs are supported for normal distributions only")
-        cov = np.asarray(correlation, float) * np.outer(u, u)
-        return list(rng.multivariate_normal(np.asarray(x, float), cov, size=n, method="svd").T)
-    out = []
-    for i in range(m):
-        d = dist[i]
-        if d == "normal":
-            out.append(rng.normal(x[i], u[i], n))
-        elif d in HALF_WIDTH_PER_U:
-            a = HALF_WIDTH_PER_U[d] * u[i]
-            if d == "uniform":
-                out.append(rng.uniform(x[i] - a, x[i] + a, n))
-            elif d == "triangular":
-                out.append(rng.triangular(x[i] - a, x[i], x[i] + a, n))
-            else:  # arcsine: x + a sin(2 pi U), JCGM 101 6.4.6.4
-                out.append(x[i] + a * np.sin(2 * np.pi * rng.uniform(0, 1, n)))
-        elif d == "t":
-            if dofs is None or not np.isfinite(dofs[i]):
-                raise ValueError("distribution 't' needs a finite dof for its input")
-            out.append(x[i] + u[i] * rng.standard_t(dofs[i], n))
-        else:
-            raise ValueError(f"unknown distribution {d!r}; known: {DISTRIBUTIONS}")
-    return out
-
-
-def coverage_interval(samples: np.ndarray, p: float = 0.95) -> tuple[float, float, float, float]:
-    """(low, high) probabilistically symmetric and (low, high) shortest 100p % coverage
-    intervals from M draws (JCGM 101 7.7.1, 7.7.2: q = pM rounded, r = (M - q)/2 rounded;
-    the shortest takes the r* minimising y_(r+q) - y_(r))."""
-    y = np.sort(np.asarray(samples, float))
-    M = y.size
-    q = int(p * M + 0.5)
-    r = int((M - q) / 2 + 0.5)               # 1-based index of the lower end
-    low, high = y[r - 1], y[min(r + q, M) - 1]
-    widths = y[q:] - y[:M - q]
-    j = int(np.argmin(widths))
-    return float(low), float(high), float(y[j]), float(y[j + q])
-
-
-def monte_carlo(func: Callable, values: Sequence[float], std_uncertainties: Sequence[float],
-                distributions: Sequence[str] | None = None, n: int = 200_000, seed: int | None = None,
-                p: float = 0.95, dofs: Sequence[float] | None = None,
-                correlation: np.ndarray | None = None) -> MonteCarloResult:
-    """Propagation of distributions by Monte Carlo (JCGM 101 §5-7): draw n values of each
-    input from its distribution (module docstring; a bounded distribution has the
-    half-width that gives the stated u), evaluate y = func(*x), and summarise.
-    Returns :class:`MonteCarloResult` (mean, std, 95 % probabilistically symmetric interval)."""
-    x = np.asarray(values, float)
-    u = np.asarray(std_uncertainties, float)
-    dist = list(distributions) if distributions is not None else ["normal"] * x.size
-    rng = np.random.default_rng(seed)
-    draws = _draw(rng, x, u, dist, int(n), dofs, correlation)
-    try:
-        y = np.asarray(func(*draws), float)
-        if y.shape != (n,):
-            y = np.broadcast_to(y, (n,)).astype(float)
-    except (TypeError, ValueError):
-        y = np.array([float(func(*row)) for row in zip(*draws)])
-    low, high, slow, shigh = coverage_interval(y, p)
-    return MonteCarloResult(mean=float(y.mean()), std=float(y.std(ddof=1)), low=low, high=high,
-                            shortest_low=slow, shortest_high=shigh, n=int(n), p=float(p), seed=seed)
+    cu = cs * us
+    lines = [BudgetTerm(coefficient, str(t[0]), float(x), float(u), float(c), float(abs(c * u)), str(t[4]),
+                        str(t[5]), method, rig_id) for t, x, u, c in zip(terms, vals, us, cs)]
+    y = float(np.dot(cs, vals)) if value is None else float(value)
+    return GumBudget(y, math.sqrt(max(float((cu ** 2).sum()), 0.0)), lines)
 
 
 def numerical_tolerance(u: float, ndig: int = 2) -> float:
@@ -331,35 +135,6 @@ def numerical_tolerance(u: float, ndig: int = 2) -> float:
     if c >= 10**ndig:          # rounding carried into a new digit, e.g. 0.0999 -> 0.10
         l += 1
     return 0.5 * 10.0**l
-
-
-def validate_gum_with_mc(func: Callable, names: Sequence[str], values: Sequence[float],
-                         std_uncertainties: Sequence[float], distributions: Sequence[str] | None = None,
-                         *, n: int = 200_000, seed: int | None = None, p: float = 0.95, ndig: int = 2,
-                         dofs: Sequence[float] | None = None, correlation: np.ndarray | None = None,
-                         sensitivities: Sequence[float] | None = None) -> dict:
-    """Validate the GUM uncertainty framework against the Monte Carlo method (JCGM 101 §8).
-
-    GUM interval: y +- U_p with U_p = k_p u_c, k_p the (1+p)/2 quantile of the normal
-    distribution, or of t(nu_eff) when dofs are given (JCGM 100 G.6).  MC interval:
-    probabilistically symmetric 100p %.  delta = :func:`numerical_tolerance` of u_c
-    (ndig significant digits).  d_low = |y - U_p - y_low|, d_high = |y + U_p - y_high|;
-    the GUM is validated when both are <= delta (JCGM 101 8.2).  The MC endpoints carry
-    their own sampling noise (about 0.006 u_c at n = 2e5 for a normal output): with ndig = 2
-    use n >= 1e6 (or the adaptive procedure of JCGM 101 7.9), or ndig = 1.
-
-    Returns dict: gum (GumBudget), mc (MonteCarloResult), gum_low, gum_high, delta,
-    d_low, d_high, validated (bool).
-    """
-    gb = gum_budget(func, names, values, std_uncertainties, distributions, sensitivities=sensitivities,
-                    correlation=correlation, dofs=dofs, use_t=True, p=p)
-    mc = monte_carlo(func, values, std_uncertainties, distributions, n=n, seed=seed, p=p,
-                     dofs=dofs, correlation=correlation)
-    delta = numerical_tolerance(gb.u_c, ndig)
-    lo, hi = gb.value - gb.U, gb.value + gb.U
-    d_low, d_high = abs(lo - mc.low), abs(hi - mc.high)
-    return {"gum": gb, "mc": mc, "gum_low": lo, "gum_high": hi, "delta": delta,
-            "d_low": d_low, "d_high": d_high, "validated": bool(d_low <= delta and d_high <= delta)}
 
 
 def linear_output_interval(sensitivities: Sequence[float], std_uncertainties: Sequence[float],
@@ -452,7 +227,7 @@ def budget_check(method: str, rig_id: str, coefficient: str, value: float, terms
 
 
 def kip_uncertainty(u_c2: float, u_dc2: float, u_K2: float, u_Kpp: float, u_dKpp: float, *,
-                    rtol: float = 1e-9, mc_n: int = 0, seed: int | None = None) -> dict:
+                    rtol: float = 1e-9) -> dict:
     """u(Kip), paper 000 §3.2, all in s^2/m ((m/s^2)/(m/s^2)^2); inputs are standard
     uncertainties (Type B uniform ones already divided by sqrt(3), see :func:`uniform_u`).
 
@@ -462,27 +237,19 @@ def kip_uncertainty(u_c2: float, u_dc2: float, u_K2: float, u_Kpp: float, u_dKpp
                                 u = sqrt(4 (u^2(c2) + u^2(dc2)) + u^2(K2) + u^2(Kpp) + u^2(dKpp)).
 
     Returns dict: printed, gum, differ (True when they differ by more than rtol relative),
-    ratio = gum / printed, budget (list of BudgetTerm, from :func:`gum_budget`), note;
-    with mc_n > 0 also mc_std: the Monte Carlo standard deviation of Kip (JCGM 101) with
-    c2, K2, Kpp normal and dc2, dKpp uniform.
+    ratio = gum / printed, budget (list of BudgetTerm, from :func:`linear_budget`), note.
     """
     us = np.array([u_c2, u_dc2, u_K2, u_Kpp, u_dKpp], float)
     printed = math.sqrt(2 * (us[0]**2 + us[1]**2) + us[2]**2 + us[3]**2 + us[4]**2)
-
-    def kip(c2, dc2, K2, Kpp, dKpp):
-        return 2 * (c2 + dc2) - (K2 + Kpp + dKpp)
-
-    names = ["c2", "dc2", "K2", "Kpp", "dKpp"]
-    dists = ["normal", "uniform", "normal", "normal", "uniform"]
-    gb = gum_budget(kip, names, np.zeros(5), us, dists, ["A", "B", "A", "A", "B"], "Kip")
+    gb = linear_budget("Kip", [(name, 0.0, u, c, t, d) for name, u, c, t, d in zip(
+        ("c2", "dc2", "K2", "Kpp", "dKpp"), us, (2.0, 2.0, -1.0, -1.0, -1.0), "ABAAB",
+        ("normal", "uniform", "normal", "normal", "uniform"))])
     gum = gb.u_c
     differ = bool(abs(gum - printed) > rtol * max(gum, printed))
     out = {"printed": printed, "gum": gum, "differ": differ,
            "ratio": gum / printed if printed > 0 else math.nan, "budget": gb.terms,
            "note": ("paper 000 eq 10 weights u(c2), u(dc2) by 2; the GUM sensitivity of Kip to c2 "
                     "is 2, so the factor is 4" if differ else "")}
-    if mc_n > 0:
-        out["mc_std"] = monte_carlo(kip, np.zeros(5), us, dists, n=mc_n, seed=seed).std
     return out
 
 
@@ -504,8 +271,10 @@ def _with_g(runs: Sequence, key: str, dg: float) -> list:
 
 
 def _key(c) -> tuple[str, str, str, float]:
-    """(method, rig, the quantity it stands for, value) of a coefficient record."""
-    return c.method, c.rig_id, split_combination(c.name)[0], c.value
+    """(method, rig, what the row estimates, value) of a coefficient record: a tumble row by
+    its fitted parameter (:attr:`.records.TumbleCoefficient.key`); any other row by the
+    quantity its name stands for (``K0`` of ``K0(Koo)``)."""
+    return c.method, c.rig_id, c.key if isinstance(c, TumbleCoefficient) else split_combination(c.name)[0], c.value
 
 
 def add_stated_g_local(est, runs: Sequence, steps, records: list, stated) -> None:

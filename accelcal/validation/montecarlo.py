@@ -80,6 +80,7 @@ from ..fitting.data import RunCells
 from ..fitting.identify import holds
 from ..fitting.model import DESIGNED, CampaignModel
 from ..physics.rigs import INSTRUMENT_EFFECTS, rig_output, sine_drive
+from ..results import CoefficientResult
 
 #: coverage target (95 % +- 3 %) and the coverage factor of the intervals
 TARGET, TARGET_TOL, K_COVER = 0.95, 0.03, 1.96
@@ -123,9 +124,8 @@ def _campaign(sc, seed: int):
     return process_campaign([SimRunFile.from_simrun(r) for r in runs])
 
 
-def _one(args) -> list[tuple[str, str, str, float, float, str, dict]] | str:
-    """Worker: one campaign -> [(name, method, rig, value, u, note, factors)], or an error
-    string."""
+def _one(args) -> list[tuple[str, str, str, float, float, CoefficientResult]] | str:
+    """Worker: one campaign -> [(name, method, rig, value, u, record)], or an error string."""
     import warnings
     sc, seed = args
     try:
@@ -134,8 +134,8 @@ def _one(args) -> list[tuple[str, str, str, float, float, str, dict]] | str:
             res = _campaign(sc, seed)
     except Exception as exc:  # a crash is a finding, not the end of the study
         return f"seed {seed}: {type(exc).__name__}: {exc}"
-    return [(c.name, c.method, c.rig_id, float(c.value), float(c.std_uncertainty), c.note,
-             dict(c.factors)) for c in res.coefficients]
+    return [(c.name, c.method, c.rig_id, float(c.value), float(c.std_uncertainty), c)
+            for c in res.coefficients]
 
 
 # ---------------------------------------------------------------- truth
@@ -159,13 +159,13 @@ def _effects_for(sc, test: Mapping) -> dict[str, float]:
     return {k: float(v) for k, v in eff.items() if test["kind"] in EFFECTS[k].tests}
 
 
-def truth_table(scenario, notes: Mapping[tuple[str, str, str], str] | None = None
+def truth_table(scenario, records: Mapping[tuple[str, str, str], CoefficientResult] | None = None
                 ) -> dict[tuple[str, str, str], tuple[float, str]]:
-    """(name, method, rig_id) -> (truth, how it was mapped).  ``notes``: the coefficient
-    notes of one processed campaign (the tumble K2 says whether the centrifuge corrected it).
-    See the module docstring for each mapping."""
+    """(name, method, rig_id) -> (truth, how it was mapped).  ``records``: the coefficient
+    records of one processed campaign (the tumble K2's says whether the centrifuge corrected
+    it).  See the module docstring for each mapping."""
     sc = _scenario(scenario)
-    notes = notes or {}
+    records = records or {}
     g = float(sc.site["g_local_m_s2"])
     out: dict[tuple[str, str, str], tuple[float, str]] = {}
     for t in sc.tests:
@@ -175,7 +175,7 @@ def truth_table(scenario, notes: Mapping[tuple[str, str, str], str] | None = Non
         for est in registry.for_test(kind):
             if est.truth is None:
                 continue
-            own = {name: note for (name, method, rg), note in notes.items() if method == est.method and rg == rig}
+            own = {name: rec for (name, method, rg), rec in records.items() if method == est.method and rg == rig}
             for (name, rg), v in est.truth(c, eff, t, g, own).items():
                 out[(name, est.method, rg)] = v
     out.update(_joint_truth(sc, out))
@@ -486,14 +486,12 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
     failures = [r for r in results if isinstance(r, str)]
     ok = [r for r in results if not isinstance(r, str)]
     vals: dict[tuple[str, str, str], list[tuple[float, float]]] = defaultdict(list)
-    notes: dict[tuple[str, str, str], str] = {}
-    factors: dict[tuple[str, str, str], dict] = {}
+    records: dict[tuple[str, str, str], CoefficientResult] = {}
     for rows in ok:
-        for name, method, rig, v, u, note, fac in rows:
+        for name, method, rig, v, u, rec in rows:
             vals[(name, method, rig)].append((v, u))
-            notes.setdefault((name, method, rig), note)
-            factors.setdefault((name, method, rig), fac)
-    truth = truth_table(sc, notes)
+            records.setdefault((name, method, rig), rec)
+    truth = truth_table(sc, records)
     nf: dict[tuple[str, str, str], float] = {}
     if noise_free:
         rows = _one((_noise_free(sc), sc.seed if sc.seed is not None else seed))
@@ -508,7 +506,7 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
         m = len(x)
         sd = float(np.std(x, ddof=1)) if m > 1 else float("nan")
         u_rms = float(np.sqrt(np.mean(u**2)))
-        tv, tnote = truth.get(key) or truth.get((name, method, "*")) or combination_truth(key, factors[key], truth) or (
+        tv, tnote = truth.get(key) or truth.get((name, method, "*")) or combination_truth(key, records[key].factors, truth) or (
             None, "no truth defined for this coefficient/method")
         cs = CoefficientStats(name, method, rig, m, tv, tnote, float(np.mean(x)), sd, u_rms,
                               float(np.mean(u)), noise_free=nf.get(key),
@@ -529,7 +527,7 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
             cs.bias_over_sd = cs.bias / sd if sd > 0 else None
         b = next((bounds[k] for k in (key, (name, method, "*")) if bounds.get(k) is not None), None)
         if b is None and bounds:
-            b = combination_bound(name, factors[key], bounds[COVARIANCE])
+            b = combination_bound(name, records[key].factors, bounds[COVARIANCE])
         if b is not None and b > 0 and tv is not None and m > 1:
             cs.crb_sd = math.sqrt(b)
             cs.var_over_crb = sd**2 / b
