@@ -70,6 +70,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy import stats
 
 from ..constants import T_REF_C
 from ..effects import split_combination
@@ -448,14 +449,17 @@ class StudyResult:
         return study_markdown(self)
 
 
-def _wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
+def wilson(k: int, n: int, z: float | None = None) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion k/n, ``z`` standard normal deviates
+    wide [1] (default the two-sided 95 % interval's)."""
     if n == 0:
-        return (0.0, 1.0)
+        return 0.0, 1.0
+    z = float(stats.norm.isf((1 - 0.95) / 2)) if z is None else z
     p = k / n
     d = 1 + z * z / n
     c = (p + z * z / (2 * n)) / d
     h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
-    return (max(0.0, c - h), min(1.0, c + h))
+    return max(0.0, c - h), min(1.0, c + h)
 
 
 def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: bool = True,
@@ -510,7 +514,7 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
             cs.bias_z = cs.bias / (sd / math.sqrt(m)) if m > 1 and sd > 0 else None
             inside = np.abs(x - tv) <= K_COVER * u
             cs.coverage = float(np.mean(inside))
-            cs.coverage_wilson = _wilson(int(inside.sum()), m)
+            cs.coverage_wilson = wilson(int(inside.sum()), m, 1.96)
             with np.errstate(divide="ignore", invalid="ignore"):
                 z = (x - tv) / u
             z = z[np.isfinite(z)]
