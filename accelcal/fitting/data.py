@@ -691,10 +691,6 @@ def fitted_drive(t: np.ndarray, logged: np.ndarray, f: float, harmonics: int = 3
     return X @ b, D @ b
 
 
-#: Cells of a run's frame up to which :func:`_float_columns` makes one block of it.
-BLOCK_CELLS = 1 << 20
-
-
 #: A stepped run of more readings than this is taken as means of blocks of consecutive
 #: readings of one dwell (:func:`block_bounds`): the science then holds arrays of
 #: about this length (a block more per dwell at most) whatever the run's, and the
@@ -903,19 +899,8 @@ def long_run_blocks(test: str, n_rows: int, cols: Mapping) -> tuple[dict, dict] 
 
 
 def _float_columns(data, names: Sequence[str]) -> dict[str, np.ndarray]:
-    """``{c: np.asarray(data[c], float)}`` of every column but ``line``.
-
-    A DataFrame of plain numpy float and int columns (unique names) is converted at once
-    (``to_numpy(dtype=float)``: the same float64 values, at a tenth of the cost of pandas'
-    column access, ~15 us a column) into one block whose rows are the columns.  A frame of
-    more than BLOCK_CELLS cells is not: the block would be a second copy of a big run (the
-    frame stays alive beside the cells), so its float64 columns are used as they are and
-    only the others converted (the same values, one copy)."""
-    if (hasattr(data, "to_numpy") and hasattr(data, "dtypes") and data.columns.is_unique
-            and data.size <= BLOCK_CELLS
-            and all(isinstance(dt, np.dtype) and dt.kind in "fi" for dt in data.dtypes)):
-        block = np.ascontiguousarray(data.to_numpy(dtype=float).T)
-        return {c: block[k] for k, c in enumerate(names) if c != "line"}
+    """``{c: np.asarray(data[c], float)}`` of every column but ``line``: a float64 column of
+    a DataFrame is used as it is (a big run is in memory once), any other converted."""
     return {c: np.asarray(data[c], float) for c in names if c != "line"}
 
 
@@ -1194,14 +1179,11 @@ def drop_duplicate_cells(runs: Sequence[RunCells]) -> list[str]:
         t = run.cols.get("time_s", np.arange(run.y_rows.size, dtype=float))
         dup = []
         # rows of cell c in row order: a stable sort by cell, split at the cell boundaries
-        # (the same rows, and bytes, as np.flatnonzero(run.cid == c) taken cell by cell);
-        # cells that are consecutive blocks (every stepped run) need no sort, and the
-        # (time, output) pairs of a cell are stacked for that cell only
-        blocks = bool(np.all(run.cid[1:] >= run.cid[:-1])) and (run.cid.size == 0 or run.cid[0] >= 0)
-        order = None if blocks else np.argsort(run.cid, kind="stable")
-        bounds = np.searchsorted(run.cid if blocks else run.cid[order], np.arange(run.ncell + 1))
+        # (the same rows, and bytes, as np.flatnonzero(run.cid == c) taken cell by cell)
+        order = np.argsort(run.cid, kind="stable")
+        bounds = np.searchsorted(run.cid[order], np.arange(run.ncell + 1))
         for c in range(run.ncell):
-            rows = slice(bounds[c], bounds[c + 1]) if blocks else order[bounds[c]:bounds[c + 1]]
+            rows = order[bounds[c]:bounds[c + 1]]
             ty = np.column_stack((t[rows], run.y_rows[rows]))
             h = hashlib.sha1(ty.tobytes()).hexdigest()
             if h in seen and seen[h][0] != run.run_id:
