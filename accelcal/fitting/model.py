@@ -264,6 +264,7 @@ class CampaignModel:
         self.candidates = ps
         self.coef_names = coef_names
         self.run_params = [[i for i, p in enumerate(ps) if p.acts_on(j)] for j in range(len(self.runs))]
+        self._acting = [frozenset(idx) for idx in self.run_params]     # the same, for membership
         # per run: how each parameter acting on it enters rig_output, and the fixed effects
         self._plan = [[(i, self.roles[i].kind, self.roles[i].key) for i in idx] for idx in self.run_params]
         self._fixed_of = [{k: v for k, v in self.fixed.items() if r.test in EFFECTS[k].tests} for r in self.runs]
@@ -564,7 +565,7 @@ class CampaignModel:
         J = np.zeros((r.ncell, len(cols)))
         co, eff, kw = self.inputs(p, j)
         tau = float(eff.get("sensor_lag", 0.0))
-        acting = self._acting(j)
+        acting = self._acting[j]
         exact = [(c, i) for c, i in enumerate(cols) if i in acting
                  and self.roles[i].kind in ("coef", "bias") and self.roles[i].key in instrument.DEFAULTS]
         if exact:
@@ -595,13 +596,6 @@ class CampaignModel:
             pm[i] -= h
             J[:, c] = (plus - r.cell_mean(self._rows(pm, j))) / (2 * h)
         return J
-
-    def _acting(self, j: int) -> frozenset[int]:
-        """The parameters acting on run j (:attr:`run_params` as a set, for membership)."""
-        sets = self.__dict__.get("_acting_sets")
-        if sets is None or sets[0] is not self.run_params:
-            sets = self.__dict__["_acting_sets"] = (self.run_params, [frozenset(ps) for ps in self.run_params])
-        return sets[1][j]
 
     #: unwhitened Jacobians kept per model (the most recent ones): a fit asks for the same
     #: one again at the same point (model selection, then the Gauss–Newton start; the last

@@ -495,7 +495,7 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
         if not isinstance(rows, str):
             nf = {(a, b, c): v for a, b, c, v, _, _ in rows}
     bounds = cramer_rao(sc, seed) if crb else {}
-    stats = []
+    table = []
     for key, vu in vals.items():
         name, method, rig = key
         x = np.array([a for a, _ in vu])
@@ -528,18 +528,17 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
         if b is not None and b > 0 and tv is not None and m > 1:
             cs.crb_sd = math.sqrt(b)
             cs.var_over_crb = sd**2 / b
-            from scipy import stats as _st
-            cs.var_over_crb_interval = ((m - 1) * sd**2 / _st.chi2.ppf(0.975, m - 1) / b,
-                                        (m - 1) * sd**2 / _st.chi2.ppf(0.025, m - 1) / b)
-        stats.append(cs)
+            cs.var_over_crb_interval = ((m - 1) * sd**2 / stats.chi2.ppf(0.975, m - 1) / b,
+                                        (m - 1) * sd**2 / stats.chi2.ppf(0.025, m - 1) / b)
+        table.append(cs)
     order = registry.display_order()
     from ..effects import COEFFICIENTS
     cnames = list(COEFFICIENTS)
-    stats.sort(key=lambda s: (order.get(s.method, 9), s.rig_id,
+    table.sort(key=lambda s: (order.get(s.method, 9), s.rig_id,
                               cnames.index(s.name) if s.name in cnames else 99, s.name))
     return StudyResult(scenario=sc.name, n=n, seed=seed, workers=workers, seconds=seconds,
                        seconds_per_campaign=seconds * max(workers, 1) / max(n, 1), failures=failures,
-                       coefficients=stats, band=K_COVER * math.sqrt(TARGET * (1 - TARGET) / max(n, 1)))
+                       coefficients=table, band=K_COVER * math.sqrt(TARGET * (1 - TARGET) / max(n, 1)))
 
 
 # ---------------------------------------------------------------- output
