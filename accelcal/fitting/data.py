@@ -536,9 +536,6 @@ class Groups:
         Group key of each row; a missing (nan) key leaves its row out of every group.
     """
 
-    #: groups still being summed below which the rest of each is summed value by value
-    SCALAR_GROUPS = 32
-
     def __init__(self, key):
         key = np.asarray(key)
         if key.dtype.kind in "iu":
@@ -576,34 +573,13 @@ class Groups:
     def _sequential(self, v: np.ndarray, welford: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(sum or mean, compensation or M2, count) of each group's finite values taken one at
         a time in row order: the Kahan-compensated sum, or Welford's mean and sum of squared
-        deviations.  All groups step together, the largest first."""
+        deviations, in Python floats (IEEE doubles: the operations of the array form, without
+        an array call per value)."""
         vs, starts, sizes = self._segments(v)
-        by_size = np.argsort(-sizes, kind="stable")
-        st, sz = starts[by_size], sizes[by_size]
         a, b = np.zeros(self.ngroups), np.zeros(self.ngroups)
-        active = np.searchsorted(-sz, -np.arange(sz[0] if sz.size else 0), side="left")
-        k = 0
-        for k, c in enumerate(active):
-            if c <= self.SCALAR_GROUPS:
-                break
-            x = vs[st[:c] + k]
-            if welford:
-                old = a[:c].copy()
-                a[:c] += (x - old) / (k + 1)
-                b[:c] += (x - a[:c]) * (x - old)
-            else:
-                y = x - b[:c]
-                t = a[:c] + y
-                comp = (t - a[:c]) - y
-                comp[np.isnan(comp)] = 0.0          # an infinite value: no compensation
-                b[:c], a[:c] = comp, t
-        else:
-            k = active.size
-        # the few longest groups' remaining values one by one as Python floats: the same
-        # IEEE double operations in the same order, without an array call per value
-        for g in range(int(active[k]) if k < active.size else 0):
-            ag, bg = float(a[g]), float(b[g])
-            for i, x in enumerate(vs[st[g] + k:st[g] + sz[g]].tolist(), start=k + 1):
+        for g in range(self.ngroups):
+            ag = bg = 0.0
+            for i, x in enumerate(vs[starts[g]:starts[g] + sizes[g]].tolist(), start=1):
                 if welford:
                     old = ag
                     ag += (x - old) / i
@@ -612,12 +588,10 @@ class Groups:
                     y = x - bg
                     t = ag + y
                     bg = (t - ag) - y
-                    bg = 0.0 if bg != bg else bg
+                    bg = 0.0 if bg != bg else bg        # an infinite value: no compensation
                     ag = t
             a[g], b[g] = ag, bg
-        out_a, out_b = np.empty_like(a), np.empty_like(b)
-        out_a[by_size], out_b[by_size] = a, b
-        return out_a, out_b, sizes
+        return a, b, sizes
 
     def sum(self, v) -> np.ndarray:
         """Sum of each group's finite values (0 where none)."""
