@@ -97,11 +97,6 @@ def to_years(t: Any) -> np.ndarray:
     return a.astype(float)
 
 
-def from_years(y: float) -> np.datetime64:
-    """Decimal years since 1970 [a] -> datetime64 [s]."""
-    return np.datetime64(int(round(y * 86400.0 * YEAR_DAYS)), "s")
-
-
 # ------------------------------------------------------------- the line fit ----
 
 def _wls_fit(X: np.ndarray, x: np.ndarray, var: np.ndarray) -> FitResult:

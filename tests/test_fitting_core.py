@@ -94,23 +94,6 @@ def test_birge_ratio_and_en_closed_forms():
     assert normalised_error(1.0, 0.3, 0.0, 0.4) == pytest.approx(2.0)
 
 
-def test_fisher_information_of_a_weighted_straight_line():
-    """F = X^T W X for y = a + b x with known sigma (closed form), and F^-1 is the noise
-    covariance: the information the test-design advice adds candidate runs to."""
-    import numpy as np
-    from accelcal.fitting.core import linear_fit
-    x = np.array([0.0, 1.0, 2.0, 4.0, 7.0])
-    sig = np.array([0.1, 0.2, 0.1, 0.3, 0.2])
-    y = 1.0 + 0.5 * x
-    fit = linear_fit(np.column_stack([np.ones_like(x), x]), y, sig, ["a", "b"], residual_scale=False)
-    w = 1 / sig ** 2
-    want = np.array([[w.sum(), (w * x).sum()], [(w * x).sum(), (w * x * x).sum()]])
-    names, F = fit.fisher_information()
-    assert names == ["a", "b"]
-    assert np.allclose(F, want, rtol=1e-12)
-    assert np.allclose(np.linalg.inv(F), fit.cov_noise, rtol=1e-10)
-
-
 def test_lack_of_fit_reference_of_runs_with_their_own_noise_estimate():
     """Issue 26: each run's cell means weighted by a variance read from that run's own
     scatter.  Under the model, F dof_lof is then sum_j X_j m_j / Y_j with X_j ~ chi2(d_j) and

@@ -35,18 +35,10 @@ def test_spikes_dropped_and_noise_not_inflated():
     assert np.sqrt(fit_noise(run, run.y_rows - clean).a) < 1.2 * 2e-6
 
 
-def test_big_frame_cells_are_the_frame_columns(monkeypatch):
-    """A run's frame above BLOCK_CELLS is not copied into one block (issue 28: a big run in
-    memory once): its float64 columns are used as they are, and the cells are those of the
-    block path, bit for bit."""
-    from accelcal.fitting import data as fdata
+def test_a_runs_float_columns_are_the_frame_columns():
+    """make_run takes a frame's float64 columns as they are (a big run is in memory once)."""
     r, small = _tumble({"white_m_s2": 2e-6})
-    monkeypatch.setattr(fdata, "BLOCK_CELLS", 0)
-    big = make_run(r.meta, r.data)
-    assert np.shares_memory(big.y_rows, r.data["output"].to_numpy())
-    for a in ("y", "x", "n", "cid", "lines", "y_rows"):
-        assert np.array_equal(getattr(big, a), getattr(small, a)), a
-    assert all(np.array_equal(big.cols[c], small.cols[c], equal_nan=True) for c in small.cols)
+    assert np.shares_memory(small.y_rows, r.data["output"].to_numpy())
 
 
 # ------------------------------------------------------------------ AR(1) noise (issue 26)
@@ -94,22 +86,3 @@ def test_rho_from_short_cells_is_not_biased_low():
     assert ar1_scatter_dof(np.array([n]), 0.0)[0] == n - 1
     big = ar1_scatter_dof(np.array([400]), 0.6)[0]
     assert big == pytest.approx(399 * (1 - 0.36) / (1 + 0.36), rel=0.02)   # Bartlett's long-cell limit
-
-
-def test_big_runs_scatter_taken_a_slice_at_a_time(monkeypatch):
-    """A big run's within-cell scatter and lag-1 sums are made a slice of readings at a
-    time (issue 28); with slices that cut cells anywhere they must be the whole run's,
-    to the order of the sums, here on AR(1) readings whose rho is far from 0."""
-    from accelcal.fitting import data as fdata
-    r, _ = _tumble({"white_m_s2": 2e-6})
-    rng = np.random.default_rng(7)
-    rows = r.data["output"].to_numpy() + 1e-3 * _ar1(rng, len(r.data), 0.7)
-    whole = make_run(r.meta, r.data)
-    s2_a, rho_a, hi_a = whole.cell_scatter(rows)
-    var_a = whole.cell_variance(rows)
-    monkeypatch.setattr(fdata, "ROW_SLICE", 13)
-    assert len(whole.row_slices()) > 3
-    s2_b, rho_b, hi_b = whole.cell_scatter(rows)
-    np.testing.assert_allclose(s2_b, s2_a, rtol=1e-12)
-    np.testing.assert_allclose(whole.cell_variance(rows), var_a, rtol=1e-12)
-    assert rho_a > 0.3 and rho_b == pytest.approx(rho_a, rel=1e-12) and hi_b == pytest.approx(hi_a, rel=1e-12)

@@ -904,30 +904,6 @@ class FitResult:
             R = C / np.outer(d, d)
         return list(names), R
 
-    def fisher_information(self, names: Sequence[str] | None = None) -> tuple[list[str], np.ndarray]:
-        """Fisher information of the parameters under the noise model, ``J^T J`` of the
-        whitened Jacobian at the solution.
-
-        Parameters
-        ----------
-        names : sequence of str, optional
-            Parameters to include (default: the free ones).
-
-        Returns
-        -------
-        names : list of str
-        F : (k, k) ndarray
-            [1 / (parameter unit_i * parameter unit_j)].  Its pseudo-inverse over the
-            estimable parameters is ``cov_noise``; another run's information adds to it
-            (the information of independent data is additive), which is how a proposed run
-            is judged before it is made.
-        """
-        if names is None:
-            names = [n for n, f in zip(self.names, self.params.free()) if f]
-        idx = [self.params.index[n] for n in names]
-        Js = self.J[:, idx]
-        return list(names), Js.T @ Js
-
     @property
     def birge(self) -> float:
         """sqrt(chi2 / dof) of the whitened residuals (nan without dof)."""

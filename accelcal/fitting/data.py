@@ -45,9 +45,9 @@ from .core import nested_test
 ANGLE_TOL_DEG = 0.2
 #: a reading further than this many robust sigmas from its cell's median is a spike
 SPIKE_SIGMAS = 7.0
-#: Readings a big run's reading-by-reading model work takes at a time: the
-#: forward model's temporaries are a dozen arrays of the run's length, 0.6 GB at the 4.5 M
-#: readings of a 200 MB run.  A run of at most this many readings is taken whole.
+#: Readings a long run's reading-by-reading work takes at a time (its columns read into
+#: block means, :func:`block_bounds`): the forward model's temporaries are a dozen arrays of
+#: the length it is given, 0.6 GB at the 4.5 M readings of a 200 MB run.
 ROW_SLICE = 1 << 20
 #: smallest and largest lag-1 autocorrelation the noise model accepts
 RHO_BOUNDS = (-0.5, 0.95)
@@ -395,67 +395,6 @@ class RunCells:
         return np.bincount(self.cid[keep], weights=np.asarray(rows, float)[keep],
                            minlength=self.ncell) / self.n
 
-    def row_slices(self) -> list[slice]:
-        """The readings in the slices a big run's reading-by-reading work takes them.
-
-        Returns
-        -------
-        list of slice
-            ``[slice(None)]`` for a run of at most :data:`ROW_SLICE` readings (the whole
-            run, so its sums are the same to the last bit); else consecutive slices of
-            :data:`ROW_SLICE` readings.
-        """
-        nrow = int(self.y_rows.size)
-        if nrow <= ROW_SLICE:
-            return [slice(None)]
-        return [slice(a, min(a + ROW_SLICE, nrow)) for a in range(0, nrow, ROW_SLICE)]
-
-    def cell_sum_slices(self, rows_of, slices: Sequence[slice]) -> np.ndarray:
-        """Sum over each cell of a per-reading quantity made one slice of readings at a time.
-
-        Parameters
-        ----------
-        rows_of : callable
-            ``rows_of(sl)`` gives the quantity at the readings ``sl`` [any unit].
-        slices : sequence of slice
-            From :meth:`row_slices` (or ``[slice(None)]``).
-
-        Returns
-        -------
-        (ncell,) ndarray
-            Cell sums [unit of rows]; readings with cid -1 are left out.
-        """
-        total = np.zeros(self.ncell)
-        for sl in slices:
-            cid = self.cid[sl]
-            keep = cid >= 0
-            total += np.bincount(cid[keep], weights=np.asarray(rows_of(sl), float)[keep],
-                                 minlength=self.ncell)
-        return total
-
-    def cell_mean_slices(self, rows_of, slices: Sequence[slice] | None = None) -> np.ndarray:
-        """:meth:`cell_mean` of a per-reading quantity made one slice of readings at a time
-        (a big run's forward-model temporaries are a slice long, not a run long).
-
-        Parameters
-        ----------
-        rows_of : callable
-            ``rows_of(sl)`` gives the quantity at the readings ``sl`` [any unit];
-            ``rows_of(slice(None))`` the whole run.
-        slices : sequence of slice, optional
-            Default :meth:`row_slices`.
-
-        Returns
-        -------
-        (ncell,) ndarray
-            Cell means [unit of rows]: exactly :meth:`cell_mean` of the whole run's
-            quantity when there is one slice.
-        """
-        slices = self.row_slices() if slices is None else list(slices)
-        if len(slices) == 1 and slices[0] == slice(None):
-            return self.cell_mean(rows_of(slice(None)))
-        return self.cell_sum_slices(rows_of, slices) / self.n
-
     def _deviations(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(keep, deviation from its cell's mean per reading, sum of squares per cell, sample
         variance per cell) of a per-reading quantity."""
@@ -486,37 +425,7 @@ class RunCells:
         (ncell,) ndarray
             Sample variance in each cell [unit of rows ^2]; nan for 1-reading cells.
         """
-        if self._kept_mask() is None and len(self.row_slices()) > 1:
-            return self._sliced_scatter(rows)[1]
         return self._deviations(rows)[3]
-
-    def _sliced_scatter(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float, np.ndarray]:
-        """(sum of squares per cell, sample variance per cell, lag-1 sum and sum of squares
-        of the deviations over same-cell pairs, pairs per cell) of a big run whose readings
-        are all kept, made a slice of readings at a time (:meth:`row_slices`: no
-        array of the run's length but the cell means'); the sums of :meth:`cell_scatter`,
-        in another order."""
-        r = np.asarray(rows, float)
-        cm = self.cell_mean(r)
-        k = self.ncell
-        ss, pc = np.zeros(k), np.zeros(k)
-        num = den = 0.0
-        last = None                       # (deviation, cell) of the reading before the slice
-        for sl in self.row_slices():
-            c = self.cid[sl]
-            d = r[sl] - cm[c]
-            d2 = d * d
-            ss += np.bincount(c, weights=d2, minlength=k)
-            den += float(np.sum(d2))
-            same = c[1:] == c[:-1]
-            num += float(np.sum((d[1:] * d[:-1])[same]))
-            pc += np.bincount(c[1:], weights=same, minlength=k)
-            if last is not None and last[1] == c[0]:
-                num += last[0] * float(d[0])
-                pc[c[0]] += 1.0
-            last = (float(d[-1]), int(c[-1]))
-        s2 = np.where(self.n >= 2, ss / np.maximum(self.n - 1, 1), np.nan)
-        return ss, s2, num, den, pc
 
     def cell_scatter(self, rows: np.ndarray) -> tuple[np.ndarray, float, float]:
         """Within-cell sample variance of a per-reading quantity and the pooled lag-1
@@ -540,20 +449,17 @@ class RunCells:
         rho_hi : float
             Upper end of rho's sampling interval (:data:`RHO_INTERVAL_Z`) [1]; 0 with rho.
         """
-        if self._kept_mask() is None and len(self.row_slices()) > 1:
-            ss, s2, num, den, pc = self._sliced_scatter(rows)
+        keep, dev, ss, s2 = self._deviations(rows)
+        same = keep[1:] & keep[:-1] & (self.cid[1:] == self.cid[:-1])
+        lag = dev[1:] * dev[:-1]          # the products of the pairs, then the same-cell ones:
+        num = float(np.sum(lag[same]))    # the same numbers as masking both factors first
+        del lag
+        dk = dev if self._kept_mask() is None else dev[keep]
+        den = float(np.sum(dk * dk))
+        if self._kept_mask() is None:     # counts as float sums of ones: exact, no copy of cid
+            pc = np.bincount(self.cid[1:], weights=same, minlength=self.ncell)
         else:
-            keep, dev, ss, s2 = self._deviations(rows)
-            same = keep[1:] & keep[:-1] & (self.cid[1:] == self.cid[:-1])
-            lag = dev[1:] * dev[:-1]          # the products of the pairs, then the same-cell ones:
-            num = float(np.sum(lag[same]))    # the same numbers as masking both factors first
-            del lag
-            dk = dev if self._kept_mask() is None else dev[keep]
-            den = float(np.sum(dk * dk))
-            if self._kept_mask() is None:     # counts as float sums of ones: exact, no copy of cid
-                pc = np.bincount(self.cid[1:], weights=same, minlength=self.ncell)
-            else:
-                pc = np.bincount(self.cid[1:][same], minlength=self.ncell).astype(float)
+            pc = np.bincount(self.cid[1:][same], minlength=self.ncell).astype(float)
         r = num / den if den > 0 else 0.0
         # the deviations from a cell mean are negatively correlated by -1/n: white readings
         # give the ratio r0 = -sum_c ss_c / n_c / sum_c ss_c (cells weighted as the pooled
@@ -667,27 +573,25 @@ class Groups:
     def _sequential(self, v: np.ndarray, welford: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(sum or mean, compensation or M2, count) of each group's finite values taken one at
         a time in row order: the Kahan-compensated sum, or Welford's mean and sum of squared
-        deviations.  All groups step together, the largest first."""
+        deviations, in Python floats (IEEE doubles: the operations of the array form, without
+        an array call per value)."""
         vs, starts, sizes = self._segments(v)
-        by_size = np.argsort(-sizes, kind="stable")
-        st, sz = starts[by_size], sizes[by_size]
         a, b = np.zeros(self.ngroups), np.zeros(self.ngroups)
-        active = np.searchsorted(-sz, -np.arange(sz[0] if sz.size else 0), side="left")
-        for k, c in enumerate(active):
-            x = vs[st[:c] + k]
-            if welford:
-                old = a[:c].copy()
-                a[:c] += (x - old) / (k + 1)
-                b[:c] += (x - a[:c]) * (x - old)
-            else:
-                y = x - b[:c]
-                t = a[:c] + y
-                comp = (t - a[:c]) - y
-                comp[np.isnan(comp)] = 0.0          # an infinite value: no compensation
-                b[:c], a[:c] = comp, t
-        out_a, out_b = np.empty_like(a), np.empty_like(b)
-        out_a[by_size], out_b[by_size] = a, b
-        return out_a, out_b, sizes
+        for g in range(self.ngroups):
+            ag = bg = 0.0
+            for i, x in enumerate(vs[starts[g]:starts[g] + sizes[g]].tolist(), start=1):
+                if welford:
+                    old = ag
+                    ag += (x - old) / i
+                    bg += (x - ag) * (x - old)
+                else:
+                    y = x - bg
+                    t = ag + y
+                    bg = (t - ag) - y
+                    bg = 0.0 if bg != bg else bg        # an infinite value: no compensation
+                    ag = t
+            a[g], b[g] = ag, bg
+        return a, b, sizes
 
     def sum(self, v) -> np.ndarray:
         """Sum of each group's finite values (0 where none)."""
@@ -761,14 +665,10 @@ def fitted_drive(t: np.ndarray, logged: np.ndarray, f: float, harmonics: int = 3
     return X @ b, D @ b
 
 
-#: Cells of a run's frame up to which :func:`_float_columns` makes one block of it.
-BLOCK_CELLS = 1 << 20
-
-
 #: A stepped run of more readings than this is taken as means of blocks of consecutive
 #: readings of one dwell (:func:`block_bounds`): the science then holds arrays of
-#: about this length (a block more per dwell at most) whatever the run's: one slice of
-#: the model's work (:data:`ROW_SLICE`).
+#: about this length (a block more per dwell at most) whatever the run's, and the
+#: campaign model evaluates the forward model over them whole.
 BLOCK_READINGS = ROW_SLICE
 #: The keys of a stepped run's cells (its dwells), by test: (column, largest step within
 #: a dwell [its unit]); consecutive readings whose keys stay within these are one cell of
@@ -973,19 +873,8 @@ def long_run_blocks(test: str, n_rows: int, cols: Mapping) -> tuple[dict, dict] 
 
 
 def _float_columns(data, names: Sequence[str]) -> dict[str, np.ndarray]:
-    """``{c: np.asarray(data[c], float)}`` of every column but ``line``.
-
-    A DataFrame of plain numpy float and int columns (unique names) is converted at once
-    (``to_numpy(dtype=float)``: the same float64 values, at a tenth of the cost of pandas'
-    column access, ~15 us a column) into one block whose rows are the columns.  A frame of
-    more than BLOCK_CELLS cells is not: the block would be a second copy of a big run (the
-    frame stays alive beside the cells), so its float64 columns are used as they are and
-    only the others converted (the same values, one copy)."""
-    if (hasattr(data, "to_numpy") and hasattr(data, "dtypes") and data.columns.is_unique
-            and data.size <= BLOCK_CELLS
-            and all(isinstance(dt, np.dtype) and dt.kind in "fi" for dt in data.dtypes)):
-        block = np.ascontiguousarray(data.to_numpy(dtype=float).T)
-        return {c: block[k] for k, c in enumerate(names) if c != "line"}
+    """``{c: np.asarray(data[c], float)}`` of every column but ``line``: a float64 column of
+    a DataFrame is used as it is (a big run is in memory once), any other converted."""
     return {c: np.asarray(data[c], float) for c in names if c != "line"}
 
 
@@ -1264,14 +1153,11 @@ def drop_duplicate_cells(runs: Sequence[RunCells]) -> list[str]:
         t = run.cols.get("time_s", np.arange(run.y_rows.size, dtype=float))
         dup = []
         # rows of cell c in row order: a stable sort by cell, split at the cell boundaries
-        # (the same rows, and bytes, as np.flatnonzero(run.cid == c) taken cell by cell);
-        # cells that are consecutive blocks (every stepped run) need no sort, and the
-        # (time, output) pairs of a cell are stacked for that cell only
-        blocks = bool(np.all(run.cid[1:] >= run.cid[:-1])) and (run.cid.size == 0 or run.cid[0] >= 0)
-        order = None if blocks else np.argsort(run.cid, kind="stable")
-        bounds = np.searchsorted(run.cid if blocks else run.cid[order], np.arange(run.ncell + 1))
+        # (the same rows, and bytes, as np.flatnonzero(run.cid == c) taken cell by cell)
+        order = np.argsort(run.cid, kind="stable")
+        bounds = np.searchsorted(run.cid[order], np.arange(run.ncell + 1))
         for c in range(run.ncell):
-            rows = slice(bounds[c], bounds[c + 1]) if blocks else order[bounds[c]:bounds[c + 1]]
+            rows = order[bounds[c]:bounds[c + 1]]
             ty = np.column_stack((t[rows], run.y_rows[rows]))
             h = hashlib.sha1(ty.tobytes()).hexdigest()
             if h in seen and seen[h][0] != run.run_id:

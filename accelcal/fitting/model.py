@@ -149,18 +149,6 @@ class Role:
     key: str
 
 
-def _reading_slice(r: RunCells, cols: Mapping[str, np.ndarray], kw: Mapping, sl: slice | None
-                   ) -> tuple[Mapping[str, np.ndarray], dict]:
-    """The columns and the per-reading keyword arrays (``rate_derivative``) of ``rig_output``
-    at the readings ``sl`` of run ``r`` (views, no copies); as they are for ``None`` or
-    ``slice(None)``."""
-    if sl is None or sl == slice(None):
-        return cols, dict(kw)
-    nrow = r.y_rows.size
-    return ({k: v[sl] for k, v in cols.items()},
-            {k: (v[sl] if isinstance(v, np.ndarray) and v.shape == (nrow,) else v) for k, v in kw.items()})
-
-
 class CampaignModel:
     """Parameters and predictions of the forward model over cells of runs (module doc).
 
@@ -277,6 +265,7 @@ class CampaignModel:
         self.candidates = ps
         self.coef_names = coef_names
         self.run_params = [[i for i, p in enumerate(ps) if p.acts_on(j)] for j in range(len(self.runs))]
+        self._acting = [frozenset(idx) for idx in self.run_params]     # the same, for membership
         # per run: how each parameter acting on it enters rig_output, and the fixed effects
         self._plan = [[(i, self.roles[i].kind, self.roles[i].key) for i in idx] for idx in self.run_params]
         self._fixed_of = [{k: v for k, v in self.fixed.items() if r.test in EFFECTS[k].tests} for r in self.runs]
@@ -487,30 +476,11 @@ class CampaignModel:
                 held -= sum(a.nbytes for a in cache.pop(old).values())
         return E
 
-    def _rows(self, p: np.ndarray, j: int, extra: Mapping[str, float] | None = None,
-              sl: slice | None = None) -> np.ndarray:
-        """:meth:`predict_rows` itself: ``rig_output`` at the inputs of run j (of its
-        readings ``sl`` only, when given)."""
+    def _rows(self, p: np.ndarray, j: int, extra: Mapping[str, float] | None = None) -> np.ndarray:
+        """:meth:`predict_rows` itself: ``rig_output`` at the inputs of run j."""
         r = self.runs[j]
         co, eff, kw = self.inputs(p, j, extra)
-        slices = [sl] if sl is not None else self._slices(r, eff)
-        if len(slices) == 1:
-            cols, kw = _reading_slice(r, r.cols, kw, slices[0])
-            return rig_output(r.test, r.meta, cols, co, eff, **kw)
-        # a big run's outputs made a slice at a time (the model is reading by reading: the
-        # same numbers), so its temporaries are a slice long
-        out = np.empty(r.y_rows.shape)
-        for s in slices:
-            cols, skw = _reading_slice(r, r.cols, kw, s)
-            out[s] = rig_output(r.test, r.meta, cols, co, eff, **skw)
-        return out
-
-    @staticmethod
-    def _slices(r: RunCells, eff: Mapping[str, float]) -> list[slice]:
-        """The slices of readings run ``r``'s model work takes at a time
-        (:meth:`RunCells.row_slices`): the whole run when a sensor lag is in its model, whose
-        output at a reading depends on every reading before it."""
-        return [slice(None)] if "sensor_lag" in eff else r.row_slices()
+        return rig_output(r.test, r.meta, r.cols, co, eff, **kw)
 
     def predict_run(self, p: np.ndarray, j: int, extra: Mapping[str, float] | None = None) -> np.ndarray:
         """Cell means of the model's output for run j.
@@ -529,20 +499,7 @@ class CampaignModel:
         (ncell,) ndarray
             :meth:`predict_rows` averaged over each cell of the run [output_unit].
         """
-        r = self.runs[j]
-        slices = self._slices(r, self.inputs(p, j, extra)[1])
-        if len(slices) == 1:
-            return r.cell_mean(self.predict_rows(p, j, extra))
-        # a big run: its cell means (not its readings' outputs) kept by point
-        cache = self.__dict__.setdefault("_cell_predictions", {})
-        key = (j, np.asarray(p, float).tobytes(), tuple(sorted((extra or {}).items())))
-        out = cache.get(key)
-        if out is None:
-            out = cache[key] = r.cell_mean_slices(lambda sl: self._rows(p, j, extra, sl), slices)
-            out.setflags(write=False)
-            while len(cache) > 4 * self.PREDICTION_CACHE:
-                del cache[next(iter(cache))]
-        return out
+        return self.runs[j].cell_mean(self.predict_rows(p, j, extra))
 
     def predict(self, p: np.ndarray) -> np.ndarray:
         """Cell means of the model's output over all runs.
@@ -608,31 +565,20 @@ class CampaignModel:
         cols = list(range(len(self.params))) if params is None else list(params)
         J = np.zeros((r.ncell, len(cols)))
         co, eff, kw = self.inputs(p, j)
-        # a big run is taken a slice of readings at a time, each column a sum of the slices'
-        # cell sums; a run of one slice gives the whole run's cell means, bit for bit
-        # (never a readings x coefficients array, nor the forward model's
-        # temporaries of a whole big run)
-        slices = self._slices(r, eff)
         tau = float(eff.get("sensor_lag", 0.0))
-        acting = self._acting(j)
+        acting = self._acting[j]
         exact = [(c, i) for c, i in enumerate(cols) if i in acting
                  and self.roles[i].kind in ("coef", "bias") and self.roles[i].key in instrument.DEFAULTS]
         if exact:
-            S = np.zeros((r.ncell, len(exact)))
-            T = self._temp(r)
+            F = specific_force(r.test, r.meta, r.cols, eff, **kw)
+            T, t = self._temp(r), r.cols.get("time_s")
             drift = float(eff.get("bias_drift", 0.0))
-            for sl in slices:
-                sc, skw = _reading_slice(r, r.cols, kw, sl)
-                F = specific_force(r.test, r.meta, sc, eff, **skw)
-                temp = None if T is None else T[sl]
-                t = sc.get("time_s")
-                for e, (c, i) in enumerate(exact):
-                    x = np.empty(r.cid[sl].shape)
-                    x[:] = instrument.output_derivative(self.roles[i].key, co, F, temp, t, drift)
-                    if tau > 0:               # lagged like the output (the lag is linear)
-                        x = first_order_lag(x, t, tau)
-                    S[:, e] += r.cell_sum_slices(lambda _: x, [sl])
-            J[:, [c for c, _ in exact]] = S / r.n[:, None]
+            for c, i in exact:            # one column of readings at a time, never readings x columns
+                x = np.empty(r.cid.shape)
+                x[:] = instrument.output_derivative(self.roles[i].key, co, F, T, t, drift)
+                if tau > 0:               # lagged like the output (the lag is linear)
+                    x = first_order_lag(x, t, tau)
+                J[:, c] = r.cell_mean(x)
         done = {c for c, _ in exact}
         base = None
         for c, i in enumerate(cols):
@@ -642,22 +588,15 @@ class CampaignModel:
             pp, pm = p.copy(), p.copy()
             pp[i] += h
             # the points of the differences are not kept (each is used once)
-            plus = r.cell_mean_slices(lambda sl: self._rows(pp, j, None, sl), slices)
+            plus = r.cell_mean(self._rows(pp, j))
             if self.roles[i].key == "sensor_lag" and p[i] - h < 0:
                 if base is None:
                     base = self.predict_run(p, j)
                 J[:, c] = (plus - base) / h
                 continue
             pm[i] -= h
-            J[:, c] = (plus - r.cell_mean_slices(lambda sl: self._rows(pm, j, None, sl), slices)) / (2 * h)
+            J[:, c] = (plus - r.cell_mean(self._rows(pm, j))) / (2 * h)
         return J
-
-    def _acting(self, j: int) -> frozenset[int]:
-        """The parameters acting on run j (:attr:`run_params` as a set, for membership)."""
-        sets = self.__dict__.get("_acting_sets")
-        if sets is None or sets[0] is not self.run_params:
-            sets = self.__dict__["_acting_sets"] = (self.run_params, [frozenset(ps) for ps in self.run_params])
-        return sets[1][j]
 
     #: unwhitened Jacobians kept per model (the most recent ones): a fit asks for the same
     #: one again at the same point (model selection, then the Gauss–Newton start; the last
@@ -780,18 +719,14 @@ class CampaignModel:
                 if spec.meta_key is None and spec.column not in r.cols:
                     break
 
-                def moved_output(sl, step=step):
-                    meta = r.meta
-                    cols, skw = _reading_slice(r, r.cols, kw, sl)
-                    if spec.meta_key is not None:
-                        meta = {**meta, spec.meta_key: float(meta[spec.meta_key]) + step}
-                    else:
-                        on = None if rows is None or j not in rows else rows[j]
-                        moved = np.asarray(cols[spec.column], float) + (
-                            step if on is None else np.where(on if sl is None else on[sl], step, 0.0))
-                        cols = {**cols, spec.column: moved}
-                    return rig_output(r.test, meta, cols, co, eff, **skw)
-                E.append(r.cell_mean_slices(moved_output, self._slices(r, eff)))
+                meta, cols = r.meta, r.cols
+                if spec.meta_key is not None:
+                    meta = {**meta, spec.meta_key: float(meta[spec.meta_key]) + step}
+                else:
+                    on = None if rows is None or j not in rows else rows[j]
+                    cols = {**cols, spec.column: np.asarray(cols[spec.column], float) + (
+                        step if on is None else np.where(on, step, 0.0))}
+                E.append(r.cell_mean(rig_output(r.test, meta, cols, co, eff, **kw)))
             if len(E) == 2:
                 out[self.rows(j)] = (E[0] - E[1]) / (2 * h)
         return out / self.sig

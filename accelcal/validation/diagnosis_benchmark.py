@@ -36,7 +36,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-from scipy import stats
 
 from ..effects import EFFECTS
 from ..fitting.model import processing_effects
@@ -44,6 +43,7 @@ from ..simulate import load_scenario, simulate_campaign
 from ..diagnosis._blas import single_thread
 from ..diagnosis.core import diagnose, prepare_cells
 from ..diagnosis.fits import Fitter, project_out
+from .montecarlo import wilson
 from .simruns import SimRunFile
 
 KINDS = ("centrifuge", "tumble", "tilt_rotation", "sine_centrifuge")
@@ -161,18 +161,6 @@ def snr_scale(kind: str, effect: str, baseline: list, seed: int,
     sp = project_out(f.basis(), s)
     frac = float(np.linalg.norm(sp) / np.linalg.norm(s))
     return (1.0 / float(np.linalg.norm(sp)) if frac > 1e-3 else None), frac
-
-
-def wilson(k: int, n: int, conf: float = 0.95) -> tuple[float, float]:
-    """Wilson score interval of a binomial proportion k/n."""
-    if n == 0:
-        return 0.0, 1.0
-    z = float(stats.norm.isf((1 - conf) / 2))
-    p = k / n
-    d = 1 + z * z / n
-    c = (p + z * z / (2 * n)) / d
-    h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
-    return max(0.0, c - h), min(1.0, c + h)
 
 
 def rate_with_interval(k: int, n: int) -> str:

@@ -70,6 +70,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy import stats
 
 from ..constants import T_REF_C
 from ..effects import split_combination
@@ -455,14 +456,17 @@ class StudyResult:
         return study_markdown(self)
 
 
-def _wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
+def wilson(k: int, n: int, z: float | None = None) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion k/n, ``z`` standard normal deviates
+    wide [1] (default the two-sided 95 % interval's)."""
     if n == 0:
-        return (0.0, 1.0)
+        return 0.0, 1.0
+    z = float(stats.norm.isf((1 - 0.95) / 2)) if z is None else z
     p = k / n
     d = 1 + z * z / n
     c = (p + z * z / (2 * n)) / d
     h = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / d
-    return (max(0.0, c - h), min(1.0, c + h))
+    return max(0.0, c - h), min(1.0, c + h)
 
 
 def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: bool = True,
@@ -498,7 +502,7 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
         if not isinstance(rows, str):
             nf = {(a, b, c): v for a, b, c, v, *_ in rows}
     bounds = cramer_rao(sc, seed) if crb else {}
-    stats = []
+    table = []
     for key, vu in vals.items():
         name, method, rig = key
         x = np.array([a for a, _ in vu])
@@ -517,7 +521,7 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
             cs.bias_z = cs.bias / (sd / math.sqrt(m)) if m > 1 and sd > 0 else None
             inside = np.abs(x - tv) <= K_COVER * u
             cs.coverage = float(np.mean(inside))
-            cs.coverage_wilson = _wilson(int(inside.sum()), m)
+            cs.coverage_wilson = wilson(int(inside.sum()), m, 1.96)
             with np.errstate(divide="ignore", invalid="ignore"):
                 z = (x - tv) / u
             z = z[np.isfinite(z)]
@@ -531,18 +535,17 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
         if b is not None and b > 0 and tv is not None and m > 1:
             cs.crb_sd = math.sqrt(b)
             cs.var_over_crb = sd**2 / b
-            from scipy import stats as _st
-            cs.var_over_crb_interval = ((m - 1) * sd**2 / _st.chi2.ppf(0.975, m - 1) / b,
-                                        (m - 1) * sd**2 / _st.chi2.ppf(0.025, m - 1) / b)
-        stats.append(cs)
+            cs.var_over_crb_interval = ((m - 1) * sd**2 / stats.chi2.ppf(0.975, m - 1) / b,
+                                        (m - 1) * sd**2 / stats.chi2.ppf(0.025, m - 1) / b)
+        table.append(cs)
     order = registry.display_order()
     from ..effects import COEFFICIENTS
     cnames = list(COEFFICIENTS)
-    stats.sort(key=lambda s: (order.get(s.method, 9), s.rig_id,
+    table.sort(key=lambda s: (order.get(s.method, 9), s.rig_id,
                               cnames.index(s.name) if s.name in cnames else 99, s.name))
     return StudyResult(scenario=sc.name, n=n, seed=seed, workers=workers, seconds=seconds,
                        seconds_per_campaign=seconds * max(workers, 1) / max(n, 1), failures=failures,
-                       coefficients=stats, band=K_COVER * math.sqrt(TARGET * (1 - TARGET) / max(n, 1)))
+                       coefficients=table, band=K_COVER * math.sqrt(TARGET * (1 - TARGET) / max(n, 1)))
 
 
 # ---------------------------------------------------------------- output
