@@ -43,7 +43,7 @@ from ..fitting.model import processing_effects
 from ..simulate import load_scenario, simulate_campaign
 from ..diagnosis._blas import single_thread
 from ..diagnosis.core import diagnose, prepare_cells
-from ..diagnosis.fits import Fitter, project_out
+from ..diagnosis.fits import Fitter, basis, project_out
 from .simruns import SimRunFile
 
 KINDS = ("centrifuge", "tumble", "tilt_rotation", "sine_centrifuge")
@@ -158,7 +158,7 @@ def snr_scale(kind: str, effect: str, baseline: list, seed: int,
     s = sigs[effect]
     if not np.any(s):
         return None, 0.0
-    sp = project_out(f.basis(), s)
+    sp = project_out(basis(f), s)
     frac = float(np.linalg.norm(sp) / np.linalg.norm(s))
     return (1.0 / float(np.linalg.norm(sp)) if frac > 1e-3 else None), frac
 
