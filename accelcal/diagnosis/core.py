@@ -42,6 +42,7 @@ import numpy as np
 from scipy import stats
 
 from ..effects import EFFECTS
+from ..fitting.core import pure_error_lack_of_fit
 from ..fitting.data import (RunCells, drop_duplicate_cells, fit_noise, make_run, pool_missing_noise,
                             reject_spikes, with_noise)
 from ..fitting.blas import single_thread
@@ -86,31 +87,22 @@ def _temperature_held(cells: Sequence[RunCells]) -> tuple[float, float] | None:
 
     One-way analysis of variance of ``temp_c`` over the cells of every run, pooled: the
     between-cell mean square (around each run's mean) over the within-cell one, F with
-    (sum (k_j - 1), sum (n_j - k_j)) degrees of freedom.  Held when p > TEMPERATURE_HELD_P.
+    (sum (k_j - 1), sum (n_j - k_j)) degrees of freedom
+    (:func:`accelcal.fitting.core.pure_error_lack_of_fit`).  Held when p >
+    TEMPERATURE_HELD_P.
     """
-    sb = sw = db = dw = 0.0
+    z, cell, n = [], [], 0
     for r in cells:
-        T = r.cols.get("temp_c")
-        if T is None:
-            continue
-        T = np.asarray(T, float)
+        T = np.asarray(r.cols.get("temp_c", np.full(r.cid.size, np.nan)), float)
         ok = (r.cid >= 0) & np.isfinite(T)
-        if ok.sum() < 3:
-            continue
-        cid = r.cid[ok]
-        n = np.bincount(cid, minlength=r.ncell).astype(float)
-        m = np.bincount(cid, weights=T[ok], minlength=r.ncell) / np.maximum(n, 1)
-        use = n > 0
-        grand = float(np.sum(n[use] * m[use]) / np.sum(n[use]))
-        sb += float(np.sum(n[use] * (m[use] - grand) ** 2))
-        sw += float(np.sum((T[ok] - m[cid]) ** 2))
-        db += float(use.sum() - 1)
-        dw += float(ok.sum() - use.sum())
-    if db <= 0 or dw <= 0 or sw <= 0:
+        if ok.sum() >= 3:                   # around the run's mean: one parameter per run
+            z.append(T[ok] - T[ok].mean())
+            cell.append(r.cid[ok] + n)
+            n += r.ncell
+    t = pure_error_lack_of_fit(np.concatenate(z), np.concatenate(cell), len(z)) if z else None
+    if t is None or t.p_value is None or t.dof_pe == 0:
         return None
-    F = (sb / db) / (sw / dw)
-    p = float(stats.f.sf(F, db, dw))
-    return (F, p) if p > TEMPERATURE_HELD_P else None
+    return (t.statistic, t.p_value) if t.p_value > TEMPERATURE_HELD_P else None
 
 
 def resolve_baseline(baseline, tests: Sequence[str]) -> tuple[list[str], str]:
@@ -198,7 +190,7 @@ def prepare_cells(runs) -> tuple[list[RunCells], list[str]]:
     notes = drop_duplicate_cells(cells)
     for c in cells:
         if reject_spikes(c):
-            notes += [n for n in c.notes if "spikes" in n]
+            notes.append(c.notes[-1])
         angle_level(c)
     # the level term wherever the level varies between cells
     noise = pool_missing_noise(cells, [fit_noise(c, use_level=bool(c.x.size and np.ptp(c.x) > 0), cautious=True)
@@ -346,7 +338,11 @@ class _Diagnosis:
             o["observable_fraction"] = fr
             o["absorbed_fraction"] = float(max(0.0, 1.0 - fr * fr))
             if fr < UNOBSERVABLE_FRACTION:   # what is left of an absorbed one is rounding
-                ab = o["absorbed_by"] = self.absorbed_by(bare, s)
+                # the bare model's parameters that take it up: share of |s|^2 [1] and how far one
+                # effect unit moves each [parameter unit / effect unit]
+                idx = np.flatnonzero(bare.active)
+                ab = o["absorbed_by"] = [{"parameter": bare.model.params[idx[k]].name, "share": sh, "per_unit": x}
+                                         for k, sh, x in taken_up(bare.fit.J[:, idx], s)]
                 o["note"] = (f"not observable in these runs: {100 * o['absorbed_fraction']:.4g} % of its signature "
                              f"lies in the bare model's columns ({', '.join(a['parameter'] for a in ab[:3])}); "
                              "whatever its size, those parameters take it up")
@@ -359,27 +355,6 @@ class _Diagnosis:
                 o["note"] = (f"weakly observable: the smallest size these runs could detect ({md:.3g} "
                              f"{EFFECTS[c].unit}) exceeds its largest plausible size ({EFFECTS[c].plausible:.3g})")
         return obs
-
-    def absorbed_by(self, f: ModelFit, s: np.ndarray) -> list[dict]:
-        """The bare model's parameters that take up a signature, by their share of it.
-
-        Parameters
-        ----------
-        f : ModelFit
-            The bare model's fit.
-        s : (N,) ndarray
-            Whitened signature of an effect [1 per effect unit].
-
-        Returns
-        -------
-        list of dict
-            Up to six rows, largest share first: ``parameter``, ``share`` of |s|^2 [1] and
-            ``per_unit``, how far one effect unit moves that parameter
-            [parameter unit / effect unit].
-        """
-        idx = np.flatnonzero(f.active)
-        return [{"parameter": f.model.params[idx[k]].name, "share": share, "per_unit": x}
-                for k, share, x in taken_up(f.fit.J[:, idx], s)]
 
     def select(self, bare: ModelFit, obs: dict) -> tuple[ModelFit, list[str], list[dict], dict]:
         """Forward selection: score, refit the best, likelihood ratio and held-out gates."""

@@ -20,8 +20,8 @@ import numpy as np
 from scipy import stats
 
 from ..fitting.core import lstsq_min_norm
-from ..physics.rigs import specific_force
 from ..fitting.procedure import ModelFit
+from ..physics.rigs import specific_force
 from .fits import basis
 
 #: expected chi-square (residual degrees of freedom) below which a segment is not tested
@@ -78,24 +78,6 @@ def _bins(dim: str, v: np.ndarray) -> np.ndarray:
     return np.array([f"{t:.0f} C" for t in np.round(v)], object)
 
 
-def leverages(f: ModelFit) -> np.ndarray:
-    """Leverage h_ii of each cell in a fit.
-
-    Parameters
-    ----------
-    f : ModelFit
-        The fit; its whitened Jacobian over the free columns defines the hat matrix.
-
-    Returns
-    -------
-    (N,) ndarray
-        Diagonal of the hat matrix U U^T, U an orthonormal basis of the free columns' span
-        [1]; it sums to the rank, and 1 - h_ii is the expected z_i^2 of a right model.
-    """
-    U = basis(f)
-    return np.sum(U * U, axis=1)
-
-
 def localise(f: ModelFit, alpha: float = 0.05) -> list[dict]:
     """Every segment of every dimension with its chi-square, expectation, Holm-adjusted
     p-value, share of its dimension's excess and mean residual (whitened and SI).
@@ -123,7 +105,8 @@ def localise(f: ModelFit, alpha: float = 0.05) -> list[dict]:
     6, 65-70 (1979).
     """
     z = f.fit.z
-    e = 1.0 - leverages(f)
+    U = basis(f)
+    e = 1.0 - np.sum(U * U, axis=1)        # 1 - h_ii: h the leverages, the diagonal of U U^T
     lab = _labels(f)
     si = residual_si(f)
     rows = []

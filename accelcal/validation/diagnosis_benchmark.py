@@ -39,9 +39,9 @@ import numpy as np
 from scipy import stats
 
 from ..effects import EFFECTS
+from ..fitting.blas import single_thread
 from ..fitting.model import processing_effects
 from ..simulate import load_scenario, simulate_campaign
-from ..diagnosis._blas import single_thread
 from ..diagnosis.core import diagnose, prepare_cells
 from ..diagnosis.fits import Fitter, basis, project_out
 from .simruns import SimRunFile
