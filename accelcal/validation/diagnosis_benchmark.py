@@ -340,7 +340,7 @@ def simulated_cases(quick: bool, seeds: int, n_clean: int, rng_seed: int = 20261
 def _lag_for(per: float, k: float, dt: float = 0.02) -> float:
     """A sampled lag whose delay gives SNR k (the lag is not linear in tau near 0: its
     delay dt a / (1 - a) is what the data see); ``per`` is tau per unit of SNR from the
-    signature at half a sample period (Fitter.step)."""
+    signature at half a sample period (Fitter.signature)."""
     tau0 = 0.5 * dt
     d0 = dt * math.exp(-dt / tau0) / (1 - math.exp(-dt / tau0))
     d = k * per * d0 / tau0
