@@ -43,7 +43,7 @@ from ..fitting.blas import single_thread
 from ..fitting.model import processing_effects
 from ..simulate import load_scenario, simulate_campaign
 from ..diagnosis.core import diagnose, prepare_cells
-from ..diagnosis.fits import Fitter, basis, project_out
+from ..diagnosis.fits import Fitter, project_out
 from .simruns import SimRunFile
 
 KINDS = ("centrifuge", "tumble", "tilt_rotation", "sine_centrifuge")
@@ -152,6 +152,7 @@ def snr_scale(kind: str, effect: str, baseline: list, seed: int,
               levels: int | None = None) -> tuple[float | None, float]:
     """(parameter per unit of SNR, observable fraction): the norm of the effect's signature
     projected off the bare model of a clean campaign (noise sigmas per parameter unit)."""
+    from ..diagnosis.fits import basis
     cells, _ = prepare_cells(runs_of(scenario(kind, {}, levels=levels), seed))
     F = Fitter(cells, baseline)
     f, sigs = F.bare([effect])
