@@ -207,10 +207,10 @@ def test_heldout_gap_cache_never_answers_for_a_collected_fit(monkeypatch):
         def __init__(self, value):
             self.value = value
 
-    monkeypatch.setattr(core, "heldout_gap", lambda f, fold, parts=None: f.value)
-    monkeypatch.setattr(core, "heldout_parts", lambda f, fold: None)
+    monkeypatch.setattr(core, "heldout_parts", lambda f, fold: f.value)
+    monkeypatch.setattr(core, "heldout_gap", lambda parts: parts)
     d = core._Diagnosis.__new__(core._Diagnosis)
-    d._ho, d._parts, d.fold = {}, {}, None
+    d._parts, d.fold = {}, None
     for k in range(2000):               # CPython reuses a freed object's address at once
         assert d.ho(FakeFit(k)) == k
 

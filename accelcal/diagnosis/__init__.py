@@ -1,4 +1,4 @@
-"""Sim-to-real gap diagnosis (issues 4 and 10): which catalogue effect the forward model
+"""Sim-to-real gap diagnosis: which catalogue effect the forward model
 misses, its size, where the gap lies and what shape it has, how far it shrinks in sample
 and held out; or that a gap remains that no catalogue effect explains.
 

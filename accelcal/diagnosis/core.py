@@ -42,15 +42,17 @@ import numpy as np
 from scipy import stats
 
 from ..effects import EFFECTS
+from ..fitting.core import pure_error_lack_of_fit
 from ..fitting.data import (RunCells, drop_duplicate_cells, fit_noise, make_run, pool_missing_noise,
                             reject_spikes, with_noise)
+from ..fitting.blas import single_thread
 from ..fitting.identify import ALIAS_COS, BASE, TAKEN_SHARE, UNOBSERVABLE_FRACTION, alias_cos, taken_up
 from ..fitting.model import processing_effects
-from ..physics.rigs import INSTRUMENT_EFFECTS, specific_force
-from ._blas import single_thread
-from .fits import (GAP_ALPHA, NON_CATALOGUE, Fit, Fitter, folds, gap_rms, gap_test, heldout_gap, heldout_parts,
-                   heldout_test, lr_test, project_out, shrink, variance_factor)
-from .localise import localise, residual_si, shape, shape_tests, summary, where
+from ..fitting.procedure import ModelFit
+from ..physics.rigs import specific_force
+from .fits import (GAP_ALPHA, NON_CATALOGUE, Fitter, basis, effect_parameter, effect_parameters, folds, gap_rms,
+                   gap_test, heldout_gap, heldout_parts, heldout_test, lr_test, project_out, shrink, uncertainty)
+from .localise import input_scale, localise, residual_si, shape, shape_tests, summary, where
 
 #: held-out shrink that names an effect (it removes half the gap on cells it was not fitted to)
 HELDOUT_GATE = 0.5
@@ -85,31 +87,22 @@ def _temperature_held(cells: Sequence[RunCells]) -> tuple[float, float] | None:
 
     One-way analysis of variance of ``temp_c`` over the cells of every run, pooled: the
     between-cell mean square (around each run's mean) over the within-cell one, F with
-    (sum (k_j - 1), sum (n_j - k_j)) degrees of freedom.  Held when p > TEMPERATURE_HELD_P.
+    (sum (k_j - 1), sum (n_j - k_j)) degrees of freedom
+    (:func:`accelcal.fitting.core.pure_error_lack_of_fit`).  Held when p >
+    TEMPERATURE_HELD_P.
     """
-    sb = sw = db = dw = 0.0
+    z, cell, n = [], [], 0
     for r in cells:
-        T = r.cols.get("temp_c")
-        if T is None:
-            continue
-        T = np.asarray(T, float)
+        T = np.asarray(r.cols.get("temp_c", np.full(r.cid.size, np.nan)), float)
         ok = (r.cid >= 0) & np.isfinite(T)
-        if ok.sum() < 3:
-            continue
-        cid = r.cid[ok]
-        n = np.bincount(cid, minlength=r.ncell).astype(float)
-        m = np.bincount(cid, weights=T[ok], minlength=r.ncell) / np.maximum(n, 1)
-        use = n > 0
-        grand = float(np.sum(n[use] * m[use]) / np.sum(n[use]))
-        sb += float(np.sum(n[use] * (m[use] - grand) ** 2))
-        sw += float(np.sum((T[ok] - m[cid]) ** 2))
-        db += float(use.sum() - 1)
-        dw += float(ok.sum() - use.sum())
-    if db <= 0 or dw <= 0 or sw <= 0:
+        if ok.sum() >= 3:                   # around the run's mean: one parameter per run
+            z.append(T[ok] - T[ok].mean())
+            cell.append(r.cid[ok] + n)
+            n += r.ncell
+    t = pure_error_lack_of_fit(np.concatenate(z), np.concatenate(cell), len(z)) if z else None
+    if t is None or t.p_value is None or t.dof_pe == 0:
         return None
-    F = (sb / db) / (sw / dw)
-    p = float(stats.f.sf(F, db, dw))
-    return (F, p) if p > TEMPERATURE_HELD_P else None
+    return (t.statistic, t.p_value) if t.p_value > TEMPERATURE_HELD_P else None
 
 
 def resolve_baseline(baseline, tests: Sequence[str]) -> tuple[list[str], str]:
@@ -197,9 +190,11 @@ def prepare_cells(runs) -> tuple[list[RunCells], list[str]]:
     notes = drop_duplicate_cells(cells)
     for c in cells:
         if reject_spikes(c):
-            notes += [n for n in c.notes if "spikes" in n]
+            notes.append(c.notes[-1])
         angle_level(c)
-    noise = pool_missing_noise(cells, [fit_noise(c, use_level=noise_grows(c), cautious=True) for c in cells])
+    # the level term wherever the level varies between cells
+    noise = pool_missing_noise(cells, [fit_noise(c, use_level=bool(c.x.size and np.ptp(c.x) > 0), cautious=True)
+                                       for c in cells])
     return [with_noise(c, m) for c, m in zip(cells, noise)], notes
 
 
@@ -229,22 +224,6 @@ def angle_level(run: RunCells) -> None:
     da = (specific_force(run.test, run.meta, up)[:, 0] - specific_force(run.test, run.meta, dn)[:, 0])
     run.x_rows = np.abs(da) / (2 * math.radians(h))
     run.x = run.cell_mean(run.x_rows)
-
-
-def noise_grows(run: RunCells) -> bool:
-    """Whether the run's noise model has its level term (the level varies between cells).
-
-    Parameters
-    ----------
-    run : RunCells
-        The run, with its cell levels ``x`` [m/s^2, or m/s^2 per rad on gravity tests].
-
-    Returns
-    -------
-    bool
-        True when ``x`` is not constant over the cells.
-    """
-    return bool(run.x.size and np.ptp(run.x) > 0)
 
 
 def diagnose(runs, baseline=None, alpha: float = 0.05, *, max_effects: int = 8, refit_top: int = 3) -> dict:
@@ -298,133 +277,86 @@ class _Diagnosis:
         self.alpha, self.max_effects, self.refit_top = alpha, max_effects, refit_top
         self.F = Fitter(self.cells, self.baseline)
         self.fold = folds(self.cells)
-        # held-out gap per fit, keyed by id() with the fit kept alive beside its value: an
-        # id alone can be reused by a new Fit once the old one is collected, which returned
-        # another model's held-out gap (an intermittent failure seen in CI)
-        self._ho: dict[int, tuple[Fit, float | None]] = {}
-        # and the held-out predictions behind it, which the held-out test reads too
-        self._parts: dict[int, tuple[Fit, tuple]] = {}
+        # the held-out predictions of each fit, keyed by id() with the fit kept alive beside
+        # them: an id alone is reused by a new fit once the old one is collected
+        self._parts: dict[int, tuple[ModelFit, tuple]] = {}
 
     # ------------------------------------------------------------------ helpers
-    def parts(self, f: Fit) -> tuple:
-        """:func:`.fits.heldout_parts` of a fit, made once (cached like :meth:`ho`)."""
+    def parts(self, f: ModelFit) -> tuple:
+        """:func:`.fits.heldout_parts` of a fit, made once."""
         hit = self._parts.get(id(f))
         if hit is None or hit[0] is not f:
             hit = self._parts[id(f)] = (f, heldout_parts(f, self.fold))
         return hit[1]
 
-    def ho(self, f: Fit) -> float | None:
-        hit = self._ho.get(id(f))
-        if hit is None or hit[0] is not f:
-            hit = self._ho[id(f)] = (f, heldout_gap(f, self.fold, parts=self.parts(f)))
-        return hit[1]
+    def ho(self, f: ModelFit) -> float | None:
+        """:func:`.fits.heldout_gap` of a fit."""
+        return heldout_gap(self.parts(f))
 
-    def param_values(self, model, effect: str, value: float) -> dict[str, float]:
-        """Start values of an effect's parameter(s) in a model that includes it."""
-        coef = INSTRUMENT_EFFECTS.get(effect)
-        out = {}
-        for prm, role in zip(model.params, model.roles):
-            if (role.kind == "effect" and role.key == effect) or (role.kind == "coef" and coef and role.key == coef):
-                out[prm.name] = value
-        return out
-
-    def score(self, f: Fit, effect: str, U: np.ndarray | None = None) -> tuple[float, float, float, np.ndarray]:
+    def score(self, f: ModelFit, effect: str, U: np.ndarray) -> tuple[float, float, float, np.ndarray]:
         """(score, linear estimate, its standard uncertainty, projected signature) of a
-        candidate against a fit."""
-        U = f.basis() if U is None else U
-        sp = project_out(U, self.F.signature(f.model, f.fit.values, effect))
+        candidate against a fit whose column space U spans (:func:`.fits.basis`)."""
+        sp = project_out(U, self.F.signature(f, effect))
         n2 = float(sp @ sp)
         if n2 <= 0:
             return 0.0, 0.0, math.inf, sp
         est = float(sp @ f.fit.z) / n2
         return est * est * n2, est, 1.0 / math.sqrt(n2), sp
 
-    def trial(self, f: Fit, effect: str, est: float) -> Fit:
+    def trial(self, f: ModelFit, effect: str, est: float) -> ModelFit:
+        """The fit with a candidate added, started at its linear estimate (clipped to its
+        plausible size; a lag from its profile)."""
         lim = EFFECTS[effect].plausible
-        vals = {} if effect == "sensor_lag" else self.param_values(
-            self.F.model(f.effects + [effect]), effect, float(np.clip(est, -lim, lim)))
-        return self.F.fit(f.effects + [effect], start=f, values=vals)
+        at = None if effect == "sensor_lag" else (effect, float(np.clip(est, -lim, lim)))
+        return self.F.fit(f.effects + [effect], start=f, at=at)
 
     # ------------------------------------------------------------------ steps
-    def observability(self, bare: Fit, sigs: dict[str, np.ndarray]) -> dict[str, dict]:
-        U = bare.basis()
-        m = max(len(self.cands), 1)
-        zthr = float(stats.norm.isf(self.alpha / (2 * m)))
+    def observability(self, bare: ModelFit, sigs: dict[str, np.ndarray]) -> dict[str, dict]:
+        """Per candidate: whether the runs can see its signature off the bare model, and how
+        small an effect they could detect."""
+        U = basis(bare)
+        zthr = float(stats.norm.isf(self.alpha / (2 * max(len(self.cands), 1))))
+        # one test of the logged temperature for every candidate that would read it
+        temp = _temperature_held(self.cells) if set(self.cands) & set(TEMPERATURE_EFFECTS) else None
         obs = {}
-        held_once: list = []
-
-        def temperature_held():          # one test of the logged temperature for every candidate
-            if not held_once:
-                held_once.append(_temperature_held(self.cells))
-            return held_once[0]
-
         for c in self.cands:
-            applies = any(r.test in EFFECTS[c].tests for r in self.cells)
             s = sigs[c]
             ns = float(np.linalg.norm(s))
-            o = {"applies": applies, "observable": False, "observable_fraction": 0.0, "absorbed_fraction": None,
-                 "min_detectable": None, "signature": s}
+            o = obs[c] = {"observable": False, "observable_fraction": 0.0, "absorbed_fraction": None,
+                          "min_detectable": None}
             if ns == 0:
                 o["note"] = ("no signature in these runs: nothing they vary acts on it"
                              + (" (no temperature logged)" if c in ("bias_temperature", "scale_temperature") else ""))
-                obs[c] = o
                 continue
-            held = temperature_held() if c in TEMPERATURE_EFFECTS else None
-            if held is not None:
-                F, p = held
+            if c in TEMPERATURE_EFFECTS and temp is not None:
                 o["note"] = (f"not observable in these runs: the temperature they log is held within its "
-                             f"sensor noise (between-cell F = {F:.2g}, p = {p:.2g}); its signature would be "
-                             "that noise")
-                obs[c] = o
+                             f"sensor noise (between-cell F = {temp[0]:.2g}, p = {temp[1]:.2g}); its signature "
+                             "would be that noise")
                 continue
             sp = project_out(U, s)
             fr = float(np.linalg.norm(sp) / ns)
             o["observable_fraction"] = fr
             o["absorbed_fraction"] = float(max(0.0, 1.0 - fr * fr))
-            if fr >= UNOBSERVABLE_FRACTION:   # what is left of an absorbed one is rounding
-                o["projected"] = sp
-            if fr < UNOBSERVABLE_FRACTION:
-                ab = self.absorbed_by(bare, s)
-                o["absorbed_by"] = ab
+            if fr < UNOBSERVABLE_FRACTION:   # what is left of an absorbed one is rounding
+                # the bare model's parameters that take it up: share of |s|^2 [1] and how far one
+                # effect unit moves each [parameter unit / effect unit]
+                idx = np.flatnonzero(bare.active)
+                ab = o["absorbed_by"] = [{"parameter": bare.model.params[idx[k]].name, "share": sh, "per_unit": x}
+                                         for k, sh, x in taken_up(bare.fit.J[:, idx], s)]
                 o["note"] = (f"not observable in these runs: {100 * o['absorbed_fraction']:.4g} % of its signature "
                              f"lies in the bare model's columns ({', '.join(a['parameter'] for a in ab[:3])}); "
                              "whatever its size, those parameters take it up")
-                obs[c] = o
                 continue
+            o["projected"] = sp
             # against the noise, not the gap: the gap is what a candidate may explain
-            md = zthr / float(np.linalg.norm(sp))
-            o["min_detectable"] = md
-            if md > EFFECTS[c].plausible:
+            md = o["min_detectable"] = zthr / float(np.linalg.norm(sp))
+            o["observable"] = bool(md <= EFFECTS[c].plausible)
+            if not o["observable"]:
                 o["note"] = (f"weakly observable: the smallest size these runs could detect ({md:.3g} "
                              f"{EFFECTS[c].unit}) exceeds its largest plausible size ({EFFECTS[c].plausible:.3g})")
-                obs[c] = o
-                continue
-            o["observable"] = True
-            obs[c] = o
         return obs
 
-    def absorbed_by(self, f: Fit, s: np.ndarray) -> list[dict]:
-        """The bare model's parameters that take up a signature, by their share of it.
-
-        Parameters
-        ----------
-        f : Fit
-            The bare model's fit.
-        s : (N,) ndarray
-            Whitened signature of an effect [1 per effect unit].
-
-        Returns
-        -------
-        list of dict
-            Up to six rows, largest share first: ``parameter``, ``share`` of |s|^2 [1] and
-            ``per_unit``, how far one effect unit moves that parameter
-            [parameter unit / effect unit].
-        """
-        idx = np.flatnonzero(f.active)
-        return [{"parameter": f.model.params[idx[k]].name, "share": share, "per_unit": x}
-                for k, share, x in taken_up(f.fit.J[:, idx], s)]
-
-    def select(self, bare: Fit, obs: dict) -> tuple[Fit, list[str], list[dict], dict]:
+    def select(self, bare: ModelFit, obs: dict) -> tuple[ModelFit, list[str], list[dict], dict]:
         """Forward selection: score, refit the best, likelihood ratio and held-out gates."""
         cur, sel, steps = bare, [], []
         fits = {(): bare}
@@ -433,7 +365,7 @@ class _Diagnosis:
             rem = [c for c in pool if c not in sel]
             if not rem or cur.fit.dof <= 0:
                 break
-            U = cur.basis()
+            U = basis(cur)
             sc = {c: self.score(cur, c, U) for c in rem}
             top = sorted(rem, key=lambda c: -sc[c][0])[: self.refit_top]
             rows, best = [], None
@@ -488,28 +420,32 @@ class _Diagnosis:
         order = processing_effects(self.tests) + [e for e in EFFECTS if e not in processing_effects(self.tests)]
         return order.index(effect)
 
-    def entry(self, c: str, final: Fit, without: Fit, obs: dict, selected: bool, m: int) -> dict:
+    def row(self, c: str, obs: dict, **kw) -> dict:
+        """Ranking row of a candidate: what ``obs`` says of it, nothing estimated unless
+        ``kw`` says so."""
+        o = obs[c]
+        return {"effect": c, "estimate": None, "std_uncertainty": None, "unit": EFFECTS[c].unit, "z": None,
+                "delta_chi2": None, "p_value": None, "significant": False, "selected": False,
+                "shrink_in_sample": None, "shrink_heldout": None, "observable": o["observable"],
+                "observable_fraction": o["observable_fraction"], "absorbed_fraction": o["absorbed_fraction"],
+                "min_detectable": o["min_detectable"], "aliases": [], **kw}
+
+    def entry(self, c: str, final: ModelFit, without: ModelFit, obs: dict, selected: bool, m: int) -> dict:
         """Ranking row of an effect from a fit with it (final or add-one) and one without."""
-        name = final.effect_parameter(c)
+        name = effect_parameter(final, c)
         lr = lr_test(without, final, m, self.alpha)
         est = final.value(name) if name else None
-        u = final.std(name) if name else None
-        many = final.effect_parameters(c)
-        extra = {"estimates": {n: {"value": final.value(n), "std_uncertainty": final.std(n)} for n in many}} \
-            if len(many) > 1 else {}
-        return {"effect": c, "estimate": est, "std_uncertainty": u, "unit": EFFECTS[c].unit, **extra,
-                "z": (est / u) if (est is not None and u) else None, "delta_chi2": lr["delta_chi2"],
-                "p_value": lr["p_value"], "statistic": lr["statistic"],
-                "significant": bool(selected and lr["significant"]),
-                "selected": selected,
-                "shrink_in_sample": shrink(gap_rms(without), gap_rms(final)),
-                "shrink_heldout": shrink(self.ho(without), self.ho(final)),
-                **{f"heldout_{k}": v for k, v in heldout_test(
-                    without, final, self.fold, parts=(self.parts(without), self.parts(final))).items()
-                   if k != "cells"},
-                "observable": True, "observable_fraction": obs[c]["observable_fraction"],
-                "absorbed_fraction": obs[c]["absorbed_fraction"], "min_detectable": obs[c]["min_detectable"],
-                "aliases": []}
+        u = uncertainty(final, name) if name else None
+        many = effect_parameters(final, c)
+        extra = {"estimates": {n: {"value": final.value(n), "std_uncertainty": uncertainty(final, n)}
+                               for n in many}} if len(many) > 1 else {}
+        held_out = heldout_test(without, final, self.fold, parts=(self.parts(without), self.parts(final)))
+        return self.row(c, obs, estimate=est, std_uncertainty=u, **extra, z=(est / u) if (est is not None and u)
+                        else None, delta_chi2=lr["delta_chi2"], p_value=lr["p_value"], statistic=lr["statistic"],
+                        significant=bool(selected and lr["significant"]), selected=selected,
+                        shrink_in_sample=shrink(gap_rms(without), gap_rms(final)),
+                        shrink_heldout=shrink(self.ho(without), self.ho(final)),
+                        **{f"heldout_{k}": v for k, v in held_out.items() if k != "cells"})
 
     # ------------------------------------------------------------------ main
     def run(self) -> dict:
@@ -524,39 +460,31 @@ class _Diagnosis:
             others = [e for e in sel if e != c]
             wo = fits.get(tuple(others)) or self.F.fit(self.baseline + others, start=final)
             ranking.append(self.entry(c, final, wo, obs, True, m))
-        U = final.basis()
+        U = basis(final)
         rest = [c for c in self.cands if c not in sel and obs[c]["observable"]]
         sc = {c: self.score(final, c, U) for c in rest}
+        s2 = max(final.fit.chi2 / final.fit.dof, 1.0) if final.fit.dof > 0 else 1.0
         for k, c in enumerate(sorted(rest, key=lambda c: -sc[c][0])):
             if k < self.refit_top and final.fit.dof > 0:
                 ranking.append(self.entry(c, self.trial(final, c, sc[c][1]), final, obs, False, m))
             else:
                 s, est, se, _ = sc[c]
-                ranking.append({"effect": c, "estimate": est, "std_uncertainty": se * math.sqrt(
-                    variance_factor(final) if math.isfinite(variance_factor(final)) else 1.0), "unit": EFFECTS[c].unit,
-                    "z": est / se if se and math.isfinite(se) else None, "delta_chi2": s, "p_value": None,
-                    "significant": False, "selected": False, "shrink_in_sample": None, "shrink_heldout": None,
-                    "observable": True, "observable_fraction": obs[c]["observable_fraction"],
-                    "absorbed_fraction": obs[c]["absorbed_fraction"], "min_detectable": obs[c]["min_detectable"],
-                    "aliases": [], "note": "linear estimate (projected signature), not refitted"})
+                ranking.append(self.row(c, obs, estimate=est, std_uncertainty=se * math.sqrt(s2),
+                                        z=est / se if se and math.isfinite(se) else None, delta_chi2=s,
+                                        note="linear estimate (projected signature), not refitted"))
         unobservable = []
         for c in self.cands:
             if obs[c]["observable"]:
                 continue
             o = obs[c]
-            e = {"effect": c, "estimate": None, "std_uncertainty": None, "unit": EFFECTS[c].unit, "z": None,
-                 "delta_chi2": None, "p_value": None, "significant": False, "selected": False,
-                 "shrink_in_sample": None, "shrink_heldout": None, "observable": False,
-                 "observable_fraction": o["observable_fraction"], "absorbed_fraction": o["absorbed_fraction"],
-                 "min_detectable": o["min_detectable"], "aliases": [], "note": o.get("note", "")}
+            e = self.row(c, obs, note=o.get("note", ""))
             if "absorbed_by" in o:
                 e["absorbed_by"] = o["absorbed_by"]
                 self.instrument_aliases(e, bare)
             ranking.append(e)
             unobservable.append({k: e[k] for k in ("effect", "observable_fraction", "absorbed_fraction", "note")}
                                 | ({"absorbed_by": o["absorbed_by"]} if "absorbed_by" in o else {}))
-        self.aliases(ranking, obs)
-        self.held_coefficient_aliases(ranking, obs, bare)
+        self.aliases(ranking, obs, bare)
         # verdict: a selected effect that passes significance and the held-out gate
         # a gap worth naming: the bare model's lack of fit at 5 %, or a five-sigma effect of
         # its own (a two-sigma effect in a model that fits is not a diagnosis)
@@ -576,7 +504,7 @@ class _Diagnosis:
             self.alias_estimates(ranking[0], final, sel, obs)
         return self.report(bare, fits[()], final, sel, steps, ranking, unobservable, verdict)
 
-    def instrument_aliases(self, e: dict, bare: Fit) -> None:
+    def instrument_aliases(self, e: dict, bare: ModelFit) -> None:
         """An effect the bare model's instrument coefficients take up whole (a mount angle
         error in one mount plane is the unit's Kp, Kp = -dphi; a rate scale error on a
         centrifuge without a gravity reference is K1): those coefficients are its
@@ -588,7 +516,7 @@ class _Diagnosis:
         ----------
         e : dict
             Ranking row of an unobservable effect with ``absorbed_by``; changed in place.
-        bare : Fit
+        bare : ModelFit
             The bare model's fit.
         """
         m = bare.model
@@ -601,11 +529,11 @@ class _Diagnosis:
             if m.roles[i].key not in BASE:   # a cross term's whole estimate could be the effect; K1's not
                 e.setdefault("alias_estimates", {})[k] = bare.value(k) / a["per_unit"]
             e.setdefault("coefficient_aliases", []).append(
-                {"coefficient": k, "value": bare.value(k), "std_uncertainty": bare.std(k),
+                {"coefficient": k, "value": bare.value(k), "std_uncertainty": uncertainty(bare, k),
                  "unit": m.params[k].unit, "note": f"instrument coefficient the bare model determines; these runs cannot tell "
                          f"{e['effect']} from it, and the calibration keeps {k}"})
 
-    def alias_estimates(self, e: dict, final: Fit, sel: list[str], obs: dict) -> None:
+    def alias_estimates(self, e: dict, final: ModelFit, sel: list[str], obs: dict) -> None:
         """What each alias of the verdict would be if it were the cause: the final model with
         the alias in place of the verdict, refitted (its estimate and how much worse it fits)."""
         out = {}
@@ -613,85 +541,68 @@ class _Diagnosis:
             if d in sel or not obs.get(d, {}).get("observable"):
                 continue
             alt = self.F.fit([x for x in final.effects if x != e["effect"]] + [d], start=final)
-            name = alt.effect_parameter(d)
+            name = effect_parameter(alt, d)
             if name is not None:
                 out[d] = alt.value(name)
                 e.setdefault("alias_fit", {})[d] = {"delta_chi2_worse": alt.fit.chi2 - final.fit.chi2,
-                                                    "std_uncertainty": alt.std(name)}
+                                                    "std_uncertainty": uncertainty(alt, name)}
         if out:
             e["alias_estimates"] = out
 
-    def aliases(self, ranking: list[dict], obs: dict) -> None:
-        """Effects whose signatures, projected off the bare model, have |cos| > ALIAS_COS; and
-        the non-catalogue coefficients the bare model holds for an effect."""
-        proj = {c: o["projected"] for c, o in obs.items() if "projected" in o and np.any(o["projected"])}
-        held = self.F.extra_held
-        for e in ranking:
-            c = e["effect"]
-            if c in proj:
-                for d, b in proj.items():
-                    if d == c:
-                        continue
-                    cs = alias_cos(proj[c], b)
-                    if abs(cs) > ALIAS_COS:
-                        e["aliases"].append(d)
-                        e.setdefault("alias_cos", {})[d] = cs
-            co = [k for k, h in held.items() if c in h.aliased_with]
-            if co:
-                e["coefficient_aliases"] = [{"coefficient": k, "note": "instrument coefficient, not a catalogue "
-                                             "effect: held in the bare model so that the effect can be seen; the "
-                                             "runs cannot tell them apart"} for k in co]
-
-    def held_coefficient_aliases(self, ranking: list[dict], obs: dict, bare: Fit) -> None:
-        """Instrument coefficients the bare model holds because the runs cannot determine
-        them (:meth:`CampaignModel.select`: aliased, weakly determined) whose column,
-        projected off the bare model, an effect's projected signature matches (|cos| >
-        :data:`ALIAS_COS`): the effect's estimate is then that coefficient as much as the
-        effect (one 45 deg mount with Kip withheld: cross_coupling is Kip + Kpp), so the
-        coefficient is named among its ``aliases`` and in ``coefficient_aliases``.
+    def aliases(self, ranking: list[dict], obs: dict, bare: ModelFit) -> None:
+        """What the runs cannot tell each ranked effect from, both projected off the bare
+        model (|cos| above :data:`~accelcal.fitting.identify.ALIAS_COS`,
+        :func:`~accelcal.fitting.identify.alias_cos`): the other effects' signatures, and the
+        columns of the non-catalogue coefficients the bare model holds because the runs
+        cannot determine them (:meth:`CampaignModel.select`: the effect's estimate then
+        includes the coefficient; one 45 deg mount with Kip withheld: cross_coupling is
+        Kip + Kpp); and the coefficients held so that the effect can be seen
+        (:attr:`.fits.Fitter.extra_held`).
 
         Parameters
         ----------
         ranking : list of dict
-            Ranking rows, changed in place.
+            Ranking rows, changed in place (``aliases``, ``alias_cos``,
+            ``coefficient_aliases``).
         obs : dict
             :meth:`observability` (``projected`` signatures [1]).
-        bare : Fit
+        bare : ModelFit
             The bare model (its Jacobian has every column, held ones included).
         """
         m = bare.model
-        held = [(k, h.reason) for k, h in bare.held.items()
-                if k in m.params.index and m.roles[m.params.index[k]].kind == "coef"
-                and m.roles[m.params.index[k]].key in NON_CATALOGUE]
-        if not held:
-            return
-        U = bare.basis()
-        cols = {}
-        for k, why in held:
+        dirs = {c: o["projected"] for c, o in obs.items() if "projected" in o and np.any(o["projected"])}
+        why = {}
+        held = [(k, h) for k, h in bare.held.items() if k in m.params
+                and m.roles[m.params.index[k]].kind == "coef" and m.roles[m.params.index[k]].key in NON_CATALOGUE]
+        U = basis(bare) if held else None
+        for k, h in held:
             col = bare.fit.J[:, m.params.index[k]]
             v = project_out(U, col)
-            nv, nc = np.linalg.norm(v), np.linalg.norm(col)
             # a column the bare model takes up (a mount angle takes Kp) is not what an
             # effect's signature shows: only what is left of it counts
-            if nc > 0 and nv > UNOBSERVABLE_FRACTION * nc:
-                cols[k] = (v / nv, why)
+            if np.linalg.norm(col) > 0 and np.linalg.norm(v) > UNOBSERVABLE_FRACTION * np.linalg.norm(col):
+                dirs[k], why[k] = v, h.reason
         for e in ranking:
-            a = obs.get(e["effect"], {}).get("projected")
-            if a is None or not np.any(a):
+            c = e["effect"]
+            co = [k for k, h in self.F.extra_held.items() if c in h.aliased_with]
+            if co:
+                e["coefficient_aliases"] = [{"coefficient": k, "note": "instrument coefficient, not a catalogue "
+                                             "effect: held in the bare model so that the effect can be seen; the "
+                                             "runs cannot tell them apart"} for k in co]
+            if c not in dirs:
                 continue
-            a = a / np.linalg.norm(a)
-            for k, (v, why) in cols.items():
-                cs = float(a @ v)
-                if abs(cs) > ALIAS_COS and k not in e["aliases"]:
-                    e["aliases"].append(k)
-                    e.setdefault("alias_cos", {})[k] = cs
-                    if any(x["coefficient"] == k for x in e.get("coefficient_aliases", [])):
-                        continue                    # held for this effect already, and said so
+            for d, b in dirs.items():
+                cs = alias_cos(dirs[c], b)
+                if d == c or abs(cs) <= ALIAS_COS or d in e["aliases"]:
+                    continue
+                e["aliases"].append(d)
+                e.setdefault("alias_cos", {})[d] = cs
+                if d in why and not any(x["coefficient"] == d for x in e.get("coefficient_aliases", [])):
                     e.setdefault("coefficient_aliases", []).append(
-                        {"coefficient": k, "note": f"instrument coefficient the runs cannot determine ({why}; held "
+                        {"coefficient": d, "note": f"instrument coefficient the runs cannot determine ({why[d]}; held "
                                                    "at 0 in the bare model): the effect's estimate includes it"})
 
-    def report(self, bare0: Fit, bare: Fit, final: Fit, sel, steps, ranking, unobservable, verdict) -> dict:
+    def report(self, bare0: ModelFit, bare: ModelFit, final: ModelFit, sel, steps, ranking, unobservable, verdict) -> dict:
         """bare0: the bare model on its own noise model (its lack of fit is 'before'); bare:
         on the final noise model (gaps and shrinks are compared with the final fit on it)."""
         before, after = gap_test(bare0), gap_test(final)
@@ -723,23 +634,14 @@ class _Diagnosis:
                     "noise_rms_m_s2": _noise_si(final)},
              "chi2_before": bare.fit.chi2, "dof_before": bare.fit.dof,
              "chi2_after": final.fit.chi2, "dof_after": final.fit.dof}
-        if explained is False:
-            forms = shape(final)
-            unexplained = {"where": where(rows_a), "shape": forms, "text": "a significant gap remains that no "
-                           "catalogue effect explains: " + summary(rows_a, forms)}
-        else:
-            unexplained = None
-        status = self.status(before, after, verdict, sel)
-        K1 = {}
-        for c in final.model.campaigns:
-            n = final.model.name(c, "K1")
-            if n is not None:
-                K1[c] = final.value(n)
+        forms = shape(final) if explained is False else None
+        unexplained = {"where": where(rows_a), "shape": forms, "text": "a significant gap remains that no catalogue "
+                       "effect explains: " + summary(rows_a, forms)} if explained is False else None
         out = {
             "verdict": verdict,
             "verdict_aliases": next((e["aliases"] for e in ranking if e["effect"] == verdict), []) if verdict else [],
             "explained": explained,
-            "status": status,
+            "status": self.status(before, after, verdict, sel),
             "selected": sel,
             "baseline": {"label": self.label, "effects": self.baseline, "bare_model": _bare_text(bare0)},
             "ranking": ranking,
@@ -757,11 +659,10 @@ class _Diagnosis:
             "runs": [{"run_id": r.run_id, "test": r.test, "campaign": r.campaign, "cells": r.ncell,
                       "noise": {"a": r.noise.a, "b": r.noise.b, "rho": r.noise.rho, "dof": r.noise.dof,
                                 "source": r.noise.source}, "notes": r.notes} for r in self.F.cells],
-            "K1": K1,
+            "K1": {c: final.value(n) for c in final.model.campaigns if (n := final.model.name(c, "K1")) is not None},
             "where_all": rows_b,
-            "elapsed_s": None,
+            "_fits": {"before": bare0, "after": final},
         }
-        out["_fits"] = {"before": bare0, "after": final}
         out["elapsed_s"] = time.perf_counter() - self.t0
         return out
 
@@ -787,17 +688,12 @@ class _Diagnosis:
                 "gap too small to name an effect for (the bare model fits at 5 % and no effect has five sigma)")
 
 
-def _noise_si(f: Fit) -> float:
-    out = []
-    for j, r in enumerate(f.model.runs):
-        sl = f.model.rows(j)
-        n = f.model.name(r.campaign, "K1")
-        K1 = abs(f.value(n)) if n is not None else 1.0
-        out.append(f.model.sig[sl] / (K1 or 1.0))
-    return float(np.sqrt(np.mean(np.concatenate(out) ** 2))) if out else 0.0
+def _noise_si(f: ModelFit) -> float:
+    """rms noise sigma of a cell mean, referred to the input [m/s^2]."""
+    return float(np.sqrt(np.mean((f.model.sig / input_scale(f)) ** 2))) if f.fit.n_obs else 0.0
 
 
-def _bare_text(f: Fit) -> str:
+def _bare_text(f: ModelFit) -> str:
     free = [p.name for p, v in zip(f.model.params, f.active) if v]
     held = [f"{k} ({h.reason})" for k, h in f.held.items()]
     return ("the forward model with the baseline effects; free: " + ", ".join(free)

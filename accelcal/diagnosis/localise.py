@@ -20,14 +20,15 @@ import numpy as np
 from scipy import stats
 
 from ..fitting.core import lstsq_min_norm
+from ..fitting.procedure import ModelFit
 from ..physics.rigs import specific_force
-from .fits import Fit
+from .fits import basis
 
 #: expected chi-square (residual degrees of freedom) below which a segment is not tested
 MIN_EXPECTED = 0.5
 
 
-def _labels(f: Fit) -> dict[str, np.ndarray]:
+def _labels(f: ModelFit) -> dict[str, np.ndarray]:
     """Per-cell labels (object arrays) of every dimension, and numeric values (float arrays,
     key prefixed '#')."""
     parts: dict[str, list] = {}
@@ -77,31 +78,13 @@ def _bins(dim: str, v: np.ndarray) -> np.ndarray:
     return np.array([f"{t:.0f} C" for t in np.round(v)], object)
 
 
-def leverages(f: Fit) -> np.ndarray:
-    """Leverage h_ii of each cell in a fit.
-
-    Parameters
-    ----------
-    f : Fit
-        The fit; its whitened Jacobian over the free columns defines the hat matrix.
-
-    Returns
-    -------
-    (N,) ndarray
-        Diagonal of the hat matrix U U^T, U an orthonormal basis of the free columns' span
-        [1]; it sums to the rank, and 1 - h_ii is the expected z_i^2 of a right model.
-    """
-    U = f.basis()
-    return np.sum(U * U, axis=1)
-
-
-def localise(f: Fit, alpha: float = 0.05) -> list[dict]:
+def localise(f: ModelFit, alpha: float = 0.05) -> list[dict]:
     """Every segment of every dimension with its chi-square, expectation, Holm-adjusted
     p-value, share of its dimension's excess and mean residual (whitened and SI).
 
     Parameters
     ----------
-    f : Fit
+    f : ModelFit
         The fit whose whitened cell residuals are localised.
     alpha : float
         Family-wise significance level of the Holm procedure over all segments [1].
@@ -122,7 +105,8 @@ def localise(f: Fit, alpha: float = 0.05) -> list[dict]:
     6, 65-70 (1979).
     """
     z = f.fit.z
-    e = 1.0 - leverages(f)
+    U = basis(f)
+    e = 1.0 - np.sum(U * U, axis=1)        # 1 - h_ii: h the leverages, the diagonal of U U^T
     lab = _labels(f)
     si = residual_si(f)
     rows = []
@@ -157,27 +141,41 @@ def localise(f: Fit, alpha: float = 0.05) -> list[dict]:
     return rows
 
 
-def residual_si(f: Fit) -> np.ndarray:
-    """Cell residuals in m/s^2 of input (whitened residual x sigma / K1 of the campaign).
+def input_scale(f: ModelFit) -> np.ndarray:
+    """|K1| of each cell's campaign, which refers an output to the input.
 
     Parameters
     ----------
-    f : Fit
-        The fit; |K1| of each run's campaign [output_unit per m/s^2] converts its cells
-        (1 when the model has no K1).
+    f : ModelFit
+        The fit.
 
     Returns
     -------
     (N,) ndarray
-        Residual of each cell mean, referred to the input [m/s^2].
+        [output_unit per m/s^2]; 1 where the model has no K1 or its estimate is 0.
     """
-    out = np.zeros(f.fit.n_obs)
+    out = np.ones(f.fit.n_obs)
     for j, r in enumerate(f.model.runs):
-        sl = f.model.rows(j)
         name = f.model.name(r.campaign, "K1")
-        K1 = abs(f.fit.values[f.model.params.index[name]]) if name in f.model.params.index else 1.0
-        out[sl] = f.fit.z[sl] * f.model.sig[sl] / (K1 or 1.0)
+        if name is not None:
+            out[f.model.rows(j)] = abs(f.fit.value(name)) or 1.0
     return out
+
+
+def residual_si(f: ModelFit) -> np.ndarray:
+    """Cell residuals referred to the input: whitened residual x sigma / :func:`input_scale`.
+
+    Parameters
+    ----------
+    f : ModelFit
+        The fit.
+
+    Returns
+    -------
+    (N,) ndarray
+        Residual of each cell mean [m/s^2].
+    """
+    return f.fit.z * f.model.sig / input_scale(f)
 
 
 #: family-wise level of the targeted shape tests (:func:`shape_tests`): as strong a claim as
@@ -185,7 +183,7 @@ def residual_si(f: Fit) -> np.ndarray:
 SHAPE_ALPHA = 0.001
 
 
-def shape_tests(f: Fit, alpha: float = SHAPE_ALPHA) -> list[dict]:
+def shape_tests(f: ModelFit, alpha: float = SHAPE_ALPHA) -> list[dict]:
     """Targeted tests of shaped gaps the omnibus lack-of-fit test dilutes over every cell:
     a centrifuge's rising against its falling steps (a sweep hysteresis), flat
     and in proportion to the signed IA input, and its + against its - polarity in proportion
@@ -199,7 +197,7 @@ def shape_tests(f: Fit, alpha: float = SHAPE_ALPHA) -> list[dict]:
 
     Parameters
     ----------
-    f : Fit
+    f : ModelFit
         The fit whose residuals are tested.
     alpha : float
         Family-wise level [1].
@@ -260,7 +258,7 @@ def where(rows: list[dict]) -> list[dict]:
 
 
 # ----------------------------------------------------------------------------- shape
-def _forms(lab: dict, f: Fit) -> list[tuple[str, str, np.ndarray]]:
+def _forms(lab: dict, f: ModelFit) -> list[tuple[str, str, np.ndarray]]:
     """(dimension, description, design) of each simple form."""
     out = []
     runs = lab["run"]
@@ -302,7 +300,7 @@ def _forms(lab: dict, f: Fit) -> list[tuple[str, str, np.ndarray]]:
     return out
 
 
-def shape(f: Fit, top: int = 3) -> list[dict]:
+def shape(f: ModelFit, top: int = 3) -> list[dict]:
     """The simple forms that explain most of the excess of the residual (share of
     sum z^2 - dof explained by each, after projecting the form off the model's columns).
 
@@ -311,7 +309,7 @@ def shape(f: Fit, top: int = 3) -> list[dict]:
 
     Parameters
     ----------
-    f : Fit
+    f : ModelFit
         The fit whose whitened residual is examined.
     top : int
         Most forms returned [1].
@@ -327,7 +325,7 @@ def shape(f: Fit, top: int = 3) -> list[dict]:
     if excess <= 0 or f.fit.dof < 3:      # a gap with one or two degrees of freedom has no shape
         return []
     lab = _labels(f)
-    U = f.basis()
+    U = basis(f)
     out = []
     for dim, words, X in _forms(lab, f):
         Xw = X / f.model.sig[:, None]

@@ -38,9 +38,9 @@ from pathlib import Path
 import numpy as np
 
 from ..effects import EFFECTS
+from ..fitting.blas import single_thread
 from ..fitting.model import processing_effects
 from ..simulate import load_scenario, simulate_campaign
-from ..diagnosis._blas import single_thread
 from ..diagnosis.core import diagnose, prepare_cells
 from ..diagnosis.fits import Fitter, project_out
 from .montecarlo import wilson
@@ -152,13 +152,14 @@ def snr_scale(kind: str, effect: str, baseline: list, seed: int,
               levels: int | None = None) -> tuple[float | None, float]:
     """(parameter per unit of SNR, observable fraction): the norm of the effect's signature
     projected off the bare model of a clean campaign (noise sigmas per parameter unit)."""
+    from ..diagnosis.fits import basis
     cells, _ = prepare_cells(runs_of(scenario(kind, {}, levels=levels), seed))
     F = Fitter(cells, baseline)
     f, sigs = F.bare([effect])
     s = sigs[effect]
     if not np.any(s):
         return None, 0.0
-    sp = project_out(f.basis(), s)
+    sp = project_out(basis(f), s)
     frac = float(np.linalg.norm(sp) / np.linalg.norm(s))
     return (1.0 / float(np.linalg.norm(sp)) if frac > 1e-3 else None), frac
 
@@ -328,7 +329,7 @@ def simulated_cases(quick: bool, seeds: int, n_clean: int, rng_seed: int = 20261
 def _lag_for(per: float, k: float, dt: float = 0.02) -> float:
     """A sampled lag whose delay gives SNR k (the lag is not linear in tau near 0: its
     delay dt a / (1 - a) is what the data see); ``per`` is tau per unit of SNR from the
-    signature at half a sample period (Fitter.step)."""
+    signature at half a sample period (Fitter.signature)."""
     tau0 = 0.5 * dt
     d0 = dt * math.exp(-dt / tau0) / (1 - math.exp(-dt / tau0))
     d = k * per * d0 / tau0
