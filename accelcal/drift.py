@@ -50,6 +50,7 @@ import numpy as np
 from scipy import stats
 
 from .fitting.core import FitResult, linear_fit
+from .fitting.identify import design_rank
 
 #: Two step positions whose p values agree to this relative tolerance are a tie (the data
 #: cannot place the step); the later one is taken.
@@ -302,7 +303,7 @@ def fit_drift(t, x, u, prior: FleetPrior | None = None, prior_dof: float = PRIOR
         raise ValueError("every campaign needs a positive standard uncertainty")
     t_ref = float(np.mean(t))
     X = _design(t, t_ref, step_at, segments)
-    if np.linalg.matrix_rank(X) < X.shape[1]:
+    if design_rank(X) < X.shape[1]:
         raise ValueError("the series does not determine a level and a drift rate")
     Q, nu_j, c = scatter_moments(X, x, u)
     own = (Q - nu_j) / c if nu_j > 0 and c > 0 else None
@@ -331,7 +332,7 @@ def slope_change_p(t, x, u, start: int, prior: FleetPrior | None = None,
         return None
     X = _design(t, f.t_ref, None, segments)
     X = np.column_stack([X, (t - f.t_ref) * (np.arange(len(t)) >= start)])
-    if np.linalg.matrix_rank(X) < X.shape[1]:
+    if design_rank(X) < X.shape[1]:
         return None
     beta, cov, _ = _wls(X, x, u ** 2 + f.tau2)
     return float(2 * stats.t.sf(abs(beta[-1]) / math.sqrt(cov[-1, -1]), f.dof))

@@ -20,6 +20,7 @@ import numpy as np
 from scipy import stats
 
 from ..fitting.core import lstsq_min_norm
+from ..fitting.identify import design_rank
 from ..fitting.procedure import ModelFit
 from ..physics.rigs import specific_force
 from .fits import basis
@@ -332,7 +333,7 @@ def shape(f: ModelFit, top: int = 3) -> list[dict]:
         Xp = Xw - U @ (U.T @ Xw)
         if not np.any(np.linalg.norm(Xp, axis=0) > 1e-12 * max(np.linalg.norm(Xw), 1e-300)):
             continue
-        k = int(np.linalg.matrix_rank(Xp)) + (1 if words.startswith("periodic") else 0)
+        k = design_rank(Xp) + (1 if words.startswith("periodic") else 0)
         if k > f.fit.dof - 2:
             continue
         c = lstsq_min_norm(Xp, f.fit.z, rcond=1e-10)

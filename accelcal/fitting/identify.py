@@ -252,6 +252,14 @@ class Combination:
         return dict(self.terms)
 
 
+def design_rank(X: np.ndarray) -> int:
+    """Numerical rank of a design as its columns stand [1]: singular values above
+    max(shape) eps s_max (numpy's rule), so a column at rounding level counts as none,
+    where the column-scaled rank of :func:`~accelcal.fitting.core.lstsq_svd` would count
+    it full (a per-run offset that the runs' biases already take)."""
+    return int(np.linalg.matrix_rank(X))
+
+
 def display_name(label: str, comb: Combination | None) -> str:
     """The row name of what a parameter measures: ``label`` with the names of the terms the
     combination takes up (:func:`accelcal.effects.combination_name`, ``'K2(Koo)'``; their
