@@ -23,7 +23,6 @@ import numpy as np
 
 from ..effects import split_combination
 from ..results import BudgetTerm
-from .records import TumbleCoefficient
 from ..fitting.distributions import norm_ppf
 
 #: half-width / standard uncertainty of the bounded distributions.
@@ -274,7 +273,7 @@ def _key(c) -> tuple[str, str, str, float]:
     """(method, rig, what the row estimates, value) of a coefficient record: a tumble row by
     its fitted parameter (:attr:`.records.TumbleCoefficient.key`); any other row by the
     quantity its name stands for (``K0`` of ``K0(Koo)``)."""
-    return c.method, c.rig_id, c.key if isinstance(c, TumbleCoefficient) else split_combination(c.name)[0], c.value
+    return c.method, c.rig_id, getattr(c, "key", None) or split_combination(c.name)[0], c.value
 
 
 def add_stated_g_local(est, runs: Sequence, steps, records: list, stated) -> None:
