@@ -18,6 +18,7 @@ import math
 import numpy as np
 import pytest
 
+from accelcal.effects import split_combination
 from accelcal.config import ConfigError, rig_uncertainties
 from accelcal.estimators.campaign import process_campaign
 from accelcal.ops.certificate import missing_rig_inputs
@@ -72,12 +73,12 @@ def test_thermal_table_sensitivities_match_paper_001():
     g, gamma, sxx = _thermal_truth(runs[0])
     res = process_campaign(runs, {rig: {"g_local": 1e-5, "table_tilt": 0.002, "temperature": 0.05}})
     for method in ("joint_ml", "tilt_rotation_ls"):
-        coef = {c.name.split("+")[0]: c for c in res.coefficients if c.method == method}
+        coef = {split_combination(c.name)[0]: c for c in res.coefficients if c.method == method}
         sens = {}
         for b in res.budget:
             if b.method == method and b.type == "B" and not b.quantity.startswith("K"):
                 what = next(w for w in ("gravity", "tilt", "temperature") if w in b.quantity)
-                sens[(b.coefficient.split("+")[0], what)] = b.sensitivity
+                sens[(split_combination(b.coefficient)[0], what)] = b.sensitivity
         K1, K0T, K1T = coef["K1"].value, coef["K0T"].value, coef["K1T"].value
         assert sens[("K1", "gravity")] == pytest.approx(-K1 / g, rel=1e-3), method
         assert sens[("K1", "tilt")] == pytest.approx(-K1 / math.tan(gamma), rel=1e-3), method
