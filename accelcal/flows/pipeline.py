@@ -178,8 +178,10 @@ def campaigns_per_store() -> int:
 
 
 #: Campaigns planned (their input runs read from the warehouse) at a time: the plans of
-#: a whole fleet would be held for the whole science stage (~10 KB a campaign).
-CAMPAIGNS_PER_PLAN = 256
+#: a whole fleet would be held for the whole science stage (~10 KB a campaign).  Each
+#: window costs two queries over the whole warehouse's current runs (~0.1 s each at
+#: 2,000 campaigns), so a window holds ~10 MB of plans rather than a few.
+CAMPAIGNS_PER_PLAN = 1024
 
 
 def campaigns_per_plan() -> int:

@@ -16,11 +16,13 @@ from __future__ import annotations
 
 from typing import Any, Protocol
 
+from ..fileio import path_text
 from ..tasks import science as _science
 from ..tasks import store as _store
 from ..tasks import validate as _validate
 from ..tasks.ingest import DropIngest
 from ..warehouse.db import Warehouse
+from ..warehouse.lineage import validator_version
 
 
 class Future(Protocol):
@@ -78,14 +80,27 @@ class LocalSteps:
 
     def __init__(self, pool=None):
         self._submit = _Done if pool is None else pool.submit
+        self._vv: str | None = None
 
     def known_keys(self, wh, drop):
         return _store.known_keys(wh, drop)
 
     def submit_intake(self, drop, batch, parquet_root, warehouse_root, known, docs_root, part,
                       allow_simulated):
-        return self._submit(_validate.intake_batch, drop, batch, parquet_root, warehouse_root,
-                            known, docs_root, part, allow_simulated)
+        # a batch whose every file is recorded with a verdict of this validator is only
+        # hashed (a re-run with nothing new): done here, not in a worker process that
+        # would be started (and import the science) for it
+        submit = _Done if self._all_known(batch, known) else self._submit
+        return submit(_validate.intake_batch, drop, batch, parquet_root, warehouse_root,
+                      known, docs_root, part, allow_simulated)
+
+    def _all_known(self, batch, known) -> bool:
+        if self._submit is _Done or not batch:
+            return True
+        if self._vv is None:
+            self._vv = validator_version()
+        paths = {p for (_, p), v in known.items() if v == self._vv}
+        return all(path_text(getattr(e, "path", e)) in paths for e in batch)
 
     def record_drop(self, wh, ing, flow_run_id):
         return _store.record_drop(wh, ing, flow_run_id)

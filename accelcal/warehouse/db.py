@@ -593,11 +593,15 @@ class Warehouse:
             _cp(checkpoint, f"run:{i}")
 
     def latest_verdicts(self, source_prefix: str) -> dict[tuple[str, str], str]:
-        """(sha256, source_path) -> validator_version of its latest verdict, below a folder."""
+        """(sha256, source_path) -> validator_version of its latest verdict, below a folder
+        (as the ``runs`` view says; the verdicts are taken below the folder first, so a
+        drop costs its own files, not the warehouse's)."""
         with self.connect() as con:
             rows = con.execute(
-                "SELECT sha256, source_path, validator_version FROM runs "
-                "WHERE starts_with(source_path, ?)", [source_prefix]).fetchall()
+                "SELECT sha256, source_path, arg_max(validator_version, seq) FROM run_verdicts "
+                "WHERE starts_with(source_path, ?) AND (sha256, source_path) IN ("
+                "  SELECT (sha256, source_path) FROM run_files WHERE starts_with(source_path, ?)) "
+                "GROUP BY sha256, source_path", [source_prefix, source_prefix]).fetchall()
         return {(a, b): c for a, b, c in rows}
 
     def stored_runs(self, keys: list[tuple[str, str]]) -> list[dict[str, Any]]:
