@@ -300,6 +300,14 @@ class Effect:
     coefficient: str | None = None
 
 
+def _instrument_effect(eid: str, tests: tuple[str, ...], coefficient: str, definition: str) -> Effect:
+    """An effect that is an instrument-model coefficient (effects.md: ``cross_coupling`` is
+    Kip): its unit, typical and plausible size are the coefficient's, one fact in one place."""
+    c = COEFFICIENTS[coefficient]
+    return Effect(eid, tests, coefficient, c.unit, definition, typical=c.typical, plausible=c.plausible,
+                  coefficient=coefficient)
+
+
 EFFECTS: dict[str, Effect] = {e.id: e for e in [
     Effect("earth_rate", ("centrifuge", "sine_centrifuge"), "scale", "1",
            "the Omega_e*sin(latitude) part of omega_z; 1 means the physical size", typical=1.0, plausible=3.0),
@@ -326,15 +334,15 @@ EFFECTS: dict[str, Effect] = {e.id: e for e in [
            "the tilt gamma grows linearly in time from the run start", typical=1e-09, plausible=1e-07),
     Effect("tilt_tide", ("tilt_rotation",), "amplitude", "rad",
            "gamma gains A*sin(2*pi*t/44712 s)", typical=1e-06, plausible=0.0001),
-    Effect("bias_temperature", TESTS, "K0T", "m/s2/degC", "as in the instrument model", typical=1e-05, plausible=0.001, coefficient="K0T"),
-    Effect("scale_temperature", TESTS, "K1T", "1/degC", "as in the instrument model", typical=1e-05, plausible=0.001, coefficient="K1T"),
+    _instrument_effect("bias_temperature", TESTS, "K0T", "as in the instrument model"),
+    _instrument_effect("scale_temperature", TESTS, "K1T", "as in the instrument model"),
     Effect("bias_drift", TESTS, "d", "m/s2/s", "K0 grows by d*t, t = time_s", typical=1e-08, plausible=1e-05),
-    Effect("odd_quadratic", ("centrifuge", "sine_centrifuge"), "Koq", "s2/m",
-           "instrument term, when the baseline model omits it", typical=1e-07, plausible=0.0001, coefficient="Koq"),
-    Effect("cubic", ("centrifuge", "sine_centrifuge"), "K3", "s4/m2",
-           "instrument term, when the baseline model omits it", typical=1e-09, plausible=1e-07, coefficient="K3"),
-    Effect("cross_coupling", ("centrifuge", "sine_centrifuge"), "Kip", "s2/m",
-           "instrument term, when the baseline model omits it", typical=1e-06, plausible=0.0001, coefficient="Kip"),
+    _instrument_effect("odd_quadratic", ("centrifuge", "sine_centrifuge"), "Koq",
+                       "instrument term, when the baseline model omits it"),
+    _instrument_effect("cubic", ("centrifuge", "sine_centrifuge"), "K3",
+                       "instrument term, when the baseline model omits it"),
+    _instrument_effect("cross_coupling", ("centrifuge", "sine_centrifuge"), "Kip",
+                       "instrument term, when the baseline model omits it"),
 ]}
 
 

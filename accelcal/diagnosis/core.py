@@ -69,6 +69,9 @@ GAP_SEEN = 0.05
 #: an effect the verdict may name when several are found: a five-sigma part of the
 #: chi-square; if none has it, the largest is named
 VERDICT_STATISTIC = 25.0
+#: An effect whose estimate exceeds this many times its catalogue plausible size is not a
+#: verdict (:meth:`_Diagnosis.implausible`) [1].
+IMPLAUSIBLE = 10.0
 #: a sine run's cells: the drive's phases in this many stretches of time (a slow change in
 #: time, a bias drift, then shows between cells instead of inside them)
 SINE_SEGMENTS = 4
@@ -310,6 +313,20 @@ class _Diagnosis:
         at = None if effect == "sensor_lag" else (effect, float(np.clip(est, -lim, lim)))
         return self.F.fit(f.effects + [effect], start=f, at=at)
 
+    @staticmethod
+    def implausible(e: dict) -> bool:
+        """Whether a ranked effect's estimate lies beyond :data:`IMPLAUSIBLE` times its
+        catalogue plausible size; if so its note says so.  Such an estimate is no verdict:
+        it is evidence that the gap is something the catalogue does not hold (an effect
+        that size would be a broken instrument, not an unmodelled one)."""
+        est, lim = e.get("estimate"), EFFECTS[e["effect"]].plausible
+        if est is None or not lim or abs(est) <= IMPLAUSIBLE * lim:
+            return False
+        e["note"] = "; ".join(x for x in (e.get("note"), (
+            f"estimate {est:.2g} {EFFECTS[e['effect']].unit} is {abs(est) / lim:.0f} x its largest plausible "
+            f"size ({lim:.2g}): not a verdict; the gap is likely something the catalogue does not hold")) if x)
+        return True
+
     # ------------------------------------------------------------------ steps
     def observability(self, bare: ModelFit, sigs: dict[str, np.ndarray]) -> dict[str, dict]:
         """Per candidate: whether the runs can see its signature off the bare model, and how
@@ -489,7 +506,8 @@ class _Diagnosis:
         # a gap worth naming: the bare model's lack of fit at 5 %, or a five-sigma effect of
         # its own (a two-sigma effect in a model that fits is not a diagnosis)
         gap = bare.fit.lof.p_value is not None and bare.fit.lof.p_value < GAP_SEEN
-        ok = [e for e in ranking if e["selected"] and e["significant"]
+        implausible = {e["effect"] for e in ranking if self.implausible(e)}
+        ok = [e for e in ranking if e["selected"] and e["significant"] and e["effect"] not in implausible
               and ((e["shrink_heldout"] or -math.inf) >= HELDOUT_GATE or (e.get("heldout_z") or 0.0) >= HELDOUT_Z)
               and (gap or (e.get("statistic") or 0.0) >= VERDICT_STATISTIC)]
         # of several, the one the processing model carries first among those that carry a
