@@ -44,7 +44,7 @@ import pandas as pd
 
 from ..constants import MICRO_G, T_REF_C
 from ..effects import CROSS_AXIS_TERM, RIG_INPUTS, SQUARE_TERM
-from ..fitting.core import lack_of_fit, linear_fit, lstsq_svd
+from ..fitting.core import lack_of_fit, linear_fit, lstsq_svd, straight_line_slope
 from ..fitting.data import unique_small_ints
 from ..fitting.distributions import chi2_sf, t_ppf
 from ..physics.axes import parse_signed_axis
@@ -723,11 +723,7 @@ def temperature_correlation(series, temp_c) -> dict[str, float | None]:
                 "slope_ug_per_degC": None, "u_slope_ug_per_degC": None, "r": None}
     # r first: np.corrcoef copies both series, which is the peak of a long run
     r = float(np.corrcoef(T, y)[0, 1]) if np.std(y) > 0 else 0.0
-    Tc = T - T.mean()
-    sxx = float(Tc @ Tc)
-    slope = float(Tc @ (y - y.mean())) / sxx
-    resid = y - y.mean() - slope * Tc
-    u = math.sqrt(float(resid @ resid) / (n - 2) / sxx)
+    slope, u = straight_line_slope(T, y)
     return {"n": int(n), "slope_m_s2_per_degC": slope, "u_slope_m_s2_per_degC": u,
             "slope_ug_per_degC": slope / MICRO_G, "u_slope_ug_per_degC": u / MICRO_G, "r": r}
 
