@@ -142,7 +142,8 @@ class Proposal:
 class Advice:
     """The advice: targets, the current prediction, the proposals (best first), notes; the
     noise model and set-up times it assumed; the targets' current values [SI] (a relative
-    u, K1's in ppm, reads against them)."""
+    u, K1's in ppm, reads against them) and the typical size each counts from while it
+    is not determined (its gain's prior)."""
     targets: list[str]
     separate: list[tuple[str, str]]
     current: Prediction
@@ -154,6 +155,7 @@ class Advice:
     noise: list[dict] = field(default_factory=list)
     setup_min: dict[str, float] = field(default_factory=dict)
     values: dict[str, float] = field(default_factory=dict)
+    typical: dict[str, float | None] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         """The JSON form: current, proposals with runs in drop-format keys."""
@@ -733,7 +735,7 @@ def _advise(cells, baseline, targets, separate, max_runs, candidates, top, state
     return Advice(targets=list(tmap), separate=list(separate), current=cur, proposals=out, units=units,
                   plausible=plaus, notes=notes, candidates=len(cands),
                   noise=noise_statement(cells, _scale_factor(made, p_made)),
-                  setup_min=setup, values={(model.params.names[i] if len(ix) > 1 else t): float(p[i])
+                  setup_min=setup, typical=prior, values={(model.params.names[i] if len(ix) > 1 else t): float(p[i])
                                            for t, ix in tmap.items() for i in ix})
 
 

@@ -28,7 +28,6 @@ Families (the partial designs a lab meets):
 from __future__ import annotations
 
 import argparse
-import copy
 import json
 import math
 import sys
@@ -42,10 +41,8 @@ import numpy as np  # noqa: E402
 
 import bench_design as bd  # noqa: E402
 from accelcal import testdesign as td  # noqa: E402
-from accelcal.diagnosis.core import prepare_cells  # noqa: E402
 from accelcal.fitting.model import processing_effects  # noqa: E402
-from accelcal.simulate import load_scenario, simulate_campaign  # noqa: E402
-from accelcal.validation.simruns import SimRunFile  # noqa: E402
+from accelcal.simulate import load_scenario  # noqa: E402
 
 #: Largest relative distance of the empirical sd and of the mean reported u from the
 #: prediction for a case to hold [1].
@@ -89,15 +86,8 @@ def family(name: str):
 
 def _achieved(sc, prop, base, targets, separate, seeds) -> list[td.Prediction]:
     """Fits of the campaign with the proposal's runs added, one per noise seed."""
-    sc2 = copy.deepcopy(sc)
-    for k, c in enumerate(prop.runs):
-        sc2 = bd._add(sc2, c, k)
-    out = []
-    for s in seeds:
-        runs = [SimRunFile.from_simrun(r) for r in simulate_campaign(sc2, s)]
-        cells, _ = prepare_cells(runs)
-        out.append(td.fitted_uncertainty(cells, base, targets, separate))
-    return out
+    sc2 = bd.with_runs(sc, prop.runs)
+    return [td.fitted_uncertainty(bd.simulated(sc2, s)[1], base, targets, separate) for s in seeds]
 
 
 def _score(adv: td.Advice, prop: td.Proposal, got: list[td.Prediction]) -> float:
@@ -106,21 +96,14 @@ def _score(adv: td.Advice, prop: td.Proposal, got: list[td.Prediction]) -> float
     for k in prop.predicted.std_uncertainty:
         us = [g.std_uncertainty.get(k) for g in got]
         mean[k] = None if any(u is None for u in us) else float(np.mean(us))
-    prior = {n: td.typical_size(n.split("[", 1)[0]) if n.split("[", 1)[0] in td.EFFECTS
-             or td.coefficient_spec(n.split("[", 1)[0]) else None for n in mean}
     corr = {k: float(np.mean([g.corr[k] for g in got])) if all(g.corr.get(k) is not None for g in got) else None
             for k in prop.predicted.corr}
-    return td._gain(adv.current, td.Prediction(mean, corr), prior) / max(prop.minutes, 1e-9)
+    return td._gain(adv.current, td.Prediction(mean, corr), adv.typical) / max(prop.minutes, 1e-9)
 
 
 def one(name: str, seed: int, draws: int, rivals: int, rival_draws: int) -> dict:
     sc, base, targets, separate, keep = family(name)
-    runs0 = [SimRunFile.from_simrun(r) for r in simulate_campaign(sc, seed)]
-    cells0, _ = prepare_cells(runs0)
-    cands = td.candidate_runs(cells0)
-    if keep is not None:
-        cands = [c for c in cands if keep(c)]
-    adv = td.advise(cells0, base, targets, separate, 2, cands, top=1 + rivals)
+    adv = bd.advice_on(sc, seed, base, targets, separate, keep, top=1 + rivals)
     if not adv.proposals:
         return {"family": name, "seed": seed, "error": "no proposal", "notes": adv.notes}
     top = adv.proposals[0]
@@ -197,13 +180,8 @@ def main(argv=None) -> int:
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args(argv)
     t0 = time.perf_counter()
-    rows = []
-    for fam in a.families.split(","):
-        for seed in range(a.seeds):
-            r = one(fam, seed, a.draws, a.rivals, a.rival_draws)
-            rows.append(r)
-            print(f"{fam} {seed}: " + json.dumps({k: r.get(k) for k in ("proposal", "cases", "rivals", "error")},
-                                                 default=str), file=sys.stderr, flush=True)
+    rows = bd.each_campaign(a.families, a.seeds, lambda f, s: one(f, s, a.draws, a.rivals, a.rival_draws),
+                            ("proposal", "cases", "rivals", "error"))
     secs = time.perf_counter() - t0
     s = summary(rows)
     md = markdown(rows, s, secs, a)

@@ -98,22 +98,48 @@ def _add(sc, cand: td.Candidate, k: int):
     return sc
 
 
-def one(name: str, seed: int) -> dict:
-    sc, base, targets, separate, withheld, keep = _family(name)
-    runs0 = [SimRunFile.from_simrun(r) for r in simulate_campaign(sc, seed)]
-    cells0, _ = prepare_cells(runs0)
+def simulated(sc, seed: int):
+    """(run files, cells) of one simulated campaign, as ``accelcal design`` reads them."""
+    runs = [SimRunFile.from_simrun(r) for r in simulate_campaign(sc, seed)]
+    return runs, prepare_cells(runs)[0]
+
+
+def with_runs(sc, cands):
+    """A copy of the scenario with the proposed runs added."""
+    sc2 = copy.deepcopy(sc)
+    for k, c in enumerate(cands):
+        sc2 = _add(sc2, c, k)
+    return sc2
+
+
+def advice_on(sc, seed: int, base, targets, separate, keep, top: int) -> td.Advice:
+    """The advice on one simulated partial campaign, candidates filtered by ``keep``."""
+    cells0 = simulated(sc, seed)[1]
     cands = td.candidate_runs(cells0)
     if keep is not None:
         cands = [c for c in cands if keep(c)]
-    adv = td.advise(cells0, base, targets, separate, 2, cands, top=1)
+    return td.advise(cells0, base, targets, separate, 2, cands, top=top)
+
+
+def each_campaign(families: str, seeds: int, one, shown) -> list[dict]:
+    """``one(family, seed)`` for every campaign, each shown on stderr by the keys ``shown``."""
+    rows = []
+    for fam in families.split(","):
+        for seed in range(seeds):
+            r = one(fam, seed)
+            rows.append(r)
+            print(f"{fam} {seed}: " + json.dumps({k: r.get(k) for k in shown}, default=str),
+                  file=sys.stderr, flush=True)
+    return rows
+
+
+def one(name: str, seed: int) -> dict:
+    sc, base, targets, separate, withheld, keep = _family(name)
+    adv = advice_on(sc, seed, base, targets, separate, keep, top=1)
     if not adv.proposals:
         return {"family": name, "seed": seed, "error": "no proposal"}
     prop = adv.proposals[0]
-    sc2 = copy.deepcopy(sc)
-    for k, c in enumerate(prop.runs):
-        sc2 = _add(sc2, c, k)
-    runs1 = [SimRunFile.from_simrun(r) for r in simulate_campaign(sc2, seed)]
-    cells1, _ = prepare_cells(runs1)
+    runs1, cells1 = simulated(with_runs(sc, prop.runs), seed)
     got = td.fitted_uncertainty(cells1, base, targets, separate)
     out = {"family": name, "seed": seed, "proposal": [c.label for c in prop.runs], "minutes": prop.minutes,
            "predicted": prop.predicted.std_uncertainty, "achieved": got.std_uncertainty,
@@ -197,8 +223,7 @@ def timing(seed: int = 0) -> dict:
     second.update(rig_id="LXJ-200", run_id_prefix="LXJ200-DEMO", first_number=50)
     second["mounts"] = second["mounts"][:9]
     sc.tests.append(second)
-    runs = [SimRunFile.from_simrun(r) for r in simulate_campaign(sc, seed)]
-    cells, _ = prepare_cells(runs)
+    cells = simulated(sc, seed)[1]
     tests = sorted({c.test for c in cells})
     t0 = time.perf_counter()
     adv = td.advise(cells, processing_effects(tests), None, (), 2, None, top=5)
@@ -229,14 +254,7 @@ def main(argv=None) -> int:
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args(argv)
     t0 = time.perf_counter()
-    rows = []
-    for fam in a.families.split(","):
-        for seed in range(a.seeds):
-            r = one(fam, seed)
-            rows.append(r)
-            print(f"{fam} {seed}: " + json.dumps({k: r.get(k) for k in ("ratios", "within", "separated", "named",
-                                                                          "proposal")}, default=str),
-                  file=sys.stderr, flush=True)
+    rows = each_campaign(a.families, a.seeds, one, ("ratios", "within", "separated", "named", "proposal"))
     secs = time.perf_counter() - t0
     s = summary(rows)
     s["timing"] = timing()
