@@ -41,8 +41,8 @@ from .fitting.core import information_root, lstsq_svd
 from .fitting.data import RunCells, mean_variance, pooled_noise
 from .fitting.identify import Why, aliased_with, holds, mixed_with
 from .constants import G_STANDARD, MOUNT_ANGLE_TOLERANCE_RAD
-from .estimators.joint import (absorbed_cross_axis, held_type_b_directions, rig_input_directions, rig_input_terms,
-                               type_b_terms)
+from .estimators.joint import (CROSS_AXIS_ABSORBED, absorbed_cross_axis, held_type_b_directions,
+                               rig_input_directions, rig_input_terms, type_b_terms)
 from .fitting.model import CANDIDATE_SHARED, CampaignModel, processing_effects
 from .fitting.procedure import fit_selected
 from .physics.axes import AXES
@@ -154,6 +154,7 @@ class Advice:
     candidates: int = 0
     noise: list[dict] = field(default_factory=list)
     setup_min: dict[str, float] = field(default_factory=dict)
+    setup_stated: list[str] = field(default_factory=list)
     values: dict[str, float] = field(default_factory=dict)
     typical: dict[str, float | None] = field(default_factory=dict)
 
@@ -489,9 +490,11 @@ class _Information:
             var_b += (u * (sol.cov @ g[free])) ** 2
         names = self.model.params.names
         kept = [pos[c] for c in free]
-        named = {n: replace(h, aliased_with=tuple(names[cols[m]] for m in
-                                                  aliased_with(A, pos[self.model.params.index[n]], kept)))
-                 for n, h in held.items() if h.why is Why.ALIASED}
+        # the aliases are named only for the holds the budget may add a term for
+        index, roles = self.model.params.index, self.model.roles
+        named = {n: replace(h, aliased_with=tuple(names[cols[m]] for m in aliased_with(A, pos[index[n]], kept)))
+                 for n, h in held.items()
+                 if h.why is Why.ALIASED and roles[index[n]].key in CROSS_AXIS_ABSORBED}
         for _, i, absorbers in absorbed_cross_axis(self.model, named):
             g = A[:, [pos[c] for c in free]].T @ A[:, pos[i]]
             sens = sol.cov @ g
@@ -735,7 +738,7 @@ def _advise(cells, baseline, targets, separate, max_runs, candidates, top, state
     return Advice(targets=list(tmap), separate=list(separate), current=cur, proposals=out, units=units,
                   plausible=plaus, notes=notes, candidates=len(cands),
                   noise=noise_statement(cells, _scale_factor(made, p_made)),
-                  setup_min=setup, typical=prior, values={(model.params.names[i] if len(ix) > 1 else t): float(p[i])
+                  setup_min=setup, setup_stated=sorted(set(setup) & set(setup_min)), typical=prior, values={(model.params.names[i] if len(ix) > 1 else t): float(p[i])
                                            for t, ix in tmap.items() for i in ix})
 
 

@@ -331,6 +331,11 @@ def held_type_b_directions(model: CampaignModel, p: np.ndarray, held: Mapping[st
     return out
 
 
+#: Cross-axis sensitivities a design may alias with the mount angles or theta0 (absorbed at
+#: first order, leaking at second: :func:`absorbed_cross_axis`).
+CROSS_AXIS_ABSORBED = ("Kp", "Ko")
+
+
 def absorbed_cross_axis(model: CampaignModel, held: Mapping[str, Any]) -> list[tuple[str, int, frozenset[str]]]:
     """The cross-axis sensitivities (Kp, Ko) the design aliases with the mount angles or
     theta0: (name, parameter index, the parameters that report it as part of their value).
@@ -339,7 +344,7 @@ def absorbed_cross_axis(model: CampaignModel, held: Mapping[str, Any]) -> list[t
     out = []
     for name, h in held.items():
         i = model.params.index[name]
-        if model.roles[i].key in ("Kp", "Ko") and h.why is Why.ALIASED and h.aliased_with:
+        if model.roles[i].key in CROSS_AXIS_ABSORBED and h.why is Why.ALIASED and h.aliased_with:
             out.append((name, i, frozenset(h.aliased_with)))
     return out
 

@@ -162,8 +162,7 @@ def _assumptions(adv, output_unit: str) -> list[str]:
             line += f"; lag-1 correlation {nm['rho']:.2f}"
         out.append(line)
     for rig, m in sorted(adv.setup_min.items()):
-        from ..testdesign import SETUP_MIN_DEFAULT
-        src = "stated" if m != SETUP_MIN_DEFAULT else f'default; state [rigs."{rig}"] setup_min'
+        src = "stated" if rig in adv.setup_stated else f'default; state [rigs."{rig}"] setup_min'
         out.append(f"set-up: {m:g} min per run on {rig} ({src})")
     out.append("u: type A of the joint fit plus the type-B terms its budget adds (mount angles, "
                "IA tilt, stated rig inputs)")
