@@ -217,11 +217,10 @@ def rig_setup_minutes(explicit: str | Path | None = None,
     path, rigs = _rig_tables(explicit, warehouse)
     out = {}
     for rig, v in rigs.items():
-        if isinstance(v, dict) and "setup_min" in v:
-            x = v["setup_min"]
-            if isinstance(x, bool) or not isinstance(x, (int, float)) or not x >= 0:
+        if isinstance(v, dict) and "setup_min" in v:      # a number: the schema checked it
+            if not v["setup_min"] >= 0:
                 raise ConfigError(f'{path}: [rigs."{rig}"] setup_min must be a number of minutes >= 0')
-            out[str(rig)] = float(x)
+            out[str(rig)] = float(v["setup_min"])
     return out
 
 
