@@ -3,9 +3,10 @@
 A design that determines a coefficient only together with others (one tumble: K1 with
 the odd terms its input takes up, K1 + f_Koq Koq + f_K3 K3) is adopted as that
 combination, named by its structure (``K1(Koq,K3)``, :func:`accelcal.effects.combination_name`)
-with its factors beside it.  Where the lab knows the terms it takes up (``[prior."MODEL"]``
-of accelcal.toml: a value and a standard uncertainty for each), the quantity itself follows
-from the measurement model
+with its factors beside it.  Where the lab knows the terms it takes up (the unit's last
+calibration that determined them alone, :mod:`accelcal.warehouse.priors`, or else
+``[prior."MODEL"]`` of accelcal.toml: a value and a standard uncertainty for each), the
+quantity itself follows from the measurement model
 
     Q = C - sum_k f_k T_k,
 
@@ -19,23 +20,32 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from typing import Any
 
-from ..effects import combination_formula, split_combination
+from ..effects import combination_formula, display_coefficient, si_unit, split_combination
 from ..results import BudgetTerm, CampaignResult
 
 
-def apply_priors(res: CampaignResult, priors: Mapping[str, Mapping[str, float]], source: str) -> list[str]:
+def assumed_text(term: str, value: float, u: float) -> str:
+    """``"Koq = 1.10e-8 ± 2.0e-9 s2/m"``: a held term as people read it, u to two
+    significant digits and the value to its last digit (GUM 7.2.6), in its display unit."""
+    v, su, unit = display_coefficient(term, value, u, si_unit(term), k=1.0)
+    return f"{term} = {v} ± {su} {unit}".rstrip()
+
+
+def apply_priors(res: CampaignResult, priors: Mapping[str, Mapping[str, Any]]) -> list[str]:
     """Make each adopted combination whose every term has a prior the quantity it names.
 
     Parameters
     ----------
     res : CampaignResult
-        The campaign's result; its adopted rows and their budget lines are changed in place.
+        The campaign's result; its adopted rows and their budget lines are changed in place,
+        and ``res.parameters["assumed"]`` records quantity -> term -> ``{"value", "u",
+        "source"}`` for each row made a quantity.
     priors : mapping
-        Coefficient name -> ``{"value": [SI], "u": [SI]}``.
-    source : str
-        Where the priors come from, for the budget lines and the note
-        (``'accelcal.toml [prior."QA-2000"]'``).
+        Coefficient name -> ``{"value": [SI], "u": [SI], "source": text}``, the source
+        saying where the prior comes from (``'accelcal.toml [prior."QA-2000"]'``, or the
+        unit's earlier result).
 
     Returns
     -------
@@ -49,10 +59,12 @@ def apply_priors(res: CampaignResult, priors: Mapping[str, Mapping[str, float]],
             continue
         old, quantity = c.name, split_combination(c.name)[0]
         formula = combination_formula(old, c.factors)
+        held = {t: {"value": float(priors[t]["value"]), "u": float(priors[t]["u"]),
+                    "source": str(priors[t]["source"])} for t in c.factors}
         lines = []
         value, var = c.value, c.std_uncertainty ** 2
         for term, f in c.factors.items():
-            v, u = float(priors[term]["value"]), float(priors[term]["u"])
+            v, u, source = held[term]["value"], held[term]["u"], held[term]["source"]
             value -= f * v
             var += (f * u) ** 2
             lines.append(BudgetTerm(quantity, f"{term} held at its prior (type B, normal; {source})",
@@ -62,14 +74,14 @@ def apply_priors(res: CampaignResult, priors: Mapping[str, Mapping[str, float]],
             c.dof = u_c ** 4 / (c.std_uncertainty ** 4 / c.dof)
             if c.coverage_factor != 2.0:
                 c.coverage_factor = coverage_factor(c.dof)
-        assumed = ", ".join(f"{t} = {float(priors[t]['value']):.3g} ± {float(priors[t]['u']):.2g}"
-                            for t in c.factors)
-        c.note = (f"the runs determine {formula}; {quantity} with {assumed} assumed ({source})"
+        assumed = ", ".join(f"{assumed_text(t, h['value'], h['u'])} ({h['source']})" for t, h in held.items())
+        c.note = (f"the runs determine {formula}; {quantity} with {assumed} assumed"
                   + (f"; {c.note}" if c.note else ""))
         c.name, c.value, c.std_uncertainty, c.factors = quantity, value, u_c, {}
         for b in res.budget:
             if b.coefficient == old and b.method == c.method:
                 b.coefficient = quantity
         res.budget += lines
+        res.parameters.setdefault("assumed", {})[quantity] = held
         done.append(old)
     return done
