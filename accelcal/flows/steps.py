@@ -149,7 +149,7 @@ class PrefectSteps:
     def submit_campaigns(self, warehouse_root, campaigns, parameters, unit_priors=None):
         S = self._sealed
         return self._t.load_and_process.submit(warehouse_root, S(campaigns), S(parameters),
-                                               S(unit_priors))
+                                               *([S(unit_priors)] if unit_priors else []))
 
     def store_campaigns(self, wh, items, **kw):
         return self._t.store_campaigns(wh, self._quote(items), **kw)

@@ -43,7 +43,7 @@ def load_and_process_sealed(warehouse_root: str, campaigns: Sealed, parameters: 
     unit priors sealed (:class:`Sealed`)."""
     from .science import load_and_process
     return load_and_process(warehouse_root, campaigns.value, parameters.value,
-                            None if unit_priors is None else unit_priors.value)
+                            *(() if unit_priors is None else (unit_priors.value,)))
 
 
 @dataclass(frozen=True)
