@@ -15,6 +15,7 @@ from __future__ import annotations
 import copy
 import json
 import math
+import re
 from pathlib import Path
 
 import pytest
@@ -148,4 +149,57 @@ def test_the_certificate_says_what_was_assumed_and_from_which_result(held, tmp_p
     from accelcal.ops.report import build_report
     html = build_report(held.path, TUMBLE, tmp_path).read_text()
     src = _adopted(held, FULL)["Koq"]["result_id"][:12]
-    assert "Assumed values" in html and f"result {src} of {FULL}, 2024-03-01" in html
+    assumed = html.split("Assumed values")[1].split("</table>")[0]
+    for q, term in (("K1", "Koq"), ("K1", "K3"), ("K0", "Koo")):
+        assert re.search(rf"<td>{q}</td><td>{term}</td>.*?result {src} of {FULL}, 2024-03-01", assumed), term
+    assert "accelcal.toml" not in assumed
+
+
+def test_ten_units_by_one_tumble_a_year_held_at_their_full_calibration_get_due_dates(tmp_path):
+    """Ten units, a full calibration in 2020 (Koq, K3, Koo, K1 determined alone), then one
+    tumble a year 2021-2025 held at the 2020 values (the warehouse's look-up, the
+    science's measurement model); units 0-4 drift in K1 (5e-5 to 1.3e-4 a year,
+    relative), 5-9 are stable; tolerance K1 = { relative = 2.0e-4 }."""
+    import datetime as dt
+
+    import numpy as np
+
+    from accelcal.estimators.priors import apply_priors
+    from accelcal.ops import due
+    from test_structural_names import _adopted, _stored_a_week_after, _tumble, _warehouse
+    from test_views import add_campaign
+    sc, raw = _tumble(1)
+    w, cfg = _warehouse(tmp_path)
+    truth = sc.coefficients
+    comb = _adopted(raw)["K1(Koq,K3)"]
+    u = 5e-6 * comb.value                   # a lab's u of the combination, type B included
+    rate = {j: (5e-5 + 2e-5 * j if j < 5 else 0.0) for j in range(10)}
+    rng = np.random.default_rng(3)
+    for j in range(10):
+        serial = f"TU-{j}"
+        full = {k: (truth[k], 0.05 * abs(truth[k]) or 1e-9) for k in ("K0", "K2", "Koq", "K3", "Koo")}
+        full["K1"] = (truth["K1"], u)
+        add_campaign(w, serial, f"{serial}/2020", "DH-1", "2020-03-01T10:00:00+00:00", full, method="joint_ml")
+        for y in range(2021, 2026):
+            res = copy.deepcopy(raw)
+            row = next(c for c in res.coefficients if c.adopted and c.name == "K1(Koq,K3)")
+            row.value = comb.value * (1 + rate[j] * (y - 2021)) + u * rng.standard_normal()
+            row.std_uncertainty = u
+            camp, at = f"{serial}/{y}", dt.datetime(y, 3, 1, 10, tzinfo=dt.timezone.utc)
+            known = w.unit_priors({camp: (serial, at, False)})[camp]
+            assert {t: known[t]["value"] for t in ("Koq", "K3", "Koo")} == {t: full[t][0] for t in ("Koq", "K3", "Koo")}
+            assert apply_priors(res, known)
+            add_campaign(w, serial, camp, "DH-1", at.isoformat(),
+                         {n: (c.value, c.std_uncertainty, c.factors) for n, c in _adopted(res).items()},
+                         method="joint_ml")
+    _stored_a_week_after(w)
+    as_of = dt.datetime(2025, 6, 1, 23, 59, 59, tzinfo=dt.timezone.utc)
+    rows = {(r["unit_serial"], r["coefficient"]): r for r in due.due_rows(w.path, cfg, as_of)}
+    for j in range(10):
+        r = rows[(f"TU-{j}", "K1")]
+        assert r["name"] == "K1" and r["n_campaigns"] >= 5     # the tumbles, 2020 too unless adjusted
+        assert r["tolerance"] == pytest.approx(2e-4 * abs(r["value_in_use"]))
+        if rate[j]:
+            assert r["due_date"] is not None, r
+        else:
+            assert r["due_date"] is None or r["due_date"] > "2028-03-01", r

@@ -74,9 +74,13 @@ def apply_priors(res: CampaignResult, priors: Mapping[str, Mapping[str, Any]]) -
             c.dof = u_c ** 4 / (c.std_uncertainty ** 4 / c.dof)
             if c.coverage_factor != 2.0:
                 c.coverage_factor = coverage_factor(c.dof)
-        assumed = ", ".join(f"{assumed_text(t, h['value'], h['u'])} ({h['source']})" for t, h in held.items())
-        c.note = (f"the runs determine {formula}; {quantity} with {assumed} assumed"
-                  + (f"; {c.note}" if c.note else ""))
+        by_source: dict[str, list[str]] = {}
+        for t, h in held.items():
+            by_source.setdefault(h["source"], []).append(assumed_text(t, h["value"], h["u"]))
+        assumed = "; ".join(f"{', '.join(ts)} ({src})" for src, ts in by_source.items())
+        # the fit's own aliasing remark (the terms held at 0) no longer holds
+        rest = [p for p in (c.note or "").split("; ") if p and not p.startswith("aliased in this design")]
+        c.note = "; ".join([f"the runs determine {formula}; {quantity} with {assumed} assumed", *rest])
         c.name, c.value, c.std_uncertainty, c.factors = quantity, value, u_c, {}
         for b in res.budget:
             if b.coefficient == old and b.method == c.method:
