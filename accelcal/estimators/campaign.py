@@ -96,10 +96,9 @@ def process_campaign(runs, rig_uncertainty: Mapping[str, Mapping[str, float]] | 
     model_priors = (priors or {}).get(res.unit_model) or {}
     if model_priors:
         res.parameters["priors"] = {k: dict(v) for k, v in sorted(model_priors.items())}
-    stated = f'accelcal.toml [prior."{res.unit_model}"]'
-    known = {**{t: {**v, "source": stated} for t, v in model_priors.items()}, **(unit_priors or {})}
-    if known:
-        apply_priors(res, known)
+    toml = f'accelcal.toml [prior."{res.unit_model}"]'
+    known = {**{t: {**v, "source": toml} for t, v in model_priors.items()}, **(unit_priors or {})}
+    apply_priors(res, known)
     _assess_completeness(res, joint, steps)
     return res
 

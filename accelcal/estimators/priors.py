@@ -26,13 +26,6 @@ from ..effects import combination_formula, display_coefficient, si_unit, split_c
 from ..results import BudgetTerm, CampaignResult
 
 
-def assumed_text(term: str, value: float, u: float) -> str:
-    """``"Koq = 1.10e-8 ± 2.0e-9 s2/m"``: a held term as people read it, u to two
-    significant digits and the value to its last digit (GUM 7.2.6), in its display unit."""
-    v, su, unit = display_coefficient(term, value, u, si_unit(term), k=1.0)
-    return f"{term} = {v} ± {su} {unit}".rstrip()
-
-
 def apply_priors(res: CampaignResult, priors: Mapping[str, Mapping[str, Any]]) -> list[str]:
     """Make each adopted combination whose every term has a prior the quantity it names.
 
@@ -58,34 +51,29 @@ def apply_priors(res: CampaignResult, priors: Mapping[str, Mapping[str, Any]]) -
         if not (c.adopted and c.factors) or not all(t in priors for t in c.factors):
             continue
         old, quantity = c.name, split_combination(c.name)[0]
-        formula = combination_formula(old, c.factors)
-        held = {t: {"value": float(priors[t]["value"]), "u": float(priors[t]["u"]),
-                    "source": str(priors[t]["source"])} for t in c.factors}
-        lines = []
-        value, var = c.value, c.std_uncertainty ** 2
-        for term, f in c.factors.items():
-            v, u, source = held[term]["value"], held[term]["u"], held[term]["source"]
-            value -= f * v
-            var += (f * u) ** 2
-            lines.append(BudgetTerm(quantity, f"{term} held at its prior (type B, normal; {source})",
-                                    v, u, -f, abs(f) * u, "B", "normal", c.method, c.rig_id))
-        u_c = math.sqrt(var)
+        held = {t: {k: priors[t][k] for k in ("value", "u", "source")} for t in c.factors}
+        value = c.value - sum(f * held[t]["value"] for t, f in c.factors.items())
+        u_c = math.sqrt(c.std_uncertainty ** 2 + sum((f * held[t]["u"]) ** 2 for t, f in c.factors.items()))
+        res.budget += [BudgetTerm(quantity, f"{t} held at its prior (type B, normal; {held[t]['source']})",
+                                  held[t]["value"], held[t]["u"], -f, abs(f) * held[t]["u"], "B", "normal",
+                                  c.method, c.rig_id) for t, f in c.factors.items()]
         if c.dof is not None and math.isfinite(c.dof) and c.dof > 0 and c.std_uncertainty > 0:
             c.dof = u_c ** 4 / (c.std_uncertainty ** 4 / c.dof)
             if c.coverage_factor != 2.0:
                 c.coverage_factor = coverage_factor(c.dof)
-        by_source: dict[str, list[str]] = {}
+        by_source: dict[str, list[str]] = {}     # value ± u rounded (GUM 7.2.6), display unit
         for t, h in held.items():
-            by_source.setdefault(h["source"], []).append(assumed_text(t, h["value"], h["u"]))
+            v, u, unit = display_coefficient(t, h["value"], h["u"], si_unit(t), k=1.0)
+            by_source.setdefault(h["source"], []).append(f"{t} = {v} ± {u} {unit}".rstrip())
         assumed = "; ".join(f"{', '.join(ts)} ({src})" for src, ts in by_source.items())
         # the fit's own aliasing remark (the terms held at 0) no longer holds
         rest = [p for p in (c.note or "").split("; ") if p and not p.startswith("aliased in this design")]
-        c.note = "; ".join([f"the runs determine {formula}; {quantity} with {assumed} assumed", *rest])
+        c.note = "; ".join([f"the runs determine {combination_formula(old, c.factors)}; {quantity} with "
+                            f"{assumed} assumed", *rest])
         c.name, c.value, c.std_uncertainty, c.factors = quantity, value, u_c, {}
         for b in res.budget:
             if b.coefficient == old and b.method == c.method:
                 b.coefficient = quantity
-        res.budget += lines
         res.parameters.setdefault("assumed", {})[quantity] = held
         done.append(old)
     return done
