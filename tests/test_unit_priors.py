@@ -146,13 +146,18 @@ def test_a_rerun_of_the_same_history_changes_nothing(held, drops):
 
 
 def test_the_certificate_says_what_was_assumed_and_from_which_result(held, tmp_path):
+    from accelcal.ops.dcc import dcc_path
     from accelcal.ops.report import build_report
-    html = build_report(held.path, TUMBLE, tmp_path).read_text()
+    page = build_report(held.path, TUMBLE, tmp_path, dcc=True)
+    html = page.read_text()
     src = _adopted(held, FULL)["Koq"]["result_id"][:12]
     assumed = html.split("Assumed values")[1].split("</table>")[0]
     for q, term in (("K1", "Koq"), ("K1", "K3"), ("K0", "Koo")):
         assert re.search(rf"<td>{q}</td><td>{term}</td>.*?result {src} of {FULL}, 2024-03-01", assumed), term
     assert "accelcal.toml" not in assumed
+    # the DCC's description of each such result says the same
+    dcc = dcc_path(page).read_text()
+    assert re.search(rf"K1 with K3 = [^;]*, Koq = [^;]* \(result {src} of {FULL}, 2024-03-01\) assumed", dcc)
 
 
 def test_ten_units_by_one_tumble_a_year_held_at_their_full_calibration_get_due_dates(tmp_path):
