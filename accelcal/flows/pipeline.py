@@ -532,7 +532,7 @@ def _submit_chunk(wh: Warehouse, sess: _Session, chunk: list, inflight: deque,
     known = [run.unit_priors.pop(e["campaign"], None) for e, _ in chunk]
     inflight.append((chunk, run.steps.submit_campaigns(
         str(wh.root), [inputs for _, inputs in chunk], run.parameters,
-        known if any(known) else None)))
+        *([known] if any(known) else []))))
     run.tick("science (submit)", t0)
     # bounded in campaigns, not tasks: the guided chunks shrink at the end, and a
     # bound in tasks let the workers run dry behind one long chunk still computing

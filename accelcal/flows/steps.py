@@ -110,7 +110,7 @@ class LocalSteps:
 
     def submit_campaigns(self, warehouse_root, campaigns, parameters, unit_priors=None):
         return self._submit(_science.load_and_process, warehouse_root, campaigns, parameters,
-                            unit_priors)
+                            *([unit_priors] if unit_priors else []))
 
     def store_campaigns(self, wh, items, **kw):
         return _store.store_campaigns(wh, items, **kw)
