@@ -30,7 +30,8 @@ from .priors import apply_priors
 
 @single_thread()                     # small dense algebra: one BLAS thread is the fast one
 def process_campaign(runs, rig_uncertainty: Mapping[str, Mapping[str, float]] | None = None,
-                     priors: Mapping[str, Mapping[str, Mapping[str, float]]] | None = None) -> CampaignResult:
+                     priors: Mapping[str, Mapping[str, Mapping[str, float]]] | None = None,
+                     unit_priors: Mapping[str, Mapping[str, object]] | None = None) -> CampaignResult:
     """Run every estimator that applies to the runs of one campaign (docs/design.md).
 
     Parameters
@@ -47,6 +48,11 @@ def process_campaign(runs, rig_uncertainty: Mapping[str, Mapping[str, float]] | 
         ``[prior."MODEL"]``, :func:`accelcal.config.priors`): what the lab knows of terms
         a design cannot see; an adopted combination whose every term has one becomes the
         quantity it names (:func:`accelcal.estimators.priors.apply_priors`).
+    unit_priors : mapping, optional
+        Coefficient -> ``{"value", "u" [SI], "source"}``: what the unit's own last
+        calibration that determined each coefficient says of it
+        (:func:`accelcal.warehouse.priors.unit_priors`); for a term it gives, it takes
+        precedence over ``priors``.
 
     Returns
     -------
@@ -87,10 +93,12 @@ def process_campaign(runs, rig_uncertainty: Mapping[str, Mapping[str, float]] | 
         memory.give_back()     # what the paper methods freed, before the joint fit
     joint = _joint(runs, res, stated)
     _mark_adopted(res)
-    model_priors = (priors or {}).get(res.unit_model)
+    model_priors = (priors or {}).get(res.unit_model) or {}
     if model_priors:
         res.parameters["priors"] = {k: dict(v) for k, v in sorted(model_priors.items())}
-        apply_priors(res, model_priors, f'accelcal.toml [prior."{res.unit_model}"]')
+    toml = f'accelcal.toml [prior."{res.unit_model}"]'
+    known = {**{t: {**v, "source": toml} for t, v in model_priors.items()}, **(unit_priors or {})}
+    apply_priors(res, known)
     _assess_completeness(res, joint, steps)
     return res
 

@@ -3,9 +3,10 @@
 A design that determines a coefficient only together with others (one tumble: K1 with
 the odd terms its input takes up, K1 + f_Koq Koq + f_K3 K3) is adopted as that
 combination, named by its structure (``K1(Koq,K3)``, :func:`accelcal.effects.combination_name`)
-with its factors beside it.  Where the lab knows the terms it takes up (``[prior."MODEL"]``
-of accelcal.toml: a value and a standard uncertainty for each), the quantity itself follows
-from the measurement model
+with its factors beside it.  Where the lab knows the terms it takes up (the unit's last
+calibration that determined them alone, :mod:`accelcal.warehouse.priors`, or else
+``[prior."MODEL"]`` of accelcal.toml: a value and a standard uncertainty for each), the
+quantity itself follows from the measurement model
 
     Q = C - sum_k f_k T_k,
 
@@ -19,23 +20,25 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from typing import Any
 
-from ..effects import combination_formula, split_combination
+from ..effects import combination_formula, display_coefficient, si_unit, split_combination
 from ..results import BudgetTerm, CampaignResult
 
 
-def apply_priors(res: CampaignResult, priors: Mapping[str, Mapping[str, float]], source: str) -> list[str]:
+def apply_priors(res: CampaignResult, priors: Mapping[str, Mapping[str, Any]]) -> list[str]:
     """Make each adopted combination whose every term has a prior the quantity it names.
 
     Parameters
     ----------
     res : CampaignResult
-        The campaign's result; its adopted rows and their budget lines are changed in place.
+        The campaign's result; its adopted rows and their budget lines are changed in place,
+        and ``res.parameters["assumed"]`` records quantity -> term -> ``{"value", "u",
+        "source"}`` for each row made a quantity.
     priors : mapping
-        Coefficient name -> ``{"value": [SI], "u": [SI]}``.
-    source : str
-        Where the priors come from, for the budget lines and the note
-        (``'accelcal.toml [prior."QA-2000"]'``).
+        Coefficient name -> ``{"value": [SI], "u": [SI], "source": text}``, the source
+        saying where the prior comes from (``'accelcal.toml [prior."QA-2000"]'``, or the
+        unit's earlier result).
 
     Returns
     -------
@@ -48,28 +51,29 @@ def apply_priors(res: CampaignResult, priors: Mapping[str, Mapping[str, float]],
         if not (c.adopted and c.factors) or not all(t in priors for t in c.factors):
             continue
         old, quantity = c.name, split_combination(c.name)[0]
-        formula = combination_formula(old, c.factors)
-        lines = []
-        value, var = c.value, c.std_uncertainty ** 2
-        for term, f in c.factors.items():
-            v, u = float(priors[term]["value"]), float(priors[term]["u"])
-            value -= f * v
-            var += (f * u) ** 2
-            lines.append(BudgetTerm(quantity, f"{term} held at its prior (type B, normal; {source})",
-                                    v, u, -f, abs(f) * u, "B", "normal", c.method, c.rig_id))
-        u_c = math.sqrt(var)
+        held = {t: {k: priors[t][k] for k in ("value", "u", "source")} for t in c.factors}
+        value = c.value - sum(f * held[t]["value"] for t, f in c.factors.items())
+        u_c = math.sqrt(c.std_uncertainty ** 2 + sum((f * held[t]["u"]) ** 2 for t, f in c.factors.items()))
+        res.budget += [BudgetTerm(quantity, f"{t} held at its prior (type B, normal; {held[t]['source']})",
+                                  held[t]["value"], held[t]["u"], -f, abs(f) * held[t]["u"], "B", "normal",
+                                  c.method, c.rig_id) for t, f in c.factors.items()]
         if c.dof is not None and math.isfinite(c.dof) and c.dof > 0 and c.std_uncertainty > 0:
             c.dof = u_c ** 4 / (c.std_uncertainty ** 4 / c.dof)
             if c.coverage_factor != 2.0:
                 c.coverage_factor = coverage_factor(c.dof)
-        assumed = ", ".join(f"{t} = {float(priors[t]['value']):.3g} ± {float(priors[t]['u']):.2g}"
-                            for t in c.factors)
-        c.note = (f"the runs determine {formula}; {quantity} with {assumed} assumed ({source})"
-                  + (f"; {c.note}" if c.note else ""))
+        by_source: dict[str, list[str]] = {}     # value ± u rounded (GUM 7.2.6), display unit
+        for t, h in held.items():
+            v, u, unit = display_coefficient(t, h["value"], h["u"], si_unit(t), k=1.0)
+            by_source.setdefault(h["source"], []).append(f"{t} = {v} ± {u} {unit}".rstrip())
+        assumed = "; ".join(f"{', '.join(ts)} ({src})" for src, ts in by_source.items())
+        # the fit's own aliasing remark (the terms held at 0) no longer holds
+        rest = [p for p in (c.note or "").split("; ") if p and not p.startswith("aliased in this design")]
+        c.note = "; ".join([f"the runs determine {combination_formula(old, c.factors)}; {quantity} with "
+                            f"{assumed} assumed", *rest])
         c.name, c.value, c.std_uncertainty, c.factors = quantity, value, u_c, {}
         for b in res.budget:
             if b.coefficient == old and b.method == c.method:
                 b.coefficient = quantity
-        res.budget += lines
+        res.parameters.setdefault("assumed", {})[quantity] = held
         done.append(old)
     return done

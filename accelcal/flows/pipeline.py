@@ -11,6 +11,14 @@ settle the drops, ingest + validate in batches, record each batch's verdicts), t
 science loop (:func:`_science`: plan the touched campaigns, compute them a few a task,
 store them a transaction at a time), then the summary and the snapshot.
 
+A campaign whose design determines a coefficient only in combination takes what its
+unit's earlier calibrations say of the other terms (:mod:`accelcal.warehouse.priors`,
+chosen by the dates of the data), read when it is planned.  So that the rows do not
+depend on which worker finishes first, a unit's touched campaigns are computed in waves,
+in the order of their dates: a campaign waits for the real ones of its unit dated before
+it (:func:`_waves`).  The source results enter its result_id and stored parameters
+(``prior_results``).
+
 Campaigns touched by the drops are processed with ALL their current runs in the
 warehouse (newest accepted revision of each run_id, earlier drops included),
 read back from Parquet.  A campaign whose deterministic result_id is already
@@ -249,6 +257,8 @@ class _Run:
     batch_files: int                 # files per ingest + validate task, at most
     in_flight: int                   # tasks (or campaigns' worth of tasks) submitted ahead
     timings: dict[str, float] = field(default_factory=dict)
+    unit_priors: dict[str, dict] = field(default_factory=dict)     # campaign -> its priors
+    own_parameters: dict[str, dict] = field(default_factory=dict)  # result_id -> parameters
 
     def tick(self, name: str, t0: float, dt: float | None = None) -> None:
         """Add the time since ``t0`` (or ``dt`` seconds) to ``timings[name]``."""
@@ -429,42 +439,77 @@ def _science(wh: Warehouse, sess: _Session, campaigns: list[str], entries: list[
              run: _Run) -> None:
     """Each touched campaign with all its current runs: unchanged when its result is
     already current, else computed a few campaigns per submitted task (load + science)
-    and stored in transactions of ``campaigns_per_store()``.  Appends one entry per
-    campaign to ``entries``."""
+    and stored in transactions of ``campaigns_per_store()``, wave by wave
+    (:func:`_waves`).  Appends one entry per campaign to ``entries``."""
     progress.stage("science", len(campaigns))
     progress.stage("store", len(campaigns))
     most = campaigns_per_task(run.steps.engine)
-    inflight: deque = deque()           # (chunk, future of its outcomes), in order
-    computed: list = []                 # (entry, result, inputs) waiting to be stored
-    chunk: list = []                    # (entry, inputs) of the next task
-    for k, (camp, inputs, current, left_out) in enumerate(_planned(wh, sess, campaigns, run)):
-        rid = _result_id(camp, [i["sha256"] for i in inputs], run.code_version, run.parameters)
-        entry = {"campaign": camp, "result_id": rid, "n_runs": len(inputs), "status": None,
-                 "error": None, "simulated_left_out": left_out}
-        entries.append(entry)
-        if current == rid:
-            entry["status"] = "unchanged"
-            progress.advance("science", note=camp)
-            progress.advance("store", note=camp)
-            continue
-        if not chunk:
-            size = guided_chunk(len(campaigns) - k, most, run.in_flight)
-        chunk.append((entry, inputs))
-        if len(chunk) >= size:
+    for wave, dates in _waves(wh, sess, campaigns, run):
+        inflight: deque = deque()           # (chunk, future of its outcomes), in order
+        computed: list = []                 # (entry, result, inputs) waiting to be stored
+        chunk: list = []                    # (entry, inputs) of the next task
+        for k, (camp, inputs, current, left_out) in enumerate(_planned(wh, sess, wave, dates, run)):
+            params = run.parameters
+            known = run.unit_priors.get(camp)
+            if known:
+                params = {**params, "prior_results": sorted({v["result_id"] for v in known.values()})}
+            rid = _result_id(camp, [i["sha256"] for i in inputs], run.code_version, params)
+            if known:
+                run.own_parameters[rid] = params
+            entry = {"campaign": camp, "result_id": rid, "n_runs": len(inputs), "status": None,
+                     "error": None, "simulated_left_out": left_out}
+            entries.append(entry)
+            if current == rid:
+                entry["status"] = "unchanged"
+                run.unit_priors.pop(camp, None)
+                run.own_parameters.pop(rid, None)
+                progress.advance("science", note=camp)
+                progress.advance("store", note=camp)
+                continue
+            if not chunk:
+                size = guided_chunk(len(wave) - k, most, run.in_flight)
+            chunk.append((entry, inputs))
+            if len(chunk) >= size:
+                _submit_chunk(wh, sess, chunk, inflight, computed, most, run)
+                chunk = []
+        if chunk:
             _submit_chunk(wh, sess, chunk, inflight, computed, most, run)
-            chunk = []
-    if chunk:
-        _submit_chunk(wh, sess, chunk, inflight, computed, most, run)
-    while inflight:
-        _collect_chunk(wh, sess, inflight.popleft(), computed, run)
-    _store(wh, sess, computed, run)
+        while inflight:
+            _collect_chunk(wh, sess, inflight.popleft(), computed, run)
+        _store(wh, sess, computed, run)
 
 
-def _planned(wh: Warehouse, sess: _Session, campaigns: list[str], run: _Run):
+def _waves(wh: Warehouse, sess: _Session, campaigns: list[str], run: _Run):
+    """The campaigns in waves, with each one's (unit, start of its first run, all
+    simulated): a campaign's wave is the number of real campaigns of its unit among
+    ``campaigns`` dated before it, so each is computed after every earlier calibration
+    of its unit it may take priors from is stored (a simulated result is never one).
+    One wave when no unit has two real campaigns here (a fleet of simulated units)."""
+    dates: dict = {}
+    t0 = time.perf_counter()
+    window = campaigns_per_plan()
+    for start in range(0, len(campaigns), window):
+        sess.touch()
+        dates.update(wh.campaign_dates(campaigns[start:start + window]))
+    run.tick("plan", t0)
+    real: dict[str, list] = {}
+    for c, (serial, at, sim) in dates.items():
+        if at is not None and not sim:
+            real.setdefault(serial, []).append(at)
+    waves: dict[int, list[str]] = {}
+    for c in campaigns:
+        serial, at, _ = dates.get(c, (None, None, True))
+        n = 0 if at is None else sum(1 for t in real.get(serial, ()) if t < at)
+        waves.setdefault(n, []).append(c)
+    for n in sorted(waves):
+        yield waves[n], dates
+
+
+def _planned(wh: Warehouse, sess: _Session, campaigns: list[str], dates: dict, run: _Run):
     """(campaign, its input runs, its current result_id, simulated runs left out) for each
     campaign in order, read from the warehouse a window of ``campaigns_per_plan()`` at a
     time (one plan per campaign), so what the run holds of the plans is bounded by the
-    window, not the fleet."""
+    window, not the fleet.  Each campaign's unit priors go to ``run.unit_priors``."""
     window = campaigns_per_plan()
     for start in range(0, len(campaigns), window):
         names = campaigns[start:start + window]
@@ -472,6 +517,7 @@ def _planned(wh: Warehouse, sess: _Session, campaigns: list[str], run: _Run):
         sess.touch()
         plans = wh.campaign_plans(names)
         left_out = wh.simulated_left_out(names)
+        run.unit_priors.update(wh.unit_priors({c: dates[c] for c in names if c in dates}))
         run.tick("plan", t0)
         for camp in names:
             inputs, current = plans.pop(camp)
@@ -483,8 +529,10 @@ def _submit_chunk(wh: Warehouse, sess: _Session, chunk: list, inflight: deque,
     """Submit one chunk's load + science; then collect the oldest chunks until fewer than
     ``in_flight * most`` campaigns are in flight."""
     t0 = time.perf_counter()
+    known = [run.unit_priors.pop(e["campaign"], None) for e, _ in chunk]
     inflight.append((chunk, run.steps.submit_campaigns(
-        str(wh.root), [inputs for _, inputs in chunk], run.parameters)))
+        str(wh.root), [inputs for _, inputs in chunk], run.parameters,
+        *([known] if any(known) else []))))
     run.tick("science (submit)", t0)
     # bounded in campaigns, not tasks: the guided chunks shrink at the end, and a
     # bound in tasks let the workers run dry behind one long chunk still computing
@@ -526,9 +574,12 @@ def _store(wh: Warehouse, sess: _Session, computed: list, run: _Run) -> None:
         return
     t0 = time.perf_counter()
     sess.touch()
+    own = {e["result_id"]: run.own_parameters.pop(e["result_id"]) for e, _, _ in computed
+           if e["result_id"] in run.own_parameters}
     statuses = run.steps.store_campaigns(
         wh, [(r, e["result_id"], i) for e, r, i in computed], code_version=run.code_version,
-        parameters=run.parameters, flow_run_id=run.flow_run_id)
+        parameters=run.parameters, flow_run_id=run.flow_run_id,
+        **({"own_parameters": own} if own else {}))
     for (entry, _, _), st in zip(computed, statuses):
         entry["status"] = st
     del computed[:]

@@ -48,12 +48,15 @@ class Steps(Protocol):
         """Record a batch's verdicts in one transaction (tasks.store.record_drop)."""
 
     def submit_campaigns(self, warehouse_root: str, campaigns: list[list[dict[str, Any]]],
-                         parameters: dict[str, Any]) -> Future:
-        """Load + compute a chunk of campaigns (tasks.science.load_and_process); the future
-        gives one (result, timings) or (None, error) per campaign."""
+                         parameters: dict[str, Any],
+                         unit_priors: list[dict[str, Any] | None] | None = None) -> Future:
+        """Load + compute a chunk of campaigns (tasks.science.load_and_process), with
+        per campaign its unit's priors; the future gives one (result, timings) or (None,
+        error) per campaign."""
 
     def store_campaigns(self, wh: Warehouse, items: list[tuple], *, code_version: str,
-                        parameters: dict[str, Any], flow_run_id: str) -> list[str]:
+                        parameters: dict[str, Any], flow_run_id: str,
+                        own_parameters: dict[str, dict[str, Any]] | None = None) -> list[str]:
         """Store computed campaigns in one transaction (tasks.store.store_campaigns)."""
 
 
@@ -105,8 +108,9 @@ class LocalSteps:
     def record_drop(self, wh, ing, flow_run_id):
         return _store.record_drop(wh, ing, flow_run_id)
 
-    def submit_campaigns(self, warehouse_root, campaigns, parameters):
-        return self._submit(_science.load_and_process, warehouse_root, campaigns, parameters)
+    def submit_campaigns(self, warehouse_root, campaigns, parameters, unit_priors=None):
+        return self._submit(_science.load_and_process, warehouse_root, campaigns, parameters,
+                            *([unit_priors] if unit_priors else []))
 
     def store_campaigns(self, wh, items, **kw):
         return _store.store_campaigns(wh, items, **kw)
@@ -142,9 +146,10 @@ class PrefectSteps:
     def record_drop(self, wh, ing, flow_run_id):
         return self._t.record_drop(wh, self._quote(ing), flow_run_id)
 
-    def submit_campaigns(self, warehouse_root, campaigns, parameters):
+    def submit_campaigns(self, warehouse_root, campaigns, parameters, unit_priors=None):
         S = self._sealed
-        return self._t.load_and_process.submit(warehouse_root, S(campaigns), S(parameters))
+        return self._t.load_and_process.submit(warehouse_root, S(campaigns), S(parameters),
+                                               *([S(unit_priors)] if unit_priors else []))
 
     def store_campaigns(self, wh, items, **kw):
         return self._t.store_campaigns(wh, self._quote(items), **kw)

@@ -155,7 +155,7 @@ def _sec_method(d) -> str:
             f"Annex A). Instrument model and coefficient names: IEEE Std 1293 form "
             f"(effects.md). Data processed by accelcal {_e(d['result'].get('code_version'))}.</p>")
     params = {k: v for k, v in (d.get("science_parameters") or {}).items()
-              if PARAMETER_TESTS.get(k, None) in (None, *(d.get("tests") or []))}
+              if k != "assumed" and PARAMETER_TESTS.get(k, None) in (None, *(d.get("tests") or []))}
     if params:
         out += ("<p class='note'>Processing parameters: "
                 + _e(", ".join(f"{k} = {_setting(v)}" for k, v in sorted(params.items())))
@@ -301,7 +301,28 @@ def _sec_results(d, plots) -> str:
             "rounded per GUM 7.2.6 (U to two significant digits, the value to the same "
             "decimal). K1 is given in output unit per g with its relative U in ppm; "
             "1 µg/g² = 10⁻⁶/g₀, g₀ = 9.80665 m/s².</p>")
-    return out
+    return out + _assumed(d)
+
+
+def _assumed(d) -> str:
+    """What a row made a quantity from priors assumed: each held term with value ± u and
+    the result (or config table) it is from (:func:`accelcal.estimators.priors.apply_priors`)."""
+    from ..effects import display_coefficient, si_unit
+    assumed = (d.get("science_parameters") or {}).get("assumed") or {}
+    rows = []
+    for quantity, terms in sorted(assumed.items()):
+        for term, h in terms.items():
+            v, u, unit = display_coefficient(term, h["value"], h["u"], si_unit(term), k=1.0)
+            rows.append([quantity, term, (v, "num"), (u, "num"), (unit, "nw"), h["source"]])
+    if not rows:
+        return ""
+    return ("<p><b>Assumed values.</b> The runs determine these coefficients only together "
+            "with the terms below, which the design cannot see; each is reported with the "
+            "terms held at what the laboratory knows of them (the unit's last calibration "
+            "that determined them, or the laboratory's stated prior), each held term's "
+            "standard uncertainty a type-B line of the coefficient's uncertainty budget "
+            "(JCGM 100 §4.3).</p>"
+            + _table(["coefficient", "term held", "value", "standard uncertainty u", "unit", "from"], rows))
 
 
 def _sec_radius(d, plots) -> str:

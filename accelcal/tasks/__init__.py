@@ -37,11 +37,13 @@ def intake_batch_sealed(drop_dir: str, paths: Sealed, parquet_root: str, warehou
                         docs_root, part, allow_simulated)
 
 
-def load_and_process_sealed(warehouse_root: str, campaigns: Sealed, parameters: Sealed):
-    """:func:`accelcal.tasks.science.load_and_process` with its run lists and parameters
-    sealed (:class:`Sealed`)."""
+def load_and_process_sealed(warehouse_root: str, campaigns: Sealed, parameters: Sealed,
+                            unit_priors: Sealed | None = None):
+    """:func:`accelcal.tasks.science.load_and_process` with its run lists, parameters and
+    unit priors sealed (:class:`Sealed`)."""
     from .science import load_and_process
-    return load_and_process(warehouse_root, campaigns.value, parameters.value)
+    return load_and_process(warehouse_root, campaigns.value, parameters.value,
+                            *(() if unit_priors is None else (unit_priors.value,)))
 
 
 @dataclass(frozen=True)

@@ -46,23 +46,27 @@ def run_science(runs: list, parameters: dict[str, Any] | None = None):
 
 
 def load_and_process(warehouse_root: str, campaigns: list[list[dict[str, Any]]],
-                     parameters: dict[str, Any] | None = None) -> list[tuple]:
+                     parameters: dict[str, Any] | None = None,
+                     unit_priors: list[dict[str, Any] | None] | None = None) -> list[tuple]:
     """Load each campaign's runs from Parquet and run the science, on whichever worker runs
     the task (only the run lists travel to the worker, not the data).  Several campaigns
     per task keep the orchestration overhead (~0.1 s per Prefect task) small next to the
-    science (~0.3 s per campaign).
+    science (~0.3 s per campaign).  ``unit_priors`` gives per campaign what its unit's
+    earlier calibrations say of its coefficients (:meth:`Warehouse.unit_priors
+    <accelcal.warehouse.db.Warehouse.unit_priors>`), read by the flow process.
 
     Returns per campaign ``(CampaignResult, {"load": s, "science": s})``, or
     ``(None, "ErrorType: message")`` when that campaign could not be computed (the others
     still are).
     """
     out: list[tuple] = []
-    for inputs in campaigns:
+    for k, inputs in enumerate(campaigns):
+        own = unit_priors[k] if unit_priors else None
         try:
             t0 = time.perf_counter()
             runs = load_campaign_runs(warehouse_root, inputs)
             t1 = time.perf_counter()
-            result = run_science(runs, parameters)
+            result = run_science(runs, {**(parameters or {}), "unit_priors": own} if own else parameters)
             del runs
             out.append((result, {"load": t1 - t0, "science": time.perf_counter() - t1}))
         except Exception as e:

@@ -33,11 +33,13 @@ def store_campaign(wh: Warehouse, result, *, result_id: str, inputs: list[dict[s
 
 
 def store_campaigns(wh: Warehouse, items: list[tuple], *, code_version: str,
-                    parameters: dict[str, Any], flow_run_id: str | None) -> list[str]:
+                    parameters: dict[str, Any], flow_run_id: str | None,
+                    own_parameters: dict[str, dict[str, Any]] | None = None) -> list[str]:
     """Store several (result, result_id, inputs) in ONE transaction (all or none; a re-run
-    stores what a killed one did not), each with the status :func:`store_campaign` gives."""
+    stores what a killed one did not), each with the status :func:`store_campaign` gives
+    (``own_parameters``: :meth:`Warehouse.store_results`)."""
     statuses = wh.store_results(items, code_version=code_version, parameters=parameters,
-                                flow_run_id=flow_run_id)
+                                flow_run_id=flow_run_id, own_parameters=own_parameters)
     for result, _, _ in items:
         progress.advance("store", note=result.campaign)
     return statuses

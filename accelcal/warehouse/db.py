@@ -46,6 +46,7 @@ from .errors import WarehouseBusy, WarehouseError, duckdb_error_text
 from .extras import EXTRAS_DIR_KEY, extras_root_of
 from .lineage import canonical_json
 from .lock import describe_pid, holds_lock, warehouse_lock
+from . import priors as _priors
 from .results import write_results
 from .views import apply_views
 
@@ -655,6 +656,17 @@ class Warehouse:
                       AND sha256 NOT IN (SELECT sha256 FROM ({_PLAN_RUNS}))
                     GROUP BY campaign""", [list(campaigns), list(campaigns)]).fetchall())
 
+    def campaign_dates(self, campaigns: list[str]) -> dict[str, tuple[str, Any, bool]]:
+        """Campaign -> (unit serial, start of its first current run, every run simulated)."""
+        with self.connect() as con, roomy(con):
+            return _priors.campaign_dates(con, _PLAN_RUNS, campaigns)
+
+    def unit_priors(self, dates: dict[str, tuple[str, Any, bool]]) -> dict[str, dict[str, dict[str, Any]]]:
+        """Campaign -> coefficient -> the unit's last earlier calibration of it
+        (:func:`accelcal.warehouse.priors.unit_priors`; ``dates`` from :meth:`campaign_dates`)."""
+        with self.connect() as con, roomy(con):
+            return _priors.unit_priors(con, dates)
+
     # -- results -------------------------------------------------------------
 
     def store_result(self, result, *, result_id: str, inputs: list[dict[str, Any]],
@@ -674,10 +686,13 @@ class Warehouse:
 
     def store_results(self, items: list[tuple], *, code_version: str,
                       parameters: dict[str, Any], flow_run_id: str | None,
-                      checkpoint: Checkpoint = None) -> list[str]:
+                      checkpoint: Checkpoint = None,
+                      own_parameters: dict[str, dict[str, Any]] | None = None) -> list[str]:
         """Store several (CampaignResult, result_id, inputs) with their lineage in ONE
         transaction: all of them or none.  Each gets the status :meth:`store_result`
-        would have given it, stored one after the other in this order.
+        would have given it, stored one after the other in this order.  A result_id in
+        ``own_parameters`` is stored with those parameters instead of ``parameters`` (a
+        campaign held at its unit's priors: they enter its result_id).
 
         Columnar: the warehouse's state for the batch is read in three set queries, the
         statuses are decided in Python in order, and every table gets one Arrow insert.
@@ -685,7 +700,8 @@ class Warehouse:
         params_json = canonical_json(parameters)
         with self.connect() as con, _transaction(con):
             return write_results(con, items, code_version, params_json, flow_run_id,
-                                 checkpoint, self.extras_root)
+                                 checkpoint, self.extras_root,
+                                 {rid: canonical_json(p) for rid, p in (own_parameters or {}).items()})
 
     # -- quarantine ------------------------------------------------------------
 

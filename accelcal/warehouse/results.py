@@ -9,11 +9,12 @@ from .lineage import canonical_json
 
 
 def write_results(con, items, code_version, params_json, flow_run_id,
-                  checkpoint, extras_root) -> list[str]:
+                  checkpoint, extras_root, own_params=None) -> list[str]:
     """Store (CampaignResult, result_id, inputs) items on ``con``, inside the caller's
     transaction (:meth:`accelcal.warehouse.db.Warehouse.store_results`): the warehouse's
     state for the batch read in three set queries, the statuses decided in Python in
-    order, every table one Arrow insert.  Returns each item's status."""
+    order, every table one Arrow insert.  ``own_params`` maps a result_id to its own
+    parameters JSON where it is not ``params_json``.  Returns each item's status."""
     if not items:
         return []
     camps = sorted({r.campaign for r, _, _ in items})
@@ -48,7 +49,7 @@ def write_results(con, items, code_version, params_json, flow_run_id,
         statuses.append("reactivated" if exists else "new")
     if fresh:
         _insert_results(con, fresh, code_version, params_json, flow_run_id, checkpoint,
-                        extras_root)
+                        extras_root, own_params or {})
     if activate:
         _cp(checkpoint, "activate")
         _insert(con, "result_activations", {
@@ -77,7 +78,7 @@ def _rows(fresh, attr: str, row) -> dict[str, list]:
 
 
 def _insert_results(con, fresh, code_version, params_json, flow_run_id, checkpoint,
-                    extras_root) -> None:
+                    extras_root, own_params) -> None:
     """The rows of new results (results, lineage, coefficients, radii, adequacy, budget,
     alignment, flags): one Arrow insert per table, values as the row-wise inserts had.
     The extras files are written (and flushed) first: a row never names a missing file."""
@@ -94,7 +95,7 @@ def _insert_results(con, fresh, code_version, params_json, flow_run_id, checkpoi
         "computed_at": None,
         "flow_run_id": [flow_run_id] * n,
         "code_version": [code_version] * n,
-        "parameters": [params_json] * n,
+        "parameters": [own_params.get(rid, params_json) for _, rid, _, _ in fresh],
         "science_parameters": [canonical_json(r.parameters) for r, _, _, _ in fresh],
         "input_sha256": [canonical_json(sorted(i["sha256"] for i in inputs))
                          for _, _, inputs, _ in fresh],
@@ -117,7 +118,7 @@ def _insert_results(con, fresh, code_version, params_json, flow_run_id, checkpoi
             "parquet_path": [i.get("parquet_path") for _, i in lin],
             "flow_run_id": [flow_run_id] * len(lin),
             "code_version": [code_version] * len(lin),
-            "parameters": [params_json] * len(lin)})
+            "parameters": [own_params.get(rid, params_json) for rid, _ in lin]})
     _cp(checkpoint, "lineage")
     # per table: the row of one item (result_id, seq, campaign, item); the unit serial of
     # a coefficient row is its result's
