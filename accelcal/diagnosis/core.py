@@ -21,7 +21,9 @@ Method (docs/diagnosis.md says it for a lab engineer):
    exceeds 1, is tested at alpha / (m k) (Bonferroni over the m candidates of step k and the
    steps), and an effect is
    taken only if it also shrinks the gap on held-out cells (alternate cells of each run
-   predicted by a fit to the others).
+   predicted by a fit to the others).  After each step an earlier member is exchanged for
+   a candidate when the data prefer the new subset (sequential replacement,
+   :func:`best_swap`): the best subset of each size is compared, not only the path.
 5. *Verdict.*  A selected effect that passes the held-out gate: it removes half the gap on
    the held-out cells (shrink >= HELDOUT_GATE), or the held-out cells confirm it at five
    sigma (:func:`.fits.heldout_test`, z >= HELDOUT_Z: a standard normal when the effect
