@@ -21,7 +21,9 @@ Method (docs/diagnosis.md says it for a lab engineer):
    exceeds 1, is tested at alpha / (m k) (Bonferroni over the m candidates of step k and the
    steps), and an effect is
    taken only if it also shrinks the gap on held-out cells (alternate cells of each run
-   predicted by a fit to the others).
+   predicted by a fit to the others).  After each step an earlier member is exchanged for
+   a candidate when the data prefer the new subset (sequential replacement,
+   :func:`best_swap`): the best subset of each size is compared, not only the path.
 5. *Verdict.*  A selected effect that passes the held-out gate: it removes half the gap on
    the held-out cells (shrink >= HELDOUT_GATE), or the held-out cells confirm it at five
    sigma (:func:`.fits.heldout_test`, z >= HELDOUT_Z: a standard normal when the effect
@@ -72,6 +74,10 @@ VERDICT_STATISTIC = 25.0
 #: An effect whose estimate exceeds this many times its catalogue plausible size is not a
 #: verdict (:meth:`_Diagnosis.implausible`) [1].
 IMPLAUSIBLE = 10.0
+#: chi-square by which the data prefer one model to another of the same size (a sigma):
+#: within it two aliased candidates are a tie (:meth:`_Diagnosis.tie_break`), and a subset
+#: is not replaced by another (:func:`best_swap`)
+TIE_CHI2 = 1.0
 #: a sine run's cells: the drive's phases in this many stretches of time (a slow change in
 #: time, a bias drift, then shows between cells instead of inside them)
 SINE_SEGMENTS = 4
@@ -268,6 +274,71 @@ def diagnose(runs, baseline=None, alpha: float = 0.05, *, max_effects: int = 8, 
         return _Diagnosis(runs, baseline, alpha, max_effects, refit_top).run()
 
 
+def best_swap(members: Sequence[str], movable: Sequence[str], pool: Sequence[str], drop, gains, add, chi2,
+              chi2_now: float, refit_top: int, margin: float = TIE_CHI2):
+    """One pass of sequential replacement: the best exchange of one member of a subset for a
+    candidate outside it.
+
+    Forward selection takes, at each step, the effect that best explains what the effects
+    already taken leave; an early choice that a later pair explains better (one effect that
+    mimics the sum of two) is never revisited.  For each movable member i, the model without
+    it is fitted (``drop``), every candidate outside the subset is scored against it
+    (``gains``: the linear chi-square it would remove), and those whose score exceeds
+    member i's own by more than ``margin`` (the best ``refit_top`` of them) are fitted in
+    its place (``add``).  The exchange that lowers the chi-square most, by more than
+    ``margin``, is returned.
+
+    Parameters
+    ----------
+    members : sequence of str
+        The subset (effects.md ids).
+    movable : sequence of str
+        The members that may be exchanged.
+    pool : sequence of str
+        Every candidate the selection may take.
+    drop : callable
+        ``drop(i) -> fit`` of the subset without member i.
+    gains : callable
+        ``gains(fit, cands) -> {c: (score, estimate)}``: the chi-square adding c to the fit
+        would remove (linearised) [1] and c's linear estimate [effect unit].
+    add : callable
+        ``add(fit, c, estimate) -> fit`` with c added, started at its estimate.
+    chi2 : callable
+        ``chi2(fit) -> float`` [1].
+    chi2_now : float
+        The subset's chi-square [1].
+    refit_top : int
+        Most exchanges fitted per member.
+    margin : float
+        Chi-square by which an exchange must be better [1].
+
+    Returns
+    -------
+    best : (str, str, fit, float) or None
+        (member out, candidate in, the fit with the exchange, its fall in chi-square).
+    tried : list of dict
+        Every exchange fitted: ``out``, ``in``, ``score`` and ``delta_chi2`` (the fall in
+        chi-square against the subset, negative when it fits worse) [1].
+
+    References
+    ----------
+    Miller, A. J., *Subset Selection in Regression*, 2nd ed., Chapman & Hall 2002, §3.5
+    (sequential replacement).
+    """
+    best, tried = None, []
+    for i in movable:
+        d = drop(i)
+        g = gains(d, [c for c in pool if c not in members or c == i])
+        better = sorted((c for c in g if c != i and g[c][0] > g[i][0] + margin), key=lambda c: -g[c][0])
+        for c in better[:refit_top]:
+            t = add(d, c, g[c][1])
+            fall = chi2_now - chi2(t)
+            tried.append({"out": i, "in": c, "score": g[c][0], "delta_chi2": fall})
+            if fall > margin and (best is None or fall > best[3]):
+                best = (i, c, t, fall)
+    return best, tried
+
+
 class _Diagnosis:
     def __init__(self, runs, baseline, alpha, max_effects, refit_top):
         self.t0 = time.perf_counter()
@@ -389,15 +460,11 @@ class _Diagnosis:
             for c in top:
                 t = self.trial(cur, c, sc[c][1])
                 # Bonferroni over every test the selection has made: m candidates at step k
-                lr = lr_test(cur, t, len(rem) * (len(sel) + 1), self.alpha)
-                sh = shrink(self.ho(cur), self.ho(t))
-                rows.append({"effect": c, "score": sc[c][0], **{k: lr[k] for k in ("delta_chi2", "p_value",
-                                                                                     "threshold_p", "significant")},
-                             "shrink_heldout": sh})
+                r = {"effect": c, "score": sc[c][0], **self.gates(cur, t, len(rem) * (len(sel) + 1))}
+                rows.append(r)
                 fits[tuple(sel + [c])] = t
-                ok = lr["significant"] and (sh is None or sh > 0)
-                if ok and (best is None or lr["delta_chi2"] > best[1]["delta_chi2"]):
-                    best = (c, lr, t)
+                if r["passes"] and (best is None or r["delta_chi2"] > best[1]["delta_chi2"]):
+                    best = (c, r, t)
             best = self.tie_break(best, rows, fits, sel, sc)
             steps.append({"step": len(sel) + 1, "candidates": len(rem), "tried": rows,
                           "taken": best[0] if best else None})
@@ -409,23 +476,81 @@ class _Diagnosis:
             # dwell, inflates the bare model's), and the next step compares on it
             cur = self.F.fit(best[2].effects, start=best[2], noise_passes=1)
             fits = {tuple(sel): cur}
+            cur, sel, fits = self.replace(cur, sel, fits, pool, steps[-1], len(rem) * len(sel))
         return cur, sel, steps, fits
+
+    def gates(self, smaller: ModelFit, larger: ModelFit, m: int) -> dict:
+        """What a larger model must pass against a smaller one to be taken: its likelihood
+        ratio (:func:`.fits.lr_test`) significant at alpha / m, and a held-out gap it does
+        not widen (``shrink_heldout`` None or above 0): ``passes``."""
+        lr = lr_test(smaller, larger, m, self.alpha)
+        sh = shrink(self.ho(smaller), self.ho(larger))
+        return {**{k: lr[k] for k in ("delta_chi2", "p_value", "threshold_p", "significant")}, "shrink_heldout": sh,
+                "passes": lr["significant"] and (sh is None or sh > 0)}
+
+    def gains(self, f: ModelFit, cands: Sequence[str]) -> dict[str, tuple[float, float]]:
+        """Candidate -> (score, linear estimate) against a fit (:meth:`score`)."""
+        U = basis(f)
+        return {c: self.score(f, c, U)[:2] for c in cands}
+
+    def replace(self, cur: ModelFit, sel: list[str], fits: dict, pool: list[str], step: dict,
+                m: int) -> tuple[ModelFit, list[str], dict]:
+        """The best subset of the size the selection has reached, by sequential replacement
+        (:func:`best_swap`; Miller 2002, §3.5): each member but the one just added is
+        dropped in turn and the candidates that would gain more than it are fitted in its
+        place.  An exchange the data prefer by more than :data:`TIE_CHI2` is made when the
+        new subset passes the step's gates (:meth:`gates`, Bonferroni over m) against the
+        best model one smaller seen; then the noise model is refitted and the search
+        repeated.  Each exchange lowers the chi-square, so the search ends.
+
+        The fits without each member stay in ``fits`` (keyed by the others, in order): the
+        ranking's drop-one fits when this is the final size.  ``step`` records the
+        exchanges fitted (``swaps``), those made (``replaced``, with their gates) and the
+        subset kept (``best_subset``).
+        """
+        step["swaps"], step["replaced"] = [], []
+        drops: dict[str, ModelFit] = {}
+
+        def drop(i: str) -> ModelFit:
+            others = tuple(x for x in sel if x != i)
+            drops[i] = fits[others] = self.F.fit(self.baseline + list(others), start=cur)
+            return drops[i]
+
+        for _ in pool:
+            drops.clear()
+            got, tried = best_swap(sel, sel[:-1], pool, drop, self.gains, self.trial, lambda f: f.fit.chi2,
+                                   cur.fit.chi2, self.refit_top)
+            step["swaps"] += tried
+            if got is None:
+                break
+            out, new, t, _ = got
+            smaller = min([drops.get(sel[-1]) or drop(sel[-1]), *drops.values()], key=lambda f: f.fit.chi2)
+            g = self.gates(smaller, t, m)
+            step["replaced"].append({"out": out, "in": new, **g,
+                                     "against": [e for e in smaller.effects if e not in self.baseline]})
+            if not g["passes"]:
+                break
+            sel = [x for x in sel if x != out] + [new]
+            cur = self.F.fit(t.effects, start=t, noise_passes=1)
+            fits = {tuple(sel): cur}
+        step["best_subset"] = list(sel)
+        return cur, sel, fits
 
     def tie_break(self, best, rows, fits, sel, sc):
         """Two aliased candidates (|cos| of their projected signatures > ALIAS_COS) that the
-        data do not tell apart (their chi-squares within 1 of each other: neither preferred by
-        a sigma) are a tie: the one of higher
-        precedence (:meth:`precedence`) is taken and the other is reported as its alias."""
+        data do not tell apart (their chi-squares within :data:`TIE_CHI2` of each other:
+        neither preferred by a sigma) are a tie: the one of higher precedence
+        (:meth:`precedence`) is taken and the other is reported as its alias."""
         if best is None:
             return None
         c0, lr0, _ = best
         a = sc[c0][3]
         for r in rows:
             c = r["effect"]
-            if c == c0 or not r["significant"] or (r["shrink_heldout"] is not None and r["shrink_heldout"] <= 0):
+            if c == c0 or not r["passes"]:
                 continue
             b = sc[c][3]
-            tie = abs(r["delta_chi2"] - lr0["delta_chi2"]) <= 1.0
+            tie = abs(r["delta_chi2"] - lr0["delta_chi2"]) <= TIE_CHI2
             if abs(alias_cos(a, b)) > ALIAS_COS and tie and self.precedence(c) < self.precedence(best[0]):
                 best = (c, r, fits[tuple(sel + [c])])
         return best
