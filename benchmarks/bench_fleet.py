@@ -132,7 +132,9 @@ FLOW_STAGES = {
     "summary": ("summary",),
     "snapshot": ("snapshot",),
 }
-#: Time inside the tasks (summed over workers): where the flow's waiting goes.
+#: Time inside the tasks (summed over workers): where the flow's waiting goes; and the
+#: CPU seconds the workers spent in them (``<stage> cpu``), which on a machine with other
+#: work say what a task costs when its wall time says how long it waited for a core.
 TASK_STAGES = ("ingest+validate", "load", "science")
 
 
@@ -142,6 +144,7 @@ def stage_times(r: dict) -> dict[str, float]:
     out["other"] = r["pipeline_s"] - sum(out.values())
     for k in TASK_STAGES:
         out[f"task {k}"] = t.get(k, 0.0)
+        out[f"cpu {k}"] = t.get(f"{k} cpu", 0.0)
     return out
 
 
@@ -273,7 +276,8 @@ def main(argv=None) -> int:
     for n in args.campaigns:
         cmd = [sys.executable, __file__, "--child", "--n", str(n), "--per-drop", str(args.per_drop),
                "--engine", args.engine, "--task-runner", args.task_runner] \
-            + (["--sim-cache", args.sim_cache] if args.sim_cache else [])
+            + (["--sim-cache", args.sim_cache] if args.sim_cache else []) \
+            + (["--keep", str(Path(args.keep) / f"n{n}")] if args.keep else [])
         p = subprocess.run(cmd, capture_output=True, text=True)
         line = next((l for l in p.stdout.splitlines() if l.startswith("RESULT ")), None)
         if p.returncode != 0 or line is None:
@@ -287,6 +291,8 @@ def main(argv=None) -> int:
               f"{r['load_before']:.1f} -> {r['load_after']:.1f}", flush=True)
         st = stage_times(r)
         print("  " + ", ".join(f"{k} {v:.1f}" for k, v in st.items()), flush=True)
+        print("  CPU in tasks a campaign: " + ", ".join(
+            f"{k} {1e3 * st['cpu ' + k] / n:.0f} ms" for k in TASK_STAGES), flush=True)
     meta = {"python": sys.version.split()[0], "machine": platform.machine(),
             "cpus": os.cpu_count()}
     (out / "bench-fleet.json").write_text(json.dumps({"meta": meta, "results": results},
@@ -321,13 +327,15 @@ def report(results: list[dict], args) -> str:
              "Stage times in s, wall time of the flow process (they sum to the pipeline time; "
              "'other' is what no stage claims: opening the warehouse, Prefect and Dask start). "
              "'in tasks' is time inside the ingest/validate and load/science tasks, summed over "
-             "workers. Floor: pyarrow CSV read + one numpy least-squares fit per run, same "
+             "workers; 'CPU a campaign' the CPU time the workers spent in them, per campaign. "
+             "Floor: pyarrow CSV read + one numpy least-squares fit per run, same "
              "process run.",
              "",
              "| campaigns | runs | pipeline s | runs/s | peak RSS MB | "
              + " | ".join(FLOW_STAGES) + " | other | in tasks: ingest+validate / load / science "
+             "| CPU a campaign ms: ingest+validate / load / science "
              "| floor s | ratio to floor | re-run s |",
-             "|---|---|---|---|---|" + "---|" * (len(FLOW_STAGES) + 5)]
+             "|---|---|---|---|---|" + "---|" * (len(FLOW_STAGES) + 6)]
     for r in results:
         st = stage_times(r)
         rss = f"{r['peak_rss_mb']:.0f}"
@@ -340,7 +348,8 @@ def report(results: list[dict], args) -> str:
             f"| {r['campaigns']} | {r['runs']} | {r['pipeline_s']:.1f} | {r['runs_per_s']:.1f} "
             f"| {rss} | " + " | ".join(f"{st[k]:.1f}" for k in FLOW_STAGES)
             + f" | {st['other']:.1f} | "
-            + " / ".join(f"{st['task ' + k]:.1f}" for k in TASK_STAGES)
+            + " / ".join(f"{st['task ' + k]:.1f}" for k in TASK_STAGES) + " | "
+            + " / ".join(f"{1e3 * st['cpu ' + k] / r['campaigns']:.0f}" for k in TASK_STAGES)
             + f" | {r['numpy_floor']['seconds']:.2f} | {r['ratio_pipeline_to_floor']:.0f}× "
             f"| {r['rerun_s']:.1f} |")
     lines += ["", "| query | " + " | ".join(f"{r['campaigns']} campaigns" for r in results) + " |",

@@ -8,8 +8,8 @@ and ``--simulated`` campaigns per shipped scenario written once as drop files by
 simulator.  Each reference commit is checked out in a temporary git worktree and run with
 PYTHONPATH pointing at it, so every version parses the same bytes with its own parser.
 Every campaign is timed ``--repeat`` times in a warm process, in CPU seconds of that process
-(BLAS on one thread), so other jobs on the machine enter the figure only through shared
-caches; the table gives the median per campaign and the ratio current/reference per
+(BLAS on one thread), the versions of a round at the same time, so other jobs on the machine
+enter the figure only through shared caches, and alike for every version; the table gives the median per campaign and the ratio current/reference per
 reference.  Writes benchmarks/results/science-timing.md,
 and with ``--readme`` the same table between the README's ``<!-- bench-science:begin/end -->``
 markers.
@@ -77,11 +77,23 @@ def _cases(tmp: Path, n_sim: int) -> dict[str, list[str]]:
     return cases
 
 
-def _time(code: Path, cases: dict, repeat: int) -> dict[str, float]:
-    env = {**os.environ, "PYTHONPATH": str(code), "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
-    p = subprocess.run([sys.executable, "-c", WORKER, json.dumps(cases), str(repeat)], cwd=str(code),
-                       env=env, capture_output=True, text=True, check=True)
-    return json.loads(p.stdout.strip().splitlines()[-1])
+def _time(codes: dict[str, Path], cases: dict, repeat: int) -> dict[str, dict[str, float]]:
+    """Each version's timings, the versions run at the same time (one process each), so
+    that the machine's other work falls on every version alike: run one after the other
+    on a shared machine, their ratios moved by up to 1.5 x with the load between them."""
+    procs = {}
+    for v, code in codes.items():
+        env = {**os.environ, "PYTHONPATH": str(code), "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1"}
+        procs[v] = subprocess.Popen([sys.executable, "-c", WORKER, json.dumps(cases), str(repeat)],
+                                    cwd=str(code), env=env, stdout=subprocess.PIPE,
+                                    stderr=subprocess.PIPE, text=True)
+    out = {}
+    for v, p in procs.items():
+        stdout, stderr = p.communicate()
+        if p.returncode:
+            raise RuntimeError(f"{v}: {stderr[-2000:]}")
+        out[v] = json.loads(stdout.strip().splitlines()[-1])
+    return out
 
 
 def main(argv=None) -> int:
@@ -90,7 +102,7 @@ def main(argv=None) -> int:
                     help="reference commit, repeatable (default: ee91499, before the test-design flags)")
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--simulated", type=int, default=4, help="simulated campaigns per scenario")
-    ap.add_argument("--rounds", type=int, default=3, help="alternating rounds of the references and current")
+    ap.add_argument("--rounds", type=int, default=3, help="rounds, each running the references and current at once")
     ap.add_argument("--readme", type=Path, help="also write the table into this README")
     args = ap.parse_args(argv)
     refs = args.ref or ["ee91499"]
@@ -102,10 +114,8 @@ def main(argv=None) -> int:
         for r, d in dirs.items():
             _git("worktree", "add", "--detach", str(d), r)
         try:
-            # alternate the versions round by round, so a change in the machine's load
-            # during the run falls on all alike; per campaign the median over the rounds
-            rounds = [{**{r: _time(d, cases, args.repeat) for r, d in dirs.items()},
-                       head: _time(ROOT, cases, args.repeat)} for _ in range(args.rounds)]
+            # every round runs all versions at once; per campaign the median over the rounds
+            rounds = [_time({**dirs, head: ROOT}, cases, args.repeat) for _ in range(args.rounds)]
         finally:
             for d in dirs.values():
                 _git("worktree", "remove", "--force", str(d))
@@ -122,7 +132,7 @@ def main(argv=None) -> int:
         rows.append(f"| {g} | " + " | ".join(f"{med[v]:.3f}" for v in [*refs, head]) + " | "
                     + " | ".join(f"{med[head] / med[r]:.2f}" for r in refs) + " |")
     text = (f"Science per campaign (`process_campaign`, CPU seconds, median of {args.repeat} warm runs, one thread, "
-            f"median over {args.rounds} alternating rounds), current commit {head} against "
+            f"median over {args.rounds} rounds, the versions of a round run at once), current commit {head} against "
             f"{', '.join(refs)}, same inputs, one run of `python benchmarks/bench_science.py "
             f"{' '.join(f'--ref {r}' for r in refs)} --repeat {args.repeat} --simulated {args.simulated} "
             f"--rounds {args.rounds}`:\n\n" + "\n".join(rows) + "\n")

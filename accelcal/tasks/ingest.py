@@ -49,7 +49,8 @@ class DropIngest:
     simulated_held: list[dict[str, Any]] = field(default_factory=list)
     docs: str | None = None
     seconds: float = 0.0                                            # time spent in the step(s)
-    #: the same time by step ("ingest": hash + parse + Parquet, "validate": the suites)
+    #: the same time by step ("ingest": hash + parse + Parquet, "validate": the suites),
+    #: and the CPU seconds of the whole ("ingest+validate cpu", the process's, all threads)
     stage_seconds: dict[str, float] = field(default_factory=dict)
 
 

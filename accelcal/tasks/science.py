@@ -55,20 +55,22 @@ def load_and_process(warehouse_root: str, campaigns: list[list[dict[str, Any]]],
     earlier calibrations say of its coefficients (:meth:`Warehouse.unit_priors
     <accelcal.warehouse.db.Warehouse.unit_priors>`), read by the flow process.
 
-    Returns per campaign ``(CampaignResult, {"load": s, "science": s})``, or
-    ``(None, "ErrorType: message")`` when that campaign could not be computed (the others
-    still are).
+    Returns per campaign ``(CampaignResult, {"load": s, "science": s, "load cpu": s,
+    "science cpu": s})`` (wall and CPU seconds of the worker process, all its threads: on a
+    machine with other work the CPU seconds are the cost), or ``(None, "ErrorType:
+    message")`` when that campaign could not be computed (the others still are).
     """
     out: list[tuple] = []
     for k, inputs in enumerate(campaigns):
         own = unit_priors[k] if unit_priors else None
         try:
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             runs = load_campaign_runs(warehouse_root, inputs)
-            t1 = time.perf_counter()
+            t1, c1 = time.perf_counter(), time.process_time()
             result = run_science(runs, {**(parameters or {}), "unit_priors": own} if own else parameters)
             del runs
-            out.append((result, {"load": t1 - t0, "science": time.perf_counter() - t1}))
+            out.append((result, {"load": t1 - t0, "science": time.perf_counter() - t1,
+                                 "load cpu": c1 - c0, "science cpu": time.process_time() - c1}))
         except Exception as e:
             out.append((None, f"{type(e).__name__}: {e}"))
     return out
