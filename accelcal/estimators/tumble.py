@@ -217,16 +217,22 @@ class TumbleRun:
         return self.result.std(name), self.result.std_noise(name), float(self.result.lof.factor)
 
 
-def _readings_model(meta: Mapping, df: pd.DataFrame) -> CampaignModel:
-    """The campaign model of one tumble run whose cells are its readings (paper 003 fits
-    every reading), unweighted: the run's noise model is left unset."""
-    y = df["output"].to_numpy(float)
+def reading_cells(meta: Mapping, cols: Mapping[str, np.ndarray], index: int = 0,
+                  var_mean: np.ndarray | None = None) -> RunCells:
+    """A run as cells of one reading each (paper 003 fits every reading): the campaign
+    model's cell means are then the readings themselves; ``var_mean``: the variance of
+    each reading [output_unit^2], else the run's noise model is left unset."""
+    y = np.asarray(cols["output"], float)
     n = y.size
-    cells = RunCells(index=0, meta=dict(meta), geometry=geometry_of(meta),
-                     cols={k: df[k].to_numpy() for k in df.columns}, rate_derivative=None,
-                     cid=np.arange(n), n=np.ones(n), y_rows=y, y=y, x_rows=np.zeros(n), x=np.zeros(n),
-                     lines=np.zeros(n, int))
-    return CampaignModel([cells], ["initial_misalignment"], include=("Kip", *ACTING["tumble"]), acting=ACTING)
+    return RunCells(index=index, meta=dict(meta), geometry=geometry_of(meta), cols=dict(cols), rate_derivative=None,
+                    cid=np.arange(n), n=np.ones(n), y_rows=y, y=y, x_rows=np.zeros(n), x=np.zeros(n),
+                    lines=np.zeros(n, int), var_mean=var_mean)
+
+
+def _readings_model(meta: Mapping, df: pd.DataFrame) -> CampaignModel:
+    """The campaign model of one tumble run whose cells are its readings, unweighted."""
+    return CampaignModel([reading_cells(meta, {k: df[k].to_numpy() for k in df.columns})], ["initial_misalignment"],
+                         include=("Kip", *ACTING["tumble"]), acting=ACTING)
 
 
 def fit_run(meta: Mapping, data, extra_terms: Sequence[str] = ()) -> TumbleRun:
@@ -586,9 +592,9 @@ def tumble_records(pooled: Mapping[str, Pooled], *, square_terms: Mapping[str, t
         unit = si_unit(q.key, out_unit)
         if q.key == "K2":
             adds = {}
-            for r in q.runs:
+            for r, w in zip(q.runs, q.weights):
                 sq = SQUARE_TERM[r.head.other_axis]
-                adds[sq] = adds.get(sq, 0.0) + q.weights[q.runs.index(r)]
+                adds[sq] = adds.get(sq, 0.0) + w
             if all(sq in square_terms for sq in adds):
                 corrected.add(name)
                 for sq, wsum in adds.items():

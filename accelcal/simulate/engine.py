@@ -79,7 +79,8 @@ def quantize(values, digits: int) -> np.ndarray:
     return np.array([float(format(x, f".{digits}g")) if np.isfinite(x) else np.nan for x in v])
 
 
-def _effects_for(kind: str, *layers) -> dict[str, float]:
+def acting_effects(kind: str, *layers) -> dict[str, float]:
+    """The effects of the layers (later ones override) that act in a ``kind`` test (effects.md)."""
     out: dict[str, float] = {}
     for layer in layers:
         out.update(layer or {})
@@ -264,10 +265,7 @@ def _centrifuge_run(sc, t, mount, meta, effects, noise, rng):
     p_rate = float(t.get("rate_dwell_period_s", 76.0))
     dwell_rate = [0.0] * len(az) + list(rates)
     dwell_angle = az + [np.nan] * len(rates)
-    starts, s0 = [], 0.0
-    for k in range(len(dwell_rate)):
-        starts.append(s0)
-        s0 += p_rest if k < len(az) else p_rate
+    starts = np.cumsum([0.0] + [p_rest] * len(az) + [p_rate] * (len(rates) - 1))
     step = np.repeat(np.arange(len(dwell_rate)), n_read)
     j = np.tile(np.arange(n_read), len(dwell_rate))
     time = np.asarray(starts)[step] + j * dt
@@ -388,7 +386,7 @@ def simulate_campaign(scenario, seed: int | None = None) -> list[SimRun]:
         counters[prefix] = num + 1
         run_id = f"{prefix}-{num:04d}"
         item_effects = item.get("effects", {}) if isinstance(item, dict) else {}
-        effects = _effects_for(kind, sc.effects, t["effects"], item_effects)
+        effects = acting_effects(kind, sc.effects, t["effects"], item_effects)
         noise = {**sc.noise, **t["noise"], **sc.disturbance, **t["disturbance"]}
         rng = _rng(seed, index)
         period = (1.0 / float(t.get("sample_rate_hz", 50.0)) if kind == "sine_centrifuge"
