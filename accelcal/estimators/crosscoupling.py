@@ -167,6 +167,13 @@ def alignment(R_plus: float, R_minus: float, plane: str, phi0_deg: float) -> Ali
     return Alignment(plane, float(phi0_deg), R, r, R1, d1, R2, d2)
 
 
+def _fitted_term(name: str, std: bool) -> property:
+    """A term of a pair's chosen eq 9 fit: its value, or with ``std`` its standard error;
+    None where the chosen order has no such term (c3 of an order-2 fit)."""
+    return property(lambda self: (self.fit.std_error if std else self.fit.value)(name)
+                    if name in self.fit.names else None)
+
+
 @dataclass
 class PairFit:
     """Eq 9 fit of one mount pair (:func:`fit_mount_pair`).
@@ -200,29 +207,7 @@ class PairFit:
     geometry: Alignment
     dwells: pd.DataFrame = field(repr=False, default=None)
 
-    @property
-    def c2(self) -> float:
-        return self.fit.value("c2")
-
-    @property
-    def u_c2(self) -> float:
-        return self.fit.std_error("c2")
-
-    @property
-    def d(self) -> float:
-        return self.fit.value("d")
-
-    @property
-    def u_d(self) -> float:
-        return self.fit.std_error("d")
-
-    @property
-    def c3(self) -> float | None:
-        return self.fit.value("c3") if "c3" in self.fit.names else None
-
-    @property
-    def u_c3(self) -> float | None:
-        return self.fit.std_error("c3") if "c3" in self.fit.names else None
+    c2, u_c2, d, u_d, c3, u_c3 = (_fitted_term(name, std) for name in ("c2", "d", "c3") for std in (False, True))
 
 
 def fit_mount_pair(run_a: tuple[Mapping, pd.DataFrame], run_b: tuple[Mapping, pd.DataFrame],
