@@ -287,8 +287,7 @@ def iterative_step(mounts: Mounts, ref: Reference, static: StaticStep, pair: Pai
         :func:`.adequacy.choose_order`.
     """
     arm = float(mounts.run_plus.meta["arm_radius_m"])
-    R0p = static.radii["+"].radius_m if "+" in static.radii else arm
-    R0m = static.radii["-"].radius_m if "-" in static.radii else arm
+    R0p, R0m = (static.radii[pol].radius_m if pol in static.radii else arm for pol in "+-")
     levels = g_levels(pair, R0p, R0m)
     top = max(levels) if levels else None
     ranges = [r for r in RADIUS_RANGES if levels and r < top * 0.98 and sum(lv <= r * 1.02 for lv in levels) >= 4]

@@ -90,11 +90,6 @@ NON_NEGATIVE = ("sensor_lag",)
 ATTITUDES = ("a", "b", "c")
 
 
-def _unit(name: str, output_unit: str = "") -> str:
-    """SI unit of a parameter (catalogue, :func:`accelcal.effects.si_unit`)."""
-    return si_unit(name, output_unit or "<output_unit>")
-
-
 # --------------------------------------------------------------------------- inputs
 
 def _attitude(g) -> str:
@@ -175,10 +170,10 @@ def _build_params(prep: list[RunCells], per_run_bias: bool, extra_terms: Sequenc
     ``runs`` the one run a per-run parameter belongs to (None: shared by every run), the
     unit the catalogue's in the runs' output unit, the scale the catalogue's typical size
     (K1: ``K1_scale``)."""
-    out_unit = str(prep[0].meta.get("output_unit", ""))
+    out_unit = str(prep[0].meta.get("output_unit", "")) or "<output_unit>"
 
     def scoped(key: str, kind: str, scope: str) -> list[Parameter]:
-        scale, unit = K1_scale if key == "K1" else typical_size(key), _unit(key, out_unit)
+        scale, unit = K1_scale if key == "K1" else typical_size(key), si_unit(key, out_unit)
         if scope not in ("shared", "per_run"):
             raise ValueError(f"tool-error scope {scope!r} (use 'shared' or 'per_run')")
         return [Parameter(key, key, unit, scale, None, kind)] if scope == "shared" else \
