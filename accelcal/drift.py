@@ -322,10 +322,15 @@ def slope_change_p(t, x, u, start: int, prior: FleetPrior | None = None,
         return None
     X = _design(t, f.t_ref, None, segments)
     X = np.column_stack([X, (t - f.t_ref) * (np.arange(len(t)) >= start)])
-    if design_rank(X) < X.shape[1]:
-        return None
+    return _last_term(X, x, u, f)[2] if design_rank(X) == X.shape[1] else None
+
+
+def _last_term(X: np.ndarray, x: np.ndarray, u: np.ndarray, f: DriftFit) -> tuple[float, float, float]:
+    """Value, standard uncertainty and two-sided t p value (``f.dof``) of the coefficient of
+    X's last column (a step, a change of rate) in the weighted line with ``f``'s tau^2."""
     beta, cov, _ = _wls(X, x, u ** 2 + f.tau2)
-    return float(2 * stats.t.sf(abs(beta[-1]) / math.sqrt(cov[-1, -1]), f.dof))
+    sd = math.sqrt(cov[-1, -1])
+    return float(beta[-1]), sd, float(2 * stats.t.sf(abs(float(beta[-1])) / sd, f.dof))
 
 
 # ----------------------------------------------------------------- steps ----
@@ -364,17 +369,12 @@ def find_steps(t, x, u, prior: FleetPrior | None = None, en_limit: float = STEP_
             f = fit_drift(t, x, u, prior, step_at=k)
         except (ValueError, np.linalg.LinAlgError):
             continue
-        X = _design(t, f.t_ref, k)
-        beta, cov, _ = _wls(X, x, u ** 2 + f.tau2)
-        delta = float(beta[2])
-        sd = math.sqrt(cov[2, 2])
-        z = abs(delta) / sd
-        p = 2 * stats.t.sf(z, f.dof)
+        delta, sd, p = _last_term(_design(t, f.t_ref, k), x, u, f)
         # positions the data cannot tell apart (three calibrations: a step after the first
         # or after the second fits them equally, to the last digit) go to the later one:
         # the current series then holds only calibrations certainly after the step
         if best is None or p <= best.p * (1 + STEP_TIE_RTOL):
-            best = Step(offset + k, delta, sd, delta / (2 * sd), float(p))
+            best = Step(offset + k, delta, sd, delta / (2 * sd), p)
     if best is None or (abs(best.en) <= en_limit and best.p >= alpha / (n - 1)):
         return []
     k = best.at - offset
