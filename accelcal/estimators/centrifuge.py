@@ -139,7 +139,7 @@ class RadiusCorrections:
     Attributes
     ----------
     cross : str or None
-        The cross term of IA with the vertical axis (Kio or Kip) and its value / u [s2/m].
+        The cross term of IA with the vertical axis (Kio or Kip).
     type_b : dict
         (method, polarity, order, g_max) -> standard uncertainty [m] of the type-B term of the
         static and iterative radii (uniform; instrument terms the method leaves in the radius).
@@ -152,8 +152,6 @@ class RadiusCorrections:
         neither: its leak into the radius is not in u, and a flag says so), ``'none'``.
     """
     cross: str | None
-    Kiv: float
-    u_Kiv: float
     type_b: dict
     iterative: dict[str, tuple[float, float]]
     static: dict[str, tuple[float, float]]
@@ -240,7 +238,7 @@ def reference_scale(mounts: Mounts, tumble: Reference | None) -> tuple[Reference
     f = pair0.fit(pair0.inputs(R0), 3, subtract_a=False)
     K1 = 0.5 * (f.value("b+") + f.value("b-"))
     K0 = 0.5 * (f.value("K0+") + f.value("K0-")) / K1
-    return Reference(K0, K1, 0.0, 0.0, 0.0, 0.0, from_tumble=False), (flag,)
+    return Reference(K0, K1, 0.0, 0.0, 0.0, from_tumble=False), (flag,)
 
 
 def static_step(mounts: Mounts, ref: Reference) -> StaticStep:
@@ -489,12 +487,10 @@ def radius_corrections(mounts: Mounts, ref: Reference, static: StaticStep, itera
     it_corr = {pol: (R / scale, math.hypot(u, R * g * uKiv))
                for pol, R, u in (("+", best.R_plus, best.u_plus), ("-", best.R_minus, best.u_minus))}
     coeffs = {"K2": K2c, "Koq": ia.d, "K3": ia.c3 or 0.0, **({cross: Kiv} if cross else {})}
-    st_corr = {}
-    for pol, s in static.radii.items():
-        run = mounts.run_plus if pol == "+" else mounts.run_minus
-        st_corr[pol] = (geometric_static_radius(run.meta, s, coeffs),
-                        math.hypot(s.std_uncertainty_m, s.radius_m * g * uKiv))
-    return RadiusCorrections(cross, Kiv, uKiv, type_b, it_corr, st_corr, source)
+    runs = {"+": mounts.run_plus, "-": mounts.run_minus}
+    st_corr = {pol: (geometric_static_radius(runs[pol].meta, s, coeffs),
+                     math.hypot(s.std_uncertainty_m, s.radius_m * g * uKiv)) for pol, s in static.radii.items()}
+    return RadiusCorrections(cross, type_b, it_corr, st_corr, source)
 
 
 def process_rig(runs: Sequence, tumble: Reference | None) -> RigOutcome | tuple[str, ...]:
