@@ -80,8 +80,7 @@ def delta_c2(K: Mapping[str, float], plane: str, phi0_rad: float, dphi_rad: floa
     input and v = du/dphi (the input of the mount turned by 90 deg), each term of eq 2 is
     quadratic in the input, so its derivative is exactly [row(u + v) - row(u - v)] / 2.
     """
-    meta = mount_meta(plane, math.degrees(phi0_rad))
-    u = centripetal_unit_input(meta)
+    u = centripetal_unit_input(mount_meta(plane, math.degrees(phi0_rad)))
     v = centripetal_unit_input(mount_meta(plane, math.degrees(phi0_rad) + 90.0))
     d = 0.0
     for k in UNKNOWNS:
@@ -127,8 +126,7 @@ def mount_geometry(R: float, r: float, phi_rad: float) -> tuple[float, float]:
         the spindle [rad], from the centripetal input of the forward model
         (:func:`centripetal_unit_input`): phi = 0 gives rho = R - r, phi = 180 deg R + r.
     """
-    meta = mount_meta("IA-PA", math.degrees(phi_rad))
-    f = centripetal_unit_input(meta, R, r)
+    f = centripetal_unit_input(mount_meta("IA-PA", math.degrees(phi_rad)), R, r)
     rho = float(math.hypot(f[0], f[1]))
     dphi = float((math.atan2(f[1], f[0]) - phi_rad + math.pi) % (2 * math.pi) - math.pi)
     return rho, dphi
@@ -255,9 +253,7 @@ def fit_mount_pair(run_a: tuple[Mapping, pd.DataFrame], run_b: tuple[Mapping, pd
     # direction to the spindle, turning centre R and mass centre r from the test radii (the
     # second-order difference to omega_z^2 rho, an angle error, is eq 8's type-B term)
     a = pair.inputs(geo.R, geo.r)
-    fits = {}
-    for order in orders:
-        fits[order] = pair.fit(a, order, subtract_a=False)
+    fits = {order: pair.fit(a, order, subtract_a=False) for order in orders}
     chosen, adequate = choose_order(fits, {3: ["c3"]})
     f = fits[chosen]
     T = pair.table.assign(a=a, std_resid=f.std_resid, fitted=f.yhat)

@@ -69,7 +69,7 @@ from ..physics import instrument, rigs
 from ..results import (BudgetTerm, CoefficientResult, FitCheck, ResidualFigure, ResidualPanel, ResidualSeries,
                        display_number)
 from . import uncertainty as unc
-from .records import jsonable
+from .records import Records, jsonable
 from .registry import Estimator, register
 
 #: Method id of paper 002's records.
@@ -282,7 +282,7 @@ def _residual(params: ParameterSet, prep: list[RunCells], x: np.ndarray, w: np.n
 
 
 def _split(v: np.ndarray, prep: list[RunCells]) -> list[np.ndarray]:
-    """A stacked per-reading vector cut into its runs."""
+    """A stacked per-reading vector (or the rows of a matrix) cut into its runs."""
     return np.split(v, np.cumsum([r.y_rows.size for r in prep])[:-1])
 
 
@@ -598,7 +598,7 @@ def aliasing_report(fit: SineFit) -> list[dict[str, Any]]:
     sign and Koq separates from K2.
     """
     out = []
-    for r, Jr in zip(fit.runs, np.split(fit.result.J, np.cumsum([q.y_rows.size for q in fit.runs])[:-1])):
+    for r, Jr in zip(fit.runs, _split(fit.result.J, fit.runs)):
         act = [j for j in range(Jr.shape[1]) if np.any(Jr[:, j] != 0.0)]
         names = [fit.names[j] for j in act]
         d = design_diagnostics(Jr[:, act], names)
@@ -809,7 +809,6 @@ def campaign_records(runs: Sequence, steps: Mapping[str, Any]) -> list:
     """Paper 002 on the sinusoidal-centrifuge runs of each rig of a campaign
     (:func:`process_sine_campaign`), with the budgets; a rig that fails is a flag, and so is
     a rig whose attitudes leave paper 002 without values."""
-    from .records import Records
     out = []
     for rig in dict.fromkeys(str(r.meta.get("rig_id", "")) for r in runs):
         try:
