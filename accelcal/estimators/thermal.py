@@ -55,7 +55,7 @@ from ..rounding import round_gum
 from ..results import (BudgetTerm, CoefficientResult, FitCheck, ResidualFigure, ResidualPanel, ResidualSeries,
                        display_number)
 from . import uncertainty as unc
-from .records import jsonable
+from .records import Records, jsonable
 from .registry import Estimator, register
 
 METHOD = "tilt_rotation_ls"
@@ -190,8 +190,7 @@ def segment_run(data: pd.DataFrame, positions: int | None = None) -> pd.DataFram
     sweep_of_point = np.zeros(len(starts), int)
     sweep, direction = 0, 0
     for j in range(1, len(starts)):
-        step = sp[starts[j]] - sp[starts[j - 1]]
-        s = 1 if step > 0 else -1
+        s = 1 if sp[starts[j]] - sp[starts[j - 1]] > 0 else -1
         if direction != 0 and s != direction:
             sweep += 1
             direction = 0
@@ -582,8 +581,7 @@ def sweep_repeatability(points: list[dict]) -> dict[str, Any]:
     out: dict[str, Any] = {"per_sweep": per, "n_sweeps": len(per)}
     if len(per) >= 2:
         for k in ("K0", "K1", "K0T", "K1T"):
-            vals = np.array([r[k] for r in per])
-            out["sd_" + k] = float(np.std(vals, ddof=1))
+            out["sd_" + k] = float(np.std(np.array([r[k] for r in per]), ddof=1))
             out["mean_u_" + k] = float(np.mean([r["u_" + k] for r in per]))
         out["sd_K0T_ug_per_degC"] = out["sd_K0T"] / MICRO_G
         out["sd_K1T_ppm_per_degC"] = out["sd_K1T"] * 1e6
@@ -663,17 +661,15 @@ def fixed_point_method(meta: Mapping, pm: pd.DataFrame, s_pos: float | None = No
         rows.append(row)
     if len({round(r["temp_c"], 6) for r in rows}) < 2:
         return {"points": rows} if rows else {}
-    Ts = [r["temp_c"] for r in rows]
-    out: dict[str, Any] = {"s_position_mean": s_pos, "points": rows}
-    out["two_position"] = fit_temperature_model(Ts, [r["K0"] for r in rows], [r["u_K0"] for r in rows],
-                                                [r["K1"] for r in rows], [r["u_K1"] for r in rows])
+
+    def model(*keys):       # the temperature model of the rows' K0, u_K0, K1, u_K1 series ``keys``
+        return fit_temperature_model([r["temp_c"] for r in rows], *([r[k] for r in rows] for k in keys))
+    out: dict[str, Any] = {"s_position_mean": s_pos, "points": rows, "two_position": model("K0", "u_K0", "K1", "u_K1")}
     if all("K0_zero" in r for r in rows):
-        z = fit_temperature_model(Ts, [r["K0_zero"] for r in rows], [r["u_K0_zero"] for r in rows],
-                                  [r["K1"] for r in rows], [r["u_K1"] for r in rows])
+        z = model("K0_zero", "u_K0_zero", "K1", "u_K1")
         out["zero_input"] = {k: z[k] for k in ("K0", "u_K0", "K0T", "u_K0T", "interval_K0T")}
     for name, key in (("single_plus", "K1_plus"), ("single_minus", "K1_minus")):
-        f = fit_temperature_model(Ts, [r["K0"] for r in rows], [r["u_K0"] for r in rows],
-                                  [r[key] for r in rows], [r["u_K1_single"] for r in rows])
+        f = model("K0", "u_K0", key, "u_K1_single")
         out[name] = {k: f[k] for k in ("K1", "u_K1", "K1T", "u_K1T", "interval_K1T")}
     return out
 
@@ -756,8 +752,7 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = ""
     points, pm = fit_points(meta, data)
     flags: list[str] = []
     fitted = [p for p in points if "K1" in p]
-    s_pool = fitted[0]["s_pooled"] if fitted else None
-    fixed = fixed_point_method(meta, pm, s_pool)
+    fixed = fixed_point_method(meta, pm, fitted[0]["s_pooled"] if fitted else None)
     c_per_urad = geo["normal_input"] * 1e-6  # m/s2/degC per urad/degC of fixture tilt
     note_k0t = (f"includes any fixture thermal tilt c (effect fixture_thermal_tilt, rad/degC), which enters "
                 f"K0T as g*c*cos(gamma) = {c_per_urad:.4g} m/s2/degC per urad/degC here; this method "
@@ -795,8 +790,7 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = ""
         K1s = np.array([p["K1"] for p in fitted])
         Kfit = model["K1"] * (1 + model["K1T"] * (np.array([p["temp_c"] for p in fitted]) - T_REF_C))
         extras["scale_factor_scatter_ppm"] = float(np.std(K1s / Kfit - 1.0, ddof=1) * 1e6) if len(K1s) > 2 else None
-        extras["scale_factor_time_trend"] = scale_factor_time_trend(fitted, model)
-        tr = extras["scale_factor_time_trend"]
+        tr = extras["scale_factor_time_trend"] = scale_factor_time_trend(fitted, model)
         if tr.get("significant"):
             flags.append(f"K1 drifts with time at {tr['slope_ppm_per_h']:.3g} +- {tr['u_slope_ppm_per_h']:.2g} "
                          "ppm/h beyond the temperature model: base tilt drift (effect base_tilt_drift) "
@@ -946,7 +940,6 @@ def budget_terms(coefficients: Sequence[CoefficientResult], model: Mapping[str, 
 def campaign_records(runs: Sequence, steps: Mapping[str, Any]) -> list:
     """Paper 001 on every tilt_rotation run of a campaign (:func:`process_thermal_run`),
     with the GUM budgets of its coefficients; a run that fails is a flag."""
-    from .records import Records
     out = []
     for run in runs:
         try:
