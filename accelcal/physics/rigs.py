@@ -191,10 +191,8 @@ def sine_rate_derivative(meta: Mapping, time_s: np.ndarray, effects: Mapping[str
     """
     effects = effects or {}
     eps = float(effects.get("rate_scale_error", 0.0))
-    Om = float(meta["rate_amplitude_rad_s"])
-    f = float(meta["rate_frequency_hz"])
-    t = np.asarray(time_s, float)
-    return rotation_sign(meta) * (1.0 + eps) * Om * 2 * np.pi * f * np.cos(2 * np.pi * f * t)
+    Om, f = float(meta["rate_amplitude_rad_s"]), float(meta["rate_frequency_hz"])
+    return rotation_sign(meta) * (1.0 + eps) * Om * 2 * np.pi * f * np.cos(2 * np.pi * f * np.asarray(time_s, float))
 
 
 def centrifuge_specific_force(meta: Mapping, data, effects: Mapping[str, float] | None = None, *,
@@ -257,10 +255,7 @@ def centrifuge_specific_force(meta: Mapping, data, effects: Mapping[str, float] 
     w2 = wz**2
     # without arm stretch, R0 (1 + 0 w_z^2) is R0 on every row where w_z^2 is finite (then the
     # sum of the w_z^2 >= 0 is finite too)
-    if kappa == 0.0 and math.isfinite(np.add.reduce(w2)):
-        R = R0
-    else:
-        R = R0 * (1.0 + kappa * w2)
+    R = R0 if kappa == 0.0 and math.isfinite(np.add.reduce(w2)) else R0 * (1.0 + kappa * w2)
     ux, uy = np.cos(phi), np.sin(phi)
     # position of the effective mass centre from the spindle, in (e1, e2) coordinates
     p1 = -R * ux + r
@@ -363,8 +358,7 @@ def tilt_rotation_specific_force(meta: Mapping, data, effects: Mapping[str, floa
     F[:, ni] = ns * g * np.cos(gamma)
     c = float(effects.get("fixture_thermal_tilt", 0.0))
     if c != 0.0 and ni != 0:
-        delta = c * (_col(data, "temp_c", n, np.nan) - T_REF_C)
-        delta = np.nan_to_num(delta)
+        delta = np.nan_to_num(c * (_col(data, "temp_c", n, np.nan) - T_REF_C))
         a_ia = F[:, 0].copy()
         a_n = ns * F[:, ni]                       # along the signed normal direction
         F[:, 0] = a_ia * np.cos(delta) + a_n * np.sin(delta)

@@ -187,9 +187,8 @@ def _frame(kind: str, cols: dict) -> pd.DataFrame:
 
 
 def _rng(seed: int | None, index: int) -> np.random.Generator:
-    if seed is None:
-        return np.random.default_rng()
-    return np.random.default_rng([int(seed) & 0xFFFFFFFF, index])
+    """Run ``index``'s generator: its own stream of the campaign's seed (fresh entropy without one)."""
+    return np.random.default_rng() if seed is None else np.random.default_rng([int(seed) & 0xFFFFFFFF, index])
 
 
 # ---------------------------------------------------------------- per test kind
@@ -251,12 +250,9 @@ def _centrifuge_run(sc, t, mount, meta, effects, noise, rng):
     az = [float(a) for a in t.get("rest_azimuths_deg", [0, 90, 180, 270])]
     levels = [float(x) for x in t.get("g_levels", [1, 2, 3, 5, 7, 10, 14, 18, 21, 25])]
     sweep = str(t.get("sweep", "up_down"))
-    if sweep == "up_down":
-        seq = levels + levels[-2::-1]
-    elif sweep == "up":
-        seq = list(levels)
-    else:
+    if sweep not in ("up", "up_down"):
         raise ValueError(f"sweep {sweep!r} is not 'up' or 'up_down'")
+    seq = levels + (levels[-2::-1] if sweep == "up_down" else [])
     rates = level_rates(seq, g, float(t.get("level_radius_m", R)), sc.site["latitude_deg"], sense,
                         bool(t.get("level_earth_rate", True)))
     n_read = int(t.get("readings", 8))
