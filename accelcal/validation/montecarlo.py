@@ -73,14 +73,15 @@ import numpy as np
 from scipy import stats
 
 from ..constants import T_REF_C
-from ..effects import split_combination
+from ..effects import COEFFICIENTS, split_combination
 from ..estimators import registry
 from ..estimators.tumble import reading_cells
 from .simruns import SimRunFile
 from ..fitting.core import lstsq_svd
 from ..fitting.identify import holds
 from ..fitting.model import DESIGNED, CampaignModel
-from ..physics.rigs import INSTRUMENT_EFFECTS, instrument_coefficients, rig_output, sine_drive
+from ..physics import scale_factor
+from ..physics.rigs import INSTRUMENT_EFFECTS, instrument_coefficients, omega_z, rig_output, sine_drive
 from ..results import CoefficientResult
 
 #: coverage target (95 % +- 3 %) and the coverage factor of the intervals
@@ -166,12 +167,9 @@ def truth_table(scenario, records: Mapping[tuple[str, str, str], CoefficientResu
         kind, rig = t["kind"], str(t["rig_id"])
         c = _coeffs_for(sc, t)
         eff = _effects_for(sc, t)
-        for est in registry.for_test(kind):
-            if est.truth is None:
-                continue
+        for est in (e for e in registry.for_test(kind) if e.truth is not None):
             own = {name: rec for (name, method, rg), rec in records.items() if method == est.method and rg == rig}
-            for (name, rg), v in est.truth(c, eff, t, g, own).items():
-                out[(name, est.method, rg)] = v
+            out.update({(name, est.method, rg): v for (name, rg), v in est.truth(c, eff, t, g, own).items()})
     out.update(_joint_truth(sc, out))
     return out
 
@@ -280,7 +278,6 @@ def _joint_truth(sc, per_method: Mapping) -> dict[tuple[str, str, str], tuple[fl
 
 def _reading_variance(kind: str, meta, data, coeffs, effects, noise) -> np.ndarray:
     """Variance of each reading's output (output_unit^2), the simulator's noise model."""
-    from ..physics import scale_factor
     temp = np.asarray(data["temp_c"], float) if "temp_c" in data.columns else None
     K1 = np.broadcast_to(np.asarray(scale_factor(coeffs, temp), float), (len(data),))
     var = (K1 * float(noise.get("white_m_s2", 0.0))) ** 2
@@ -288,14 +285,11 @@ def _reading_variance(kind: str, meta, data, coeffs, effects, noise) -> np.ndarr
     if jit > 0 and "table_rate_rad_s" in data.columns:
         w = np.asarray(data["table_rate_rad_s"], float)
         h = 1e-6 * np.maximum(np.abs(w), 1e-3)
-        up, dn = data.copy(), data.copy()
-        up["table_rate_rad_s"] = w + h
-        dn["table_rate_rad_s"] = w - h
+        up, dn = data.assign(table_rate_rad_s=w + h), data.assign(table_rate_rad_s=w - h)
         dEdw = (rig_output(kind, meta, up, coeffs, effects) - rig_output(kind, meta, dn, coeffs, effects)) / (2 * h)
         var = var + (dEdw * w / 2 * jit) ** 2
     cen = float(noise.get("centripetal_rel", 0.0))
     if cen > 0 and "table_rate_rad_s" in data.columns:
-        from ..physics.rigs import omega_z
         level = omega_z(meta, np.asarray(data["table_rate_rad_s"], float), {"earth_rate": 1.0}) ** 2 * float(
             meta["arm_radius_m"])
         var = var + (K1 * cen * level) ** 2
@@ -508,7 +502,6 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
                                         (m - 1) * sd**2 / stats.chi2.ppf(0.025, m - 1) / b)
         table.append(cs)
     order = registry.display_order()
-    from ..effects import COEFFICIENTS
     cnames = list(COEFFICIENTS)
     table.sort(key=lambda s: (order.get(s.method, 9), s.rig_id,
                               cnames.index(s.name) if s.name in cnames else 99, s.name))
