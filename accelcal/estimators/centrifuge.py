@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 from collections import defaultdict
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any, NamedTuple
 
 from ..constants import G_STANDARD, MOUNT_ANGLE_TOLERANCE_RAD
@@ -361,7 +361,7 @@ def combination_step(mounts: Mounts, pairs: PairStep) -> CombinationStep:
         tol = delta_c2(first.values, pf.plane, math.radians(pf.phi0_deg), MOUNT_ANGLE_TOLERANCE_RAD)
         lab = pair_label(pf)
         u_dc2[lab] = unc.uniform_u(abs(d1 + d2) / 2 + abs(tol))
-        rows.append({"kind": "mount", "rig_id": mounts.rig, "pair": lab, **g.as_dict(),
+        rows.append({"kind": "mount", "rig_id": mounts.rig, "pair": lab, **asdict(g),
                      "dc2_1": d1, "dc2_2": d2, "u_dc2_typeB": u_dc2[lab],
                      "dc2_paper_bound": max(abs(d1), abs(d2)), "dc2_tolerance": tol,
                      "c2": pf.c2, "u_c2": pf.u_c2, "order": pf.order})

@@ -103,9 +103,6 @@ class Alignment:
     R2: float             # the same at phi0 + 180 deg
     dphi2: float
 
-    def as_dict(self) -> dict:
-        return dict(self.__dict__)
-
 
 def mount_geometry(R: float, r: float, phi_rad: float) -> tuple[float, float]:
     """Distance and direction error of the effective mass centre (paper 000 §2.2).
