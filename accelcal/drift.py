@@ -233,13 +233,9 @@ class DriftFit:
         return float(self.result.values[1])
 
     @property
-    def beta(self) -> np.ndarray:
-        """Every coefficient: a, b, then the earlier segments' offsets [unit]."""
-        return self.result.values
-
-    @property
     def cov(self) -> np.ndarray:
-        """Covariance of ``beta`` with tau2 in the weights [unit^2, ...]."""
+        """Covariance of the coefficients (a, b, then the earlier segments' offsets) with tau2
+        in the weights [unit^2, ...]."""
         return self.result.cov_noise
 
     @property
@@ -268,12 +264,6 @@ class DriftFit:
         with np.errstate(divide="ignore", invalid="ignore"):
             nu = np.where(vt > 0, v ** 2 / (vt ** 2 / max(self.dof, 1e-9)), np.inf)
         return self.line(t), np.sqrt(v), np.minimum(nu, 1e6)
-
-    def interval(self, t, u_new=0.0, level=0.95) -> tuple[np.ndarray, np.ndarray]:
-        """Prediction interval [unit] at t [a] (eq 1, Student t)."""
-        m, s, nu = self.predictive(t, u_new)
-        k = stats.t.ppf(0.5 + level / 2, nu)
-        return m - k * s, m + k * s
 
 
 def fit_drift(t, x, u, prior: FleetPrior | None = None, prior_dof: float = PRIOR_DOF,
@@ -332,10 +322,15 @@ def slope_change_p(t, x, u, start: int, prior: FleetPrior | None = None,
         return None
     X = _design(t, f.t_ref, None, segments)
     X = np.column_stack([X, (t - f.t_ref) * (np.arange(len(t)) >= start)])
-    if design_rank(X) < X.shape[1]:
-        return None
+    return _last_term(X, x, u, f)[2] if design_rank(X) == X.shape[1] else None
+
+
+def _last_term(X: np.ndarray, x: np.ndarray, u: np.ndarray, f: DriftFit) -> tuple[float, float, float]:
+    """Value, standard uncertainty and two-sided t p value (``f.dof``) of the coefficient of
+    X's last column (a step, a change of rate) in the weighted line with ``f``'s tau^2."""
     beta, cov, _ = _wls(X, x, u ** 2 + f.tau2)
-    return float(2 * stats.t.sf(abs(beta[-1]) / math.sqrt(cov[-1, -1]), f.dof))
+    sd = math.sqrt(cov[-1, -1])
+    return float(beta[-1]), sd, float(2 * stats.t.sf(abs(float(beta[-1])) / sd, f.dof))
 
 
 # ----------------------------------------------------------------- steps ----
@@ -353,7 +348,7 @@ class Step:
 
 
 def find_steps(t, x, u, prior: FleetPrior | None = None, en_limit: float = STEP_EN,
-               alpha: float = STEP_ALPHA) -> list[Step]:
+               alpha: float = STEP_ALPHA, offset: int = 0) -> list[Step]:
     """Steps a straight line cannot explain, in time order (recursively: a flagged step
     splits the series and both parts are tested again).
 
@@ -361,13 +356,10 @@ def find_steps(t, x, u, prior: FleetPrior | None = None, en_limit: float = STEP_
     (eq 1 plus ``delta [i >= k]``, tau^2 re-estimated under that model and shrunk to the
     fleet's).  The most significant place is flagged when ``|En| > en_limit`` (En =
     delta / U(delta), U = 2u, the ISO 13528 form) or its two-sided t test is below
-    ``alpha / (n - 1)`` (Bonferroni over the places).  Needs three campaigns.
+    ``alpha / (n - 1)`` (Bonferroni over the places).  Needs three campaigns.  ``offset``:
+    the index of ``t[0]`` in the whole series (the steps' ``at`` count from there).
     """
     t, x, u = to_years(t), np.asarray(x, float), np.asarray(u, float)
-    return _find_steps(t, x, u, prior, en_limit, alpha, 0)
-
-
-def _find_steps(t, x, u, prior, en_limit, alpha, offset) -> list[Step]:
     n = len(t)
     if n < 3:
         return []
@@ -377,22 +369,17 @@ def _find_steps(t, x, u, prior, en_limit, alpha, offset) -> list[Step]:
             f = fit_drift(t, x, u, prior, step_at=k)
         except (ValueError, np.linalg.LinAlgError):
             continue
-        X = _design(t, f.t_ref, k)
-        beta, cov, _ = _wls(X, x, u ** 2 + f.tau2)
-        delta = float(beta[2])
-        sd = math.sqrt(cov[2, 2])
-        z = abs(delta) / sd
-        p = 2 * stats.t.sf(z, f.dof)
+        delta, sd, p = _last_term(_design(t, f.t_ref, k), x, u, f)
         # positions the data cannot tell apart (three calibrations: a step after the first
         # or after the second fits them equally, to the last digit) go to the later one:
         # the current series then holds only calibrations certainly after the step
         if best is None or p <= best.p * (1 + STEP_TIE_RTOL):
-            best = Step(offset + k, delta, sd, delta / (2 * sd), float(p))
+            best = Step(offset + k, delta, sd, delta / (2 * sd), p)
     if best is None or (abs(best.en) <= en_limit and best.p >= alpha / (n - 1)):
         return []
     k = best.at - offset
-    return (_find_steps(t[:k], x[:k], u[:k], prior, en_limit, alpha, offset) + [best]
-            + _find_steps(t[k:], x[k:], u[k:], prior, en_limit, alpha, offset + k))
+    return (find_steps(t[:k], x[:k], u[:k], prior, en_limit, alpha, offset) + [best]
+            + find_steps(t[k:], x[k:], u[k:], prior, en_limit, alpha, offset + k))
 
 
 def en_consecutive(x, U) -> np.ndarray:
@@ -525,8 +512,7 @@ def forecast(t, x, u, tol_spec: dict[str, float] | None, risk: float,
     parts = [0, *series_bounds(n, adj, []), n]
     steps: list[Step] = []
     for lo, hi in zip(parts[:-1], parts[1:]):
-        steps += [Step(st.at + lo, st.size, st.u_size, st.en, st.p)
-                  for st in find_steps(t[lo:hi], x[lo:hi], u[lo:hi], prior)]
+        steps += find_steps(t[lo:hi], x[lo:hi], u[lo:hi], prior, offset=lo)
     bounds = series_bounds(n, adj, steps)
     start = bounds[-1] if bounds else 0
     v, t_last = float(x[-1]), float(t[-1])
@@ -537,16 +523,12 @@ def forecast(t, x, u, tol_spec: dict[str, float] | None, risk: float,
     if start > 0:
         why.append("series since " + ("adjustment" if adj[start] else "flagged step")
                    + f" at calibration {start + 1}")
-    fit, own_only = None, False
     p_change = slope_change_p(t, x, u, start, prior, bounds) if bounds else None
-    if p_change is not None and p_change < SLOPE_CHANGE_ALPHA:
-        own_only = True
+    own_only = p_change is not None and p_change < SLOPE_CHANGE_ALPHA
+    if own_only:
         why.append("drift rate changed at the new series: fitted to it alone")
     try:
-        if own_only:
-            fit = fit_drift(t[start:], x[start:], u[start:], prior)
-        else:
-            fit = fit_drift(t, x, u, prior, segments=bounds)
+        fit = fit_drift(t[start:], x[start:], u[start:], prior) if own_only else fit_drift(t, x, u, prior, segments=bounds)
     except (ValueError, np.linalg.LinAlgError):
         fit = None
     if (fit is not None and prior is not None and prior.slope_sd is not None

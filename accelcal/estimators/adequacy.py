@@ -37,8 +37,8 @@ class DwellFit:
 
     Attributes
     ----------
-    names, beta : list, ndarray
-        Parameters and estimates [y unit per regressor unit], read from ``result``.
+    names : list
+        Parameters, read from ``result`` (estimates [y unit per regressor unit]: :meth:`value`).
     cov : ndarray
         The core's noise covariance scaled by s2 (the method's covariance).
     s2 : float
@@ -74,11 +74,6 @@ class DwellFit:
         return self.result.names
 
     @property
-    def beta(self) -> np.ndarray:
-        """Estimates [y unit per regressor unit]."""
-        return self.result.values
-
-    @property
     def adequate(self) -> bool:
         return bool(self.p_value >= ALPHA and min(self.trend_p, self.sweep_p, self.runs_p) >= ALPHA / 3)
 
@@ -87,7 +82,7 @@ class DwellFit:
         return float(np.sqrt(self.cov[i, i]))
 
     def value(self, name: str) -> float:
-        return float(self.beta[self.names.index(name)])
+        return self.result.value(name)
 
 
 def pure_error_test(ss_lof: float, dof_lof: int, ss_pe: float, dof_pe: int) -> LackOfFit:

@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 from collections import defaultdict
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from typing import Any, NamedTuple
 
 from ..constants import G_STANDARD, MOUNT_ANGLE_TOLERANCE_RAD
@@ -139,7 +139,7 @@ class RadiusCorrections:
     Attributes
     ----------
     cross : str or None
-        The cross term of IA with the vertical axis (Kio or Kip) and its value / u [s2/m].
+        The cross term of IA with the vertical axis (Kio or Kip).
     type_b : dict
         (method, polarity, order, g_max) -> standard uncertainty [m] of the type-B term of the
         static and iterative radii (uniform; instrument terms the method leaves in the radius).
@@ -152,8 +152,6 @@ class RadiusCorrections:
         neither: its leak into the radius is not in u, and a flag says so), ``'none'``.
     """
     cross: str | None
-    Kiv: float
-    u_Kiv: float
     type_b: dict
     iterative: dict[str, tuple[float, float]]
     static: dict[str, tuple[float, float]]
@@ -240,7 +238,7 @@ def reference_scale(mounts: Mounts, tumble: Reference | None) -> tuple[Reference
     f = pair0.fit(pair0.inputs(R0), 3, subtract_a=False)
     K1 = 0.5 * (f.value("b+") + f.value("b-"))
     K0 = 0.5 * (f.value("K0+") + f.value("K0-")) / K1
-    return Reference(K0, K1, 0.0, 0.0, 0.0, 0.0, from_tumble=False), (flag,)
+    return Reference(K0, K1, 0.0, 0.0, 0.0, from_tumble=False), (flag,)
 
 
 def static_step(mounts: Mounts, ref: Reference) -> StaticStep:
@@ -287,8 +285,7 @@ def iterative_step(mounts: Mounts, ref: Reference, static: StaticStep, pair: Pai
         :func:`.adequacy.choose_order`.
     """
     arm = float(mounts.run_plus.meta["arm_radius_m"])
-    R0p = static.radii["+"].radius_m if "+" in static.radii else arm
-    R0m = static.radii["-"].radius_m if "-" in static.radii else arm
+    R0p, R0m = (static.radii[pol].radius_m if pol in static.radii else arm for pol in "+-")
     levels = g_levels(pair, R0p, R0m)
     top = max(levels) if levels else None
     ranges = [r for r in RADIUS_RANGES if levels and r < top * 0.98 and sum(lv <= r * 1.02 for lv in levels) >= 4]
@@ -364,7 +361,7 @@ def combination_step(mounts: Mounts, pairs: PairStep) -> CombinationStep:
         tol = delta_c2(first.values, pf.plane, math.radians(pf.phi0_deg), MOUNT_ANGLE_TOLERANCE_RAD)
         lab = pair_label(pf)
         u_dc2[lab] = unc.uniform_u(abs(d1 + d2) / 2 + abs(tol))
-        rows.append({"kind": "mount", "rig_id": mounts.rig, "pair": lab, **g.as_dict(),
+        rows.append({"kind": "mount", "rig_id": mounts.rig, "pair": lab, **asdict(g),
                      "dc2_1": d1, "dc2_2": d2, "u_dc2_typeB": u_dc2[lab],
                      "dc2_paper_bound": max(abs(d1), abs(d2)), "dc2_tolerance": tol,
                      "c2": pf.c2, "u_c2": pf.u_c2, "order": pf.order})
@@ -490,12 +487,10 @@ def radius_corrections(mounts: Mounts, ref: Reference, static: StaticStep, itera
     it_corr = {pol: (R / scale, math.hypot(u, R * g * uKiv))
                for pol, R, u in (("+", best.R_plus, best.u_plus), ("-", best.R_minus, best.u_minus))}
     coeffs = {"K2": K2c, "Koq": ia.d, "K3": ia.c3 or 0.0, **({cross: Kiv} if cross else {})}
-    st_corr = {}
-    for pol, s in static.radii.items():
-        run = mounts.run_plus if pol == "+" else mounts.run_minus
-        st_corr[pol] = (geometric_static_radius(run.meta, s, coeffs),
-                        math.hypot(s.std_uncertainty_m, s.radius_m * g * uKiv))
-    return RadiusCorrections(cross, Kiv, uKiv, type_b, it_corr, st_corr, source)
+    runs = {"+": mounts.run_plus, "-": mounts.run_minus}
+    st_corr = {pol: (geometric_static_radius(runs[pol].meta, s, coeffs),
+                     math.hypot(s.std_uncertainty_m, s.radius_m * g * uKiv)) for pol, s in static.radii.items()}
+    return RadiusCorrections(cross, type_b, it_corr, st_corr, source)
 
 
 def process_rig(runs: Sequence, tumble: Reference | None) -> RigOutcome | tuple[str, ...]:

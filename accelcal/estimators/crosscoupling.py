@@ -80,8 +80,7 @@ def delta_c2(K: Mapping[str, float], plane: str, phi0_rad: float, dphi_rad: floa
     input and v = du/dphi (the input of the mount turned by 90 deg), each term of eq 2 is
     quadratic in the input, so its derivative is exactly [row(u + v) - row(u - v)] / 2.
     """
-    meta = mount_meta(plane, math.degrees(phi0_rad))
-    u = centripetal_unit_input(meta)
+    u = centripetal_unit_input(mount_meta(plane, math.degrees(phi0_rad)))
     v = centripetal_unit_input(mount_meta(plane, math.degrees(phi0_rad) + 90.0))
     d = 0.0
     for k in UNKNOWNS:
@@ -104,9 +103,6 @@ class Alignment:
     R2: float             # the same at phi0 + 180 deg
     dphi2: float
 
-    def as_dict(self) -> dict:
-        return dict(self.__dict__)
-
 
 def mount_geometry(R: float, r: float, phi_rad: float) -> tuple[float, float]:
     """Distance and direction error of the effective mass centre (paper 000 §2.2).
@@ -127,8 +123,7 @@ def mount_geometry(R: float, r: float, phi_rad: float) -> tuple[float, float]:
         the spindle [rad], from the centripetal input of the forward model
         (:func:`centripetal_unit_input`): phi = 0 gives rho = R - r, phi = 180 deg R + r.
     """
-    meta = mount_meta("IA-PA", math.degrees(phi_rad))
-    f = centripetal_unit_input(meta, R, r)
+    f = centripetal_unit_input(mount_meta("IA-PA", math.degrees(phi_rad)), R, r)
     rho = float(math.hypot(f[0], f[1]))
     dphi = float((math.atan2(f[1], f[0]) - phi_rad + math.pi) % (2 * math.pi) - math.pi)
     return rho, dphi
@@ -167,6 +162,13 @@ def alignment(R_plus: float, R_minus: float, plane: str, phi0_deg: float) -> Ali
     return Alignment(plane, float(phi0_deg), R, r, R1, d1, R2, d2)
 
 
+def _fitted_term(name: str, std: bool) -> property:
+    """A term of a pair's chosen eq 9 fit: its value, or with ``std`` its standard error;
+    None where the chosen order has no such term (c3 of an order-2 fit)."""
+    return property(lambda self: (self.fit.std_error if std else self.fit.value)(name)
+                    if name in self.fit.names else None)
+
+
 @dataclass
 class PairFit:
     """Eq 9 fit of one mount pair (:func:`fit_mount_pair`).
@@ -200,29 +202,7 @@ class PairFit:
     geometry: Alignment
     dwells: pd.DataFrame = field(repr=False, default=None)
 
-    @property
-    def c2(self) -> float:
-        return self.fit.value("c2")
-
-    @property
-    def u_c2(self) -> float:
-        return self.fit.std_error("c2")
-
-    @property
-    def d(self) -> float:
-        return self.fit.value("d")
-
-    @property
-    def u_d(self) -> float:
-        return self.fit.std_error("d")
-
-    @property
-    def c3(self) -> float | None:
-        return self.fit.value("c3") if "c3" in self.fit.names else None
-
-    @property
-    def u_c3(self) -> float | None:
-        return self.fit.std_error("c3") if "c3" in self.fit.names else None
+    c2, u_c2, d, u_d, c3, u_c3 = (_fitted_term(name, std) for name in ("c2", "d", "c3") for std in (False, True))
 
 
 def fit_mount_pair(run_a: tuple[Mapping, pd.DataFrame], run_b: tuple[Mapping, pd.DataFrame],
@@ -270,9 +250,7 @@ def fit_mount_pair(run_a: tuple[Mapping, pd.DataFrame], run_b: tuple[Mapping, pd
     # direction to the spindle, turning centre R and mass centre r from the test radii (the
     # second-order difference to omega_z^2 rho, an angle error, is eq 8's type-B term)
     a = pair.inputs(geo.R, geo.r)
-    fits = {}
-    for order in orders:
-        fits[order] = pair.fit(a, order, subtract_a=False)
+    fits = {order: pair.fit(a, order, subtract_a=False) for order in orders}
     chosen, adequate = choose_order(fits, {3: ["c3"]})
     f = fits[chosen]
     T = pair.table.assign(a=a, std_resid=f.std_resid, fitted=f.yhat)

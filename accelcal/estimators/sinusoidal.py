@@ -69,7 +69,7 @@ from ..physics import instrument, rigs
 from ..results import (BudgetTerm, CoefficientResult, FitCheck, ResidualFigure, ResidualPanel, ResidualSeries,
                        display_number)
 from . import uncertainty as unc
-from .records import jsonable
+from .records import Records, jsonable
 from .registry import Estimator, register
 
 #: Method id of paper 002's records.
@@ -88,11 +88,6 @@ DEFAULT_TOOL_ERRORS: dict[str, str] = {"spindle_tilt": "shared", "mass_centre_of
 NON_NEGATIVE = ("sensor_lag",)
 #: The three attitudes of paper 002.
 ATTITUDES = ("a", "b", "c")
-
-
-def _unit(name: str, output_unit: str = "") -> str:
-    """SI unit of a parameter (catalogue, :func:`accelcal.effects.si_unit`)."""
-    return si_unit(name, output_unit or "<output_unit>")
 
 
 # --------------------------------------------------------------------------- inputs
@@ -175,10 +170,10 @@ def _build_params(prep: list[RunCells], per_run_bias: bool, extra_terms: Sequenc
     ``runs`` the one run a per-run parameter belongs to (None: shared by every run), the
     unit the catalogue's in the runs' output unit, the scale the catalogue's typical size
     (K1: ``K1_scale``)."""
-    out_unit = str(prep[0].meta.get("output_unit", ""))
+    out_unit = str(prep[0].meta.get("output_unit", "")) or "<output_unit>"
 
     def scoped(key: str, kind: str, scope: str) -> list[Parameter]:
-        scale, unit = K1_scale if key == "K1" else typical_size(key), _unit(key, out_unit)
+        scale, unit = K1_scale if key == "K1" else typical_size(key), si_unit(key, out_unit)
         if scope not in ("shared", "per_run"):
             raise ValueError(f"tool-error scope {scope!r} (use 'shared' or 'per_run')")
         return [Parameter(key, key, unit, scale, None, kind)] if scope == "shared" else \
@@ -287,7 +282,7 @@ def _residual(params: ParameterSet, prep: list[RunCells], x: np.ndarray, w: np.n
 
 
 def _split(v: np.ndarray, prep: list[RunCells]) -> list[np.ndarray]:
-    """A stacked per-reading vector cut into its runs."""
+    """A stacked per-reading vector (or the rows of a matrix) cut into its runs."""
     return np.split(v, np.cumsum([r.y_rows.size for r in prep])[:-1])
 
 
@@ -603,7 +598,7 @@ def aliasing_report(fit: SineFit) -> list[dict[str, Any]]:
     sign and Koq separates from K2.
     """
     out = []
-    for r, Jr in zip(fit.runs, np.split(fit.result.J, np.cumsum([q.y_rows.size for q in fit.runs])[:-1])):
+    for r, Jr in zip(fit.runs, _split(fit.result.J, fit.runs)):
         act = [j for j in range(Jr.shape[1]) if np.any(Jr[:, j] != 0.0)]
         names = [fit.names[j] for j in act]
         d = design_diagnostics(Jr[:, act], names)
@@ -814,7 +809,6 @@ def campaign_records(runs: Sequence, steps: Mapping[str, Any]) -> list:
     """Paper 002 on the sinusoidal-centrifuge runs of each rig of a campaign
     (:func:`process_sine_campaign`), with the budgets; a rig that fails is a flag, and so is
     a rig whose attitudes leave paper 002 without values."""
-    from .records import Records
     out = []
     for rig in dict.fromkeys(str(r.meta.get("rig_id", "")) for r in runs):
         try:

@@ -43,7 +43,7 @@ import numpy as np
 import pandas as pd
 
 from ..constants import MICRO_G, T_REF_C
-from ..effects import CROSS_AXIS_TERM, RIG_INPUTS, SQUARE_TERM
+from ..effects import CROSS_AXIS_TERM, RIG_INPUTS, SQUARE_TERM, si_unit
 from ..fitting.core import lack_of_fit, linear_fit, lstsq_svd, straight_line_slope
 from ..fitting.data import unique_small_ints
 from ..fitting.distributions import chi2_sf, t_ppf
@@ -55,7 +55,7 @@ from ..rounding import round_gum
 from ..results import (BudgetTerm, CoefficientResult, FitCheck, ResidualFigure, ResidualPanel, ResidualSeries,
                        display_number)
 from . import uncertainty as unc
-from .records import jsonable
+from .records import Records, jsonable
 from .registry import Estimator, register
 
 METHOD = "tilt_rotation_ls"
@@ -190,8 +190,7 @@ def segment_run(data: pd.DataFrame, positions: int | None = None) -> pd.DataFram
     sweep_of_point = np.zeros(len(starts), int)
     sweep, direction = 0, 0
     for j in range(1, len(starts)):
-        step = sp[starts[j]] - sp[starts[j - 1]]
-        s = 1 if step > 0 else -1
+        s = 1 if sp[starts[j]] - sp[starts[j - 1]] > 0 else -1
         if direction != 0 and s != direction:
             sweep += 1
             direction = 0
@@ -582,8 +581,7 @@ def sweep_repeatability(points: list[dict]) -> dict[str, Any]:
     out: dict[str, Any] = {"per_sweep": per, "n_sweeps": len(per)}
     if len(per) >= 2:
         for k in ("K0", "K1", "K0T", "K1T"):
-            vals = np.array([r[k] for r in per])
-            out["sd_" + k] = float(np.std(vals, ddof=1))
+            out["sd_" + k] = float(np.std(np.array([r[k] for r in per]), ddof=1))
             out["mean_u_" + k] = float(np.mean([r["u_" + k] for r in per]))
         out["sd_K0T_ug_per_degC"] = out["sd_K0T"] / MICRO_G
         out["sd_K1T_ppm_per_degC"] = out["sd_K1T"] * 1e6
@@ -640,49 +638,38 @@ def fixed_point_method(meta: Mapping, pm: pd.DataFrame, s_pos: float | None = No
         sd = pm["output_sd"].to_numpy(float) / np.sqrt(pm["count"].to_numpy(float))
         s_pos = float(np.sqrt(np.nanmean(sd**2))) if np.isfinite(sd).any() else float("nan")
     rows = []
-    # plain arrays per point
-    point = pm["point"].to_numpy()
-    out_v = pm["output"].to_numpy(float)
-    temp_v = pm["temp_c"].to_numpy(float)
-    set_v = pm["temp_set_c"].to_numpy(float)
-    sweep_v = pm["sweep"].to_numpy()
-    order = np.argsort(point, kind="stable")
-    bounds = np.flatnonzero(np.r_[True, np.diff(point[order]) != 0, True])
-    for a, b in zip(bounds[:-1], bounds[1:]):
-        idx = order[a:b]
-        d = dirn[idx]
-        plus, minus, zero = idx[np.abs(d - 1.0) < 1e-6], idx[np.abs(d + 1.0) < 1e-6], idx[np.abs(d) < 1e-6]
+    for pt, grp in pm.assign(direction=dirn).groupby("point", sort=True):
+        d, E = grp["direction"].to_numpy(), grp["output"].to_numpy(float)
+        plus, minus, zero = E[np.abs(d - 1.0) < 1e-6], E[np.abs(d + 1.0) < 1e-6], E[np.abs(d) < 1e-6]
         if plus.size == 0 or minus.size == 0:
             continue
-        Ep, Em = float(out_v[plus].mean()), float(out_v[minus].mean())
+        Ep, Em = float(plus.mean()), float(minus.mean())
         K1 = (Ep - Em) / (2.0 * A)
         K0 = (Ep + Em) / 2.0 / K1
         u_K1 = s_pos * math.sqrt(1.0 / plus.size + 1.0 / minus.size) / (2.0 * A)
         u_mean = s_pos * math.sqrt(1.0 / plus.size + 1.0 / minus.size) / 2.0
         u_K0 = math.hypot(u_mean / K1, K0 / K1 * u_K1)
-        T = temp_v[idx]
-        row = {"point": int(point[idx[0]]), "sweep": int(sweep_v[idx[0]]),
-               "temp_c": float(np.nanmean(T)) if np.isfinite(T).any() else float(set_v[idx[0]]),
+        T = grp["temp_c"].to_numpy(float)
+        row = {"point": int(pt), "sweep": int(grp["sweep"].iloc[0]),
+               "temp_c": float(np.nanmean(T)) if np.isfinite(T).any() else float(grp["temp_set_c"].iloc[0]),
                "E_plus": Ep, "E_minus": Em, "K1": K1, "u_K1": u_K1, "K0": K0, "u_K0": u_K0,
                "K1_plus": Ep / A, "K1_minus": -Em / A, "u_K1_single": s_pos / math.sqrt(plus.size) / A}
         if zero.size:
-            row["E_zero"] = float(out_v[zero].mean())
+            row["E_zero"] = float(zero.mean())
             row["K0_zero"] = row["E_zero"] / K1
             row["u_K0_zero"] = math.hypot(s_pos / math.sqrt(zero.size) / K1, row["K0_zero"] / K1 * u_K1)
         rows.append(row)
     if len({round(r["temp_c"], 6) for r in rows}) < 2:
         return {"points": rows} if rows else {}
-    Ts = [r["temp_c"] for r in rows]
-    out: dict[str, Any] = {"s_position_mean": s_pos, "points": rows}
-    out["two_position"] = fit_temperature_model(Ts, [r["K0"] for r in rows], [r["u_K0"] for r in rows],
-                                                [r["K1"] for r in rows], [r["u_K1"] for r in rows])
+
+    def model(*keys):       # the temperature model of the rows' K0, u_K0, K1, u_K1 series ``keys``
+        return fit_temperature_model([r["temp_c"] for r in rows], *([r[k] for r in rows] for k in keys))
+    out: dict[str, Any] = {"s_position_mean": s_pos, "points": rows, "two_position": model("K0", "u_K0", "K1", "u_K1")}
     if all("K0_zero" in r for r in rows):
-        z = fit_temperature_model(Ts, [r["K0_zero"] for r in rows], [r["u_K0_zero"] for r in rows],
-                                  [r["K1"] for r in rows], [r["u_K1"] for r in rows])
+        z = model("K0_zero", "u_K0_zero", "K1", "u_K1")
         out["zero_input"] = {k: z[k] for k in ("K0", "u_K0", "K0T", "u_K0T", "interval_K0T")}
     for name, key in (("single_plus", "K1_plus"), ("single_minus", "K1_minus")):
-        f = fit_temperature_model(Ts, [r["K0"] for r in rows], [r["u_K0"] for r in rows],
-                                  [r[key] for r in rows], [r["u_K1_single"] for r in rows])
+        f = model("K0", "u_K0", key, "u_K1_single")
         out[name] = {k: f[k] for k in ("K1", "u_K1", "K1T", "u_K1T", "interval_K1T")}
     return out
 
@@ -765,8 +752,7 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = ""
     points, pm = fit_points(meta, data)
     flags: list[str] = []
     fitted = [p for p in points if "K1" in p]
-    s_pool = fitted[0]["s_pooled"] if fitted else None
-    fixed = fixed_point_method(meta, pm, s_pool)
+    fixed = fixed_point_method(meta, pm, fitted[0]["s_pooled"] if fitted else None)
     c_per_urad = geo["normal_input"] * 1e-6  # m/s2/degC per urad/degC of fixture tilt
     note_k0t = (f"includes any fixture thermal tilt c (effect fixture_thermal_tilt, rad/degC), which enters "
                 f"K0T as g*c*cos(gamma) = {c_per_urad:.4g} m/s2/degC per urad/degC here; this method "
@@ -783,15 +769,10 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = ""
     else:
         raise ValueError("tilt_rotation run has neither >= 2 temperature points with >= 3 positions "
                          "nor a +/- position pair at 2 or more temperatures")
-    dof = {k: model["dof_" + k] for k in ("K0", "K1", "K0T", "K1T")}
-    coeffs = [
-        CoefficientResult("K0", model["K0"], model["u_K0"], "m/s2", method, rig_id, dof["K0"], note_k0),
-        CoefficientResult("K1", model["K1"], model["u_K1"], f"{unit}/(m/s2)", method, rig_id, dof["K1"]),
-        CoefficientResult("K0T", model["K0T"], model["u_K0T"], "m/s2/degC", method, rig_id, dof["K0T"], note_k0t),
-        CoefficientResult("K1T", model["K1T"], model["u_K1T"], "1/degC", method, rig_id, dof["K1T"],
-                          "fixture thermal tilt cancels from K1 (paper 001 eq 12); a base-tilt change "
-                          "d_gamma scales K1 by (gamma + d_gamma)/gamma"),
-    ]
+    note_k1t = ("fixture thermal tilt cancels from K1 (paper 001 eq 12); a base-tilt change "
+                "d_gamma scales K1 by (gamma + d_gamma)/gamma")
+    coeffs = [CoefficientResult(k, model[k], model["u_" + k], si_unit(k, unit), method, rig_id, model["dof_" + k], note)
+              for k, note in (("K0", note_k0), ("K1", ""), ("K0T", note_k0t), ("K1T", note_k1t))]
     for k in ("K0", "K1"):
         b = model.get("birge_ratio_" + k)
         if model.get("birge_applied_" + k):
@@ -809,8 +790,7 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = ""
         K1s = np.array([p["K1"] for p in fitted])
         Kfit = model["K1"] * (1 + model["K1T"] * (np.array([p["temp_c"] for p in fitted]) - T_REF_C))
         extras["scale_factor_scatter_ppm"] = float(np.std(K1s / Kfit - 1.0, ddof=1) * 1e6) if len(K1s) > 2 else None
-        extras["scale_factor_time_trend"] = scale_factor_time_trend(fitted, model)
-        tr = extras["scale_factor_time_trend"]
+        tr = extras["scale_factor_time_trend"] = scale_factor_time_trend(fitted, model)
         if tr.get("significant"):
             flags.append(f"K1 drifts with time at {tr['slope_ppm_per_h']:.3g} +- {tr['u_slope_ppm_per_h']:.2g} "
                          "ppm/h beyond the temperature model: base tilt drift (effect base_tilt_drift) "
@@ -829,16 +809,12 @@ def process_thermal_run(meta: Mapping, data: pd.DataFrame, rig_id: str = ""
             fp = fixed["two_position"]
             comp = {}
             for k in ("K0T", "K1T"):
-                d = fp[k] - model[k]
-                comp[k] = {"rotation": model[k], "two_position": fp[k], "difference": d,
+                comp[k] = {"rotation": model[k], "two_position": fp[k], "difference": fp[k] - model[k],
                            "u_rotation": model["u_" + k], "u_two_position": fp["u_" + k]}
-            for side in ("single_plus", "single_minus"):
+            for k, side in (("K1T", "single_plus"), ("K1T", "single_minus"), ("K0T", "zero_input")):
                 if side in fixed:
-                    comp["K1T_" + side] = {"value": fixed[side]["K1T"], "u": fixed[side]["u_K1T"],
-                                           "difference": fixed[side]["K1T"] - model["K1T"]}
-            if "zero_input" in fixed:
-                comp["K0T_zero_input"] = {"value": fixed["zero_input"]["K0T"], "u": fixed["zero_input"]["u_K0T"],
-                                          "difference": fixed["zero_input"]["K0T"] - model["K0T"]}
+                    comp[f"{k}_{side}"] = {"value": fixed[side][k], "u": fixed[side]["u_" + k],
+                                           "difference": fixed[side][k] - model[k]}
             comp["note"] = ("single-position K1T+ and K1T- take (K0T + g c cos gamma)/(g sin gamma) for a "
                             "scale-factor change with opposite signs (paper 001 Table 3); the rotation method "
                             "and the +/- pair cancel it")
@@ -964,7 +940,6 @@ def budget_terms(coefficients: Sequence[CoefficientResult], model: Mapping[str, 
 def campaign_records(runs: Sequence, steps: Mapping[str, Any]) -> list:
     """Paper 001 on every tilt_rotation run of a campaign (:func:`process_thermal_run`),
     with the GUM budgets of its coefficients; a run that fails is a flag."""
-    from .records import Records
     out = []
     for run in runs:
         try:

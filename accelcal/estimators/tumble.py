@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from ..constants import T_REF_C
 from ..effects import (CROSS_AXIS_TERM, CROSS_TERM, SQUARE_TERM, combination_formula, combination_name,
                        si_unit)
 from ..fitting.core import FitResult, Parameter, ParameterSet, birge_ratio, finish_fit, gauss_newton, lstsq_svd
@@ -59,7 +60,7 @@ from ..results import BudgetTerm, CoefficientResult, FitCheck, display_number
 from . import registry
 from . import uncertainty as unc
 from .adequacy import pure_error_test
-from .records import TumbleCoefficient
+from .records import Records, TumbleCoefficient
 
 #: Method id of the tumble fit's records (paper 003).
 METHOD = "tumble_lm"
@@ -217,16 +218,22 @@ class TumbleRun:
         return self.result.std(name), self.result.std_noise(name), float(self.result.lof.factor)
 
 
-def _readings_model(meta: Mapping, df: pd.DataFrame) -> CampaignModel:
-    """The campaign model of one tumble run whose cells are its readings (paper 003 fits
-    every reading), unweighted: the run's noise model is left unset."""
-    y = df["output"].to_numpy(float)
+def reading_cells(meta: Mapping, cols: Mapping[str, np.ndarray], index: int = 0,
+                  var_mean: np.ndarray | None = None) -> RunCells:
+    """A run as cells of one reading each (paper 003 fits every reading): the campaign
+    model's cell means are then the readings themselves; ``var_mean``: the variance of
+    each reading [output_unit^2], else the run's noise model is left unset."""
+    y = np.asarray(cols["output"], float)
     n = y.size
-    cells = RunCells(index=0, meta=dict(meta), geometry=geometry_of(meta),
-                     cols={k: df[k].to_numpy() for k in df.columns}, rate_derivative=None,
-                     cid=np.arange(n), n=np.ones(n), y_rows=y, y=y, x_rows=np.zeros(n), x=np.zeros(n),
-                     lines=np.zeros(n, int))
-    return CampaignModel([cells], ["initial_misalignment"], include=("Kip", *ACTING["tumble"]), acting=ACTING)
+    return RunCells(index=index, meta=dict(meta), geometry=geometry_of(meta), cols=dict(cols), rate_derivative=None,
+                    cid=np.arange(n), n=np.ones(n), y_rows=y, y=y, x_rows=np.zeros(n), x=np.zeros(n),
+                    lines=np.zeros(n, int), var_mean=var_mean)
+
+
+def _readings_model(meta: Mapping, df: pd.DataFrame) -> CampaignModel:
+    """The campaign model of one tumble run whose cells are its readings, unweighted."""
+    return CampaignModel([reading_cells(meta, {k: df[k].to_numpy() for k in df.columns})], ["initial_misalignment"],
+                         include=("Kip", *ACTING["tumble"]), acting=ACTING)
 
 
 def fit_run(meta: Mapping, data, extra_terms: Sequence[str] = ()) -> TumbleRun:
@@ -375,10 +382,9 @@ def two_position(meta: Mapping, data, angle_tol_deg: float = 1e-3, means: pd.Dat
            "four_point": None}
     E90, E270 = _mean_at(pm, phase + 90.0, angle_tol_deg), _mean_at(pm, phase + 270.0, angle_tol_deg)
     if E90 is not None and E270 is not None:
-        c = (Eu - Ed) / (2 * g)            # K1 cos theta0
-        s = (E270 - E90) / (2 * g)         # K1 sin theta0
-        K1 = float(np.hypot(c, s))
-        th0 = float(np.arctan2(s, c))
+        s = (E270 - E90) / (2 * g)         # K1 sin theta0 (SH: K1 cos theta0)
+        K1 = float(np.hypot(SH, s))
+        th0 = float(np.arctan2(s, SH))
         K2 = (Eu + Ed - E90 - E270) / (2 * K1 * g**2 * np.cos(2 * th0))
         K0 = (Eu + Ed + E90 + E270) / (4 * K1) - K2 * g**2 / 2
         out["four_point"] = {"K0": float(K0), "K1": K1, "K2": float(K2), "theta0": th0,
@@ -586,9 +592,9 @@ def tumble_records(pooled: Mapping[str, Pooled], *, square_terms: Mapping[str, t
         unit = si_unit(q.key, out_unit)
         if q.key == "K2":
             adds = {}
-            for r in q.runs:
+            for r, w in zip(q.runs, q.weights):
                 sq = SQUARE_TERM[r.head.other_axis]
-                adds[sq] = adds.get(sq, 0.0) + q.weights[q.runs.index(r)]
+                adds[sq] = adds.get(sq, 0.0) + w
             if all(sq in square_terms for sq in adds):
                 corrected.add(name)
                 for sq, wsum in adds.items():
@@ -687,7 +693,7 @@ def pooling_flags(pooled: Mapping[str, Pooled]) -> list[str]:
 
 @dataclass(frozen=True)
 class Reference:
-    """K0 [m/s2], K1 [output_unit/(m/s2)] and K2 [s2/m] with their standard uncertainties,
+    """K0 [m/s2] and K1 [output_unit/(m/s2)] with their standard uncertainties, and K2 [s2/m]:
     the scale reference of the centrifuge's radius (paper 000 §2.1): from the tumble
     (``from_tumble``) or from the IA pair at the nominal arm radius."""
     K0: float
@@ -695,7 +701,6 @@ class Reference:
     u_K0: float
     u_K1: float
     K2: float
-    u_K2: float
     from_tumble: bool = True
     #: the cross-coupling terms the tumble determines, name -> (value [s2/m], u): the
     #: centrifuge's K_iv where its own mount pairs leave it undetermined
@@ -725,7 +730,7 @@ class TumbleStep:
         K0, K1 = self.pooled["K0"], self.pooled["K1"]
         cross = tuple((q.key, q.value, q.u) for q in self.pooled.values()
                       if q.key in CROSS_TERM.values() and q.name == q.key)
-        return Reference(K0.value, K1.value, K0.u, K1.u, k2.value, k2.u, cross=cross)
+        return Reference(K0.value, K1.value, K0.u, K1.u, k2.value, cross=cross)
 
     @property
     def g(self) -> float:
@@ -814,7 +819,6 @@ def campaign_k1_correction(steps: Mapping[str, Any]) -> tuple[float, float] | No
 def campaign_records(runs: Sequence, steps: Mapping[str, Any]) -> list:
     """The tumble's records of a campaign: the pooled values with the centrifuge's square
     terms and K1 correction where the campaign has them (:func:`tumble_records`)."""
-    from .records import Records
     tumble = steps.get(METHOD)
     if tumble is None:
         return []
@@ -929,7 +933,6 @@ def mc_truth(c: Mapping[str, float], eff: Mapping[str, float], test: Mapping[str
     dict
         (name, rig_id) -> (truth [SI], how it was mapped).
     """
-    from ..constants import T_REF_C
     rig = str(test["rig_id"])
     head = test["heads"][0]
     ci, cs = parse_signed_axis(head["cos_axis"])

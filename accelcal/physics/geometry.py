@@ -196,6 +196,25 @@ def geometry_of(meta: Mapping) -> Geometry:
     return _build(test, tuple(str(meta.get(k, "")) for k in keys))
 
 
+def rotation_sign(meta: Mapping) -> int:
+    """Sign of the table rate about the vertical.
+
+    Parameters
+    ----------
+    meta : mapping
+        Run metadata with ``rotation_sense`` ('ccw' or 'cw'; default and empty: 'ccw').
+
+    Returns
+    -------
+    int
+        s = +1 for a ccw table, -1 for cw (drop-format.md).
+    """
+    sense = str(meta.get("rotation_sense", "")).strip().lower() or "ccw"
+    if sense not in ("ccw", "cw"):
+        raise ValueError(f"rotation_sense {sense!r} is not ccw or cw")
+    return 1 if sense == "ccw" else -1
+
+
 @lru_cache(maxsize=4096)
 def _build(test: str, vals: tuple[str, ...]) -> Geometry:
     if test in ("centrifuge", "sine_centrifuge"):
@@ -203,11 +222,8 @@ def _build(test: str, vals: tuple[str, ...]) -> Geometry:
         e1, e2 = parse_plane(plane)
         v, vs = parse_signed_axis(vertical)
         h = plane_handedness(plane, vertical)
-        sense = sense.strip().lower() or "ccw"
-        if sense not in ("ccw", "cw"):
-            raise ValueError(f"rotation_sense {sense!r} is not ccw or cw")
         return CentrifugeMount(e1, e2, v, vs, h, math.radians(float(phi)), float(radius),
-                               1 if sense == "ccw" else -1, test == "sine_centrifuge")
+                               rotation_sign({"rotation_sense": sense}), test == "sine_centrifuge")
     if test == "tumble":
         head, cos_axis, sin_axis = vals
         c, cs = parse_signed_axis(cos_axis)

@@ -114,20 +114,10 @@ def indicated_acceleration(coeffs: Mapping[str, float], f: np.ndarray,
 
 
 #: The term each additive coefficient multiplies in A (effects.md instrument model), as a
-#: function of the specific force columns (a_i, a_p, a_o) [m/s^2]: dA/dK.
-COEFFICIENT_TERMS = {
-    "K0": lambda ai, ap, ao: np.ones_like(ai),
-    "K2": lambda ai, ap, ao: ai * ai,
-    "K3": lambda ai, ap, ao: ai ** 3,
-    "Koq": lambda ai, ap, ao: ai * np.abs(ai),
-    "Kp": lambda ai, ap, ao: ap,
-    "Ko": lambda ai, ap, ao: ao,
-    "Kip": lambda ai, ap, ao: ai * ap,
-    "Kio": lambda ai, ap, ao: ai * ao,
-    "Kpo": lambda ai, ap, ao: ap * ao,
-    "Kpp": lambda ai, ap, ao: ap * ap,
-    "Koo": lambda ai, ap, ao: ao * ao,
-}
+#: function of the specific force columns (a_i, a_p, a_o) [m/s^2]: dA/dK, the term of
+#: :data:`_TERMS` at K = 1 (exact: a product with 1.0 rounds nothing).
+COEFFICIENT_TERMS = {"K0": lambda ai, ap, ao: np.ones_like(ai),
+                     **{name: (lambda ai, ap, ao, term=term: term(1.0, ai, ap, ao)) for name, term in _TERMS}}
 
 
 def output_derivative(name: str, coeffs: Mapping[str, float], f: np.ndarray,
@@ -157,17 +147,15 @@ def output_derivative(name: str, coeffs: Mapping[str, float], f: np.ndarray,
     K1T_ = scale_factor(coeffs, temp_c)
     if name in COEFFICIENT_TERMS:
         return K1T_ * COEFFICIENT_TERMS[name](ai, ap, ao)
+    if name in ("K0T", "K1T") and temp_c is None:      # no temperature: no temperature term
+        return np.zeros_like(ai)
     if name == "K0T":
-        if temp_c is None:
-            return np.zeros_like(ai)
         return K1T_ * (np.asarray(temp_c, float) - T_REF_C)
     A = indicated_acceleration(coeffs, f, temp_c, time_s, bias_drift)
     if name == "K1":
         K1 = float(coeffs.get("K1", 1.0))
         return (K1T_ / K1) * A if K1 != 0 else A * 0.0
     if name == "K1T":
-        if temp_c is None:
-            return np.zeros_like(ai)
         return float(coeffs.get("K1", 1.0)) * (np.asarray(temp_c, float) - T_REF_C) * A
     raise KeyError(f"{name!r} is not an instrument coefficient")
 

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..constants import M2_PERIOD_S, OMEGA_EARTH, T_REF_C
 from ..effects import EFFECTS
-from .geometry import geometry_of
+from .geometry import geometry_of, rotation_sign
 from .instrument import first_order_lag, output
 
 #: The drop format's nominal input: everything nominal, earth rate included.
@@ -54,25 +54,6 @@ def _n(data) -> int:
         except (KeyError, TypeError):
             pass
     return len(next(iter(data.values())))
-
-
-def rotation_sign(meta: Mapping) -> int:
-    """Sign of the table rate about the vertical.
-
-    Parameters
-    ----------
-    meta : mapping
-        Run metadata with ``rotation_sense`` ('ccw' or 'cw'; default 'ccw').
-
-    Returns
-    -------
-    int
-        s = +1 for a ccw table, -1 for cw (drop-format.md).
-    """
-    sense = str(meta.get("rotation_sense", "ccw")).strip().lower()
-    if sense not in ("ccw", "cw"):
-        raise ValueError(f"rotation_sense {sense!r} is not ccw or cw")
-    return 1 if sense == "ccw" else -1
 
 
 def omega_z(meta: Mapping, rate: np.ndarray, effects: Mapping[str, float] | None = None) -> np.ndarray:
@@ -210,10 +191,8 @@ def sine_rate_derivative(meta: Mapping, time_s: np.ndarray, effects: Mapping[str
     """
     effects = effects or {}
     eps = float(effects.get("rate_scale_error", 0.0))
-    Om = float(meta["rate_amplitude_rad_s"])
-    f = float(meta["rate_frequency_hz"])
-    t = np.asarray(time_s, float)
-    return rotation_sign(meta) * (1.0 + eps) * Om * 2 * np.pi * f * np.cos(2 * np.pi * f * t)
+    Om, f = float(meta["rate_amplitude_rad_s"]), float(meta["rate_frequency_hz"])
+    return rotation_sign(meta) * (1.0 + eps) * Om * 2 * np.pi * f * np.cos(2 * np.pi * f * np.asarray(time_s, float))
 
 
 def centrifuge_specific_force(meta: Mapping, data, effects: Mapping[str, float] | None = None, *,
@@ -266,24 +245,17 @@ def centrifuge_specific_force(meta: Mapping, data, effects: Mapping[str, float] 
     beta = float(effects.get("spindle_tilt", 0.0))
 
     wz = omega_z(meta, _col(data, "table_rate_rad_s", n), effects)
-    if rate_derivative is None:
-        if str(meta.get("test")) == "sine_centrifuge" and "rate_amplitude_rad_s" in meta:
-            rate_derivative = sine_rate_derivative(meta, _col(data, "time_s", n), effects)
-    if rate_derivative is None:
-        # 0 on every row: a scalar 0 makes every product and sum below the same, element for
-        # element, as a column of zeros would (the fits evaluate this model thousands of
-        # times per campaign)
-        wdot = 0.0
-    else:
-        wdot = np.asarray(rate_derivative, float)
+    if rate_derivative is None and str(meta.get("test")) == "sine_centrifuge" and "rate_amplitude_rad_s" in meta:
+        rate_derivative = sine_rate_derivative(meta, _col(data, "time_s", n), effects)
+    # none: 0 on every row, where a scalar 0 makes every product and sum below the same,
+    # element for element, as a column of zeros would (the fits evaluate this model
+    # thousands of times per campaign)
+    wdot = 0.0 if rate_derivative is None else np.asarray(rate_derivative, float)
 
     w2 = wz**2
     # without arm stretch, R0 (1 + 0 w_z^2) is R0 on every row where w_z^2 is finite (then the
     # sum of the w_z^2 >= 0 is finite too)
-    if kappa == 0.0 and math.isfinite(np.add.reduce(w2)):
-        R = R0
-    else:
-        R = R0 * (1.0 + kappa * w2)
+    R = R0 if kappa == 0.0 and math.isfinite(np.add.reduce(w2)) else R0 * (1.0 + kappa * w2)
     ux, uy = np.cos(phi), np.sin(phi)
     # position of the effective mass centre from the spindle, in (e1, e2) coordinates
     p1 = -R * ux + r
@@ -386,8 +358,7 @@ def tilt_rotation_specific_force(meta: Mapping, data, effects: Mapping[str, floa
     F[:, ni] = ns * g * np.cos(gamma)
     c = float(effects.get("fixture_thermal_tilt", 0.0))
     if c != 0.0 and ni != 0:
-        delta = c * (_col(data, "temp_c", n, np.nan) - T_REF_C)
-        delta = np.nan_to_num(delta)
+        delta = np.nan_to_num(c * (_col(data, "temp_c", n, np.nan) - T_REF_C))
         a_ia = F[:, 0].copy()
         a_n = ns * F[:, ni]                       # along the signed normal direction
         F[:, 0] = a_ia * np.cos(delta) + a_n * np.sin(delta)

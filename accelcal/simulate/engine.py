@@ -79,7 +79,8 @@ def quantize(values, digits: int) -> np.ndarray:
     return np.array([float(format(x, f".{digits}g")) if np.isfinite(x) else np.nan for x in v])
 
 
-def _effects_for(kind: str, *layers) -> dict[str, float]:
+def acting_effects(kind: str, *layers) -> dict[str, float]:
+    """The effects of the layers (later ones override) that act in a ``kind`` test (effects.md)."""
     out: dict[str, float] = {}
     for layer in layers:
         out.update(layer or {})
@@ -186,9 +187,8 @@ def _frame(kind: str, cols: dict) -> pd.DataFrame:
 
 
 def _rng(seed: int | None, index: int) -> np.random.Generator:
-    if seed is None:
-        return np.random.default_rng()
-    return np.random.default_rng([int(seed) & 0xFFFFFFFF, index])
+    """Run ``index``'s generator: its own stream of the campaign's seed (fresh entropy without one)."""
+    return np.random.default_rng() if seed is None else np.random.default_rng([int(seed) & 0xFFFFFFFF, index])
 
 
 # ---------------------------------------------------------------- per test kind
@@ -250,12 +250,9 @@ def _centrifuge_run(sc, t, mount, meta, effects, noise, rng):
     az = [float(a) for a in t.get("rest_azimuths_deg", [0, 90, 180, 270])]
     levels = [float(x) for x in t.get("g_levels", [1, 2, 3, 5, 7, 10, 14, 18, 21, 25])]
     sweep = str(t.get("sweep", "up_down"))
-    if sweep == "up_down":
-        seq = levels + levels[-2::-1]
-    elif sweep == "up":
-        seq = list(levels)
-    else:
+    if sweep not in ("up", "up_down"):
         raise ValueError(f"sweep {sweep!r} is not 'up' or 'up_down'")
+    seq = levels + (levels[-2::-1] if sweep == "up_down" else [])
     rates = level_rates(seq, g, float(t.get("level_radius_m", R)), sc.site["latitude_deg"], sense,
                         bool(t.get("level_earth_rate", True)))
     n_read = int(t.get("readings", 8))
@@ -264,10 +261,7 @@ def _centrifuge_run(sc, t, mount, meta, effects, noise, rng):
     p_rate = float(t.get("rate_dwell_period_s", 76.0))
     dwell_rate = [0.0] * len(az) + list(rates)
     dwell_angle = az + [np.nan] * len(rates)
-    starts, s0 = [], 0.0
-    for k in range(len(dwell_rate)):
-        starts.append(s0)
-        s0 += p_rest if k < len(az) else p_rate
+    starts = np.cumsum([0.0] + [p_rest] * len(az) + [p_rate] * (len(rates) - 1))
     step = np.repeat(np.arange(len(dwell_rate)), n_read)
     j = np.tile(np.arange(n_read), len(dwell_rate))
     time = np.asarray(starts)[step] + j * dt
@@ -388,7 +382,7 @@ def simulate_campaign(scenario, seed: int | None = None) -> list[SimRun]:
         counters[prefix] = num + 1
         run_id = f"{prefix}-{num:04d}"
         item_effects = item.get("effects", {}) if isinstance(item, dict) else {}
-        effects = _effects_for(kind, sc.effects, t["effects"], item_effects)
+        effects = acting_effects(kind, sc.effects, t["effects"], item_effects)
         noise = {**sc.noise, **t["noise"], **sc.disturbance, **t["disturbance"]}
         rng = _rng(seed, index)
         period = (1.0 / float(t.get("sample_rate_hz", 50.0)) if kind == "sine_centrifuge"

@@ -63,8 +63,7 @@ def format_run(meta: Mapping, data: pd.DataFrame) -> str:
         lines.append(f"# {k}: {_meta_value(meta[k])}")
     lines.append(",".join(cols))
     arrays = [data[c].to_numpy() for c in cols]
-    for i in range(len(data)):
-        lines.append(",".join(_cell(c, a[i]) for c, a in zip(cols, arrays)))
+    lines += [",".join(_cell(c, a[i]) for c, a in zip(cols, arrays)) for i in range(len(data))]
     return "\n".join(lines) + "\n"
 
 
@@ -80,11 +79,8 @@ def write_run_file(meta: Mapping, data: pd.DataFrame, path) -> Path:
 def write_drop(runs: Iterable[SimRun], out_dir) -> list[Path]:
     """Write every run as ``out_dir/[subdir/]run_id.csv``; returns the paths in run order."""
     out = Path(out_dir)
-    paths = []
-    for r in runs:
-        sub = getattr(r, "subdir", "") or ""
-        paths.append(write_run_file(r.meta, r.data, out / sub / f"{r.meta['run_id']}.csv"))
-    return paths
+    return [write_run_file(r.meta, r.data, out / (getattr(r, "subdir", "") or "") / f"{r.meta['run_id']}.csv")
+            for r in runs]
 
 
 def sim_ids(runs, prefix: str = SIM_PREFIX):

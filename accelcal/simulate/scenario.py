@@ -113,7 +113,7 @@ from pathlib import Path
 from typing import Any
 
 from ..effects import COEFFICIENTS, EFFECTS, TESTS
-from ..physics.axes import parse_plane, parse_signed_axis, plane_handedness
+from ..physics.axes import parse_signed_axis, plane_handedness
 
 SCENARIO_DIR = Path(__file__).with_name("scenarios")
 
@@ -140,6 +140,10 @@ DISTURBANCE_DEFAULTS: dict[str, float] = {
 }
 
 _COEFF_NAMES = set(COEFFICIENTS) - {"theta0"}
+
+#: The keys a test of each kind must state (the others have defaults).
+_REQUIRED = {"centrifuge": ("arm_radius_m",), "tilt_rotation": ("tilt_deg",),
+             "sine_centrifuge": ("arm_radius_m", "rate_amplitude_rad_s", "rate_frequency_hz")}
 
 
 class ScenarioError(ValueError):
@@ -190,9 +194,7 @@ def _check_noise(noise: Mapping, where: str, known: Mapping[str, float] = NOISE_
 
 def _check_mount(m: Mapping, where: str) -> None:
     try:
-        parse_plane(m["plane"])
-        parse_signed_axis(m["vertical"])
-        plane_handedness(m["plane"], m["vertical"])
+        plane_handedness(m["plane"], m["vertical"])       # (parses both)
         float(m.get("angle_deg", 0.0))
     except KeyError as e:
         raise ScenarioError(f"{where}: mount needs {e.args[0]!r}") from None
@@ -251,9 +253,10 @@ def load_scenario(path_or_dict) -> Scenario:
         t["disturbance"] = _check_noise(t.get("disturbance", {}), where, DISTURBANCE_DEFAULTS, "disturbance")
         t.setdefault("rig_id", {"tumble": "DH-1", "centrifuge": "CF-1", "tilt_rotation": "TT-1",
                                 "sine_centrifuge": "DC-1"}[kind])
+        for k in _REQUIRED.get(kind, ()):
+            if k not in t:
+                raise ScenarioError(f"{where}: {kind} needs {k}")
         if kind in ("centrifuge", "sine_centrifuge"):
-            if "arm_radius_m" not in t:
-                raise ScenarioError(f"{where}: {kind} needs arm_radius_m")
             if str(t.get("rotation_sense", "ccw")) not in ("ccw", "cw"):
                 raise ScenarioError(f"{where}: rotation_sense must be ccw or cw")
             key = "mounts" if kind == "centrifuge" else "attitudes"
@@ -261,13 +264,7 @@ def load_scenario(path_or_dict) -> Scenario:
                 raise ScenarioError(f"{where}: {kind} needs a non-empty {key} list")
             for m in t[key]:
                 _check_mount(m, where)
-        if kind == "sine_centrifuge":
-            for k in ("rate_amplitude_rad_s", "rate_frequency_hz"):
-                if k not in t:
-                    raise ScenarioError(f"{where}: sine_centrifuge needs {k}")
         if kind == "tilt_rotation":
-            if "tilt_deg" not in t:
-                raise ScenarioError(f"{where}: tilt_rotation needs tilt_deg")
             try:
                 for k in ("sin_axis", "cos_axis", "normal_axis"):
                     parse_signed_axis(t.get(k, "+IA"))

@@ -73,14 +73,15 @@ import numpy as np
 from scipy import stats
 
 from ..constants import T_REF_C
-from ..effects import split_combination
+from ..effects import COEFFICIENTS, split_combination
 from ..estimators import registry
+from ..estimators.tumble import reading_cells
 from .simruns import SimRunFile
 from ..fitting.core import lstsq_svd
-from ..fitting.data import RunCells
 from ..fitting.identify import holds
 from ..fitting.model import DESIGNED, CampaignModel
-from ..physics.rigs import INSTRUMENT_EFFECTS, rig_output, sine_drive
+from ..physics import scale_factor
+from ..physics.rigs import INSTRUMENT_EFFECTS, instrument_coefficients, omega_z, rig_output, sine_drive
 from ..results import CoefficientResult
 
 #: coverage target (95 % +- 3 %) and the coverage factor of the intervals
@@ -141,23 +142,16 @@ def _one(args) -> list[tuple[str, str, str, float, float, CoefficientResult]] | 
 
 # ---------------------------------------------------------------- truth
 
-def _coeffs_for(sc, test: Mapping) -> dict[str, float]:
-    """Instrument coefficients seen by the runs of one test (instrument-term effects added)."""
-    from ..effects import EFFECTS
-    c = {k: 0.0 for k in _ALL_COEFFS}
-    c["K1"] = 1.0
-    c.update(sc.coefficients)
-    eff = {**sc.effects, **test.get("effects", {})}
-    for eid, name in INSTRUMENT_EFFECTS.items():
-        if eid in eff and test["kind"] in EFFECTS[eid].tests:
-            c[name] += float(eff[eid])
-    return c
+def _coeffs_for(sc, test: Mapping | None = None) -> dict[str, float]:
+    """Instrument coefficients of the scenario, as seen by the runs of ``test`` when given
+    (the instrument-term effects acting in it added)."""
+    c = {**{k: 0.0 for k in _ALL_COEFFS}, "K1": 1.0, **sc.coefficients}
+    return c if test is None else instrument_coefficients(c, _effects_for(sc, test))
 
 
 def _effects_for(sc, test: Mapping) -> dict[str, float]:
-    from ..effects import EFFECTS
-    eff = {**sc.effects, **test.get("effects", {})}
-    return {k: float(v) for k, v in eff.items() if test["kind"] in EFFECTS[k].tests}
+    from ..simulate.engine import acting_effects
+    return acting_effects(test["kind"], sc.effects, test.get("effects"))
 
 
 def truth_table(scenario, records: Mapping[tuple[str, str, str], CoefficientResult] | None = None
@@ -173,12 +167,9 @@ def truth_table(scenario, records: Mapping[tuple[str, str, str], CoefficientResu
         kind, rig = t["kind"], str(t["rig_id"])
         c = _coeffs_for(sc, t)
         eff = _effects_for(sc, t)
-        for est in registry.for_test(kind):
-            if est.truth is None:
-                continue
+        for est in (e for e in registry.for_test(kind) if e.truth is not None):
             own = {name: rec for (name, method, rg), rec in records.items() if method == est.method and rg == rig}
-            for (name, rg), v in est.truth(c, eff, t, g, own).items():
-                out[(name, est.method, rg)] = v
+            out.update({(name, est.method, rg): v for (name, rg), v in est.truth(c, eff, t, g, own).items()})
     out.update(_joint_truth(sc, out))
     return out
 
@@ -260,17 +251,12 @@ def _joint_truth(sc, per_method: Mapping) -> dict[tuple[str, str, str], tuple[fl
     campaign the apparent K0 and K0T of tilt_rotation_ls (the design aliases them)."""
     label = "*"           # the joint fit names each coefficient's rig (the one its information comes from)
     kinds = {t["kind"] for t in sc.tests}
-    c = {k: 0.0 for k in _ALL_COEFFS}
-    c["K1"] = 1.0
-    c.update(sc.coefficients)
+    c = _coeffs_for(sc)
     for t in sc.tests:
         cc = _coeffs_for(sc, t)
-        for k in ("K2", "K3", "Koq", "Kip", "K0T", "K1T"):
-            if cc[k] != c[k]:
-                c[k] = cc[k]
-    out: dict[tuple[str, str, str], tuple[float, str]] = {}
-    for k in ("K2", "K3", "Koq", "Kp", "Ko", "Kip", "Kio", "Kpo", "Kpp", "Koo", "K0", "K1", "K0T", "K1T"):
-        out[(k, "joint_ml", label)] = (c[k], "instrument value")
+        c.update({k: cc[k] for k in ("K2", "K3", "Koq", "Kip", "K0T", "K1T") if cc[k] != c[k]})
+    out = {(k, "joint_ml", label): (c[k], "instrument value")
+           for k in ("K2", "K3", "Koq", "Kp", "Ko", "Kip", "Kio", "Kpo", "Kpp", "Koo", "K0", "K1", "K0T", "K1T")}
     tumble = next((t for t in sc.tests if t["kind"] == "tumble"), None)
     if tumble is not None:
         dT = float(tumble.get("temp_c", 23.0)) - T_REF_C
@@ -292,7 +278,6 @@ def _joint_truth(sc, per_method: Mapping) -> dict[tuple[str, str, str], tuple[fl
 
 def _reading_variance(kind: str, meta, data, coeffs, effects, noise) -> np.ndarray:
     """Variance of each reading's output (output_unit^2), the simulator's noise model."""
-    from ..physics import scale_factor
     temp = np.asarray(data["temp_c"], float) if "temp_c" in data.columns else None
     K1 = np.broadcast_to(np.asarray(scale_factor(coeffs, temp), float), (len(data),))
     var = (K1 * float(noise.get("white_m_s2", 0.0))) ** 2
@@ -300,14 +285,11 @@ def _reading_variance(kind: str, meta, data, coeffs, effects, noise) -> np.ndarr
     if jit > 0 and "table_rate_rad_s" in data.columns:
         w = np.asarray(data["table_rate_rad_s"], float)
         h = 1e-6 * np.maximum(np.abs(w), 1e-3)
-        up, dn = data.copy(), data.copy()
-        up["table_rate_rad_s"] = w + h
-        dn["table_rate_rad_s"] = w - h
+        up, dn = data.assign(table_rate_rad_s=w + h), data.assign(table_rate_rad_s=w - h)
         dEdw = (rig_output(kind, meta, up, coeffs, effects) - rig_output(kind, meta, dn, coeffs, effects)) / (2 * h)
         var = var + (dEdw * w / 2 * jit) ** 2
     cen = float(noise.get("centripetal_rel", 0.0))
     if cen > 0 and "table_rate_rad_s" in data.columns:
-        from ..physics.rigs import omega_z
         level = omega_z(meta, np.asarray(data["table_rate_rad_s"], float), {"earth_rate": 1.0}) ** 2 * float(
             meta["arm_radius_m"])
         var = var + (K1 * cen * level) ** 2
@@ -318,18 +300,6 @@ def _reading_variance(kind: str, meta, data, coeffs, effects, noise) -> np.ndarr
 #: (effects.md ids, in the order they claim a direction of the design)
 UNKNOWN_EFFECTS = ("initial_misalignment", "mass_centre_offset", "mount_angle_error", "spindle_tilt",
                    "sensor_lag")
-
-
-def _reading_cells(j: int, meta, data, var: np.ndarray) -> RunCells:
-    """Run j as cells of one reading each, with the simulator's variance per reading
-    [output_unit^2]: the campaign model's cell means are then the readings themselves."""
-    from ..physics.geometry import geometry_of
-    cols = {c: np.asarray(data[c], float) for c in data.columns}
-    y = cols["output"]
-    n = y.size
-    return RunCells(index=j, meta=dict(meta), geometry=geometry_of(meta), cols=cols, rate_derivative=None,
-                    cid=np.arange(n), n=np.ones(n), y_rows=y, y=y, x_rows=np.zeros(n), x=np.zeros(n),
-                    lines=np.zeros(n, int), var_mean=np.asarray(var, float))
 
 
 def _truth_point(model: CampaignModel, coeffs: Sequence[Mapping[str, float]],
@@ -375,7 +345,8 @@ def cramer_rao(scenario, seed: int | None = None) -> dict[tuple[str, str, str], 
         data = r.data.copy()
         if kind == "sine_centrifuge":           # the expectation of the true rate: the drive
             data["table_rate_rad_s"] = sine_drive(r.meta, data["time_s"].to_numpy(float))
-        cells.append(_reading_cells(j, r.meta, data, _reading_variance(kind, r.meta, data, c, eff, r.truth["noise"])))
+        var = _reading_variance(kind, r.meta, data, c, eff, r.truth["noise"])
+        cells.append(reading_cells(r.meta, {k: np.asarray(data[k], float) for k in data.columns}, j, var))
         coeffs.append(c)
         effects.append(eff)
     kinds = {r.test for r in cells}
@@ -469,8 +440,7 @@ def wilson(k: int, n: int, z: float | None = None) -> tuple[float, float]:
     return max(0.0, c - h), min(1.0, c + h)
 
 
-def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: bool = True,
-              noise_free: bool = True, progress=None) -> StudyResult:
+def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: bool = True) -> StudyResult:
     """Simulate ``n`` campaigns of ``scenario`` (path, shipped name, dict or Scenario) with
     seeds seed .. seed+n-1, process each, and summarise every coefficient against its
     truth (module docstring).  ``workers`` > 1 uses a process pool."""
@@ -481,11 +451,7 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
         with ProcessPoolExecutor(max_workers=workers) as ex:
             results = list(ex.map(_one, jobs, chunksize=max(1, n // (8 * workers))))
     else:
-        results = []
-        for j in jobs:
-            results.append(_one(j))
-            if progress:
-                progress(len(results), n)
+        results = [_one(j) for j in jobs]
     seconds = time.perf_counter() - t0
     failures = [r for r in results if isinstance(r, str)]
     ok = [r for r in results if not isinstance(r, str)]
@@ -496,11 +462,8 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
             vals[(name, method, rig)].append((v, u))
             records.setdefault((name, method, rig), rec)
     truth = truth_table(sc, records)
-    nf: dict[tuple[str, str, str], float] = {}
-    if noise_free:
-        rows = _one((_noise_free(sc), sc.seed if sc.seed is not None else seed))
-        if not isinstance(rows, str):
-            nf = {(a, b, c): v for a, b, c, v, *_ in rows}
+    quiet = _one((_noise_free(sc), sc.seed if sc.seed is not None else seed))
+    nf = {} if isinstance(quiet, str) else {(a, b, c): v for a, b, c, v, *_ in quiet}
     bounds = cramer_rao(sc, seed) if crb else {}
     table = []
     for key, vu in vals.items():
@@ -539,7 +502,6 @@ def run_study(scenario, n: int = 200, seed: int = 0, workers: int = 1, *, crb: b
                                         (m - 1) * sd**2 / stats.chi2.ppf(0.025, m - 1) / b)
         table.append(cs)
     order = registry.display_order()
-    from ..effects import COEFFICIENTS
     cnames = list(COEFFICIENTS)
     table.sort(key=lambda s: (order.get(s.method, 9), s.rig_id,
                               cnames.index(s.name) if s.name in cnames else 99, s.name))
