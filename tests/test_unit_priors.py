@@ -155,6 +155,11 @@ def test_the_certificate_says_what_was_assumed_and_from_which_result(held, tmp_p
     for q, term in (("K1", "Koq"), ("K1", "K3"), ("K0", "Koo")):
         assert re.search(rf"<td>{q}</td><td>{term}</td>.*?result {src} of {FULL}, 2024-03-01", assumed), term
     assert "accelcal.toml" not in assumed
+    # the quantity's own budget, prior lines included, has its JCGM 101 check; the fit's
+    # remark that the terms were held at 0 belongs to the combination, not to the quantity
+    for q in ("K0", "K1", "K2"):
+        assert re.search(rf"<tr><td>{q}</td>(?:<td[^>]*>[^<]*</td>){{8}}<td class=\"ok\">PASS</td>", html), q
+    assert not re.search(r"class='flag'>K[012]\([^)]*\): aliased in this design", html)
     # the DCC's description of each such result says the same
     dcc = dcc_path(page).read_text()
     assert re.search(rf"K1 with K3 = [^;]*, Koq = [^;]* \(result {src} of {FULL}, 2024-03-01\) assumed", dcc)

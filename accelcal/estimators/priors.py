@@ -46,6 +46,7 @@ def apply_priors(res: CampaignResult, priors: Mapping[str, Mapping[str, Any]]) -
         The names of the rows made quantities (their old, structural names).
     """
     from .joint import coverage_factor
+    from .uncertainty import budget_check
     done = []
     for c in res.coefficients:
         if not (c.adopted and c.factors) or not all(t in priors for t in c.factors):
@@ -74,6 +75,14 @@ def apply_priors(res: CampaignResult, priors: Mapping[str, Mapping[str, Any]]) -
         for b in res.budget:
             if b.coefficient == old and b.method == c.method:
                 b.coefficient = quantity
+        # the fit's flag that the terms were held at 0 is the combination's, not the quantity's
+        res.flags = [f for f in res.flags if not f.startswith(f"{old}: aliased in this design")]
+        checks = res.extras.get("mc_check") or {}
+        if checks.pop(f"{c.method}:{c.rig_id}:{old}", None) is not None:
+            chk = budget_check(c.method, c.rig_id, quantity, value,
+                               [b for b in res.budget if b.coefficient == quantity and b.method == c.method])
+            if chk is not None:
+                checks[f"{c.method}:{c.rig_id}:{quantity}"] = chk
         res.parameters.setdefault("assumed", {})[quantity] = held
         done.append(old)
     return done
