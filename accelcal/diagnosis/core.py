@@ -356,6 +356,9 @@ class _Diagnosis:
             fr = float(np.linalg.norm(sp) / ns)
             o["observable_fraction"] = fr
             o["absorbed_fraction"] = float(max(0.0, 1.0 - fr * fr))
+            near = self.near_coefficients(bare, sp, s)
+            if near:
+                o["near_alias"] = near
             if fr < UNOBSERVABLE_FRACTION:   # what is left of an absorbed one is rounding
                 # the bare model's parameters that take it up: share of |s|^2 [1] and how far one
                 # effect unit moves each [parameter unit / effect unit]
@@ -366,10 +369,8 @@ class _Diagnosis:
                              f"lies in the bare model's columns ({', '.join(a['parameter'] for a in ab[:3])}); "
                              "whatever its size, those parameters take it up")
                 continue
-            near = self.near_coefficients(bare, sp, s)
             if near:
                 idx = np.flatnonzero(bare.active)
-                o["near_alias"] = near
                 o["absorbed_by"] = [{"parameter": bare.model.params[idx[k]].name, "share": sh, "per_unit": x}
                                     for k, sh, x in taken_up(bare.fit.J[:, idx], s)]
                 o["note"] = (f"not observable apart from the bare model's {', '.join(near)}: aliased with "

@@ -274,8 +274,11 @@ class Fitter:
     def _competing(f: ModelFit, sigs: Mapping[str, np.ndarray]) -> dict[str, Hold]:
         """Non-catalogue coefficients (free in the fit) whose direction a candidate effect
         takes when the candidates claim directions before them, each at its own place in the
-        model's priority order (cross_coupling as Kip, before Kpp; a mount angle or a tilt
-        after Kp and Ko)."""
+        model's priority order (initial_misalignment as theta0, before Ko; a mount angle or a
+        tilt after Kp and Ko).  An instrument-term effect claims none: where the unit's own
+        coefficient takes its direction (Kip a_I a_P = Kpp a_P^2 on 45/225 deg mounts, Kip g
+        a_P = Kp a_P with IA up) the bare model keeps the coefficient, and the effect is
+        reported aliased with it (:meth:`accelcal.diagnosis.core._Diagnosis.observability`)."""
         m = f.model
         free = np.flatnonzero(f.active)
         prio = [m.priority[i] for i in free]
@@ -289,7 +292,7 @@ class Fitter:
         out: dict[str, list[str]] = {}
         n = len(free)
         for e, s in sigs.items():
-            if not np.any(s):
+            if not np.any(s) or e in INSTRUMENT_EFFECTS:
                 continue
             pe = PRIORITY.index(effect_claim(e))
             order = base + [c for c in ncs if prio[c] <= pe] + [n] + [c for c in ncs if prio[c] > pe]
