@@ -357,27 +357,21 @@ class _Diagnosis:
             o["observable_fraction"] = fr
             o["absorbed_fraction"] = float(max(0.0, 1.0 - fr * fr))
             near = self.near_coefficients(bare, sp, s)
-            if near:
-                o["near_alias"] = near
-            if fr < UNOBSERVABLE_FRACTION:   # what is left of an absorbed one is rounding
-                # the bare model's parameters that take it up: share of |s|^2 [1] and how far one
-                # effect unit moves each [parameter unit / effect unit]
+            # what is left of an absorbed one is rounding; of a nearly aliased one, a sliver the
+            # design did not plan: the bare model's parameters that take it up, share of |s|^2
+            # [1] and how far one effect unit moves each [parameter unit / effect unit]
+            if fr < UNOBSERVABLE_FRACTION or near:
                 idx = np.flatnonzero(bare.active)
                 ab = o["absorbed_by"] = [{"parameter": bare.model.params[idx[k]].name, "share": sh, "per_unit": x}
                                          for k, sh, x in taken_up(bare.fit.J[:, idx], s)]
                 o["note"] = (f"not observable in these runs: {100 * o['absorbed_fraction']:.4g} % of its signature "
                              f"lies in the bare model's columns ({', '.join(a['parameter'] for a in ab[:3])}); "
                              "whatever its size, those parameters take it up")
-                continue
-            if near:
-                idx = np.flatnonzero(bare.active)
-                o["absorbed_by"] = [{"parameter": bare.model.params[idx[k]].name, "share": sh, "per_unit": x}
-                                    for k, sh, x in taken_up(bare.fit.J[:, idx], s)]
-                o["note"] = (f"not observable apart from the bare model's {', '.join(near)}: aliased with "
-                             + ", ".join(f"{k} (nearly, r = {_corr_text(r)})" for k, r in near.items())
-                             + f"; only {100 * fr:.2g} % of its signature lies outside the bare model's columns, "
-                             "and that coefficient takes it up; the run that separates them: the advice "
-                             "'separate " + c + " from " + next(iter(near)) + "'")
+                if near:
+                    o["near_alias"] = near
+                    o["note"] += ("; aliased with " + ", ".join(f"{k} (nearly, r = {_corr_text(r)})"
+                                                                for k, r in near.items())
+                                  + f", the run that separates them: the advice 'separate {c} from {next(iter(near))}'")
                 continue
             o["projected"] = sp
             # against the noise, not the gap: the gap is what a candidate may explain
@@ -616,15 +610,14 @@ class _Diagnosis:
         v, u = final.value(k), uncertainty(final, k)
         vt, ut = round_gum_sci(v, u)
         through = [e for e in self.baseline if effect_parameters(final, e, final.model.params.free())]
-        return {"effect": c, "estimate": v, "std_uncertainty": u, "unit": EFFECTS[c].unit,
-                "z": v / u if u else None, "delta_chi2": None, "p_value": None, "significant": False,
-                "selected": False, "shrink_in_sample": None, "shrink_heldout": None, "observable": True,
-                "observable_fraction": None, "absorbed_fraction": None, "min_detectable": None, "aliases": [],
-                "determined": {"coefficient": k, "value": v, "std_uncertainty": u, "unit": final.model.params[k].unit},
-                "note": (f"{k} determined after all: {vt} ± {ut} {EFFECTS[c].unit} (standard uncertainty); these "
-                         f"runs determine the unit's {k} only through the fitted "
-                         f"{', '.join(through) or 'rig geometry'}, so the bare model fits it: the instrument's "
-                         "own coefficient, not an unmodelled effect")}
+        seen = {c: {"observable": True, "observable_fraction": None, "absorbed_fraction": None, "min_detectable": None}}
+        return self.row(c, seen, estimate=v, std_uncertainty=u, z=v / u if u else None,
+                        determined={"coefficient": k, "value": v, "std_uncertainty": u,
+                                    "unit": final.model.params[k].unit},
+                        note=(f"{k} determined after all: {vt} ± {ut} {EFFECTS[c].unit} (standard uncertainty); "
+                              f"these runs determine the unit's {k} only through the fitted "
+                              f"{', '.join(through) or 'rig geometry'}, so the bare model fits it: the instrument's "
+                              "own coefficient, not an unmodelled effect"))
 
     def alias_estimates(self, e: dict, final: ModelFit, sel: list[str], obs: dict) -> None:
         """What each alias of the verdict would be if it were the cause: the final model with
