@@ -44,11 +44,13 @@ import numpy as np
 from scipy import stats
 
 from ..effects import EFFECTS
+from ..rounding import round_gum_sci
 from ..fitting.core import pure_error_lack_of_fit
 from ..fitting.data import (RunCells, drop_duplicate_cells, fit_noise, make_run, pool_missing_noise,
                             reject_spikes, with_noise)
 from ..fitting.blas import single_thread
-from ..fitting.identify import ALIAS_COS, BASE, TAKEN_SHARE, UNOBSERVABLE_FRACTION, alias_cos, taken_up
+from ..fitting.identify import (ALIAS_COS, BASE, NEAR_ALIAS_R, TAKEN_SHARE, UNOBSERVABLE_FRACTION, added_correlations,
+                                alias_cos, near_aliases, taken_up)
 from ..fitting.model import processing_effects
 from ..fitting.procedure import ModelFit
 from ..physics.rigs import specific_force
@@ -425,15 +427,22 @@ class _Diagnosis:
             fr = float(np.linalg.norm(sp) / ns)
             o["observable_fraction"] = fr
             o["absorbed_fraction"] = float(max(0.0, 1.0 - fr * fr))
-            if fr < UNOBSERVABLE_FRACTION:   # what is left of an absorbed one is rounding
-                # the bare model's parameters that take it up: share of |s|^2 [1] and how far one
-                # effect unit moves each [parameter unit / effect unit]
+            near = self.near_coefficients(bare, sp, s)
+            # what is left of an absorbed one is rounding; of a nearly aliased one, a sliver the
+            # design did not plan: the bare model's parameters that take it up, share of |s|^2
+            # [1] and how far one effect unit moves each [parameter unit / effect unit]
+            if fr < UNOBSERVABLE_FRACTION or near:
                 idx = np.flatnonzero(bare.active)
                 ab = o["absorbed_by"] = [{"parameter": bare.model.params[idx[k]].name, "share": sh, "per_unit": x}
                                          for k, sh, x in taken_up(bare.fit.J[:, idx], s)]
                 o["note"] = (f"not observable in these runs: {100 * o['absorbed_fraction']:.4g} % of its signature "
                              f"lies in the bare model's columns ({', '.join(a['parameter'] for a in ab[:3])}); "
                              "whatever its size, those parameters take it up")
+                if near:
+                    o["near_alias"] = near
+                    o["note"] += ("; aliased with " + ", ".join(f"{k} (nearly, r = {_corr_text(r)})"
+                                                                for k, r in near.items())
+                                  + f", the run that separates them: the advice 'separate {c} from {next(iter(near))}'")
                 continue
             o["projected"] = sp
             # against the noise, not the gap: the gap is what a candidate may explain
@@ -443,6 +452,32 @@ class _Diagnosis:
                 o["note"] = (f"weakly observable: the smallest size these runs could detect ({md:.3g} "
                              f"{EFFECTS[c].unit}) exceeds its largest plausible size ({EFFECTS[c].plausible:.3g})")
         return obs
+
+    @staticmethod
+    def near_coefficients(bare: ModelFit, sp: np.ndarray, s: np.ndarray) -> dict[str, float]:
+        """The bare model's instrument coefficients a candidate's estimate would correlate
+        with at |r| >= :data:`~accelcal.fitting.identify.NEAR_ALIAS_R` were it added
+        (:func:`~accelcal.fitting.identify.near_aliases`): the runs determine only their
+        combination (Kip and Kpp on mounts 0/180/45/225, where a_I a_P = a_P^2 but for the
+        mass-centre offset's r / R).  Name -> r [1], largest |r| first; {} when none.
+
+        Parameters
+        ----------
+        bare : ModelFit
+            The bare model.
+        sp, s : (N,) ndarray
+            The candidate's signature projected off the bare model, and whole [1 per
+            effect unit].
+        """
+        # 1 - r^2 >= (|sp| / |s|)^2: only a direction the bare model nearly absorbs can have one
+        if float(sp @ sp) > (1.0 - NEAR_ALIAS_R ** 2) * float(s @ s):
+            return {}
+        idx = np.flatnonzero(bare.active)
+        names = [bare.model.params[i].name for i in idx] + ["effect"]
+        R, u = added_correlations(bare.fit.J[:, idx], s)
+        coef = {names[k] for k, i in enumerate(idx) if bare.model.roles[i].kind == "coef"}
+        pairs = [a for a in near_aliases(names, R, u) if a.b == "effect" and a.a in coef]
+        return {a.a: a.r for a in sorted(pairs, key=lambda a: -abs(a.r))}
 
     def select(self, bare: ModelFit, obs: dict) -> tuple[ModelFit, list[str], list[dict], dict]:
         """Forward selection: score, refit the best, likelihood ratio and held-out gates."""
@@ -592,6 +627,7 @@ class _Diagnosis:
     # ------------------------------------------------------------------ main
     def run(self) -> dict:
         bare, sigs = self.F.bare(self.cands)
+        self.cands = [c for c in self.cands if c not in self.F.determined]
         obs = self.observability(bare, sigs)
         final, sel, steps, fits = self.select(bare, obs)
         if sel:          # the bare model on the final noise model: gaps compared on one scale
@@ -622,10 +658,13 @@ class _Diagnosis:
             e = self.row(c, obs, note=o.get("note", ""))
             if "absorbed_by" in o:
                 e["absorbed_by"] = o["absorbed_by"]
+                if "near_alias" in o:
+                    e["near_alias"] = o["near_alias"]
                 self.instrument_aliases(e, bare)
             ranking.append(e)
             unobservable.append({k: e[k] for k in ("effect", "observable_fraction", "absorbed_fraction", "note")}
-                                | ({"absorbed_by": o["absorbed_by"]} if "absorbed_by" in o else {}))
+                                | {k: o[k] for k in ("absorbed_by", "near_alias") if k in o})
+        ranking += [self.determined_row(c, final) for c in self.F.determined]
         self.aliases(ranking, obs, bare)
         # verdict: a selected effect that passes significance and the held-out gate
         # a gap worth naming: the bare model's lack of fit at 5 %, or a five-sigma effect of
@@ -663,18 +702,47 @@ class _Diagnosis:
             The bare model's fit.
         """
         m = bare.model
+        near = e.get("near_alias", {})
         for a in e["absorbed_by"]:
             k = a["parameter"]
             i = m.params.index.get(k)
-            if i is None or m.roles[i].kind != "coef" or abs(a["share"]) < TAKEN_SHARE or not a["per_unit"]:
+            if (i is None or m.roles[i].kind != "coef" or not a["per_unit"]
+                    or (abs(a["share"]) < TAKEN_SHARE and k not in near)):
                 continue
             e["aliases"].append(k)
             if m.roles[i].key not in BASE:   # a cross term's whole estimate could be the effect; K1's not
                 e.setdefault("alias_estimates", {})[k] = bare.value(k) / a["per_unit"]
+            how = f" nearly (r = {_corr_text(near[k])})" if k in near else ""
             e.setdefault("coefficient_aliases", []).append(
                 {"coefficient": k, "value": bare.value(k), "std_uncertainty": uncertainty(bare, k),
-                 "unit": m.params[k].unit, "note": f"instrument coefficient the bare model determines; these runs cannot tell "
+                 "unit": m.params[k].unit, **({"r": near[k]} if k in near else {}),
+                 "note": f"instrument coefficient the bare model determines, aliased with the effect{how}; these runs cannot tell "
                          f"{e['effect']} from it, and the calibration keeps {k}"})
+
+    def determined_row(self, c: str, final: ModelFit) -> dict:
+        """Ranking row of an instrument-term candidate whose coefficient the runs determine
+        through the fitted nuisances (:attr:`.fits.Fitter.determined`): the unit's own
+        coefficient, fitted by every model here, reported with its value; never a verdict.
+
+        Parameters
+        ----------
+        c : str
+            effects.md id (cross_coupling for Kip).
+        final : ModelFit
+            The final model (the coefficient's estimate and uncertainty).
+        """
+        k = self.F.determined[c]
+        v, u = final.value(k), uncertainty(final, k)
+        vt, ut = round_gum_sci(v, u)
+        through = [e for e in self.baseline if effect_parameters(final, e, final.model.params.free())]
+        seen = {c: {"observable": True, "observable_fraction": None, "absorbed_fraction": None, "min_detectable": None}}
+        return self.row(c, seen, estimate=v, std_uncertainty=u, z=v / u if u else None,
+                        determined={"coefficient": k, "value": v, "std_uncertainty": u,
+                                    "unit": final.model.params[k].unit},
+                        note=(f"{k} determined after all: {vt} ± {ut} {EFFECTS[c].unit} (standard uncertainty); "
+                              f"these runs determine the unit's {k} only through the fitted "
+                              f"{', '.join(through) or 'rig geometry'}, so the bare model fits it: the instrument's "
+                              "own coefficient, not an unmodelled effect"))
 
     def alias_estimates(self, e: dict, final: ModelFit, sel: list[str], obs: dict) -> None:
         """What each alias of the verdict would be if it were the cause: the final model with
@@ -798,6 +866,8 @@ class _Diagnosis:
             "selection_steps": steps,
             "alpha": self.alpha, "gap_alpha": GAP_ALPHA, "heldout_gate": HELDOUT_GATE, "heldout_z": HELDOUT_Z,
             "held": {k: h.reason for k, h in bare0.held.items()},
+            "determined": [{"effect": e["effect"], **e["determined"], "note": e["note"]}
+                           for e in ranking if "determined" in e],
             "notes": self.notes,
             "runs": [{"run_id": r.run_id, "test": r.test, "campaign": r.campaign, "cells": r.ncell,
                       "noise": {"a": r.noise.a, "b": r.noise.b, "rho": r.noise.rho, "dof": r.noise.dof,
@@ -829,6 +899,13 @@ class _Diagnosis:
         return (f"{', '.join(sel)} significant, but none is named: none removes {HELDOUT_GATE:g} of the gap "
                 f"on held-out cells or is confirmed there at z >= {HELDOUT_Z:g}, or a "
                 "gap too small to name an effect for (the bare model fits at 5 % and no effect has five sigma)")
+
+
+def _corr_text(r: float) -> str:
+    """A correlation near +-1 with one digit beyond the first that departs from 9
+    (0.999983, not 1.0)."""
+    d = max(2, int(math.ceil(-math.log10(max(1.0 - abs(r), 1e-15)))) + 1)
+    return f"{r:.{d}f}"
 
 
 def _noise_si(f: ModelFit) -> float:

@@ -21,7 +21,8 @@ from scipy import stats
 from ..effects import EFFECTS
 from ..fitting.core import RCOND, column_space_basis, separable_columns, thin_svd
 from ..fitting.data import RunCells
-from ..fitting.identify import ALIAS_TOL, PRIORITY, Hold, Why, aliased_with
+from ..fitting.identify import (ALIAS_TOL, PRIORITY, Hold, Why, aliased_with, nominal_point, seen_through_nuisances,
+                                structural_point)
 from ..fitting.model import CANDIDATE_SHARED, CampaignModel, Role, effect_claim
 from ..fitting.procedure import ModelFit, fit_model
 from ..physics.rigs import INSTRUMENT_EFFECTS
@@ -92,6 +93,10 @@ class Fitter:
         self.baseline = list(baseline)
         #: non-catalogue coefficients held in every model: name -> reason
         self.extra_held: dict[str, Hold] = {}
+        #: instrument-term effects whose coefficient the runs determine only through the
+        #: fitted nuisances (:meth:`bare`): effects.md id -> the coefficient's parameter name,
+        #: in every model
+        self.determined: dict[str, str] = {}
 
     def signature(self, f: ModelFit, effect: str) -> np.ndarray:
         """Whitened derivative of a fitted model with respect to a candidate effect
@@ -156,9 +161,7 @@ class Fitter:
         -------
         ModelFit
         """
-        m = CampaignModel(self.cells, list(effects), include=DESIGNED_TERMS,
-                          fixed=[e for e in ("earth_rate",) if e in self.baseline],
-                          shared=[e for e in CANDIDATE_SHARED if e not in self.baseline])
+        m = self.model(effects)
         old = start.model.params if start is not None else {}
         p = m.start(profile_lag=not any(r.key == "sensor_lag" and prm.name in old
                                         for prm, r in zip(m.params, m.roles)))
@@ -177,6 +180,15 @@ class Fitter:
         if noise_passes:
             self.cells = list(mf.model.runs)
         return mf
+
+    def model(self, effects: Sequence[str], include: Sequence[str] = ()) -> CampaignModel:
+        """The campaign model with ``effects`` as :meth:`fit` fits it: the designed terms
+        (:data:`DESIGNED_TERMS`), the coefficients of :attr:`determined` and ``include``
+        wherever a test measures them."""
+        coefs = [INSTRUMENT_EFFECTS[e] for e in self.determined] + list(include)
+        return CampaignModel(self.cells, list(effects), include=DESIGNED_TERMS + tuple(coefs),
+                             fixed=[e for e in ("earth_rate",) if e in self.baseline],
+                             shared=[e for e in CANDIDATE_SHARED if e not in self.baseline])
 
     @staticmethod
     def _nested(m: CampaignModel, p: np.ndarray, held: dict[str, Hold], start: ModelFit) -> dict[str, Hold]:
@@ -222,19 +234,51 @@ class Fitter:
             Candidate -> its whitened signature at that fit, (N,) [1 per effect unit].
         """
         f = self.fit(self.baseline, noise_passes=2)
-        sigs = {c: self.signature(f, c) for c in candidates}
+        self.determined = self._through_nuisances(f, candidates)
+        if self.determined:
+            f = self.fit(self.baseline, noise_passes=1)
+        sigs = {c: self.signature(f, c) for c in candidates if c not in self.determined}
         self.extra_held = self._competing(f, sigs)
         if self.extra_held:
             f = self.fit(self.baseline, start=f)
-            sigs = {c: self.signature(f, c) for c in candidates}
+            sigs = {c: self.signature(f, c) for c in sigs}
         return f, sigs
+
+    def _through_nuisances(self, f: ModelFit, candidates: Sequence[str]) -> dict[str, str]:
+        """Instrument-term candidates (Kip, Koq, K3, ...) whose coefficient the runs
+        determine at the bare model's fitted nuisances but not at the nominal geometry
+        (:func:`accelcal.fitting.identify.seen_through_nuisances`): the unit's own
+        coefficient, which the bare model fits (Kip on mounts 0/90/180/270 with a
+        mass-centre offset), not an effect the baseline left out.
+
+        Returns
+        -------
+        dict of str to str
+            effects.md id -> the coefficient's parameter name.
+        """
+        keys = {e: INSTRUMENT_EFFECTS[e] for e in candidates if e in INSTRUMENT_EFFECTS}
+        if not keys:
+            return {}
+        m = self.model(self.baseline, include=list(keys.values()))
+        p = m.params.values()
+        for i, prm in enumerate(m.params):
+            if prm.name in f.model.params:
+                p[i] = f.fit.value(prm.name)
+        cols = m.columns()
+        J, Jn = m.jacobian(structural_point(p, cols)), m.jacobian(nominal_point(p, cols))
+        which = [i for i, r in enumerate(m.roles) if r.kind == "coef" and r.key in keys.values()]
+        seen = {m.roles[i].key: m.params[i].name for i in seen_through_nuisances(J, Jn, cols, which)}
+        return {e: seen[k] for e, k in keys.items() if k in seen}
 
     @staticmethod
     def _competing(f: ModelFit, sigs: Mapping[str, np.ndarray]) -> dict[str, Hold]:
         """Non-catalogue coefficients (free in the fit) whose direction a candidate effect
         takes when the candidates claim directions before them, each at its own place in the
-        model's priority order (cross_coupling as Kip, before Kpp; a mount angle or a tilt
-        after Kp and Ko)."""
+        model's priority order (initial_misalignment as theta0, before Ko; a mount angle or a
+        tilt after Kp and Ko).  An instrument-term effect claims none: where the unit's own
+        coefficient takes its direction (Kip a_I a_P = Kpp a_P^2 on 45/225 deg mounts, Kip g
+        a_P = Kp a_P with IA up) the bare model keeps the coefficient, and the effect is
+        reported aliased with it (:meth:`accelcal.diagnosis.core._Diagnosis.observability`)."""
         m = f.model
         free = np.flatnonzero(f.active)
         prio = [m.priority[i] for i in free]
@@ -248,7 +292,7 @@ class Fitter:
         out: dict[str, list[str]] = {}
         n = len(free)
         for e, s in sigs.items():
-            if not np.any(s):
+            if not np.any(s) or e in INSTRUMENT_EFFECTS:
                 continue
             pe = PRIORITY.index(effect_claim(e))
             order = base + [c for c in ncs if prio[c] <= pe] + [n] + [c for c in ncs if prio[c] > pe]

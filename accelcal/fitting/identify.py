@@ -105,6 +105,58 @@ def structural_point(p: np.ndarray, columns: Sequence[Column]) -> np.ndarray:
     return np.array([c.value if c.kind == "coef" and c.key != "K1" else v for v, c in zip(p, columns)])
 
 
+def nominal_point(p: np.ndarray, columns: Sequence[Column]) -> np.ndarray:
+    """The design as the test plan states it: :func:`structural_point` with the rig's
+    nuisances too (mass-centre offset, mount angles, tilts: every effect) at their held
+    values (0), the scale factor, the radius and the per-run biases where p has them.
+
+    Parameters
+    ----------
+    p : (k,) ndarray
+        Parameter vector [parameter units].
+    columns : sequence of Column
+        All k parameters (:attr:`Column.value`: the value each is held at).
+
+    Returns
+    -------
+    (k,) ndarray
+    """
+    return np.array([c.value if c.kind == "effect" else v for v, c in zip(structural_point(p, columns), columns)])
+
+
+def seen_through_nuisances(J: np.ndarray, Jn: np.ndarray, columns: Sequence[Column], which: Sequence[int],
+                           tol: float = ALIAS_TOL) -> list[int]:
+    """The columns of ``which`` that the design determines at the fitted nuisances and not
+    at the nominal geometry (:func:`holds` at both points, instrument coefficients at 0 in
+    both, so that only the nuisances differ).
+
+    A mass-centre offset r along IA turns a 90 deg mount's input r / R towards IA:
+    a_I = omega^2 r, and Kip a_I a_P, nothing at the nominal geometry (a_I = 0 or a_P = 0
+    in every mount of 0/90/180/270), is then a column of its own (paper 000 eq 2 with the
+    offset of effects.md ``mass_centre_offset``).
+
+    Parameters
+    ----------
+    J, Jn : (m, k) ndarray
+        Whitened design at :func:`structural_point` and at :func:`nominal_point` of the
+        fitted values [1 / parameter unit].
+    columns : sequence of Column
+        The k parameters.
+    which : sequence of int
+        Positions of the columns asked about.
+    tol : float
+        :data:`ALIAS_TOL` [1].
+
+    Returns
+    -------
+    list of int
+        Positions (of ``which``) kept at J and held at Jn.
+    """
+    at = holds(J, columns, tol, name_aliases=False)
+    nominal = holds(Jn, columns, tol, name_aliases=False)
+    return [c for c in which if columns[c].name not in at and columns[c].name in nominal]
+
+
 def structural_order(J: np.ndarray, J0: np.ndarray | None, order: Sequence[int], tol: float = ALIAS_TOL
                      ) -> list[int]:
     """The order in which the columns claim directions: ``order``, with every parameter the
@@ -595,6 +647,31 @@ def near_aliases(names: Sequence[str], R: np.ndarray, u: np.ndarray, r_min: floa
     return [NearAlias(names[a], names[b], float(-R[a, b] * u[a] / u[b]), float(R[a, b]))
             for a in range(len(names)) for b in range(a + 1, len(names))
             if np.isfinite(R[a, b]) and abs(R[a, b]) >= r_min]
+
+
+def added_correlations(Jf: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Correlation matrix and standard uncertainties of the estimates of a fitted design's
+    free parameters with one direction s added as a last column (an effect's signature):
+    what :func:`near_aliases` reads.
+
+    Parameters
+    ----------
+    Jf : (m, k) ndarray
+        Whitened design of the free parameters [1 / parameter unit].
+    s : (m,) ndarray
+        Whitened direction [1 per its unit].
+
+    Returns
+    -------
+    R : (k + 1, k + 1) ndarray
+        Correlation matrix [1] (0 where a variance is 0).
+    u : (k + 1,) ndarray
+        Design standard uncertainties [parameter units].
+    """
+    cov = lstsq_svd(np.column_stack([Jf, s]), np.zeros(Jf.shape[0])).cov
+    u = np.sqrt(np.clip(np.diag(cov), 0, None))
+    d = np.where(u > 0, u, np.inf)
+    return cov / np.outer(d, d), u
 
 
 def taken_up(J: np.ndarray, s: np.ndarray, top: int = 6) -> list[tuple[int, float, float]]:

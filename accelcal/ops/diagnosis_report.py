@@ -96,6 +96,8 @@ def text_report(res: dict, width: int = 80) -> str:
                 continue
             say(f"note: {e['effect']} is indistinguishable here from the coefficient {ca['coefficient']} "
                 f"({ca['note']})")
+    for d in res.get("determined") or []:       # the unit's coefficient, seen through the geometry
+        say(f"note: {d['effect']}: {d['note']}")
     L.append("")
     say("where the gap lies before (Holm-significant segments, share of the dimension's excess chi2):")
     for w in res["where"][:15]:
