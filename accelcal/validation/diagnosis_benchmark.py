@@ -317,7 +317,7 @@ def simulated_cases(quick: bool, seeds: int, n_clean: int, rng_seed: int = 20261
                     yield (f"{kind}/clean: AR(1)", kind, ar1_scenario(kind, rho), 9900 + 10 * i + int(10 * rho),
                            DEV_BASELINE[kind], None, None, None, False, "coloured")
     # a sweep hysteresis: rising steps read h a_IA higher than falling ones, at a
-    # size the targeted rising-minus-falling contrast sees at z ~ 4-6, the case temperature
+    # size the targeted rising-minus-falling contrast sees at z ~ 4-7, the case temperature
     # held (a drifting one would make it K1T's); right when a gap is said to remain
     for i in range(1 if quick else 5 * seeds):
         sc = scenario("centrifuge", {}, {"sweep_hysteresis_rel": HYSTERESIS_REL})
