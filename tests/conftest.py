@@ -8,6 +8,15 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
+
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    # each test worker (pytest-xdist, pyproject's addopts) its own Prefect home, so two
+    # workers' temporary Prefect servers never share one SQLite database; set before any
+    # test module imports Prefect, and inherited by every command a test starts
+    _home = Path(os.environ.get("PREFECT_HOME") or Path.home() / ".prefect")
+    _home = _home / f"pytest-{os.environ['PYTEST_XDIST_WORKER']}"
+    _home.mkdir(parents=True, exist_ok=True)
+    os.environ["PREFECT_HOME"] = str(_home)
 SHARED = Path(os.environ.get("ACCELCAL_SHARED", REPO.parent / "shared"))
 EXAMPLES = SHARED / "examples"
 #: Why a test that reads the lab's samples is skipped when they are absent (README, "Tests").
@@ -88,3 +97,11 @@ def copy_lab(warehouse: Path, into: Path) -> Path:
     test that writes; returns the copy's ``lab.duckdb``."""
     shutil.copytree(warehouse.parent, into)
     return into / warehouse.name
+
+
+def pytest_collection_modifyitems(config, items):
+    """Modules holding a slow test first, each keeping its order: the workers take a
+    module at a time (``--dist loadfile``), so the long ones start early and the short
+    ones fill in at the end."""
+    slow = {it.path for it in items if it.get_closest_marker("slow")}
+    items.sort(key=lambda it: it.path not in slow)

@@ -11,7 +11,9 @@ import os
 
 import pytest
 
-from accelcal.flows.pipeline import quiet_prefect, run_pipeline
+from prefect.settings import PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS, temporary_settings
+
+from accelcal.flows.pipeline import SERVER_START_S, quiet_prefect, run_pipeline
 from accelcal.flows.runners import RunnerError, task_runner_for
 
 from test_faults import warehouse_contents
@@ -43,7 +45,12 @@ def test_flow_on_an_existing_dask_scheduler_equals_local_run(tmp_path, examples,
                                   dashboard_address=None) as cluster, \
             distributed.Client(cluster) as client:
         on_dask = tmp_path / "dask" / "lab.duckdb"
-        s = run_pipeline(drops, on_dask, engine="prefect", task_runner=cluster.scheduler_address)
+        # each worker of a scheduler started apart from the flow starts a Prefect server
+        # of its own, with the flow's settings: the time accelcal gives its own server
+        # (Prefect's 20 s is exceeded on a loaded machine)
+        with temporary_settings({PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS: SERVER_START_S}):
+            s = run_pipeline(drops, on_dask, engine="prefect",
+                             task_runner=cluster.scheduler_address)
         # the tasks really ran on the workers (both of them)
         seen = client.run(lambda dask_worker: len(dask_worker.data) + dask_worker.state.executed_count)
     assert all(n > 0 for n in seen.values()), seen

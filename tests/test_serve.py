@@ -164,6 +164,11 @@ def _stop(proc: subprocess.Popen | None, grace: float = 8.0) -> None:
             continue
 
 
+#: The longest a step of a real server may take [s]: each wait ends as soon as the step is
+#: done, and on a loaded machine a start takes minutes (accelcal's own limit, SERVER_START_S).
+LOADED_S = 180
+
+
 def _wait(pred, timeout: float, every: float = 0.5):
     end = time.monotonic() + timeout
     while time.monotonic() < end:
@@ -203,7 +208,7 @@ def test_serve_processes_new_drops_once_and_leaves_partial_files(tmp_path, examp
         server = subprocess.Popen(["prefect", "server", "start", "--host", "127.0.0.1",
                                    "--port", str(port)], env=env, stdout=slog,
                                   stderr=subprocess.STDOUT, start_new_session=True)
-        assert _wait(lambda: _healthy(api), 40), "prefect server did not start"
+        assert _wait(lambda: _healthy(api), LOADED_S), "prefect server did not start"
         t_server = time.monotonic() - t_start
         serve = subprocess.Popen([sys.executable, "-c", SERVE_MAIN, "serve", "--watch", str(watch),
                                   "--warehouse", str(whdir / "lab.duckdb"), "--cron", "* * * * *",
@@ -211,7 +216,7 @@ def test_serve_processes_new_drops_once_and_leaves_partial_files(tmp_path, examp
                                  env=env, stdout=vlog, stderr=subprocess.STDOUT,
                                  start_new_session=True, cwd=tmp_path)
         served = lambda: "is being served" in (tmp_path / "serve.log").read_text()
-        assert _wait(served, 30), (tmp_path / "serve.log").read_text()[-2000:]
+        assert _wait(served, LOADED_S), (tmp_path / "serve.log").read_text()[-2000:]
 
         # 1: a drop with one complete file and one still being copied (.part)
         d1 = watch / "drop-1"
@@ -219,14 +224,14 @@ def test_serve_processes_new_drops_once_and_leaves_partial_files(tmp_path, examp
         shutil.copy(examples / "drop-2026-11-20" / "DH1-20261120-0001.csv", d1)
         shutil.copy(examples / "drop-2026-11-21" / "DH1-20261121-0001.csv",
                     d1 / "DH1-20261121-0001.csv.part")
-        got = _wait(lambda: [p for p in _passes(state) if p["waiting"]], 30)
+        got = _wait(lambda: [p for p in _passes(state) if p["waiting"]], LOADED_S)
         assert got, (tmp_path / "serve.log").read_text()[-2000:]
         assert ".part" in got[0]["waiting"][str(d1.resolve())]
         assert not any(p["ready"] for p in _passes(state))
 
         # 2: the copy completes (rename): the drop is processed, both files, once
         (d1 / "DH1-20261121-0001.csv.part").rename(d1 / "DH1-20261121-0001.csv")
-        done = _wait(lambda: [p for p in _passes(state) if p["ready"]], 45)
+        done = _wait(lambda: [p for p in _passes(state) if p["ready"]], LOADED_S)
         assert done, (tmp_path / "serve.log").read_text()[-3000:]
         (p,) = done
         assert p["error"] is None, p
@@ -251,9 +256,8 @@ def test_serve_processes_new_drops_once_and_leaves_partial_files(tmp_path, examp
 
         crons, auto = deployment_info()
         assert crons == ["* * * * *"]
-        if not auto:
-            time.sleep(4)
-            crons, auto = deployment_info()
+        if not auto:                      # the scheduler's loop runs every 2 s
+            auto = _wait(lambda: deployment_info()[1], LOADED_S, every=1)
         server_log = (tmp_path / "server.log").read_text()
         scheduler_broken = "Can't evaluate bulk DML statement" in server_log
         print(f"\nprefect server up in {t_server:.1f} s; scheduled runs created: {len(auto)}; "

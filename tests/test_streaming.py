@@ -60,9 +60,12 @@ class _LiveRuns:
             (tables, "read_run_parquet"))}
 
     def _count(self, run) -> None:
-        gc.collect()      # count runs still reachable, not garbage awaiting the collector
         self.live.add(run)
-        self.peak = max(self.peak, len(self.live))
+        # count runs still reachable, not garbage awaiting the collector; a collection
+        # only lowers the count, so it is needed only when the count would raise the peak
+        if len(self.live) > self.peak:
+            gc.collect()
+            self.peak = max(self.peak, len(self.live))
 
     def _wrap(self, key):
         real = self.real[key]
@@ -84,9 +87,15 @@ class _LiveRuns:
     def __enter__(self):
         for key in self.real:
             self.monkeypatch.setattr(key[0], key[1], self._wrap(key))
+        # what exists now is set aside from the collections (gc.freeze): no run is among
+        # it, nor can garbage frozen now refer to one, so each collection finds the same
+        # runs unreachable, looking only at what the run made
+        gc.collect()
+        gc.freeze()
         return self
 
     def __exit__(self, *exc):
+        gc.unfreeze()
         for (mod, name), fn in self.real.items():
             self.monkeypatch.setattr(mod, name, fn)
 
