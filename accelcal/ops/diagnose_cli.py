@@ -8,12 +8,11 @@ import json
 import sys
 import textwrap
 
-from ..diagnosis.runfiles import read_paths
-
 
 def _diagnose(args) -> int:
     from ..cli import CliError            # the CLI's one error form: "accelcal: error: ..." and exit 1
     from ..diagnosis.core import diagnose, public
+    from ..diagnosis.runfiles import read_paths
     from ..config import ConfigError, advice_inputs
     from ..testdesign import next_runs
     from .diagnosis_report import _jd, clean_json, html_report, text_report

@@ -3,10 +3,9 @@ from __future__ import annotations
 
 import argparse
 
-from ..simulate import simulate_to_drop
-
 
 def _run(args: argparse.Namespace) -> int:
+    from ..simulate import simulate_to_drop   # on use: the simulator's scipy costs every CLI start
     paths = simulate_to_drop(args.scenario, args.out, seed=args.seed, keep_ids=args.keep_ids)
     for p in paths:
         print(p)
