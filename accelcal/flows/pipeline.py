@@ -340,7 +340,7 @@ def _intake(wh: Warehouse, sess: _Session, drops: list[str], settle: float,
         entry = {"drop": Path(drop).name, "path": drop, "files": 0, "accepted": 0,
                  "refused": 0, "new": 0, "refused_files": [], "rechecked": 0,
                  "errors": [], "held": held_by[drop], "warnings": [], "docs": None,
-                 "simulated_held": []}
+                 "simulated_held": [], "campaigns": set()}
         entries.append(entry)
         if drop in empty:
             entry["warnings"].append(f"drop {drop} holds no *.csv file: nothing to do")
@@ -365,6 +365,15 @@ def _intake(wh: Warehouse, sess: _Session, drops: list[str], settle: float,
     while pending:
         touched |= _record_batch(wh, sess, *pending.popleft(), run)
     for e in entries:
+        # a campaign with a file in a failed batch would be computed from part of its
+        # runs: every campaign of that drop waits for a run that ingests the whole drop
+        held_back = sorted(touched & e.pop("campaigns")) if e["errors"] else []
+        if held_back:
+            touched -= set(held_back)
+            e["warnings"].append(f"{len(held_back)} campaign(s) of drop {e['path']} not computed: a batch of "
+                                 f"its files failed, so they may lack runs; run again ({', '.join(held_back[:5])}"
+                                 + (", ..." if len(held_back) > 5 else "") + ")")
+        e.pop("campaigns", None)
         e["refused_files"].sort(key=lambda r: r["path"])
         e["simulated_held"].sort(key=lambda r: r["path"])
     return touched
@@ -424,6 +433,7 @@ def _record_batch(wh: Warehouse, sess: _Session, entry: dict, fut, run: _Run) ->
             entry["refused"] += 1
             entry["refused_files"].append({"path": r["source_path"], "reason": r["reason"]})
         entry["new"] += (r["sha256"], r["source_path"]) in new_keys
+    entry["campaigns"] |= campaigns
     entry["rechecked"] += sum(1 for r in ing.records if r.rechecked)
     entry["errors"].extend(ing.errors)
     entry["simulated_held"].extend(ing.simulated_held)
