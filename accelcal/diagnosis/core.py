@@ -820,8 +820,8 @@ class _Diagnosis:
         explained = None if after["significant"] is None else not after["significant"]
         if before["significant"] is False and after["significant"] is None:
             explained = True
-        # the omnibus test dilutes a shaped gap over every cell: the targeted shape tests
-        # (rising vs falling steps, polarity) can say on their own that a gap remains
+        # the omnibus test dilutes a shaped gap over every cell: the targeted test of a
+        # sweep hysteresis (rising vs falling steps) can say on its own that a gap remains
         shaped = shape_tests(final) if final.fit.dof > 0 else []
         if explained is not False and any(t["significant"] for t in shaped):
             explained = False

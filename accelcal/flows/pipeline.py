@@ -367,13 +367,13 @@ def _intake(wh: Warehouse, sess: _Session, drops: list[str], settle: float,
     for e in entries:
         # a campaign with a file in a failed batch would be computed from part of its
         # runs: every campaign of that drop waits for a run that ingests the whole drop
-        held_back = sorted(touched & e.pop("campaigns")) if e["errors"] else []
+        campaigns = e.pop("campaigns")
+        held_back = sorted(touched & campaigns) if e["errors"] else []
         if held_back:
-            touched -= set(held_back)
+            touched -= campaigns
             e["warnings"].append(f"{len(held_back)} campaign(s) of drop {e['path']} not computed: a batch of "
                                  f"its files failed, so they may lack runs; run again ({', '.join(held_back[:5])}"
                                  + (", ..." if len(held_back) > 5 else "") + ")")
-        e.pop("campaigns", None)
         e["refused_files"].sort(key=lambda r: r["path"])
         e["simulated_held"].sort(key=lambda r: r["path"])
     return touched
