@@ -444,6 +444,7 @@ class _Information:
         self.type_b = [(u, d) for u, dirs in fixed for d in dirs]
         self._g_made = [self.Js[0][made_rows].T @ d[made_rows] for _, d in self.type_b]
         self._g_run: dict[tuple[int, int], list[np.ndarray]] = {}
+        self._solved: dict[tuple[tuple[int, ...], int], tuple] = {}
 
     def type_b_gradient(self, runs: Sequence[int], k: int) -> list[np.ndarray]:
         """J^T d of each type-B direction over the rows of the runs made plus ``runs``,
@@ -470,7 +471,14 @@ class _Information:
         too, and the type-B terms its budget would add
         (:func:`accelcal.estimators.joint.held_type_b_directions`,
         :func:`~accelcal.estimators.joint.rig_input_directions`) are added: the bias each
-        input transfers, (J^T J)^+ J^T d u."""
+        input transfers, (J^T J)^+ J^T d u.  Kept per (runs, k_J): it depends on nothing
+        else, and the questions of one advice session ask for the same designs."""
+        key = (tuple(runs), k_J)
+        if key not in self._solved:
+            self._solved[key] = self._solve(runs, k_J)
+        return self._solved[key]
+
+    def _solve(self, runs: Sequence[int], k_J: int):
         J = self.Js[k_J]
         cols = self.cols(runs)
         pos = {c: k for k, c in enumerate(cols)}
@@ -595,7 +603,7 @@ def advise(cells: Sequence[RunCells], baseline: Sequence[str], targets: Sequence
            separate: Sequence[tuple[str, str]] = (), max_runs: int = 2,
            candidates: Sequence[Candidate] | None = None, top: int = 5,
            stated: Mapping[str, Mapping[str, float]] | None = None,
-           setup_min: Mapping[str, float] | None = None) -> Advice:
+           setup_min: Mapping[str, float] | None = None, session: dict | None = None) -> Advice:
     """Which runs to add to ``cells`` for the targets, best first.
 
     Each prediction is what the pipeline will report: the joint fit's type-A uncertainty
@@ -626,6 +634,11 @@ def advise(cells: Sequence[RunCells], baseline: Sequence[str], targets: Sequence
     setup_min : mapping of str to float, optional
         Rig id -> set-up time of one run [min] (``[rigs."ID"] setup_min``); default
         :data:`SETUP_MIN_DEFAULT`.
+    session : dict, optional
+        Kept between calls on the same ``cells`` and lab statements (one per question
+        list, :func:`next_runs`): the fit of the runs made and the prediction of every design
+        already judged, per model (baseline, added effects and candidates), so that
+        questions sharing a model pay for it once; the answers are those of separate calls.
 
     Returns
     -------
@@ -639,10 +652,10 @@ def advise(cells: Sequence[RunCells], baseline: Sequence[str], targets: Sequence
     """
     with single_thread():            # many small dense solves: one BLAS thread is the fast one
         return _advise(list(cells), baseline, targets, separate, max_runs, candidates, top, stated or {},
-                       setup_min or {})
+                       setup_min or {}, {} if session is None else session)
 
 
-def _advise(cells, baseline, targets, separate, max_runs, candidates, top, stated, setup_min) -> Advice:
+def _advise(cells, baseline, targets, separate, max_runs, candidates, top, stated, setup_min, session) -> Advice:
     for e in baseline:
         if e not in EFFECTS:
             raise DesignError(f"baseline effect {e!r}: not an effects.md id")
@@ -660,21 +673,24 @@ def _advise(cells, baseline, targets, separate, max_runs, candidates, top, state
         cands = [c for c in cands if any(c.test in EFFECTS[t].tests for t in seen)]
     # the runs made, fitted as the advice model (noise refitted to its residuals, which is
     # the noise a fit of the augmented campaign will see)
-    made = _model(cells, effects, extra)
-    made_fit = fit_selected(made)
-    cells, p_made = made_fit.model.runs, made_fit.fit.values
-    cand_cells = [candidate_cells(c, cells, len(cells) + k) for k, c in enumerate(cands)]
-    model = _model(cells + cand_cells, effects, extra)
-    p = model.params.values()
-    for i, prm in enumerate(model.params):
-        k = made.params.index.get(prm.name)
-        if k is not None:
-            p[i] = p_made[k]
+    key = (tuple(effects), tuple(extra), repr(cands))          # every field of every candidate
+    if key not in session:
+        made = _model(cells, effects, extra)
+        made_fit = fit_selected(made)
+        made_cells, p_made = made_fit.model.runs, made_fit.fit.values
+        cand_cells = [candidate_cells(c, made_cells, len(made_cells) + k) for k, c in enumerate(cands)]
+        model = _model(made_cells + cand_cells, effects, extra)
+        p = model.params.values()
+        for i, prm in enumerate(model.params):
+            k = made.params.index.get(prm.name)
+            if k is not None:
+                p[i] = p_made[k]
+        session[key] = (made, made_cells, p_made, model, p, _Information(model, len(made_cells), p, stated))
+    made, cells, p_made, model, p, info = session[key]
     if not targets:
         targets = [prm.key for prm, role in zip(made.params, made.roles) if role.kind == "coef"]
         targets = list(dict.fromkeys(targets))
     tmap = resolve_targets(model, targets)
-    info = _Information(model, len(cells), p, stated)
     setup = {c.rig_id: float(setup_min.get(c.rig_id, SETUP_MIN_DEFAULT)) for c in cands}
     cost = [c.minutes + setup[c.rig_id] for c in cands]
     cur = _predict(info, [], tmap, separate)
@@ -914,15 +930,15 @@ def next_runs(runs, res, **lab) -> list[dict]:
         return []
     cells, _ = prepare_cells(runs)
     base = list((res.get("baseline") or {}).get("effects") or [])
-    out = []
+    out, session = [], {}
     for what, targets, pairs in asks:
         try:
-            adv = advise(cells, base, targets or None, pairs, max_runs=1, top=1, **lab)
+            adv = advise(cells, base, targets or None, pairs, max_runs=1, top=1, session=session, **lab)
             # seeing an effect may take two runs (Kip beside an unknown Kpp: 45 + 135 deg);
             # telling an effect from a coefficient by two runs of other planes leans on
             # second-order terms, and the plain answer is the gravity reference below
             if not adv.proposals and targets:
-                adv = advise(cells, base, targets, pairs, max_runs=2, top=1, **lab)
+                adv = advise(cells, base, targets, pairs, max_runs=2, top=1, session=session, **lab)
         except (DesignError, ValueError, np.linalg.LinAlgError) as exc:
             out.append({"to": what, "note": f"no advice: {exc}"})
             continue
