@@ -858,7 +858,8 @@ def fitted_uncertainty(cells: Sequence[RunCells], baseline: Sequence[str], targe
 SEPARATION_MAX_READINGS = 1_000_000
 
 
-def separating_run_flag(cells: Sequence[RunCells], pair: tuple[str, str], **lab) -> str | None:
+def separating_run_flag(cells: Sequence[RunCells], pair: tuple[str, str], session: dict | None = None,
+                        **lab) -> str | None:
     """The certificate's line for a pair of coefficients the runs determine only together:
     ``accelcal design --separate A,B --max-runs 1``'s first proposal (:func:`advise` with
     the pipeline's processing model), asked when a person reads the result.
@@ -870,6 +871,8 @@ def separating_run_flag(cells: Sequence[RunCells], pair: tuple[str, str], **lab)
         (:func:`accelcal.diagnosis.core.prepare_cells`).
     pair : (str, str)
         The aliased pair (:func:`accelcal.estimators.joint.stored_aliased_pairs`).
+    session : dict, optional
+        :func:`advise`'s, shared by the pairs of one campaign.
     **lab
         The lab's statements (:func:`accelcal.config.advice_inputs`), as ``accelcal
         design`` passes them.
@@ -886,7 +889,7 @@ def separating_run_flag(cells: Sequence[RunCells], pair: tuple[str, str], **lab)
         return None
     try:
         adv = advise(cells, processing_effects(sorted({c.test for c in cells})), None, [pair], max_runs=1, top=1,
-                     **lab)
+                     session=session, **lab)
     except (DesignError, ValueError, np.linalg.LinAlgError):
         return None
     ask = f"(accelcal design --separate {pair[0]},{pair[1]} --max-runs 1)"

@@ -200,7 +200,9 @@ def separating_run_flags(root: Path, lineage: list[dict[str, Any]], flags: list[
         lab = advice_inputs(None, root / "lab.duckdb")
     except ConfigError:
         lab = {}
-    lines = {ALIASED_PAIR_FLAG.format(a=a, b=b): separating_run_flag(cells, (a, b), **lab) for a, b in pairs}
+    session: dict = {}                    # the pairs of one campaign share the advice's fits
+    lines = {ALIASED_PAIR_FLAG.format(a=a, b=b): separating_run_flag(cells, (a, b), session, **lab)
+             for a, b in pairs}
     return [lines.get(f) or f for f in flags]
 
 
