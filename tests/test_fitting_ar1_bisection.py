@@ -119,8 +119,18 @@ def test_rounding_bound_holds_against_40_digits():
 def test_only_the_steps_next_to_the_root_sum_the_series(monkeypatch):
     calls = []
     series = data.ar1_deviation_lag1
-    monkeypatch.setattr(data, "ar1_deviation_lag1", lambda n, rho: calls.append(n) or series(n, rho))
+    monkeypatch.setattr(data, "ar1_deviation_lag1", lambda n, rho, p=None: calls.append(n) or series(n, rho, p))
     n, weight = np.array([412, 484, 731, 741] * 5), np.linspace(1.0, 2.0, 20)
     r = _pooled(n, weight, 0.2)
     assert ar1_from_lag1(r, n, weight) == _reference(r, n, weight)
     assert 0 < len(calls) <= 4 * 15            # of 52 evaluations of 4 cell sizes
+
+
+def test_powers_shared_by_cell_sizes_are_each_cells_own():
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        rho, m = float(rng.uniform(LO, HI)), int(rng.integers(3, 5001))
+        powers = rho ** np.arange(m)
+        for n in rng.integers(3, m + 1, 4):
+            lag1, squares = data.ar1_deviation_lag1(int(n), rho, powers)
+            assert lag1 / squares == _series(int(n), rho)

@@ -209,7 +209,7 @@ def ar1_scatter_dof(n: np.ndarray, rho: float) -> np.ndarray:
     return _per_cell_size(n, dof, out)
 
 
-def ar1_deviation_lag1(n: int, rho: float) -> tuple[float, float]:
+def ar1_deviation_lag1(n: int, rho: float, powers: np.ndarray | None = None) -> tuple[float, float]:
     """Expected lag-1 sum and sum of squares of the deviations of n AR(1) readings from
     their own mean, per unit reading variance (derived in the body; no short-cell
     approximation).
@@ -225,13 +225,16 @@ def ar1_deviation_lag1(n: int, rho: float) -> tuple[float, float]:
         Readings in the cell [1], at least 2.
     rho : float
         Lag-1 autocorrelation of the readings [1].
+    powers : ndarray, optional
+        rho ** arange(m) for some m >= n [1]: the powers cells of several sizes share (the
+        same floats, each power computed alone).
 
     Returns
     -------
     (float, float)
         E[sum d_t d_{t+1}] / sigma^2 and E[sum d_t^2] / sigma^2 [1].
     """
-    p = rho ** np.arange(n)
+    p = rho ** np.arange(n) if powers is None else powers[:n]
     k = np.arange(1, n)
     M = (n + 2.0 * float(np.sum((n - k) * p[1:]))) / (n * n)
     m1 = float(np.sum(p)) / n
@@ -321,9 +324,9 @@ def ar1_from_lag1(r: float, n: np.ndarray, weight: np.ndarray) -> float:
         cheap = sum(wi * g for wi, (g, _) in zip(w, ge)) - r
         if abs(cheap) > 4 * (sum(wi * e for wi, (_, e) in zip(w, ge)) + (len(w) + 2) * u * (sum(w) + abs(r))):
             return cheap
-        total = 0.0
+        total, p = 0.0, rho ** np.arange(vals[-1])
         for v, wi in zip(vals, w):
-            lag1, squares = ar1_deviation_lag1(v, rho)
+            lag1, squares = ar1_deviation_lag1(v, rho, p)
             total += wi * (lag1 / squares)
         return total - r
 
