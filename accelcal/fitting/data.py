@@ -209,7 +209,7 @@ def ar1_scatter_dof(n: np.ndarray, rho: float) -> np.ndarray:
     return _per_cell_size(n, dof, out)
 
 
-def ar1_deviation_lag1(n: int, rho: float) -> tuple[float, float]:
+def ar1_deviation_lag1(n: int, rho: float, powers: np.ndarray | None = None) -> tuple[float, float]:
     """Expected lag-1 sum and sum of squares of the deviations of n AR(1) readings from
     their own mean, per unit reading variance (derived in the body; no short-cell
     approximation).
@@ -225,17 +225,64 @@ def ar1_deviation_lag1(n: int, rho: float) -> tuple[float, float]:
         Readings in the cell [1], at least 2.
     rho : float
         Lag-1 autocorrelation of the readings [1].
+    powers : ndarray, optional
+        rho ** arange(m) for some m >= n [1]: the powers cells of several sizes share (the
+        same floats, each power computed alone).
 
     Returns
     -------
     (float, float)
         E[sum d_t d_{t+1}] / sigma^2 and E[sum d_t^2] / sigma^2 [1].
     """
-    p = rho ** np.arange(n)
+    p = rho ** np.arange(n) if powers is None else powers[:n]
     k = np.arange(1, n)
     M = (n + 2.0 * float(np.sum((n - k) * p[1:]))) / (n * n)
     m1 = float(np.sum(p)) / n
     return (n - 1) * rho - (n + 1) * M + 2.0 * m1, n - n * M
+
+
+def _ar1_lag1_ratio_bounded(n: int, rho: float) -> tuple[float, float]:
+    """g(n, rho) = E[lag-1 sum] / E[sum of squares] of :func:`ar1_deviation_lag1` from the
+    closed forms of its two geometric sums, with a bound on the rounding error of this value
+    and of :func:`ar1_deviation_lag1`'s, which sums the series term by term.
+
+    S = sum_{k<n} rho^k = (1 - rho^n) / (1 - rho) and T = sum_{k=1}^{n-1} (n - k) rho^k =
+    rho (n (1 - rho) - (1 - rho^n)) / (1 - rho)^2.  The bound is the first-order (Higham,
+    *Accuracy and Stability of Numerical Algorithms*, 2nd ed., sec. 3-4) error of each,
+    u = 2^-53, a library power within 16 ulp: the series summed in any order
+    is off by at most (n + 17) u sum |term|, the closed forms by their few
+    roundings, amplified where 1 - rho^n and n (1 - rho) nearly cancel (short cells,
+    rho -> 1); the rest of the formula is common to both and |g| <= 1 (Cauchy-Schwarz).
+
+    Parameters
+    ----------
+    n : int
+        Readings in the cell [1], at least 3.
+    rho : float
+        Lag-1 autocorrelation [1], |rho| < 1.
+
+    Returns
+    -------
+    (float, float)
+        g [1] and the bound on |g - exact g| of both evaluations [1] (inf where the sum of
+        squares is not told from 0).
+    """
+    u, c = 2.0 ** -53, 16                          # the unit roundoff; ulp of a library power
+    a, q = 1.0 - rho, rho ** n
+    b = 1.0 - q
+    s1, t = b / a, rho * (n * a - b) / (a * a)
+    ra = abs(rho)                                  # bounds on the sums of |term|
+    A1, AT = min(n, 1.0 / (1.0 - ra)), min(n * (n - 1) / 2, n * ra / (1.0 - ra))
+    eb = c * u * abs(q) + u * abs(b)
+    err_s = max(eb / a + 2 * u * A1, (n + c) * u * A1)
+    err_t = max(ra * (eb + 3 * u * (n * a + abs(b))) / (a * a) + 5 * u * AT, (n + c + 1) * u * AT)
+    M, M_abs = (n + 2.0 * t) / (n * n), (n + 2.0 * AT) / (n * n)
+    err_m = 2 * (err_t + u * (n + 2.0 * AT)) / (n * n)
+    err_lag1 = (n + 1) * err_m + 2 * (err_s + u * A1) / n + 3 * u * ((n - 1) * ra + (n + 1) * M_abs + 2 * A1 / n)
+    err_sq = n * err_m + 2 * u * n * (1.0 + M_abs)
+    squares = n - n * M
+    g = ((n - 1) * rho - (n + 1) * M + 2.0 * (s1 / n)) / squares
+    return g, (err_lag1 + err_sq) / (squares - 2 * err_sq) + 2 * u if squares > 4 * err_sq else math.inf
 
 
 def ar1_from_lag1(r: float, n: np.ndarray, weight: np.ndarray) -> float:
@@ -244,6 +291,11 @@ def ar1_from_lag1(r: float, n: np.ndarray, weight: np.ndarray) -> float:
     squares] (:func:`ar1_deviation_lag1`), by bisection within :data:`RHO_BOUNDS`.  Short
     cells bias the plain ratio low (-(1 + 3 rho)/n and more: at rho = 0.9 in 10-reading
     cells it reads about 0.5); this does not.
+
+    Each step needs only the sign of sum_c w_c g - r: the closed form of g
+    (:func:`_ar1_lag1_ratio_bounded`) gives it where it is further from 0 than the two
+    evaluations' error bound, :func:`ar1_deviation_lag1` in the last steps next to the root,
+    so that rho is the float the term-by-term series gives.
 
     Parameters
     ----------
@@ -265,11 +317,16 @@ def ar1_from_lag1(r: float, n: np.ndarray, weight: np.ndarray) -> float:
         return 0.0
     vals, inv = np.unique(n[ok].astype(int), return_inverse=True)
     w = np.bincount(inv, weights=weight[ok]) / float(np.sum(weight[ok]))
+    vals, w, u = vals.tolist(), w.tolist(), 2.0 ** -53       # u: the unit roundoff
 
-    def h(rho):
-        total = 0.0
+    def h(rho):                   # sum_c w_c g - r, or a value of its sign
+        ge = [_ar1_lag1_ratio_bounded(v, rho) for v in vals]
+        cheap = sum(wi * g for wi, (g, _) in zip(w, ge)) - r
+        if abs(cheap) > 4 * (sum(wi * e for wi, (_, e) in zip(w, ge)) + (len(w) + 2) * u * (sum(w) + abs(r))):
+            return cheap
+        total, p = 0.0, rho ** np.arange(vals[-1])
         for v, wi in zip(vals, w):
-            lag1, squares = ar1_deviation_lag1(int(v), rho)
+            lag1, squares = ar1_deviation_lag1(v, rho, p)
             total += wi * (lag1 / squares)
         return total - r
 
