@@ -1,9 +1,11 @@
 """Shared fixtures: where the lab's example drops are, and the truth they were made from."""
 from __future__ import annotations
 
+import fcntl
 import os
 import shutil
 from pathlib import Path
+from typing import Callable
 
 import pytest
 
@@ -79,17 +81,60 @@ g_local_u_m_s2 = 1e-5
 SAMPLE_LAB_DROPS = ("drop-2026-11-20", "drop-2026-11-21", "drop-bad")
 
 
+def built_once(tmp_path_factory, name: str, build: Callable[[Path], None]) -> Path:
+    """A folder ``build`` fills once per test run, shared by every test process
+    (pytest-xdist workers): the first to ask builds it, under the run's common temporary
+    folder and an exclusive lock, and the others wait for it.  Open what it holds only
+    through :func:`copy_lab` (two processes must never write one DuckDB file)."""
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent                      # the folder all workers' temp folders are in
+    d = root / name
+    with open(root / f"{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (d / ".built").exists():
+            shutil.rmtree(d, ignore_errors=True)
+            d.mkdir()
+            build(d)
+            (d / ".built").touch()
+    return d
+
+
 @pytest.fixture(scope="session")
 def sample_lab(tmp_path_factory, examples) -> Path:
     """One warehouse of the sample drops 2026-11-20, 2026-11-21 and drop-bad (local
-    engine, no config), built once per test session; read it only (:func:`copy_lab` for a
-    test that writes)."""
+    engine, no config), built once per test run (:func:`built_once`); tests use copies of
+    it (:func:`copy_lab`)."""
     from accelcal.flows.pipeline import run_pipeline
     from accelcal.warehouse import ensure_views
-    d = tmp_path_factory.mktemp("sample-lab")
-    run_pipeline([str(examples / x) for x in SAMPLE_LAB_DROPS], d / "lab.duckdb", engine="local")
-    ensure_views(d / "lab.duckdb")
-    return d / "lab.duckdb"
+
+    def build(d: Path) -> None:
+        run_pipeline([str(examples / x) for x in SAMPLE_LAB_DROPS], d / "lab.duckdb", engine="local")
+        ensure_views(d / "lab.duckdb")
+    return built_once(tmp_path_factory, "sample-lab", build) / "lab.duckdb"
+
+
+#: The drops of the certificate and DCC warehouse (:func:`certified_lab`): one campaign of
+#: each rig kind the certificates show (centrifuge + tumble, thermal, sine).
+CERTIFIED_LAB_DROPS = ("drop-2026-11-20", "drop-2026-11-18-thermal", "drop-2026-11-19-sine")
+
+
+@pytest.fixture(scope="session")
+def certified_lab(tmp_path_factory, examples) -> Path:
+    """One warehouse of :data:`CERTIFIED_LAB_DROPS` processed with the rigs' stated input
+    uncertainties (:data:`RIG_INPUTS_TOML`), built once per test run (:func:`built_once`);
+    the certificate and DCC tests copy it and write their own accelcal.toml beside the copy
+    (read when a certificate is made)."""
+    from accelcal.config import rig_uncertainties
+    from accelcal.flows.pipeline import run_pipeline
+
+    def build(d: Path) -> None:
+        toml = d / "rigs.toml"
+        toml.write_text(RIG_INPUTS_TOML)
+        run_pipeline([str(examples / x) for x in CERTIFIED_LAB_DROPS], d / "lab.duckdb", engine="local",
+                     parameters={"rig_uncertainty": rig_uncertainties(toml)})
+        toml.unlink()
+    return built_once(tmp_path_factory, "certified-lab", build) / "lab.duckdb"
 
 
 def copy_lab(warehouse: Path, into: Path) -> Path:

@@ -14,7 +14,7 @@ import pytest
 from accelcal import cli
 from accelcal.ops.report import build_report, report_filename
 
-from conftest import RIG_INPUTS_TOML
+from conftest import RIG_INPUTS_TOML, copy_lab
 
 CAMPS = {"centrifuge": "SNJ-1-03/2026-11-20", "thermal": "HUST-M-07/2026-11-18",
          "sine": "QA-5512/2026-11-19"}
@@ -50,16 +50,10 @@ ELEMENTS = ["Calibration Certificate", "Certificate No. IML-", LAB["name"], LAB[
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory, examples):
-    from accelcal.config import rig_uncertainties
-    from accelcal.flows.pipeline import run_pipeline
-    d = tmp_path_factory.mktemp("cert")
-    (d / "accelcal.toml").write_text(CONFIG)          # found beside the warehouse
-    run_pipeline([str(examples / x) for x in
-                  ("drop-2026-11-20", "drop-2026-11-18-thermal", "drop-2026-11-19-sine")],
-                 d / "lab.duckdb", engine="local",
-                 parameters={"rig_uncertainty": rig_uncertainties(d / "accelcal.toml")})
-    return d / "lab.duckdb"
+def lab(tmp_path_factory, certified_lab):
+    wh = copy_lab(certified_lab, tmp_path_factory.mktemp("cert") / "lab")
+    (wh.parent / "accelcal.toml").write_text(CONFIG)          # found beside the warehouse
+    return wh
 
 
 @pytest.fixture(scope="module")

@@ -19,7 +19,7 @@ from accelcal import cli
 from accelcal.ops import dcc as dccmod
 from accelcal.ops.report import build_report, load_report_data
 
-from conftest import RIG_INPUTS_TOML
+from conftest import RIG_INPUTS_TOML, copy_lab
 
 #: the sample campaigns: the centrifuge campaign holds the tumble runs too
 CAMPS = {"thermal": "HUST-M-07/2026-11-18", "centrifuge": "SNJ-1-03/2026-11-20",
@@ -52,16 +52,10 @@ SCALE = {r"\micro\metre\second\tothe{-2}": 1e-6, r"\micro\radian": 1e-6, r"\degr
 
 
 @pytest.fixture(scope="module")
-def lab(tmp_path_factory, examples):
-    from accelcal.config import rig_uncertainties
-    from accelcal.flows.pipeline import run_pipeline
-    d = tmp_path_factory.mktemp("dcc")
-    (d / "accelcal.toml").write_text(CONFIG)          # found beside the warehouse
-    run_pipeline([str(examples / x) for x in ("drop-2026-11-18-thermal", "drop-2026-11-20",
-                                              "drop-2026-11-19-sine")],
-                 d / "lab.duckdb", engine="local",
-                 parameters={"rig_uncertainty": rig_uncertainties(d / "accelcal.toml")})
-    return d / "lab.duckdb"
+def lab(tmp_path_factory, certified_lab):
+    wh = copy_lab(certified_lab, tmp_path_factory.mktemp("dcc") / "lab")
+    (wh.parent / "accelcal.toml").write_text(CONFIG)          # found beside the warehouse
+    return wh
 
 
 @pytest.fixture(scope="module")

@@ -16,6 +16,7 @@ from accelcal.warehouse import ensure_views
 from accelcal.warehouse.views import apply_views, macro_names, view_names
 from accelcal.results import CampaignResult, CoefficientResult
 from accelcal.warehouse import RunRecord, Warehouse
+from conftest import copy_lab
 
 CV = "test+views"
 
@@ -168,9 +169,9 @@ def test_fleet_stats_and_robust_outlier(wh):
 
 
 @pytest.fixture(scope="module")
-def examples_wh(sample_lab):
-    """The session's warehouse of the sample drops (2026-11-20, 2026-11-21, drop-bad)."""
-    return sample_lab
+def examples_wh(sample_lab, tmp_path_factory):
+    """A copy of the run's warehouse of the sample drops (2026-11-20, 2026-11-21, drop-bad)."""
+    return copy_lab(sample_lab, tmp_path_factory.mktemp("views") / "lab")
 
 
 def test_example_drops_same_unit_on_two_centrifuges(examples_wh):
