@@ -35,6 +35,8 @@ versions of the code, whatever the results):
 * ``result_id`` is *not* left out but replaced by ``<campaign>#<k>`` (k: its rank among
   the campaign's results by the sorted input hashes): it is a hash over code_version, so
   it differs whenever code_version does; the campaign and the inputs it names do not.
+  The same replacement is made where a result id is quoted in a ``parameters`` JSON
+  (``prior_results``: the results a campaign was offered as priors).
 
 The Parquet files are compared by their path under the warehouse, schema and every
 value (their schema metadata minus ``validator_version`` / ``code_version`` keys, if any).
@@ -127,6 +129,9 @@ def dump_warehouse(db: Path) -> dict:
                 v = row[i]
                 if cols[i] == "result_id" and v in rid:
                     v = rid[v]
+                if cols[i] == "parameters" and isinstance(v, str) and "prior_results" in v:
+                    for r, alias in rid.items():
+                        v = v.replace(r, alias)
                 if cols[i] == "extras_sha256" and extras_text is not None:
                     rec["extras"] = extras_text(v)
                     continue
