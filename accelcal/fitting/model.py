@@ -539,6 +539,10 @@ class CampaignModel:
         T = r.cols["temp_c"]
         return np.where(np.isfinite(T), T, T_REF_C)
 
+    #: bytes of the block of exact columns of readings :meth:`jacobian_run` builds and lags at
+    #: once: a long run's readings times every instrument coefficient would be hundreds of MB
+    LAG_BLOCK_BYTES = 16 * 2 ** 20
+
     def jacobian_run(self, p: np.ndarray, j: int, params: Sequence[int] | None = None) -> np.ndarray:
         """Jacobian of the cell means of run j, not whitened.
 
@@ -573,12 +577,17 @@ class CampaignModel:
             F = specific_force(r.test, r.meta, r.cols, eff, **kw)
             T, t = self._temp(r), r.cols.get("time_s")
             drift = float(eff.get("bias_drift", 0.0))
-            for c, i in exact:            # one column of readings at a time, never readings x columns
-                x = np.empty(r.cid.shape)
-                x[:] = instrument.output_derivative(self.roles[i].key, co, F, T, t, drift)
-                if tau > 0:               # lagged like the output (the lag is linear)
-                    x = first_order_lag(x, t, tau)
-                J[:, c] = r.cell_mean(x)
+            # the columns of readings side by side, in blocks of at most LAG_BLOCK_BYTES
+            width = max(1, self.LAG_BLOCK_BYTES // (8 * max(r.cid.size, 1)))
+            for b in range(0, len(exact), width):
+                block = exact[b:b + width]
+                X = np.empty((r.cid.size, len(block)))
+                for k, (_, i) in enumerate(block):
+                    X[:, k] = instrument.output_derivative(self.roles[i].key, co, F, T, t, drift)
+                if tau > 0:               # lagged like the output (the lag is linear), each column alone
+                    X = first_order_lag(X, t, tau)
+                for k, (c, _) in enumerate(block):
+                    J[:, c] = r.cell_mean(X[:, k])
         done = {c for c, _ in exact}
         base = None
         for c, i in enumerate(cols):
