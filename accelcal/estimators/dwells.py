@@ -23,16 +23,18 @@ def _dwell_columns(meta: Mapping, data, eff: Mapping[str, float]) -> dict[str, n
     """The columns of :func:`dwell_table`."""
     grp = Groups(np.asarray(data["step"]))
     out_ = np.asarray(data["output"], np.float64)
-    rate = grp.mean(data["table_rate_rad_s"])
+    rate_rows = np.asarray(data["table_rate_rad_s"], np.float64)
+    time_rows = np.asarray(data["time_s"], np.float64)
+    rate = grp.mean(rate_rows)
     mean_out = grp.mean(out_)
     dev = out_ - np.r_[mean_out, np.nan][grp.ids]               # about each dwell's own mean
-    rate_std = grp.std(data["table_rate_rad_s"])
-    t_start = grp.min(np.asarray(data["time_s"], np.float64))
+    rate_std = grp.std(rate_rows)
+    t_start = grp.min(time_rows)
     o = np.argsort(t_start)                                       # time order, nan last
     cols = {"step": grp.keys[o], "n": grp.counts[o], "mean_output": mean_out[o],
             "ss_within": grp.sum(dev * dev)[o], "rate": rate[o],
             "rate_std": np.where(np.isnan(rate_std), 0.0, rate_std)[o],
-            "time_mid": grp.mean(data["time_s"])[o], "time_start": t_start[o]}
+            "time_mid": grp.mean(time_rows)[o], "time_start": t_start[o]}
     cols["var_output"] = cols["ss_within"] / np.maximum(cols["n"] - 1, 1)
     cols["azimuth_deg"] = grp.mean(data["table_angle_deg"])[o] if "table_angle_deg" in data \
         else np.full(len(o), np.nan)

@@ -47,7 +47,7 @@ from ..fitting.procedure import ModelFit, fit_selected
 from ..physics.axes import AXES
 from ..results import AdequacyResult, BudgetTerm, CoefficientResult, RadiusResult
 from .adequacy import runs_test, trend_test
-from .records import TumbleCoefficient
+from .records import TumbleCoefficient, run_columns
 from ..fitting.distributions import chi2_sf, t_ppf
 
 METHOD = "joint_ml"
@@ -154,7 +154,7 @@ def prepare(runs) -> tuple[list[RunCells], list[str]]:
     for j, r in enumerate(runs):
         k = kept.get(id(r)) if kept is not None else None
         if k is None or k[0] is not r or (k[1].index != j and "run_id" not in r.meta):
-            k = [r, make_run(r.meta, r.data, j, getattr(r, "sha256", "")), None]
+            k = [r, make_run(r.meta, run_columns(r), j, getattr(r, "sha256", "")), None]
             if kept is not None:
                 kept[id(r)] = k
         cells.append(replace(k[1], index=j, notes=list(k[1].notes)))

@@ -60,7 +60,7 @@ from ..results import BudgetTerm, CoefficientResult, FitCheck, display_number
 from . import registry
 from . import uncertainty as unc
 from .adequacy import pure_error_test
-from .records import Records, TumbleCoefficient
+from .records import Records, TumbleCoefficient, run_columns
 
 #: Method id of the tumble fit's records (paper 003).
 METHOD = "tumble_lm"
@@ -756,7 +756,7 @@ def tumble_step(runs: Sequence) -> TumbleStep | None:
     fitted, flags = [], []
     for run in runs:
         try:
-            tr = fit_tumble_run(run.meta, run.data)
+            tr = fit_tumble_run(run.meta, run_columns(run))
         except Exception as exc:  # a fit that cannot run is a flag, not a crash
             flags.append(f"tumble {run.meta.get('run_id')}: fit failed: {exc}")
             continue
