@@ -480,7 +480,7 @@ class CampaignModel:
         """:meth:`predict_rows` itself: ``rig_output`` at the inputs of run j."""
         r = self.runs[j]
         co, eff, kw = self.inputs(p, j, extra)
-        return rig_output(r.test, r.meta, r.cols, co, eff, **kw)
+        return rig_output(r.test, r.meta, r.cols, co, eff, geometry=r.geometry, **kw)
 
     def predict_run(self, p: np.ndarray, j: int, extra: Mapping[str, float] | None = None) -> np.ndarray:
         """Cell means of the model's output for run j.
@@ -574,7 +574,7 @@ class CampaignModel:
         exact = [(c, i) for c, i in enumerate(cols) if i in acting
                  and self.roles[i].kind in ("coef", "bias") and self.roles[i].key in instrument.DEFAULTS]
         if exact:
-            F = specific_force(r.test, r.meta, r.cols, eff, **kw)
+            F = specific_force(r.test, r.meta, r.cols, eff, geometry=r.geometry, **kw)
             T, t = self._temp(r), r.cols.get("time_s")
             drift = float(eff.get("bias_drift", 0.0))
             # the columns of readings side by side, in blocks of at most LAG_BLOCK_BYTES

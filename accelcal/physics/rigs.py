@@ -25,7 +25,7 @@ import numpy as np
 
 from ..constants import M2_PERIOD_S, OMEGA_EARTH, T_REF_C
 from ..effects import EFFECTS
-from .geometry import geometry_of, rotation_sign
+from .geometry import CentrifugeMount, TiltTable, TumbleHead, geometry_of, rotation_sign
 from .instrument import first_order_lag, output
 
 #: The drop format's nominal input: everything nominal, earth rate included.
@@ -197,7 +197,8 @@ def sine_rate_derivative(meta: Mapping, time_s: np.ndarray, effects: Mapping[str
 
 def centrifuge_specific_force(meta: Mapping, data, effects: Mapping[str, float] | None = None, *,
                               radius_m: float | None = None,
-                              rate_derivative: np.ndarray | None = None) -> np.ndarray:
+                              rate_derivative: np.ndarray | None = None,
+                              geometry: CentrifugeMount | None = None) -> np.ndarray:
     """Specific force on the instrument axes of a centrifuge run.
 
     .. math::
@@ -226,6 +227,9 @@ def centrifuge_specific_force(meta: Mapping, data, effects: Mapping[str, float] 
     rate_derivative : ndarray, optional
         d(omega_z)/dt per row [rad/s2]; default 0 for ``centrifuge`` and
         :func:`sine_rate_derivative` for ``sine_centrifuge``.
+    geometry : CentrifugeMount, optional
+        ``geometry_of(meta)``, where the caller holds it (a fit evaluates the model
+        thousands of times per campaign).
 
     Returns
     -------
@@ -235,7 +239,7 @@ def centrifuge_specific_force(meta: Mapping, data, effects: Mapping[str, float] 
     effects = effects or {}
     n = _n(data)
     g = float(meta["g_local_m_s2"])
-    geo = geometry_of(meta)
+    geo = geometry_of(meta) if geometry is None else geometry
     e1, e2, v, vs, h = geo.e1, geo.e2, geo.vertical, geo.vertical_sign, geo.handedness
     R0 = geo.arm_radius_m if radius_m is None else float(radius_m)
     phi = geo.phi_rad + float(effects.get("mount_angle_error", 0.0))
@@ -281,7 +285,8 @@ def centrifuge_specific_force(meta: Mapping, data, effects: Mapping[str, float] 
     return F
 
 
-def tumble_specific_force(meta: Mapping, data, effects: Mapping[str, float] | None = None) -> np.ndarray:
+def tumble_specific_force(meta: Mapping, data, effects: Mapping[str, float] | None = None, *,
+                          geometry: TumbleHead | None = None) -> np.ndarray:
     """Specific force on the instrument axes of a dividing-head tumble.
 
     .. math::
@@ -298,6 +303,8 @@ def tumble_specific_force(meta: Mapping, data, effects: Mapping[str, float] | No
         ``angle_deg``: head angle theta [deg].
     effects : mapping, optional
         ``initial_misalignment`` theta0 [rad].
+    geometry : TumbleHead, optional
+        ``geometry_of(meta)``, where the caller holds it.
 
     Returns
     -------
@@ -308,14 +315,15 @@ def tumble_specific_force(meta: Mapping, data, effects: Mapping[str, float] | No
     n = _n(data)
     g = float(meta["g_local_m_s2"])
     th = np.radians(_col(data, "angle_deg", n)) + float(effects.get("initial_misalignment", 0.0))
-    head = geometry_of(meta)
+    head = geometry_of(meta) if geometry is None else geometry
     F = np.zeros((n, 3))
     F[:, head.cos_axis] = head.cos_sign * g * np.cos(th)
     F[:, head.sin_axis] = head.sin_sign * g * np.sin(th)
     return F
 
 
-def tilt_rotation_specific_force(meta: Mapping, data, effects: Mapping[str, float] | None = None) -> np.ndarray:
+def tilt_rotation_specific_force(meta: Mapping, data, effects: Mapping[str, float] | None = None, *,
+                                 geometry: TiltTable | None = None) -> np.ndarray:
     """Specific force on the instrument axes of a tilted rotary table.
 
     .. math::
@@ -336,6 +344,8 @@ def tilt_rotation_specific_force(meta: Mapping, data, effects: Mapping[str, floa
         base_tilt_drift [rad/s] (gamma += dgamma/dt t), tilt_tide [rad]
         (gamma += A sin(2 pi t / M2)), fixture_thermal_tilt [rad/degC] (IA tilts towards the
         normal axis by c (T - T_ref)).
+    geometry : TiltTable, optional
+        ``geometry_of(meta)``, where the caller holds it.
 
     Returns
     -------
@@ -346,7 +356,7 @@ def tilt_rotation_specific_force(meta: Mapping, data, effects: Mapping[str, floa
     n = _n(data)
     g = float(meta["g_local_m_s2"])
     t = _col(data, "time_s", n)
-    tab = geometry_of(meta)
+    tab = geometry_of(meta) if geometry is None else geometry
     gamma = (tab.gamma_rad + float(effects.get("base_tilt_drift", 0.0)) * t
              + float(effects.get("tilt_tide", 0.0)) * np.sin(2 * np.pi * t / M2_PERIOD_S))
     th = np.radians(_col(data, "rotation_deg", n))
@@ -376,7 +386,8 @@ def specific_force(test: str, meta: Mapping, data, effects: Mapping[str, float] 
         'centrifuge', 'sine_centrifuge', 'tumble' or 'tilt_rotation'.
     meta, data, effects, **kw
         As for :func:`centrifuge_specific_force`, :func:`tumble_specific_force`,
-        :func:`tilt_rotation_specific_force`.
+        :func:`tilt_rotation_specific_force` (``geometry`` for each, the others for the
+        centrifuges).
 
     Returns
     -------
@@ -386,9 +397,9 @@ def specific_force(test: str, meta: Mapping, data, effects: Mapping[str, float] 
     if test in ("centrifuge", "sine_centrifuge"):
         return centrifuge_specific_force(meta, data, effects, **kw)
     if test == "tumble":
-        return tumble_specific_force(meta, data, effects)
+        return tumble_specific_force(meta, data, effects, geometry=kw.get("geometry"))
     if test == "tilt_rotation":
-        return tilt_rotation_specific_force(meta, data, effects)
+        return tilt_rotation_specific_force(meta, data, effects, geometry=kw.get("geometry"))
     raise ValueError(f"unknown test kind {test!r}")
 
 
@@ -441,7 +452,7 @@ def rig_output(test: str, meta: Mapping, data, coeffs: Mapping[str, float],
         cross_coupling, bias_temperature, scale_temperature) add to their coefficient;
         ``sensor_lag`` [s] lags the output, ``bias_drift`` [m/s2/s] drifts K0.
     **kw
-        Passed to :func:`specific_force` (``radius_m``, ``rate_derivative``).
+        Passed to :func:`specific_force` (``radius_m``, ``rate_derivative``, ``geometry``).
 
     Returns
     -------
