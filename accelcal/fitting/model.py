@@ -607,9 +607,10 @@ class CampaignModel:
             J[:, c] = (plus - r.cell_mean(self._rows(pm, j))) / (2 * h)
         return J
 
-    #: unwhitened Jacobians kept per model (the most recent ones): a fit asks for the same
-    #: one again at the same point (model selection, then the Gauss–Newton start; the last
-    #: step, then the selection and the start after the noise model is refitted)
+    #: points whose unwhitened Jacobian columns are kept per model (the most recent ones): a
+    #: fit asks for the same columns again at the same point (model selection with every
+    #: column, then the Gauss–Newton start with the free ones; the combinations with the
+    #: free, then the held ones)
     JACOBIAN_CACHE = 2
 
     def jacobian(self, p: np.ndarray, params: Sequence[int] | None = None) -> np.ndarray:
@@ -626,26 +627,30 @@ class CampaignModel:
         -------
         (N, len(params)) ndarray
             :meth:`jacobian_run` of every run stacked, each row divided by its cell's sigma
-            [1 per parameter unit].  The unwhitened matrix is kept (:attr:`JACOBIAN_CACHE`)
-            by the point, the columns and their difference steps.
+            [1 per parameter unit].  Each unwhitened column is kept (:attr:`JACOBIAN_CACHE`)
+            by the point, the parameter and its difference step: a column is worked out
+            alone, whichever others are asked for with it.
         """
         cols = list(range(len(self.params))) if params is None else list(params)
-        # keyed by value: the point (bytes), the columns and their difference steps (the
-        # parameters' scales), which is all jacobian_run depends on besides the runs' cells,
+        # keyed by value: the point (bytes), the column and its difference step (the
+        # parameter's scale), which is all jacobian_run depends on besides the runs' cells,
         # which do not change while a model lives on them
         pa = np.asarray(p)
-        key = (pa.dtype.str, pa.shape, pa.tobytes(), tuple(cols), tuple(self.params[i].scale for i in cols))
         cache = self.__dict__.setdefault("_jacobians", {})
-        J = cache.get(key)
-        if J is None:
-            J = np.zeros((self.N, len(cols)))
+        have = cache.setdefault((pa.dtype.str, pa.shape, pa.tobytes()), {})
+        while len(cache) > self.JACOBIAN_CACHE:
+            del cache[next(iter(cache))]
+        keys = [(i, self.params[i].scale) for i in cols]
+        new = list(dict.fromkeys(i for i, k in zip(cols, keys) if k not in have))
+        if new:
+            J = np.zeros((self.N, len(new)))
             for j in range(len(self.runs)):
-                sl = self.rows(j)
-                J[sl] = self.jacobian_run(p, j, cols)
-            J.setflags(write=False)
-            cache[key] = J
-            while len(cache) > self.JACOBIAN_CACHE:
-                del cache[next(iter(cache))]
+                J[self.rows(j)] = self.jacobian_run(p, j, new)
+            for c, i in enumerate(new):
+                col = J[:, c].copy()
+                col.setflags(write=False)
+                have[(i, self.params[i].scale)] = col
+        J = np.column_stack([have[k] for k in keys]) if keys else np.zeros((self.N, 0))
         return J / self.sig[:, None]
 
     def signature(self, p: np.ndarray, effect: str, h: float | None = None,
