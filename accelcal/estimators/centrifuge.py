@@ -594,8 +594,8 @@ def rig_records(out: RigOutcome, k1_correction: tuple[float, float] | None = Non
         {"pair": pair_label(p), "runs": list(p.run_ids), "order": p.order, "adequate": p.adequate,
          "c2": p.c2, "u_c2": p.u_c2, "d": p.d, "u_d": p.u_d, "c3": p.c3, "u_c3": p.u_c3,
          "noise_s0": p.fit.extra.get("noise_s0"), "noise_k": p.fit.extra.get("noise_k"),
-         "dwells": p.dwells[["run_id", "pol", "a", "mean_output", "n", "time_mid", "sweep",
-                             "std_resid"]].to_dict(orient="list")} for p in out.pairs.pairs]}
+         "dwells": {c: p.dwells[c].tolist() for c in ("run_id", "pol", "a", "mean_output", "n", "time_mid",
+                                                         "sweep", "std_resid")}} for p in out.pairs.pairs]}
     rec.extras["combination"] = {rig: out.combination.combination.design}
     # coefficients and their budgets
     for cb in out.budgets.coefficients:

@@ -19,8 +19,9 @@ from ..fitting.data import Groups
 from ..physics.rigs import omega_z
 
 
-def _dwell_columns(meta: Mapping, data, eff: Mapping[str, float]) -> dict[str, np.ndarray]:
-    """The columns of :func:`dwell_table`."""
+def dwell_columns(meta: Mapping, data, eff: Mapping[str, float]) -> dict[str, np.ndarray]:
+    """The columns of :func:`dwell_table` as numpy arrays (its parameters; ``eff`` the
+    effects for omega_z), for a method that reads them as arrays."""
     grp = Groups(np.asarray(data["step"]))
     out_ = np.asarray(data["output"], np.float64)
     rate_rows = np.asarray(data["table_rate_rad_s"], np.float64)
@@ -75,7 +76,7 @@ def dwell_table(meta: Mapping, data, effects: Mapping[str, float] | None = None)
         azimuth_deg [deg], first_line, rest (bool), omega_z
         (:func:`accelcal.physics.rigs.omega_z`) [rad/s], sweep ('rest', 'up', 'down').
     """
-    return pd.DataFrame(_dwell_columns(meta, data, {"earth_rate": 1.0} if effects is None else effects))
+    return pd.DataFrame(dwell_columns(meta, data, {"earth_rate": 1.0} if effects is None else effects))
 
 
 def rest_mean(dw) -> tuple[float, float, int]:
@@ -132,7 +133,7 @@ def merged_dwell_columns(meta: Mapping, data) -> dict[str, np.ndarray]:
         group, so the spread between azimuths, which is the spindle tilt and not noise,
         counts in neither term).
     """
-    c = _dwell_columns(meta, data, {"earth_rate": 1.0})
+    c = dwell_columns(meta, data, {"earth_rate": 1.0})
     rest = c["rest"]
     if not rest.any():
         return {**c, "dof_pe": c["n"] - 1}

@@ -338,8 +338,9 @@ def fit_run(meta: Mapping, data, extra_terms: Sequence[str] = ()) -> TumbleRun:
 
 def _mean_at(pm: pd.DataFrame, angle: float, tol: float) -> float | None:
     """Mean output at the head angle ``angle`` [deg] (within ``tol``), None where there is none."""
-    sel = pm[np.abs((pm["angle_deg"] - angle + 180.0) % 360.0 - 180.0) <= tol]
-    return None if sel.empty else float(np.average(sel["mean_output"], weights=sel["n"].to_numpy(float)))
+    sel = np.abs((pm["angle_deg"].to_numpy() - angle + 180.0) % 360.0 - 180.0) <= tol
+    return float(np.average(pm["mean_output"].to_numpy()[sel], weights=pm["n"].to_numpy(float)[sel])) \
+        if sel.any() else None
 
 
 def two_position(meta: Mapping, data, angle_tol_deg: float = 1e-3, means: pd.DataFrame | None = None) -> dict:
