@@ -150,26 +150,21 @@ def prepare(runs) -> tuple[list[RunCells], list[str]]:
     :func:`cells_kept` the rest is built once per run.
     """
     kept = _KEPT.get()
+    kept = {} if kept is None else kept
     cells, own = [], []
     for j, r in enumerate(runs):
-        k = kept.get(id(r)) if kept is not None else None
+        k = kept.get(id(r))
         if k is None or k[0] is not r or (k[1].index != j and "run_id" not in r.meta):
-            k = [r, make_run(r.meta, run_columns(r), j, getattr(r, "sha256", "")), None]
-            if kept is not None:
-                kept[id(r)] = k
+            k = kept[id(r)] = [r, make_run(r.meta, run_columns(r), j, getattr(r, "sha256", "")), None]
         cells.append(replace(k[1], index=j, notes=list(k[1].notes)))
         own.append(k)
     notes = [n for n in map(block_note, cells) if n]
     notes += drop_duplicate_cells(cells)
-    first = []
     for c, k in zip(cells, own):
-        if c.cid is not k[1].cid:                   # cells dropped: its own scatter
-            first.append(fit_noise(c))
-            continue
-        if k[2] is None:
+        if c.cid is k[1].cid and k[2] is None:
             k[2] = fit_noise(k[1])
-        first.append(k[2])
-    noise = pool_missing_noise(cells, first)
+    # a run that lost cells to an earlier one of this list: the scatter of those it kept
+    noise = pool_missing_noise(cells, [k[2] if c.cid is k[1].cid else fit_noise(c) for c, k in zip(cells, own)])
     return [with_noise(c, m) for c, m in zip(cells, noise)], notes
 
 

@@ -646,10 +646,8 @@ class CampaignModel:
             J = np.zeros((self.N, len(new)))
             for j in range(len(self.runs)):
                 J[self.rows(j)] = self.jacobian_run(p, j, new)
-            for c, i in enumerate(new):
-                col = J[:, c].copy()
-                col.setflags(write=False)
-                have[(i, self.params[i].scale)] = col
+            J.setflags(write=False)
+            have.update(((i, self.params[i].scale), J[:, c]) for c, i in enumerate(new))
         J = np.column_stack([have[k] for k in keys]) if keys else np.zeros((self.N, 0))
         return J / self.sig[:, None]
 

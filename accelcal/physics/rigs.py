@@ -25,7 +25,7 @@ import numpy as np
 
 from ..constants import M2_PERIOD_S, OMEGA_EARTH, T_REF_C
 from ..effects import EFFECTS
-from .geometry import CentrifugeMount, TiltTable, TumbleHead, geometry_of, rotation_sign
+from .geometry import CentrifugeMount, geometry_of, rotation_sign
 from .instrument import first_order_lag, output
 
 #: The drop format's nominal input: everything nominal, earth rate included.
@@ -285,8 +285,7 @@ def centrifuge_specific_force(meta: Mapping, data, effects: Mapping[str, float] 
     return F
 
 
-def tumble_specific_force(meta: Mapping, data, effects: Mapping[str, float] | None = None, *,
-                          geometry: TumbleHead | None = None) -> np.ndarray:
+def tumble_specific_force(meta: Mapping, data, effects: Mapping[str, float] | None = None) -> np.ndarray:
     """Specific force on the instrument axes of a dividing-head tumble.
 
     .. math::
@@ -303,8 +302,6 @@ def tumble_specific_force(meta: Mapping, data, effects: Mapping[str, float] | No
         ``angle_deg``: head angle theta [deg].
     effects : mapping, optional
         ``initial_misalignment`` theta0 [rad].
-    geometry : TumbleHead, optional
-        ``geometry_of(meta)``, where the caller holds it.
 
     Returns
     -------
@@ -315,15 +312,14 @@ def tumble_specific_force(meta: Mapping, data, effects: Mapping[str, float] | No
     n = _n(data)
     g = float(meta["g_local_m_s2"])
     th = np.radians(_col(data, "angle_deg", n)) + float(effects.get("initial_misalignment", 0.0))
-    head = geometry_of(meta) if geometry is None else geometry
+    head = geometry_of(meta)
     F = np.zeros((n, 3))
     F[:, head.cos_axis] = head.cos_sign * g * np.cos(th)
     F[:, head.sin_axis] = head.sin_sign * g * np.sin(th)
     return F
 
 
-def tilt_rotation_specific_force(meta: Mapping, data, effects: Mapping[str, float] | None = None, *,
-                                 geometry: TiltTable | None = None) -> np.ndarray:
+def tilt_rotation_specific_force(meta: Mapping, data, effects: Mapping[str, float] | None = None) -> np.ndarray:
     """Specific force on the instrument axes of a tilted rotary table.
 
     .. math::
@@ -344,8 +340,6 @@ def tilt_rotation_specific_force(meta: Mapping, data, effects: Mapping[str, floa
         base_tilt_drift [rad/s] (gamma += dgamma/dt t), tilt_tide [rad]
         (gamma += A sin(2 pi t / M2)), fixture_thermal_tilt [rad/degC] (IA tilts towards the
         normal axis by c (T - T_ref)).
-    geometry : TiltTable, optional
-        ``geometry_of(meta)``, where the caller holds it.
 
     Returns
     -------
@@ -356,7 +350,7 @@ def tilt_rotation_specific_force(meta: Mapping, data, effects: Mapping[str, floa
     n = _n(data)
     g = float(meta["g_local_m_s2"])
     t = _col(data, "time_s", n)
-    tab = geometry_of(meta) if geometry is None else geometry
+    tab = geometry_of(meta)
     gamma = (tab.gamma_rad + float(effects.get("base_tilt_drift", 0.0)) * t
              + float(effects.get("tilt_tide", 0.0)) * np.sin(2 * np.pi * t / M2_PERIOD_S))
     th = np.radians(_col(data, "rotation_deg", n))
@@ -386,8 +380,8 @@ def specific_force(test: str, meta: Mapping, data, effects: Mapping[str, float] 
         'centrifuge', 'sine_centrifuge', 'tumble' or 'tilt_rotation'.
     meta, data, effects, **kw
         As for :func:`centrifuge_specific_force`, :func:`tumble_specific_force`,
-        :func:`tilt_rotation_specific_force` (``geometry`` for each, the others for the
-        centrifuges).
+        :func:`tilt_rotation_specific_force` (``kw`` for the centrifuges only: a tumble's or a
+        tilt table's geometry is looked up from ``meta``).
 
     Returns
     -------
@@ -397,9 +391,9 @@ def specific_force(test: str, meta: Mapping, data, effects: Mapping[str, float] 
     if test in ("centrifuge", "sine_centrifuge"):
         return centrifuge_specific_force(meta, data, effects, **kw)
     if test == "tumble":
-        return tumble_specific_force(meta, data, effects, geometry=kw.get("geometry"))
+        return tumble_specific_force(meta, data, effects)
     if test == "tilt_rotation":
-        return tilt_rotation_specific_force(meta, data, effects, geometry=kw.get("geometry"))
+        return tilt_rotation_specific_force(meta, data, effects)
     raise ValueError(f"unknown test kind {test!r}")
 
 
