@@ -334,3 +334,20 @@ def test_sampled_lag_frequency_response(tau_over_dt):
     for n in range(1, t2.size):
         ref2[n] = a2[n - 1] * ref2[n - 1] + (1 - a2[n - 1]) * np.sin(w * t2[n])
     np.testing.assert_allclose(y2, ref2, atol=1e-12)
+
+
+@pytest.mark.parametrize("irregular", [False, True])
+def test_lag_of_columns_side_by_side_is_the_lag_of_each(irregular):
+    """Series side by side (n, k) are lagged each as alone, to the last bit: the Jacobian lags
+    its exact columns in blocks, and a fit must not move with the block size."""
+    from accelcal.physics.instrument import first_order_lag
+    rng = np.random.default_rng(7)
+    t = np.arange(3001) * 0.005
+    if irregular:
+        t = t + 1e-4 * np.sin(t)
+    X = rng.standard_normal((t.size, 5)) * np.array([1.0, 1e-3, 1e3, 9.81, 1e-9])
+    X[:, 1] = 0.25                                # a constant column (K0 at a constant K1)
+    Y = first_order_lag(X, t, 0.0137)
+    for k in range(X.shape[1]):
+        assert np.array_equal(Y[:, k], first_order_lag(np.ascontiguousarray(X[:, k]), t, 0.0137))
+        assert np.array_equal(first_order_lag(X[:, k], t, 0.0137), Y[:, k])   # a strided column

@@ -23,12 +23,14 @@ from . import registry
 from . import uncertainty as unc
 from .records import Records
 from .centrifuge import RADIUS_ORDERS, RADIUS_RANGES
+from .joint import cells_kept
 from .priors import apply_priors
 
 
 # ------------------------------------------------------------------ entry point
 
 @single_thread()                     # small dense algebra: one BLAS thread is the fast one
+@cells_kept()                        # each run's cells built once for every fit of its runs
 def process_campaign(runs, rig_uncertainty: Mapping[str, Mapping[str, float]] | None = None,
                      priors: Mapping[str, Mapping[str, Mapping[str, float]]] | None = None,
                      unit_priors: Mapping[str, Mapping[str, object]] | None = None) -> CampaignResult:

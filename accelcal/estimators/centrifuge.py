@@ -40,7 +40,7 @@ from .adequacy import choose_order
 from .crosscoupling import Combination, PairFit, combine_second_order, delta_c2, fit_mount_pair, pair_label
 from .radius import (IterativeRadius, PairData, StaticRadius, g_levels, geometric_static_radius,
                      test_radius_iterative, test_radius_static)
-from .records import Records
+from .records import Records, run_columns
 from .registry import Estimator, register
 from .tumble import Reference, TumbleStep, campaign_k1_correction
 
@@ -211,7 +211,7 @@ def ia_pair_data(mounts: Mounts, K1: float) -> PairData:
     """The IA pair's dwell data (:class:`.radius.PairData`), outputs divided by K1
     [output_unit/(m/s2)]."""
     p, m = mounts.run_plus, mounts.run_minus
-    return PairData.from_runs([(p.meta, p.data, 1), (m.meta, m.data, -1)], K1)
+    return PairData.from_runs([(p.meta, run_columns(p), 1), (m.meta, run_columns(m), -1)], K1)
 
 
 def reference_scale(mounts: Mounts, tumble: Reference | None) -> tuple[Reference, tuple[str, ...]]:
@@ -257,7 +257,7 @@ def static_step(mounts: Mounts, ref: Reference) -> StaticStep:
     radii, flags = {}, []
     for run in (mounts.run_plus, mounts.run_minus):
         try:
-            s = test_radius_static(run.meta, run.data, ref.K0, ref.K1, ref.u_K0, ref.u_K1)
+            s = test_radius_static(run.meta, run_columns(run), ref.K0, ref.K1, ref.u_K0, ref.u_K1)
             radii[s.polarity] = s
         except Exception as exc:
             flags.append(f"{mounts.rig}: static radius of {run.meta.get('run_id')} failed: {exc}")
@@ -323,7 +323,7 @@ def pair_step(mounts: Mounts, ref: Reference, iterative: IterativeStep, ia_pair:
             continue
         a, b = runs_k[1], runs_k[-1]
         pre = ia_pair if key == mounts.ia_key and a is mounts.run_plus else None
-        pf = fit_mount_pair((a.meta, a.data), (b.meta, b.data), ref.K1, best.R_plus, best.R_minus, pair=pre)
+        pf = fit_mount_pair((a.meta, run_columns(a)), (b.meta, run_columns(b)), ref.K1, best.R_plus, best.R_minus, pair=pre)
         pairs.append(pf)
         if not pf.adequate:
             flags.append(f"{mounts.rig}: eq 9 fit of {pair_label(pf)} is not adequate at any order; used and flagged")
@@ -594,8 +594,8 @@ def rig_records(out: RigOutcome, k1_correction: tuple[float, float] | None = Non
         {"pair": pair_label(p), "runs": list(p.run_ids), "order": p.order, "adequate": p.adequate,
          "c2": p.c2, "u_c2": p.u_c2, "d": p.d, "u_d": p.u_d, "c3": p.c3, "u_c3": p.u_c3,
          "noise_s0": p.fit.extra.get("noise_s0"), "noise_k": p.fit.extra.get("noise_k"),
-         "dwells": p.dwells[["run_id", "pol", "a", "mean_output", "n", "time_mid", "sweep",
-                             "std_resid"]].to_dict(orient="list")} for p in out.pairs.pairs]}
+         "dwells": {c: p.dwells[c].tolist() for c in ("run_id", "pol", "a", "mean_output", "n", "time_mid",
+                                                         "sweep", "std_resid")}} for p in out.pairs.pairs]}
     rec.extras["combination"] = {rig: out.combination.combination.design}
     # coefficients and their budgets
     for cb in out.budgets.coefficients:

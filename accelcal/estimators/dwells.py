@@ -19,20 +19,23 @@ from ..fitting.data import Groups
 from ..physics.rigs import omega_z
 
 
-def _dwell_columns(meta: Mapping, data, eff: Mapping[str, float]) -> dict[str, np.ndarray]:
-    """The columns of :func:`dwell_table`."""
+def dwell_columns(meta: Mapping, data, eff: Mapping[str, float]) -> dict[str, np.ndarray]:
+    """The columns of :func:`dwell_table` as numpy arrays (its parameters; ``eff`` the
+    effects for omega_z), for a method that reads them as arrays."""
     grp = Groups(np.asarray(data["step"]))
     out_ = np.asarray(data["output"], np.float64)
-    rate = grp.mean(data["table_rate_rad_s"])
+    rate_rows = np.asarray(data["table_rate_rad_s"], np.float64)
+    time_rows = np.asarray(data["time_s"], np.float64)
+    rate = grp.mean(rate_rows)
     mean_out = grp.mean(out_)
     dev = out_ - np.r_[mean_out, np.nan][grp.ids]               # about each dwell's own mean
-    rate_std = grp.std(data["table_rate_rad_s"])
-    t_start = grp.min(np.asarray(data["time_s"], np.float64))
+    rate_std = grp.std(rate_rows)
+    t_start = grp.min(time_rows)
     o = np.argsort(t_start)                                       # time order, nan last
     cols = {"step": grp.keys[o], "n": grp.counts[o], "mean_output": mean_out[o],
             "ss_within": grp.sum(dev * dev)[o], "rate": rate[o],
             "rate_std": np.where(np.isnan(rate_std), 0.0, rate_std)[o],
-            "time_mid": grp.mean(data["time_s"])[o], "time_start": t_start[o]}
+            "time_mid": grp.mean(time_rows)[o], "time_start": t_start[o]}
     cols["var_output"] = cols["ss_within"] / np.maximum(cols["n"] - 1, 1)
     cols["azimuth_deg"] = grp.mean(data["table_angle_deg"])[o] if "table_angle_deg" in data \
         else np.full(len(o), np.nan)
@@ -73,7 +76,7 @@ def dwell_table(meta: Mapping, data, effects: Mapping[str, float] | None = None)
         azimuth_deg [deg], first_line, rest (bool), omega_z
         (:func:`accelcal.physics.rigs.omega_z`) [rad/s], sweep ('rest', 'up', 'down').
     """
-    return pd.DataFrame(_dwell_columns(meta, data, {"earth_rate": 1.0} if effects is None else effects))
+    return pd.DataFrame(dwell_columns(meta, data, {"earth_rate": 1.0} if effects is None else effects))
 
 
 def rest_mean(dw) -> tuple[float, float, int]:
@@ -130,7 +133,7 @@ def merged_dwell_columns(meta: Mapping, data) -> dict[str, np.ndarray]:
         group, so the spread between azimuths, which is the spindle tilt and not noise,
         counts in neither term).
     """
-    c = _dwell_columns(meta, data, {"earth_rate": 1.0})
+    c = dwell_columns(meta, data, {"earth_rate": 1.0})
     rest = c["rest"]
     if not rest.any():
         return {**c, "dof_pe": c["n"] - 1}

@@ -29,6 +29,9 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from contextlib import contextmanager
+from contextvars import ContextVar
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -44,7 +47,7 @@ from ..fitting.procedure import ModelFit, fit_selected
 from ..physics.axes import AXES
 from ..results import AdequacyResult, BudgetTerm, CoefficientResult, RadiusResult
 from .adequacy import runs_test, trend_test
-from .records import TumbleCoefficient
+from .records import TumbleCoefficient, run_columns
 from ..fitting.distributions import chi2_sf, t_ppf
 
 METHOD = "joint_ml"
@@ -121,12 +124,47 @@ def fit_campaign_model(runs: Sequence[RunCells], effects: Sequence[str], *, shar
     return jf
 
 
+#: Within :func:`cells_kept`: id of a RunFile-like object -> [the object, its cells as
+#: :func:`~accelcal.fitting.data.make_run` builds them, their first noise model or None]
+_KEPT: ContextVar[dict | None] = ContextVar("accelcal_kept_cells", default=None)
+
+
+@contextmanager
+def cells_kept():
+    """Inside it, :func:`prepare` builds each run's cells and fits their first noise model
+    once, however many lists of the campaign's runs it is given (the joint fit, each
+    tumble run alone, each head's runs); on leaving, what it kept is let go."""
+    token = _KEPT.set({})
+    try:
+        yield
+    finally:
+        _KEPT.reset(token)
+
+
 def prepare(runs) -> tuple[list[RunCells], list[str]]:
-    """RunFile-like objects (meta, data, sha256) -> cells with a first noise model."""
-    cells = [make_run(r.meta, r.data, j, getattr(r, "sha256", "")) for j, r in enumerate(runs)]
+    """RunFile-like objects (meta, data, sha256) -> cells with a first noise model.
+
+    A run's cells and its own noise model depend on the run alone, except for its position
+    in the list (its ``index``, and its ``run_id`` when the metadata has none) and the
+    cells an earlier run of the list already holds (:func:`drop_duplicate_cells`); inside
+    :func:`cells_kept` the rest is built once per run.
+    """
+    kept = _KEPT.get()
+    kept = {} if kept is None else kept
+    cells, own = [], []
+    for j, r in enumerate(runs):
+        k = kept.get(id(r))
+        if k is None or k[0] is not r or (k[1].index != j and "run_id" not in r.meta):
+            k = kept[id(r)] = [r, make_run(r.meta, run_columns(r), j, getattr(r, "sha256", "")), None]
+        cells.append(replace(k[1], index=j, notes=list(k[1].notes)))
+        own.append(k)
     notes = [n for n in map(block_note, cells) if n]
     notes += drop_duplicate_cells(cells)
-    noise = pool_missing_noise(cells, [fit_noise(c) for c in cells])
+    for c, k in zip(cells, own):
+        if c.cid is k[1].cid and k[2] is None:
+            k[2] = fit_noise(k[1])
+    # a run that lost cells to an earlier one of this list: the scatter of those it kept
+    noise = pool_missing_noise(cells, [k[2] if c.cid is k[1].cid else fit_noise(c) for c, k in zip(cells, own)])
     return [with_noise(c, m) for c, m in zip(cells, noise)], notes
 
 

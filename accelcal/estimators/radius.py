@@ -22,7 +22,7 @@ from ..physics.geometry import geometry_of
 from ..physics.instrument import indicated_acceleration
 from ..physics.rigs import NOMINAL, centrifuge_specific_force
 from .adequacy import DwellFit, weighted_dwell_fit
-from .dwells import dwell_table, merged_dwell_columns, noise_model, rest_mean
+from .dwells import dwell_columns, merged_dwell_columns, noise_model, rest_mean
 
 
 def centripetal_unit_input(meta: Mapping, radius_m: float = 1.0, mass_centre_offset: float = 0.0) -> np.ndarray:
@@ -137,7 +137,7 @@ def geometric_static_radius(meta: Mapping, st: "StaticRadius", coeffs: Mapping[s
     return float(R1)
 
 
-def test_radius_static(meta: Mapping, data: pd.DataFrame, K0: float, K1: float,
+def test_radius_static(meta: Mapping, data, K0: float, K1: float,
                        u_K0: float = 0.0, u_K1: float = 0.0, level_g: float = 1.0) -> StaticRadius:
     """Static back-calculation of the test radius (He & Yin 2017, paper 000 eqs 4–6).
 
@@ -152,7 +152,7 @@ def test_radius_static(meta: Mapping, data: pd.DataFrame, K0: float, K1: float,
     ----------
     meta : mapping
         Typed metadata of an IA-radial centrifuge run (``g_local_m_s2`` [m/s2]).
-    data : DataFrame
+    data : DataFrame or mapping of arrays
         The run's readings (``step``, ``table_rate_rad_s`` [rad/s], ``table_angle_deg``
         [deg], ``output`` [output_unit]).
     K0, K1 : float
@@ -179,23 +179,24 @@ def test_radius_static(meta: Mapping, data: pd.DataFrame, K0: float, K1: float,
     if s is None:
         raise ValueError(f"run {meta.get('run_id')} is not an IA-radial mount")
     g = float(meta["g_local_m_s2"])
-    dw = dwell_table(meta, data)
+    dw = dwell_columns(meta, data, {"earth_rate": 1.0})
     E0, uE0, _ = rest_mean(dw)
     lam = (E0 / K1 - K0) / g
     u_lam = np.sqrt(u_K0**2 + (uE0 / K1) ** 2 + (E0 / K1**2 * u_K1) ** 2) / g
-    mv = dw[~dw["rest"]].copy()
-    lvl = np.abs(mv["mean_output"] - E0) / abs(K1) / g
+    mv = ~dw["rest"]
+    lvl = np.abs(dw["mean_output"][mv] - E0) / abs(K1) / g
     k = np.abs(lvl - level_g)
-    ref = mv[k <= k.min() + 0.05]
-    Ea = ref["mean_output"].to_numpy()
-    uEa = np.sqrt(ref["var_output"].to_numpy() / ref["n"].to_numpy())
-    wz = ref["omega_z"].to_numpy()
-    w = ref["rate"].to_numpy()
-    uw = ref["rate_std"].to_numpy() / np.sqrt(ref["n"].to_numpy())
+    # the nearest dwells (a nan level is never one, as no level is when all are nan)
+    ref = np.flatnonzero(mv)[k <= (np.nanmin(k) if np.any(k == k) else np.nan) + 0.05]
+    Ea = dw["mean_output"][ref]
+    uEa = np.sqrt(dw["var_output"][ref] / dw["n"][ref])
+    wz = dw["omega_z"][ref]
+    w = dw["rate"][ref]
+    uw = dw["rate_std"][ref] / np.sqrt(dw["n"][ref])
     a_g = Ea / K1 - K0
     # eq 6's denominator is the regressor of R: d a_IA / d R = s omega_z^2 cos(lambda_c) of the
     # forward model with IA tilted by lambda_c (effects.md ia_tilt), earth rate included
-    cR = static_radius_column(meta, ref["rate"].to_numpy(), lam)
+    cR = static_radius_column(meta, w, lam)
     Rk = (a_g - lam * g) / cR
     R = float(Rk.mean())
     m = len(Rk)

@@ -7,6 +7,15 @@ from dataclasses import dataclass, field
 from ..results import AdequacyResult, BudgetTerm, CoefficientResult, RadiusResult
 
 
+def run_columns(run):
+    """The columns of a RunFile-like run for a method that reads them as arrays: the
+    parser's own numpy arrays (``RunFile.arrays``) where the run has them in memory, else
+    its ``data`` (a DataFrame's column lookup costs more than the arithmetic of a small
+    run, and the methods look up each column many times)."""
+    a = getattr(run, "arrays", None)
+    return a if isinstance(a, dict) else run.data
+
+
 def jsonable(obj):
     """A JSON-able copy of a method's extras: numpy values as Python ones, non-finite
     floats as None (what the warehouse stores)."""

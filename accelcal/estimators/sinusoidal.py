@@ -271,8 +271,8 @@ def _jacobian_run(params: ParameterSet, x: np.ndarray, run: RunCells, i: int,
             continue
         lin.append(j)
     tau = float(eff.get("sensor_lag", 0.0))
-    for j in lin if tau > 0 else ():      # the lag is linear: lagged columns of the lagged model
-        J[:, j] = instrument.first_order_lag(J[:, j], run.cols["time_s"], tau)
+    if tau > 0 and lin:                   # the lag is linear: lagged columns of the lagged model
+        J[:, lin] = instrument.first_order_lag(J[:, lin], run.cols["time_s"], tau)
     return J
 
 

@@ -60,7 +60,7 @@ from ..results import BudgetTerm, CoefficientResult, FitCheck, display_number
 from . import registry
 from . import uncertainty as unc
 from .adequacy import pure_error_test
-from .records import Records, TumbleCoefficient
+from .records import Records, TumbleCoefficient, run_columns
 
 #: Method id of the tumble fit's records (paper 003).
 METHOD = "tumble_lm"
@@ -338,8 +338,9 @@ def fit_run(meta: Mapping, data, extra_terms: Sequence[str] = ()) -> TumbleRun:
 
 def _mean_at(pm: pd.DataFrame, angle: float, tol: float) -> float | None:
     """Mean output at the head angle ``angle`` [deg] (within ``tol``), None where there is none."""
-    sel = pm[np.abs((pm["angle_deg"] - angle + 180.0) % 360.0 - 180.0) <= tol]
-    return None if sel.empty else float(np.average(sel["mean_output"], weights=sel["n"].to_numpy(float)))
+    sel = np.abs((pm["angle_deg"].to_numpy() - angle + 180.0) % 360.0 - 180.0) <= tol
+    return float(np.average(pm["mean_output"].to_numpy()[sel], weights=pm["n"].to_numpy(float)[sel])) \
+        if sel.any() else None
 
 
 def two_position(meta: Mapping, data, angle_tol_deg: float = 1e-3, means: pd.DataFrame | None = None) -> dict:
@@ -756,7 +757,7 @@ def tumble_step(runs: Sequence) -> TumbleStep | None:
     fitted, flags = [], []
     for run in runs:
         try:
-            tr = fit_tumble_run(run.meta, run.data)
+            tr = fit_tumble_run(run.meta, run_columns(run))
         except Exception as exc:  # a fit that cannot run is a flag, not a crash
             flags.append(f"tumble {run.meta.get('run_id')}: fit failed: {exc}")
             continue

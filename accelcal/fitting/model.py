@@ -480,7 +480,7 @@ class CampaignModel:
         """:meth:`predict_rows` itself: ``rig_output`` at the inputs of run j."""
         r = self.runs[j]
         co, eff, kw = self.inputs(p, j, extra)
-        return rig_output(r.test, r.meta, r.cols, co, eff, **kw)
+        return rig_output(r.test, r.meta, r.cols, co, eff, geometry=r.geometry, **kw)
 
     def predict_run(self, p: np.ndarray, j: int, extra: Mapping[str, float] | None = None) -> np.ndarray:
         """Cell means of the model's output for run j.
@@ -539,6 +539,10 @@ class CampaignModel:
         T = r.cols["temp_c"]
         return np.where(np.isfinite(T), T, T_REF_C)
 
+    #: bytes of the block of exact columns of readings :meth:`jacobian_run` builds and lags at
+    #: once: a long run's readings times every instrument coefficient would be hundreds of MB
+    LAG_BLOCK_BYTES = 16 * 2 ** 20
+
     def jacobian_run(self, p: np.ndarray, j: int, params: Sequence[int] | None = None) -> np.ndarray:
         """Jacobian of the cell means of run j, not whitened.
 
@@ -570,15 +574,20 @@ class CampaignModel:
         exact = [(c, i) for c, i in enumerate(cols) if i in acting
                  and self.roles[i].kind in ("coef", "bias") and self.roles[i].key in instrument.DEFAULTS]
         if exact:
-            F = specific_force(r.test, r.meta, r.cols, eff, **kw)
+            F = specific_force(r.test, r.meta, r.cols, eff, geometry=r.geometry, **kw)
             T, t = self._temp(r), r.cols.get("time_s")
             drift = float(eff.get("bias_drift", 0.0))
-            for c, i in exact:            # one column of readings at a time, never readings x columns
-                x = np.empty(r.cid.shape)
-                x[:] = instrument.output_derivative(self.roles[i].key, co, F, T, t, drift)
-                if tau > 0:               # lagged like the output (the lag is linear)
-                    x = first_order_lag(x, t, tau)
-                J[:, c] = r.cell_mean(x)
+            # the columns of readings side by side, in blocks of at most LAG_BLOCK_BYTES
+            width = max(1, self.LAG_BLOCK_BYTES // (8 * max(r.cid.size, 1)))
+            for b in range(0, len(exact), width):
+                block = exact[b:b + width]
+                X = np.empty((r.cid.size, len(block)))
+                for k, (_, i) in enumerate(block):
+                    X[:, k] = instrument.output_derivative(self.roles[i].key, co, F, T, t, drift)
+                if tau > 0:               # lagged like the output (the lag is linear), each column alone
+                    X = first_order_lag(X, t, tau)
+                for k, (c, _) in enumerate(block):
+                    J[:, c] = r.cell_mean(X[:, k])
         done = {c for c, _ in exact}
         base = None
         for c, i in enumerate(cols):
@@ -598,9 +607,10 @@ class CampaignModel:
             J[:, c] = (plus - r.cell_mean(self._rows(pm, j))) / (2 * h)
         return J
 
-    #: unwhitened Jacobians kept per model (the most recent ones): a fit asks for the same
-    #: one again at the same point (model selection, then the Gauss–Newton start; the last
-    #: step, then the selection and the start after the noise model is refitted)
+    #: points whose unwhitened Jacobian columns are kept per model (the most recent ones): a
+    #: fit asks for the same columns again at the same point (model selection with every
+    #: column, then the Gauss–Newton start with the free ones; the combinations with the
+    #: free, then the held ones)
     JACOBIAN_CACHE = 2
 
     def jacobian(self, p: np.ndarray, params: Sequence[int] | None = None) -> np.ndarray:
@@ -617,26 +627,28 @@ class CampaignModel:
         -------
         (N, len(params)) ndarray
             :meth:`jacobian_run` of every run stacked, each row divided by its cell's sigma
-            [1 per parameter unit].  The unwhitened matrix is kept (:attr:`JACOBIAN_CACHE`)
-            by the point, the columns and their difference steps.
+            [1 per parameter unit].  Each unwhitened column is kept (:attr:`JACOBIAN_CACHE`)
+            by the point, the parameter and its difference step: a column is worked out
+            alone, whichever others are asked for with it.
         """
         cols = list(range(len(self.params))) if params is None else list(params)
-        # keyed by value: the point (bytes), the columns and their difference steps (the
-        # parameters' scales), which is all jacobian_run depends on besides the runs' cells,
+        # keyed by value: the point (bytes), the column and its difference step (the
+        # parameter's scale), which is all jacobian_run depends on besides the runs' cells,
         # which do not change while a model lives on them
         pa = np.asarray(p)
-        key = (pa.dtype.str, pa.shape, pa.tobytes(), tuple(cols), tuple(self.params[i].scale for i in cols))
         cache = self.__dict__.setdefault("_jacobians", {})
-        J = cache.get(key)
-        if J is None:
-            J = np.zeros((self.N, len(cols)))
+        have = cache.setdefault((pa.dtype.str, pa.shape, pa.tobytes()), {})
+        while len(cache) > self.JACOBIAN_CACHE:
+            del cache[next(iter(cache))]
+        keys = [(i, self.params[i].scale) for i in cols]
+        new = list(dict.fromkeys(i for i, k in zip(cols, keys) if k not in have))
+        if new:
+            J = np.zeros((self.N, len(new)))
             for j in range(len(self.runs)):
-                sl = self.rows(j)
-                J[sl] = self.jacobian_run(p, j, cols)
+                J[self.rows(j)] = self.jacobian_run(p, j, new)
             J.setflags(write=False)
-            cache[key] = J
-            while len(cache) > self.JACOBIAN_CACHE:
-                del cache[next(iter(cache))]
+            have.update(((i, self.params[i].scale), J[:, c]) for c, i in enumerate(new))
+        J = np.column_stack([have[k] for k in keys]) if keys else np.zeros((self.N, 0))
         return J / self.sig[:, None]
 
     def signature(self, p: np.ndarray, effect: str, h: float | None = None,

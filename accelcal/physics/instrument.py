@@ -250,7 +250,7 @@ def first_order_lag(x: np.ndarray, time_s: np.ndarray, tau: float) -> np.ndarray
         return np.concatenate([x[:1], y])
     y = np.empty_like(x)
     y[0] = x[0]
-    for n in range(1, x.size):
+    for n in range(1, x.shape[0]):
         a = math.exp(-max(t[n] - t[n - 1], 0.0) / tau)
         y[n] = a * y[n - 1] + (1.0 - a) * x[n]
     return y

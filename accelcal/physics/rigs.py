@@ -25,7 +25,7 @@ import numpy as np
 
 from ..constants import M2_PERIOD_S, OMEGA_EARTH, T_REF_C
 from ..effects import EFFECTS
-from .geometry import geometry_of, rotation_sign
+from .geometry import CentrifugeMount, geometry_of, rotation_sign
 from .instrument import first_order_lag, output
 
 #: The drop format's nominal input: everything nominal, earth rate included.
@@ -197,7 +197,8 @@ def sine_rate_derivative(meta: Mapping, time_s: np.ndarray, effects: Mapping[str
 
 def centrifuge_specific_force(meta: Mapping, data, effects: Mapping[str, float] | None = None, *,
                               radius_m: float | None = None,
-                              rate_derivative: np.ndarray | None = None) -> np.ndarray:
+                              rate_derivative: np.ndarray | None = None,
+                              geometry: CentrifugeMount | None = None) -> np.ndarray:
     """Specific force on the instrument axes of a centrifuge run.
 
     .. math::
@@ -226,6 +227,9 @@ def centrifuge_specific_force(meta: Mapping, data, effects: Mapping[str, float] 
     rate_derivative : ndarray, optional
         d(omega_z)/dt per row [rad/s2]; default 0 for ``centrifuge`` and
         :func:`sine_rate_derivative` for ``sine_centrifuge``.
+    geometry : CentrifugeMount, optional
+        ``geometry_of(meta)``, where the caller holds it (a fit evaluates the model
+        thousands of times per campaign).
 
     Returns
     -------
@@ -235,7 +239,7 @@ def centrifuge_specific_force(meta: Mapping, data, effects: Mapping[str, float] 
     effects = effects or {}
     n = _n(data)
     g = float(meta["g_local_m_s2"])
-    geo = geometry_of(meta)
+    geo = geometry_of(meta) if geometry is None else geometry
     e1, e2, v, vs, h = geo.e1, geo.e2, geo.vertical, geo.vertical_sign, geo.handedness
     R0 = geo.arm_radius_m if radius_m is None else float(radius_m)
     phi = geo.phi_rad + float(effects.get("mount_angle_error", 0.0))
@@ -376,7 +380,8 @@ def specific_force(test: str, meta: Mapping, data, effects: Mapping[str, float] 
         'centrifuge', 'sine_centrifuge', 'tumble' or 'tilt_rotation'.
     meta, data, effects, **kw
         As for :func:`centrifuge_specific_force`, :func:`tumble_specific_force`,
-        :func:`tilt_rotation_specific_force`.
+        :func:`tilt_rotation_specific_force` (``kw`` for the centrifuges only: a tumble's or a
+        tilt table's geometry is looked up from ``meta``).
 
     Returns
     -------
@@ -441,7 +446,7 @@ def rig_output(test: str, meta: Mapping, data, coeffs: Mapping[str, float],
         cross_coupling, bias_temperature, scale_temperature) add to their coefficient;
         ``sensor_lag`` [s] lags the output, ``bias_drift`` [m/s2/s] drifts K0.
     **kw
-        Passed to :func:`specific_force` (``radius_m``, ``rate_derivative``).
+        Passed to :func:`specific_force` (``radius_m``, ``rate_derivative``, ``geometry``).
 
     Returns
     -------
