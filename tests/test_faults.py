@@ -147,19 +147,23 @@ HARNESS = textwrap.dedent(r'''
 ''')
 
 
+#: SIGKILLs: 8 in the everyday suite, 20 in CI (.ci/run sets ACCELCAL_TEST_KILLS=20).
+N_KILLS = int(os.environ.get("ACCELCAL_TEST_KILLS", "8"))
+
+
 @pytest.mark.slow
 def test_sigkill_at_random_points_then_rerun_equals_clean_run(tmp_path, examples):
     drops = [str(examples / "drop-2026-11-20"), str(examples / "drop-2026-11-21")]
     p = subprocess.run([sys.executable, "-c", HARNESS,
-                        json.dumps([drops, str(tmp_path), 20, 20261121])],
+                        json.dumps([drops, str(tmp_path), N_KILLS, 20261121])],
                        capture_output=True, text=True, timeout=170, cwd=tmp_path)
     assert p.returncode == 0, p.stderr[-3000:]
     rep = json.loads(p.stdout.strip().splitlines()[-1])
     kills, groups = rep["kills"], rep["groups"]
     killed = [k for k in kills if k["exit"] == -9]
-    assert len(killed) == 20, kills               # 20 runs really died mid-run
+    assert len(killed) == N_KILLS, kills          # the runs really died mid-run
     stages = {k["at"].split()[1] if " " in k["at"] else k["at"] for k in killed}
-    assert len(stages) >= 3, kills                # the kills landed in several steps
+    assert len(stages) >= (3 if N_KILLS >= 10 else 2), kills     # the kills landed in several steps
     clean = warehouse_contents(tmp_path / "clean" / "lab.duckdb")
     assert clean["results"] and clean["coefficient_history"]
     for g in range(groups):
