@@ -207,7 +207,7 @@ class DriftFit:
     """Eq (1) fitted to one series: two weighted fits of the same line, which it wraps.
 
     result : the fit with tau2 in the weights (``a``, ``b``, ``beta``, ``cov``)
-    result0 : the same with tau2 = 0 (``cov0``, for the degrees of freedom)
+    result0 : the same with tau2 = 0 (its ``cov_noise``, for the degrees of freedom)
     t_ref : the time ``a`` is the line's value at [a]
     tau2 : between-campaign variance [unit^2]; dof : its degrees of freedom
     t, x, u : the series [a, unit, unit]
@@ -239,11 +239,6 @@ class DriftFit:
         return self.result.cov_noise
 
     @property
-    def cov0(self) -> np.ndarray:
-        """The same with tau2 = 0."""
-        return self.result0.cov_noise
-
-    @property
     def u_b(self) -> float:
         return float(math.sqrt(self.cov[1, 1]))
 
@@ -259,7 +254,7 @@ class DriftFit:
         t [a]: of the coefficient itself (u_new = 0) or of a new campaign's result with
         standard uncertainty u_new."""
         v = self._var_line(self.cov, t) + self.tau2 + np.asarray(u_new, float) ** 2
-        v0 = self._var_line(self.cov0, t) + np.asarray(u_new, float) ** 2
+        v0 = self._var_line(self.result0.cov_noise, t) + np.asarray(u_new, float) ** 2
         vt = np.maximum(v - v0, 0.0)
         with np.errstate(divide="ignore", invalid="ignore"):
             nu = np.where(vt > 0, v ** 2 / (vt ** 2 / max(self.dof, 1e-9)), np.inf)

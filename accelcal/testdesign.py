@@ -183,8 +183,7 @@ def _minutes(run: RunCells) -> float:
 
 def _g_levels(run: RunCells) -> list[float]:
     g = float(run.meta.get("g_local_m_s2") or 9.80665)
-    lv = sorted({round(float(v) / g, 1) for v in run.x if v > 0})
-    return lv
+    return sorted({round(float(v) / g, 1) for v in run.x if v > 0})
 
 
 def _reads(run: RunCells) -> int:
@@ -384,12 +383,8 @@ def resolve_targets(model: CampaignModel, targets: Sequence[str]) -> dict[str, l
     """
     out: dict[str, list[int]] = {}
     for t in targets:
-        eff = INSTRUMENT_EFFECTS.get(t)
-        if eff is not None:
-            t_coef = eff
-        else:
-            t_coef = t
-        idx = [i for i, (prm, role) in enumerate(zip(model.params, model.roles))
+        t_coef = INSTRUMENT_EFFECTS.get(t, t)
+        idx = [i for i, role in enumerate(model.roles)
                if (role.kind == "coef" and role.key == t_coef) or (role.kind == "effect" and role.key == t)]
         if not idx:
             if t not in EFFECTS and coefficient_spec(t) is None:
@@ -485,8 +480,7 @@ class _Information:
         R = np.zeros((self.R0.shape[0], len(cols)))
         for k, c in enumerate(self.cols_made):
             R[:, pos[c]] = self.R0[:, k]
-        blocks = [R] + [J[self.model.rows(j)][:, cols] for j in runs]
-        A = np.vstack(blocks)
+        A = np.vstack([R] + [J[self.model.rows(j)][:, cols] for j in runs])
         held = holds(A, self.model.columns(cols), name_aliases=False, scale_rule=self.scale_rule)
         free = [c for c in cols if self.model.candidates[c].name not in held]
         Af = A[:, [pos[c] for c in free]]
@@ -568,11 +562,8 @@ def _gain(cur: Prediction, new: Prediction, prior: Mapping[str, float | None]) -
         u1 = new.std_uncertainty.get(k)
         if u1 is None:
             continue
-        if u0 is None:
-            u0 = prior.get(k)
-            g += 1.0 if not u0 else max(0.0, 1.0 - (u1 / u0) ** 2)
-        else:
-            g += max(0.0, 1.0 - (u1 / u0) ** 2)
+        u0 = prior.get(k) if u0 is None else u0
+        g += 1.0 if not u0 else max(0.0, 1.0 - (u1 / u0) ** 2)
     for k, r0 in cur.corr.items():
         r1 = new.corr.get(k)
         if r1 is None:
@@ -688,8 +679,7 @@ def _advise(cells, baseline, targets, separate, max_runs, candidates, top, state
         session[key] = (made, made_cells, p_made, model, p, _Information(model, len(made_cells), p, stated))
     made, cells, p_made, model, p, info = session[key]
     if not targets:
-        targets = [prm.key for prm, role in zip(made.params, made.roles) if role.kind == "coef"]
-        targets = list(dict.fromkeys(targets))
+        targets = list(dict.fromkeys(prm.key for prm, role in zip(made.params, made.roles) if role.kind == "coef"))
     tmap = resolve_targets(model, targets)
     setup = {c.rig_id: float(setup_min.get(c.rig_id, SETUP_MIN_DEFAULT)) for c in cands}
     cost = [c.minutes + setup[c.rig_id] for c in cands]

@@ -379,12 +379,9 @@ def absorbed_cross_axis(model: CampaignModel, held: Mapping[str, Any]) -> list[t
     theta0: (name, parameter index, the parameters that report it as part of their value).
     What those take of it is their definition (their note says so), not an error; what
     leaks to the others is a type-B term (:func:`held_type_b_directions`)."""
-    out = []
-    for name, h in held.items():
-        i = model.params.index[name]
-        if model.roles[i].key in CROSS_AXIS_ABSORBED and h.why is Why.ALIASED and h.aliased_with:
-            out.append((name, i, frozenset(h.aliased_with)))
-    return out
+    index = model.params.index
+    return [(name, index[name], frozenset(h.aliased_with)) for name, h in held.items()
+            if model.roles[index[name]].key in CROSS_AXIS_ABSORBED and h.why is Why.ALIASED and h.aliased_with]
 
 
 def type_b_terms(jf: ModelFit, tolerance: float = MOUNT_ANGLE_TOLERANCE_RAD) -> dict[str, list[tuple[str, float, float]]]:
@@ -624,9 +621,8 @@ def _records(jf: ModelFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
             continue
         runs_h = [model.runs[j] for j in prm.runs or ()]
         head = runs_h[0].geometry if runs_h else None
-        label = f"theta0[{AXES[head.head_axis]}]" if head is not None and sum(
-            1 for q in model.params if model.roles[model.params.index[q.name]].key == "initial_misalignment") > 1 \
-            else "theta0"
+        heads = sum(r.key == "initial_misalignment" for r in model.roles)
+        label = f"theta0[{AXES[head.head_axis]}]" if head is not None and heads > 1 else "theta0"
         u = float("nan") if untestable else fit.std(prm.name)
         label, alias = what_it_measures(measures.get(prm.name), label)
         if alias:

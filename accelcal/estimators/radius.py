@@ -330,11 +330,8 @@ class PairData:
         turning centre at R [m] (or one radius per polarity, {+1: R+, -1: R-}) with the
         mass centre r [m] along the first plane axis (effects.md ``mass_centre_offset``)."""
         dR, dr = self.input_columns()
-        if isinstance(R, Mapping):
-            pol = self.column("pol")
-            Rrow = np.where(pol > 0, R.get(1, 0.0), R.get(-1, 0.0))
-            return Rrow * dR + r * dr
-        return float(R) * dR + r * dr
+        R = np.where(self.column("pol") > 0, R.get(1, 0.0), R.get(-1, 0.0)) if isinstance(R, Mapping) else float(R)
+        return R * dR + r * dr
 
     def fit(self, a: np.ndarray, order: int, subtract_a: bool) -> DwellFit:
         """Weighted fit of y = E/K1 (− a when subtract_a) on the eq 7/9 regressors of every

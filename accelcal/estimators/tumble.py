@@ -681,13 +681,10 @@ def pooling_flags(pooled: Mapping[str, Pooled]) -> list[str]:
         One flag per quantity with P(chi2) < 0.01, naming each run's value and u and the
         Birge ratio applied.
     """
-    out = []
-    for name, q in pooled.items():
-        if q.disagree:
-            vals = ", ".join(f"{r.run_id} {r.values[q.key]:.6g} ± {r.u_parts(q.key)[0]:.2g}" for r in q.runs)
-            out.append(f"tumble runs disagree on {name}: {vals} (Birge ratio {q.birge:.3g}, p = {q.p_value:.2g}); "
-                       f"not averaged silently: weighted mean {q.value:.6g} with u scaled by the Birge ratio")
-    return out
+    return [f"tumble runs disagree on {name}: "
+            + ", ".join(f"{r.run_id} {r.values[q.key]:.6g} ± {r.u_parts(q.key)[0]:.2g}" for r in q.runs)
+            + f" (Birge ratio {q.birge:.3g}, p = {q.p_value:.2g}); not averaged silently: weighted mean "
+            f"{q.value:.6g} with u scaled by the Birge ratio" for name, q in pooled.items() if q.disagree]
 
 
 # ------------------------------------------------------------------ the campaign's tumble step

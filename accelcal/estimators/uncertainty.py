@@ -116,11 +116,10 @@ def linear_budget(coefficient: str, terms: Sequence[tuple], *, method: str = "",
     vals = np.array([float(t[1]) for t in terms])
     us = np.array([float(t[2]) for t in terms])
     cs = np.array([float(t[3]) for t in terms])
-    cu = cs * us
     lines = [BudgetTerm(coefficient, str(t[0]), float(x), float(u), float(c), float(abs(c * u)), str(t[4]),
                         str(t[5]), method, rig_id) for t, x, u, c in zip(terms, vals, us, cs)]
     y = float(np.dot(cs, vals)) if value is None else float(value)
-    return GumBudget(y, math.sqrt(max(float((cu ** 2).sum()), 0.0)), lines)
+    return GumBudget(y, math.sqrt(max(float(((cs * us) ** 2).sum()), 0.0)), lines)
 
 
 def numerical_tolerance(u: float, ndig: int = 2) -> float:
@@ -159,11 +158,9 @@ def linear_output_interval(sensitivities: Sequence[float], std_uncertainties: Se
     phi = np.exp(-0.5 * var_normal * w * w)            # characteristic function of the sum
     for si, d in zip(s, dist):
         if d == "uniform":
-            a = HALF_WIDTH_PER_U["uniform"] * si
-            phi = phi * np.sinc(a * w / np.pi)
+            phi = phi * np.sinc(HALF_WIDTH_PER_U["uniform"] * si * w / np.pi)
         elif d == "triangular":
-            a = HALF_WIDTH_PER_U["triangular"] * si
-            phi = phi * np.sinc(a * w / (2 * np.pi)) ** 2
+            phi = phi * np.sinc(HALF_WIDTH_PER_U["triangular"] * si * w / (2 * np.pi)) ** 2
         elif d not in ("normal", "t"):
             raise ValueError(f"linear_output_interval: distribution {d!r} not supported")
     # density on the grid: inverse transform, centred
@@ -245,11 +242,10 @@ def kip_uncertainty(u_c2: float, u_dc2: float, u_K2: float, u_Kpp: float, u_dKpp
         ("normal", "uniform", "normal", "normal", "uniform"))])
     gum = gb.u_c
     differ = bool(abs(gum - printed) > rtol * max(gum, printed))
-    out = {"printed": printed, "gum": gum, "differ": differ,
-           "ratio": gum / printed if printed > 0 else math.nan, "budget": gb.terms,
-           "note": ("paper 000 eq 10 weights u(c2), u(dc2) by 2; the GUM sensitivity of Kip to c2 "
-                    "is 2, so the factor is 4" if differ else "")}
-    return out
+    return {"printed": printed, "gum": gum, "differ": differ,
+            "ratio": gum / printed if printed > 0 else math.nan, "budget": gb.terms,
+            "note": ("paper 000 eq 10 weights u(c2), u(dc2) by 2; the GUM sensitivity of Kip to c2 "
+                     "is 2, so the factor is 4" if differ else "")}
 
 
 

@@ -267,10 +267,7 @@ def lstsq_svd(J: np.ndarray, z: np.ndarray, rcond: float = RCOND) -> LinearSolut
     else:
         cov[np.ix_(act, act)] = C / np.outer(norm[act], norm[act])
     Vn = np.vstack([Vt[:S.size][~keep], Vt[S.size:]])
-    if Vn.size:
-        est[act] = np.linalg.norm(Vn, axis=0) < 1e-6
-    else:
-        est[act] = True
+    est[act] = np.linalg.norm(Vn, axis=0) < 1e-6 if Vn.size else True
     null = np.zeros((p, Vn.shape[0]))
     null[act] = Vn.T
     return LinearSolution(x, cov, int(keep.sum()), S, est, norm, null)
@@ -561,10 +558,7 @@ def gauss_newton(residual: Callable[[np.ndarray], np.ndarray],
         better = False
         for mu in mus:
             d = np.zeros(p.size)
-            step = (V @ (S / (S ** 2 + mu * S[0] ** 2) * uz)) / norm[act]
-            sub = np.zeros(free.sum())
-            sub[act] = step
-            d[free] = sub
+            d[np.flatnonzero(free)[act]] = (V @ (S / (S ** 2 + mu * S[0] ** 2) * uz)) / norm[act]
             pn = p + d if lo is None else np.maximum(p + d, lo)
             zn = residual(pn)
             cn = float(zn @ zn)
@@ -785,6 +779,26 @@ def normalised_error(x1: float, U1: float, x2: float, U2: float) -> float:
     return (x1 - x2) / d if d > 0 else float("inf") * np.sign(x1 - x2)
 
 
+def correlation_matrix(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Correlation matrix and standard uncertainties of estimates from their covariance.
+
+    Parameters
+    ----------
+    cov : (k, k) ndarray
+        Covariance [parameter units squared].
+
+    Returns
+    -------
+    R : (k, k) ndarray
+        cov_ij / (u_i u_j) [1]; nan (or inf) in rows and columns of a zero variance.
+    u : (k,) ndarray
+        sqrt of the diagonal, negative rounding clipped to 0 [parameter units].
+    """
+    u = np.sqrt(np.clip(np.diag(cov), 0, None))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return cov / np.outer(u, u), u
+
+
 # --------------------------------------------------------------------------- result
 
 @dataclass
@@ -879,13 +893,13 @@ class FitResult:
         i = self.params.index[name]
         return float(math.sqrt(max(self.cov_noise[i, i], 0.0))) if self.estimable[i] else float("nan")
 
-    def correlation(self, names: Sequence[str] | None = None) -> tuple[list[str], np.ndarray]:
-        """Correlation matrix of some parameters, from ``cov``.
+    def correlation(self, names: Sequence[str]) -> tuple[list[str], np.ndarray]:
+        """Correlation matrix of some parameters, from ``cov`` (:func:`correlation_matrix`).
 
         Parameters
         ----------
-        names : sequence of str, optional
-            Parameters to include (default: every estimable parameter).
+        names : sequence of str
+            Parameters to include.
 
         Returns
         -------
@@ -895,14 +909,8 @@ class FitResult:
             Correlation coefficients [1]; nan in rows and columns of parameters with
             zero variance (held or not estimable).
         """
-        if names is None:
-            names = [n for n, e in zip(self.names, self.estimable) if e]
         idx = [self.params.index[n] for n in names]
-        C = self.cov[np.ix_(idx, idx)]
-        d = np.sqrt(np.clip(np.diag(C), 0, None))
-        with np.errstate(invalid="ignore", divide="ignore"):
-            R = C / np.outer(d, d)
-        return list(names), R
+        return list(names), correlation_matrix(self.cov[np.ix_(idx, idx)])[0]
 
     @property
     def birge(self) -> float:

@@ -35,7 +35,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..effects import combination_name, plausible_size
-from .core import lstsq_min_norm, lstsq_svd, lstsq_svd_x, separable_columns
+from .core import correlation_matrix, lstsq_min_norm, lstsq_svd, lstsq_svd_x, separable_columns
 
 #: A parameter whose Jacobian column (unit-scaled) has less than this relative norm outside
 #: the span of the parameters before it is aliased: its variance would be inflated 1e6-fold.
@@ -664,14 +664,12 @@ def added_correlations(Jf: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.nd
     Returns
     -------
     R : (k + 1, k + 1) ndarray
-        Correlation matrix [1] (0 where a variance is 0).
+        Correlation matrix [1] (:func:`~accelcal.fitting.core.correlation_matrix`: not
+        finite where a variance is 0).
     u : (k + 1,) ndarray
         Design standard uncertainties [parameter units].
     """
-    cov = lstsq_svd(np.column_stack([Jf, s]), np.zeros(Jf.shape[0])).cov
-    u = np.sqrt(np.clip(np.diag(cov), 0, None))
-    d = np.where(u > 0, u, np.inf)
-    return cov / np.outer(d, d), u
+    return correlation_matrix(lstsq_svd(np.column_stack([Jf, s]), np.zeros(Jf.shape[0])).cov)
 
 
 def taken_up(J: np.ndarray, s: np.ndarray, top: int = 6) -> list[tuple[int, float, float]]:

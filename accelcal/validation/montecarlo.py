@@ -367,9 +367,7 @@ def cramer_rao(scenario, seed: int | None = None) -> dict[tuple[str, str, str], 
     out: dict = {COVARIANCE: cov}
     for (kind, rig), t in [(("", "*"), None), *tests.items()]:
         for method in (["joint_ml"] if t is None else [e.method for e in registry.for_test(kind) if e.crb]):
-            for k in _ALL_COEFFS:
-                if (k, k) in cov:
-                    out[(k, method, rig)] = cov[(k, k)]
+            out.update({(k, method, rig): cov[(k, k)] for k in _ALL_COEFFS if (k, k) in cov})
     return out
 
 
