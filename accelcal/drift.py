@@ -141,9 +141,8 @@ def _design(t: np.ndarray, t_ref: float, step_at: int | None = None,
     test's offset."""
     idx = np.arange(len(t))
     cols = [np.ones_like(t), t - t_ref]
-    bounds = list(segments)
-    for j, s in enumerate(bounds):          # earlier segment j: indices before bounds[j]
-        lo = bounds[j - 1] if j else 0
+    for j, s in enumerate(segments):        # earlier segment j: indices before segments[j]
+        lo = segments[j - 1] if j else 0
         cols.append(((idx >= lo) & (idx < s)).astype(float))
     if step_at is not None:
         cols.append((idx >= step_at).astype(float))

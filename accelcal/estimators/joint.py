@@ -580,18 +580,15 @@ def _records(jf: ModelFit, cells: list[RunCells], stated: Mapping[str, Mapping[s
         if alias:
             flags.append(f"{name}: {alias}")
         u = fit.std(prm.name)
-        u_noise = fit.std_noise(prm.name)
         terms_b = tb.get(prm.name, [])
-        u = math.sqrt(u * u + sum((c * ub) ** 2 for _, c, ub, _, _ in terms_b))
-        if untestable:
-            u = float("nan")
+        u = float("nan") if untestable else math.sqrt(u * u + sum((c * ub) ** 2 for _, c, ub, _, _ in terms_b))
         note = "; ".join(x for x in ("joint ML fit of every reading through the forward model",
                                      NOTES.get(role.key, ""), alias) if x)
         coefficients.append(CoefficientResult(name, float(fit.values[i]), float(u), si_unit(name, out_unit),
                                               METHOD, rig_of.get(prm.name, rig_label), float(dof), note,
                                               adopted=True, coverage_factor=k,
                                               factors=getattr(measures.get(prm.name), "factors", {})))
-        budget += _type_a_lines(name, float(fit.values[i]), u_noise, lof.factor)
+        budget += _type_a_lines(name, float(fit.values[i]), fit.std_noise(prm.name), lof.factor)
         for q, c, ub, dist, x in terms_b:
             budget.append(BudgetTerm(name, q, x, ub, c, abs(c) * ub, "B", dist, METHOD))
     for a, b, ka, kb, t, r in near:

@@ -886,13 +886,12 @@ def name_combinations(runs: Sequence, coeffs: list[TumbleCoefficient], budget: l
         answer[grp] = {("theta0" if k == "initial_misalignment" else k): c.factors for k, c in meas.items()}
     flags = []
     for c in coeffs:
-        key = c.key
         if c.name in corrected:
             continue
-        combos = [answer[g].get(key, {}) for g in ([c.head] if c.head else groups)]
-        if len({combination_formula(key, t) for t in combos}) > 1:
+        combos = [answer[g].get(c.key, {}) for g in ([c.head] if c.head else groups)]
+        if len({combination_formula(c.key, t) for t in combos}) > 1:
             flags.append(f"{c.name} ({METHOD}): the heads measure different combinations: " + "; ".join(
-                combination_formula(key, t) for t in combos) + "; the pooled value is none of them")
+                combination_formula(c.key, t) for t in combos) + "; the pooled value is none of them")
             continue
         if not combos[0]:
             continue

@@ -109,8 +109,7 @@ def _optional_meta(meta: dict, *sources) -> dict:
 def _started_at(t: dict, k: int) -> str:
     start = t.get("started_at", "2026-01-01T08:00:00+00:00")
     dt = start if isinstance(start, datetime) else datetime.fromisoformat(str(start))
-    dt = dt + timedelta(seconds=float(t.get("run_interval_s", 3600.0)) * k)
-    return dt.isoformat()
+    return (dt + timedelta(seconds=float(t.get("run_interval_s", 3600.0)) * k)).isoformat()
 
 
 def _output(kind, meta, cols, angle, coeffs, effects, noise, rng, true_rate=None, radius=None, down=None):

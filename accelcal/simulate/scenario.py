@@ -117,27 +117,13 @@ from ..physics.axes import parse_signed_axis, plane_handedness
 
 SCENARIO_DIR = Path(__file__).with_name("scenarios")
 
-NOISE_DEFAULTS: dict[str, float] = {
-    "white_m_s2": 0.0,
-    "white_ar1_rho": 0.0,
-    "rate_jitter_rel": 0.0,
-    "rate_log_rel": 0.0,
-    "rate_log_abs": 0.0,
-    "centripetal_rel": 0.0,
-    "bias_walk_m_s2_rt_s": 0.0,
-    "temp_noise_c": 0.0,
-    "angle_log_deg": 0.0,
-    "spike_rate": 0.0,
-    "spike_m_s2": 0.0,
-    "output_quantum": 0.0,
-}
+#: Noise keys of a scenario (``[noise]``, per test too), all 0 (off) by default.
+NOISE_DEFAULTS: dict[str, float] = dict.fromkeys((
+    "white_m_s2", "white_ar1_rho", "rate_jitter_rel", "rate_log_rel", "rate_log_abs", "centripetal_rel",
+    "bias_walk_m_s2_rt_s", "temp_noise_c", "angle_log_deg", "spike_rate", "spike_m_s2", "output_quantum"), 0.0)
 #: Effects outside the catalogue the simulator can add (``[disturbance]``), all off by default.
-DISTURBANCE_DEFAULTS: dict[str, float] = {
-    "sweep_hysteresis_rel": 0.0,
-    "bias_temp_quadratic_m_s2_c2": 0.0,
-    "bias_periodic_m_s2": 0.0,
-    "bias_periodic_period_s": 0.0,
-}
+DISTURBANCE_DEFAULTS: dict[str, float] = dict.fromkeys((
+    "sweep_hysteresis_rel", "bias_temp_quadratic_m_s2_c2", "bias_periodic_m_s2", "bias_periodic_period_s"), 0.0)
 
 _COEFF_NAMES = set(COEFFICIENTS) - {"theta0"}
 
