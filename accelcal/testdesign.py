@@ -734,11 +734,9 @@ def _advise(cells, baseline, targets, separate, max_runs, candidates, top, state
         out.append(q)
         if len(out) >= top:
             break
-    notes = []
-    for n, u in cur.std_uncertainty.items():
-        if u is None and all(q.predicted.std_uncertainty.get(n) is None for q in props):
-            notes.append(f"{n}: no run these rigs can make determines it (with every instrument "
-                         "coefficient unknown)")
+    notes = [f"{n}: no run these rigs can make determines it (with every instrument coefficient unknown)"
+             for n, u in cur.std_uncertainty.items()
+             if u is None and all(q.predicted.std_uncertainty.get(n) is None for q in props)]
     if not out:
         notes.append("no candidate run improves the targets")
     return Advice(targets=list(tmap), separate=list(separate), current=cur, proposals=out, units=units,

@@ -33,6 +33,7 @@ import fnmatch
 import json
 import math
 import time
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -520,9 +521,7 @@ def markdown(s: dict) -> str:
             rows.setdefault((c["kind"], c["truth"], c["category"]), []).append(c)
     L += ["| test | withheld effect | cases | right | verdicts |", "|---|---|---|---|---|"]
     for (k, e, cat), cs in sorted(rows.items()):
-        cnt: dict = {}
-        for c in cs:
-            cnt[str(c["verdict"])] = cnt.get(str(c["verdict"]), 0) + 1
+        cnt = Counter(str(c["verdict"]) for c in cs)
         L.append(f"| {k} | {e}{' (not observable)' if cat == 'unobservable' else ''} | {len(cs)} | "
                  f"{sum(c['right'] for c in cs)} | " + ", ".join(f"{v}: {n}" for v, n in cnt.items()) + " |")
     L += ["", f"**Section 2: the dev set of the independent reference simulator** (../shared/diagnosis-dev, its "
