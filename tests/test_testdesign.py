@@ -166,3 +166,18 @@ def test_rig_limits_come_from_the_config_file(tmp_path):
     f.write_text('[rigs."LXJ-100"]\nmax_g = "fast"\n')
     with pytest.raises(ConfigError, match=r'accelcal.toml: \[rigs."LXJ-100"\] max_g must be a number'):
         rig_limits(f)
+
+
+def test_a_session_gives_the_answers_of_separate_calls_fitting_the_runs_made_once(ia_pair, monkeypatch):
+    """Questions that share a model (the same baseline and candidates) asked in one session
+    get exactly the answers they get alone; the runs made are fitted once per model."""
+    asks = [(["K2"], [], 1), (None, [("Kip", "Kpp")], 1), (["Kip"], [("Kip", "Kpp")], 2), (["K2"], [], 2)]
+    alone = [td.advise(ia_pair, BASE, t, s, max_runs=m) for t, s, m in asks]
+    fits = []
+    real = td.fit_selected
+    monkeypatch.setattr(td, "fit_selected", lambda model, **kw: fits.append(1) or real(model, **kw))
+    session: dict = {}
+    together = [td.advise(ia_pair, BASE, t, s, max_runs=m, session=session) for t, s, m in asks]
+    assert len(fits) == 1 and len(session) == 1
+    for a, b in zip(alone, together):
+        assert repr(a) == repr(b)
