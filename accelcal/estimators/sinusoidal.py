@@ -69,6 +69,7 @@ from ..physics import instrument, rigs
 from ..results import (BudgetTerm, CoefficientResult, FitCheck, ResidualFigure, ResidualPanel, ResidualSeries,
                        display_number)
 from . import uncertainty as unc
+from .joint import _KEPT
 from .records import Records, jsonable
 from .registry import Estimator, register
 
@@ -137,27 +138,34 @@ def prepare_runs(runs: Sequence, rate_source: str = "drive", rate_derivative: st
         d(omega)/dt of the chosen derivative [rad/s2] (None: the drive's own); ``run_id``
         defaults to ``run<i>``.
     """
-    out = []
+    out, kept = [], _KEPT.get()
     for i, r in enumerate(runs):
-        meta, data = (r.meta, r.data) if hasattr(r, "meta") else r
-        meta = dict(meta)
-        if str(meta.get("test", TEST)) != TEST:
-            raise ValueError(f"run {meta.get('run_id', i)} is a {meta.get('test')!r} run, not {TEST}")
-        meta["test"] = TEST
-        meta.setdefault("run_id", f"run{i}")
-        cols = {k: np.asarray(data[k], float) for k in ("time_s", "table_rate_rad_s", "table_angle_deg", "output")}
-        t, w = cols["time_s"], cols["table_rate_rad_s"]
-        fit_w, fit_d = fitted_drive(t, w, float(meta["rate_frequency_hz"]), n_harmonics)
-        rates = {"fitted": fit_w, "drive": rigs.sine_drive(meta, t), "logged": w}
-        if rate_source not in rates:
+        meta0, data = (r.meta, r.data) if hasattr(r, "meta") else r
+        k = {} if kept is None else kept.get(("sine_ls", id(data), i, n_harmonics), {})
+        if k.get("data") is not data or k["meta0"] is not meta0:     # the rates of a run, once per campaign
+            meta = dict(meta0)
+            if str(meta.get("test", TEST)) != TEST:
+                raise ValueError(f"run {meta.get('run_id', i)} is a {meta.get('test')!r} run, not {TEST}")
+            meta["test"] = TEST
+            meta.setdefault("run_id", f"run{i}")
+            cols = {c: np.asarray(data[c], float) for c in ("time_s", "table_rate_rad_s", "table_angle_deg", "output")}
+            t, w = cols["time_s"], cols["table_rate_rad_s"]
+            fit_w, fit_d = fitted_drive(t, w, float(meta["rate_frequency_hz"]), n_harmonics)
+            cols["table_angle_deg"] = np.nan_to_num(cols["table_angle_deg"])
+            k = {"data": data, "meta0": meta0, "meta": meta, "cols": cols,
+                 "rates": {"fitted": fit_w, "drive": rigs.sine_drive(meta, t), "logged": w},
+                 "wdots": {"drive": None, "fitted": fit_d, "numeric": _five_point(t, w)}}
+            if kept is not None:
+                kept[("sine_ls", id(data), i, n_harmonics)] = k
+        if rate_source not in k["rates"]:
             raise ValueError(f"rate_source {rate_source!r}")
-        cols["table_rate_rad_s"] = rates[rate_source]
-        wdots = {"drive": None, "fitted": fit_d, "numeric": _five_point(t, w)}
+        cols = {**k["cols"], "table_rate_rad_s": k["rates"][rate_source]}
         deriv = rate_derivative or ("fitted" if rate_source == "fitted" else "drive")
-        if deriv not in wdots:
+        if deriv not in k["wdots"]:
             raise ValueError(f"rate_derivative {rate_derivative!r}")
-        cols["table_angle_deg"] = np.nan_to_num(cols["table_angle_deg"])
-        out.append(replace(make_run(meta, cols, i), cols=cols, rate_derivative=wdots[deriv]))
+        if rate_source not in k:
+            k[rate_source] = make_run(k["meta"], cols, i)
+        out.append(replace(k[rate_source], cols=cols, rate_derivative=k["wdots"][deriv]))
     return out
 
 
