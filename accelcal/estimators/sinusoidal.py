@@ -299,6 +299,15 @@ def _jacobian(params: ParameterSet, prep: list[RunCells], x: np.ndarray, w: np.n
     return np.vstack([w[i] * _jacobian_run(params, x, r, i) for i, r in enumerate(prep)])
 
 
+def _once(kept: dict, f, params: ParameterSet, prep: list[RunCells], x: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """``f(params, prep, x, w)`` (:func:`_residual`, :func:`_jacobian`) evaluated once per fit
+    however often its selection, passes and reporting ask at the same parameters, x and w."""
+    key = (f.__name__, tuple(params.names), x.tobytes(), w.tobytes())
+    if key not in kept:
+        kept[key] = f(params, prep, x, w)
+    return kept[key]
+
+
 # --------------------------------------------------------------------------- diagnostics
 
 def design_diagnostics(J: np.ndarray, names: Sequence[str]) -> dict:
@@ -459,7 +468,7 @@ def _lag_start(params: ParameterSet, prep: list[RunCells], x0: np.ndarray) -> np
     return x
 
 
-def _select(params: ParameterSet, prep: list[RunCells], x0: np.ndarray
+def _select(params: ParameterSet, prep: list[RunCells], x0: np.ndarray, kept: dict
             ) -> tuple[dict[str, Hold], ParameterSet, np.ndarray]:
     """Hold the optional parameters (tool errors, KPPP, KOOO) the joint design does not
     determine at the start x0 (:func:`accelcal.fitting.identify.holds`): (name -> hold, the
@@ -470,8 +479,8 @@ def _select(params: ParameterSet, prep: list[RunCells], x0: np.ndarray
     instrument coefficients are never held: a rank deficiency among them is reported
     (:func:`design_diagnostics`).
     """
-    J0 = _jacobian(params, prep, x0, np.ones(len(prep)))
-    r0 = _residual(params, prep, x0, np.ones(len(prep)))
+    J0 = _once(kept, _jacobian, params, prep, x0, np.ones(len(prep)))
+    r0 = _once(kept, _residual, params, prep, x0, np.ones(len(prep)))
     r0 = r0 - J0 @ lstsq_svd_x(J0, r0)
     s0 = float(np.sqrt(r0 @ r0 / max(r0.size - len(params), 1)))
     rank = {k: i for i, k in enumerate(PRIORITY)}
@@ -543,37 +552,39 @@ def identify_sine_campaign(runs: Sequence | None, *, tool_errors: Mapping[str, s
     ones = np.ones(len(prep))
     x0 = _linear_start(params, prep, ones)
     params = ParameterSet(replace(p, scale=abs(x0[j])) if p.key == "K1" else p for j, p in enumerate(params))
-    dropped, params, x0 = _select(params, prep, _lag_start(params, prep, x0))
+    kept: dict = {}
+    dropped, params, x0 = _select(params, prep, _lag_start(params, prep, x0), kept)
     nonlinear = any(p.group == "tool" for p in params)
     w, x = ones, x0
     success, message = True, "linear least squares (no tool-error parameter)"
     rw_runs = reweight and len(prep) > 1
     for k in range(2 if rw_runs else 1):
         if nonlinear:
-            gn = gauss_newton(lambda p: _residual(params, prep, p, w), lambda p: _jacobian(params, prep, p, w), x,
+            gn = gauss_newton(lambda p: _once(kept, _residual, params, prep, p, w),
+                              lambda p: _once(kept, _jacobian, params, prep, p, w), x,
                               max_iter=50, lower=np.array([0.0 if p.key in NON_NEGATIVE else -np.inf for p in params]))
             x, success, message = gn.p, gn.converged, gn.message
         elif k > 0 or dropped:   # no tool error: (K1, K1*Kj) reparametrise a linear model
             x = _linear_start(params, prep, w)
         if rw_runs:           # the weights of the next pass, and of the covariance after the last
-            sig = np.array([np.sqrt(np.mean(e ** 2)) for e in _split(_residual(params, prep, x, ones), prep)])
+            sig = np.array([np.sqrt(np.mean(e ** 2)) for e in _split(_once(kept, _residual, params, prep, x, ones), prep)])
             w = 1.0 / np.where(sig > 0, sig, 1.0)
             w = w / np.exp(np.mean(np.log(w)))      # geometric-mean-one weights
     derivative = rate_derivative or ("fitted" if rate_source == "fitted" else "drive")
     options = {"tool_errors": tool_errors, "per_run_bias": per_run_bias, "extra_terms": list(extra_terms),
                "rate_source": rate_source, "rate_derivative": derivative, "n_harmonics": n_harmonics,
                "reweight": reweight}
-    return _finish(params, prep, x, w, dropped, success, message, options)
+    return _finish(params, prep, x, w, dropped, success, message, options, kept)
 
 
 def _finish(params: ParameterSet, prep: list[RunCells], x: np.ndarray, w: np.ndarray, dropped: dict[str, Hold],
-            success: bool, message: str, options: dict) -> SineFit:
+            success: bool, message: str, options: dict, kept: dict) -> SineFit:
     """Paper 002's reporting of a fit at x with run weights w as the core's
     :class:`~accelcal.fitting.core.FitResult`: the residual-scaled covariance s^2 (J^T W J)^+
     (:func:`~accelcal.fitting.core.lstsq_svd`, s^2 the weighted residual variance on n - p
     dof) and the pure-error lack-of-fit test of the drive's phases."""
-    Jw = _jacobian(params, prep, x, w)
-    raw = _split(_residual(params, prep, x, np.ones(len(prep))), prep)
+    Jw = _once(kept, _jacobian, params, prep, x, w)
+    raw = _split(_once(kept, _residual, params, prep, x, np.ones(len(prep))), prep)
     rw = np.concatenate([wi * e for wi, e in zip(w, raw)])
     dof = rw.size - len(params)
     s2 = float(rw @ rw / dof)
