@@ -202,9 +202,10 @@ def _run_values(params: ParameterSet, x: np.ndarray, i: int) -> tuple[dict, dict
 
 
 def _kw(run: RunCells, eff: Mapping) -> dict:
-    """The forward model's rate derivative of a run whose source is not the drive's own [rad/s2]."""
-    return {} if run.rate_derivative is None else {"rate_derivative": rigs.rotation_sign(run.meta) * (
-        1.0 + float(eff.get("rate_scale_error", 0.0))) * run.rate_derivative}
+    """The forward model's keywords of a run: its mount geometry, and the rate derivative of a run
+    whose source is not the drive's own [rad/s2]."""
+    return {"geometry": run.geometry, **({} if run.rate_derivative is None else {"rate_derivative": rigs.rotation_sign(
+        run.meta) * (1.0 + float(eff.get("rate_scale_error", 0.0))) * run.rate_derivative})}
 
 
 def _extra_accel(extra: Mapping, F: np.ndarray) -> np.ndarray:

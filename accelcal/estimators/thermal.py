@@ -405,15 +405,16 @@ def fit_points(meta: Mapping, data: pd.DataFrame) -> tuple[list[dict], pd.DataFr
                "temp_set_c": float(grp["temp_set_c"].iloc[0]), "temp_c": T_mean,
                "time_s": float(grp["time_s"].mean()), "n_positions": int(len(grp)),
                "n_readings": int(grp["count"].sum())}
+        theta, E = grp["theta_deg"].to_numpy(float), grp["output"].to_numpy(float)
         if len(grp) >= 3:
-            row.update(fit_point(meta, grp["theta_deg"], grp["output"]))
-            fitted.append((row, grp["theta_deg"].to_numpy(float), grp["output"].to_numpy(float)))
+            row.update(fit_point(meta, theta, E))
+            fitted.append((row, theta, E))
         # closed-form check on the quadrant positions (0, 90, 180, 270)
-        th = np.mod(grp["theta_deg"].to_numpy(float), 360.0)
+        th = np.mod(theta, 360.0)
         quad = []
         for q in (0.0, 90.0, 180.0, 270.0):
             hit = np.flatnonzero(np.abs((th - q + 180.0) % 360.0 - 180.0) < 1e-3)
-            quad.append(float(grp["output"].to_numpy()[hit[0]]) if hit.size else None)
+            quad.append(float(E[hit[0]]) if hit.size else None)
         if all(v is not None for v in quad) and geo["ia_term"] == "sin":
             cf = closed_form_n4(quad, geo["g"], float(meta["tilt_deg"]), geo["ia_sign"])
             row["closed_form_K0"], row["closed_form_K1"] = cf["K0"], cf["K1"]
