@@ -208,6 +208,20 @@ def _kw(run: RunCells, eff: Mapping) -> dict:
         run.meta) * (1.0 + float(eff.get("rate_scale_error", 0.0))) * run.rate_derivative})}
 
 
+def _force(run: RunCells, eff: Mapping) -> np.ndarray:
+    """Specific force of a run under the effects ``eff`` (:func:`accelcal.physics.rigs.specific_force`)
+    [m/s2]; inside a campaign, at the nominal rig (every tool error zero) once per run and
+    rate source, which each fit of paper 002 asks for again."""
+    kept, nominal = _KEPT.get(), all(v == 0.0 for k, v in eff.items() if k not in rigs.NOMINAL)
+    key = ("sine_force", id(run.meta), id(run.cols["table_rate_rad_s"]), id(run.rate_derivative), *eff.items())
+    if kept is None or not nominal or key not in kept:       # the value holds what the key's ids name
+        F = rigs.specific_force(TEST, run.meta, run.cols, eff, **_kw(run, eff))
+        if kept is None or not nominal:
+            return F
+        kept[key] = (F, run.meta, run.cols["table_rate_rad_s"], run.rate_derivative)
+    return kept[key][0]
+
+
 def _extra_accel(extra: Mapping, F: np.ndarray) -> np.ndarray:
     """Paper 002's KPPP·a_P³ + KOOO·a_O³ (m/s²), added to the effects.md indicated acceleration."""
     return extra.get("Kppp", 0.0) * F[:, 1] ** 3 + extra.get("Kooo", 0.0) * F[:, 2] ** 3
@@ -235,7 +249,7 @@ def model_output(run: RunCells, coeffs: Mapping, extra: Mapping, eff: Mapping) -
     kw = _kw(run, eff)
     E = rigs.rig_output(TEST, run.meta, run.cols, coeffs, eff, **kw)
     if any(extra.values()):
-        x = float(coeffs.get("K1", 1.0)) * _extra_accel(extra, rigs.specific_force(TEST, run.meta, run.cols, eff, **kw))
+        x = float(coeffs.get("K1", 1.0)) * _extra_accel(extra, _force(run, eff))
         E = E + instrument.first_order_lag(x, run.cols["time_s"], float(eff.get("sensor_lag", 0.0)))
     return E
 
@@ -261,7 +275,7 @@ def _jacobian_run(params: ParameterSet, x: np.ndarray, run: RunCells, i: int,
         tool errors (one-sided at the tau >= 0 bound of the sensor lag).
     """
     coeffs, extra, eff = _run_values(params, x, i)
-    F = rigs.specific_force(TEST, run.meta, run.cols, eff, **_kw(run, eff))
+    F = _force(run, eff)
     J = np.zeros((run.y_rows.size, len(params)))
     lin = []
     for j in (range(len(params)) if cols is None else cols):
