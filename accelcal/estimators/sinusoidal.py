@@ -138,10 +138,10 @@ def prepare_runs(runs: Sequence, rate_source: str = "drive", rate_derivative: st
         d(omega)/dt of the chosen derivative [rad/s2] (None: the drive's own); ``run_id``
         defaults to ``run<i>``.
     """
-    out, kept = [], _KEPT.get()
+    out, kept = [], {} if _KEPT.get() is None else _KEPT.get()
     for i, r in enumerate(runs):
         meta0, data = (r.meta, r.data) if hasattr(r, "meta") else r
-        k = {} if kept is None else kept.get(("sine_ls", id(data), i, n_harmonics), {})
+        k = kept.get(("sine_ls", id(data), i, n_harmonics), {})
         if k.get("data") is not data or k["meta0"] is not meta0:     # the rates of a run, once per campaign
             meta = dict(meta0)
             if str(meta.get("test", TEST)) != TEST:
@@ -152,11 +152,10 @@ def prepare_runs(runs: Sequence, rate_source: str = "drive", rate_derivative: st
             t, w = cols["time_s"], cols["table_rate_rad_s"]
             fit_w, fit_d = fitted_drive(t, w, float(meta["rate_frequency_hz"]), n_harmonics)
             cols["table_angle_deg"] = np.nan_to_num(cols["table_angle_deg"])
-            k = {"data": data, "meta0": meta0, "meta": meta, "cols": cols,
-                 "rates": {"fitted": fit_w, "drive": rigs.sine_drive(meta, t), "logged": w},
-                 "wdots": {"drive": None, "fitted": fit_d, "numeric": _five_point(t, w)}}
-            if kept is not None:
-                kept[("sine_ls", id(data), i, n_harmonics)] = k
+            k = kept[("sine_ls", id(data), i, n_harmonics)] = {
+                "data": data, "meta0": meta0, "meta": meta, "cols": cols,
+                "rates": {"fitted": fit_w, "drive": rigs.sine_drive(meta, t), "logged": w},
+                "wdots": {"drive": None, "fitted": fit_d, "numeric": _five_point(t, w)}}
         if rate_source not in k["rates"]:
             raise ValueError(f"rate_source {rate_source!r}")
         cols = {**k["cols"], "table_rate_rad_s": k["rates"][rate_source]}
@@ -212,13 +211,12 @@ def _force(run: RunCells, eff: Mapping) -> np.ndarray:
     """Specific force of a run under the effects ``eff`` (:func:`accelcal.physics.rigs.specific_force`)
     [m/s2]; inside a campaign, at the nominal rig (every tool error zero) once per run and
     rate source, which each fit of paper 002 asks for again."""
-    kept, nominal = _KEPT.get(), all(v == 0.0 for k, v in eff.items() if k not in rigs.NOMINAL)
-    key = ("sine_force", id(run.meta), id(run.cols["table_rate_rad_s"]), id(run.rate_derivative), *eff.items())
-    if kept is None or not nominal or key not in kept:       # the value holds what the key's ids name
-        F = rigs.specific_force(TEST, run.meta, run.cols, eff, **_kw(run, eff))
-        if kept is None or not nominal:
-            return F
-        kept[key] = (F, run.meta, run.cols["table_rate_rad_s"], run.rate_derivative)
+    kept = _KEPT.get() if all(v == 0.0 for k, v in eff.items() if k not in rigs.NOMINAL) else None
+    kept, key = {} if kept is None else kept, ("sine_force", id(run.meta), id(run.cols["table_rate_rad_s"]),
+                                               id(run.rate_derivative), *eff.items())
+    if key not in kept:             # the value holds what the key's ids name
+        kept[key] = (rigs.specific_force(TEST, run.meta, run.cols, eff, **_kw(run, eff)), run.meta,
+                     run.cols["table_rate_rad_s"], run.rate_derivative)
     return kept[key][0]
 
 
