@@ -69,6 +69,7 @@ from ..physics import instrument, rigs
 from ..results import (BudgetTerm, CoefficientResult, FitCheck, ResidualFigure, ResidualPanel, ResidualSeries,
                        display_number)
 from . import uncertainty as unc
+from .joint import _KEPT
 from .records import Records, jsonable
 from .registry import Estimator, register
 
@@ -137,27 +138,33 @@ def prepare_runs(runs: Sequence, rate_source: str = "drive", rate_derivative: st
         d(omega)/dt of the chosen derivative [rad/s2] (None: the drive's own); ``run_id``
         defaults to ``run<i>``.
     """
-    out = []
+    out, kept = [], {} if _KEPT.get() is None else _KEPT.get()
     for i, r in enumerate(runs):
-        meta, data = (r.meta, r.data) if hasattr(r, "meta") else r
-        meta = dict(meta)
-        if str(meta.get("test", TEST)) != TEST:
-            raise ValueError(f"run {meta.get('run_id', i)} is a {meta.get('test')!r} run, not {TEST}")
-        meta["test"] = TEST
-        meta.setdefault("run_id", f"run{i}")
-        cols = {k: np.asarray(data[k], float) for k in ("time_s", "table_rate_rad_s", "table_angle_deg", "output")}
-        t, w = cols["time_s"], cols["table_rate_rad_s"]
-        fit_w, fit_d = fitted_drive(t, w, float(meta["rate_frequency_hz"]), n_harmonics)
-        rates = {"fitted": fit_w, "drive": rigs.sine_drive(meta, t), "logged": w}
-        if rate_source not in rates:
+        meta0, data = (r.meta, r.data) if hasattr(r, "meta") else r
+        k = kept.get(("sine_ls", id(data), i, n_harmonics), {})
+        if k.get("data") is not data or k["meta0"] is not meta0:     # the rates of a run, once per campaign
+            meta = dict(meta0)
+            if str(meta.get("test", TEST)) != TEST:
+                raise ValueError(f"run {meta.get('run_id', i)} is a {meta.get('test')!r} run, not {TEST}")
+            meta["test"] = TEST
+            meta.setdefault("run_id", f"run{i}")
+            cols = {c: np.asarray(data[c], float) for c in ("time_s", "table_rate_rad_s", "table_angle_deg", "output")}
+            t, w = cols["time_s"], cols["table_rate_rad_s"]
+            fit_w, fit_d = fitted_drive(t, w, float(meta["rate_frequency_hz"]), n_harmonics)
+            cols["table_angle_deg"] = np.nan_to_num(cols["table_angle_deg"])
+            k = kept[("sine_ls", id(data), i, n_harmonics)] = {
+                "data": data, "meta0": meta0, "meta": meta, "cols": cols,
+                "rates": {"fitted": fit_w, "drive": rigs.sine_drive(meta, t), "logged": w},
+                "wdots": {"drive": None, "fitted": fit_d, "numeric": _five_point(t, w)}}
+        if rate_source not in k["rates"]:
             raise ValueError(f"rate_source {rate_source!r}")
-        cols["table_rate_rad_s"] = rates[rate_source]
-        wdots = {"drive": None, "fitted": fit_d, "numeric": _five_point(t, w)}
+        cols = {**k["cols"], "table_rate_rad_s": k["rates"][rate_source]}
         deriv = rate_derivative or ("fitted" if rate_source == "fitted" else "drive")
-        if deriv not in wdots:
+        if deriv not in k["wdots"]:
             raise ValueError(f"rate_derivative {rate_derivative!r}")
-        cols["table_angle_deg"] = np.nan_to_num(cols["table_angle_deg"])
-        out.append(replace(make_run(meta, cols, i), cols=cols, rate_derivative=wdots[deriv]))
+        if rate_source not in k:
+            k[rate_source] = make_run(k["meta"], cols, i)
+        out.append(replace(k[rate_source], cols=cols, rate_derivative=k["wdots"][deriv]))
     return out
 
 
@@ -194,9 +201,23 @@ def _run_values(params: ParameterSet, x: np.ndarray, i: int) -> tuple[dict, dict
 
 
 def _kw(run: RunCells, eff: Mapping) -> dict:
-    """The forward model's rate derivative of a run whose source is not the drive's own [rad/s2]."""
-    return {} if run.rate_derivative is None else {"rate_derivative": rigs.rotation_sign(run.meta) * (
-        1.0 + float(eff.get("rate_scale_error", 0.0))) * run.rate_derivative}
+    """The forward model's keywords of a run: its mount geometry, and the rate derivative of a run
+    whose source is not the drive's own [rad/s2]."""
+    return {"geometry": run.geometry, **({} if run.rate_derivative is None else {"rate_derivative": rigs.rotation_sign(
+        run.meta) * (1.0 + float(eff.get("rate_scale_error", 0.0))) * run.rate_derivative})}
+
+
+def _force(run: RunCells, eff: Mapping) -> np.ndarray:
+    """Specific force of a run under the effects ``eff`` (:func:`accelcal.physics.rigs.specific_force`)
+    [m/s2]; inside a campaign, at the nominal rig (every tool error zero) once per run and
+    rate source, which each fit of paper 002 asks for again."""
+    kept = _KEPT.get() if all(v == 0.0 for k, v in eff.items() if k not in rigs.NOMINAL) else None
+    kept, key = {} if kept is None else kept, ("sine_force", id(run.meta), id(run.cols["table_rate_rad_s"]),
+                                               id(run.rate_derivative), *eff.items())
+    if key not in kept:             # the value holds what the key's ids name
+        kept[key] = (rigs.specific_force(TEST, run.meta, run.cols, eff, **_kw(run, eff)), run.meta,
+                     run.cols["table_rate_rad_s"], run.rate_derivative)
+    return kept[key][0]
 
 
 def _extra_accel(extra: Mapping, F: np.ndarray) -> np.ndarray:
@@ -226,7 +247,7 @@ def model_output(run: RunCells, coeffs: Mapping, extra: Mapping, eff: Mapping) -
     kw = _kw(run, eff)
     E = rigs.rig_output(TEST, run.meta, run.cols, coeffs, eff, **kw)
     if any(extra.values()):
-        x = float(coeffs.get("K1", 1.0)) * _extra_accel(extra, rigs.specific_force(TEST, run.meta, run.cols, eff, **kw))
+        x = float(coeffs.get("K1", 1.0)) * _extra_accel(extra, _force(run, eff))
         E = E + instrument.first_order_lag(x, run.cols["time_s"], float(eff.get("sensor_lag", 0.0)))
     return E
 
@@ -252,7 +273,7 @@ def _jacobian_run(params: ParameterSet, x: np.ndarray, run: RunCells, i: int,
         tool errors (one-sided at the tau >= 0 bound of the sensor lag).
     """
     coeffs, extra, eff = _run_values(params, x, i)
-    F = rigs.specific_force(TEST, run.meta, run.cols, eff, **_kw(run, eff))
+    F = _force(run, eff)
     J = np.zeros((run.y_rows.size, len(params)))
     lin = []
     for j in (range(len(params)) if cols is None else cols):
@@ -289,6 +310,15 @@ def _split(v: np.ndarray, prep: list[RunCells]) -> list[np.ndarray]:
 def _jacobian(params: ParameterSet, prep: list[RunCells], x: np.ndarray, w: np.ndarray) -> np.ndarray:
     """Weighted design of every run [output_unit per parameter unit times the run weight]."""
     return np.vstack([w[i] * _jacobian_run(params, x, r, i) for i, r in enumerate(prep)])
+
+
+def _once(kept: dict, f, params: ParameterSet, prep: list[RunCells], x: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """``f(params, prep, x, w)`` (:func:`_residual`, :func:`_jacobian`) evaluated once per fit
+    however often its selection, passes and reporting ask at the same parameters, x and w."""
+    key = (f.__name__, tuple(params.names), x.tobytes(), w.tobytes())
+    if key not in kept:
+        kept[key] = f(params, prep, x, w)
+    return kept[key]
 
 
 # --------------------------------------------------------------------------- diagnostics
@@ -451,7 +481,7 @@ def _lag_start(params: ParameterSet, prep: list[RunCells], x0: np.ndarray) -> np
     return x
 
 
-def _select(params: ParameterSet, prep: list[RunCells], x0: np.ndarray
+def _select(params: ParameterSet, prep: list[RunCells], x0: np.ndarray, kept: dict
             ) -> tuple[dict[str, Hold], ParameterSet, np.ndarray]:
     """Hold the optional parameters (tool errors, KPPP, KOOO) the joint design does not
     determine at the start x0 (:func:`accelcal.fitting.identify.holds`): (name -> hold, the
@@ -462,8 +492,8 @@ def _select(params: ParameterSet, prep: list[RunCells], x0: np.ndarray
     instrument coefficients are never held: a rank deficiency among them is reported
     (:func:`design_diagnostics`).
     """
-    J0 = _jacobian(params, prep, x0, np.ones(len(prep)))
-    r0 = _residual(params, prep, x0, np.ones(len(prep)))
+    J0 = _once(kept, _jacobian, params, prep, x0, np.ones(len(prep)))
+    r0 = _once(kept, _residual, params, prep, x0, np.ones(len(prep)))
     r0 = r0 - J0 @ lstsq_svd_x(J0, r0)
     s0 = float(np.sqrt(r0 @ r0 / max(r0.size - len(params), 1)))
     rank = {k: i for i, k in enumerate(PRIORITY)}
@@ -535,37 +565,39 @@ def identify_sine_campaign(runs: Sequence | None, *, tool_errors: Mapping[str, s
     ones = np.ones(len(prep))
     x0 = _linear_start(params, prep, ones)
     params = ParameterSet(replace(p, scale=abs(x0[j])) if p.key == "K1" else p for j, p in enumerate(params))
-    dropped, params, x0 = _select(params, prep, _lag_start(params, prep, x0))
+    kept: dict = {}
+    dropped, params, x0 = _select(params, prep, _lag_start(params, prep, x0), kept)
     nonlinear = any(p.group == "tool" for p in params)
     w, x = ones, x0
     success, message = True, "linear least squares (no tool-error parameter)"
     rw_runs = reweight and len(prep) > 1
     for k in range(2 if rw_runs else 1):
         if nonlinear:
-            gn = gauss_newton(lambda p: _residual(params, prep, p, w), lambda p: _jacobian(params, prep, p, w), x,
+            gn = gauss_newton(lambda p: _once(kept, _residual, params, prep, p, w),
+                              lambda p: _once(kept, _jacobian, params, prep, p, w), x,
                               max_iter=50, lower=np.array([0.0 if p.key in NON_NEGATIVE else -np.inf for p in params]))
             x, success, message = gn.p, gn.converged, gn.message
         elif k > 0 or dropped:   # no tool error: (K1, K1*Kj) reparametrise a linear model
             x = _linear_start(params, prep, w)
         if rw_runs:           # the weights of the next pass, and of the covariance after the last
-            sig = np.array([np.sqrt(np.mean(e ** 2)) for e in _split(_residual(params, prep, x, ones), prep)])
+            sig = np.array([np.sqrt(np.mean(e ** 2)) for e in _split(_once(kept, _residual, params, prep, x, ones), prep)])
             w = 1.0 / np.where(sig > 0, sig, 1.0)
             w = w / np.exp(np.mean(np.log(w)))      # geometric-mean-one weights
     derivative = rate_derivative or ("fitted" if rate_source == "fitted" else "drive")
     options = {"tool_errors": tool_errors, "per_run_bias": per_run_bias, "extra_terms": list(extra_terms),
                "rate_source": rate_source, "rate_derivative": derivative, "n_harmonics": n_harmonics,
                "reweight": reweight}
-    return _finish(params, prep, x, w, dropped, success, message, options)
+    return _finish(params, prep, x, w, dropped, success, message, options, kept)
 
 
 def _finish(params: ParameterSet, prep: list[RunCells], x: np.ndarray, w: np.ndarray, dropped: dict[str, Hold],
-            success: bool, message: str, options: dict) -> SineFit:
+            success: bool, message: str, options: dict, kept: dict) -> SineFit:
     """Paper 002's reporting of a fit at x with run weights w as the core's
     :class:`~accelcal.fitting.core.FitResult`: the residual-scaled covariance s^2 (J^T W J)^+
     (:func:`~accelcal.fitting.core.lstsq_svd`, s^2 the weighted residual variance on n - p
     dof) and the pure-error lack-of-fit test of the drive's phases."""
-    Jw = _jacobian(params, prep, x, w)
-    raw = _split(_residual(params, prep, x, np.ones(len(prep))), prep)
+    Jw = _once(kept, _jacobian, params, prep, x, w)
+    raw = _split(_once(kept, _residual, params, prep, x, np.ones(len(prep))), prep)
     rw = np.concatenate([wi * e for wi, e in zip(w, raw)])
     dof = rw.size - len(params)
     s2 = float(rw @ rw / dof)

@@ -397,23 +397,27 @@ def fit_points(meta: Mapping, data: pd.DataFrame) -> tuple[list[dict], pd.DataFr
     pm = position_means(segment_run(data, n_pos))
     points: list[dict] = []
     fitted: list[tuple[dict, np.ndarray, np.ndarray]] = []     # (row, theta, E) of the fitted points
-    for pt, grp in pm.groupby("point", sort=True):
-        grp = grp.sort_values("position")
-        T = grp["temp_c"].to_numpy(float)
-        T_mean = float(np.nanmean(T)) if np.isfinite(T).any() else float(grp["temp_set_c"].iloc[0])
-        row = {"point": int(pt), "sweep": int(grp["sweep"].iloc[0]),
-               "temp_set_c": float(grp["temp_set_c"].iloc[0]), "temp_c": T_mean,
-               "time_s": float(grp["time_s"].mean()), "n_positions": int(len(grp)),
+    col = {c: pm[c].to_numpy() for c in ("point", "position", "sweep", "temp_set_c", "time_s", "count")}
+    col.update({c: pm[c].to_numpy(float) for c in ("temp_c", "theta_deg", "output")})
+    order = np.lexsort((col["position"], col["point"]))          # each point's positions in turn
+    for rows in np.split(order, np.flatnonzero(np.diff(col["point"][order])) + 1) if order.size else []:
+        grp = {c: v[rows] for c, v in col.items()}
+        T = grp["temp_c"]
+        T_mean = float(np.nanmean(T)) if np.isfinite(T).any() else float(grp["temp_set_c"][0])
+        row = {"point": int(grp["point"][0]), "sweep": int(grp["sweep"][0]),
+               "temp_set_c": float(grp["temp_set_c"][0]), "temp_c": T_mean,
+               "time_s": float(np.nanmean(grp["time_s"])), "n_positions": int(rows.size),
                "n_readings": int(grp["count"].sum())}
-        if len(grp) >= 3:
-            row.update(fit_point(meta, grp["theta_deg"], grp["output"]))
-            fitted.append((row, grp["theta_deg"].to_numpy(float), grp["output"].to_numpy(float)))
+        theta, E = grp["theta_deg"], grp["output"]
+        if rows.size >= 3:
+            row.update(fit_point(meta, theta, E))
+            fitted.append((row, theta, E))
         # closed-form check on the quadrant positions (0, 90, 180, 270)
-        th = np.mod(grp["theta_deg"].to_numpy(float), 360.0)
+        th = np.mod(theta, 360.0)
         quad = []
         for q in (0.0, 90.0, 180.0, 270.0):
             hit = np.flatnonzero(np.abs((th - q + 180.0) % 360.0 - 180.0) < 1e-3)
-            quad.append(float(grp["output"].to_numpy()[hit[0]]) if hit.size else None)
+            quad.append(float(E[hit[0]]) if hit.size else None)
         if all(v is not None for v in quad) and geo["ia_term"] == "sin":
             cf = closed_form_n4(quad, geo["g"], float(meta["tilt_deg"]), geo["ia_sign"])
             row["closed_form_K0"], row["closed_form_K1"] = cf["K0"], cf["K1"]
