@@ -114,6 +114,23 @@ def sample_lab(tmp_path_factory, examples) -> Path:
     return built_once(tmp_path_factory, "sample-lab", build) / "lab.duckdb"
 
 
+#: The drops of the one-process reference run of the scale-out tests (:func:`reference_lab`).
+REFERENCE_DROPS = ("drop-2026-11-20", "drop-bad", "drop-2026-11-21")
+
+
+@pytest.fixture(scope="session")
+def reference_lab(tmp_path_factory, examples) -> Path:
+    """The warehouse one process leaves (local engine, no config) from
+    :data:`REFERENCE_DROPS` as they lie in the samples folder, built once per test run
+    (:func:`built_once`): what the Dask and worker-pool runs of the same drops must equal.
+    Read it only."""
+    from accelcal.flows.pipeline import run_pipeline
+
+    def build(d: Path) -> None:
+        run_pipeline([examples / x for x in REFERENCE_DROPS], d / "lab.duckdb", engine="local")
+    return built_once(tmp_path_factory, "reference-lab", build) / "lab.duckdb"
+
+
 #: The drops of the certificate and DCC warehouse (:func:`certified_lab`): one campaign of
 #: each rig kind the certificates show (centrifuge + tumble, thermal, sine).
 CERTIFIED_LAB_DROPS = ("drop-2026-11-20", "drop-2026-11-18-thermal", "drop-2026-11-19-sine")

@@ -16,6 +16,7 @@ from prefect.settings import PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS, t
 from accelcal.flows.pipeline import SERVER_START_S, quiet_prefect, run_pipeline
 from accelcal.flows.runners import RunnerError, task_runner_for
 
+from conftest import REFERENCE_DROPS
 from test_faults import warehouse_contents
 
 quiet_prefect("ERROR")
@@ -35,11 +36,10 @@ def test_task_runner_specs(monkeypatch):
 
 
 @pytest.mark.slow
-def test_flow_on_an_existing_dask_scheduler_equals_local_run(tmp_path, examples, monkeypatch):
+def test_flow_on_an_existing_dask_scheduler_equals_local_run(tmp_path, examples, reference_lab, monkeypatch):
     distributed = pytest.importorskip("distributed")
-    drops = [examples / "drop-2026-11-20", examples / "drop-bad", examples / "drop-2026-11-21"]
-    local = tmp_path / "local" / "lab.duckdb"
-    run_pipeline(drops, local, engine="local")
+    drops = [examples / x for x in REFERENCE_DROPS]
+    local = reference_lab                              # the one-process run of the same drops
     monkeypatch.setenv("ACCELCAL_BATCH_FILES", "4")     # several batches, so both workers ingest
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                   dashboard_address=None) as cluster, \
