@@ -258,14 +258,15 @@ class PairData:
 
     Attributes
     ----------
-    table : DataFrame
-        n, mean_output, ss_within, dof_pe, rate, omega_z, time_mid, sweep, pol, rest, run_id.
+    cols : dict of ndarray
+        n, mean_output, ss_within, dof_pe, rate, omega_z, time_mid, sweep, pol, rest, run_id
+        (:func:`~accelcal.estimators.dwells.merged_dwell_columns` of each run, stacked).
     K1 : float
         Scale factor the outputs are divided by [output_unit/(m/s2)].
     metas : dict
         Polarity (+1 / -1) -> the run's metadata.
     """
-    table: pd.DataFrame
+    cols: dict
     K1: float
     metas: dict = field(default_factory=dict)
 
@@ -280,22 +281,20 @@ class PairData:
                                       for c, (_, _, pol) in zip(runs_cols, runs)])
         cols["run_id"] = np.concatenate([np.full(len(c["n"]), str(meta.get("run_id", "")), dtype=object)
                                          for c, (meta, _, _) in zip(runs_cols, runs)])
-        return cls(pd.DataFrame(cols), K1, metas)
+        return cls(cols, K1, metas)
+
+    @property
+    def table(self) -> pd.DataFrame:
+        """:attr:`cols` as a DataFrame (for a person's tables; the fits read :meth:`column`)."""
+        return pd.DataFrame(self.cols)
 
     def column(self, name: str) -> np.ndarray:
-        """``table[name].to_numpy()``, taken once (the table is not changed after it is built)."""
-        cache = self.__dict__.setdefault("_columns", {})
-        if name not in cache:
-            cache[name] = self.table[name].to_numpy()
-        return cache[name]
+        """The column ``name`` of every row (not to be changed: the pair is read only)."""
+        return self.cols[name]
 
     def subset(self, keep: np.ndarray) -> "PairData":
         """The pair restricted to the rows ``keep``."""
-        sub = PairData(self.table[keep].reset_index(drop=True), self.K1, self.metas)
-        taken = self.__dict__.get("_columns")
-        if taken:
-            sub.__dict__["_columns"] = {k: v[keep] for k, v in taken.items()}
-        return sub
+        return PairData({k: v[keep] for k, v in self.cols.items()}, self.K1, self.metas)
 
     @property
     def direction(self) -> np.ndarray:
@@ -399,7 +398,6 @@ def test_radius_iterative(pair: PairData, R0_plus: float, R0_minus: float, order
     quadratic and cubic terms are shared by both polarities, so that point need not be the
     least-squares minimum over R±.
     """
-    T = pair.table
     pol = pair.column("pol")
     dR, _ = pair.input_columns()            # a_i+- = R+- d a_IA / d R of the forward model
     Rp, Rm = float(R0_plus), float(R0_minus)
@@ -410,7 +408,7 @@ def test_radius_iterative(pair: PairData, R0_plus: float, R0_minus: float, order
         a = np.where(pol > 0, Rp, Rm) * dR
         # the g range is judged on the starting radii so the dwell set does not change
         if it == 1:
-            keep = np.ones(len(T), bool) if gm is None else (np.abs(a) <= gm * 1.02)
+            keep = np.ones(len(pol), bool) if gm is None else (np.abs(a) <= gm * 1.02)
             sub = pair if keep.all() else pair.subset(keep)
         fit = sub.fit(a[keep], order, subtract_a=True)
         cp, cm = fit.value("b+"), fit.value("b-")
