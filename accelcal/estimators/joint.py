@@ -141,6 +141,14 @@ def cells_kept():
         _KEPT.reset(token)
 
 
+def campaign_kept() -> dict:
+    """What :func:`cells_kept` keeps for the campaign being computed, for the estimators
+    that keep a run's derived arrays with it (keys tuples that name their method); outside
+    it, a new empty dict, so that nothing is kept."""
+    kept = _KEPT.get()
+    return {} if kept is None else kept
+
+
 def prepare(runs) -> tuple[list[RunCells], list[str]]:
     """RunFile-like objects (meta, data, sha256) -> cells with a first noise model.
 
@@ -149,8 +157,7 @@ def prepare(runs) -> tuple[list[RunCells], list[str]]:
     cells an earlier run of the list already holds (:func:`drop_duplicate_cells`); inside
     :func:`cells_kept` the rest is built once per run.
     """
-    kept = _KEPT.get()
-    kept = {} if kept is None else kept
+    kept = campaign_kept()
     cells, own = [], []
     for j, r in enumerate(runs):
         k = kept.get(id(r))

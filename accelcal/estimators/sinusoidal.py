@@ -69,7 +69,7 @@ from ..physics import instrument, rigs
 from ..results import (BudgetTerm, CoefficientResult, FitCheck, ResidualFigure, ResidualPanel, ResidualSeries,
                        display_number)
 from . import uncertainty as unc
-from .joint import _KEPT
+from .joint import campaign_kept
 from .records import Records, jsonable
 from .registry import Estimator, register
 
@@ -138,7 +138,7 @@ def prepare_runs(runs: Sequence, rate_source: str = "drive", rate_derivative: st
         d(omega)/dt of the chosen derivative [rad/s2] (None: the drive's own); ``run_id``
         defaults to ``run<i>``.
     """
-    out, kept = [], {} if _KEPT.get() is None else _KEPT.get()
+    out, kept = [], campaign_kept()
     for i, r in enumerate(runs):
         meta0, data = (r.meta, r.data) if hasattr(r, "meta") else r
         k = kept.get(("sine_ls", id(data), i, n_harmonics), {})
@@ -211,9 +211,9 @@ def _force(run: RunCells, eff: Mapping) -> np.ndarray:
     """Specific force of a run under the effects ``eff`` (:func:`accelcal.physics.rigs.specific_force`)
     [m/s2]; inside a campaign, at the nominal rig (every tool error zero) once per run and
     rate source, which each fit of paper 002 asks for again."""
-    kept = _KEPT.get() if all(v == 0.0 for k, v in eff.items() if k not in rigs.NOMINAL) else None
-    kept, key = {} if kept is None else kept, ("sine_force", id(run.meta), id(run.cols["table_rate_rad_s"]),
-                                               id(run.rate_derivative), *eff.items())
+    nominal = all(v == 0.0 for k, v in eff.items() if k not in rigs.NOMINAL)
+    kept = campaign_kept() if nominal else {}
+    key = ("sine_force", id(run.meta), id(run.cols["table_rate_rad_s"]), id(run.rate_derivative), *eff.items())
     if key not in kept:             # the value holds what the key's ids name
         kept[key] = (rigs.specific_force(TEST, run.meta, run.cols, eff, **_kw(run, eff)), run.meta,
                      run.cols["table_rate_rad_s"], run.rate_derivative)
@@ -312,12 +312,23 @@ def _jacobian(params: ParameterSet, prep: list[RunCells], x: np.ndarray, w: np.n
     return np.vstack([w[i] * _jacobian_run(params, x, r, i) for i, r in enumerate(prep)])
 
 
+#: Points whose residual and Jacobian :func:`_once` keeps per fit (the most recent): what is
+#: asked again is the last point of a step (the selection's start, then the first
+#: Gauss–Newton point; the last point, then the reweighting and the reporting), and a long
+#: run's Jacobian at every point of a fit would grow with its readings times the iterations
+ONCE_POINTS = 3
+
+
 def _once(kept: dict, f, params: ParameterSet, prep: list[RunCells], x: np.ndarray, w: np.ndarray) -> np.ndarray:
     """``f(params, prep, x, w)`` (:func:`_residual`, :func:`_jacobian`) evaluated once per fit
-    however often its selection, passes and reporting ask at the same parameters, x and w."""
+    however often its selection, passes and reporting ask at the same parameters, x and w
+    (:data:`ONCE_POINTS` of each kept)."""
     key = (f.__name__, tuple(params.names), x.tobytes(), w.tobytes())
     if key not in kept:
         kept[key] = f(params, prep, x, w)
+        same = [k for k in kept if k[0] == f.__name__]
+        for k in same[:-ONCE_POINTS]:
+            del kept[k]
     return kept[key]
 
 
