@@ -626,10 +626,11 @@ def advise(cells: Sequence[RunCells], baseline: Sequence[str], targets: Sequence
         Rig id -> set-up time of one run [min] (``[rigs."ID"] setup_min``); default
         :data:`SETUP_MIN_DEFAULT`.
     session : dict, optional
-        Kept between calls on the same ``cells`` and lab statements (one per question
-        list, :func:`next_runs`): the fit of the runs made and the prediction of every design
-        already judged, per model (baseline, added effects and candidates), so that
-        questions sharing a model pay for it once; the answers are those of separate calls.
+        Kept between calls on the same ``cells`` (one per question list,
+        :func:`next_runs`): the fit of the runs made and the prediction of every design
+        already judged, per model (baseline, added effects, candidates and stated rig
+        inputs), so that questions sharing a model pay for it once; the answers are those
+        of separate calls.
 
     Returns
     -------
@@ -664,7 +665,8 @@ def _advise(cells, baseline, targets, separate, max_runs, candidates, top, state
         cands = [c for c in cands if any(c.test in EFFECTS[t].tests for t in seen)]
     # the runs made, fitted as the advice model (noise refitted to its residuals, which is
     # the noise a fit of the augmented campaign will see)
-    key = (tuple(effects), tuple(extra), repr(cands))          # every field of every candidate
+    # every field of every candidate, and the stated rig inputs the type-B terms read
+    key = (tuple(effects), tuple(extra), repr(cands), repr(sorted(stated.items())))
     if key not in session:
         made = _model(cells, effects, extra)
         made_fit = fit_selected(made)
