@@ -123,11 +123,14 @@ def reference_lab(tmp_path_factory, examples) -> Path:
     """The warehouse one process leaves (local engine, no config) from
     :data:`REFERENCE_DROPS` as they lie in the samples folder, built once per test run
     (:func:`built_once`): what the Dask and worker-pool runs of the same drops must equal.
-    Read it only."""
+    Its run's summary is beside it (``summary.json``). Read it only."""
+    import json
+
     from accelcal.flows.pipeline import run_pipeline
 
     def build(d: Path) -> None:
-        run_pipeline([examples / x for x in REFERENCE_DROPS], d / "lab.duckdb", engine="local")
+        s = run_pipeline([examples / x for x in REFERENCE_DROPS], d / "lab.duckdb", engine="local")
+        (d / "summary.json").write_text(json.dumps(s, default=str))
     return built_once(tmp_path_factory, "reference-lab", build) / "lab.duckdb"
 
 
