@@ -32,6 +32,7 @@ removed by the next run): what was committed stays and a re-run completes the re
 from __future__ import annotations
 
 import atexit
+import contextlib
 import os
 import signal
 import subprocess
@@ -126,6 +127,11 @@ def guard_descendants(grace: float = GRACE_S) -> str | None:
 #: Longest wait for the watchdog to stop the descendants after an interrupt [s].
 STOP_WAIT_S = GRACE_S + 2.0
 _stopping = threading.Lock()
+#: Set once the command stops (:func:`stop_now`, :func:`exit_now`).
+_stopped = threading.Event()
+#: How long a hushed descendant's output waits before it is passed on [s]: a Ctrl-C reaches
+#: the descendants as it reaches the command, and they may print before the command stops.
+HUSH_DELAY_S = 0.3
 
 
 def guarded() -> bool:
@@ -139,6 +145,7 @@ def stop_now(line: str, code: int) -> None:
     A second caller (a second Ctrl-C, the server watch) waits for the first."""
     if not _stopping.acquire(blocking=False):
         threading.Event().wait()
+    _stopped.set()
     try:
         tty = os.isatty(2)
         os.write(2, ("\n\x1b[?25h" if tty else "").encode() + f"accelcal: error: {line}\n".encode())
@@ -155,6 +162,7 @@ def exit_now(code: int) -> None:
     import logging
     if not _stopping.acquire(blocking=False):
         threading.Event().wait()
+    _stopped.set()
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()
@@ -162,6 +170,44 @@ def exit_now(code: int) -> None:
             pass
     logging.shutdown()
     _stop_descendants_and_exit(code)
+
+
+@contextlib.contextmanager
+def hushed_when_stopping():
+    """Processes started in this block write their stderr through a thread that passes it
+    on to the command's stderr until the command stops; what they print while they are
+    being stopped is dropped.  Prefect's server, stopped mid-start or by the terminal's
+    Ctrl-C, prints a traceback; the command's one line must stay the last.  Output written
+    by this process inside the block goes through the same thread, so nothing else is
+    lost.  Outside a guarded command this does nothing."""
+    if not guarded():
+        yield
+        return
+    r, w = os.pipe()
+    threading.Thread(target=_pass_on, args=(r,), name="accelcal-hushed-stderr", daemon=True).start()
+    saved = os.dup(2)
+    os.dup2(w, 2)                                      # inheritable: the children write to w
+    os.close(w)
+    try:
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+def _pass_on(r: int) -> None:
+    while True:
+        try:
+            chunk = os.read(r, 65536)
+        except OSError:
+            return
+        if not chunk:
+            return
+        if not _stopped.wait(HUSH_DELAY_S):
+            try:
+                os.write(2, chunk)
+            except OSError:
+                pass
 
 
 def _stop_descendants_and_exit(code: int) -> None:

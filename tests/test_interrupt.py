@@ -149,3 +149,38 @@ def test_a_prefect_server_that_does_not_start_in_time_is_one_operational_line(tm
     while _marked(mark) and time.monotonic() < t_end:
         time.sleep(0.2)
     assert _marked(mark) == []
+
+
+_HUSHED = r'''
+import subprocess, sys, time
+from accelcal import procguard
+procguard.stop_on_interrupt("interrupted")
+procguard.guard_descendants()
+child = r"""
+import signal, sys, time
+def dying(*_):
+    sys.stderr.write("Traceback: dying words\n"); sys.stderr.flush(); time.sleep(0.2); sys.exit(1)
+signal.signal(signal.SIGINT, dying); signal.signal(signal.SIGTERM, dying)
+sys.stderr.write("said while running\n"); sys.stderr.flush()
+time.sleep(60)
+"""
+with procguard.hushed_when_stopping():
+    subprocess.Popen([sys.executable, "-c", child])
+time.sleep(1.5)
+print("ready", flush=True)
+time.sleep(60)
+'''
+
+
+def test_what_a_descendant_prints_as_ctrl_c_stops_it_never_follows_the_one_line(tmp_path):
+    """A descendant that takes the terminal's Ctrl-C itself (uvicorn does, once Prefect's
+    server serves) and prints a traceback as it stops: stderr holds what it said while it
+    ran, then the command's one line, and nothing after."""
+    p = subprocess.Popen([sys.executable, "-c", _HUSHED], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, start_new_session=True)
+    assert p.stdout.readline() == b"ready\n"
+    os.killpg(p.pid, signal.SIGINT)
+    _, err = p.communicate(timeout=30)
+    time.sleep(0.5)                          # the stopped child's last words, if any, are out
+    assert p.returncode == 130
+    assert err.decode().split("\n") == ["said while running", "accelcal: error: interrupted", ""]

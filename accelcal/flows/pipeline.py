@@ -704,18 +704,22 @@ def _prefect_api(task_runner: str):
 def _spawn_deaf_to_ctrl_c(server, watch) -> None:
     """Start Prefect's server with SIGINT ignored (inherited through exec): the terminal's
     Ctrl-C reaches the whole foreground group, and a server still importing would print
-    its own "Aborted!"; the run stops it itself (accelcal.procguard).  ``watch(process)``
+    its own "Aborted!"; the run stops it itself (accelcal.procguard), and what the server
+    prints as it is stopped is dropped (uvicorn takes SIGINT back once it serves, so a
+    Ctrl-C starts its own shutdown too).  ``watch(process)``
     is called on each server process as soon as it is started (its loss during the start
     too)."""
     import signal
     import threading
+    from ..procguard import hushed_when_stopping
     spawn = type(server)._run_uvicorn_command.__get__(server)     # Prefect's own, once
     main = threading.current_thread() is threading.main_thread()
 
     def deaf():
         before = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
         try:
-            proc = spawn()
+            with hushed_when_stopping():
+                proc = spawn()
         finally:
             if main:
                 signal.signal(signal.SIGINT, before)
