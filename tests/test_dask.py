@@ -11,9 +11,7 @@ import os
 
 import pytest
 
-from prefect.settings import PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS, temporary_settings
-
-from accelcal.flows.pipeline import SERVER_START_S, quiet_prefect, run_pipeline
+from accelcal.flows.pipeline import _prefect_api, quiet_prefect, run_pipeline
 from accelcal.flows.runners import RunnerError, task_runner_for
 
 from conftest import REFERENCE_DROPS
@@ -41,16 +39,16 @@ def test_flow_on_an_existing_dask_scheduler_equals_local_run(tmp_path, examples,
     drops = [examples / x for x in REFERENCE_DROPS]
     local = reference_lab                              # the one-process run of the same drops
     monkeypatch.setenv("ACCELCAL_BATCH_FILES", "4")     # several batches, so both workers ingest
-    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                  dashboard_address=None) as cluster, \
+    monkeypatch.delenv("PREFECT_API_URL", raising=False)
+    # A lab's own scheduler comes with the lab's Prefect server: one server, whose address
+    # (PREFECT_API_URL) the workers inherit as they start and the flow finds, rather than a
+    # temporary server in each of the three processes.
+    with _prefect_api("dask"), \
+            distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                     dashboard_address=None) as cluster, \
             distributed.Client(cluster) as client:
         on_dask = tmp_path / "dask" / "lab.duckdb"
-        # each worker of a scheduler started apart from the flow starts a Prefect server
-        # of its own, with the flow's settings: the time accelcal gives its own server
-        # (Prefect's 20 s is exceeded on a loaded machine)
-        with temporary_settings({PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS: SERVER_START_S}):
-            s = run_pipeline(drops, on_dask, engine="prefect",
-                             task_runner=cluster.scheduler_address)
+        s = run_pipeline(drops, on_dask, engine="prefect", task_runner=cluster.scheduler_address)
         # the tasks really ran on the workers (both of them)
         seen = client.run(lambda dask_worker: len(dask_worker.data) + dask_worker.state.executed_count)
     assert all(n > 0 for n in seen.values()), seen
@@ -65,7 +63,6 @@ def test_local_dask_workers_share_the_flows_prefect_server(monkeypatch):
     back afterwards, and nothing is set for the thread runner."""
     from prefect.server.api.server import SubprocessASGIServer
 
-    from accelcal.flows.pipeline import _prefect_api
     monkeypatch.delenv("PREFECT_API_URL", raising=False)
     with _prefect_api("thread"):
         assert "PREFECT_API_URL" not in os.environ
