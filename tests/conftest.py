@@ -4,6 +4,7 @@ from __future__ import annotations
 import fcntl
 import os
 import shutil
+import sys
 from pathlib import Path
 from typing import Callable
 
@@ -170,3 +171,14 @@ def pytest_collection_modifyitems(config, items):
     ones fill in at the end."""
     slow = {it.path for it in items if it.get_closest_marker("slow")}
     items.sort(key=lambda it: it.path not in slow)
+
+
+def pytest_sessionstart(session):
+    """accelcal's bytecode, compiled once before the tests start.  The suite starts some
+    sixty Python processes that import accelcal (CLI runs, worker pools, Dask workers); an
+    editable install has no ``.pyc`` of its own, and where PYTHONDONTWRITEBYTECODE is set
+    each of them compiled all of accelcal again (about 0.5 CPU s each).
+    Compiling is what Python does itself on the first import; nothing is checked less."""
+    if sys.dont_write_bytecode and not os.environ.get("PYTEST_XDIST_WORKER"):
+        import compileall
+        compileall.compile_dir(REPO / "accelcal", quiet=2)
