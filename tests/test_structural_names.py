@@ -100,11 +100,12 @@ def test_ten_units_recalibrated_by_tumble_alone_get_due_dates_where_they_drift(t
     u = 5e-6 * k1           # a lab's u of K1, type B included (the simulated tumble's is 2e-8)
     rate = {j: (5e-5 + 2e-5 * j if j < 5 else 0.0) for j in range(10)}
     rng = np.random.default_rng(3)
-    for j in range(10):
-        for y in range(2021, 2026):
-            value = k1 * (1 + rate[j] * (y - 2021)) + u * rng.standard_normal()
-            add_campaign(w, f"TU-{j}", f"TU-{j}/{y}", "DH-1", f"{y}-03-01T10:00:00+00:00",
-                         _rows(res, (value, u)), method="joint_ml")
+    with w.session():                       # one open of the file for the fleet
+        for j in range(10):
+            for y in range(2021, 2026):
+                value = k1 * (1 + rate[j] * (y - 2021)) + u * rng.standard_normal()
+                add_campaign(w, f"TU-{j}", f"TU-{j}/{y}", "DH-1", f"{y}-03-01T10:00:00+00:00",
+                             _rows(res, (value, u)), method="joint_ml")
     _stored_a_week_after(w)
     as_of = dt.datetime(2025, 6, 1, 23, 59, 59, tzinfo=dt.timezone.utc)
     rows = {(r["unit_serial"], r["coefficient"]): r for r in due.due_rows(w.path, cfg, as_of)}

@@ -185,23 +185,24 @@ def test_ten_units_by_one_tumble_a_year_held_at_their_full_calibration_get_due_d
     u = 5e-6 * comb.value                   # a lab's u of the combination, type B included
     rate = {j: (5e-5 + 2e-5 * j if j < 5 else 0.0) for j in range(10)}
     rng = np.random.default_rng(3)
-    for j in range(10):
-        serial = f"TU-{j}"
-        full = {k: (truth[k], 0.05 * abs(truth[k]) or 1e-9) for k in ("K0", "K2", "Koq", "K3", "Koo")}
-        full["K1"] = (truth["K1"], u)
-        add_campaign(w, serial, f"{serial}/2020", "DH-1", "2020-03-01T10:00:00+00:00", full, method="joint_ml")
-        for y in range(2021, 2026):
-            res = copy.deepcopy(raw)
-            row = next(c for c in res.coefficients if c.adopted and c.name == "K1(Koq,K3)")
-            row.value = comb.value * (1 + rate[j] * (y - 2021)) + u * rng.standard_normal()
-            row.std_uncertainty = u
-            camp, at = f"{serial}/{y}", dt.datetime(y, 3, 1, 10, tzinfo=dt.timezone.utc)
-            known = w.unit_priors({camp: (serial, at, False)})[camp]
-            assert {t: known[t]["value"] for t in ("Koq", "K3", "Koo")} == {t: full[t][0] for t in ("Koq", "K3", "Koo")}
-            assert apply_priors(res, known)
-            add_campaign(w, serial, camp, "DH-1", at.isoformat(),
-                         {n: (c.value, c.std_uncertainty, c.factors) for n, c in _adopted(res).items()},
-                         method="joint_ml")
+    with w.session():                       # one open of the file for the fleet
+        for j in range(10):
+            serial = f"TU-{j}"
+            full = {k: (truth[k], 0.05 * abs(truth[k]) or 1e-9) for k in ("K0", "K2", "Koq", "K3", "Koo")}
+            full["K1"] = (truth["K1"], u)
+            add_campaign(w, serial, f"{serial}/2020", "DH-1", "2020-03-01T10:00:00+00:00", full, method="joint_ml")
+            for y in range(2021, 2026):
+                res = copy.deepcopy(raw)
+                row = next(c for c in res.coefficients if c.adopted and c.name == "K1(Koq,K3)")
+                row.value = comb.value * (1 + rate[j] * (y - 2021)) + u * rng.standard_normal()
+                row.std_uncertainty = u
+                camp, at = f"{serial}/{y}", dt.datetime(y, 3, 1, 10, tzinfo=dt.timezone.utc)
+                known = w.unit_priors({camp: (serial, at, False)})[camp]
+                assert {t: known[t]["value"] for t in ("Koq", "K3", "Koo")} == {t: full[t][0] for t in ("Koq", "K3", "Koo")}
+                assert apply_priors(res, known)
+                add_campaign(w, serial, camp, "DH-1", at.isoformat(),
+                             {n: (c.value, c.std_uncertainty, c.factors) for n, c in _adopted(res).items()},
+                             method="joint_ml")
     _stored_a_week_after(w)
     as_of = dt.datetime(2025, 6, 1, 23, 59, 59, tzinfo=dt.timezone.utc)
     rows = {(r["unit_serial"], r["coefficient"]): r for r in due.due_rows(w.path, cfg, as_of)}

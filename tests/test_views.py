@@ -31,6 +31,11 @@ def add_campaign(wh: Warehouse, serial: str, campaign: str, rig: str, started: s
     """One run file + one result with the given {name: (value, u)} or {name: (value, u,
     factors)} (a combination), each the adopted value of its coefficient (history reads
     adopted values); returns result_id."""
+    with wh.session():          # one open of the file for the three writes
+        return _add_campaign(wh, serial, campaign, rig, started, coefs, model, method, salt)
+
+
+def _add_campaign(wh, serial, campaign, rig, started, coefs, model, method, salt) -> str:
     sha = _sha(serial, campaign, rig, salt)
     wh.record_runs([RunRecord(sha256=sha, source_path=f"/drops/{campaign}/{rig}{salt}.csv",
                               drop_name="d", drop_path="/drops", size_bytes=1, status="accepted",
