@@ -131,7 +131,7 @@ _stopping = threading.Lock()
 _stopped = threading.Event()
 #: How long a hushed descendant's output waits before it is passed on [s]: a Ctrl-C reaches
 #: the descendants as it reaches the command, and they may print before the command stops.
-HUSH_DELAY_S = 0.3
+HUSH_DELAY_S = 0.5
 
 
 def guarded() -> bool:
@@ -142,13 +142,18 @@ def guarded() -> bool:
 def stop_now(line: str, code: int) -> None:
     """End this process now from any thread: ``line`` on stderr (``accelcal: error: ...``),
     every descendant stopped (SIGTERM, SIGKILL after the grace period), exit ``code``.
-    A second caller (a second Ctrl-C, the server watch) waits for the first."""
+    A second caller (a second Ctrl-C, the server watch) waits for the first.  The line is
+    the last this process writes to stderr: its other threads (Prefect's event and log
+    workers, calling a server the Ctrl-C stopped) write to /dev/null from then on."""
     if not _stopping.acquire(blocking=False):
         threading.Event().wait()
     _stopped.set()
     try:
         tty = os.isatty(2)
         os.write(2, ("\n\x1b[?25h" if tty else "").encode() + f"accelcal: error: {line}\n".encode())
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, 2)
+        os.close(null)
     except OSError:
         pass
     _stop_descendants_and_exit(code)

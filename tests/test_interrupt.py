@@ -159,13 +159,25 @@ procguard.guard_descendants()
 child = r"""
 import signal, sys, time
 def dying(*_):
-    sys.stderr.write("Traceback: dying words\n"); sys.stderr.flush(); time.sleep(0.2); sys.exit(1)
+    sys.stderr.write("Traceback: dying words\n"); sys.stderr.flush(); time.sleep(1.0); sys.exit(1)
 signal.signal(signal.SIGINT, dying); signal.signal(signal.SIGTERM, dying)
 sys.stderr.write("said while running\n"); sys.stderr.flush()
 time.sleep(60)
 """
 with procguard.hushed_when_stopping():
-    subprocess.Popen([sys.executable, "-c", child])
+    server = subprocess.Popen([sys.executable, "-c", child])
+
+
+def client():                    # as Prefect's event worker does once its server is gone
+    server.wait()
+    while True:
+        sys.stderr.write("EventsWorker: ConnectError\n")
+        sys.stderr.flush()
+        time.sleep(0.002)
+
+
+import threading
+threading.Thread(target=client, daemon=True).start()
 time.sleep(1.5)
 print("ready", flush=True)
 time.sleep(60)
@@ -174,7 +186,8 @@ time.sleep(60)
 
 def test_what_a_descendant_prints_as_ctrl_c_stops_it_never_follows_the_one_line(tmp_path):
     """A descendant that takes the terminal's Ctrl-C itself (uvicorn does, once Prefect's
-    server serves) and prints a traceback as it stops: stderr holds what it said while it
+    server serves) and prints a traceback as it stops, and a thread of the command that
+    complains once that server is gone: stderr holds what the descendant said while it
     ran, then the command's one line, and nothing after."""
     p = subprocess.Popen([sys.executable, "-c", _HUSHED], stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, start_new_session=True)
