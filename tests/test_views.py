@@ -32,27 +32,23 @@ def add_campaign(wh: Warehouse, serial: str, campaign: str, rig: str, started: s
     factors)} (a combination), each the adopted value of its coefficient (history reads
     adopted values); returns result_id."""
     with wh.session():          # one open of the file for the three writes
-        return _add_campaign(wh, serial, campaign, rig, started, coefs, model, method, salt)
-
-
-def _add_campaign(wh, serial, campaign, rig, started, coefs, model, method, salt) -> str:
-    sha = _sha(serial, campaign, rig, salt)
-    wh.record_runs([RunRecord(sha256=sha, source_path=f"/drops/{campaign}/{rig}{salt}.csv",
-                              drop_name="d", drop_path="/drops", size_bytes=1, status="accepted",
-                              run_id=f"{rig}-{campaign}{salt}", test="centrifuge",
-                              unit_serial=serial, unit_model=model, campaign=campaign, rig_id=rig,
-                              started_at=started, n_rows=1, parquet_path=None,
-                              validator_version="v1")])
-    res = CampaignResult(campaign=campaign, unit_serial=serial, unit_model=model,
-                         tests=["centrifuge"], rig_ids=[rig], input_sha256=[sha],
-                         coefficients=[CoefficientResult(n, v, u, "s2/m", method, rig, adopted=True,
-                                                         factors=dict(*f))
-                                       for n, (v, u, *f) in coefs.items()])
-    inputs = wh.campaign_inputs(campaign)
-    rid = _sha("result", campaign, salt, *sorted(i["sha256"] for i in inputs))
-    wh.store_result(res, result_id=rid, inputs=inputs, code_version=CV, parameters={},
-                    flow_run_id="f")
-    return rid
+        sha = _sha(serial, campaign, rig, salt)
+        wh.record_runs([RunRecord(sha256=sha, source_path=f"/drops/{campaign}/{rig}{salt}.csv",
+                                  drop_name="d", drop_path="/drops", size_bytes=1, status="accepted",
+                                  run_id=f"{rig}-{campaign}{salt}", test="centrifuge",
+                                  unit_serial=serial, unit_model=model, campaign=campaign, rig_id=rig,
+                                  started_at=started, n_rows=1, parquet_path=None,
+                                  validator_version="v1")])
+        res = CampaignResult(campaign=campaign, unit_serial=serial, unit_model=model,
+                             tests=["centrifuge"], rig_ids=[rig], input_sha256=[sha],
+                             coefficients=[CoefficientResult(n, v, u, "s2/m", method, rig, adopted=True,
+                                                             factors=dict(*f))
+                                           for n, (v, u, *f) in coefs.items()])
+        inputs = wh.campaign_inputs(campaign)
+        rid = _sha("result", campaign, salt, *sorted(i["sha256"] for i in inputs))
+        wh.store_result(res, result_id=rid, inputs=inputs, code_version=CV, parameters={},
+                        flow_run_id="f")
+        return rid
 
 
 def rows(con, sql, params=None):

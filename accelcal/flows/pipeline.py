@@ -706,9 +706,8 @@ def _spawn_deaf_to_ctrl_c(server, watch) -> None:
     Ctrl-C reaches the whole foreground group, and a server still importing would print
     its own "Aborted!"; the run stops it itself (accelcal.procguard), and what the server
     prints as it is stopped is dropped (uvicorn takes SIGINT back once it serves, so a
-    Ctrl-C starts its own shutdown too).  ``watch(process)``
-    is called on each server process as soon as it is started (its loss during the start
-    too)."""
+    Ctrl-C starts its own shutdown too).  ``watch(process)`` is called on each server
+    process as soon as it is started (its loss during the start too)."""
     import signal
     import threading
     from ..procguard import hushed_when_stopping
