@@ -452,6 +452,31 @@ class RunCells:
         return np.bincount(self.cid[keep], weights=np.asarray(rows, float)[keep],
                            minlength=self.ncell) / self.n
 
+    def cell_means(self, columns: np.ndarray) -> np.ndarray:
+        """:meth:`cell_mean` of each column of a block, at once.
+
+        Parameters
+        ----------
+        columns : (nrow, k) array_like
+            k values per reading [any unit].
+
+        Returns
+        -------
+        (ncell, k) ndarray
+            Column q is ``cell_mean(columns[:, q])``, bit for bit: one ``bincount`` over
+            (cell, column) pairs adds each pair's readings in reading order, as the
+            column's own ``bincount`` does.
+        """
+        X = np.asarray(columns, float)
+        k = X.shape[1]
+        keep = self._kept_mask()
+        cid = self.cid if keep is None else self.cid[keep]
+        if keep is not None:
+            X = X[keep]
+        pair = (cid[:, None] * k + np.arange(k)).ravel()
+        sums = np.bincount(pair, weights=X.ravel(), minlength=self.ncell * k)
+        return sums.reshape(self.ncell, k) / self.n[:, None]
+
     def _deviations(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(keep, deviation from its cell's mean per reading, sum of squares per cell, sample
         variance per cell) of a per-reading quantity."""

@@ -47,7 +47,7 @@ from ..effects import EFFECTS, si_unit, typical_size
 from ..physics import instrument
 from ..physics.geometry import CentrifugeMount
 from ..physics.instrument import first_order_lag
-from ..physics.rigs import INSTRUMENT_EFFECTS, rig_output, rotation_sign, specific_force
+from ..physics.rigs import INSTRUMENT_EFFECTS, POINT_COLUMNS, rig_output, rotation_sign, specific_force
 from ..constants import T_REF_C
 from .core import LackOfFit, Parameter, ParameterSet, lack_of_fit, lstsq_svd
 from .identify import (ALIAS_TOL, PRIORITY, Column, Combination, Hold, absorbed, as_holds, combinations, holds,
@@ -482,6 +482,26 @@ class CampaignModel:
         co, eff, kw = self.inputs(p, j, extra)
         return rig_output(r.test, r.meta, r.cols, co, eff, geometry=r.geometry, **kw)
 
+    def _rows_at(self, points: Sequence[np.ndarray], j: int) -> np.ndarray:
+        """:meth:`_rows` at several points that differ only in parameters of
+        :meth:`_point_column`, in one evaluation of the model: row k, element for element,
+        is ``_rows(points[k], j)`` (the forward model takes those values as columns)."""
+        r = self.runs[j]
+        ins = [self.inputs(q, j) for q in points]
+        co, eff, kw = ins[0]
+        eff, kw = dict(eff), dict(kw)
+        for key in POINT_COLUMNS[r.test] & eff.keys():
+            eff[key] = np.array([e[key] for _, e, _ in ins])[:, None]
+        if "radius_m" in kw:
+            kw["radius_m"] = np.array([k["radius_m"] for _, _, k in ins])[:, None]
+        return rig_output(r.test, r.meta, r.cols, co, eff, geometry=r.geometry, **kw)
+
+    def _point_column(self, i: int, j: int) -> bool:
+        """Whether run j's forward model takes parameter i as a column of points
+        (:meth:`_rows_at`, :data:`~accelcal.physics.rigs.POINT_COLUMNS`)."""
+        role = self.roles[i]
+        return role.kind in ("radius", "effect") and role.key in POINT_COLUMNS.get(self.runs[j].test, ())
+
     def predict_run(self, p: np.ndarray, j: int, extra: Mapping[str, float] | None = None) -> np.ndarray:
         """Cell means of the model's output for run j.
 
@@ -586,9 +606,28 @@ class CampaignModel:
                     X[:, k] = instrument.output_derivative(self.roles[i].key, co, F, T, t, drift)
                 if tau > 0:               # lagged like the output (the lag is linear), each column alone
                     X = first_order_lag(X, t, tau)
-                for k, (c, _) in enumerate(block):
-                    J[:, c] = r.cell_mean(X[:, k])
+                J[:, [c for c, _ in block]] = r.cell_means(X)
         done = {c for c, _ in exact}
+        # the central differences the model evaluates as columns of points, a block of
+        # points (at most LAG_BLOCK_BYTES of force and output) per evaluation: each row is
+        # what the point alone gives, the Python around the model paid once per block
+        together = [(c, i) for c, i in enumerate(cols)
+                    if i in acting and c not in done and self._point_column(i, j)]
+        width = max(1, self.LAG_BLOCK_BYTES // (8 * 8 * max(r.cid.size, 1)))
+        for b in range(0, len(together), width):
+            block = together[b:b + width]
+            points = []
+            for _, i in block:
+                h = 1e-3 * self.params[i].scale
+                pp, pm = p.copy(), p.copy()
+                pp[i] += h
+                pm[i] -= h
+                points += [pp, pm]
+            means = r.cell_means(self._rows_at(points, j).T)
+            for k, (c, i) in enumerate(block):
+                h = 1e-3 * self.params[i].scale
+                J[:, c] = (means[:, 2 * k] - means[:, 2 * k + 1]) / (2 * h)
+                done.add(c)
         base = None
         for c, i in enumerate(cols):
             if i not in acting or c in done:

@@ -222,8 +222,12 @@ def centrifuge_specific_force(meta: Mapping, data, effects: Mapping[str, float] 
         earth_rate [1], rate_scale_error [1], mount_angle_error [rad], mass_centre_offset [m],
         arm_stretch [s2], ia_tilt [rad], spindle_tilt [rad] (effects.md definitions and signs;
         spindle_tilt with both its radial and its tangential part).
-    radius_m : float, optional
-        Spindle to fixture turning centre [m] (default ``arm_radius_m``).
+    radius_m : float or (m, 1) ndarray, optional
+        Spindle to fixture turning centre [m] (default ``arm_radius_m``).  An (m, 1) column,
+        like ``mount_angle_error`` and ``mass_centre_offset`` in ``effects``
+        (:data:`POINT_COLUMNS`), evaluates m parameter points at once: row k of the
+        result is, element for element, the result at the k-th values (the same operations;
+        a fit's finite differences ask for many points of one run).
     rate_derivative : ndarray, optional
         d(omega_z)/dt per row [rad/s2]; default 0 for ``centrifuge`` and
         :func:`sine_rate_derivative` for ``sine_centrifuge``.
@@ -233,17 +237,17 @@ def centrifuge_specific_force(meta: Mapping, data, effects: Mapping[str, float] 
 
     Returns
     -------
-    (n, 3) ndarray
-        Specific force on (IA, PA, OA) [m/s2].
+    (n, 3) or (m, n, 3) ndarray
+        Specific force on (IA, PA, OA) [m/s2]; (m, n, 3) for m parameter points.
     """
     effects = effects or {}
     n = _n(data)
     g = float(meta["g_local_m_s2"])
     geo = geometry_of(meta) if geometry is None else geometry
     e1, e2, v, vs, h = geo.e1, geo.e2, geo.vertical, geo.vertical_sign, geo.handedness
-    R0 = geo.arm_radius_m if radius_m is None else float(radius_m)
-    phi = geo.phi_rad + float(effects.get("mount_angle_error", 0.0))
-    r = float(effects.get("mass_centre_offset", 0.0))
+    R0 = geo.arm_radius_m if radius_m is None else _point_value(radius_m)
+    phi = geo.phi_rad + _point_value(effects.get("mount_angle_error", 0.0))
+    r = _point_value(effects.get("mass_centre_offset", 0.0))
     kappa = float(effects.get("arm_stretch", 0.0))
     lam = float(effects.get("ia_tilt", 0.0))
     beta = float(effects.get("spindle_tilt", 0.0))
@@ -278,11 +282,26 @@ def centrifuge_specific_force(meta: Mapping, data, effects: Mapping[str, float] 
         f2 = f2 + gr * uy - gt * h * ux
     if lam != 0.0:
         f1, fup = f1 * np.cos(lam) + fup * np.sin(lam), fup * np.cos(lam) - f1 * np.sin(lam)
-    F = np.zeros((n, 3))
-    F[:, e1] = f1
-    F[:, e2] = f2
-    F[:, v] = vs * fup
+    F = np.zeros(np.broadcast_shapes(np.shape(f1), np.shape(f2)) + (3,))
+    F[..., e1] = f1
+    F[..., e2] = f2
+    F[..., v] = vs * fup
     return F
+
+
+#: Test kind -> the effects (and ``radius``, the ``radius_m`` keyword) whose value its
+#: specific force takes as an (m, 1) column of m parameter points: each enters by
+#: elementwise operations alone, so row k of the result is computed as the k-th scalar
+#: would be (:func:`centrifuge_specific_force`, :func:`tumble_specific_force`).
+POINT_COLUMNS = {"centrifuge": frozenset({"radius", "mount_angle_error", "mass_centre_offset"}),
+                 "sine_centrifuge": frozenset({"radius", "mount_angle_error", "mass_centre_offset"}),
+                 "tumble": frozenset({"initial_misalignment"})}
+
+
+def _point_value(v) -> float | np.ndarray:
+    """A parameter value as the specific forces compute with it: a float, or an (m, 1)
+    float array of m parameter points (:data:`POINT_COLUMNS`)."""
+    return float(v) if np.ndim(v) == 0 else np.asarray(v, float)
 
 
 def tumble_specific_force(meta: Mapping, data, effects: Mapping[str, float] | None = None) -> np.ndarray:
@@ -301,21 +320,22 @@ def tumble_specific_force(meta: Mapping, data, effects: Mapping[str, float] | No
     data : DataFrame or mapping
         ``angle_deg``: head angle theta [deg].
     effects : mapping, optional
-        ``initial_misalignment`` theta0 [rad].
+        ``initial_misalignment`` theta0 [rad]; an (m, 1) column evaluates m values at once
+        (:data:`POINT_COLUMNS`).
 
     Returns
     -------
-    (n, 3) ndarray
-        Specific force on (IA, PA, OA) [m/s2].
+    (n, 3) or (m, n, 3) ndarray
+        Specific force on (IA, PA, OA) [m/s2]; (m, n, 3) for m parameter points.
     """
     effects = effects or {}
     n = _n(data)
     g = float(meta["g_local_m_s2"])
-    th = np.radians(_col(data, "angle_deg", n)) + float(effects.get("initial_misalignment", 0.0))
+    th = np.radians(_col(data, "angle_deg", n)) + _point_value(effects.get("initial_misalignment", 0.0))
     head = geometry_of(meta)
-    F = np.zeros((n, 3))
-    F[:, head.cos_axis] = head.cos_sign * g * np.cos(th)
-    F[:, head.sin_axis] = head.sin_sign * g * np.sin(th)
+    F = np.zeros(th.shape + (3,))
+    F[..., head.cos_axis] = head.cos_sign * g * np.cos(th)
+    F[..., head.sin_axis] = head.sin_sign * g * np.sin(th)
     return F
 
 
@@ -343,8 +363,8 @@ def tilt_rotation_specific_force(meta: Mapping, data, effects: Mapping[str, floa
 
     Returns
     -------
-    (n, 3) ndarray
-        Specific force on (IA, PA, OA) [m/s2].
+    (n, 3) or (m, n, 3) ndarray
+        Specific force on (IA, PA, OA) [m/s2]; (m, n, 3) for m parameter points.
     """
     effects = effects or {}
     n = _n(data)
@@ -450,13 +470,14 @@ def rig_output(test: str, meta: Mapping, data, coeffs: Mapping[str, float],
 
     Returns
     -------
-    ndarray
-        E [output_unit].
+    (n,) or (m, n) ndarray
+        E [output_unit]; (m, n) for m parameter points given as (m, 1) columns
+        (:data:`POINT_COLUMNS`), each row lagged on its own.
     """
     effects = dict(effects or {})
     c = instrument_coefficients(coeffs, effects)
     F = specific_force(test, meta, data, effects, **kw)
-    n = F.shape[0]
+    n = F.shape[-2]
     # the temperature only enters through K0T and K1T (instrument.output): not read without them
     temp = None
     if ((float(c.get("K0T", 0.0)) != 0.0 or float(c.get("K1T", 0.0)) != 0.0)
@@ -468,5 +489,5 @@ def rig_output(test: str, meta: Mapping, data, coeffs: Mapping[str, float],
     E = output(c, F, temp, t, float(effects.get("bias_drift", 0.0)))
     tau = float(effects.get("sensor_lag", 0.0))
     if tau > 0.0:
-        E = first_order_lag(E, t, tau)
+        E = first_order_lag(E, t, tau) if E.ndim == 1 else first_order_lag(E.T, t, tau).T
     return E
