@@ -91,7 +91,7 @@ def process_campaign(runs, rig_uncertainty: Mapping[str, Mapping[str, float]] | 
             unc.add_stated_g_local(est, taken[est.method], steps, records, stated)
             for rec in records:
                 rec.add_to(res)
-    if sum(len(r.data) for r in runs) >= memory.BIG_ROWS:
+    if sum(r.n_rows if hasattr(r, "n_rows") else len(r.data) for r in runs) >= memory.BIG_ROWS:
         memory.give_back()     # what the paper methods freed, before the joint fit
     joint = _joint(runs, res, stated)
     _mark_adopted(res)

@@ -340,14 +340,14 @@ def read_run_parquet(path, blocks=None) -> RunFile:
         data, more = taken
         meta = {**meta, **more}
     else:
-        # in the order of ``names`` (an Arrow select costs nothing; a pandas one copies);
-        # one column at a time, each Arrow buffer freed once converted: the run is in
-        # memory once, not twice
-        table = pf.read(columns=names).select(names)
-        data = table.to_pandas(split_blocks=True, self_destruct=True)
+        # numpy views of Arrow's buffers (copies only where a column has nulls or several
+        # chunks): the run is in memory once, and no DataFrame is made unless one is asked
+        # for (RunFile.data makes it from these arrays; the science reads the arrays)
+        table = pf.read(columns=names)
+        data = {c: table.column(c).to_numpy() for c in names}
         del table
-        if len(data) >= BIG_READ_ROWS:
-            # Arrow's pool keeps what the conversion freed (60 MB of a 5 M-row run)
+        if pf.metadata.num_rows >= BIG_READ_ROWS:
+            # Arrow's pool keeps what the copies freed (a column with nulls is copied)
             pa.default_memory_pool().release_unused()
     return RunFile(path=info["source_path"], sha256=info["sha256"], size_bytes=int(info["size_bytes"]),
                    meta=meta, meta_raw=info["meta_raw"], data=data,
