@@ -458,22 +458,26 @@ class CampaignModel:
         # keyed by value: the point (bytes) is all the output depends on besides the runs'
         # metadata and columns, which do not change while a model lives on them
         cache = self.__dict__.setdefault("_predictions", {})
+        size = self.__dict__.setdefault("_prediction_bytes", {})     # point -> bytes of its rows
         key = (p.shape, p.tobytes())
         rows = cache.get(key)
         if rows is None:
             rows = cache[key] = {}
+            size[key] = 0
             while len(cache) > self.PREDICTION_CACHE:
-                del cache[next(iter(cache))]
+                del size[next(iter(cache))], cache[next(iter(cache))]
         E = rows.get(j)
         if E is None:
             E = rows[j] = self._rows(p, j)
             E.setflags(write=False)
-            held = sum(a.nbytes for d in cache.values() for a in d.values())
+            size[key] += E.nbytes
+            held = sum(size.values())
             while held > self.PREDICTION_CACHE_BYTES and len(cache) > 1:
                 old = next(iter(cache))
                 if old == key:
                     break
-                held -= sum(a.nbytes for a in cache.pop(old).values())
+                del cache[old]
+                held -= size.pop(old)
         return E
 
     def _rows(self, p: np.ndarray, j: int, extra: Mapping[str, float] | None = None) -> np.ndarray:
@@ -487,13 +491,15 @@ class CampaignModel:
         :meth:`_point_column`, in one evaluation of the model: row k, element for element,
         is ``_rows(points[k], j)`` (the forward model takes those values as columns)."""
         r = self.runs[j]
-        ins = [self.inputs(q, j) for q in points]
-        co, eff, kw = ins[0]
-        eff, kw = dict(eff), dict(kw)
-        for key in POINT_COLUMNS[r.test] & eff.keys():
-            eff[key] = np.array([e[key] for _, e, _ in ins])[:, None]
-        if "radius_m" in kw:
-            kw["radius_m"] = np.array([k["radius_m"] for _, _, k in ins])[:, None]
+        co, eff, kw = self.inputs(points[0], j)
+        P = np.array(points)
+        # each point's value of each point parameter, as inputs() adds them up
+        for i, kind, key in self._plan[j]:
+            if kind == "radius":
+                kw["radius_m"] = P[:, [i]]
+            elif kind == "effect" and key in POINT_COLUMNS[r.test]:
+                eff[key] = (eff[key] if isinstance(eff[key], np.ndarray)
+                            else self._fixed_of[j].get(key, 0.0)) + P[:, [i]]
         return rig_output(r.test, r.meta, r.cols, co, eff, geometry=r.geometry, **kw)
 
     def _point_column(self, i: int, j: int) -> bool:

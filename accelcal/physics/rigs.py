@@ -301,7 +301,7 @@ POINT_COLUMNS = {"centrifuge": frozenset({"radius", "mount_angle_error", "mass_c
 def _point_value(v) -> float | np.ndarray:
     """A parameter value as the specific forces compute with it: a float, or an (m, 1)
     float array of m parameter points (:data:`POINT_COLUMNS`)."""
-    return float(v) if np.ndim(v) == 0 else np.asarray(v, float)
+    return np.asarray(v, float) if isinstance(v, np.ndarray) and v.ndim else float(v)
 
 
 def tumble_specific_force(meta: Mapping, data, effects: Mapping[str, float] | None = None) -> np.ndarray:
