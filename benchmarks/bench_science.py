@@ -1,7 +1,7 @@
 """Benchmark: science per campaign (``process_campaign``), this code against a reference commit.
 
     python benchmarks/bench_science.py [--ref ee91499 --ref 0bb4def] [--repeat 5] [--simulated 4]
-                                       [--rounds 3] [--readme README.md]
+                                       [--rounds 3] [--readme README.md] [--instructions]
 
 The same inputs go through every version in one run: the lab's sample drops (../shared),
 and ``--simulated`` campaigns per shipped scenario written once as drop files by the current
@@ -13,6 +13,11 @@ enter the figure only through shared caches, and alike for every version; the ta
 reference.  Writes benchmarks/results/science-timing.md,
 and with ``--readme`` the same table between the README's ``<!-- bench-science:begin/end -->``
 markers.
+
+``--instructions`` counts each campaign's machine instructions with valgrind's callgrind
+instead (one round; benchmarks/results/science-instructions.md, the README's
+``bench-science-instructions`` block): a figure the machine's other work does not move,
+for changes smaller than the CPU seconds' noise.
 """
 from __future__ import annotations
 
@@ -37,16 +42,25 @@ SAMPLES = {"drop-2026-11-20 (tumble + 10 mounts)": "examples/drop-2026-11-20",
            "imucal X (real, 2 tumbles)": "real/imucal-ferraris"}
 
 WORKER = r'''
-import json, sys, time, glob, statistics, warnings
+import json, os, subprocess, sys, time, glob, statistics, warnings
 import numpy as np
 warnings.simplefilter("ignore")
 from accelcal.schemas.dropformat import read_run
 from accelcal.estimators.campaign import process_campaign
 cases = json.loads(sys.argv[1]); repeat = int(sys.argv[2])
 out = {}
-for label, files in cases.items():
+count = os.environ.get("BENCH_CALLGRIND_DUMPS")     # under callgrind: count, do not time
+def callgrind(*a):
+    subprocess.run(["callgrind_control", *a, str(os.getpid())], capture_output=True, check=True)
+for k, (label, files) in enumerate(cases.items()):
     runs = [read_run(p) for p in files]
     process_campaign(runs)                      # warm: imports, caches
+    if count:
+        callgrind("-z"); callgrind("-i", "on")
+        for _ in range(repeat):
+            process_campaign(runs)
+        callgrind("-i", "off"); callgrind("-d", f"case{k}")
+        continue
     ts = []
     for _ in range(repeat):
         t = time.process_time(); process_campaign(runs); ts.append(time.process_time() - t)
@@ -96,6 +110,36 @@ def _time(codes: dict[str, Path], cases: dict, repeat: int) -> dict[str, dict[st
     return out
 
 
+def _instructions(codes: dict[str, Path], cases: dict, repeat: int, tmp: Path) -> dict[str, dict[str, float]]:
+    """Each version's machine instructions per warm campaign, counted by valgrind's
+    callgrind (``repeat`` runs of each campaign, the count divided by ``repeat``): the same
+    number on a busy machine as on a quiet one, where CPU seconds move by a third.
+    Under valgrind numpy takes its AVX2 loops, not AVX-512: a count, not a time."""
+    procs = {}
+    for v, code in codes.items():
+        out = tmp / f"callgrind-{v}" / "cg.out"
+        out.parent.mkdir()
+        env = {**os.environ, "PYTHONPATH": str(code), "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
+               "BENCH_CALLGRIND_DUMPS": "1"}
+        procs[v] = (out, subprocess.Popen(
+            ["valgrind", "--tool=callgrind", "--instr-atstart=no", f"--callgrind-out-file={out}",
+             os.path.realpath(sys.executable), "-c", WORKER, json.dumps(cases), str(repeat)],
+            cwd=str(code), env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True))
+    counts = {}
+    for v, (out, p) in procs.items():
+        _, stderr = p.communicate()
+        if p.returncode:
+            raise RuntimeError(f"{v}: {stderr[-2000:]}")
+        got = {}
+        for dump in out.parent.glob("cg.out.*"):
+            text = dump.read_text(errors="replace")
+            trigger = next(ln.split("dump ", 1)[1] for ln in text.splitlines() if ln.startswith("desc: Trigger"))
+            total = next(int(ln.split()[1]) for ln in text.splitlines() if ln.startswith("totals:"))
+            got[trigger] = total / repeat
+        counts[v] = {label: got[f"case{k}"] for k, label in enumerate(cases)}
+    return counts
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--ref", action="append", default=None,
@@ -104,6 +148,9 @@ def main(argv=None) -> int:
     ap.add_argument("--simulated", type=int, default=4, help="simulated campaigns per scenario")
     ap.add_argument("--rounds", type=int, default=3, help="rounds, each running the references and current at once")
     ap.add_argument("--readme", type=Path, help="also write the table into this README")
+    ap.add_argument("--instructions", action="store_true",
+                    help="count machine instructions with valgrind's callgrind instead of timing (one round; "
+                         "the README block bench-science-instructions)")
     args = ap.parse_args(argv)
     refs = args.ref or ["ee91499"]
     head = commit()
@@ -115,7 +162,8 @@ def main(argv=None) -> int:
             _git("worktree", "add", "--detach", str(d), r)
         try:
             # every round runs all versions at once; per campaign the median over the rounds
-            rounds = [_time({**dirs, head: ROOT}, cases, args.repeat) for _ in range(args.rounds)]
+            rounds = ([_instructions({**dirs, head: ROOT}, cases, args.repeat, tmp)] if args.instructions
+                      else [_time({**dirs, head: ROOT}, cases, args.repeat) for _ in range(args.rounds)])
         finally:
             for d in dirs.values():
                 _git("worktree", "remove", "--force", str(d))
@@ -125,22 +173,31 @@ def main(argv=None) -> int:
         groups.setdefault(label.split(" #")[0] + (f" (median of {args.simulated})" if label.startswith("sim ")
                                                   else ""), []).append(label)
     groups["**median over all campaigns**"] = list(cases)
-    rows = ["| campaign | " + " | ".join(f"{r} (s)" for r in refs) + f" | {head} (s) | "
+    unit, scale, fmt = ("M instructions", 1e-6, "{:.0f}") if args.instructions else ("s", 1.0, "{:.3f}")
+    rows = ["| campaign | " + " | ".join(f"{r} ({unit})" for r in refs) + f" | {head} ({unit}) | "
             + " | ".join(f"{head} / {r}" for r in refs) + " |", "|---|" + "---:|" * (2 * len(refs) + 1)]
     for g, labels in groups.items():
         med = {v: statistics.median(t[v][x] for x in labels) for v in t}
-        rows.append(f"| {g} | " + " | ".join(f"{med[v]:.3f}" for v in [*refs, head]) + " | "
+        rows.append(f"| {g} | " + " | ".join(fmt.format(med[v] * scale) for v in [*refs, head]) + " | "
                     + " | ".join(f"{med[head] / med[r]:.2f}" for r in refs) + " |")
-    text = (f"Science per campaign (`process_campaign`, CPU seconds, median of {args.repeat} warm runs, one thread, "
-            f"median over {args.rounds} rounds, the versions of a round run at once), current commit {head} against "
-            f"{', '.join(refs)}, same inputs, one run of `python benchmarks/bench_science.py "
-            f"{' '.join(f'--ref {r}' for r in refs)} --repeat {args.repeat} --simulated {args.simulated} "
-            f"--rounds {args.rounds}`:\n\n" + "\n".join(rows) + "\n")
+    command = (f"python benchmarks/bench_science.py {' '.join(f'--ref {r}' for r in refs)} --repeat {args.repeat} "
+               f"--simulated {args.simulated}")
+    if args.instructions:
+        text = (f"Science per campaign (`process_campaign`, machine instructions counted by valgrind's callgrind, "
+                f"mean of {args.repeat} warm runs), current commit {head} against {', '.join(refs)}, same inputs, "
+                f"one run of `{command} --instructions`:\n\n" + "\n".join(rows) + "\n")
+        name, block = "science-instructions.md", "bench-science-instructions"
+    else:
+        text = (f"Science per campaign (`process_campaign`, CPU seconds, median of {args.repeat} warm runs, one "
+                f"thread, median over {args.rounds} rounds, the versions of a round run at once), current commit "
+                f"{head} against {', '.join(refs)}, same inputs, one run of `{command} --rounds {args.rounds}`:\n\n"
+                + "\n".join(rows) + "\n")
+        name, block = "science-timing.md", "bench-science"
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "science-timing.md").write_text(text, encoding="utf-8")
+    (RESULTS / name).write_text(text, encoding="utf-8")
     print(text)
     if args.readme:
-        write_block(args.readme, "bench-science", text)
+        write_block(args.readme, block, text)
     return 0
 
 
