@@ -7,6 +7,8 @@ batched path must change no floating-point operation (results stay identical tab
 table), not merely agree to a tolerance."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -97,6 +99,5 @@ def test_cell_means_of_a_block_are_each_columns_cell_mean():
         assert np.array_equal(block, np.column_stack([run.cell_mean(X[:, q]) for q in range(4)]))
         dropped = run.cid.copy()
         dropped[::7] = -1
-        from dataclasses import replace
         cut = replace(run, cid=dropped)
         assert np.array_equal(cut.cell_means(X), np.column_stack([cut.cell_mean(X[:, q]) for q in range(4)]))
