@@ -465,7 +465,8 @@ class CampaignModel:
             rows = cache[key] = {}
             size[key] = 0
             while len(cache) > self.PREDICTION_CACHE:
-                del size[next(iter(cache))], cache[next(iter(cache))]
+                old = next(iter(cache))
+                del cache[old], size[old]
         E = rows.get(j)
         if E is None:
             E = rows[j] = self._rows(p, j)
@@ -621,36 +622,34 @@ class CampaignModel:
                     if i in acting and c not in done and self._point_column(i, j)]
         width = max(1, self.LAG_BLOCK_BYTES // (8 * 8 * max(r.cid.size, 1)))
         for b in range(0, len(together), width):
-            block = together[b:b + width]
-            points = []
-            for _, i in block:
-                h = 1e-3 * self.params[i].scale
-                pp, pm = p.copy(), p.copy()
-                pp[i] += h
-                pm[i] -= h
-                points += [pp, pm]
-            E = self._rows_at(points, j)
-            for k, (c, i) in enumerate(block):
-                h = 1e-3 * self.params[i].scale
+            block = [(c, *self._difference_points(p, i)) for c, i in together[b:b + width]]
+            E = self._rows_at([q for _, _, pp, pm in block for q in (pp, pm)], j)
+            for k, (c, h, _, _) in enumerate(block):
                 J[:, c] = (r.cell_mean(E[2 * k]) - r.cell_mean(E[2 * k + 1])) / (2 * h)
                 done.add(c)
         base = None
         for c, i in enumerate(cols):
             if i not in acting or c in done:
                 continue
-            h = 1e-3 * self.params[i].scale
-            pp, pm = p.copy(), p.copy()
-            pp[i] += h
+            h, pp, pm = self._difference_points(p, i)
             # the points of the differences are not kept (each is used once)
             plus = r.cell_mean(self._rows(pp, j))
-            if self.roles[i].key == "sensor_lag" and p[i] - h < 0:
+            if self.roles[i].key == "sensor_lag" and pm[i] < 0:
                 if base is None:
                     base = self.predict_run(p, j)
                 J[:, c] = (plus - base) / h
                 continue
-            pm[i] -= h
             J[:, c] = (plus - r.cell_mean(self._rows(pm, j))) / (2 * h)
         return J
+
+    def _difference_points(self, p: np.ndarray, i: int) -> tuple[float, np.ndarray, np.ndarray]:
+        """(h, p + h e_i, p - h e_i): the step of parameter i's central difference, 1e-3
+        ``Parameter.scale``, and its two points."""
+        h = 1e-3 * self.params[i].scale
+        pp, pm = p.copy(), p.copy()
+        pp[i] += h
+        pm[i] -= h
+        return h, pp, pm
 
     #: points whose unwhitened Jacobian columns are kept per model (the most recent ones): a
     #: fit asks for the same columns again at the same point (model selection with every

@@ -363,8 +363,8 @@ def tilt_rotation_specific_force(meta: Mapping, data, effects: Mapping[str, floa
 
     Returns
     -------
-    (n, 3) or (m, n, 3) ndarray
-        Specific force on (IA, PA, OA) [m/s2]; (m, n, 3) for m parameter points.
+    (n, 3) ndarray
+        Specific force on (IA, PA, OA) [m/s2].
     """
     effects = effects or {}
     n = _n(data)
