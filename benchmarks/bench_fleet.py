@@ -12,7 +12,8 @@ For each size N (a fresh child process, so peak memory is per size):
      --per-drop campaigns;
   2. run the pipeline on all drops (one call), timing every step (summary['timings']);
   3. apply views.sql and time the history / change / fleet / rig views;
-  4. the floor, in the same child process: read every file's data with pyarrow's CSV
+  4. the floor, in the same child process, before and after the pipeline (the ratio is to
+     their mean): read every file's data with pyarrow's CSV
      reader and do one numpy least-squares fit per run (dwell means + polynomial in the
      table rate for a centrifuge run, harmonics of the head angle for a tumble run) --
      the least any pipeline must do; the ratio pipeline / floor is printed.
@@ -172,6 +173,10 @@ def child(args) -> dict:
     drops, n_runs = cached_fleet(n, per_drop, Path(args.sim_cache)) if args.sim_cache \
         else simulate_fleet(n, root / "watch", per_drop)
     t_sim = time.perf_counter() - t0
+    files = sorted(p for d in drops for p in d.rglob("*.csv"))
+    # the floor before the pipeline and again after it: this machine's speed moves by half
+    # within minutes, and one floor taken in a fast or slow moment moved the ratio by as much
+    floor_before = numpy_floor(files)
     rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     load_before = os.getloadavg()[0]
     from accelcal.flows.pipeline import run_pipeline
@@ -216,8 +221,8 @@ def child(args) -> dict:
     n_exc = con.execute("SELECT count(*) FROM coefficient_changes WHERE exceeds_uncertainty").fetchall()[0][0]
     n_chg = con.execute("SELECT count(*) FROM coefficient_changes").fetchall()[0][0]
     con.close()
-    files = sorted(p for d in drops for p in d.rglob("*.csv"))
     floor = numpy_floor(files)
+    floor_mean = (floor_before["seconds"] + floor["seconds"]) / 2
     # idempotent re-run: nothing new
     t0 = time.perf_counter()
     s2 = run_pipeline([str(d) for d in drops], wh, engine=engine, task_runner=runner,
@@ -234,7 +239,9 @@ def child(args) -> dict:
             "in_flight": int(os.environ.get("ACCELCAL_IN_FLIGHT", 0)) or None,
             "query_latency_s": lat, "coefficient_rows": n_coef, "changes": n_chg,
             "changes_exceeding_U": n_exc, "fleet_outliers": n_out,
-            "numpy_floor": floor, "ratio_pipeline_to_floor": t_pipe / floor["seconds"],
+            "numpy_floor": floor, "numpy_floor_before": floor_before,
+            "ratio_pipeline_to_floor": t_pipe / floor_mean,
+            "ratio_range": sorted(t_pipe / f["seconds"] for f in (floor_before, floor)),
             "rerun_s": t_rerun,
             "rerun_statuses": sorted({c["status"] for c in s2["campaigns"]})}
 
@@ -293,6 +300,8 @@ def main(argv=None) -> int:
         print("  " + ", ".join(f"{k} {v:.1f}" for k, v in st.items()), flush=True)
         print("  CPU in tasks a campaign: " + ", ".join(
             f"{k} {1e3 * st['cpu ' + k] / n:.0f} ms" for k in TASK_STAGES), flush=True)
+        print(f"  floor {_floors(r)} s, ratio {r['ratio_pipeline_to_floor']:.1f}×{_ratio_range(r)}, "
+              f"re-run {r['rerun_s']:.1f} s", flush=True)
     meta = {"python": sys.version.split()[0], "machine": platform.machine(),
             "cpus": os.cpu_count()}
     (out / "bench-fleet.json").write_text(json.dumps({"meta": meta, "results": results},
@@ -303,6 +312,19 @@ def main(argv=None) -> int:
     if args.readme:
         write_block(Path(args.readme), "bench_fleet", md)
     return 0
+
+
+def _floors(r: dict) -> str:
+    """The floor before / after the pipeline [s] (one figure for a result that has one)."""
+    before = r.get("numpy_floor_before")
+    after = f"{r['numpy_floor']['seconds']:.2f}"
+    return f"{before['seconds']:.2f} / {after}" if before else after
+
+
+def _ratio_range(r: dict) -> str:
+    """The ratio to each floor alone, when they differ in the rounding shown."""
+    lo, hi = r.get("ratio_range") or (None, None)
+    return f" ({lo:.0f}–{hi:.0f})" if lo is not None and f"{lo:.0f}" != f"{hi:.0f}" else ""
 
 
 def report(results: list[dict], args) -> str:
@@ -329,7 +351,8 @@ def report(results: list[dict], args) -> str:
              "'in tasks' is time inside the ingest/validate and load/science tasks, summed over "
              "workers; 'CPU a campaign' the CPU time the workers spent in them, per campaign. "
              "Floor: pyarrow CSV read + one numpy least-squares fit per run, same "
-             "process run.",
+             "process, run before and after the pipeline; the ratio is to their mean (in "
+             "brackets, to each alone, when they differ).",
              "",
              "| campaigns | runs | pipeline s | runs/s | peak RSS MB | "
              + " | ".join(FLOW_STAGES) + " | other | in tasks: ingest+validate / load / science "
@@ -350,7 +373,7 @@ def report(results: list[dict], args) -> str:
             + f" | {st['other']:.1f} | "
             + " / ".join(f"{st['task ' + k]:.1f}" for k in TASK_STAGES) + " | "
             + " / ".join(f"{1e3 * st['cpu ' + k] / r['campaigns']:.0f}" for k in TASK_STAGES)
-            + f" | {r['numpy_floor']['seconds']:.2f} | {r['ratio_pipeline_to_floor']:.0f}× "
+            + f" | {_floors(r)} | {r['ratio_pipeline_to_floor']:.0f}×{_ratio_range(r)} "
             f"| {r['rerun_s']:.1f} |")
     lines += ["", "| query | " + " | ".join(f"{r['campaigns']} campaigns" for r in results) + " |",
               "|---|" + "---|" * len(results)]
