@@ -113,6 +113,51 @@ def test_new_validator_version_adds_a_verdict_not_a_file(wh):
     assert len(wh.campaign_inputs("C/1")) == 1
 
 
+def _fields(rows):
+    """What the flow reads of a stored record (pipeline._record_batch), row by row."""
+    return [{k: r[k] for k in ("sha256", "source_path", "status", "reason", "campaign")} for r in rows]
+
+
+def test_known_files_are_the_runs_views_latest_verdict_and_stand_for_their_records(wh):
+    """A file's known verdict is its newest (by seq), as the ``runs`` view has it, whatever
+    the validator versions and reasons before; and a batch of known files with nothing to
+    record gets, without a query, the records stored_runs gives (re-runs read them so)."""
+    from accelcal.tasks.ingest import DropIngest
+    from accelcal.tasks.store import known_keys, record_drop
+    a, b, c = "a" * 64, "b" * 64, "c" * 64
+    wh.record_runs([rec(a, "/d/x.csv", status="refused"), rec(b, "/d/y.csv", run_id="R-2"),
+                    rec(c, "/e/z.csv", run_id="R-3", status="refused")])
+    wh.record_runs([rec(a, "/d/x.csv", vv="val.2"),                       # refused, then accepted
+                    rec(b, "/d/y.csv", run_id="R-2", vv="val.2", status="refused")])
+    known = wh.latest_verdicts("/d/")
+    assert set(known) == {(a, "/d/x.csv"), (b, "/d/y.csv")}
+    view = {(r["sha256"], r["source_path"]): r for r in wh.query("SELECT * FROM runs")}
+    for k, v in known.items():
+        assert (v.validator_version, v.status, v.reason, v.campaign) == (
+            view[k]["validator_version"], view[k]["status"], view[k]["reason"], view[k]["campaign"])
+    assert known[(a, "/d/x.csv")].status == "accepted" and known[(a, "/d/x.csv")].reason is None
+    keys = [(b, "/d/y.csv"), (a, "/d/x.csv")]
+    ing = DropIngest("d", "/d", keys=keys)
+    assert _fields(record_drop(wh, ing, None, known)) == _fields(wh.stored_runs(keys))
+    assert wh.counts()["run_verdicts"] == 5                                 # nothing written
+
+
+def test_known_files_of_the_sample_drops_give_their_stored_records(sample_lab, examples, tmp_path):
+    """Every sample drop (accepted, refused, revised files): its known files' records are
+    stored_runs' for the same keys."""
+    from accelcal.tasks.ingest import DropIngest
+    from accelcal.tasks.store import known_keys, record_drop
+    from conftest import SAMPLE_LAB_DROPS, copy_lab
+    w = Warehouse(copy_lab(sample_lab, tmp_path / "lab"), lock_timeout=5)
+    for drop in SAMPLE_LAB_DROPS:
+        known = known_keys(w, str(examples / drop))
+        assert known, drop
+        ing = DropIngest(drop, str(examples / drop), keys=sorted(known))
+        got = record_drop(w, ing, None, known)
+        assert _fields(got) == _fields(w.stored_runs(ing.keys)), drop
+        assert {r["status"] for r in got} <= {"accepted", "refused"}
+
+
 def test_store_result_idempotent_with_lineage(wh):
     a = "a" * 64
     wh.record_runs([rec(a, "/d/x.csv")])

@@ -357,8 +357,9 @@ def _intake(wh: Warehouse, sess: _Session, drops: list[str], settle: float,
             kb = {key: v for key, v in known.items() if key[1] in bset}
             t0 = time.perf_counter()
             pending.append((entry, run.steps.submit_intake(
-                drop, batch, str(wh.parquet_root), str(wh.root), kb, str(wh.docs_root),
-                None if nb == 1 else k, run.allow_simulated)))
+                drop, batch, str(wh.parquet_root), str(wh.root),
+                {key: v.validator_version for key, v in kb.items()}, str(wh.docs_root),
+                None if nb == 1 else k, run.allow_simulated), kb))
             run.tick("ingest+validate (submit)", t0)
             while len(pending) >= run.in_flight:
                 touched |= _record_batch(wh, sess, *pending.popleft(), run)
@@ -401,9 +402,11 @@ def _settled_files(drops: list[str], settle: float, run: _Run):
     return by_drop, held_by, empty
 
 
-def _record_batch(wh: Warehouse, sess: _Session, entry: dict, fut, run: _Run) -> set[str]:
+def _record_batch(wh: Warehouse, sess: _Session, entry: dict, fut, known: dict,
+                  run: _Run) -> set[str]:
     """Wait for one batch's ingest + validate, record its verdicts in one transaction and
-    count them into the drop's ``entry``; returns the campaigns of its accepted files."""
+    count them into the drop's ``entry`` (``known``: the verdicts its files already have,
+    :func:`accelcal.tasks.store.known_keys`); returns the campaigns of its accepted files."""
     t0 = time.perf_counter()
     try:
         ing = fut.result()
@@ -419,7 +422,7 @@ def _record_batch(wh: Warehouse, sess: _Session, entry: dict, fut, run: _Run) ->
         run.tick(k, 0.0, v)      # the same time by step: "ingest", "validate"
     t0 = time.perf_counter()
     sess.touch()
-    stored = run.steps.record_drop(wh, ing, run.flow_run_id)
+    stored = run.steps.record_drop(wh, ing, run.flow_run_id, known)
     run.tick("record", t0)
     new_keys = {(r.sha256, r.source_path) for r in ing.records if r.new_content}
     campaigns: set[str] = set()

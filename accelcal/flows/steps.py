@@ -21,7 +21,7 @@ from ..tasks import science as _science
 from ..tasks import store as _store
 from ..tasks import validate as _validate
 from ..tasks.ingest import DropIngest
-from ..warehouse.db import Warehouse
+from ..warehouse.db import KnownFile, Warehouse
 from ..warehouse.lineage import validator_version
 
 
@@ -34,8 +34,8 @@ class Steps(Protocol):
 
     engine: str   # "local" or "prefect": picks the campaigns a science task carries
 
-    def known_keys(self, wh: Warehouse, drop: str) -> dict[tuple[str, str], str]:
-        """Files of ``drop`` already recorded -> the validator version of their verdict."""
+    def known_keys(self, wh: Warehouse, drop: str) -> dict[tuple[str, str], KnownFile]:
+        """Files of ``drop`` already recorded -> their latest verdict."""
 
     def submit_intake(self, drop: str, batch: list, parquet_root: str, warehouse_root: str,
                       known: dict, docs_root: str, part: int | None,
@@ -43,8 +43,8 @@ class Steps(Protocol):
         """Ingest + validate one batch of a drop's files (tasks.validate.intake_batch);
         the future gives a DropIngest."""
 
-    def record_drop(self, wh: Warehouse, ing: DropIngest,
-                    flow_run_id: str) -> list[dict[str, Any]]:
+    def record_drop(self, wh: Warehouse, ing: DropIngest, flow_run_id: str,
+                    known: dict[tuple[str, str], KnownFile] | None = None) -> list[dict[str, Any]]:
         """Record a batch's verdicts in one transaction (tasks.store.record_drop)."""
 
     def submit_campaigns(self, warehouse_root: str, campaigns: list[list[dict[str, Any]]],
@@ -105,8 +105,8 @@ class LocalSteps:
         paths = {p for (_, p), v in known.items() if v == self._vv}
         return all(path_text(getattr(e, "path", e)) in paths for e in batch)
 
-    def record_drop(self, wh, ing, flow_run_id):
-        return _store.record_drop(wh, ing, flow_run_id)
+    def record_drop(self, wh, ing, flow_run_id, known=None):
+        return _store.record_drop(wh, ing, flow_run_id, known)
 
     def submit_campaigns(self, warehouse_root, campaigns, parameters, unit_priors=None):
         return self._submit(_science.load_and_process, warehouse_root, campaigns, parameters,
@@ -143,8 +143,8 @@ class PrefectSteps:
         return self._t.intake_batch.submit(drop, S(batch), parquet_root, warehouse_root,
                                            S(known), docs_root, part, allow_simulated)
 
-    def record_drop(self, wh, ing, flow_run_id):
-        return self._t.record_drop(wh, self._quote(ing), flow_run_id)
+    def record_drop(self, wh, ing, flow_run_id, known=None):
+        return self._t.record_drop(wh, self._quote(ing), flow_run_id, self._quote(known))
 
     def submit_campaigns(self, warehouse_root, campaigns, parameters, unit_priors=None):
         S = self._sealed

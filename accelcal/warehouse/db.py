@@ -34,7 +34,7 @@ import time
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Iterator, NamedTuple
 
 import duckdb
 
@@ -80,6 +80,17 @@ def _duckdb_size(head: bytes) -> int | None:
 
 
 # ---------------------------------------------------------------- records --
+
+class KnownFile(NamedTuple):
+    """A recorded file as its latest verdict has it (:meth:`Warehouse.latest_verdicts`):
+    the fields of its ``runs`` row a run reads of a file it does not take in again."""
+    sha256: str
+    source_path: str
+    validator_version: str
+    status: str
+    reason: str | None
+    campaign: str | None
+
 
 @dataclass
 class RunRecord:
@@ -593,17 +604,19 @@ class Warehouse:
         for i in range(len(records)):
             _cp(checkpoint, f"run:{i}")
 
-    def latest_verdicts(self, source_prefix: str) -> dict[tuple[str, str], str]:
-        """(sha256, source_path) -> validator_version of its latest verdict, below a folder
-        (as the ``runs`` view says; the verdicts are taken below the folder first, so a
-        drop costs its own files, not the warehouse's)."""
+    def latest_verdicts(self, source_prefix: str) -> dict[tuple[str, str], "KnownFile"]:
+        """(sha256, source_path) -> its latest verdict (:class:`KnownFile`), for the files
+        below a folder: what the ``runs`` view says of them, with the verdicts and files
+        taken below the folder first, so a drop costs its own files, not the warehouse's
+        (the view's window over every verdict cost ~40 ms a drop at 2,000 campaigns)."""
         with self.connect() as con:
             rows = con.execute(
-                "SELECT sha256, source_path, arg_max(validator_version, seq) FROM run_verdicts "
-                "WHERE starts_with(source_path, ?) AND (sha256, source_path) IN ("
-                "  SELECT (sha256, source_path) FROM run_files WHERE starts_with(source_path, ?)) "
-                "GROUP BY sha256, source_path", [source_prefix, source_prefix]).fetchall()
-        return {(a, b): c for a, b, c in rows}
+                "SELECT v.sha256, v.source_path, v.validator_version, v.status, v.reason, f.campaign "
+                "FROM run_verdicts v JOIN run_files f USING (sha256, source_path) "
+                "WHERE starts_with(v.source_path, ?) AND starts_with(f.source_path, ?) "
+                "QUALIFY row_number() OVER (PARTITION BY v.sha256, v.source_path ORDER BY v.seq DESC) = 1",
+                [source_prefix, source_prefix]).fetchall()
+        return {(a, b): KnownFile(a, b, *rest) for a, b, *rest in rows}
 
     def stored_runs(self, keys: list[tuple[str, str]]) -> list[dict[str, Any]]:
         """Run records by (sha256, source_path), as stored (status/reason of first sight)."""
