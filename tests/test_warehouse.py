@@ -123,7 +123,7 @@ def test_known_files_are_the_runs_views_latest_verdict_and_stand_for_their_recor
     the validator versions and reasons before; and a batch of known files with nothing to
     record gets, without a query, the records stored_runs gives (re-runs read them so)."""
     from accelcal.tasks.ingest import DropIngest
-    from accelcal.tasks.store import known_keys, record_drop
+    from accelcal.tasks.store import record_drop
     a, b, c = "a" * 64, "b" * 64, "c" * 64
     wh.record_runs([rec(a, "/d/x.csv", status="refused"), rec(b, "/d/y.csv", run_id="R-2"),
                     rec(c, "/e/z.csv", run_id="R-3", status="refused")])

@@ -619,7 +619,9 @@ class Warehouse:
         return {(a, b): KnownFile(a, b, *rest) for a, b, *rest in rows}
 
     def stored_runs(self, keys: list[tuple[str, str]]) -> list[dict[str, Any]]:
-        """Run records by (sha256, source_path), as stored (status/reason of first sight)."""
+        """Run records by (sha256, source_path), as the ``runs`` view has them: the file's
+        row with its latest verdict (the status and reason of the newest validator that
+        judged it), in path order."""
         if not keys:
             return []
         tbl = _arrow({"sha256": [k[0] for k in keys], "source_path": [k[1] for k in keys]})
