@@ -68,6 +68,7 @@ def children_cpu() -> float:
 def run_suite(log: Path) -> dict:
     """Run the README's test command once; its counts, wall and CPU seconds."""
     sha, before = commit(), machine_speed()         # the code that runs, not what HEAD is after
+    start = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     cpu0, t0 = children_cpu(), time.monotonic()
     with log.open("w") as fh:
         rc = subprocess.run(COMMAND, cwd=ROOT, stdout=fh, stderr=subprocess.STDOUT).returncode
@@ -78,7 +79,7 @@ def run_suite(log: Path) -> dict:
     slowest = [(float(m.group(1)), m.group(2)) for ln in text
                if (m := re.match(r"([\d.]+)s (?:call|setup|teardown)\s+\S+::(\S+)", ln))]
     counts = {k: int(n) for n, k in re.findall(r"(\d+) (passed|failed|error|errors|skipped)", tail[0])}
-    return {"commit": sha, "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+    return {"commit": sha, "date": start,
             "command": "python -m pytest -q", "exit": rc, "passed": counts.get("passed", 0),
             "failed": counts.get("failed", 0) + counts.get("error", 0) + counts.get("errors", 0),
             "skipped": counts.get("skipped", 0), "wall_s": round(wall, 1), "cpu_s": round(cpu),
