@@ -53,6 +53,7 @@ def wait_quiet(threshold: float, max_wait_min: float) -> tuple[bool, list[float]
     end = time.monotonic() + 60 * max_wait_min
     while True:
         probes.append(machine_speed())
+        print(f"{datetime.now(timezone.utc):%H:%M:%S} machine_speed {probes[-1]:.2f} CPU s", flush=True)
         if len(probes) >= 2 and max(probes[-2:]) < threshold:
             return True, probes
         if time.monotonic() > end:
@@ -117,7 +118,6 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     if a.wait_quiet:
         quiet, probes = wait_quiet(a.wait_quiet, a.max_wait)
-        print("probes: " + " ".join(f"{p:.2f}" for p in probes), flush=True)
         if not quiet:
             print(f"never quiet (two probes below {a.wait_quiet}) in {a.max_wait:g} min; no run")
             return 75
