@@ -40,6 +40,16 @@ COMMAND = [sys.executable, "-m", "pytest", "-q", "--durations=6"]
 LIMIT_S = 300.0
 
 
+def code_commit() -> str:
+    """The last commit that changed what the suite runs: any file but the README and
+    ``benchmarks/results/``, which this script writes (so a run's README commit does not
+    make the runs before it another commit's); ``+changes`` as :func:`readme_block.commit`."""
+    last = subprocess.run(["git", "log", "-1", "--format=%h", "--", ".", ":!README.md",
+                           ":!benchmarks/results"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    head = commit()
+    return (last or head.split("+")[0]) + ("+changes" if head.endswith("+changes") else "")
+
+
 def machine_speed() -> float:
     """CPU seconds of ``machine_speed.py``'s fixed loop (lower is faster)."""
     out = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "machine_speed.py")],
@@ -68,7 +78,7 @@ def children_cpu() -> float:
 
 def run_suite(log: Path) -> dict:
     """Run the README's test command once; its counts, wall and CPU seconds."""
-    sha, before = commit(), machine_speed()         # the code that runs, not what HEAD is after
+    sha, before = code_commit(), machine_speed()         # the code that runs, not what HEAD is after
     start = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     cpu0, t0 = children_cpu(), time.monotonic()
     with log.open("w") as fh:
