@@ -2,7 +2,7 @@
 """The test suite's time (issue 43: ``python -m pytest -q`` within 5 minutes on the lab's
 quiet 2-core machine), measured as the README quotes it.
 
-    python benchmarks/bench_suite.py [--wait-quiet 2.3] [--max-wait 45] [--readme README.md]
+    python benchmarks/bench_suite.py [--wait-quiet 2.4] [--max-wait 45] [--readme README.md]
 
 1. Optionally waits until the machine is quiet: ``machine_speed.py`` below ``--wait-quiet``
    CPU s twice in a row, probing every 30 s for at most ``--max-wait`` minutes (this VM's
@@ -57,17 +57,18 @@ def machine_speed() -> float:
     return float(out.split()[0])
 
 
-def wait_quiet(threshold: float, max_wait_min: float) -> tuple[bool, list[float]]:
-    """Probe every 30 s until two probes in a row read below *threshold* CPU s."""
+def wait_quiet(threshold: float, max_wait_min: float) -> bool:
+    """Probe every 30 s, printing each probe, until two probes in a row read below
+    *threshold* CPU s (True) or *max_wait_min* minutes have passed (False)."""
     probes: list[float] = []
     end = time.monotonic() + 60 * max_wait_min
     while True:
         probes.append(machine_speed())
         print(f"{datetime.now(timezone.utc):%H:%M:%S} machine_speed {probes[-1]:.2f} CPU s", flush=True)
         if len(probes) >= 2 and max(probes[-2:]) < threshold:
-            return True, probes
+            return True
         if time.monotonic() > end:
-            return False, probes
+            return False
         time.sleep(30)
 
 
@@ -127,8 +128,7 @@ def main(argv=None) -> int:
     ap.add_argument("--readme", type=Path, help="write the runs at this commit into this README")
     a = ap.parse_args(argv)
     if a.wait_quiet:
-        quiet, probes = wait_quiet(a.wait_quiet, a.max_wait)
-        if not quiet:
+        if not wait_quiet(a.wait_quiet, a.max_wait):
             print(f"never quiet (two probes below {a.wait_quiet}) in {a.max_wait:g} min; no run")
             return 75
     r = run_suite(a.log)
